@@ -1,0 +1,43 @@
+"""Environment registry: `envs.make(name)` returns a single-env Brax environment (reset(key), step(state, action))
+with a time limit and auto-reset; batch it with jax.vmap.
+
+Tasks: Brax's MJX ports of the gym MuJoCo benchmarks used in the paper's Figure 1.
+"""
+
+import contextlib
+import io
+import os
+
+os.environ.setdefault("MUJOCO_GL", "disable")  # no renderer needed for training
+
+from envs.wrappers import AutoReset, EpisodeLimit  # noqa: E402
+
+BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")
+NAMES = BRAX_TASKS
+DEFAULT_EPISODE_LENGTH = 1000
+
+
+def check_name(name):
+    if name not in NAMES:
+        raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES)}")
+
+
+def make_base(name):
+    """The unwrapped task (no time limit, no auto-reset)."""
+    check_name(name)
+    with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (GPU-only backend)
+        from brax import envs as brax_envs
+
+    return brax_envs.get_environment(name, backend="mjx")
+
+
+def make(name, episode_length=DEFAULT_EPISODE_LENGTH, auto_reset=True):
+    """Task `name` with a time limit of `episode_length` steps and (by default) Brax-style auto-reset.
+
+    state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
+    episode), and with auto_reset 'final_obs' (the true last observation of the step).
+    """
+    if episode_length < 1:
+        raise ValueError(f"episode_length must be >= 1, got {episode_length}")
+    env = EpisodeLimit(make_base(name), episode_length)
+    return AutoReset(env) if auto_reset else env

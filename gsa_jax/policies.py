@@ -1,0 +1,172 @@
+"""Policies: the mixture of linear-Gaussian controllers (paper Sec. III-C, IV) and the flat Gaussian MLP baseline.
+
+Both are given as a `Policy` of pure functions on one observation (vmap for batches):
+
+    init(key, hp)                          -> params
+    sample(params, obs, key, sched)        -> (action [d_a], cluster int32, log_prob)
+    log_prob(params, obs, action, cluster, sched) -> log pi(c, a | s)
+    mode(params, obs, sched)               -> (action [d_a], cluster): the deterministic controller
+    partition_probs(params, obs, sched)    -> [K_max] (mixture) or [1] (mlp)
+
+`sched` is a dict of traced scalars: K (active clusters, int32), epsilon (uniform
+exploration of the partition), sigma_min (floor of every sub-policy std).
+
+Mixture: pi(c, a | s) = pi_p(c | s) N(a | L_c s + b_c, diag(max(sigma_c, sigma_min)^2)),
+pi_p = (1 - eps) softmax(partition_mlp(s))[active] + eps / K on the K active clusters.
+Params: partition (MLP d_s -> hidden -> K_max), L [K_max, d_a, d_s], b [K_max, d_a],
+log_sigma [K_max, d_a]. Clusters c >= K are masked: probability exactly 0, excluded from
+the uniform part, never sampled; every quantity (init, samples, log-probs, modes) is the
+same for a K inside any K_max >= K.
+"""
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsa_jax.nn import apply_mlp, init_mlp
+
+POLICY_KINDS = ("mixture", "mlp")
+_LOG_2PI = float(np.log(2.0 * np.pi))
+_PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79, 83, 89, 97)
+
+
+class Policy(NamedTuple):
+    kind: str
+    init: Callable
+    sample: Callable
+    log_prob: Callable
+    mode: Callable
+    partition_probs: Callable
+
+
+def halton(n, dim):
+    """First n points of the Halton sequence in [0, 1)^dim (row i depends on i only). [n, dim]."""
+    if dim > len(_PRIMES):
+        raise ValueError(f"halton: dim {dim} > {len(_PRIMES)}")
+    out = np.zeros((n, dim))
+    for j in range(dim):
+        base = _PRIMES[j]
+        for i in range(n):
+            f, r, k = 1.0, 0.0, i
+            while k > 0:
+                f /= base
+                r += f * (k % base)
+                k //= base
+            out[i, j] = r
+    return out
+
+
+def bias_spread(n, action_size, scale=1.0):
+    """Diverse initial biases b_c in [-scale, scale)^d_a: a Halton set shifted by 1/2, so cluster 0 sits
+    at the centre of the action box and the first K points spread over it for every K. [n, d_a]."""
+    return (scale * (2.0 * np.mod(halton(n, action_size) + 0.5, 1.0) - 1.0)).astype(np.float32)
+
+
+def gaussian_log_prob(x, mean, sigma):
+    """Sum over the last axis of log N(x | mean, diag sigma^2)."""
+    z = (x - mean) / sigma
+    return jnp.sum(-0.5 * jnp.square(z) - jnp.log(sigma) - 0.5 * _LOG_2PI, axis=-1)
+
+
+def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_scale=1.0):
+    bias_init = jnp.asarray(bias_spread(k_max, action_size, b_init_scale))
+
+    def init(key, hp):
+        k = jnp.asarray(hp["K"], jnp.float32)
+        return {
+            # zero last layer: uniform partition at init, independent of K_max
+            "partition": init_mlp(key, (obs_size, *hidden, k_max), out_scale=0.0),
+            "L": jnp.zeros((k_max, action_size, obs_size), jnp.float32),
+            "b": bias_init,
+            "log_sigma": jnp.full((k_max, action_size), 1.0, jnp.float32)
+            * jnp.log(hp["sigma_init_scale"] / k),
+        }
+
+    def _log_softmax(params, obs, sched):
+        """Masked logits and their log-softmax: [K_max] each, -inf on masked clusters."""
+        active = jnp.arange(k_max) < sched["K"]
+        logits = jnp.where(active, apply_mlp(params["partition"], obs), -jnp.inf)
+        return jax.nn.log_softmax(logits), logits
+
+    def _log_uniform(sched):
+        return jnp.log(sched["epsilon"]) - jnp.log(sched["K"].astype(jnp.float32))
+
+    def _component(params, obs, c, sched):
+        mean = params["L"][c] @ obs + params["b"][c]
+        sigma = jnp.maximum(jnp.exp(params["log_sigma"][c]), sched["sigma_min"])
+        return mean, sigma
+
+    def partition_probs(params, obs, sched):
+        log_soft, _ = _log_softmax(params, obs, sched)
+        active = jnp.arange(k_max) < sched["K"]
+        uniform = jnp.where(active, sched["epsilon"] / sched["K"].astype(jnp.float32), 0.0)
+        return (1.0 - sched["epsilon"]) * jnp.exp(log_soft) + uniform
+
+    def sample(params, obs, key, sched):
+        k_c, k_a = jax.random.split(key)
+        probs = partition_probs(params, obs, sched)
+        # inverse-CDF draw: masked clusters add exact zeros to the CDF, so the draw is K_max-independent
+        cdf = jnp.cumsum(probs)
+        u = jax.random.uniform(k_c) * cdf[-1]
+        c = jnp.minimum(jnp.sum(cdf < u), sched["K"] - 1).astype(jnp.int32)
+        mean, sigma = _component(params, obs, c, sched)
+        a = mean + sigma * jax.random.normal(k_a, (action_size,))
+        return a, c, log_prob(params, obs, a, c, sched)
+
+    def log_prob(params, obs, action, cluster, sched):
+        # log-space mix of the chosen (always active) cluster only: no -inf - -inf anywhere, so no NaN
+        # can leak into gradients through masked clusters
+        log_soft, _ = _log_softmax(params, obs, sched)
+        log_pc = jnp.logaddexp(jnp.log1p(-sched["epsilon"]) + log_soft[cluster], _log_uniform(sched))
+        mean, sigma = _component(params, obs, cluster, sched)
+        return log_pc + gaussian_log_prob(action, mean, sigma)
+
+    def mode(params, obs, sched):
+        _, logits = _log_softmax(params, obs, sched)
+        c = jnp.argmax(logits).astype(jnp.int32)
+        return params["L"][c] @ obs + params["b"][c], c
+
+    return Policy("mixture", init, sample, log_prob, mode, partition_probs)
+
+
+def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
+    """Flat baseline: mean = tanh-MLP(s), state-independent log-std initialised to 0."""
+
+    def init(key, hp):
+        return {
+            "mlp": init_mlp(key, (obs_size, *hidden, action_size), out_scale=0.01),
+            "log_std": jnp.zeros((action_size,), jnp.float32),
+        }
+
+    def sample(params, obs, key, sched):
+        mean = apply_mlp(params["mlp"], obs)
+        sigma = jnp.exp(params["log_std"])
+        a = mean + sigma * jax.random.normal(key, (action_size,))
+        return a, jnp.zeros((), jnp.int32), gaussian_log_prob(a, mean, sigma)
+
+    def log_prob(params, obs, action, cluster, sched):
+        return gaussian_log_prob(action, apply_mlp(params["mlp"], obs), jnp.exp(params["log_std"]))
+
+    def mode(params, obs, sched):
+        return apply_mlp(params["mlp"], obs), jnp.zeros((), jnp.int32)
+
+    def partition_probs(params, obs, sched):
+        return jnp.ones((1,), jnp.float32)
+
+    return Policy("mlp", init, sample, log_prob, mode, partition_probs)
+
+
+def make_policy(kind, obs_size, action_size, k_max=1, hidden=(64, 64), b_init_scale=1.0):
+    if kind == "mixture":
+        return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale)
+    if kind == "mlp":
+        return make_mlp_policy(obs_size, action_size, hidden)
+    raise ValueError(f"unknown policy {kind!r}; choose one of {', '.join(POLICY_KINDS)}")
+
+
+def partition_entropy(probs):
+    """Entropy of a categorical distribution [..., K] in nats (0 log 0 = 0)."""
+    h = -jnp.sum(jnp.where(probs > 0, probs * jnp.log(jnp.where(probs > 0, probs, 1.0)), 0.0), axis=-1)
+    return jnp.maximum(h, 0.0)  # no "-0.0" for a single cluster

@@ -1,0 +1,350 @@
+"""PPO for the mixture-of-linear and flat-MLP policies, as pure functions.
+
+    trainer = make_train(Config(...))
+    state = trainer.init(key, hp)                       # everything a run carries
+    state, metrics = trainer.run_chunk(state, hp, n)    # n PPO iterations in one lax.scan
+    state, metrics = train(Config(...), key, hp, n)     # a whole run
+
+`Config` is static (it changes shapes or program structure). `hp` is a dict of array
+scalars (see `make_hparams`): everything a sweep varies (seed via the key, K, lr, clip,
+the epsilon and sigma_min schedules, ...) so runs can be vmapped over it.
+
+One iteration: roll out num_envs x unroll_length steps with the current policy; GAE(lambda)
+advantages from a separate value MLP, bootstrapping from the true last observation when
+an episode is cut by the time limit; num_epochs of shuffled minibatches of the clipped
+surrogate on the joint probability pi(c, a | s) plus the value loss; Adam with global-norm
+clipping; then update the observation and return normalizers; epsilon and sigma_min decay
+by their factors every iteration.
+"""
+
+import dataclasses
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+import envs
+from gsa_jax.nn import apply_mlp, init_mlp
+from gsa_jax.normalize import init_stats, normalize, update_stats
+from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
+from gsa_jax.policies import POLICY_KINDS, make_policy, partition_entropy
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Static configuration. Defaults: ~2048 samples per iteration (32 envs x 64 steps), 10 epochs,
+    32 minibatches of 64 -- the PPO paper's MuJoCo setting, with the batch spread over envs."""
+
+    env: str = "inverted_double_pendulum"
+    policy: str = "mixture"
+    k_max: int = 8
+    num_envs: int = 32
+    unroll_length: int = 64
+    num_epochs: int = 10
+    num_minibatches: int = 32
+    hidden: tuple = (64, 64)
+    episode_length: int = 1000
+    normalize_obs: bool = True
+    normalize_reward: bool = True
+    b_init_scale: float = 1.0
+    eval_envs: int = 16
+
+    @property
+    def batch_size(self):
+        return self.num_envs * self.unroll_length
+
+    @property
+    def minibatch_size(self):
+        return self.batch_size // self.num_minibatches
+
+    def validate(self):
+        """Raise ValueError naming the first bad field (before anything is compiled)."""
+        envs.check_name(self.env)
+        if self.policy not in POLICY_KINDS:
+            raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
+        for name in ("k_max", "num_envs", "unroll_length", "num_epochs", "num_minibatches", "episode_length", "eval_envs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.batch_size % self.num_minibatches:
+            raise ValueError(
+                f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"
+            )
+        return self
+
+
+HPARAM_DEFAULTS = {
+    "K": 4,  # active clusters (mixture); must be <= Config.k_max
+    "lr": 3e-4,
+    "anneal_lr": 1.0,  # 1: lr decays linearly to 0 over total_iterations; 0: constant
+    "total_iterations": 1000,
+    "clip_eps": 0.2,
+    "gamma": 0.99,
+    "gae_lambda": 0.95,
+    "vf_coef": 0.5,
+    "max_grad_norm": 0.5,
+    "eps_init": 0.2,  # uniform exploration of the partition policy ...
+    "eps_decay": 0.995,  # ... times this every iteration
+    "sigma_min_init": 0.1,  # floor of every sub-policy std ...
+    "sigma_min_decay": 0.995,  # ... times this every iteration
+    "sigma_init_scale": 1.0,  # initial sub-policy std = sigma_init_scale / K
+}
+_INT_HPARAMS = ("K", "total_iterations")
+
+
+def make_hparams(**overrides):
+    """Hyperparameters as a dict of array scalars (float32; K and total_iterations int32)."""
+    unknown = set(overrides) - set(HPARAM_DEFAULTS)
+    if unknown:
+        raise ValueError(f"unknown hyperparameter(s) {sorted(unknown)}; known: {', '.join(HPARAM_DEFAULTS)}")
+    hp = dict(HPARAM_DEFAULTS, **overrides)
+    return {k: jnp.asarray(v, jnp.int32 if k in _INT_HPARAMS else jnp.float32) for k, v in hp.items()}
+
+
+def validate_hparams(cfg, hp):
+    k = int(hp["K"])
+    if cfg.policy == "mixture" and not 1 <= k <= cfg.k_max:
+        raise ValueError(f"clusters K must be in 1..k_max={cfg.k_max}, got {k}")
+    if not 0.0 <= float(hp["eps_init"]) < 1.0:
+        raise ValueError(f"eps_init must be in [0, 1), got {float(hp['eps_init'])}")
+    for name in ("lr", "clip_eps", "sigma_init_scale", "max_grad_norm"):
+        if not float(hp[name]) > 0:
+            raise ValueError(f"{name} must be > 0, got {float(hp[name])}")
+    for name in ("gamma", "gae_lambda", "eps_decay", "sigma_min_decay"):
+        if not 0.0 <= float(hp[name]) <= 1.0:
+            raise ValueError(f"{name} must be in [0, 1], got {float(hp[name])}")
+    if float(hp["sigma_min_init"]) < 0:
+        raise ValueError(f"sigma_min_init must be >= 0, got {float(hp['sigma_min_init'])}")
+
+
+def schedule(hp, iteration):
+    """Exploration at iteration `iteration` (int32 scalar): K, epsilon, sigma_min."""
+    t = iteration.astype(jnp.float32)
+    return {
+        "K": hp["K"],
+        "epsilon": hp["eps_init"] * hp["eps_decay"] ** t,
+        "sigma_min": hp["sigma_min_init"] * hp["sigma_min_decay"] ** t,
+    }
+
+
+def compute_gae(rewards, values, next_values, terminations, dones, gamma, lam):
+    """GAE(lambda) over time-major arrays [T, ...].
+
+    next_values[t] is V of the true observation after step t (before any auto-reset), so an
+    episode cut by the time limit (done, not terminated) still bootstraps from it; a
+    termination bootstraps from 0. The lambda-recursion stops at every episode end.
+    Returns (advantages, value targets = advantages + values).
+    """
+    deltas = rewards + gamma * (1.0 - terminations) * next_values - values
+
+    def back(acc, x):
+        delta, done = x
+        acc = delta + gamma * lam * (1.0 - done) * acc
+        return acc, acc
+
+    _, adv = jax.lax.scan(back, jnp.zeros_like(values[0]), (deltas, dones), reverse=True)
+    return adv, adv + values
+
+
+class Trainer(NamedTuple):
+    cfg: Config
+    env: object
+    policy: object
+    init: Callable
+    iteration: Callable
+    run_chunk: Callable
+    evaluate: Callable
+    value: Callable
+
+
+def make_train(cfg):
+    """Build the pure functions of one training run for a static Config."""
+    cfg.validate()
+    env = envs.make(cfg.env, cfg.episode_length)
+    eval_env = envs.make(cfg.env, cfg.episode_length, auto_reset=False)
+    obs_size, action_size = env.observation_size, env.action_size
+    policy = make_policy(cfg.policy, obs_size, action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale)
+    n, t_len = cfg.num_envs, cfg.unroll_length
+    v_sample = jax.vmap(policy.sample, in_axes=(None, 0, 0, None))
+    v_log_prob = jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None))
+    v_mode = jax.vmap(policy.mode, in_axes=(None, 0, None))
+    v_probs = jax.vmap(policy.partition_probs, in_axes=(None, 0, None))
+
+    def value(params, obs):
+        return apply_mlp(params, obs)[..., 0]
+
+    def norm_obs(stats, obs):
+        return normalize(stats, obs) if cfg.normalize_obs else obs
+
+    def init(key, hp):
+        k_pol, k_val, k_env, k_run = jax.random.split(key, 4)
+        params = {
+            "policy": policy.init(k_pol, hp),
+            "value": init_mlp(k_val, (obs_size, *cfg.hidden, 1), out_scale=1.0),
+        }
+        return {
+            "params": params,
+            "opt": init_adam(params),
+            "obs_stats": init_stats(obs_size),
+            "ret_stats": init_stats(None),
+            "env_state": jax.vmap(env.reset)(jax.random.split(k_env, n)),
+            "ep_return": jnp.zeros((n,), jnp.float32),
+            "disc_return": jnp.zeros((n,), jnp.float32),
+            "key": k_run,
+            "iteration": jnp.zeros((), jnp.int32),
+        }
+
+    def rollout(state, hp, sched, key):
+        params = state["params"]["policy"]
+
+        def step(carry, k):
+            env_state, ep_ret, disc_ret, fin_sum, fin_cnt = carry
+            obs = norm_obs(state["obs_stats"], env_state.obs)
+            action, cluster, logp = v_sample(params, obs, jax.random.split(k, n), sched)
+            nxt = jax.vmap(env.step)(env_state, jnp.clip(action, -1.0, 1.0))
+            r, done = nxt.reward, nxt.done
+            ep_ret = ep_ret + r
+            fin_sum = fin_sum + jnp.sum(done * ep_ret)
+            fin_cnt = fin_cnt + jnp.sum(done)
+            disc_ret = disc_ret * hp["gamma"] + r
+            tr = {
+                "raw_obs": env_state.obs,
+                "obs": obs,
+                "next_obs": norm_obs(state["obs_stats"], nxt.info["final_obs"]),
+                "action": action,
+                "cluster": cluster,
+                "logp": logp,
+                "reward": r,
+                "done": done,
+                "term": done * (1.0 - nxt.info["truncation"]),
+                "disc_return": disc_ret,
+            }
+            carry = (nxt, ep_ret * (1.0 - done), disc_ret * (1.0 - done), fin_sum, fin_cnt)
+            return carry, tr
+
+        carry0 = (state["env_state"], state["ep_return"], state["disc_return"], 0.0, 0.0)
+        carry, traj = jax.lax.scan(step, carry0, jax.random.split(key, t_len))
+        return carry, traj
+
+    def loss_fn(params, mb, hp, sched):
+        logp = v_log_prob(params["policy"], mb["obs"], mb["action"], mb["cluster"], sched)
+        log_ratio = logp - mb["logp"]
+        ratio = jnp.exp(log_ratio)
+        adv = (mb["adv"] - jnp.mean(mb["adv"])) / (jnp.std(mb["adv"]) + 1e-8)
+        clipped = jnp.clip(ratio, 1.0 - hp["clip_eps"], 1.0 + hp["clip_eps"])
+        pg_loss = -jnp.mean(jnp.minimum(ratio * adv, clipped * adv))
+        v_loss = 0.5 * jnp.mean(jnp.square(value(params["value"], mb["obs"]) - mb["target"]))
+        aux = {
+            "policy_loss": pg_loss,
+            "value_loss": v_loss,
+            "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
+            "clip_fraction": jnp.mean((jnp.abs(ratio - 1.0) > hp["clip_eps"]).astype(jnp.float32)),
+        }
+        return pg_loss + hp["vf_coef"] * v_loss, aux
+
+    def update(params, opt, batch, hp, sched, lr, key):
+        def minibatch(carry, mb):
+            params, opt = carry
+            grads, aux = jax.grad(loss_fn, has_aux=True)(params, mb, hp, sched)
+            grads, gnorm = clip_by_global_norm(grads, hp["max_grad_norm"])
+            params, opt = adam_step(params, grads, opt, lr)
+            return (params, opt), dict(aux, grad_norm=gnorm)
+
+        def epoch(carry, k):
+            perm = jax.random.permutation(k, cfg.batch_size)
+            mbs = jax.tree.map(
+                lambda x: x[perm].reshape((cfg.num_minibatches, cfg.minibatch_size) + x.shape[1:]), batch
+            )
+            return jax.lax.scan(minibatch, carry, mbs)
+
+        (params, opt), stats = jax.lax.scan(epoch, (params, opt), jax.random.split(key, cfg.num_epochs))
+        return params, opt, jax.tree.map(jnp.mean, stats)
+
+    def iteration(state, hp):
+        """One PPO iteration. Returns (new state, dict of scalar metrics)."""
+        it = state["iteration"]
+        sched = schedule(hp, it)
+        key, k_roll, k_upd = jax.random.split(state["key"], 3)
+        (env_state, ep_ret, disc_ret, fin_sum, fin_cnt), traj = rollout(state, hp, sched, k_roll)
+
+        params = state["params"]
+        ret_stats = update_stats(state["ret_stats"], traj["disc_return"])
+        ret_scale = jnp.sqrt(ret_stats["var"] + 1e-8) if cfg.normalize_reward else 1.0
+        values = value(params["value"], traj["obs"])
+        next_values = value(params["value"], traj["next_obs"])
+        adv, target = compute_gae(
+            traj["reward"] / ret_scale, values, next_values, traj["term"], traj["done"], hp["gamma"], hp["gae_lambda"]
+        )
+        batch = {
+            "obs": traj["obs"],
+            "action": traj["action"],
+            "cluster": traj["cluster"],
+            "logp": traj["logp"],
+            "adv": adv,
+            "target": target,
+        }
+        batch = jax.tree.map(lambda x: x.reshape((cfg.batch_size,) + x.shape[2:]), batch)
+        frac = it.astype(jnp.float32) / jnp.maximum(hp["total_iterations"], 1).astype(jnp.float32)
+        lr = hp["lr"] * (1.0 - hp["anneal_lr"] * jnp.clip(frac, 0.0, 1.0))
+        new_params, opt, stats = update(params, state["opt"], batch, hp, sched, lr, k_upd)
+
+        probs = v_probs(params["policy"], traj["obs"].reshape(-1, obs_size), sched)
+        usage = jnp.mean(jax.nn.one_hot(traj["cluster"].reshape(-1), probs.shape[-1]), axis=0)
+        new_state = {
+            "params": new_params,
+            "opt": opt,
+            "obs_stats": update_stats(state["obs_stats"], traj["raw_obs"]) if cfg.normalize_obs else state["obs_stats"],
+            "ret_stats": ret_stats,
+            "env_state": env_state,
+            "ep_return": ep_ret,
+            "disc_return": disc_ret,
+            "key": key,
+            "iteration": it + 1,
+        }
+        metrics = {
+            "iteration": it + 1,
+            "env_steps": (it + 1) * cfg.batch_size,
+            "episode_return": jnp.where(fin_cnt > 0, fin_sum / jnp.maximum(fin_cnt, 1.0), jnp.nan),
+            "episodes": fin_cnt,
+            "epsilon": sched["epsilon"],
+            "sigma_min": sched["sigma_min"],
+            "lr": lr,
+            "partition_entropy": jnp.mean(partition_entropy(probs)),
+            "clusters_used": jnp.sum(usage >= 0.01).astype(jnp.int32),
+            **stats,
+        }
+        return new_state, metrics
+
+    def run_chunk(state, hp, num_iterations):
+        """num_iterations (static) PPO iterations in one lax.scan; metrics stacked [num_iterations]."""
+        return jax.lax.scan(lambda s, _: iteration(s, hp), state, None, length=num_iterations)
+
+    def evaluate(params, obs_stats, hp, key):
+        """Mean return of the deterministic controller (most probable cluster, mean action) over
+        cfg.eval_envs full episodes from random starts."""
+        sched = schedule(hp, jnp.zeros((), jnp.int32))
+        s0 = jax.vmap(eval_env.reset)(jax.random.split(key, cfg.eval_envs))
+
+        def cond(carry):
+            _, _, alive, t = carry
+            return (t < cfg.episode_length) & jnp.any(alive > 0)
+
+        def body(carry):
+            s, ret, alive, t = carry
+            action, _ = v_mode(params["policy"], norm_obs(obs_stats, s.obs), sched)
+            s = jax.vmap(eval_env.step)(s, jnp.clip(action, -1.0, 1.0))
+            ret = ret + alive * s.reward
+            return s, ret, alive * (1.0 - s.done), t + 1
+
+        # stop once every episode has ended: stepping finished envs is wasted work (and fallen
+        # bodies pressed against limits make MJX's solver loop run long)
+        zeros = jnp.zeros((cfg.eval_envs,), jnp.float32)
+        _, ret, _, _ = jax.lax.while_loop(cond, body, (s0, zeros, zeros + 1.0, jnp.zeros((), jnp.int32)))
+        return jnp.mean(ret)
+
+    return Trainer(cfg, env, policy, init, iteration, run_chunk, evaluate, value)
+
+
+def train(cfg, key, hp, num_iterations):
+    """A whole run as one pure function: (final state, metrics stacked over iterations)."""
+    trainer = make_train(cfg)
+    return trainer.run_chunk(trainer.init(key, hp), hp, num_iterations)

@@ -1,0 +1,51 @@
+"""What every results file records: library versions, git commit, machine."""
+
+import datetime
+import os
+import platform
+import subprocess
+import sys
+from importlib import metadata
+
+
+def _version(dist):
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def git_commit():
+    """HEAD of the repository this package lives in, with '-dirty' if the tree has uncommitted changes."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True, timeout=10
+        )
+        return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def run_metadata():
+    import jax
+
+    return {
+        "versions": {
+            "jax": jax.__version__,
+            "jaxlib": _version("jaxlib"),
+            "mujoco": _version("mujoco"),
+            "mujoco_mjx": _version("mujoco-mjx"),
+            "brax": _version("brax"),
+            "numpy": _version("numpy"),
+            "python": sys.version.split()[0],
+        },
+        "git_commit": git_commit(),
+        "platform": platform.platform(),
+        "devices": [str(d) for d in jax.devices()],
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "started_at": datetime.datetime.now().isoformat(timespec="seconds"),
+    }
