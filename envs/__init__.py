@@ -10,7 +10,8 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # no renderer needed for training
 
-from envs.wrappers import AutoReset, EpisodeLimit  # noqa: E402
+with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
+    from envs.wrappers import AutoReset, EpisodeLimit  # noqa: E402
 
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")
 NAMES = BRAX_TASKS
@@ -25,7 +26,7 @@ def check_name(name):
 def make_base(name):
     """The unwrapped task (no time limit, no auto-reset)."""
     check_name(name)
-    with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (GPU-only backend)
+    with contextlib.redirect_stdout(io.StringIO()):
         from brax import envs as brax_envs
 
     return brax_envs.get_environment(name, backend="mjx")

@@ -17,6 +17,15 @@ class EpisodeLimit(Wrapper):
     def __init__(self, env, episode_length):
         super().__init__(env)
         self.episode_length = int(episode_length)
+        self._obs_size = None
+
+    @property
+    def observation_size(self):
+        # Brax computes this by running reset() eagerly, op by op (~20 s of tiny compiles for MJX
+        # hopper on a CPU); tracing it with eval_shape costs milliseconds.
+        if self._obs_size is None:
+            self._obs_size = int(jax.eval_shape(self.env.reset, jax.random.PRNGKey(0)).obs.shape[-1])
+        return self._obs_size
 
     def reset(self, rng):
         state = self.env.reset(rng)

@@ -62,6 +62,8 @@ def build_parser():
     p.add_argument("--eval-every", type=int, default=None, help="iterations between deterministic evaluations (0: none; default ~10 per run)")
     p.add_argument("--eval-envs", type=int, default=Config.eval_envs)
     p.add_argument("--chunk", type=int, default=None, help="PPO iterations per compiled chunk (default: auto)")
+    p.add_argument("--stop-after", type=int, default=None,
+                   help="stop (resumably) after this many iterations in this invocation; continue with --resume")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
 
@@ -104,6 +106,8 @@ def resolve(args):
     eval_every = args.eval_every if args.eval_every is not None else max(chunk, iterations // 10)
     if eval_every < 0:
         raise UsageError(f"--eval-every must be >= 0, got {eval_every}")
+    if args.stop_after is not None and args.stop_after < 1:
+        raise UsageError(f"--stop-after must be >= 1, got {args.stop_after}")
     return cfg, hp, iterations, chunk, eval_every
 
 
@@ -171,10 +175,10 @@ def main(argv=None):
     except (UsageError, ValueError) as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
-    return run(cfg, hp, iterations, chunk, eval_every, args.seed, out, args.resume, args.quiet, argv)
+    return run(cfg, hp, iterations, chunk, eval_every, args.seed, out, args.resume, args.quiet, argv, args.stop_after)
 
 
-def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=False, argv=None):
+def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=False, argv=None, stop_after=None):
     import jax
     import numpy as np
 
@@ -224,12 +228,16 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
         rows = [r for r in read_rows(metrics_path) if int(r["iteration"]) <= done_its]
         log(f"resumed at iteration {done_its} from {state_path}")
     start_it = done_it = int(state["iteration"])  # host copy: `state` is donated to each chunk
+    if not os.path.exists(params_path):  # the initial parameters: "last good" even if chunk 1 diverges
+        save_pytree(params_path, {k: state[k] for k in ("params", "obs_stats")},
+                    **{"meta/config_json": np.array(json.dumps(config))})
+    stop_at = iterations if stop_after is None else min(iterations, start_it + stop_after)
     eval_key = jax.random.PRNGKey(seed + 1_000_003)
     t_train, eval_s, steps_run = time.perf_counter(), 0.0, 0
     status = 0
     interrupted = False
     try:
-        while done_it < iterations:
+        while done_it < stop_at:
             t_chunk = time.perf_counter()
             new_state, metrics = run_chunk(state, hp)
             metrics = jax.device_get(metrics)
@@ -292,10 +300,12 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
         "iterations_done": done_it,
         "final_episode_return": float(last[-1]["episode_return"]) if last else None,
         "final_eval_return": next((float(r["eval_return"]) for r in reversed(rows) if r["eval_return"] != ""), None),
-        "status": "nan" if status == 1 else "interrupted" if interrupted else "finished",
+        "status": "nan" if status == 1 else "interrupted" if interrupted or done_it < iterations else "finished",
     }
     write_atomic(config_path, json.dumps(config, indent=2))
-    if status == 0:
+    if status == 0 and done_it < iterations:
+        log(f"stopped at iteration {done_it}/{iterations} as asked; continue with --resume --out {out}")
+    elif status == 0:
         log(f"done: {steps_run:,} steps in {_duration(total)} (compile {compile_s:.1f}s, "
             f"{config['timing']['env_steps_per_s']:,.0f} steps/s); final return "
             f"{_fmt(config['result']['final_episode_return'], '.1f')}, eval {_fmt(config['result']['final_eval_return'], '.1f')}; "

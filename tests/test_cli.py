@@ -1,0 +1,99 @@
+"""`python -m gsa_jax.train`: bad input, outputs, interrupt + resume, NaN handling."""
+
+import csv
+import json
+import os
+
+import numpy as np
+import pytest
+
+from gsa_jax.train import METRIC_COLUMNS, main
+
+SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--minibatches", "8", "--epochs", "2",
+         "--episode-length", "200", "--chunk", "1", "--eval-every", "2", "--eval-envs", "4", "--quiet"]
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--env", "pong"], "unknown env 'pong'; choose one of inverted_double_pendulum, hopper"),
+        (["--policy", "rbf"], "unknown --policy 'rbf'; choose mixture or mlp"),
+        (["--clusters", "0"], "--clusters must be >= 1"),
+        (["--clusters", "8", "--k-max", "4"], "--clusters 8 exceeds --k-max 4"),
+        (["--steps", "0"], "--steps must be positive"),
+        (["--num-envs", "10", "--unroll-length", "3", "--minibatches", "4"], "is not divisible by --minibatches = 4"),
+        (["--out", "/proc/nope"], "is not writable"),
+        (["--eps-init", "1.5"], "eps_init must be in [0, 1)"),
+    ],
+)
+def test_bad_input_one_line_error(argv, message, capsys, tmp_path):
+    if "--out" not in argv:
+        argv = argv + ["--out", str(tmp_path / "run")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err, err
+
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def strip_wall(rows):
+    return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "full"
+    assert main(SMALL + ["--out", str(out)]) == 0
+    return out
+
+
+def test_outputs(full_run):
+    names = set(os.listdir(full_run))
+    assert {"config.json", "metrics.csv", "params.npz", "state.npz", "curve.png"} <= names
+    rows = read_csv(full_run / "metrics.csv")
+    assert list(rows[0]) == list(METRIC_COLUMNS) and len(rows) == 4
+    assert [int(r["env_steps"]) for r in rows] == [512, 1024, 1536, 2048]
+    assert [r["eval_return"] != "" for r in rows] == [False, True, False, True]
+    cfg = json.loads((full_run / "config.json").read_text())
+    assert cfg["versions"]["jax"] and cfg["versions"]["mujoco"] and "git_commit" in cfg
+    assert cfg["config"]["env"] == "inverted_double_pendulum" and cfg["hparams"]["K"] == 4
+    assert cfg["result"]["status"] == "finished" and cfg["timing"]["compile_s"] > 0
+    with np.load(full_run / "params.npz") as p:
+        keys = set(p.files)
+    assert "['params']['policy']['L']" in keys and "['obs_stats']['mean']" in keys
+
+
+def test_existing_out_needs_resume(full_run, capsys):
+    assert main(SMALL + ["--out", str(full_run)]) == 2
+    assert "already holds a run; pass --resume" in capsys.readouterr().err
+
+
+def test_interrupt_then_resume_equals_uninterrupted(full_run, tmp_path):
+    out = tmp_path / "split"
+    assert main(SMALL + ["--out", str(out), "--stop-after", "2"]) == 0
+    assert len(read_csv(out / "metrics.csv")) == 2
+    assert json.loads((out / "config.json").read_text())["result"]["status"] == "interrupted"
+    assert main(SMALL + ["--out", str(out), "--resume"]) == 0
+    assert strip_wall(read_csv(out / "metrics.csv")) == strip_wall(read_csv(full_run / "metrics.csv"))
+    with np.load(out / "params.npz") as a, np.load(full_run / "params.npz") as b:
+        for k in a.files:
+            if not k.startswith("meta/"):
+                np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_resume_with_other_config_refused(full_run, capsys):
+    assert main(SMALL[:-1] + ["--seed", "5", "--out", str(full_run), "--resume"]) == 2
+    assert "different seed" in capsys.readouterr().err
+
+
+def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):
+    out = tmp_path / "nan"
+    assert main(SMALL + ["--out", str(out), "--lr", "1e30", "--no-anneal-lr"]) == 1
+    err = capsys.readouterr().err
+    assert "NaN/inf" in err and "Last good parameters" in err
+    with np.load(out / "params.npz") as p:
+        assert all(np.all(np.isfinite(p[k])) for k in p.files if not k.startswith("meta/"))
+    assert json.loads((out / "config.json").read_text())["result"]["status"] == "nan"

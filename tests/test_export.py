@@ -1,0 +1,62 @@
+"""Export round trip: the NumPy controller acts like the JAX deterministic policy."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsa_jax import numpy_policy
+from gsa_jax.checkpoint import save_pytree
+from gsa_jax.export import main as export_main
+from gsa_jax.normalize import normalize
+from gsa_jax.policies import make_policy
+
+D_S, D_A = 6, 2
+
+
+def fake_run(tmp_path, kind, K, k_max):
+    """A run directory as train.py writes it, with trained-looking (random) parameters."""
+    pol = make_policy(kind, D_S, D_A, k_max)
+    params = pol.init(jax.random.PRNGKey(0), {"K": jnp.int32(K), "sigma_init_scale": jnp.float32(1.0)})
+    leaves, tdef = jax.tree.flatten(params)
+    keys = jax.random.split(jax.random.PRNGKey(1), len(leaves))
+    params = jax.tree.unflatten(tdef, [jax.random.normal(k, x.shape) for k, x in zip(keys, leaves)])
+    stats = {"count": jnp.float32(100.0), "mean": jnp.linspace(-1, 1, D_S), "var": jnp.linspace(0.5, 3, D_S)}
+    run = tmp_path / f"{kind}-run"
+    run.mkdir()
+    save_pytree(str(run / "params.npz"), {"params": {"policy": params}, "obs_stats": stats})
+    (run / "config.json").write_text(json.dumps({"config": {"policy": kind, "normalize_obs": True}, "hparams": {"K": K}, "seed": 0}))
+    return pol, params, stats, run
+
+
+@pytest.mark.parametrize("kind, K, k_max", [("mixture", 3, 8), ("mixture", 1, 1), ("mlp", 1, 1)])
+def test_numpy_controller_matches_jax(tmp_path, kind, K, k_max, capsys):
+    pol, params, stats, run = fake_run(tmp_path, kind, K, k_max)
+    out = tmp_path / "controller.npz"
+    assert export_main([str(run), "--out", str(out)]) == 0
+    ctrl = numpy_policy.load(str(out))
+    obs = np.random.default_rng(0).normal(scale=3.0, size=(500, D_S)).astype(np.float32)
+    sched = {"K": jnp.int32(K), "epsilon": jnp.float32(0.1), "sigma_min": jnp.float32(0.0)}
+    a_jax, c_jax = jax.vmap(pol.mode, in_axes=(None, 0, None))(params, normalize(stats, jnp.asarray(obs)), sched)
+    np.testing.assert_allclose(ctrl.act(obs), np.asarray(a_jax), rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(ctrl.cluster(obs), np.asarray(c_jax))
+    assert ctrl.act(obs[0]).shape == (D_A,)  # single observation
+    if kind == "mixture":
+        assert ctrl.num_clusters == K and set(np.unique(ctrl.cluster(obs))) <= set(range(K))
+
+
+def test_export_bad_run_dir(tmp_path, capsys):
+    assert export_main([str(tmp_path / "missing")]) == 2
+    assert "is not a directory" in capsys.readouterr().err
+    assert export_main([str(tmp_path)]) == 2
+    assert "is not a gsa_jax run: config.json is missing" in capsys.readouterr().err
+
+
+def test_numpy_policy_imports_without_jax():
+    import subprocess
+    import sys
+
+    code = "import sys; import gsa_jax.numpy_policy; assert 'jax' not in sys.modules, 'jax was imported'"
+    subprocess.run([sys.executable, "-c", code], check=True)

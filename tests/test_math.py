@@ -1,0 +1,102 @@
+"""GAE, Adam, clipping, running statistics and checkpoints against hand/NumPy references."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsa_jax.checkpoint import load_pytree, save_pytree
+from gsa_jax.normalize import init_stats, normalize, update_stats
+from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
+from gsa_jax.ppo import compute_gae
+
+
+def test_gae_hand_computed_truncation_vs_termination():
+    """One env, 4 steps. Step 1 ends by the time limit (bootstrap from V(final obs)=10),
+    step 3 by termination (bootstrap 0). gamma=0.5, lambda=0.5 so the numbers are exact."""
+    g, lam = 0.5, 0.5
+    r = jnp.array([[1.0], [2.0], [3.0], [4.0]])
+    v = jnp.array([[1.0], [1.0], [2.0], [2.0]])
+    nv = jnp.array([[1.0], [10.0], [2.0], [7.0]])  # V(next obs); at t=1 the true final obs before reset
+    term = jnp.array([[0.0], [0.0], [0.0], [1.0]])
+    done = jnp.array([[0.0], [1.0], [0.0], [1.0]])
+    adv, target = compute_gae(r, v, nv, term, done, g, lam)
+    # deltas: t0: 1+.5*1-1 = .5 ; t1: 2+.5*10-1 = 6 ; t2: 3+.5*2-2 = 2 ; t3: 4+0-2 = 2
+    # A3 = 2 ; A2 = 2 + .25*A3 = 2.5 ; A1 = 6 (episode end) ; A0 = .5 + .25*6 = 2
+    np.testing.assert_allclose(np.asarray(adv[:, 0]), [2.0, 6.0, 2.5, 2.0])
+    np.testing.assert_allclose(np.asarray(target[:, 0]), [3.0, 7.0, 4.5, 4.0])
+    # the same step 1 as a termination instead: no bootstrap
+    adv_t, _ = compute_gae(r, v, nv, term.at[1, 0].set(1.0), done, g, lam)
+    np.testing.assert_allclose(float(adv_t[1, 0]), 1.0)
+    np.testing.assert_allclose(float(adv_t[0, 0]), 0.5 + 0.25 * 1.0)
+
+
+def test_gae_lambda_one_is_discounted_return_minus_value():
+    rng = np.random.default_rng(0)
+    T, g = 7, 0.9
+    r = rng.normal(size=(T, 3)).astype(np.float32)
+    v = rng.normal(size=(T, 3)).astype(np.float32)
+    nv = np.concatenate([v[1:], rng.normal(size=(1, 3)).astype(np.float32)])
+    zeros = np.zeros_like(r)
+    adv, _ = compute_gae(jnp.asarray(r), jnp.asarray(v), jnp.asarray(nv), zeros, zeros, g, 1.0)
+    ret = nv[-1].astype(np.float64)
+    expect = np.zeros((T, 3))
+    for t in reversed(range(T)):
+        ret = r[t] + g * ret
+        expect[t] = ret - v[t]
+    np.testing.assert_allclose(np.asarray(adv), expect, rtol=1e-5, atol=1e-5)
+
+
+def test_adam_matches_numpy_reference():
+    rng = np.random.default_rng(0)
+    p_np = {"a": rng.normal(size=(3, 2)), "b": rng.normal(size=(4,))}
+    params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), p_np)
+    state = init_adam(params)
+    m = jax.tree.map(np.zeros_like, p_np)
+    v = jax.tree.map(np.zeros_like, p_np)
+    lr, b1, b2, eps = 0.01, 0.9, 0.999, 1e-8
+    step = jax.jit(adam_step)
+    for t in range(1, 6):
+        g_np = jax.tree.map(lambda x: rng.normal(size=x.shape), p_np)
+        params, state = step(params, jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), g_np), state, lr)
+        for k in p_np:
+            m[k] = b1 * m[k] + (1 - b1) * g_np[k]
+            v[k] = b2 * v[k] + (1 - b2) * g_np[k] ** 2
+            p_np[k] = p_np[k] - lr * (m[k] / (1 - b1**t)) / (np.sqrt(v[k] / (1 - b2**t)) + eps)
+        for k in p_np:
+            np.testing.assert_allclose(np.asarray(params[k]), p_np[k], rtol=1e-5, atol=1e-6)
+    assert int(state["count"]) == 5
+
+
+def test_clip_by_global_norm():
+    g = {"a": jnp.array([3.0, 0.0]), "b": jnp.array([[4.0]])}
+    clipped, norm = clip_by_global_norm(g, 1.0)
+    np.testing.assert_allclose(float(norm), 5.0)
+    np.testing.assert_allclose(np.asarray(clipped["a"]), [0.6, 0.0], rtol=1e-6)
+    unchanged, _ = clip_by_global_norm(g, 10.0)
+    np.testing.assert_allclose(np.asarray(unchanged["b"]), [[4.0]])
+
+
+def test_running_stats_match_numpy():
+    rng = np.random.default_rng(0)
+    batches = [rng.normal(loc=3.0, scale=2.0, size=(n, 4)) for n in (5, 50, 17)]
+    stats = init_stats(4)
+    for b in batches:
+        stats = update_stats(stats, jnp.asarray(b, jnp.float32))
+    allx = np.concatenate(batches)
+    np.testing.assert_allclose(np.asarray(stats["mean"]), allx.mean(0), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(stats["var"]), allx.var(0), rtol=1e-3)
+    z = normalize(stats, jnp.asarray(allx, jnp.float32))
+    np.testing.assert_allclose(np.asarray(z).mean(0), 0.0, atol=1e-3)
+    scalar = update_stats(init_stats(None), jnp.asarray(allx[:, 0], jnp.float32).reshape(9, 8))
+    np.testing.assert_allclose(float(scalar["mean"]), allx[:, 0].mean(), rtol=1e-4)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    tree = {"p": [{"w": jnp.arange(6.0).reshape(2, 3), "b": jnp.zeros(3)}], "k": jnp.int32(7)}
+    path = tmp_path / "x.npz"
+    save_pytree(str(path), tree)
+    back = load_pytree(str(path), tree)
+    for a, b in zip(jax.tree.leaves(tree), jax.tree.leaves(back)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        assert np.asarray(a).dtype == np.asarray(b).dtype
+    assert [p.name for p in tmp_path.iterdir()] == ["x.npz"]  # no temp file left behind
