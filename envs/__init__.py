@@ -7,6 +7,7 @@ Tasks: Brax's MJX ports of the gym MuJoCo benchmarks used in the paper's Figure 
 import contextlib
 import io
 import os
+import warnings
 
 os.environ.setdefault("MUJOCO_GL", "disable")  # no renderer needed for training
 
@@ -28,8 +29,26 @@ def make_base(name):
     check_name(name)
     with contextlib.redirect_stdout(io.StringIO()):
         from brax import envs as brax_envs
+    with warnings.catch_warnings(), _process_local_devices():
+        warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
+        return brax_envs.get_environment(name, backend="mjx")
 
-    return brax_envs.get_environment(name, backend="mjx")
+
+@contextlib.contextmanager
+def _process_local_devices():
+    """mjx.put_model places the model on jax.devices()[0], which in a multi-process (jax.distributed) run
+    is process 0's device; while an env is built, let jax.devices() name this process's devices."""
+    import jax
+
+    if jax.process_count() == 1:
+        yield
+        return
+    original = jax.devices
+    jax.devices = lambda backend=None: jax.local_devices(backend=backend)
+    try:
+        yield
+    finally:
+        jax.devices = original
 
 
 def make(name, episode_length=DEFAULT_EPISODE_LENGTH, auto_reset=True):

@@ -342,6 +342,7 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
         save_npz_atomic(metrics_path, __done__=np.array(done), **{k: v[:, :done] for k, v in metrics.items()})
         if heartbeat:
             heartbeat(time.perf_counter() - tc)
+        _maybe_inject_hang(gdir, chunks_run)
         sps = steps_run / (time.perf_counter() - t_train)
         last = metrics["episode_return"][: len(runs), max(0, done - chunk):done]
         recent = np.array([np.nanmean(row) if np.any(np.isfinite(row)) else np.nan for row in last])
@@ -358,6 +359,16 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
     if os.path.exists(state_path):
         os.unlink(state_path)  # the full state is only needed to resume
     return done, iterations, metrics, runs
+
+
+def _maybe_inject_hang(gdir, chunks_run):
+    """Fault injection for the watchdog test: with GSA_JAX_FAULT_HANG_AFTER_CHUNKS=N the worker stalls
+    (like an XLA:CPU hang: alive, no progress) once, after its N-th chunk in a group."""
+    n = os.environ.get("GSA_JAX_FAULT_HANG_AFTER_CHUNKS")
+    marker = os.path.join(gdir, ".fault_injected")
+    if n and chunks_run == int(n) and not os.path.exists(marker):
+        write_atomic(marker, "1")
+        time.sleep(1e9)
 
 
 def write_tidy(out, spec, results):
@@ -530,6 +541,9 @@ def main(argv=None):
 
     if args.num_processes > 1 and args.coordinator:
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+        # eager arrays (the MJX model Brax builds) would otherwise land on global device 0, which
+        # belongs to process 0; each process works on its own devices only
+        jax.config.update("jax_default_device", jax.local_devices()[0])
     devices = jax.local_devices()
     if args.devices is not None:
         if not 1 <= args.devices <= len(devices):

@@ -1,0 +1,182 @@
+"""Paper-style figures of a sweep: `python -m gsa_jax.plot <sweep dir> [--out fig.png]`.
+
+Merges every metrics.csv under the directory (one per worker process or host), then draws, per
+env, the mean training return vs env steps for flat PPO and each K (95% confidence band over
+seeds, Student t), like the paper's Figure 1. Also writes `final_returns.csv`: per cell, the mean
+return over the last 10% of iterations, averaged over seeds, with its 95% interval.
+"""
+
+import argparse
+import csv
+import glob
+import math
+import os
+import sys
+from collections import defaultdict
+
+import numpy as np
+
+# two-sided 95% Student t quantiles by degrees of freedom (1..30); beyond, 1.96
+_T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
+        2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042]
+_ID_COLS = ("env", "policy", "K", "seed", "run")
+_METRIC_COLS = {"iteration", "env_steps", "episode_return", "episodes", "epsilon", "sigma_min", "lr", "policy_loss",
+                "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used"}
+
+
+def t95(n):
+    return _T95[n - 2] if 2 <= n <= 31 else 1.96
+
+
+def load_sweep(sweep_dir):
+    """All tidy rows under sweep_dir -> {cell: {seed: (env_steps [T], returns [T])}}, cell = (env, policy, K, extra...)."""
+    paths = sorted(glob.glob(os.path.join(sweep_dir, "**", "metrics.csv"), recursive=True))
+    if not paths:
+        raise FileNotFoundError(f"no metrics.csv under {sweep_dir!r} (is it a sweep directory?)")
+    series = defaultdict(lambda: defaultdict(list))
+    for path in paths:
+        with open(path) as f:
+            reader = csv.DictReader(f)
+            if reader.fieldnames is None or not set(_ID_COLS) <= set(reader.fieldnames):
+                continue  # a single-run metrics.csv (train.py) or foreign file
+            extra = [c for c in reader.fieldnames if c not in _ID_COLS and c not in _METRIC_COLS]
+            for r in reader:
+                cell = (r["env"], r["policy"], int(r["K"])) + tuple((c, r[c]) for c in extra)
+                ret = float(r["episode_return"]) if r["episode_return"] != "" else math.nan
+                series[cell][int(r["seed"])].append((int(r["env_steps"]), ret))
+    out = {}
+    for cell, seeds in series.items():
+        out[cell] = {}
+        for seed, pts in seeds.items():
+            pts.sort()
+            out[cell][seed] = (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
+    if not out:
+        raise FileNotFoundError(f"no sweep metrics.csv under {sweep_dir!r}")
+    return out
+
+
+def smooth(y, window):
+    """Trailing mean over `window` iterations, ignoring NaN (iterations where no episode ended)."""
+    if window <= 1:
+        return y
+    ok = np.isfinite(y)
+    c = np.concatenate([[0.0], np.cumsum(np.where(ok, y, 0.0))])
+    n = np.concatenate([[0], np.cumsum(ok)])
+    idx = np.arange(1, len(y) + 1)
+    lo = np.maximum(0, idx - window)
+    cnt = n[idx] - n[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, (c[idx] - c[lo]) / np.maximum(cnt, 1), np.nan)
+
+
+def cell_label(cell, action_dims):
+    env, policy, k = cell[:3]
+    extra = "".join(f", {c}={v}" for c, v in cell[3:])
+    if policy == "mlp":
+        return "flat PPO (MLP 64x64)" + extra
+    d_a = action_dims.get(env)
+    mult = f" ({k / d_a:g} d_a)" if d_a else ""
+    return f"K={k}{mult}" + extra
+
+
+def cell_curve(seeds, window):
+    """Mean and 95% half-width over seeds of smoothed returns, on the common env_steps grid."""
+    length = min(len(x) for x, _ in seeds.values())
+    xs = next(iter(seeds.values()))[0][:length]
+    ys = np.stack([smooth(y[:length], window) for _, y in seeds.values()])
+    n = np.sum(np.isfinite(ys), axis=0)
+    mean = np.nanmean(np.where(np.isfinite(ys), ys, np.nan), axis=0) if ys.size else ys
+    sd = np.nanstd(ys, axis=0, ddof=1) if ys.shape[0] > 1 else np.zeros_like(mean)
+    half = np.array([t95(k) for k in n]) * sd / np.sqrt(np.maximum(n, 1))
+    return xs, mean, half, ys
+
+
+def final_table(data, action_dims):
+    rows = []
+    for cell, seeds in sorted(data.items(), key=lambda kv: (kv[0][0], kv[0][1] != "mlp", kv[0][2], kv[0][3:])):
+        finals = []
+        for _, y in seeds.values():
+            tail = y[-max(1, len(y) // 10):]
+            if np.any(np.isfinite(tail)):
+                finals.append(np.nanmean(tail))
+        finals = np.array(finals)
+        n = len(finals)
+        half = t95(n) * finals.std(ddof=1) / math.sqrt(n) if n > 1 else math.nan
+        env, policy, k = cell[:3]
+        rows.append({"env": env, "policy": policy, "K": k if policy == "mixture" else "",
+                     "K_over_action_dim": round(k / action_dims[env], 3) if policy == "mixture" and env in action_dims else "",
+                     **{c: v for c, v in cell[3:]}, "seeds": n, "final_return_mean": round(float(finals.mean()), 2) if n else "",
+                     "ci95_halfwidth": round(float(half), 2) if n > 1 else "", "env_steps": int(next(iter(seeds.values()))[0][-1])})
+    return rows
+
+
+def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data = load_sweep(sweep_dir)
+    if action_dims is None:
+        action_dims = {}
+        for env_name in {c[0] for c in data}:
+            try:
+                import envs
+
+                action_dims[env_name] = envs.make_base(env_name).action_size
+            except Exception:  # noqa: BLE001 - a label detail; plotting must not fail on it
+                pass
+    env_names = list(dict.fromkeys(c[0] for c in sorted(data)))
+    ncols = min(3, len(env_names))
+    nrows = math.ceil(len(env_names) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.9 * nrows), squeeze=False)
+    for ax, env_name in zip(axes.flat, env_names):
+        cells = sorted((c for c in data if c[0] == env_name), key=lambda c: (c[1] != "mlp", c[2], c[3:]))
+        for i, cell in enumerate(cells):
+            seeds = data[cell]
+            w = window or max(1, len(next(iter(seeds.values()))[0]) // 50)
+            xs, mean, half, _ = cell_curve(seeds, w)
+            style = dict(color="black", lw=2.0) if cell[1] == "mlp" else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
+            ax.plot(xs, mean, label=f"{cell_label(cell, action_dims)} (n={len(seeds)})", **style)
+            ax.fill_between(xs, mean - half, mean + half, alpha=0.18, color=style["color"], lw=0)
+        ax.set_title(env_name)
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel("episode return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    for ax in list(axes.flat)[len(env_names):]:
+        ax.axis("off")
+    fig.suptitle("Flat PPO vs mixtures of K linear controllers (mean, 95% CI over seeds)", fontsize=11)
+    fig.tight_layout()
+    out_png = out_png or os.path.join(sweep_dir, "figure.png")
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    rows = final_table(data, action_dims)
+    table_path = os.path.join(os.path.dirname(os.path.abspath(out_png)), "final_returns.csv")
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    with open(table_path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols)
+        w.writeheader()
+        w.writerows(rows)
+    return out_png, table_path, rows
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.plot", description=__doc__.split("\n")[0])
+    p.add_argument("sweep_dir")
+    p.add_argument("--out", default=None, help="PNG path (default <sweep_dir>/figure.png)")
+    p.add_argument("--window", type=int, default=None, help="smoothing window in iterations (default: 2%% of the run)")
+    args = p.parse_args(argv)
+    try:
+        png, table, rows = plot_sweep(args.sweep_dir, args.out, args.window)
+    except FileNotFoundError as e:
+        print(f"gsa_jax.plot: error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {png} and {table}")
+    for r in rows:
+        print("  " + "  ".join(f"{k}={v}" for k, v in r.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
