@@ -4,7 +4,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test sweep figures bench bench-quick clean
+EXP ?= experiments/fig1_small.toml
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -22,9 +23,21 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests -m "not benchmark"
 
-## bench: the long measurements (tests marked benchmark)
+## sweep: train an experiment's whole grid as vmapped programs (make sweep EXP=experiments/fig1.toml)
+sweep: $(STAMP)
+	$(BIN)/python -m gsa_jax.sweep $(EXP)
+
+## figures: the paper-style figure and final-return table of a sweep (make figures SWEEP=runs/sweeps/fig1_small)
+SWEEP ?= runs/sweeps/$(basename $(notdir $(EXP)))
+figures: $(STAMP)
+	$(BIN)/python -m gsa_jax.plot $(SWEEP)
+
+## bench: sweep throughput vs MuJoCo C on this machine (~20 min; bench-quick ~3 min)
 bench: $(STAMP)
-	$(BIN)/python -m pytest -q tests -m benchmark -s
+	$(BIN)/python -m gsa_jax.bench --out runs/bench
+
+bench-quick: $(STAMP)
+	$(BIN)/python -m gsa_jax.bench --quick --out runs/bench-quick
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
