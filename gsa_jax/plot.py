@@ -2,8 +2,9 @@
 
 Merges every metrics.csv under the directory (one per worker process or host), then draws, per
 env, the mean training return vs env steps for flat PPO and each K (95% confidence band over
-seeds, Student t), like the paper's Figure 1. Also writes `final_returns.csv`: per cell, the mean
-return over the last 10% of iterations, averaged over seeds, with its 95% interval.
+seeds, Student t), like the paper's Figure 1. Also writes `final_returns.csv` (per cell, the mean
+return over the last 10% of iterations, averaged over seeds, with its 95% interval) and
+`return_vs_k.png` (final return against K, flat PPO as a band: how many linear controllers a task needs).
 """
 
 import argparse
@@ -110,6 +111,40 @@ def final_table(data, action_dims):
     return rows
 
 
+def plot_return_vs_k(rows, path):
+    """Final return (mean, 95% CI over seeds) against K per env; flat PPO as a horizontal band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    env_names = list(dict.fromkeys(r["env"] for r in rows))
+    fig, axes = plt.subplots(1, len(env_names), figsize=(4.6 * len(env_names), 3.8), squeeze=False)
+    for ax, env_name in zip(axes.flat, env_names):
+        mix = [r for r in rows if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]]
+        ks = np.array([r["K"] for r in mix], float)
+        if len(ks):
+            mean = np.array([r["final_return_mean"] for r in mix], float)
+            half = np.array([r["ci95_halfwidth"] if r["ci95_halfwidth"] != "" else 0.0 for r in mix], float)
+            ax.errorbar(ks, mean, yerr=half, fmt="o-", capsize=3, label="mixture of K linear controllers")
+            ax.set_xscale("log", base=2)
+            ax.set_xticks(ks, [f"{int(k)}" for k in ks])
+        for r in rows:
+            if r["env"] == env_name and r["policy"] == "mlp" and r["seeds"]:
+                h = r["ci95_halfwidth"] if r["ci95_halfwidth"] != "" else 0.0
+                ax.axhspan(r["final_return_mean"] - h, r["final_return_mean"] + h, color="k", alpha=0.15, lw=0)
+                ax.axhline(r["final_return_mean"], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
+        ax.set_title(env_name)
+        ax.set_xlabel("K (number of linear controllers)")
+        ax.set_ylabel("final return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("How many linear controllers does the task need? (mean, 95% CI over seeds)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
     import matplotlib
 
@@ -158,6 +193,7 @@ def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
         w = csv.DictWriter(f, fieldnames=cols)
         w.writeheader()
         w.writerows(rows)
+    plot_return_vs_k(rows, os.path.join(os.path.dirname(os.path.abspath(out_png)), "return_vs_k.png"))
     return out_png, table_path, rows
 
 

@@ -97,3 +97,51 @@ def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):
     with np.load(out / "params.npz") as p:
         assert all(np.all(np.isfinite(p[k])) for k in p.files if not k.startswith("meta/"))
     assert json.loads((out / "config.json").read_text())["result"]["status"] == "nan"
+
+
+def test_inspect_mixture_run(full_run, tmp_path, capsys):
+    from gsa_jax.inspect import main as inspect_main
+
+    out = tmp_path / "inspect"
+    assert inspect_main([str(full_run), "--episodes", "3", "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    for mode in ("deterministic", "stochastic"):
+        usage = np.array(s[mode]["usage"])
+        assert len(usage) == 4 and abs(usage.sum() - 1.0) < 1e-6 and np.all(usage >= 0)
+        assert 1 <= s[mode]["clusters_used"] <= 4 and s[mode]["mean_dwell_steps"] >= 1
+    assert len(s["return_deterministic"]) == 3 and np.isfinite(s["return_stochastic_mean"])
+    text = (out / "controllers.md").read_text()
+    assert text.count("## cluster") == 4 and "strongest inputs" in text
+    assert (out / "clusters_time.png").stat().st_size > 10_000 and (out / "clusters_pca.png").stat().st_size > 10_000
+
+
+def test_inspect_bad_run_dirs(tmp_path, capsys):
+    from gsa_jax.inspect import main as inspect_main
+
+    assert inspect_main([str(tmp_path / "nope")]) == 2
+    assert "is not a directory" in capsys.readouterr().err
+    assert inspect_main([str(tmp_path)]) == 2
+    assert "is not a gsa_jax run: config.json is missing" in capsys.readouterr().err
+    (tmp_path / "config.json").write_text(json.dumps({"config": {"policy": "mlp"}}))
+    (tmp_path / "params.npz").write_bytes(b"")
+    assert inspect_main([str(tmp_path)]) == 2
+    assert "is a 'mlp' run; inspect reads mixture-of-linear runs" in capsys.readouterr().err
+
+
+def test_export_real_run_matches_jax(full_run, tmp_path):
+    """The exported controller of a trained run acts like the JAX deterministic policy on visited states."""
+    import jax
+
+    from gsa_jax import numpy_policy
+    from gsa_jax.export import main as export_main
+    from gsa_jax.inspect import load_run
+    from gsa_jax.normalize import normalize
+
+    assert export_main([str(full_run), "--out", str(tmp_path / "c.npz")]) == 0
+    ctrl = numpy_policy.load(str(tmp_path / "c.npz"))
+    trainer, params, stats, hp, _ = load_run(str(full_run))
+    obs = np.random.default_rng(0).normal(size=(200, trainer.env.observation_size)).astype(np.float32)
+    sched = {"K": hp["K"], "epsilon": hp["eps_init"], "sigma_min": hp["sigma_min_init"]}
+    a, c = jax.vmap(trainer.policy.mode, in_axes=(None, 0, None))(params["policy"], normalize(stats, obs), sched)
+    np.testing.assert_allclose(ctrl.act(obs), np.asarray(a), rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(ctrl.cluster(obs), np.asarray(c))
