@@ -458,8 +458,9 @@ def supervise(worker_argvs, heartbeat_dirs, watchdog_min_s, max_restarts, log=pr
                         w["seen"], w["last"], w["durations"] = hb["count"], time.time(), hb["durations"][-20:]
                 except (OSError, ValueError, KeyError):
                     pass
-                # before the first chunk (compiling) allow 3x the minimum
-                limit = max(watchdog_min_s, 10 * statistics.median(w["durations"])) if w["durations"] else 3 * watchdog_min_s
+                # before the first chunk (compiling, possibly several minutes for big groups): generous
+                limit = (max(watchdog_min_s, 10 * statistics.median(w["durations"])) if w["durations"]
+                         else max(3 * watchdog_min_s, 600.0))
                 if time.time() - w["last"] > limit:
                     log(f"watchdog: worker {i} made no progress for {time.time() - w['last']:.0f}s (limit {limit:.0f}s); "
                         f"killing it and restarting from its last checkpoint")
