@@ -76,7 +76,7 @@ def cell_label(cell, action_dims):
     if policy == "mlp":
         return "flat PPO (MLP 64x64)" + extra
     d_a = action_dims.get(env)
-    mult = f" ({k / d_a:g} d_a)" if d_a else ""
+    mult = f" ({k / d_a:.3g} d_a)" if d_a else ""
     return f"K={k}{mult}" + extra
 
 

@@ -285,7 +285,7 @@ def group_csv(runs, names, metrics, upto):
 
 
 # ----------------------------------------------------------------------------------------------- the worker
-def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None):
+def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None):
     """Train (or resume) one group. Returns (iterations done, iterations total, metrics dict, runs)."""
     import jax
 
@@ -340,6 +340,8 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
         chunks_run += 1
         save_pytree(state_path, states)
         save_npz_atomic(metrics_path, __done__=np.array(done), **{k: v[:, :done] for k, v in metrics.items()})
+        if on_chunk:
+            on_chunk((done, iterations, {k: v[: len(runs)] for k, v in metrics.items()}, runs))
         if heartbeat:
             heartbeat(time.perf_counter() - tc)
         _maybe_inject_hang(gdir, chunks_run)
@@ -416,7 +418,8 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
         mine = runs[process_id::num_processes]
         if not mine:
             continue
-        res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat)
+        res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
+                        on_chunk=lambda partial: write_tidy(out, spec, results + [partial]))
         results.append(res)
         write_tidy(out, spec, results)
         if res[0] < res[1]:
