@@ -6,6 +6,23 @@ import jax
 import jax.numpy as jnp
 
 
+def orthogonal(key, shape, scale=1.0, iterations=60):
+    """A random (semi-)orthogonal matrix [d_in, d_out] times `scale`: the orthogonal polar factor of a
+    Gaussian matrix, by Newton-Schulz iteration (matmuls only).
+
+    Why not jax.nn.initializers.orthogonal: it calls LAPACK QR, and vmapped over runs that is a batched
+    QR whose kernel waits on XLA:CPU's own thread pool from inside it; two at once on a 2-core machine
+    deadlock the process (all threads waiting, no CPU). Seen here in vmapped sweeps.
+    """
+    d_in, d_out = shape
+    a = jax.random.normal(key, (max(d_in, d_out), min(d_in, d_out)), jnp.float32)
+    x = a / jnp.linalg.norm(a)  # all singular values in (0, 1]
+    for _ in range(iterations):  # X <- X (3 I - X^T X) / 2 drives every singular value to 1
+        x = 1.5 * x - 0.5 * x @ (x.T @ x)
+    x = x if d_in >= d_out else x.T
+    return scale * x
+
+
 def init_mlp(key, sizes, hidden_scale=math.sqrt(2.0), out_scale=1.0):
     """Orthogonal init (the usual PPO choice); biases zero.
 
@@ -21,7 +38,7 @@ def init_mlp(key, sizes, hidden_scale=math.sqrt(2.0), out_scale=1.0):
         if scale == 0.0:
             w = jnp.zeros((d_in, d_out), jnp.float32)
         else:
-            w = jax.nn.initializers.orthogonal(scale)(k, (d_in, d_out), jnp.float32)
+            w = orthogonal(k, (d_in, d_out), scale)
         layers.append({"w": w, "b": jnp.zeros((d_out,), jnp.float32)})
     return layers
 

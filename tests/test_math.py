@@ -100,3 +100,16 @@ def test_checkpoint_round_trip(tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         assert np.asarray(a).dtype == np.asarray(b).dtype
     assert [p.name for p in tmp_path.iterdir()] == ["x.npz"]  # no temp file left behind
+
+
+def test_orthogonal_init_without_lapack():
+    """Semi-orthogonal for every MLP shape, scaled; and no LAPACK call in a vmapped init (batched QR
+    deadlocks XLA:CPU's thread pool on 2 cores)."""
+    from gsa_jax.nn import orthogonal
+
+    for shape in [(11, 64), (64, 64), (64, 1), (1, 64), (64, 24)]:
+        w = np.asarray(orthogonal(jax.random.PRNGKey(3), shape, scale=2.0)) / 2.0
+        g = w.T @ w if shape[0] >= shape[1] else w @ w.T
+        np.testing.assert_allclose(g, np.eye(g.shape[0]), atol=2e-6)
+    hlo = jax.jit(jax.vmap(lambda k: orthogonal(k, (64, 64)))).lower(jax.random.split(jax.random.PRNGKey(0), 4)).as_text()
+    assert "lapack" not in hlo.lower()
