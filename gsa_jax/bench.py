@@ -2,8 +2,8 @@
 
 For `hopper` it measures end-to-end training throughput (env steps per second, PPO updates
 included, compile excluded and reported separately) of sweeps of 1, 16, 64 and 256 runs
-(mixture K=6, and mlp), with 1 and with 2 worker processes (each one XLA CPU device; see
-gsa_jax.sweep for why not 2 devices in one process), plus compile time and peak resident
+(mixture K=6, and mlp), with 1 and with 2 worker processes (each one XLA CPU device, as
+`gsa_jax.sweep` runs them), plus compile time and peak resident
 memory; and, in the same invocation, the raw step rate of MuJoCo C on the same MJCF
 (`mujoco.rollout`, one thread per core, batch 256, the task's substeps per env step).
 Every figure is the median of repeated chunks of one PPO iteration; workers of a 2-process

@@ -6,9 +6,7 @@
 Every run of an (env, policy) group trains at once: `jax.vmap` over the runs, the run axis
 sharded over the local devices (`shard_map`). On a CPU, use the cores with --local-processes N
 (default: one per core): N worker processes, each training its share of every group's runs
-on its own XLA CPU device. (Several XLA CPU devices in one process, via
---xla_force_host_platform_device_count, deadlock on MJX programs on a 2-core machine: both
-devices' work waits on one thread pool. Separate processes do not share it.) Training goes in chunks of iterations; after each chunk the group's state, its
+on its own XLA CPU device (or set --xla_force_host_platform_device_count and --local-processes 1). Training goes in chunks of iterations; after each chunk the group's state, its
 metrics and the tidy `metrics.csv` are written atomically, so a killed sweep resumes from its
 last chunk when the same command runs again and ends with the same results. A supervisor
 process watches a heartbeat and restarts a worker whose chunk takes far longer than usual
