@@ -23,6 +23,8 @@ import time
 
 import numpy as np
 
+from gsa_jax.checkpoint import write_atomic
+
 SIZES = (1, 16, 64, 256)
 QUICK_SIZES = (1, 16)
 
@@ -206,10 +208,7 @@ def main(argv=None):
               f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}", flush=True)
         report = {"env": args.env, "quick": args.quick, "repeats": repeats, "mujoco_c": mujoco_c, "sweeps": results,
                   "wall_s": time.perf_counter() - t_start, **run_metadata()}
-        tmp = os.path.join(args.out, "bench.json.tmp")
-        with open(tmp, "w") as f:
-            json.dump(report, f, indent=1)
-        os.replace(tmp, os.path.join(args.out, "bench.json"))
+        write_atomic(os.path.join(args.out, "bench.json"), json.dumps(report, indent=1))
     plot(results, mujoco_c, os.path.join(args.out, "bench.png"))
     print(f"wrote {args.out}/bench.json and bench.png in {(time.perf_counter() - t_start) / 60:.1f} min", flush=True)
     return 0

@@ -1,7 +1,7 @@
 """Pytrees to and from .npz files, written atomically (temp file + rename), so a kill never leaves a torn file."""
 
+import io
 import os
-import tempfile
 
 import jax
 import numpy as np
@@ -12,20 +12,32 @@ def _flat(tree):
     return {jax.tree_util.keystr(path): np.asarray(x) for path, x in leaves}, treedef
 
 
-def save_pytree(path, tree, **extra):
-    """Save every leaf under its key path (e.g. "['policy']['L']"); extra arrays are stored as given."""
-    arrays, _ = _flat(tree)
-    arrays.update({k: np.asarray(v) for k, v in extra.items()})
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp.npz")
+def write_atomic(path, data, mode="w"):
+    """Write text or bytes to a temp file in the same directory, fsync, then rename over `path`."""
+    tmp = path + ".tmp"
     try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
+        with open(tmp, mode) as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def save_npz_atomic(path, **arrays):
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    write_atomic(path, buf.getvalue(), "wb")
+
+
+def save_pytree(path, tree, **extra):
+    """Save every leaf under its key path (e.g. "['policy']['L']"); extra arrays are stored as given."""
+    arrays, _ = _flat(tree)
+    arrays.update({k: np.asarray(v) for k, v in extra.items()})
+    save_npz_atomic(path, **arrays)
 
 
 def load_pytree(path, like):

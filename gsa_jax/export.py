@@ -8,6 +8,8 @@ import sys
 
 import numpy as np
 
+from gsa_jax.checkpoint import save_npz_atomic
+
 
 class ExportError(Exception):
     pass
@@ -63,9 +65,7 @@ def main(argv=None):
     except ExportError as e:
         print(f"gsa_jax.export: error: {e}", file=sys.stderr)
         return 2
-    tmp = args.out + ".tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, args.out)
+    save_npz_atomic(args.out, **arrays)
     k = arrays["L"].shape[0] if "L" in arrays else None
     print(f"wrote {args.out}: {arrays['kind']} controller" + (f" with {k} linear pieces" if k else ""))
     return 0

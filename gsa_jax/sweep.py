@@ -38,7 +38,6 @@ import sys
 
 import argparse
 import dataclasses  # noqa: E402
-import io  # noqa: E402
 import itertools  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
@@ -49,6 +48,8 @@ import time  # noqa: E402
 import tomllib  # noqa: E402
 
 import numpy as np  # noqa: E402
+
+from gsa_jax.checkpoint import write_atomic  # noqa: E402
 
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config  # noqa: E402
 from gsa_jax.policies import POLICY_KINDS  # noqa: E402
@@ -251,21 +252,6 @@ def pad_runs(runs, multiple):
 
 
 # ----------------------------------------------------------------------------------------------- files
-def write_atomic(path, data, mode="w"):
-    tmp = path + ".tmp"
-    with open(tmp, mode) as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def save_npz_atomic(path, **arrays):
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    write_atomic(path, buf.getvalue(), "wb")
-
-
 def group_csv(runs, names, metrics, upto):
     """Tidy rows (run-major) of one group's metrics [R, iters] for the first `upto` iterations."""
     id_cols = ["env", "policy", "K", "seed", "run", *names]
@@ -287,7 +273,7 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
     """Train (or resume) one group. Returns (iterations done, iterations total, metrics dict, runs)."""
     import jax
 
-    from gsa_jax.checkpoint import load_pytree, save_pytree
+    from gsa_jax.checkpoint import load_pytree, save_npz_atomic, save_pytree
 
     names = swept_names(spec)
     gdir = os.path.join(out, "groups", f"{env_name}-{policy}")

@@ -19,6 +19,7 @@ import os
 import sys
 import time
 
+from gsa_jax.checkpoint import write_atomic
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config
 
 METRIC_COLUMNS = (
@@ -131,13 +132,6 @@ def prepare_out(out, resume):
         raise UsageError(f"--out {out!r} already holds a run; pass --resume to continue it or choose another --out")
 
 
-def write_atomic(path, text):
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
 def rows_to_csv(rows):
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
@@ -184,7 +178,7 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
 
     from gsa_jax.checkpoint import load_pytree, save_pytree
     from gsa_jax.plotting import plot_curve
-    from gsa_jax.ppo import make_hparams, make_train, schedule
+    from gsa_jax.ppo import make_hparams, make_train
     from gsa_jax.runinfo import run_metadata
 
     def log(msg):
@@ -271,12 +265,11 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
             sps = steps_run / max(train_time, 1e-9)
             eta = (iterations - it) * cfg.batch_size / max(sps, 1e-9)
             recent = [float(r["episode_return"]) for r in rows[-chunk:] if r["episode_return"] != ""]
-            sched = schedule(hp, state["iteration"])
             line = (f"it {it}/{iterations} | steps {it * cfg.batch_size:,} | return {_fmt(np.mean(recent) if recent else None, '.1f')}"
                     + (f" | eval {eval_ret:.1f}" if not math.isnan(eval_ret) else "")
                     + f" | {sps:,.0f} steps/s | ETA {_duration(eta)}")
             if cfg.policy == "mixture":
-                line += (f" | eps {float(sched['epsilon']):.3f} sigma_min {float(sched['sigma_min']):.4f}"
+                line += (f" | eps {float(metrics['epsilon'][-1]):.3f} sigma_min {float(metrics['sigma_min'][-1]):.4f}"
                          f" | clusters used {int(metrics['clusters_used'][-1])}")
             log(line + f" | chunk {time.perf_counter() - t_chunk:.1f}s")
     except KeyboardInterrupt:
