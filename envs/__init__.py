@@ -1,7 +1,8 @@
 """Environment registry: `envs.make(name)` returns a single-env Brax environment (reset(key), step(state, action))
 with a time limit and auto-reset; batch it with jax.vmap.
 
-Tasks: Brax's MJX ports of the gym MuJoCo benchmarks used in the paper's Figure 1.
+Tasks: Brax's MJX ports of the gym MuJoCo benchmarks used in the paper's Figure 1, and
+`allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py).
 """
 
 import contextlib
@@ -9,14 +10,16 @@ import io
 import os
 import warnings
 
-os.environ.setdefault("MUJOCO_GL", "disable")  # no renderer needed for training
-
-with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
-    from envs.wrappers import AutoReset, EpisodeLimit  # noqa: E402
+# No renderer is needed for training. mujoco picks its GL backend when it is first imported, so
+# envs.render (which does need one) sets MUJOCO_GL itself unless the user did: nothing here imports
+# mujoco before a function is called.
+GL_FROM_USER = "MUJOCO_GL" in os.environ
+os.environ.setdefault("MUJOCO_GL", "disable")
 
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")
-NAMES = BRAX_TASKS
+NAMES = BRAX_TASKS + ("allegro_cylinder",)
 DEFAULT_EPISODE_LENGTH = 1000
+EPISODE_LENGTHS = {"allegro_cylinder": 200}  # 2 s at 100 Hz (envs/allegro.py); gym tasks: 1000
 
 
 def check_name(name):
@@ -24,13 +27,22 @@ def check_name(name):
         raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES)}")
 
 
+def default_episode_length(name):
+    check_name(name)
+    return EPISODE_LENGTHS.get(name, DEFAULT_EPISODE_LENGTH)
+
+
 def make_base(name):
     """The unwrapped task (no time limit, no auto-reset)."""
     check_name(name)
-    with contextlib.redirect_stdout(io.StringIO()):
+    with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
         from brax import envs as brax_envs
+
+        from envs import allegro
     with warnings.catch_warnings(), _process_local_devices():
         warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
+        if name == "allegro_cylinder":
+            return allegro.AllegroCylinder()
         return brax_envs.get_environment(name, backend="mjx")
 
 
@@ -51,12 +63,17 @@ def _process_local_devices():
         jax.devices = original
 
 
-def make(name, episode_length=DEFAULT_EPISODE_LENGTH, auto_reset=True):
-    """Task `name` with a time limit of `episode_length` steps and (by default) Brax-style auto-reset.
+def make(name, episode_length=None, auto_reset=True):
+    """Task `name` with a time limit of `episode_length` steps (default: the task's own,
+    `default_episode_length(name)`) and (by default) Brax-style auto-reset.
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
     """
+    with contextlib.redirect_stdout(io.StringIO()):
+        from envs.wrappers import AutoReset, EpisodeLimit
+    if episode_length is None:
+        episode_length = default_episode_length(name)
     if episode_length < 1:
         raise ValueError(f"episode_length must be >= 1, got {episode_length}")
     env = EpisodeLimit(make_base(name), episode_length)

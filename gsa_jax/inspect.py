@@ -22,8 +22,8 @@ class InspectError(Exception):
     pass
 
 
-def load_run(run_dir):
-    """(trainer, params, obs_stats, hparams, meta) of a finished or interrupted mixture run."""
+def load_run(run_dir, require_mixture=True):
+    """(trainer, params, obs_stats, hparams, meta) of a finished or interrupted (mixture) run."""
     import jax
 
     from gsa_jax.checkpoint import load_pytree
@@ -34,7 +34,7 @@ def load_run(run_dir):
             raise InspectError(f"{run_dir!r} is not a gsa_jax run: {name} is missing")
     with open(os.path.join(run_dir, "config.json")) as f:
         meta = json.load(f)
-    if meta["config"]["policy"] != "mixture":
+    if require_mixture and meta["config"]["policy"] != "mixture":
         raise InspectError(f"{run_dir!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
     c = dict(meta["config"])
     c["hidden"] = tuple(c["hidden"])
@@ -46,6 +46,11 @@ def load_run(run_dir):
     like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
     loaded = jax.tree.map(jax.numpy.asarray, load_pytree(os.path.join(run_dir, "params.npz"), like))
     return trainer, loaded["params"], loaded["obs_stats"], hp, meta
+
+
+def last_iteration(meta):
+    """The iteration a run's saved params belong to (its schedules of eps and sigma_min depend on it)."""
+    return int(meta.get("result", {}).get("iterations_done") or meta.get("iterations", 0))
 
 
 def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iteration):
@@ -70,7 +75,7 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
         else:
             a, c, _ = jax.vmap(pol.sample, in_axes=(None, 0, 0, None))(params["policy"], z, jax.random.split(k, episodes), sched)
         nxt = jax.vmap(env.step)(s, jnp.clip(a, -1.0, 1.0))
-        out = {"obs": s.obs, "z": z, "cluster": c, "action": a, "reward": nxt.reward * alive, "alive": alive}
+        out = {"obs": s.obs, "qpos": s.pipeline_state.qpos, "z": z, "cluster": c, "action": a, "reward": nxt.reward * alive, "alive": alive}
         return (nxt, alive * (1.0 - nxt.done)), out
 
     k_reset, k_run = jax.random.split(key)
@@ -179,7 +184,7 @@ def inspect_run(run_dir, out=None, episodes=8, seed=0):
     k = int(meta["hparams"]["K"])
     out = out or os.path.join(run_dir, "inspect")
     os.makedirs(out, exist_ok=True)
-    last_it = int(meta.get("result", {}).get("iterations_done") or meta.get("iterations", 0))
+    last_it = last_iteration(meta)
     key = jax.random.PRNGKey(seed)
     det = rollout(trainer, params, obs_stats, hp, key, episodes, True, last_it)
     sto = rollout(trainer, params, obs_stats, hp, key, episodes, False, last_it)

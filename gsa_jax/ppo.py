@@ -43,11 +43,15 @@ class Config:
     num_epochs: int = 10
     num_minibatches: int = 32
     hidden: tuple = (64, 64)
-    episode_length: int = 1000
+    episode_length: int | None = None  # None: the task's own (envs.default_episode_length)
     normalize_obs: bool = True
     normalize_reward: bool = True
     b_init_scale: float = 1.0
     eval_envs: int = 16
+
+    def __post_init__(self):
+        if self.episode_length is None and self.env in envs.NAMES:
+            object.__setattr__(self, "episode_length", envs.default_episode_length(self.env))
 
     @property
     def batch_size(self):

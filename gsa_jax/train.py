@@ -54,7 +54,7 @@ def build_parser():
     p.add_argument("--unroll-length", type=int, default=Config.unroll_length)
     p.add_argument("--epochs", type=int, default=Config.num_epochs)
     p.add_argument("--minibatches", type=int, default=Config.num_minibatches)
-    p.add_argument("--episode-length", type=int, default=Config.episode_length)
+    p.add_argument("--episode-length", type=int, default=None, help="time limit in steps (default: the task's own)")
     p.add_argument("--b-init-scale", type=float, default=Config.b_init_scale, help="initial biases spread over [-s, s]^d_a")
     for flag, name in _HP_FLAGS.items():
         p.add_argument("--" + flag.replace("_", "-"), type=float, default=HPARAM_DEFAULTS[name], dest=flag)
