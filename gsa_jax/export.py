@@ -49,6 +49,7 @@ def controller_arrays(run_dir):
         out[f"w{i}"] = arrays[f"{prefix}['{net}'][{i}]['w']"]
         out[f"b{i}"] = arrays[f"{prefix}['{net}'][{i}]['b']"]
     if kind == "mixture":
+        out["subpolicy"] = np.array(meta["config"].get("subpolicy", "linear"))
         k = int(meta["hparams"]["K"])
         out["L"] = arrays[f"{prefix}['L']"][:k]
         out["b"] = arrays[f"{prefix}['b']"][:k]
@@ -67,7 +68,7 @@ def main(argv=None):
         return 2
     save_npz_atomic(args.out, **arrays)
     k = arrays["L"].shape[0] if "L" in arrays else None
-    print(f"wrote {args.out}: {arrays['kind']} controller" + (f" with {k} linear pieces" if k else ""))
+    print(f"wrote {args.out}: {arrays['kind']} controller" + (f" with {k} {arrays['subpolicy']} pieces" if k else ""))
     return 0
 
 

@@ -106,19 +106,35 @@ def cluster_stats(cluster, alive, k):
     }
 
 
-def controller_table(params, k, obs_names, act_names, top=3):
+def feature_names(subpolicy, obs_names):
+    """Names of the sub-policy features phi(z) (see gsa_jax.policies.subpolicy_features)."""
+    if subpolicy == "constant":
+        return []
+    if subpolicy == "linear":
+        return list(obs_names)
+    i, j = np.triu_indices(len(obs_names))
+    return list(obs_names) + [f"{obs_names[a]}*{obs_names[b]}" for a, b in zip(i, j)]
+
+
+def controller_table(params, k, obs_names, act_names, subpolicy="linear", top=3):
     L = np.asarray(params["policy"]["L"])[:k]
     b = np.asarray(params["policy"]["b"])[:k]
-    lines = ["# Linear controllers", "",
-             "a = L_c z + b_c on the normalized observation z = (obs - mean) / std (clipped to +-10), "
+    names = feature_names(subpolicy, obs_names)
+    shown = names[: len(obs_names)]  # quadratic: the table shows the linear terms; "strongest" ranks all
+    rule = {"constant": "a = b_c", "linear": "a = L_c z + b_c",
+            "quadratic": "a = L_c [z, z_i z_j (i <= j)] + b_c"}[subpolicy]
+    lines = [f"# {subpolicy.capitalize()} controllers", "",
+             f"{rule} on the normalized observation z = (obs - mean) / std (clipped to +-10), "
              "for the cluster c the partition network picks.", ""]
     for c in range(k):
-        lines += [f"## cluster {c}", "", "| actuator | b | " + " | ".join(obs_names) + " | strongest inputs |",
-                  "|---|---|" + "---|" * len(obs_names) + "---|"]
+        lines += [f"## cluster {c}", "", "| actuator | b | " + " | ".join(shown) + (" | strongest inputs |" if names else " |"),
+                  "|---|---|" + "---|" * len(shown) + ("---|" if names else "")]
         for i, a in enumerate(act_names):
-            order = np.argsort(-np.abs(L[c, i]))[:top]
-            strongest = ", ".join(f"{obs_names[j]} ({L[c, i, j]:+.2f})" for j in order)
-            lines.append(f"| {a} | {b[c, i]:+.3f} | " + " | ".join(f"{x:+.2f}" for x in L[c, i]) + f" | {strongest} |")
+            row = f"| {a} | {b[c, i]:+.3f} | " + "".join(f"{x:+.2f} | " for x in L[c, i, : len(shown)])
+            if names:
+                order = np.argsort(-np.abs(L[c, i]))[:top]
+                row += ", ".join(f"{names[j]} ({L[c, i, j]:+.2f})" for j in order) + " |"
+            lines.append(row.rstrip())
         lines.append("")
     return "\n".join(lines)
 
@@ -201,7 +217,8 @@ def inspect_run(run_dir, out=None, episodes=8, seed=0):
         json.dump(summary, f, indent=1)
     d_s, d_a = det["obs"].shape[-1], det["action"].shape[-1]
     with open(os.path.join(out, "controllers.md"), "w") as f:
-        f.write(controller_table(params, k, [f"obs[{j}]" for j in range(d_s)], [f"act[{i}]" for i in range(d_a)]))
+        f.write(controller_table(params, k, [f"obs[{j}]" for j in range(d_s)], [f"act[{i}]" for i in range(d_a)],
+                                  trainer.cfg.subpolicy))
     plot_time(det, k, os.path.join(out, "clusters_time.png"))
     plot_pca(det, k, os.path.join(out, "clusters_pca.png"))
     return summary, out

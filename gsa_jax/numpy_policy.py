@@ -1,13 +1,14 @@
 """The deployed controller in plain NumPy (no JAX needed): load(path).act(obs), .cluster(obs).
 
-A mixture controller is piecewise linear: normalize the observation, pick the most probable
+A mixture controller is piecewise simple: normalize the observation, pick the most probable
 cluster of the partition network (eps-uniform exploration does not change the argmax), apply
-that cluster's L_c z + b_c. An MLP controller applies its tanh MLP to the normalized observation.
+that cluster's L_c phi(z) + b_c, where phi is the sub-policy class: [] (constant), z (linear),
+[z, z_i z_j for i <= j] (quadratic). An MLP controller applies its tanh MLP to the normalized observation.
 Actions are what the policy outputs; the environment clips them to its action range [-1, 1].
 
 File format (written by `python -m gsa_jax.export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
-obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), and for mixtures L [K, d_a, d_s],
-b [K, d_a] of the K active clusters.
+obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), and for mixtures subpolicy
+('constant'|'linear'|'quadratic'; absent = linear), L [K, d_a, d_phi], b [K, d_a] of the K active clusters.
 """
 
 import numpy as np
@@ -22,6 +23,9 @@ class Controller:
         n = int(arrays["n_layers"])
         self.layers = [(np.asarray(arrays[f"w{i}"], np.float32), np.asarray(arrays[f"b{i}"], np.float32)) for i in range(n)]
         if self.kind == "mixture":
+            self.subpolicy = str(arrays["subpolicy"]) if "subpolicy" in arrays else "linear"
+            if self.subpolicy not in ("constant", "linear", "quadratic"):
+                raise ValueError(f"unknown sub-policy class {self.subpolicy!r}")
             self.L = np.asarray(arrays["L"], np.float32)
             self.b = np.asarray(arrays["b"], np.float32)
         elif self.kind != "mlp":
@@ -41,6 +45,15 @@ class Controller:
                 x = np.tanh(x)
         return x
 
+    def features(self, z):
+        """phi(z) [..., d_phi] of normalized observations z [..., d_s]."""
+        if self.subpolicy == "constant":
+            return z[..., :0]
+        if self.subpolicy == "linear":
+            return z
+        i, j = np.triu_indices(z.shape[-1])
+        return np.concatenate([z, z[..., i] * z[..., j]], axis=-1)
+
     def cluster(self, obs):
         """Active cluster for obs [..., d_s] -> int array [...] (0 for an MLP controller)."""
         z = self.normalize(obs)
@@ -54,7 +67,7 @@ class Controller:
         if self.kind == "mlp":
             return self._mlp(z)
         c = self.cluster(obs)
-        return np.einsum("...ij,...j->...i", self.L[c], z) + self.b[c]
+        return np.einsum("...ij,...j->...i", self.L[c], self.features(z)) + self.b[c]
 
 
 def load(path):

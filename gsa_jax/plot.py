@@ -72,7 +72,7 @@ def smooth(y, window):
 
 def cell_label(cell, action_dims):
     env, policy, k = cell[:3]
-    extra = "".join(f", {c}={v}" for c, v in cell[3:])
+    extra = "".join(f", {v}" if c == "subpolicy" else f", {c}={v}" for c, v in cell[3:] if v != "")
     if policy == "mlp":
         return "flat PPO (MLP 64x64)" + extra
     d_a = action_dims.get(env)
@@ -119,16 +119,26 @@ def plot_return_vs_k(rows, path):
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
+    fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "final_return_mean", "ci95_halfwidth", "env_steps"}
     fig, axes = plt.subplots(1, len(env_names), figsize=(4.6 * len(env_names), 3.8), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
         mix = [r for r in rows if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]]
-        ks = np.array([r["K"] for r in mix], float)
-        if len(ks):
-            mean = np.array([r["final_return_mean"] for r in mix], float)
-            half = np.array([r["ci95_halfwidth"] if r["ci95_halfwidth"] != "" else 0.0 for r in mix], float)
-            ax.errorbar(ks, mean, yerr=half, fmt="o-", capsize=3, label="mixture of K linear controllers")
+        # one curve per sub-policy class (and per other swept setting): the whole complexity/return trade-off
+        curves = defaultdict(list)
+        for r in mix:
+            curves[tuple((c, v) for c, v in r.items() if c not in fixed)].append(r)
+        all_ks = sorted({r["K"] for r in mix})
+        for extra, pts in curves.items():
+            pts = sorted(pts, key=lambda r: r["K"])
+            ks = np.array([r["K"] for r in pts], float)
+            mean = np.array([r["final_return_mean"] for r in pts], float)
+            half = np.array([r["ci95_halfwidth"] if r["ci95_halfwidth"] != "" else 0.0 for r in pts], float)
+            sub = dict(extra).get("subpolicy") or "linear"
+            rest = "".join(f", {c}={v}" for c, v in extra if c != "subpolicy")
+            ax.errorbar(ks, mean, yerr=half, fmt="o-", capsize=3, label=f"mixture of K {sub} controllers{rest}")
+        if all_ks:
             ax.set_xscale("log", base=2)
-            ax.set_xticks(ks, [f"{int(k)}" for k in ks])
+            ax.set_xticks(all_ks, [f"{int(k)}" for k in all_ks])
         for r in rows:
             if r["env"] == env_name and r["policy"] == "mlp" and r["seeds"]:
                 h = r["ci95_halfwidth"] if r["ci95_halfwidth"] != "" else 0.0

@@ -11,9 +11,12 @@ Both are given as a `Policy` of pure functions on one observation (vmap for batc
 `sched` is a dict of traced scalars: K (active clusters, int32), epsilon (uniform
 exploration of the partition), sigma_min (floor of every sub-policy std).
 
-Mixture: pi(c, a | s) = pi_p(c | s) N(a | L_c s + b_c, diag(max(sigma_c, sigma_min)^2)),
+Mixture: pi(c, a | s) = pi_p(c | s) N(a | L_c phi(s) + b_c, diag(max(sigma_c, sigma_min)^2)),
 pi_p = (1 - eps) softmax(partition_mlp(s))[active] + eps / K on the K active clusters.
-Params: partition (MLP d_s -> hidden -> K_max), L [K_max, d_a, d_s], b [K_max, d_a],
+phi is the sub-policy class (the paper's second complexity knob): constant (phi = [], one action
+per cluster: classic state abstraction), linear (phi = s, the default), quadratic
+(phi = [s, upper-triangular s (x) s]).
+Params: partition (MLP d_s -> hidden -> K_max), L [K_max, d_a, d_phi], b [K_max, d_a],
 log_sigma [K_max, d_a]. Clusters c >= K are masked: probability exactly 0, excluded from
 the uniform part, never sampled; every quantity (init, samples, log-probs, modes) is the
 same for a K inside any K_max >= K.
@@ -28,6 +31,7 @@ import numpy as np
 from gsa_jax.nn import apply_mlp, init_mlp
 
 POLICY_KINDS = ("mixture", "mlp")
+SUBPOLICY_KINDS = ("constant", "linear", "quadratic")
 _LOG_2PI = float(np.log(2.0 * np.pi))
 _PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79, 83, 89, 97)
 
@@ -70,15 +74,33 @@ def gaussian_log_prob(x, mean, sigma):
     return jnp.sum(-0.5 * jnp.square(z) - jnp.log(sigma) - 0.5 * _LOG_2PI, axis=-1)
 
 
-def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_scale=1.0):
+def feature_size(subpolicy, obs_size):
+    """d_phi: length of the sub-policy features of a d_s observation."""
+    if subpolicy not in SUBPOLICY_KINDS:
+        raise ValueError(f"unknown subpolicy {subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
+    return {"constant": 0, "linear": obs_size, "quadratic": obs_size + obs_size * (obs_size + 1) // 2}[subpolicy]
+
+
+def subpolicy_features(subpolicy, obs):
+    """phi(s) [d_phi] for one observation [d_s]: [] | s | [s, s_i s_j for i <= j (row-major upper triangle)]."""
+    if subpolicy == "constant":
+        return obs[:0]
+    if subpolicy == "linear":
+        return obs
+    i, j = np.triu_indices(obs.shape[-1])
+    return jnp.concatenate([obs, obs[i] * obs[j]])
+
+
+def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_scale=1.0, subpolicy="linear"):
     bias_init = jnp.asarray(bias_spread(k_max, action_size, b_init_scale))
+    d_phi = feature_size(subpolicy, obs_size)
 
     def init(key, hp):
         k = jnp.asarray(hp["K"], jnp.float32)
         return {
             # zero last layer: uniform partition at init, independent of K_max
             "partition": init_mlp(key, (obs_size, *hidden, k_max), out_scale=0.0),
-            "L": jnp.zeros((k_max, action_size, obs_size), jnp.float32),
+            "L": jnp.zeros((k_max, action_size, d_phi), jnp.float32),
             "b": bias_init,
             "log_sigma": jnp.full((k_max, action_size), 1.0, jnp.float32)
             * jnp.log(hp["sigma_init_scale"] / k),
@@ -94,7 +116,7 @@ def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_sc
         return jnp.log(sched["epsilon"]) - jnp.log(sched["K"].astype(jnp.float32))
 
     def _component(params, obs, c, sched):
-        mean = params["L"][c] @ obs + params["b"][c]
+        mean = params["L"][c] @ subpolicy_features(subpolicy, obs) + params["b"][c]
         sigma = jnp.maximum(jnp.exp(params["log_sigma"][c]), sched["sigma_min"])
         return mean, sigma
 
@@ -126,7 +148,7 @@ def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_sc
     def mode(params, obs, sched):
         _, logits = _log_softmax(params, obs, sched)
         c = jnp.argmax(logits).astype(jnp.int32)
-        return params["L"][c] @ obs + params["b"][c], c
+        return params["L"][c] @ subpolicy_features(subpolicy, obs) + params["b"][c], c
 
     return Policy("mixture", init, sample, log_prob, mode, partition_probs)
 
@@ -158,9 +180,9 @@ def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
     return Policy("mlp", init, sample, log_prob, mode, partition_probs)
 
 
-def make_policy(kind, obs_size, action_size, k_max=1, hidden=(64, 64), b_init_scale=1.0):
+def make_policy(kind, obs_size, action_size, k_max=1, hidden=(64, 64), b_init_scale=1.0, subpolicy="linear"):
     if kind == "mixture":
-        return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale)
+        return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale, subpolicy)
     if kind == "mlp":
         return make_mlp_policy(obs_size, action_size, hidden)
     raise ValueError(f"unknown policy {kind!r}; choose one of {', '.join(POLICY_KINDS)}")

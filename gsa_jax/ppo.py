@@ -27,7 +27,7 @@ import envs
 from gsa_jax.nn import apply_mlp, init_mlp
 from gsa_jax.normalize import init_stats, normalize, update_stats
 from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.policies import POLICY_KINDS, make_policy, partition_entropy
+from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS, make_policy, partition_entropy
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,6 +37,7 @@ class Config:
 
     env: str = "inverted_double_pendulum"
     policy: str = "mixture"
+    subpolicy: str = "linear"  # mixture sub-policy class: constant | linear | quadratic
     k_max: int = 8
     num_envs: int = 32
     unroll_length: int = 64
@@ -66,6 +67,8 @@ class Config:
         envs.check_name(self.env)
         if self.policy not in POLICY_KINDS:
             raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
+        if self.subpolicy not in SUBPOLICY_KINDS:
+            raise ValueError(f"unknown subpolicy {self.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
         for name in ("k_max", "num_envs", "unroll_length", "num_epochs", "num_minibatches", "episode_length", "eval_envs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -166,7 +169,7 @@ def make_train(cfg):
     env = envs.make(cfg.env, cfg.episode_length)
     eval_env = envs.make(cfg.env, cfg.episode_length, auto_reset=False)
     obs_size, action_size = env.observation_size, env.action_size
-    policy = make_policy(cfg.policy, obs_size, action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale)
+    policy = make_policy(cfg.policy, obs_size, action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale, cfg.subpolicy)
     n, t_len = cfg.num_envs, cfg.unroll_length
     v_sample = jax.vmap(policy.sample, in_axes=(None, 0, 0, None))
     v_log_prob = jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None))

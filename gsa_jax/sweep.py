@@ -23,6 +23,7 @@ Experiment file (TOML):
   envs = ["inverted_double_pendulum", "hopper"]
   policies = ["mlp", "mixture"]
   cluster_multipliers = [0.5, 1, 2, 4]   # K = ceil(m * action_dim); or: clusters = [2, 4, 6]
+  subpolicies = ["constant", "linear"]    # optional: sub-policy classes of the mixtures (default linear)
   seeds = 8                               # seeds 0..7, or a list [0, 5, 9]
   steps = 200_000                         # env steps per run
   chunk = 10                              # PPO iterations per compiled chunk (optional)
@@ -52,9 +53,10 @@ import numpy as np  # noqa: E402
 from gsa_jax.checkpoint import write_atomic  # noqa: E402
 
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config  # noqa: E402
-from gsa_jax.policies import POLICY_KINDS  # noqa: E402
+from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS  # noqa: E402
 
-SPEC_FIELDS = ("name", "envs", "policies", "clusters", "cluster_multipliers", "seeds", "steps", "chunk", "hparams", "config")
+SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
+               "hparams", "config")
 SWEEP_METRICS = (
     "iteration", "env_steps", "episode_return", "episodes", "epsilon", "sigma_min", "lr", "policy_loss",
     "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used",
@@ -119,6 +121,13 @@ def check_spec(raw, source="spec"):
             if not ms or not all(isinstance(m, (int, float)) and m > 0 for m in ms):
                 bad("cluster_multipliers", f"must be positive numbers, got {spec['cluster_multipliers']!r}")
             spec["cluster_multipliers"] = ms
+    if "subpolicies" in spec:  # absent stays absent: a spec's identity (sweep.json) must not change
+        subs = spec["subpolicies"] if isinstance(spec["subpolicies"], list) else [spec["subpolicies"]]
+        if "mixture" not in spec["policies"]:
+            bad("subpolicies", "applies to mixture policies; add 'mixture' to policies")
+        if not subs or any(x not in SUBPOLICY_KINDS for x in subs) or len(set(subs)) != len(subs):
+            bad("subpolicies", f"must be distinct names from {', '.join(SUBPOLICY_KINDS)}, got {spec['subpolicies']!r}")
+        spec["subpolicies"] = subs
     seeds = spec.get("seeds", 1)
     if isinstance(seeds, int):
         if seeds < 1:
@@ -178,27 +187,43 @@ def swept_names(spec):
     return [k for k, v in spec["hparams"].items() if len(v) > 1]
 
 
+def id_columns(spec):
+    """Columns that identify a run in runs.csv and the tidy metrics.csv."""
+    sub = ["subpolicy"] if "subpolicies" in spec else []
+    return ["env", "policy", *sub, "K", "seed", "run", *swept_names(spec)]
+
+
 def build_grid(spec):
-    """[(env, policy, [run dicts])]: every combination of K x swept hparams x seed exactly once, per group."""
+    """[(env, policy, [run dicts])]: every combination of K x swept hparams x seed exactly once, per group.
+    A group is one compiled program: (env, policy), and for mixtures with `subpolicies`, one per class."""
     names = list(spec["hparams"])
     combos = list(itertools.product(*(spec["hparams"][n] for n in names))) or [()]
     groups = []
     for env_name in spec["envs"]:
         for policy in spec["policies"]:
             ks = cluster_counts(spec, env_name) if policy == "mixture" else [1]
-            runs = []
-            for k in ks:
-                for combo in combos:
-                    for seed in spec["seeds"]:
-                        runs.append({"run": len(runs), "env": env_name, "policy": policy, "K": k, "seed": seed,
-                                     **dict(zip(names, combo))})
-            groups.append((env_name, policy, runs))
+            subs = spec.get("subpolicies", [None]) if policy == "mixture" else ([""] if "subpolicies" in spec else [None])
+            for sub in subs:
+                runs = []
+                for k in ks:
+                    for combo in combos:
+                        for seed in spec["seeds"]:
+                            runs.append({"run": len(runs), "env": env_name, "policy": policy,
+                                         **({} if sub is None else {"subpolicy": sub}),
+                                         "K": k, "seed": seed, **dict(zip(names, combo))})
+                groups.append((env_name, policy, runs))
     return groups
+
+
+def group_name(env_name, policy, runs):
+    sub = runs[0].get("subpolicy") if runs else None
+    return f"{env_name}-{policy}" + (f"-{sub}" if sub else "")
 
 
 def group_config(spec, env_name, policy, runs):
     static = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["config"].items()}
-    return Config(env=env_name, policy=policy, k_max=max(r["K"] for r in runs), **static)
+    sub = runs[0].get("subpolicy") or "linear"
+    return Config(env=env_name, policy=policy, subpolicy=sub, k_max=max(r["K"] for r in runs), **static)
 
 
 def group_iterations(spec, cfg, chunk):
@@ -252,9 +277,8 @@ def pad_runs(runs, multiple):
 
 
 # ----------------------------------------------------------------------------------------------- files
-def group_csv(runs, names, metrics, upto):
+def group_csv(runs, id_cols, metrics, upto):
     """Tidy rows (run-major) of one group's metrics [R, iters] for the first `upto` iterations."""
-    id_cols = ["env", "policy", "K", "seed", "run", *names]
     lines = []
     for i, r in enumerate(runs):
         ids = ",".join(str(r[c]) for c in id_cols)
@@ -275,8 +299,8 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
 
     from gsa_jax.checkpoint import load_pytree, save_npz_atomic, save_pytree
 
-    names = swept_names(spec)
-    gdir = os.path.join(out, "groups", f"{env_name}-{policy}")
+    gdir = os.path.join(out, "groups", group_name(env_name, policy, runs))
+    tag = group_name(env_name, policy, runs).replace(f"{env_name}-", f"{env_name}/", 1)
     os.makedirs(gdir, exist_ok=True)
     cfg = group_config(spec, env_name, policy, runs)
     chunk = default_chunk(spec, cfg)
@@ -287,9 +311,9 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
     if os.path.exists(os.path.join(gdir, "DONE")):
         with np.load(metrics_path) as m:
             return iterations, iterations, {k: m[k] for k in m.files}, runs
+    cols = id_columns(spec)
     write_atomic(os.path.join(gdir, "runs.csv"), "\n".join(
-        [",".join(["env", "policy", "K", "seed", "run", *names])]
-        + [",".join(str(r[c]) for c in ["env", "policy", "K", "seed", "run", *names]) for r in runs]) + "\n")
+        [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in runs]) + "\n")
 
     t0 = time.perf_counter()
     trainer, init, run, place = make_group_program(cfg, chunk, devices)
@@ -309,8 +333,8 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
             done = int(m["__done__"])
             for k in SWEEP_METRICS:
                 metrics[k][:, :done] = m[k][:, :done]
-        log(f"[{env_name}/{policy}] resumed at iteration {done}/{iterations}")
-    log(f"[{env_name}/{policy}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
+        log(f"[{tag}] resumed at iteration {done}/{iterations}")
+    log(f"[{tag}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
         f"{len(devices)} device(s); compiled in {compile_s:.1f}s")
     t_train, steps_run, chunks_run = time.perf_counter(), 0, 0
     while done < iterations:
@@ -333,7 +357,7 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
         last = metrics["episode_return"][: len(runs), max(0, done - chunk):done]
         recent = np.array([np.nanmean(row) if np.any(np.isfinite(row)) else np.nan for row in last])
         eta = (iterations - done) * cfg.batch_size * len(runs) / max(sps, 1e-9)
-        log(f"[{env_name}/{policy}] it {done}/{iterations} | {sps:,.0f} env-steps/s | ETA {eta / 60:.1f} min | return "
+        log(f"[{tag}] it {done}/{iterations} | {sps:,.0f} env-steps/s | ETA {eta / 60:.1f} min | return "
             f"best {np.nanmax(recent) if np.any(np.isfinite(recent)) else float('nan'):.1f} "
             f"median {np.nanmedian(recent) if np.any(np.isfinite(recent)) else float('nan'):.1f} | chunk {time.perf_counter() - tc:.1f}s")
         if stop_after_chunks is not None and chunks_run >= stop_after_chunks and done < iterations:
@@ -360,7 +384,7 @@ def _maybe_inject_hang(gdir, chunks_run):
 def write_tidy(out, spec, results):
     header, lines = None, []
     for done, _, metrics, runs in results:
-        header, ls = group_csv(runs, swept_names(spec), metrics, done)
+        header, ls = group_csv(runs, id_columns(spec), metrics, done)
         lines.extend(ls)
     if header:
         write_atomic(os.path.join(out, "metrics.csv"), header + "\n" + "\n".join(lines) + ("\n" if lines else ""))

@@ -20,6 +20,7 @@ import sys
 import time
 
 from gsa_jax.checkpoint import write_atomic
+from gsa_jax.policies import SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config
 
 METRIC_COLUMNS = (
@@ -45,6 +46,8 @@ def build_parser():
     p.add_argument("--env", default="inverted_double_pendulum", help=f"one of: {', '.join(envs.NAMES)}")
     p.add_argument("--policy", default="mixture", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
     p.add_argument("--clusters", "-K", type=int, default=4, help="K, number of linear controllers (mixture)")
+    p.add_argument("--subpolicy", default="linear",
+                   help="sub-policy class of a mixture: constant (one action per cluster), linear (default), quadratic")
     p.add_argument("--k-max", type=int, default=None, help="pad the cluster axis to this size (default: K)")
     p.add_argument("--steps", type=int, default=1_000_000, help="environment steps (rounded up to whole chunks)")
     p.add_argument("--seed", type=int, default=0)
@@ -81,8 +84,12 @@ def resolve(args):
         raise UsageError(f"--clusters must be >= 1, got {k}")
     if args.policy == "mixture" and k > k_max:
         raise UsageError(f"--clusters {k} exceeds --k-max {k_max}; use 1 <= K <= k_max")
+    if args.subpolicy not in SUBPOLICY_KINDS:
+        raise UsageError(f"unknown --subpolicy {args.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
+    if args.policy != "mixture" and args.subpolicy != "linear":
+        raise UsageError("--subpolicy applies to --policy mixture only")
     cfg = Config(
-        env=args.env, policy=args.policy, k_max=max(k_max, 1), num_envs=args.num_envs,
+        env=args.env, policy=args.policy, subpolicy=args.subpolicy, k_max=max(k_max, 1), num_envs=args.num_envs,
         unroll_length=args.unroll_length, num_epochs=args.epochs, num_minibatches=args.minibatches,
         episode_length=args.episode_length, normalize_reward=not args.no_normalize_reward,
         b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
@@ -114,6 +121,7 @@ def resolve(args):
 
 def default_out(cfg, hp, seed):
     tag = f"{cfg.env}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == "mixture" else "")
+    tag += f"-{cfg.subpolicy}" if cfg.policy == "mixture" and cfg.subpolicy != "linear" else ""
     return os.path.join("runs", f"{tag}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
@@ -205,7 +213,7 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
     hp = make_hparams(**hp_py)
     trainer = make_train(cfg)
     log(f"gsa_jax: {cfg.env} ({trainer.env.observation_size} obs, {trainer.env.action_size} actions), "
-        f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max})" if cfg.policy == "mixture" else "")
+        f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies)" if cfg.policy == "mixture" else "")
         + f", {iterations} iterations x {cfg.batch_size} steps = {iterations * cfg.batch_size:,} env steps -> {out}")
 
     t0 = time.perf_counter()

@@ -16,9 +16,9 @@ from gsa_jax.policies import make_policy
 D_S, D_A = 6, 2
 
 
-def fake_run(tmp_path, kind, K, k_max):
+def fake_run(tmp_path, kind, K, k_max, subpolicy="linear"):
     """A run directory as train.py writes it, with trained-looking (random) parameters."""
-    pol = make_policy(kind, D_S, D_A, k_max)
+    pol = make_policy(kind, D_S, D_A, k_max, subpolicy=subpolicy)
     params = pol.init(jax.random.PRNGKey(0), {"K": jnp.int32(K), "sigma_init_scale": jnp.float32(1.0)})
     leaves, tdef = jax.tree.flatten(params)
     keys = jax.random.split(jax.random.PRNGKey(1), len(leaves))
@@ -27,13 +27,17 @@ def fake_run(tmp_path, kind, K, k_max):
     run = tmp_path / f"{kind}-run"
     run.mkdir()
     save_pytree(str(run / "params.npz"), {"params": {"policy": params}, "obs_stats": stats})
-    (run / "config.json").write_text(json.dumps({"config": {"policy": kind, "normalize_obs": True}, "hparams": {"K": K}, "seed": 0}))
+    config = {"policy": kind, "normalize_obs": True, "subpolicy": subpolicy}
+    (run / "config.json").write_text(json.dumps({"config": config, "hparams": {"K": K}, "seed": 0}))
     return pol, params, stats, run
 
 
-@pytest.mark.parametrize("kind, K, k_max", [("mixture", 3, 8), ("mixture", 1, 1), ("mlp", 1, 1)])
-def test_numpy_controller_matches_jax(tmp_path, kind, K, k_max, capsys):
-    pol, params, stats, run = fake_run(tmp_path, kind, K, k_max)
+@pytest.mark.parametrize("kind, K, k_max, subpolicy", [
+    ("mixture", 3, 8, "linear"), ("mixture", 1, 1, "linear"), ("mlp", 1, 1, "linear"),
+    ("mixture", 3, 4, "constant"), ("mixture", 2, 4, "quadratic"),
+])
+def test_numpy_controller_matches_jax(tmp_path, kind, K, k_max, subpolicy, capsys):
+    pol, params, stats, run = fake_run(tmp_path, kind, K, k_max, subpolicy)
     out = tmp_path / "controller.npz"
     assert export_main([str(run), "--out", str(out)]) == 0
     ctrl = numpy_policy.load(str(out))
@@ -45,6 +49,7 @@ def test_numpy_controller_matches_jax(tmp_path, kind, K, k_max, capsys):
     assert ctrl.act(obs[0]).shape == (D_A,)  # single observation
     if kind == "mixture":
         assert ctrl.num_clusters == K and set(np.unique(ctrl.cluster(obs))) <= set(range(K))
+        assert ctrl.subpolicy == subpolicy
 
 
 def test_export_bad_run_dir(tmp_path, capsys):

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax.policies import bias_spread, make_policy, partition_entropy
+from gsa_jax.policies import bias_spread, feature_size, make_policy, partition_entropy
 
 D_S, D_A = 5, 3
 
@@ -18,7 +18,17 @@ def np_mlp(layers, x):
     return x
 
 
-def np_mixture_log_prob(params, obs, action, c, K, eps, sigma_min):
+def np_features(subpolicy, obs):
+    """Sub-policy features, written out with explicit loops."""
+    if subpolicy == "constant":
+        return np.zeros(0)
+    if subpolicy == "linear":
+        return np.asarray(obs, np.float64)
+    quad = [obs[i] * obs[j] for i in range(len(obs)) for j in range(i, len(obs))]
+    return np.concatenate([obs, quad])
+
+
+def np_mixture_log_prob(params, obs, action, c, K, eps, sigma_min, subpolicy="linear"):
     logits = np_mlp(params["partition"], obs)[:K]
     soft = np.exp(logits - logits.max())
     soft /= soft.sum()
@@ -26,7 +36,7 @@ def np_mixture_log_prob(params, obs, action, c, K, eps, sigma_min):
     L = np.asarray(params["L"], np.float64)[c]
     b = np.asarray(params["b"], np.float64)[c]
     sigma = np.maximum(np.exp(np.asarray(params["log_sigma"], np.float64)[c]), sigma_min)
-    mean = L @ obs + b
+    mean = L @ np_features(subpolicy, obs) + b
     log_n = np.sum(-0.5 * ((action - mean) / sigma) ** 2 - np.log(sigma) - 0.5 * np.log(2 * np.pi))
     return np.log(p[c]) + log_n, p
 
@@ -70,6 +80,29 @@ def test_mixture_log_prob_matches_numpy(mix16):
             probs = mix16.partition_probs(params, jnp.asarray(obs, jnp.float32), sched(K, eps, smin))
             np.testing.assert_allclose(np.asarray(probs[:K]), p_ref, rtol=1e-5, atol=1e-6)
             assert np.all(np.asarray(probs[K:]) == 0.0)
+
+
+@pytest.mark.parametrize("subpolicy", ["constant", "quadratic"])
+def test_subpolicy_classes_match_numpy(subpolicy):
+    """constant: a = b_c; quadratic: a = L_c [s, s_i s_j (i <= j)] + b_c -- log-probs and modes vs NumPy."""
+    K = 3
+    pol = make_policy("mixture", D_S, D_A, k_max=4, subpolicy=subpolicy)
+    params = random_mixture_params(pol, jax.random.PRNGKey(2), K)
+    assert params["L"].shape == (4, D_A, feature_size(subpolicy, D_S))
+    assert feature_size(subpolicy, D_S) == {"constant": 0, "quadratic": D_S + D_S * (D_S + 1) // 2}[subpolicy]
+    rng = np.random.default_rng(3)
+    lp, mode = jax.jit(pol.log_prob), jax.jit(pol.mode)
+    for _ in range(5):
+        obs, act, c = rng.normal(size=D_S), rng.normal(size=D_A), int(rng.integers(K))
+        ref, _ = np_mixture_log_prob(params, obs, act, c, K, 0.1, 0.05, subpolicy)
+        o32 = jnp.asarray(obs, jnp.float32)
+        got = lp(params, o32, jnp.asarray(act, jnp.float32), jnp.int32(c), sched(K))
+        np.testing.assert_allclose(float(got), ref, rtol=1e-4, atol=1e-4)
+        a, cm = mode(params, o32, sched(K))
+        L, b = np.asarray(params["L"], np.float64)[int(cm)], np.asarray(params["b"], np.float64)[int(cm)]
+        np.testing.assert_allclose(np.asarray(a), L @ np_features(subpolicy, obs) + b, rtol=1e-4, atol=1e-4)
+    with pytest.raises(ValueError, match="unknown subpolicy"):
+        make_policy("mixture", D_S, D_A, subpolicy="cubic")
 
 
 def test_partition_entropy_matches_numpy(mix16):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from gsa_jax.ppo import Config, make_hparams, make_train
-from gsa_jax.sweep import SpecError, build_grid, check_spec, load_spec, run_sweep
+from gsa_jax.sweep import SpecError, build_grid, check_spec, group_config, group_name, id_columns, load_spec, run_sweep
 
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
 TINY = f"""
@@ -49,6 +49,40 @@ def test_grid_every_combination_once():
         assert all(r["clip_eps"] == 0.2 for r in runs)
 
 
+def test_grid_with_subpolicy_classes():
+    """One compiled group per sub-policy class; flat PPO once; a 'subpolicy' id column."""
+    spec = check_spec({"envs": ["hopper"], "policies": ["mlp", "mixture"], "subpolicies": ["constant", "quadratic"],
+                       "clusters": [1, 4], "seeds": 2, "steps": 1000})
+    groups = build_grid(spec)
+    assert [group_name(e, p, runs) for e, p, runs in groups] == ["hopper-mlp", "hopper-mixture-constant", "hopper-mixture-quadratic"]
+    assert [group_config(spec, e, p, runs).subpolicy for e, p, runs in groups] == ["linear", "constant", "quadratic"]
+    assert [len(runs) for _, _, runs in groups] == [2, 4, 4]
+    assert id_columns(spec) == ["env", "policy", "subpolicy", "K", "seed", "run"]
+    # without the field nothing changes: same groups, columns and spec as before the field existed
+    plain = check_spec({"envs": ["hopper"], "policies": ["mixture"], "clusters": [2], "steps": 10})
+    assert "subpolicies" not in plain and id_columns(plain) == ["env", "policy", "K", "seed", "run"]
+    assert [group_name(e, p, runs) for e, p, runs in build_grid(plain)] == ["hopper-mixture"]
+
+
+def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
+    """plot_sweep on a tidy table with a subpolicy column: final returns per (class, K), flat PPO separate."""
+    from gsa_jax.plot import plot_sweep
+
+    lines = ["env,policy,subpolicy,K,seed,run,iteration,env_steps,episode_return"]
+    final = {("mlp", "", 1): 50.0, ("mixture", "constant", 2): 10.0, ("mixture", "constant", 4): 20.0,
+             ("mixture", "linear", 2): 30.0, ("mixture", "linear", 4): 40.0}
+    for (pol, sub, k), value in final.items():
+        for seed in range(3):
+            for it in range(20):
+                lines.append(f"hopper,{pol},{sub},{k},{seed},0,{it},{(it + 1) * 100},{value + seed - 1}")
+    (tmp_path / "metrics.csv").write_text("\n".join(lines) + "\n")
+    _, table, rows = plot_sweep(str(tmp_path), action_dims={"hopper": 3})
+    got = {(r["policy"], r["subpolicy"], r["K"] or 1): r["final_return_mean"] for r in rows}
+    assert got == final
+    assert all(r["seeds"] == 3 for r in rows)
+    assert os.path.getsize(tmp_path / "return_vs_k.png") > 10_000
+
+
 @pytest.mark.parametrize("raw, field", [
     ({"envs": ["pong"], "policies": ["mlp"], "steps": 10}, "envs"),
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 0}, "steps"),
@@ -59,6 +93,8 @@ def test_grid_every_combination_once():
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "hparams": {"lr": "fast"}}, "hparams.lr"),
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "config": {"num_envs": 10, "num_minibatches": 3}}, "config"),
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "colour": "red"}, "colour"),
+    ({"envs": ["hopper"], "policies": ["mixture"], "clusters": 2, "steps": 10, "subpolicies": ["cubic"]}, "subpolicies"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "subpolicies": ["constant"]}, "subpolicies"),
 ])
 def test_malformed_spec_names_the_field(raw, field):
     with pytest.raises(SpecError, match=f"field '{field}'"):

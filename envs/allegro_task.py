@@ -1,0 +1,62 @@
+"""The allegro_cylinder task definition shared by the MJX environment (envs/allegro.py) and MuJoCo C
+(envs/mujoco_c.py): the MJCF, constants, and the task's step in plain MuJoCo C. No JAX here.
+The task itself is described in envs/allegro.py.
+"""
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+ASSET = Path(__file__).parent / "assets" / "allegro_cylinder.xml"
+TIMESTEP = 0.005  # s, physics step (in the MJCF)
+SUBSTEPS = 2  # physics steps per 100 Hz control step
+ACTION_SCALE = 0.025  # rad of PD-target change per control step at |a| = 1 (2.5 rad/s)
+ACTION_COST = 0.01
+TARGET_NOISE = 0.005  # rad, start jitter of the PD targets
+TAXELS = 18  # tactile elements per finger (paper); the observation is their average
+DEFAULT_EPISODE_LENGTH = 200
+FINGER_TIPS = ("ff_tip", "th_tip")
+
+
+def load_mj_model():
+    """The MuJoCo C model of the task (the same MJCF MJX steps)."""
+    m = mujoco.MjModel.from_xml_path(str(ASSET))
+    if abs(m.opt.timestep - TIMESTEP) > 1e-12:
+        raise ValueError(f"{ASSET} has timestep {m.opt.timestep}, expected {TIMESTEP}")
+    return m
+
+
+def tactile_numpy(m, d):
+    """MuJoCo C reference of the tactile observation: mj_contactForce normal forces summed per
+    fingertip, / TAXELS. (2,)"""
+    out = np.zeros(len(FINGER_TIPS))
+    tips = [m.geom(name).id for name in FINGER_TIPS]
+    f = np.zeros(6)
+    for i in range(d.ncon):
+        mujoco.mj_contactForce(m, d, i, f)
+        for k, g in enumerate(tips):
+            if g in (d.contact.geom1[i], d.contact.geom2[i]):
+                out[k] += f[0]
+    return out / TAXELS
+
+
+def observe_mujoco(m, d):
+    """The observation (10,) of a MuJoCo C MjData (after mj_forward or mj_step)."""
+    qadr = [m.jnt_qposadr[m.actuator_trnid[i, 0]] for i in range(m.nu)]
+    return np.concatenate([d.qpos[qadr], tactile_numpy(m, d)]).astype(np.float32)
+
+
+def step_mujoco(m, d, action):
+    """One control step of the task in MuJoCo C (no MJX, no JAX), in place: the same action
+    clipping, PD-target update, substeps and reward as AllegroCylinder.step. Returns (obs, reward)."""
+    a = np.clip(np.asarray(action, np.float64), -1.0, 1.0)
+    if a.shape != (m.nu,):
+        raise ValueError(f"action has shape {a.shape}; allegro_cylinder takes ({m.nu},)")
+    lo, hi = m.actuator_ctrlrange.T
+    d.ctrl[:] = np.clip(d.ctrl + ACTION_SCALE * a, lo, hi)
+    hinge = m.jnt_qposadr[m.joint("object_hinge").id]
+    angle0 = d.qpos[hinge]
+    mujoco.mj_step(m, d, nstep=SUBSTEPS)
+    reward = (d.qpos[hinge] - angle0) / (TIMESTEP * SUBSTEPS) - ACTION_COST * float(a @ a)
+    return observe_mujoco(m, d), float(reward)

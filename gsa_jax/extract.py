@@ -1,0 +1,126 @@
+"""Take one finished run out of a sweep as a run directory (config.json + params.npz), so that the
+single-run tools work on it (inspect, export, deploy, envs.render --run):
+
+    python -m gsa_jax.extract runs/sweeps/fig1_idp_hopper --env hopper --policy mixture --clusters 6 --seed 0 --out runs/hopper-K6-s0
+    python -m gsa_jax.extract SWEEP_DIR --list      # the finished runs it holds
+
+Swept hyperparameters and sub-policy classes select with --hparam NAME=VALUE and --subpolicy.
+"""
+
+import argparse
+import csv
+import dataclasses
+import glob
+import json
+import os
+import sys
+
+import numpy as np
+
+
+class ExtractError(Exception):
+    pass
+
+
+def finished_runs(sweep_dir):
+    """[(group dir, row index in the group, run dict)] of every run whose group finished (DONE)."""
+    if not os.path.exists(os.path.join(sweep_dir, "sweep.json")):
+        raise ExtractError(f"{sweep_dir!r} is not a sweep directory (no sweep.json)")
+    out = []
+    for runs_csv in sorted(glob.glob(os.path.join(sweep_dir, "**", "groups", "*", "runs.csv"), recursive=True)):
+        gdir = os.path.dirname(runs_csv)
+        if not os.path.exists(os.path.join(gdir, "DONE")) or not os.path.exists(os.path.join(gdir, "params.npz")):
+            continue
+        with open(runs_csv) as f:
+            for i, row in enumerate(csv.DictReader(f)):
+                out.append((gdir, i, row))
+    return out
+
+
+def select(runs, env, policy, k, seed, subpolicy=None, hparams=()):
+    """The one finished run matching the arguments (hparams: [(name, value string)])."""
+
+    def matches(row):
+        if (row["env"], row["policy"], row["seed"]) != (env, policy, str(seed)):
+            return False
+        if policy == "mixture" and (row["K"] != str(k) or (subpolicy and (row.get("subpolicy") or "linear") != subpolicy)):
+            return False
+        return all(n in row and float(row[n]) == float(v) for n, v in hparams)
+
+    hits = [(gdir, i, row) for gdir, i, row in runs if matches(row)]
+    desc = f"env={env} policy={policy}" + (f" K={k}" if policy == "mixture" else "") + f" seed={seed}"
+    if not hits:
+        raise ExtractError(f"no finished run with {desc} (see --list)")
+    if len(hits) > 1:
+        raise ExtractError(f"{len(hits)} runs match {desc}; narrow it with --hparam NAME=VALUE or --subpolicy (see --list)")
+    return hits[0]
+
+
+def extract(sweep_dir, gdir, index, row, out):
+    """Write out/config.json and out/params.npz for run `index` of group `gdir`."""
+    from gsa_jax.checkpoint import save_npz_atomic, write_atomic
+    from gsa_jax.ppo import HPARAM_DEFAULTS
+    from gsa_jax.sweep import check_spec, default_chunk, group_config, group_iterations
+
+    with open(os.path.join(sweep_dir, "sweep.json")) as f:
+        meta = json.load(f)
+    spec = check_spec(meta["spec"], source=os.path.join(sweep_dir, "sweep.json"))
+    with open(os.path.join(gdir, "runs.csv")) as f:
+        group_runs = [dict(r, K=int(r["K"])) for r in csv.DictReader(f)]
+    cfg = group_config(spec, row["env"], row["policy"], group_runs)
+    chunk = default_chunk(spec, cfg)
+    iterations = group_iterations(spec, cfg, chunk)
+    hp = dict(HPARAM_DEFAULTS)
+    hp.update({n: v[0] for n, v in spec["hparams"].items()})
+    hp.update({n: float(row[n]) for n in spec["hparams"] if n in row})
+    hp.update(K=int(row["K"]) if row["policy"] == "mixture" else 1, total_iterations=iterations)
+    with np.load(os.path.join(gdir, "params.npz")) as p:
+        arrays = {k: p[k][index] for k in p.files}
+    os.makedirs(out, exist_ok=True)
+    save_npz_atomic(os.path.join(out, "params.npz"), **arrays)
+    config = {"config": dataclasses.asdict(cfg), "hparams": hp, "seed": int(row["seed"]), "iterations": iterations,
+              "chunk": chunk, "result": {"iterations_done": iterations, "status": "finished"},
+              "extracted_from": {"sweep": os.path.abspath(sweep_dir), "group": os.path.relpath(gdir, sweep_dir),
+                                 "row": index, "run": row, "git_commit": meta.get("git_commit")}}
+    write_atomic(os.path.join(out, "config.json"), json.dumps(config, indent=2))
+    return out
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.extract", description=__doc__.split("\n")[0])
+    p.add_argument("sweep_dir")
+    p.add_argument("--list", action="store_true", help="list the finished runs")
+    p.add_argument("--env")
+    p.add_argument("--policy", default="mixture")
+    p.add_argument("--clusters", "-K", type=int, default=None)
+    p.add_argument("--subpolicy", default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--hparam", action="append", default=[], metavar="NAME=VALUE", help="a swept hyperparameter's value")
+    p.add_argument("--out", default=None)
+    args = p.parse_args(argv)
+    try:
+        runs = finished_runs(args.sweep_dir)
+        if args.list:
+            for gdir, i, row in runs:
+                print(" ".join(f"{c}={v}" for c, v in row.items() if c != "run"))
+            return 0
+        if not args.env or not args.out:
+            raise ExtractError("--env and --out are required (or --list)")
+        if args.policy == "mixture" and args.clusters is None:
+            raise ExtractError("--clusters is required for a mixture run")
+        hps = []
+        for item in args.hparam:
+            if "=" not in item:
+                raise ExtractError(f"--hparam takes NAME=VALUE, got {item!r}")
+            hps.append(tuple(item.split("=", 1)))
+        gdir, i, row = select(runs, args.env, args.policy, args.clusters, args.seed, args.subpolicy, hps)
+        out = extract(args.sweep_dir, gdir, i, row, args.out)
+    except ExtractError as e:
+        print(f"gsa_jax.extract: error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {out} ({', '.join(f'{c}={v}' for c, v in row.items() if c != 'run')})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
