@@ -38,7 +38,8 @@ def make_base(name):
     with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
         from brax import envs as brax_envs
 
-        from envs import allegro
+        from envs import allegro, linalg
+    linalg.install()  # MJX's small Cholesky factor/solves without batched LAPACK (envs/linalg.py)
     with warnings.catch_warnings(), _process_local_devices():
         warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
         if name == "allegro_cylinder":
