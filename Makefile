@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test sweep figures bench bench-quick clean
+.PHONY: install demo test sweep figures bench bench-quick scene clean
 EXP ?= experiments/fig1_small.toml
 
 $(STAMP): pyproject.toml
@@ -38,6 +38,13 @@ bench: $(STAMP)
 
 bench-quick: $(STAMP)
 	$(BIN)/python -m gsa_jax.bench --quick --out runs/bench-quick
+
+## scene: a picture of the Allegro task (offscreen OSMesa rendering; installs Debian's libosmesa6 if missing)
+scene: $(STAMP)
+	@ldconfig -p | grep -q libOSMesa || (apt-get install -y -q libosmesa6 >/dev/null || sudo apt-get install -y -q libosmesa6 >/dev/null) \
+		|| (echo "could not install libosmesa6; install it (Debian/Ubuntu: apt-get install libosmesa6) and re-run" && false)
+	@mkdir -p runs
+	MUJOCO_GL=osmesa $(BIN)/python -m envs.render allegro_cylinder --out runs/allegro_scene.png
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

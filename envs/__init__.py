@@ -64,6 +64,16 @@ def _process_local_devices():
         jax.devices = original
 
 
+def mj_model(env):
+    """The MuJoCo C model (MjModel) behind a task made by make_base: ours or a Brax MJX env."""
+    return env.mj_model if hasattr(env, "mj_model") else env.sys.mj_model
+
+
+def substeps(env):
+    """Physics steps per env step of a task made by make_base."""
+    return int(getattr(env, "n_frames", None) or getattr(env, "_n_frames", 1))
+
+
 def make(name, episode_length=None, auto_reset=True):
     """Task `name` with a time limit of `episode_length` steps (default: the task's own,
     `default_episode_length(name)`) and (by default) Brax-style auto-reset.

@@ -65,6 +65,10 @@ class AllegroCylinder(Env):
     def dt(self):
         return TIMESTEP * SUBSTEPS
 
+    @property
+    def n_frames(self):
+        return SUBSTEPS
+
     def tactile(self, data):
         """Per-fingertip normal contact force / TAXELS from the constraint forces of `data`. (2,)
 

@@ -48,11 +48,6 @@ def make_renderer(mj_model, width, height):
         raise RenderError(f"no offscreen OpenGL with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} ({e}); {GL_HELP}") from e
 
 
-def mj_model_of(env):
-    """The MuJoCo C model behind a task made by envs.make_base (ours or a Brax MJX env)."""
-    return env.mj_model if hasattr(env, "mj_model") else env.sys.mj_model
-
-
 def render_qpos(renderer, mj_model, qpos_seq, camera):
     """RGB frames (T, H, W, 3) of the model at each qpos."""
     import mujoco
@@ -81,7 +76,7 @@ def render_scene(env_name, out, width=640, height=480, camera=None, seed=0):
     import matplotlib.pyplot as plt
 
     base = envs.make_base(env_name)
-    m = mj_model_of(base)
+    m = envs.mj_model(base)
     state = jax.jit(base.reset)(jax.random.PRNGKey(seed))
     qpos = np.asarray(state.pipeline_state.qpos)
     renderer = make_renderer(m, width, height)
@@ -100,7 +95,7 @@ def render_run(run_dir, out, episodes=1, width=480, height=360, camera=None, fps
 
     trainer, params, obs_stats, hp, meta = load_run(run_dir, require_mixture=False)
     roll = rollout(trainer, params, obs_stats, hp, jax.random.PRNGKey(seed), episodes, True, last_iteration(meta))
-    m = mj_model_of(envs.make_base(trainer.cfg.env))
+    m = envs.mj_model(envs.make_base(trainer.cfg.env))
     dt = trainer.env.dt if hasattr(trainer.env, "dt") else 0.01
     stride = max(1, int(round(1.0 / (fps * float(dt)))))
     renderer = make_renderer(m, width, height)

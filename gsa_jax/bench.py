@@ -1,14 +1,19 @@
 """The vmapped seed benchmark: `python -m gsa_jax.bench [--quick] [--out DIR]` (make bench).
 
-For `hopper` it measures end-to-end training throughput (env steps per second, PPO updates
-included, compile excluded and reported separately) of sweeps of 1, 16, 64 and 256 runs
-(mixture K=6, and mlp), with 1 and with 2 worker processes (each one XLA CPU device, as
-`gsa_jax.sweep` runs them), plus compile time and peak resident
-memory; and, in the same invocation, the raw step rate of MuJoCo C on the same MJCF
-(`mujoco.rollout`, one thread per core, batch 256, the task's substeps per env step).
-Every figure is the median of repeated chunks of one PPO iteration; workers of a 2-process
-measurement start their timed chunks together. Writes bench.json (with `ratio_vs_mujoco_c`
-for each sweep) and bench.png.
+For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one invocation:
+- the raw step rate of MuJoCo C on the same MJCF (`mujoco.rollout`, one thread per core, batch 256,
+  the task's substeps per env step) -- the physical reference;
+- raw MJX stepping (vmapped env.step, random actions, auto-reset) at batch 256 and 4096, with 1 and
+  with all-core worker processes;
+- end-to-end training throughput (env steps per second, PPO updates included, compile excluded and
+  reported separately) of sweeps of 1, 16, 64 and 256 runs (mixture K=6, and mlp), with 1 and with
+  <cores> worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them), with compile time
+  and peak resident memory;
+- a time profile of one PPO iteration (physics / rest of the rollout / PPO update).
+Every figure is the median of repeated timed chunks; workers of a multi-process measurement start
+their timed chunks together. A worker that hangs (no heartbeat) is killed and the measurement retried
+once, then recorded as an error. Writes bench.json (`ratio_vs_mujoco_c` for each measurement) and
+bench.png.
 """
 
 import argparse
@@ -27,21 +32,47 @@ from gsa_jax.checkpoint import write_atomic
 
 SIZES = (1, 16, 64, 256)
 QUICK_SIZES = (1, 16)
+RAW_BATCHES = (256, 4096)
+RAW_UNROLL = 20  # env steps per timed raw-stepping chunk
 
 
 # ----------------------------------------------------------------------------------------------- workers
+def _beat(args, payload=None):
+    """Heartbeat for the parent's hang detection (XLA:CPU has been seen to hang with no CPU use)."""
+    write_atomic(os.path.join(args.barrier, f"beat-{args.worker_id}"), json.dumps(payload or {}))
+
+
+def _wait_barrier(args):
+    open(os.path.join(args.barrier, f"ready-{args.worker_id}"), "w").close()
+    while len([n for n in os.listdir(args.barrier) if n.startswith("ready-")]) < args.num_workers:
+        time.sleep(0.01)
+
+
+def _time_chunks(args, fn, state):
+    times = []
+    for _ in range(args.repeats):
+        t = time.perf_counter()
+        state = fn(state)
+        times.append(time.perf_counter() - t)
+        _beat(args, {"chunk_s": times[-1]})
+    return times
+
+
 def worker(args):
-    """One process: compile the group program for args.runs runs, wait at the barrier, time chunks."""
+    """One process: compile the group program for args.runs runs, wait at the barrier, time chunks of
+    one PPO iteration."""
+    import dataclasses
+
     import jax
 
-    from gsa_jax.sweep import check_spec, make_group_program, pad_runs, stack_hparams
+    from gsa_jax.sweep import build_grid, check_spec, group_config, make_group_program, pad_runs, stack_hparams
 
     spec = check_spec({"envs": [args.env], "policies": [args.policy], "clusters": [args.clusters],
                        "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9})
-    from gsa_jax.sweep import build_grid, group_config
-
     _, _, runs = build_grid(spec)[0]
     cfg = group_config(spec, args.env, args.policy, runs)
+    if args.epochs:
+        cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
     _, init, run, place = make_group_program(cfg, 1, devices)
@@ -50,18 +81,13 @@ def worker(args):
     keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
     states = init(keys, hps)
     run = run.lower(states, hps).compile()
+    compile_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
     states, _ = run(states, hps)  # first execution (allocations, page faults) is not timed
     jax.block_until_ready(states)
-    compile_s = time.perf_counter() - t0
-    open(os.path.join(args.barrier, f"ready-{args.worker_id}"), "w").close()
-    while len([n for n in os.listdir(args.barrier) if n.startswith("ready-")]) < args.num_workers:
-        time.sleep(0.01)
-    times = []
-    for _ in range(args.repeats):
-        t = time.perf_counter()
-        states, m = run(states, hps)
-        jax.block_until_ready(states)
-        times.append(time.perf_counter() - t)
+    _beat(args, {"chunk_s": time.perf_counter() - t1})
+    _wait_barrier(args)
+    times = _time_chunks(args, lambda st: jax.block_until_ready(run(st, hps)[0]), states)
     steps = len(runs) * cfg.batch_size
     print(json.dumps({
         "compile_s": compile_s, "chunk_s": times, "env_steps_per_chunk": steps,
@@ -70,25 +96,108 @@ def worker(args):
     }), flush=True)
 
 
-def measure_sweep(env, policy, runs, processes, repeats, clusters=6):
+def raw_worker(args):
+    """One process: the task alone (no policy, no learning) -- args.batch envs stepped by a vmapped
+    env.step with uniform random actions, with the training loop's time limit and auto-reset,
+    in scans of RAW_UNROLL steps."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+
+    env = envs.make(args.env)
+    b = args.batch
+    t0 = time.perf_counter()
+
+    def chunk(carry):
+        state, key = carry
+        key, k = jax.random.split(key)
+
+        def body(st, kk):
+            a = jax.random.uniform(kk, (b, env.action_size), minval=-1.0, maxval=1.0)
+            st = jax.vmap(env.step)(st, a)
+            return st, st.reward
+
+        state, rewards = jax.lax.scan(body, state, jax.random.split(k, RAW_UNROLL))
+        return state, key
+
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(args.seed0), b))
+    carry = (state, jax.random.PRNGKey(args.seed0 + 1))
+    step = jax.jit(chunk, donate_argnums=0).lower(carry).compile()
+    compile_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    carry = jax.block_until_ready(step(carry))
+    _beat(args, {"chunk_s": time.perf_counter() - t1})
+    _wait_barrier(args)
+    holder = [carry]
+
+    def timed(_):
+        holder[0] = jax.block_until_ready(step(holder[0]))
+        return None
+
+    times = _time_chunks(args, timed, None)
+    print(json.dumps({"compile_s": compile_s, "chunk_s": times, "env_steps_per_chunk": b * RAW_UNROLL,
+                      "env_steps_per_s": b * RAW_UNROLL / statistics.median(times),
+                      "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}), flush=True)
+
+
+class BenchError(Exception):
+    pass
+
+
+def run_workers(cmds, compile_limit_s=900, retries=1, log=print):
+    """Start one worker per command (they meet at a barrier), collect their JSON lines. A worker that
+    fails, or stops beating (no heartbeat for compile_limit_s before its first chunk, or 60 s + 10x its
+    first chunk after it) gets the whole measurement killed and retried, at most `retries` times."""
+    for attempt in range(retries + 1):
+        barrier = tempfile.mkdtemp(prefix="gsa_bench_")
+        full = [c + ["--barrier", barrier, "--worker-id", str(i), "--num-workers", str(len(cmds))] for i, c in enumerate(cmds)]
+        procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in full]
+        start, problem = time.time(), None
+        while any(p.poll() is None for p in procs):
+            time.sleep(0.5)
+            for i, p in enumerate(procs):
+                if p.poll() is not None:
+                    if p.returncode != 0:
+                        problem = f"worker {i} exited with {p.returncode}: {p.stderr.read()[-2000:]}"
+                    continue
+                beat = os.path.join(barrier, f"beat-{i}")
+                if os.path.exists(beat):
+                    with open(beat) as f:
+                        first = json.load(f).get("chunk_s", 60.0)
+                    limit, since = 60 + 10 * first, os.path.getmtime(beat)
+                else:
+                    limit, since = compile_limit_s, start
+                if time.time() - since > limit:
+                    problem = f"worker {i} made no progress for {limit:.0f} s (hung)"
+            if problem:
+                break
+        if problem is None:
+            outs = [p.communicate()[0] for p in procs]
+            return [json.loads(o.strip().splitlines()[-1]) for o in outs]
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+        log(f"  ! {problem}; " + ("retrying" if attempt < retries else "giving up"))
+    raise BenchError(problem)
+
+
+def _split(n, processes):
+    return [n // processes + (1 if i < n % processes else 0) for i in range(processes)]
+
+
+def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, log=print):
     """Throughput of `runs` runs split over `processes` workers, measured together."""
-    share = [runs // processes + (1 if i < runs % processes else 0) for i in range(processes)]
-    barrier = tempfile.mkdtemp(prefix="gsa_bench_")
-    procs, seed0 = [], 0
-    for i, n in enumerate(share):
-        cmd = [sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
-               "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats),
-               "--barrier", barrier, "--worker-id", str(i), "--num-workers", str(processes)]
-        procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    cmds, seed0 = [], 0
+    for n in _split(runs, processes):
+        cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
+                     "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats)]
+                    + (["--epochs", str(epochs)] if epochs else []))
         seed0 += n
-    results = []
-    for p in procs:
-        out, err = p.communicate()
-        if p.returncode != 0:
-            raise RuntimeError(f"bench worker failed:\n{err[-3000:]}")
-        results.append(json.loads(out.strip().splitlines()[-1]))
+    results = run_workers(cmds, log=log)
     return {
-        "env": env, "policy": policy, "runs": runs, "processes": processes,
+        "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
         "compile_s": max(r["compile_s"] for r in results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),
@@ -98,21 +207,58 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6):
     }
 
 
+def measure_raw(env, batch, processes, repeats, log=print):
+    """Raw MJX stepping throughput of `batch` envs split over `processes` workers."""
+    cmds = [[sys.executable, "-m", "gsa_jax.bench", "--raw-worker", "--env", env, "--batch", str(b), "--seed0", str(i),
+             "--repeats", str(repeats)] for i, b in enumerate(_split(batch, processes))]
+    results = run_workers(cmds, log=log)
+    return {"env": env, "batch": batch, "processes": processes,
+            "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
+            "compile_s": max(r["compile_s"] for r in results), "chunk_s": [r["chunk_s"] for r in results]}
+
+
+def time_profile(env, policy, runs, repeats, log=print):
+    """Where one PPO iteration's time goes (1 process, `runs` runs): t(E epochs) = t_collect + E t_epoch,
+    measured at E = 1 and the default E; physics = the same number of env steps stepped raw.
+    Returns seconds per iteration for physics, the rest of the rollout (policy sampling, normalization,
+    GAE, host), and the PPO update (all epochs)."""
+    from gsa_jax.ppo import Config
+
+    epochs = Config.num_epochs
+    full = measure_sweep(env, policy, runs, 1, repeats, log=log)
+    one = measure_sweep(env, policy, runs, 1, repeats, epochs=1, log=log)
+    steps = full["env_steps_per_iteration"]
+    t_full, t_one = steps / full["env_steps_per_s"], steps / one["env_steps_per_s"]
+    t_epoch = max(0.0, (t_full - t_one) / (epochs - 1))
+    t_collect = max(0.0, t_one - t_epoch)
+    raw = measure_raw(env, runs * Config.num_envs, 1, repeats, log=log)
+    t_physics = min(t_collect, steps / raw["env_steps_per_s"])
+    return {"env": env, "policy": policy, "runs": runs, "num_epochs": epochs, "iteration_s": t_full,
+            "physics_s": t_physics, "rollout_other_s": t_collect - t_physics, "update_s": epochs * t_epoch,
+            "fractions": {"physics": t_physics / t_full, "rollout_other": (t_collect - t_physics) / t_full,
+                          "update": epochs * t_epoch / t_full},
+            "raw_env_steps_per_s": raw["env_steps_per_s"], "train_env_steps_per_s": full["env_steps_per_s"],
+            "train_env_steps_per_s_1_epoch": one["env_steps_per_s"]}
+
+
 def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None):
     """Env-steps/s of MuJoCo C (`mujoco.rollout`) on the env's own MJCF: random controls, the env's
-    substeps (n_frames) per env step, one MjData per thread."""
+    substeps (n_frames) per env step, one MjData per thread. Models with a start keyframe (allegro)
+    start there and random-walk their PD targets as the env's actions do (contacts stay active)."""
     import mujoco
     from mujoco import rollout
 
     import envs
 
     base = envs.make_base(env_name)
-    model = base.sys.mj_model
-    n_frames = int(getattr(base, "_n_frames", 1))
+    model = envs.mj_model(base)
+    n_frames = envs.substeps(base)
     threads = threads or os.cpu_count() or 1
     datas = [mujoco.MjData(model) for _ in range(threads)]
     d0 = mujoco.MjData(model)
     mujoco.mj_resetData(model, d0)
+    if model.nkey:
+        mujoco.mj_resetDataKeyframe(model, d0, 0)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     state = np.zeros((mujoco.mj_stateSize(model, spec),))
     mujoco.mj_getState(model, d0, state, spec)
@@ -121,7 +267,11 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None):
     nq = model.nq
     init[:, 1:1 + nq] += rng.uniform(-0.005, 0.005, size=(batch, nq))  # state[0] is time
     lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-    ctrl = rng.uniform(lo, hi, size=(batch, steps, model.nu))
+    if model.nkey:  # targets = start targets + a random walk of 0.025 rad steps (envs/allegro.py's action scale)
+        walk = np.cumsum(rng.uniform(-0.025, 0.025, size=(batch, steps, model.nu)), axis=1)
+        ctrl = np.clip(model.key_ctrl[0] + walk, lo, hi)
+    else:
+        ctrl = rng.uniform(lo, hi, size=(batch, steps, model.nu))
     ctrl = np.repeat(ctrl, n_frames, axis=1)  # each action held for n_frames physics steps
     times = []
     with rollout.Rollout(nthread=threads) as r:
@@ -136,80 +286,143 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None):
 
 
 # ----------------------------------------------------------------------------------------------- report
-def plot(results, mujoco_c, path):
+def plot(results, raw, mujoco_c, path):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.4))
-    for policy in sorted({r["policy"] for r in results}):
-        for procs in sorted({r["processes"] for r in results}):
-            pts = sorted((r["runs"], r["env_steps_per_s"]) for r in results if r["policy"] == policy and r["processes"] == procs)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
+    ax = axes[0]
+    ok = [r for r in results if "error" not in r]
+    for policy in sorted({r["policy"] for r in ok}):
+        for procs in sorted({r["processes"] for r in ok}):
+            pts = sorted((r["runs"], r["env_steps_per_s"]) for r in ok if r["policy"] == policy and r["processes"] == procs)
             if pts:
                 ax.plot(*zip(*pts), "o-" if policy == "mixture" else "s--", label=f"{policy}, {procs} process(es)")
-    ax.axhline(mujoco_c["env_steps_per_s"], color="k", ls=":", label=f"MuJoCo C rollout ({mujoco_c['threads']} threads, physics only)")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("runs trained together (vmapped)")
     ax.set_ylabel("env steps / s (training, end to end)")
-    ax.set_title(f"{results[0]['env']}: sweep throughput vs MuJoCo C")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.set_title(f"{mujoco_c['env']}: sweep throughput vs MuJoCo C")
+    ax2 = axes[1]
+    okr = [r for r in raw if "error" not in r]
+    for procs in sorted({r["processes"] for r in okr}):
+        pts = sorted((r["batch"], r["env_steps_per_s"]) for r in okr if r["processes"] == procs)
+        ax2.plot(*zip(*pts), "o-", label=f"MJX env.step, {procs} process(es)")
+    ax2.set_xscale("log", base=2)
+    ax2.set_xlabel("envs stepped together (batch)")
+    ax2.set_ylabel("env steps / s (physics only, random actions)")
+    ax2.set_title(f"{mujoco_c['env']}: raw stepping")
+    for a in axes:
+        a.axhline(mujoco_c["env_steps_per_s"], color="k", ls=":", label=f"MuJoCo C rollout ({mujoco_c['threads']} threads)")
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
+def estimate_s(plan, raw_plan, profile_runs, repeats):
+    """Rough wall time: ~50 s compile + start per measurement, timed chunks at ~10k steps/s per process."""
+    t = 30 + sum(50 + (repeats + 1) * n * 2048 / (10000 * k) for _, n, k in plan)
+    t += sum(40 + (repeats + 1) * b * RAW_UNROLL / (15000 * k) for b, k in raw_plan)
+    if profile_runs:
+        t += 2 * (50 + (repeats + 1) * profile_runs * 2048 / 10000) + 40
+    return t
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true", help="1 and 16 runs, mixture only (~3 min)")
+    p.add_argument("--quick", action="store_true", help="1 and 16 runs, mixture only, raw batch 256 (~3 min)")
     p.add_argument("--out", default="runs/bench")
-    p.add_argument("--env", default="hopper")
+    p.add_argument("--env", default="hopper", help="hopper or allegro_cylinder (any env of envs.NAMES)")
     p.add_argument("--sizes", default=None, help="comma-separated run counts (default 1,16,64,256)")
     p.add_argument("--policies", default=None, help="comma-separated (default mixture,mlp)")
     p.add_argument("--processes", default=None, help="comma-separated worker counts (default 1,<cores>)")
+    p.add_argument("--raw-batches", default=None, help="comma-separated env batches for raw stepping (default 256,4096)")
+    p.add_argument("--profile-runs", type=int, default=None,
+                   help="runs of the time profile (mixture, 1 process; default 64, quick 0 = off)")
     p.add_argument("--repeats", type=int, default=None)
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
     for a, t in (("--policy", str), ("--clusters", int), ("--runs", int), ("--seed0", int), ("--barrier", str),
-                 ("--worker-id", int), ("--num-workers", int)):
+                 ("--worker-id", int), ("--num-workers", int), ("--batch", int), ("--epochs", int)):
         p.add_argument(a, type=t, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
-    if args.worker:
+    if args.worker or args.raw_worker:
         args.repeats = args.repeats or 3
-        worker(args)
+        (worker if args.worker else raw_worker)(args)
         return 0
 
+    import envs
+
+    try:
+        envs.check_name(args.env)
+    except ValueError as e:
+        print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
+        return 2
     cores = os.cpu_count() or 1
     sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else list(QUICK_SIZES if args.quick else SIZES)
     policies = args.policies.split(",") if args.policies else (["mixture"] if args.quick else ["mixture", "mlp"])
     procs = [int(s) for s in args.processes.split(",")] if args.processes else sorted({1, cores})
+    batches = [int(s) for s in args.raw_batches.split(",")] if args.raw_batches else ([256] if args.quick else list(RAW_BATCHES))
+    profile_runs = args.profile_runs if args.profile_runs is not None else (0 if args.quick else 64)
     repeats = args.repeats or (2 if args.quick else 3)
     plan = [(pol, n, k) for pol in policies for n in sizes for k in procs if k <= n]
-    # rough: ~45 s compile + start per configuration, plus the timed chunks at ~7k steps/s per process
-    est = sum(45 + (repeats + 1) * n * 2048 / (7000 * k) for _, n, k in plan) + 30
-    print(f"gsa_jax.bench: {args.env}, {len(plan)} sweep configurations (runs {sizes}, policies {policies}, "
-          f"processes {procs}), {repeats} timed iterations each; about {est / 60:.0f} min", flush=True)
+    raw_plan = [(b, k) for b in batches for k in procs if k <= b]
+    print(f"gsa_jax.bench: {args.env}: raw stepping at batch {batches}, {len(plan)} sweep configurations (runs {sizes}, "
+          f"policies {policies}, processes {procs})" + (f", a time profile at {profile_runs} runs" if profile_runs else "")
+          + f"; {repeats} timed chunks each (median); about {estimate_s(plan, raw_plan, profile_runs, repeats) / 60:.0f} min",
+          flush=True)
     from gsa_jax.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     t_start = time.perf_counter()
     mujoco_c = measure_mujoco_c(args.env)
-    print(f"MuJoCo C rollout: {mujoco_c['env_steps_per_s']:,.0f} env-steps/s ({mujoco_c['threads']} threads, "
+    c_sps = mujoco_c["env_steps_per_s"]
+    print(f"MuJoCo C rollout: {c_sps:,.0f} env-steps/s ({mujoco_c['threads']} threads, "
           f"batch {mujoco_c['batch']}, {mujoco_c['substeps_per_env_step']} substeps)", flush=True)
-    results = []
-    header = f"{'policy':8} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} {'peak_MiB':>9}"
-    print(header, flush=True)
-    for pol, n, k in plan:
-        r = measure_sweep(args.env, pol, n, k, repeats)
-        r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / mujoco_c["env_steps_per_s"]
-        results.append(r)
-        print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
-              f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}", flush=True)
-        report = {"env": args.env, "quick": args.quick, "repeats": repeats, "mujoco_c": mujoco_c, "sweeps": results,
-                  "wall_s": time.perf_counter() - t_start, **run_metadata()}
+    report = {"env": args.env, "quick": args.quick, "repeats": repeats, "mujoco_c": mujoco_c, "raw": [], "sweeps": [],
+              **run_metadata()}
+
+    def save():
+        report["wall_s"] = time.perf_counter() - t_start
         write_atomic(os.path.join(args.out, "bench.json"), json.dumps(report, indent=1))
-    plot(results, mujoco_c, os.path.join(args.out, "bench.png"))
+
+    print(f"{'raw MJX':8} {'batch':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9}", flush=True)
+    for b, k in raw_plan:
+        try:
+            r = measure_raw(args.env, b, k, repeats)
+            r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_sps
+            print(f"{'':8} {b:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} {r['compile_s']:9.1f}", flush=True)
+        except BenchError as e:
+            r = {"env": args.env, "batch": b, "processes": k, "error": str(e)}
+        report["raw"].append(r)
+        save()
+    print(f"{'policy':8} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} {'peak_MiB':>9}", flush=True)
+    for pol, n, k in plan:
+        try:
+            r = measure_sweep(args.env, pol, n, k, repeats)
+            r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_sps
+            print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
+                  f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}", flush=True)
+        except BenchError as e:
+            r = {"env": args.env, "policy": pol, "runs": n, "processes": k, "error": str(e)}
+        report["sweeps"].append(r)
+        save()
+    if profile_runs:
+        try:
+            prof = time_profile(args.env, "mixture", profile_runs, repeats)
+            f = prof["fractions"]
+            print(f"time profile (mixture, {profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
+                  f"physics {f['physics']:.0%}, rest of rollout (policy, normalization, GAE) {f['rollout_other']:.0%}, "
+                  f"PPO update ({prof['num_epochs']} epochs) {f['update']:.0%}", flush=True)
+        except BenchError as e:
+            prof = {"error": str(e)}
+        report["profile"] = prof
+        save()
+    plot(report["sweeps"], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"))
     print(f"wrote {args.out}/bench.json and bench.png in {(time.perf_counter() - t_start) / 60:.1f} min", flush=True)
     return 0
 

@@ -13,6 +13,7 @@ import glob
 import math
 import os
 import sys
+import warnings
 from collections import defaultdict
 
 import numpy as np
@@ -81,13 +82,16 @@ def cell_label(cell, action_dims):
 
 
 def cell_curve(seeds, window):
-    """Mean and 95% half-width over seeds of smoothed returns, on the common env_steps grid."""
+    """Mean and 95% half-width over seeds of smoothed returns, on the common env_steps grid
+    (NaN where no seed finished an episode yet)."""
     length = min(len(x) for x, _ in seeds.values())
     xs = next(iter(seeds.values()))[0][:length]
     ys = np.stack([smooth(y[:length], window) for _, y in seeds.values()])
     n = np.sum(np.isfinite(ys), axis=0)
-    mean = np.nanmean(np.where(np.isfinite(ys), ys, np.nan), axis=0) if ys.size else ys
-    sd = np.nanstd(ys, axis=0, ddof=1) if ys.shape[0] > 1 else np.zeros_like(mean)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: iterations before any episode ended
+        mean = np.nanmean(np.where(np.isfinite(ys), ys, np.nan), axis=0) if ys.size else ys
+        sd = np.nanstd(ys, axis=0, ddof=1) if ys.shape[0] > 1 else np.zeros_like(mean)
     half = np.array([t95(k) for k in n]) * sd / np.sqrt(np.maximum(n, 1))
     return xs, mean, half, ys
 
@@ -120,7 +124,7 @@ def plot_return_vs_k(rows, path):
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
     fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "final_return_mean", "ci95_halfwidth", "env_steps"}
-    fig, axes = plt.subplots(1, len(env_names), figsize=(4.6 * len(env_names), 3.8), squeeze=False)
+    fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
         mix = [r for r in rows if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]]
         # one curve per sub-policy class (and per other swept setting): the whole complexity/return trade-off
@@ -174,7 +178,7 @@ def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
     env_names = list(dict.fromkeys(c[0] for c in sorted(data)))
     ncols = min(3, len(env_names))
     nrows = math.ceil(len(env_names) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.9 * nrows), squeeze=False)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(max(7.0, 5.2 * ncols), 3.9 * nrows + 0.3), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
         cells = sorted((c for c in data if c[0] == env_name), key=lambda c: (c[1] != "mlp", c[2], c[3:]))
         for i, cell in enumerate(cells):

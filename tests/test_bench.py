@@ -1,8 +1,13 @@
-"""The benchmark end to end at a tiny size: every field of bench.json, and the plot."""
+"""The benchmark end to end at a tiny size (every field of bench.json, the plot), its time-profile
+arithmetic, and hang detection + retry of its workers."""
 
 import json
+import sys
 
-from gsa_jax.bench import main, measure_mujoco_c
+import pytest
+
+from gsa_jax import bench
+from gsa_jax.bench import BenchError, main, measure_mujoco_c, run_workers
 
 
 def test_mujoco_c_reference():
@@ -12,11 +17,43 @@ def test_mujoco_c_reference():
 
 def test_bench_writes_report(tmp_path):
     out = tmp_path / "bench"
-    assert main(["--env", "inverted_double_pendulum", "--sizes", "2", "--policies", "mixture",
-                 "--processes", "2", "--repeats", "1", "--out", str(out)]) == 0
+    assert main(["--env", "inverted_double_pendulum", "--sizes", "2", "--policies", "mixture", "--raw-batches", "8",
+                 "--processes", "2", "--repeats", "1", "--profile-runs", "0", "--out", str(out)]) == 0
     report = json.loads((out / "bench.json").read_text())
     assert [(s["runs"], s["processes"]) for s in report["sweeps"]] == [(2, 2)]
-    for s in report["sweeps"]:
-        assert s["env_steps_per_s"] > 0 and s["compile_s"] > 0 and s["peak_rss_mib"] > 100
+    assert [(r["batch"], r["processes"]) for r in report["raw"]] == [(8, 2)]
+    for s in report["sweeps"] + report["raw"]:
+        assert s["env_steps_per_s"] > 0 and s["compile_s"] > 0
         assert abs(s["ratio_vs_mujoco_c"] - s["env_steps_per_s"] / report["mujoco_c"]["env_steps_per_s"]) < 1e-9
+    assert report["sweeps"][0]["peak_rss_mib"] > 100
     assert report["versions"]["jax"] and (out / "bench.png").stat().st_size > 10_000
+
+
+def test_time_profile_decomposition(monkeypatch):
+    """t(E) = collect + E * epoch: with E=10 -> 2.0 s and E=1 -> 0.65 s per iteration, an epoch is 0.15 s,
+    the rollout 0.5 s of which raw physics takes 0.3 s."""
+    steps = 64 * 2048
+    fake = {10: steps / 2.0, 1: steps / 0.65}
+
+    def sweep(env, policy, runs, processes, repeats, epochs=None, log=print):
+        return {"env_steps_per_iteration": steps, "env_steps_per_s": fake[epochs or 10]}
+
+    monkeypatch.setattr(bench, "measure_sweep", sweep)
+    monkeypatch.setattr(bench, "measure_raw", lambda env, batch, processes, repeats, log=print: {"env_steps_per_s": steps / 0.3})
+    p = bench.time_profile("hopper", "mixture", 64, 3)
+    assert p["iteration_s"] == pytest.approx(2.0)
+    assert p["update_s"] == pytest.approx(1.5) and p["physics_s"] == pytest.approx(0.3)
+    assert p["rollout_other_s"] == pytest.approx(0.2)
+    assert sum(p["fractions"].values()) == pytest.approx(1.0)
+
+
+def test_hung_worker_is_killed_and_retried(tmp_path):
+    """A worker that never beats is killed after the compile limit; a failing one is reported."""
+    logs = []
+    hang = [sys.executable, "-c", "import time; time.sleep(60)"]
+    with pytest.raises(BenchError, match="no progress"):
+        run_workers([hang], compile_limit_s=1, retries=1, log=logs.append)
+    assert len(logs) == 2 and "retrying" in logs[0] and "giving up" in logs[1]
+    fail = [sys.executable, "-c", "import sys; sys.exit(3)"]
+    with pytest.raises(BenchError, match="exited with 3"):
+        run_workers([fail], compile_limit_s=30, retries=0, log=logs.append)
