@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test sweep figures bench bench-quick scene clean
+.PHONY: install demo test sweep figures bench bench-quick profile scene clean
 EXP ?= experiments/fig1_small.toml
 
 $(STAMP): pyproject.toml
@@ -32,12 +32,16 @@ SWEEP ?= runs/sweeps/$(basename $(notdir $(EXP)))
 figures: $(STAMP)
 	$(BIN)/python -m gsa_jax.plot $(SWEEP)
 
-## bench: sweep throughput vs MuJoCo C on this machine (~20 min; bench-quick ~3 min)
+## bench: sweep throughput vs MuJoCo C on this machine (~20 min; bench-quick ~4 min)
 bench: $(STAMP)
 	$(BIN)/python -m gsa_jax.bench --out runs/bench
 
 bench-quick: $(STAMP)
 	$(BIN)/python -m gsa_jax.bench --quick --out runs/bench-quick
+
+## profile: where one PPO iteration's time goes (64 hopper runs, 1 process: physics / rollout / update; ~7 min)
+profile: $(STAMP)
+	$(BIN)/python -m gsa_jax.bench --sizes 64 --processes 1 --raw-batches 2048 --profile-runs 64 --out runs/profile
 
 ## scene: a picture of the Allegro task (offscreen OSMesa rendering; installs Debian's libosmesa6 if missing)
 scene: $(STAMP)

@@ -6,10 +6,12 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
 - raw MJX stepping (vmapped env.step, random actions, auto-reset) at batch 256 and 4096, with 1 and
   with all-core worker processes;
 - end-to-end training throughput (env steps per second, PPO updates included, compile excluded and
-  reported separately) of sweeps of 1, 16, 64 and 256 runs (mixture K=6, and mlp), with 1 and with
-  <cores> worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them), with compile time
-  and peak resident memory;
-- a time profile of one PPO iteration (physics / rest of the rollout / PPO update).
+  reported separately) of sweeps of 1, 16, 64 and 256 runs of the mixture (K=6) with 1 and with
+  <cores> worker processes, and of the flat mlp at 256 runs on all cores (`--policies mixture,mlp`
+  for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them), with compile time and peak
+  resident memory;
+- with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update).
+The default run takes ~20 min on 2 cores (the estimate is printed first), --quick ~4 min.
 Every figure is the median of repeated timed chunks; workers of a multi-process measurement start
 their timed chunks together. A worker that hangs (no heartbeat) is killed and the measurement retried
 once, then recorded as an error. Writes bench.json (`ratio_vs_mujoco_c` for each measurement) and
@@ -322,9 +324,14 @@ def plot(results, raw, mujoco_c, path):
     plt.close(fig)
 
 
+def reps(repeats, runs, explicit=False):
+    """Timed chunks for a sweep of `runs` runs: chunks of >= 64 runs take 10-40 s each here, 2 are enough."""
+    return repeats if explicit or runs < 64 else min(repeats, 2)
+
+
 def estimate_s(plan, raw_plan, profile_runs, repeats):
     """Rough wall time: ~50 s compile + start per measurement, timed chunks at ~10k steps/s per process."""
-    t = 30 + sum(50 + (repeats + 1) * n * 2048 / (10000 * k) for _, n, k in plan)
+    t = 30 + sum(60 + (reps(repeats, n) + 1) * n * 2048 / (8000 + 4000 * k) for _, n, k in plan)
     t += sum(40 + (repeats + 1) * b * RAW_UNROLL / (15000 * k) for b, k in raw_plan)
     if profile_runs:
         t += 2 * (50 + (repeats + 1) * profile_runs * 2048 / 10000) + 40
@@ -333,16 +340,18 @@ def estimate_s(plan, raw_plan, profile_runs, repeats):
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true", help="1 and 16 runs, mixture only, raw batch 256 (~3 min)")
+    p.add_argument("--quick", action="store_true", help="1 and 16 runs, mixture only, raw batch 256 (~4 min)")
     p.add_argument("--out", default="runs/bench")
     p.add_argument("--env", default="hopper", help="hopper or allegro_cylinder (any env of envs.NAMES)")
     p.add_argument("--sizes", default=None, help="comma-separated run counts (default 1,16,64,256)")
-    p.add_argument("--policies", default=None, help="comma-separated (default mixture,mlp)")
+    p.add_argument("--policies", default=None,
+                   help="comma-separated (default: mixture at every size, mlp at the largest size)")
     p.add_argument("--processes", default=None, help="comma-separated worker counts (default 1,<cores>)")
     p.add_argument("--raw-batches", default=None, help="comma-separated env batches for raw stepping (default 256,4096)")
-    p.add_argument("--profile-runs", type=int, default=None,
-                   help="runs of the time profile (mixture, 1 process; default 64, quick 0 = off)")
-    p.add_argument("--repeats", type=int, default=None)
+    p.add_argument("--profile-runs", type=int, default=0,
+                   help="also profile one PPO iteration (physics / rest of rollout / update) at this many runs, e.g. 64")
+    p.add_argument("--repeats", type=int, default=None,
+                   help="timed chunks per measurement (default 3; 2 for sweeps of >= 64 runs, whose chunks are long)")
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
@@ -364,12 +373,14 @@ def main(argv=None):
         return 2
     cores = os.cpu_count() or 1
     sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else list(QUICK_SIZES if args.quick else SIZES)
-    policies = args.policies.split(",") if args.policies else (["mixture"] if args.quick else ["mixture", "mlp"])
+    policies = args.policies.split(",") if args.policies else ["mixture"]
     procs = [int(s) for s in args.processes.split(",")] if args.processes else sorted({1, cores})
     batches = [int(s) for s in args.raw_batches.split(",")] if args.raw_batches else ([256] if args.quick else list(RAW_BATCHES))
-    profile_runs = args.profile_runs if args.profile_runs is not None else (0 if args.quick else 64)
+    profile_runs = args.profile_runs
     repeats = args.repeats or (2 if args.quick else 3)
     plan = [(pol, n, k) for pol in policies for n in sizes for k in procs if k <= n]
+    if not args.policies and not args.quick:  # the flat baseline where it matters most, to stay under ~20 min
+        plan += [("mlp", max(sizes), max(k for k in procs if k <= max(sizes)))]
     raw_plan = [(b, k) for b in batches for k in procs if k <= b]
     print(f"gsa_jax.bench: {args.env}: raw stepping at batch {batches}, {len(plan)} sweep configurations (runs {sizes}, "
           f"policies {policies}, processes {procs})" + (f", a time profile at {profile_runs} runs" if profile_runs else "")
@@ -403,7 +414,7 @@ def main(argv=None):
     print(f"{'policy':8} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} {'peak_MiB':>9}", flush=True)
     for pol, n, k in plan:
         try:
-            r = measure_sweep(args.env, pol, n, k, repeats)
+            r = measure_sweep(args.env, pol, n, k, reps(repeats, n, args.repeats is not None))
             r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_sps
             print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
                   f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}", flush=True)
