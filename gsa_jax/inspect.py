@@ -127,14 +127,14 @@ def controller_table(params, k, obs_names, act_names, subpolicy="linear", top=3)
              f"{rule} on the normalized observation z = (obs - mean) / std (clipped to +-10), "
              "for the cluster c the partition network picks.", ""]
     for c in range(k):
-        lines += [f"## cluster {c}", "", "| actuator | b | " + " | ".join(shown) + (" | strongest inputs |" if names else " |"),
-                  "|---|---|" + "---|" * len(shown) + ("---|" if names else "")]
+        head = ["actuator", "b", *shown] + (["strongest inputs"] if names else [])
+        lines += [f"## cluster {c}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for i, a in enumerate(act_names):
-            row = f"| {a} | {b[c, i]:+.3f} | " + "".join(f"{x:+.2f} | " for x in L[c, i, : len(shown)])
+            cells = [a, f"{b[c, i]:+.3f}", *(f"{x:+.2f}" for x in L[c, i, : len(shown)])]
             if names:
                 order = np.argsort(-np.abs(L[c, i]))[:top]
-                row += ", ".join(f"{names[j]} ({L[c, i, j]:+.2f})" for j in order) + " |"
-            lines.append(row.rstrip())
+                cells.append(", ".join(f"{names[j]} ({L[c, i, j]:+.2f})" for j in order))
+            lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
 

@@ -67,6 +67,8 @@ class Controller:
         if self.kind == "mlp":
             return self._mlp(z)
         c = self.cluster(obs)
+        if self.L.shape[-1] == 0:  # constant sub-policies (an empty contraction can come back uninitialized)
+            return self.b[c].copy()
         return np.einsum("...ij,...j->...i", self.L[c], self.features(z)) + self.b[c]
 
 

@@ -65,3 +65,21 @@ def test_numpy_policy_imports_without_jax():
 
     code = "import sys; import gsa_jax.numpy_policy; assert 'jax' not in sys.modules, 'jax was imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("subpolicy, d_phi", [("constant", 0), ("linear", 3), ("quadratic", 9)])
+def test_controller_table_every_class(subpolicy, d_phi):
+    """inspect's controllers.md: one row per actuator, the linear terms as columns, strongest inputs
+    ranked over every feature (e.g. the quadratic term x*z)."""
+    from gsa_jax.inspect import controller_table, feature_names
+
+    names = feature_names(subpolicy, ["x", "y", "z"])
+    assert len(names) == d_phi and (subpolicy != "quadratic" or names[3:] == ["x*x", "x*y", "x*z", "y*y", "y*z", "z*z"])
+    L = np.zeros((2, 2, d_phi))
+    if d_phi:
+        L[0, 1, d_phi - 1 if subpolicy != "quadratic" else 5] = -3.0  # z for linear, x*z for quadratic
+    table = controller_table({"policy": {"L": L, "b": np.full((2, 2), 0.5)}}, 2, ["x", "y", "z"], ["a0", "a1"], subpolicy)
+    rows = [line for line in table.splitlines() if line.startswith(("| a0 ", "| a1 "))]
+    assert len(rows) == 4 and all(r.count("|") == rows[0].count("|") for r in rows)
+    if d_phi:
+        assert ("x*z (-3.00)" if subpolicy == "quadratic" else "z (-3.00)") in rows[1]
