@@ -19,7 +19,6 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")
 NAMES = BRAX_TASKS + ("allegro_cylinder",)
 DEFAULT_EPISODE_LENGTH = 1000
-EPISODE_LENGTHS = {"allegro_cylinder": 200}  # 2 s at 100 Hz (envs/allegro.py); gym tasks: 1000
 
 
 def check_name(name):
@@ -29,7 +28,11 @@ def check_name(name):
 
 def default_episode_length(name):
     check_name(name)
-    return EPISODE_LENGTHS.get(name, DEFAULT_EPISODE_LENGTH)
+    if name == "allegro_cylinder":
+        from envs.allegro_task import DEFAULT_EPISODE_LENGTH as allegro_length  # 2 s at 100 Hz; no JAX import
+
+        return allegro_length
+    return DEFAULT_EPISODE_LENGTH
 
 
 def make_base(name):

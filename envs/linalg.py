@@ -16,7 +16,6 @@ order, not of the model or solver. Set GSA_JAX_LAPACK_CHOLESKY=1 to keep LAPACK.
 
 import os
 
-import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
@@ -90,6 +89,5 @@ def install():
     if os.environ.get("GSA_JAX_LAPACK_CHOLESKY", "") not in ("", "0"):
         jsl.cho_factor, jsl.cho_solve = _ORIGINAL["cho_factor"], _ORIGINAL["cho_solve"]
         return False
-    jsl.cho_factor, jsl.cho_solve = cho_factor, cho_solve
-    jax.scipy.linalg.cho_factor, jax.scipy.linalg.cho_solve = cho_factor, cho_solve
+    jsl.cho_factor, jsl.cho_solve = cho_factor, cho_solve  # jsl is the module MJX reaches as jax.scipy.linalg
     return True

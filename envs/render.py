@@ -95,7 +95,7 @@ def render_run(run_dir, out, episodes=1, width=480, height=360, camera=None, fps
 
     trainer, params, obs_stats, hp, meta = load_run(run_dir, require_mixture=False)
     roll = rollout(trainer, params, obs_stats, hp, jax.random.PRNGKey(seed), episodes, True, last_iteration(meta))
-    m = envs.mj_model(envs.make_base(trainer.cfg.env))
+    m = envs.mj_model(trainer.env)  # the wrappers pass attribute lookups to the task
     dt = trainer.env.dt if hasattr(trainer.env, "dt") else 0.01
     stride = max(1, int(round(1.0 / (fps * float(dt)))))
     renderer = make_renderer(m, width, height)
