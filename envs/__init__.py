@@ -35,19 +35,45 @@ def default_episode_length(name):
     return DEFAULT_EPISODE_LENGTH
 
 
-def make_base(name):
-    """The unwrapped task (no time limit, no auto-reset)."""
+def check_solver(solver_iterations=None, ls_iterations=None):
+    for field, v in (("solver_iterations", solver_iterations), ("ls_iterations", ls_iterations)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise ValueError(f"{field} must be an integer >= 1 (or None: the task's own), got {v!r}")
+
+
+def make_base(name, solver_iterations=None, ls_iterations=None):
+    """The unwrapped task (no time limit, no auto-reset).
+
+    solver_iterations / ls_iterations: None keeps the task's own MJCF settings (hopper: Newton, 4
+    iterations, 50 line-search iterations). An integer overrides MuJoCo's opt.iterations /
+    opt.ls_iterations in the MJX model only -- a cheaper but *different* simulator (less converged
+    contact forces), i.e. a changed task; the MuJoCo C model (mj_model(env), used by deploy, render
+    and the bench's reference) keeps the MJCF's settings. See experiments/README.md (solver) for the
+    measured effect on trajectories and returns.
+    """
     check_name(name)
+    check_solver(solver_iterations, ls_iterations)
     with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
         from brax import envs as brax_envs
 
-        from envs import allegro, linalg
+        from envs import allegro, linalg, linesearch
     linalg.install()  # MJX's small Cholesky factor/solves without batched LAPACK (envs/linalg.py)
+    linesearch.install()  # MJX's line search as a while loop, not a scan of no-op conds (envs/linesearch.py)
     with warnings.catch_warnings(), _process_local_devices():
         warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
-        if name == "allegro_cylinder":
-            return allegro.AllegroCylinder()
-        return brax_envs.get_environment(name, backend="mjx")
+        env = allegro.AllegroCylinder() if name == "allegro_cylinder" else brax_envs.get_environment(name, backend="mjx")
+    override = {k: v for k, v in (("opt.iterations", solver_iterations), ("opt.ls_iterations", ls_iterations)) if v is not None}
+    if override:
+        env.sys = env.sys.tree_replace(override)
+    return env
+
+
+def solver_settings(env):
+    """{'iterations', 'ls_iterations'} of the MJX model a task made by make_base steps with, and the
+    MJCF's own ('task_iterations', 'task_ls_iterations')."""
+    opt, own = env.sys.opt, mj_model(env).opt
+    return {"iterations": int(opt.iterations), "ls_iterations": int(opt.ls_iterations),
+            "task_iterations": int(own.iterations), "task_ls_iterations": int(own.ls_iterations)}
 
 
 @contextlib.contextmanager
@@ -77,9 +103,10 @@ def substeps(env):
     return int(getattr(env, "n_frames", None) or getattr(env, "_n_frames", 1))
 
 
-def make(name, episode_length=None, auto_reset=True):
+def make(name, episode_length=None, auto_reset=True, solver_iterations=None, ls_iterations=None):
     """Task `name` with a time limit of `episode_length` steps (default: the task's own,
-    `default_episode_length(name)`) and (by default) Brax-style auto-reset.
+    `default_episode_length(name)`) and (by default) Brax-style auto-reset. solver_iterations,
+    ls_iterations: see make_base (None: the task's own).
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
@@ -90,5 +117,5 @@ def make(name, episode_length=None, auto_reset=True):
         episode_length = default_episode_length(name)
     if episode_length < 1:
         raise ValueError(f"episode_length must be >= 1, got {episode_length}")
-    env = EpisodeLimit(make_base(name), episode_length)
+    env = EpisodeLimit(make_base(name, solver_iterations, ls_iterations), episode_length)
     return AutoReset(env) if auto_reset else env

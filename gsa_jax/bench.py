@@ -10,7 +10,11 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
   <cores> worker processes, and of the flat mlp at 256 runs on all cores (`--policies mixture,mlp`
   for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them), with compile time and peak
   resident memory;
-- with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update).
+- with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update);
+- the same largest raw batch and largest mixture sweep on all cores again with a cheaper MJX solver
+  (`--solver-variant ITER,LS`, default 1,4: 1 Newton iteration, 4 line-search iterations), and MuJoCo C
+  with those settings too -- a changed simulator, offered as the explicit `--solver-iterations` /
+  `--ls-iterations` option of training and sweeps (experiments/README.md, solver).
 The default run takes ~20 min on 2 cores (the estimate is printed first), --quick ~4 min.
 Every figure is the median of repeated timed chunks; workers of a multi-process measurement start
 their timed chunks together. A worker that hangs (no heartbeat) is killed and the measurement retried
@@ -36,6 +40,7 @@ SIZES = (1, 16, 64, 256)
 QUICK_SIZES = (1, 16)
 RAW_BATCHES = (256, 4096)
 RAW_UNROLL = 20  # env steps per timed raw-stepping chunk
+SOLVER_VARIANT = (1, 4)  # (solver iterations, line-search iterations) of the extra "cheaper solver" lines
 
 
 # ----------------------------------------------------------------------------------------------- workers
@@ -75,6 +80,7 @@ def worker(args):
     cfg = group_config(spec, args.env, args.policy, runs)
     if args.epochs:
         cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
+    cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
     _, init, run, place = make_group_program(cfg, 1, devices)
@@ -107,7 +113,7 @@ def raw_worker(args):
 
     import envs
 
-    env = envs.make(args.env)
+    env = envs.make(args.env, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
     b = args.batch
     t0 = time.perf_counter()
 
@@ -189,17 +195,27 @@ def _split(n, processes):
     return [n // processes + (1 if i < n % processes else 0) for i in range(processes)]
 
 
-def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, log=print):
-    """Throughput of `runs` runs split over `processes` workers, measured together."""
+def _solver_args(solver):
+    return ["--solver-iterations", str(solver[0]), "--ls-iterations", str(solver[1])] if solver else []
+
+
+def _solver_field(solver):
+    return {"solver": {"iterations": solver[0], "ls_iterations": solver[1]}} if solver else {}
+
+
+def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, log=print):
+    """Throughput of `runs` runs split over `processes` workers, measured together. solver: None (the
+    task's own) or (iterations, ls_iterations)."""
     cmds, seed0 = [], 0
     for n in _split(runs, processes):
         cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
                      "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats)]
-                    + (["--epochs", str(epochs)] if epochs else []))
+                    + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver))
         seed0 += n
     results = run_workers(cmds, log=log)
     return {
         "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
+        **_solver_field(solver),
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
         "compile_s": max(r["compile_s"] for r in results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),
@@ -209,12 +225,12 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None
     }
 
 
-def measure_raw(env, batch, processes, repeats, log=print):
+def measure_raw(env, batch, processes, repeats, solver=None, log=print):
     """Raw MJX stepping throughput of `batch` envs split over `processes` workers."""
     cmds = [[sys.executable, "-m", "gsa_jax.bench", "--raw-worker", "--env", env, "--batch", str(b), "--seed0", str(i),
-             "--repeats", str(repeats)] for i, b in enumerate(_split(batch, processes))]
+             "--repeats", str(repeats)] + _solver_args(solver) for i, b in enumerate(_split(batch, processes))]
     results = run_workers(cmds, log=log)
-    return {"env": env, "batch": batch, "processes": processes,
+    return {"env": env, "batch": batch, "processes": processes, **_solver_field(solver),
             "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
             "compile_s": max(r["compile_s"] for r in results), "chunk_s": [r["chunk_s"] for r in results]}
 
@@ -243,10 +259,13 @@ def time_profile(env, policy, runs, repeats, log=print):
             "train_env_steps_per_s_1_epoch": one["env_steps_per_s"]}
 
 
-def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None):
+def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, solver=None):
     """Env-steps/s of MuJoCo C (`mujoco.rollout`) on the env's own MJCF: random controls, the env's
     substeps (n_frames) per env step, one MjData per thread. Models with a start keyframe (allegro)
-    start there and random-walk their PD targets as the env's actions do (contacts stay active)."""
+    start there and random-walk their PD targets as the env's actions do (contacts stay active).
+    solver: None (the MJCF's settings) or (iterations, ls_iterations) set on a copy of the model."""
+    import copy
+
     import mujoco
     from mujoco import rollout
 
@@ -254,6 +273,9 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None):
 
     base = envs.make_base(env_name)
     model = envs.mj_model(base)
+    if solver:
+        model = copy.deepcopy(model)
+        model.opt.iterations, model.opt.ls_iterations = solver
     n_frames = envs.substeps(base)
     threads = threads or os.cpu_count() or 1
     datas = [mujoco.MjData(model) for _ in range(threads)]
@@ -283,12 +305,14 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None):
             r.rollout([model] * batch, datas, init, ctrl)
             times.append(time.perf_counter() - t)
     med = statistics.median(times)
-    return {"env": env_name, "batch": batch, "threads": threads, "substeps_per_env_step": n_frames,
+    return {"env": env_name, "batch": batch, "threads": threads, "substeps_per_env_step": n_frames, **_solver_field(solver),
             "env_steps_per_s": batch * steps / med, "physics_steps_per_s": batch * steps * n_frames / med, "times_s": times}
 
 
 # ----------------------------------------------------------------------------------------------- report
-def plot(results, raw, mujoco_c, path):
+def plot(results, raw, mujoco_c, path, mujoco_c_variant=None):
+    """Left: training throughput vs runs (a line per policy and process count); right: raw stepping vs
+    batch. Measurements with a changed solver are separate markers (stars), with their MuJoCo C line."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -296,7 +320,7 @@ def plot(results, raw, mujoco_c, path):
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
     ax = axes[0]
-    ok = [r for r in results if "error" not in r]
+    ok = [r for r in results if "error" not in r and "solver" not in r]
     for policy in sorted({r["policy"] for r in ok}):
         for procs in sorted({r["processes"] for r in ok}):
             pts = sorted((r["runs"], r["env_steps_per_s"]) for r in ok if r["policy"] == policy and r["processes"] == procs)
@@ -307,7 +331,7 @@ def plot(results, raw, mujoco_c, path):
     ax.set_ylabel("env steps / s (training, end to end)")
     ax.set_title(f"{mujoco_c['env']}: sweep throughput vs MuJoCo C")
     ax2 = axes[1]
-    okr = [r for r in raw if "error" not in r]
+    okr = [r for r in raw if "error" not in r and "solver" not in r]
     for procs in sorted({r["processes"] for r in okr}):
         pts = sorted((r["batch"], r["env_steps_per_s"]) for r in okr if r["processes"] == procs)
         ax2.plot(*zip(*pts), "o-", label=f"MJX env.step, {procs} process(es)")
@@ -315,13 +339,39 @@ def plot(results, raw, mujoco_c, path):
     ax2.set_xlabel("envs stepped together (batch)")
     ax2.set_ylabel("env steps / s (physics only, random actions)")
     ax2.set_title(f"{mujoco_c['env']}: raw stepping")
+    for a, rows, x in ((ax, results, "runs"), (ax2, raw, "batch")):
+        for r in rows:
+            if "solver" in r and "error" not in r:
+                sol = r["solver"]
+                a.plot(r[x], r["env_steps_per_s"], "*", ms=13, color="C3",
+                       label=f"solver {sol['iterations']}/{sol['ls_iterations']} (changed task), {r['processes']} process(es)"
+                             + (f", {r['policy']}" if "policy" in r else ""))
     for a in axes:
         a.axhline(mujoco_c["env_steps_per_s"], color="k", ls=":", label=f"MuJoCo C rollout ({mujoco_c['threads']} threads)")
+        if mujoco_c_variant:
+            sol = mujoco_c_variant["solver"]
+            a.axhline(mujoco_c_variant["env_steps_per_s"], color="C3", ls=":",
+                      label=f"MuJoCo C, solver {sol['iterations']}/{sol['ls_iterations']}")
         a.grid(alpha=0.3)
-        a.legend(fontsize=8)
+        a.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def parse_solver_variant(text, quick):
+    """--solver-variant: None -> SOLVER_VARIANT (none with --quick); 'none' -> None; 'I,L' -> (I, L)."""
+    if text is None:
+        return None if quick else SOLVER_VARIANT
+    if text.strip().lower() == "none":
+        return None
+    try:
+        it, ls = (int(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"--solver-variant must be ITER,LS (two integers) or none, got {text!r}") from None
+    if it < 1 or ls < 1:
+        raise ValueError(f"--solver-variant iterations must be >= 1, got {text!r}")
+    return it, ls
 
 
 def reps(repeats, runs, explicit=False):
@@ -331,8 +381,8 @@ def reps(repeats, runs, explicit=False):
 
 def estimate_s(plan, raw_plan, profile_runs, repeats):
     """Rough wall time: ~50 s compile + start per measurement, timed chunks at ~10k steps/s per process."""
-    t = 30 + sum(60 + (reps(repeats, n) + 1) * n * 2048 / (8000 + 4000 * k) for _, n, k in plan)
-    t += sum(40 + (repeats + 1) * b * RAW_UNROLL / (15000 * k) for b, k in raw_plan)
+    t = 30 + sum(60 + (reps(repeats, n) + 1) * n * 2048 / (8000 + 4000 * k) / (2 if sol else 1) for _, n, k, sol in plan)
+    t += sum(40 + (repeats + 1) * b * RAW_UNROLL / (15000 * k) / (2 if sol else 1) for b, k, sol in raw_plan)
     if profile_runs:
         t += 2 * (50 + (repeats + 1) * profile_runs * 2048 / 10000) + 40
     return t
@@ -340,7 +390,8 @@ def estimate_s(plan, raw_plan, profile_runs, repeats):
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true", help="1 and 16 runs, mixture only, raw batch 256 (~4 min)")
+    p.add_argument("--quick", action="store_true",
+                   help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
     p.add_argument("--out", default="runs/bench")
     p.add_argument("--env", default="hopper", help="hopper or allegro_cylinder (any env of envs.NAMES)")
     p.add_argument("--sizes", default=None, help="comma-separated run counts (default 1,16,64,256)")
@@ -352,11 +403,15 @@ def main(argv=None):
                    help="also profile one PPO iteration (physics / rest of rollout / update) at this many runs, e.g. 64")
     p.add_argument("--repeats", type=int, default=None,
                    help="timed chunks per measurement (default 3; 2 for sweeps of >= 64 runs, whose chunks are long)")
+    p.add_argument("--solver-variant", default=None,
+                   help="ITER,LS: also measure the largest raw batch and mixture sweep (all cores) and MuJoCo C with this "
+                        "many solver / line-search iterations (default 1,4; 'none' to skip; skipped with --quick)")
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
     for a, t in (("--policy", str), ("--clusters", int), ("--runs", int), ("--seed0", int), ("--barrier", str),
-                 ("--worker-id", int), ("--num-workers", int), ("--batch", int), ("--epochs", int)):
+                 ("--worker-id", int), ("--num-workers", int), ("--batch", int), ("--epochs", int),
+                 ("--solver-iterations", int), ("--ls-iterations", int)):
         p.add_argument(a, type=t, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.worker or args.raw_worker:
@@ -378,12 +433,25 @@ def main(argv=None):
     batches = [int(s) for s in args.raw_batches.split(",")] if args.raw_batches else ([256] if args.quick else list(RAW_BATCHES))
     profile_runs = args.profile_runs
     repeats = args.repeats or (2 if args.quick else 3)
-    plan = [(pol, n, k) for pol in policies for n in sizes for k in procs if k <= n]
+    try:
+        variant = parse_solver_variant(args.solver_variant, args.quick)
+    except ValueError as e:
+        print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
+        return 2
+    plan = [(pol, n, k, None) for pol in policies for n in sizes for k in procs if k <= n]
+    raw_plan = [(b, k, None) for b in batches for k in procs if k <= b]
+    if args.quick and not args.processes:  # under 3 min: each size on as many processes as it can use
+        plan = [(pol, n, max(k for k in procs if k <= n), None) for pol in policies for n in sizes]
+        raw_plan = [(b, max(k for k in procs if k <= b), None) for b in batches]
+    k_all = max(k for k in procs if k <= max(sizes))
     if not args.policies and not args.quick:  # the flat baseline where it matters most, to stay under ~20 min
-        plan += [("mlp", max(sizes), max(k for k in procs if k <= max(sizes)))]
-    raw_plan = [(b, k) for b in batches for k in procs if k <= b]
+        plan += [("mlp", max(sizes), k_all, None)]
+    if variant:
+        plan += [("mixture", max(sizes), k_all, variant)]
+        raw_plan += [(max(batches), max(k for k in procs if k <= max(batches)), variant)]
     print(f"gsa_jax.bench: {args.env}: raw stepping at batch {batches}, {len(plan)} sweep configurations (runs {sizes}, "
           f"policies {policies}, processes {procs})" + (f", a time profile at {profile_runs} runs" if profile_runs else "")
+          + (f", the largest sizes again with {variant[0]} solver / {variant[1]} line-search iterations" if variant else "")
           + f"; {repeats} timed chunks each (median); about {estimate_s(plan, raw_plan, profile_runs, repeats) / 60:.0f} min",
           flush=True)
     from gsa_jax.runinfo import run_metadata
@@ -394,32 +462,47 @@ def main(argv=None):
     c_sps = mujoco_c["env_steps_per_s"]
     print(f"MuJoCo C rollout: {c_sps:,.0f} env-steps/s ({mujoco_c['threads']} threads, "
           f"batch {mujoco_c['batch']}, {mujoco_c['substeps_per_env_step']} substeps)", flush=True)
+    c_ref = {None: mujoco_c}
+    if variant:
+        c_ref[variant] = measure_mujoco_c(args.env, solver=variant)
+        print(f"MuJoCo C rollout with {variant[0]} solver / {variant[1]} line-search iterations: "
+              f"{c_ref[variant]['env_steps_per_s']:,.0f} env-steps/s", flush=True)
     report = {"env": args.env, "quick": args.quick, "repeats": repeats, "mujoco_c": mujoco_c, "raw": [], "sweeps": [],
-              **run_metadata()}
+              **({"mujoco_c_solver_variant": c_ref[variant]} if variant else {}), **run_metadata()}
+
+    def add_ratios(r, solver):
+        """ratio_vs_mujoco_c: against MuJoCo C with the same solver settings (the same simulator);
+        ratio_vs_mujoco_c_task_solver: against MuJoCo C with the MJCF's own (differs for the variant)."""
+        r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_ref[solver]["env_steps_per_s"]
+        r["ratio_vs_mujoco_c_task_solver"] = r["env_steps_per_s"] / c_sps
+
+    def solver_tag(solver):
+        return f"  solver {solver[0]}/{solver[1]}" if solver else ""
 
     def save():
         report["wall_s"] = time.perf_counter() - t_start
         write_atomic(os.path.join(args.out, "bench.json"), json.dumps(report, indent=1))
 
     print(f"{'raw MJX':8} {'batch':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9}", flush=True)
-    for b, k in raw_plan:
+    for b, k, sol in raw_plan:
         try:
-            r = measure_raw(args.env, b, k, repeats)
-            r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_sps
-            print(f"{'':8} {b:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} {r['compile_s']:9.1f}", flush=True)
+            r = measure_raw(args.env, b, k, repeats, solver=sol)
+            add_ratios(r, sol)
+            print(f"{'':8} {b:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} {r['compile_s']:9.1f}"
+                  + solver_tag(sol), flush=True)
         except BenchError as e:
-            r = {"env": args.env, "batch": b, "processes": k, "error": str(e)}
+            r = {"env": args.env, "batch": b, "processes": k, **_solver_field(sol), "error": str(e)}
         report["raw"].append(r)
         save()
     print(f"{'policy':8} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} {'peak_MiB':>9}", flush=True)
-    for pol, n, k in plan:
+    for pol, n, k, sol in plan:
         try:
-            r = measure_sweep(args.env, pol, n, k, reps(repeats, n, args.repeats is not None))
-            r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_sps
+            r = measure_sweep(args.env, pol, n, k, reps(repeats, n, args.repeats is not None), solver=sol)
+            add_ratios(r, sol)
             print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
-                  f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}", flush=True)
+                  f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)
         except BenchError as e:
-            r = {"env": args.env, "policy": pol, "runs": n, "processes": k, "error": str(e)}
+            r = {"env": args.env, "policy": pol, "runs": n, "processes": k, **_solver_field(sol), "error": str(e)}
         report["sweeps"].append(r)
         save()
     if profile_runs:
@@ -433,7 +516,7 @@ def main(argv=None):
             prof = {"error": str(e)}
         report["profile"] = prof
         save()
-    plot(report["sweeps"], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"))
+    plot(report["sweeps"], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"), report.get("mujoco_c_solver_variant"))
     print(f"wrote {args.out}/bench.json and bench.png in {(time.perf_counter() - t_start) / 60:.1f} min", flush=True)
     return 0
 

@@ -63,7 +63,8 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
     from gsa_jax.ppo import schedule
 
     cfg = trainer.cfg
-    env = envs.make(cfg.env, cfg.episode_length, auto_reset=False)
+    env = envs.make(cfg.env, cfg.episode_length, auto_reset=False, solver_iterations=cfg.solver_iterations,
+                    ls_iterations=cfg.ls_iterations)
     pol = trainer.policy
     sched = schedule(hp, jnp.asarray(iteration, jnp.int32))
 

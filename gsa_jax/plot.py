@@ -214,11 +214,16 @@ def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.plot", description=__doc__.split("\n")[0])
     p.add_argument("sweep_dir")
-    p.add_argument("--out", default=None, help="PNG path (default <sweep_dir>/figure.png)")
+    p.add_argument("--out", default=None,
+                   help="PNG path, or a directory for figure.png and the tables (default <sweep_dir>/figure.png)")
     p.add_argument("--window", type=int, default=None, help="smoothing window in iterations (default: 2%% of the run)")
     args = p.parse_args(argv)
+    out = args.out
+    if out is not None and (os.path.isdir(out) or not out.lower().endswith(".png")):
+        os.makedirs(out, exist_ok=True)
+        out = os.path.join(out, "figure.png")
     try:
-        png, table, rows = plot_sweep(args.sweep_dir, args.out, args.window)
+        png, table, rows = plot_sweep(args.sweep_dir, out, args.window)
     except FileNotFoundError as e:
         print(f"gsa_jax.plot: error: {e}", file=sys.stderr)
         return 2

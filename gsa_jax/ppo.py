@@ -49,6 +49,10 @@ class Config:
     normalize_reward: bool = True
     b_init_scale: float = 1.0
     eval_envs: int = 16
+    # MJX constraint solver: None = the task's own MJCF settings; an int overrides opt.iterations /
+    # opt.ls_iterations -- faster, but a changed simulator (envs.make_base; experiments/README.md, solver)
+    solver_iterations: int | None = None
+    ls_iterations: int | None = None
 
     def __post_init__(self):
         if self.episode_length is None and self.env in envs.NAMES:
@@ -72,6 +76,7 @@ class Config:
         for name in ("k_max", "num_envs", "unroll_length", "num_epochs", "num_minibatches", "episode_length", "eval_envs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        envs.check_solver(self.solver_iterations, self.ls_iterations)
         if self.batch_size % self.num_minibatches:
             raise ValueError(
                 f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"
@@ -166,8 +171,9 @@ class Trainer(NamedTuple):
 def make_train(cfg):
     """Build the pure functions of one training run for a static Config."""
     cfg.validate()
-    env = envs.make(cfg.env, cfg.episode_length)
-    eval_env = envs.make(cfg.env, cfg.episode_length, auto_reset=False)
+    env = envs.make(cfg.env, cfg.episode_length, solver_iterations=cfg.solver_iterations, ls_iterations=cfg.ls_iterations)
+    eval_env = envs.make(cfg.env, cfg.episode_length, auto_reset=False, solver_iterations=cfg.solver_iterations,
+                         ls_iterations=cfg.ls_iterations)
     obs_size, action_size = env.observation_size, env.action_size
     policy = make_policy(cfg.policy, obs_size, action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale, cfg.subpolicy)
     n, t_len = cfg.num_envs, cfg.unroll_length

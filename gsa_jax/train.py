@@ -58,6 +58,11 @@ def build_parser():
     p.add_argument("--epochs", type=int, default=Config.num_epochs)
     p.add_argument("--minibatches", type=int, default=Config.num_minibatches)
     p.add_argument("--episode-length", type=int, default=None, help="time limit in steps (default: the task's own)")
+    p.add_argument("--solver-iterations", type=int, default=None,
+                   help="MJX constraint-solver iterations (default: the task's own; hopper 4). Fewer is faster but a "
+                        "changed simulator -- see experiments/README.md (solver)")
+    p.add_argument("--ls-iterations", type=int, default=None,
+                   help="MJX line-search iterations per solver iteration (default: the task's own; hopper 50)")
     p.add_argument("--b-init-scale", type=float, default=Config.b_init_scale, help="initial biases spread over [-s, s]^d_a")
     for flag, name in _HP_FLAGS.items():
         p.add_argument("--" + flag.replace("_", "-"), type=float, default=HPARAM_DEFAULTS[name], dest=flag)
@@ -93,11 +98,13 @@ def resolve(args):
         unroll_length=args.unroll_length, num_epochs=args.epochs, num_minibatches=args.minibatches,
         episode_length=args.episode_length, normalize_reward=not args.no_normalize_reward,
         b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
+        solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
     )
     try:
         cfg.validate()
     except ValueError as e:
-        raise UsageError(str(e).replace("num_envs", "--num-envs").replace("num_minibatches", "--minibatches")) from None
+        msg = str(e).replace("num_envs", "--num-envs").replace("num_minibatches", "--minibatches")
+        raise UsageError(msg.replace("solver_iterations", "--solver-iterations").replace("ls_iterations", "--ls-iterations")) from None
     iterations = math.ceil(args.steps / cfg.batch_size)
     chunk = args.chunk if args.chunk is not None else max(1, min(10, iterations // 20))
     if chunk < 1:
@@ -204,7 +211,10 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
         with open(config_path) as f:
             old = json.load(f)
         for key in ("config", "hparams", "seed", "iterations", "chunk"):
-            if json.loads(json.dumps(config[key])) != old.get(key):
+            mine = json.loads(json.dumps(config[key]))
+            if key == "config":  # runs saved before a field existed hold its default (None) implicitly
+                mine = {k: v for k, v in mine.items() if v is not None or k in old.get(key, {})}
+            if mine != old.get(key):
                 print(f"gsa_jax.train: error: --resume with a different {key} than the run in {out}", file=sys.stderr)
                 return 2
     config.update(run_metadata())
@@ -215,6 +225,12 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
     log(f"gsa_jax: {cfg.env} ({trainer.env.observation_size} obs, {trainer.env.action_size} actions), "
         f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies)" if cfg.policy == "mixture" else "")
         + f", {iterations} iterations x {cfg.batch_size} steps = {iterations * cfg.batch_size:,} env steps -> {out}")
+    if cfg.solver_iterations is not None or cfg.ls_iterations is not None:
+        from envs import solver_settings
+
+        sol = solver_settings(trainer.env.unwrapped)
+        log(f"MJX solver: {sol['iterations']} iterations, {sol['ls_iterations']} line-search iterations (the task's own: "
+            f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/README.md (solver)")
 
     t0 = time.perf_counter()
     state = jax.jit(trainer.init)(jax.random.PRNGKey(seed), hp)

@@ -18,7 +18,7 @@ def test_mujoco_c_reference():
 def test_bench_writes_report(tmp_path):
     out = tmp_path / "bench"
     assert main(["--env", "inverted_double_pendulum", "--sizes", "2", "--policies", "mixture", "--raw-batches", "8",
-                 "--processes", "2", "--repeats", "1", "--profile-runs", "0", "--out", str(out)]) == 0
+                 "--processes", "2", "--repeats", "1", "--profile-runs", "0", "--solver-variant", "none", "--out", str(out)]) == 0
     report = json.loads((out / "bench.json").read_text())
     assert [(s["runs"], s["processes"]) for s in report["sweeps"]] == [(2, 2)]
     assert [(r["batch"], r["processes"]) for r in report["raw"]] == [(8, 2)]
@@ -27,6 +27,55 @@ def test_bench_writes_report(tmp_path):
         assert abs(s["ratio_vs_mujoco_c"] - s["env_steps_per_s"] / report["mujoco_c"]["env_steps_per_s"]) < 1e-9
     assert report["sweeps"][0]["peak_rss_mib"] > 100
     assert report["versions"]["jax"] and (out / "bench.png").stat().st_size > 10_000
+
+
+def test_solver_variant_lines(tmp_path, monkeypatch):
+    """The default grid adds the largest mixture sweep and raw batch on all cores with the cheaper solver,
+    and MuJoCo C with it; each ratio is against MuJoCo C with the same solver (workers faked here: the
+    solver option itself is tested in test_solver.py)."""
+    calls = []
+
+    def sweep(env, policy, runs, processes, repeats, solver=None, log=print):
+        calls.append(("sweep", policy, runs, processes, solver))
+        return {"env": env, "policy": policy, "runs": runs, "processes": processes, "env_steps_per_s": 1000.0 * (2 if solver else 1),
+                "compile_s": 1.0, "peak_rss_mib": 500.0, **bench._solver_field(solver)}
+
+    def raw(env, batch, processes, repeats, solver=None, log=print):
+        calls.append(("raw", batch, processes, solver))
+        return {"env": env, "batch": batch, "processes": processes, "env_steps_per_s": 3000.0, "compile_s": 1.0,
+                **bench._solver_field(solver)}
+
+    def c(env, solver=None, **kw):
+        return {"env": env, "threads": 2, "batch": 256, "substeps_per_env_step": 4, "env_steps_per_s": 10000.0 * (4 if solver else 1),
+                **bench._solver_field(solver)}
+
+    monkeypatch.setattr(bench, "measure_sweep", sweep)
+    monkeypatch.setattr(bench, "measure_raw", raw)
+    monkeypatch.setattr(bench, "measure_mujoco_c", c)
+    out = tmp_path / "b"
+    assert main(["--sizes", "1,4", "--raw-batches", "8,64", "--processes", "1,2", "--out", str(out)]) == 0
+    v = bench.SOLVER_VARIANT
+    assert calls == [("raw", 8, 1, None), ("raw", 8, 2, None), ("raw", 64, 1, None), ("raw", 64, 2, None), ("raw", 64, 2, v),
+                     ("sweep", "mixture", 1, 1, None), ("sweep", "mixture", 4, 1, None), ("sweep", "mixture", 4, 2, None),
+                     ("sweep", "mlp", 4, 2, None), ("sweep", "mixture", 4, 2, v)]
+    report = json.loads((out / "bench.json").read_text())
+    fast = report["sweeps"][-1]
+    assert fast["solver"] == {"iterations": v[0], "ls_iterations": v[1]}
+    assert fast["ratio_vs_mujoco_c"] == pytest.approx(2000 / 40000) and fast["ratio_vs_mujoco_c_task_solver"] == pytest.approx(0.2)
+    assert report["sweeps"][0]["ratio_vs_mujoco_c"] == pytest.approx(0.1)
+    assert report["mujoco_c_solver_variant"]["env_steps_per_s"] == 40000 and (out / "bench.png").exists()
+
+
+@pytest.mark.parametrize("text, quick, expected", [(None, False, bench.SOLVER_VARIANT), (None, True, None), ("none", False, None),
+                                                   ("2,8", True, (2, 8))])
+def test_solver_variant_parsing(text, quick, expected):
+    assert bench.parse_solver_variant(text, quick) == expected
+
+
+@pytest.mark.parametrize("text", ["1", "a,b", "0,4", "1,2,3"])
+def test_solver_variant_errors(text, capsys):
+    assert main(["--solver-variant", text]) == 2
+    assert "--solver-variant" in capsys.readouterr().err
 
 
 def test_time_profile_decomposition(monkeypatch):

@@ -26,6 +26,8 @@ SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--mini
         (["--eps-init", "1.5"], "eps_init must be in [0, 1)"),
         (["--subpolicy", "cubic"], "unknown --subpolicy 'cubic'; choose one of constant, linear, quadratic"),
         (["--policy", "mlp", "--subpolicy", "constant"], "--subpolicy applies to --policy mixture only"),
+        (["--solver-iterations", "0"], "--solver-iterations must be an integer >= 1"),
+        (["--ls-iterations", "-2"], "--ls-iterations must be an integer >= 1"),
     ],
 )
 def test_bad_input_one_line_error(argv, message, capsys, tmp_path):
@@ -89,6 +91,21 @@ def test_interrupt_then_resume_equals_uninterrupted(full_run, tmp_path):
 def test_resume_with_other_config_refused(full_run, capsys):
     assert main(SMALL[:-1] + ["--seed", "5", "--out", str(full_run), "--resume"]) == 2
     assert "different seed" in capsys.readouterr().err
+    assert main(SMALL[:-1] + ["--solver-iterations", "1", "--out", str(full_run), "--resume"]) == 2
+    assert "different config" in capsys.readouterr().err
+
+
+def test_resume_run_saved_before_solver_fields(full_run, tmp_path):
+    """A run whose config.json predates solver_iterations / ls_iterations (None by default) resumes."""
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(full_run, old)
+    meta = json.loads((old / "config.json").read_text())
+    for k in ("solver_iterations", "ls_iterations"):
+        del meta["config"][k]
+    (old / "config.json").write_text(json.dumps(meta))
+    assert main(SMALL + ["--out", str(old), "--resume"]) == 0
 
 
 def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):

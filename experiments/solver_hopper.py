@@ -1,0 +1,162 @@
+"""What the cheaper MJX solver costs: hopper controllers trained with the task's own solver
+(`fig1_idp_hopper`, 4 Newton / 50 line-search iterations) and with 1 / 4 (`solver_hopper`), same seeds,
+same 1M steps, each evaluated deterministically in both simulators, and the mixtures also in MuJoCo C
+(the MJCF's own settings, float64), plus how far one env step and a rollout drift between the solvers.
+
+    .venv/bin/python experiments/solver_hopper.py runs/sweeps/fig1_idp_hopper runs/sweeps/solver_hopper \
+        --out experiments/results/solver_hopper
+"""
+
+import argparse
+import csv
+import dataclasses
+import json
+import os
+import sys
+import tempfile
+
+import numpy as np
+
+
+def load_cell(sweep_dir, policy, k, tmp):
+    """Per seed (sorted): (trainer, params, obs_stats, hp, iteration, run_dir) of one sweep cell."""
+    from gsa_jax.extract import extract, finished_runs, select
+    from gsa_jax.inspect import last_iteration, load_run
+
+    runs = finished_runs(sweep_dir)
+    seeds = sorted({int(r["seed"]) for _, _, r in runs if r["env"] == "hopper" and r["policy"] == policy
+                    and (policy == "mlp" or int(r["K"]) == k)})
+    out = []
+    for seed in seeds:
+        run_dir = os.path.join(tmp, f"{os.path.basename(sweep_dir.rstrip('/'))}-{policy}-s{seed}")
+        extract(sweep_dir, *select(runs, "hopper", policy, k if policy == "mixture" else 1, seed), run_dir)
+        trainer, params, obs_stats, hp, meta = load_run(run_dir, require_mixture=False)
+        out.append((seed, trainer, params, obs_stats, hp, last_iteration(meta), run_dir))
+    return out
+
+
+def make_eval(cfg, policy_obj, episodes, solver):
+    """jit(vmap over runs) of `episodes` deterministic episodes in hopper with `solver` (None or (it, ls))."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from gsa_jax.normalize import normalize
+    from gsa_jax.ppo import schedule
+
+    env = envs.make("hopper", cfg.episode_length, auto_reset=False, solver_iterations=solver and solver[0],
+                    ls_iterations=solver and solver[1])
+
+    def one(params, obs_stats, hp, iteration, key):
+        sched = schedule(hp, iteration)
+
+        def step(carry, _):
+            s, alive, ret, length = carry
+            z = normalize(obs_stats, s.obs) if cfg.normalize_obs else s.obs
+            a, _ = jax.vmap(policy_obj.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
+            nxt = jax.vmap(env.step)(s, jnp.clip(a, -1.0, 1.0))
+            return (nxt, alive * (1.0 - nxt.done), ret + nxt.reward * alive, length + alive), None
+
+        s0 = jax.vmap(env.reset)(jax.random.split(key, episodes))
+        z = jnp.zeros((episodes,))
+        (_, _, ret, length), _ = jax.lax.scan(step, (s0, jnp.ones((episodes,)), z, z), None, length=cfg.episode_length)
+        return ret, length
+
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None)))
+
+
+def evaluate_cell(cell, episodes, solvers):
+    import jax
+    import jax.numpy as jnp
+
+    stack = lambda xs: jax.tree.map(lambda *a: jnp.stack(a), *xs)
+    params, obs_stats, hps = stack([c[2] for c in cell]), stack([c[3] for c in cell]), stack([c[4] for c in cell])
+    its = jnp.asarray([c[5] for c in cell], jnp.int32)
+    cfg = dataclasses.replace(cell[0][1].cfg, solver_iterations=None, ls_iterations=None)
+    out = {}
+    for name, solver in solvers.items():
+        ret, length = make_eval(cfg, cell[0][1].policy, episodes, solver)(params, obs_stats, hps, its, jax.random.PRNGKey(123))
+        out[name] = (np.asarray(ret), np.asarray(length))
+    return out
+
+
+def drift(episodes=64, steps=(1, 10, 100)):
+    """Max/mean |qpos difference| between the two solvers from the same starts under the same random
+    actions, after 1, 10, 100 env steps (no time limit, no reset)."""
+    import jax
+
+    import envs
+
+    res = {}
+    envs_by = {"task": envs.make_base("hopper"), "fast": envs.make_base("hopper", 1, 4)}
+    s0 = jax.vmap(envs_by["task"].reset)(jax.random.split(jax.random.PRNGKey(7), episodes))
+    acts = jax.random.uniform(jax.random.PRNGKey(8), (max(steps), episodes, 3), minval=-1, maxval=1)
+    q = {}
+    for name, env in envs_by.items():
+        roll = jax.jit(lambda s: jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a),) * 2, s, acts)[1].pipeline_state.qpos)
+        q[name] = np.asarray(roll(s0))
+    for n in steps:
+        d = np.abs(q["task"][n - 1] - q["fast"][n - 1])
+        res[f"after_{n}_steps"] = {"max_abs_qpos_diff": float(d.max()), "mean_abs_qpos_diff": float(d.mean()),
+                                   "torso_height_mean_abs_diff_m": float(d[:, 1].mean())}
+    return res
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser()
+    p.add_argument("task_sweep", help="sweep trained with the task's own solver (fig1_idp_hopper)")
+    p.add_argument("fast_sweep", help="sweep trained with solver 1/4 (solver_hopper)")
+    p.add_argument("--clusters", type=int, default=6)
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--out", default="experiments/results/solver_hopper")
+    args = p.parse_args(argv)
+
+    from gsa_jax.checkpoint import save_npz_atomic
+    from gsa_jax.deploy import run_mujoco_c
+    from gsa_jax.export import controller_arrays
+    from gsa_jax.runinfo import run_metadata
+
+    os.makedirs(args.out, exist_ok=True)
+    solvers = {"mjx_task_solver": None, "mjx_fast_solver": (1, 4)}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for trained, sweep in (("task", args.task_sweep), ("fast", args.fast_sweep)):
+            for policy in ("mlp", "mixture"):
+                cell = load_cell(sweep, policy, args.clusters, tmp)
+                res = evaluate_cell(cell, args.episodes, solvers)
+                for i, c in enumerate(cell):
+                    row = {"trained_with": trained, "policy": policy, "K": args.clusters if policy == "mixture" else "",
+                           "seed": c[0]}
+                    for name in solvers:
+                        row[name] = round(float(res[name][0][i].mean()), 1)
+                    if policy == "mixture":
+                        ctrl = os.path.join(c[6], "controller.npz")
+                        save_npz_atomic(ctrl, **controller_arrays(c[6]))
+                        row["mujoco_c"] = round(run_mujoco_c(ctrl, args.episodes)[1]["return_mean"], 1)
+                    else:
+                        row["mujoco_c"] = ""
+                    rows.append(row)
+                    print(row, flush=True)
+    with open(os.path.join(args.out, "returns.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    summary = {}
+    for trained in ("task", "fast"):
+        for policy in ("mlp", "mixture"):
+            sel = [r for r in rows if r["trained_with"] == trained and r["policy"] == policy]
+            cols = list(solvers) + (["mujoco_c"] if policy == "mixture" else [])
+            summary[f"{policy}_trained_{trained}"] = {
+                col: {"mean": float(np.mean([r[col] for r in sel])),
+                      "ci95": float(1.96 * np.std([r[col] for r in sel], ddof=1) / np.sqrt(len(sel)))} for col in cols}
+    result = {"summary": summary, "trajectory_drift": drift(), "episodes_per_seed": args.episodes,
+              "sweeps": {"task": os.path.abspath(args.task_sweep), "fast": os.path.abspath(args.fast_sweep)},
+              **run_metadata()}
+    with open(os.path.join(args.out, "summary.json"), "w") as f:
+        json.dump(result, f, indent=1)
+    print(json.dumps({k: result[k] for k in ("summary", "trajectory_drift")}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
