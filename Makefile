@@ -32,7 +32,7 @@ SWEEP ?= runs/sweeps/$(basename $(notdir $(EXP)))
 figures: $(STAMP)
 	$(BIN)/python -m gsa_jax.plot $(SWEEP)
 
-## bench: sweep throughput vs MuJoCo C on this machine (~20 min; bench-quick ~4 min)
+## bench: sweep throughput vs MuJoCo C on this machine (~20 min; bench-quick ~3 min)
 bench: $(STAMP)
 	$(BIN)/python -m gsa_jax.bench --out runs/bench
 
@@ -41,7 +41,7 @@ bench-quick: $(STAMP)
 
 ## profile: where one PPO iteration's time goes (64 hopper runs, 1 process: physics / rollout / update; ~7 min)
 profile: $(STAMP)
-	$(BIN)/python -m gsa_jax.bench --sizes 64 --processes 1 --raw-batches 2048 --profile-runs 64 --out runs/profile
+	$(BIN)/python -m gsa_jax.bench --sizes 64 --processes 1 --raw-batches 2048 --profile-runs 64 --solver-variant none --out runs/profile
 
 ## scene: a picture of the Allegro task (offscreen OSMesa rendering; installs Debian's libosmesa6 if missing)
 scene: $(STAMP)

@@ -15,7 +15,7 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
   (`--solver-variant ITER,LS`, default 1,4: 1 Newton iteration, 4 line-search iterations), and MuJoCo C
   with those settings too -- a changed simulator, offered as the explicit `--solver-iterations` /
   `--ls-iterations` option of training and sweeps (experiments/README.md, solver).
-The default run takes ~20 min on 2 cores (the estimate is printed first), --quick ~4 min.
+The default run takes ~20 min on 2 cores (the estimate is printed first), --quick ~3 min.
 Every figure is the median of repeated timed chunks; workers of a multi-process measurement start
 their timed chunks together. A worker that hangs (no heartbeat) is killed and the measurement retried
 once, then recorded as an error. Writes bench.json (`ratio_vs_mujoco_c` for each measurement) and
