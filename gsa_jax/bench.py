@@ -8,8 +8,8 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
 - end-to-end training throughput (env steps per second, PPO updates included, compile excluded and
   reported separately) of sweeps of 1, 16, 64 and 256 runs of the mixture (K=6) with 1 and with
   <cores> worker processes, and of the flat mlp at 256 runs on all cores (`--policies mixture,mlp`
-  for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them), with compile time and peak
-  resident memory;
+  for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them,
+  in its sub-batches of --run-batch runs), with compile time and peak resident memory;
 - with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update);
 - the same largest raw batch and largest mixture sweep on all cores again with a cheaper MJX solver
   (`--solver-variant ITER,LS`, default 1,4: 1 Newton iteration, 4 line-search iterations), and MuJoCo C
@@ -83,7 +83,7 @@ def worker(args):
     cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
-    _, init, run, place = make_group_program(cfg, 1, devices)
+    _, init, run, place = make_group_program(cfg, 1, devices, run_batch=args.run_batch)
     runs = pad_runs(runs, len(devices))
     hps = place(stack_hparams(runs, [], 1000))
     keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
@@ -203,14 +203,15 @@ def _solver_field(solver):
     return {"solver": {"iterations": solver[0], "ls_iterations": solver[1]}} if solver else {}
 
 
-def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, log=print):
+def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print):
     """Throughput of `runs` runs split over `processes` workers, measured together. solver: None (the
     task's own) or (iterations, ls_iterations)."""
     cmds, seed0 = [], 0
     for n in _split(runs, processes):
         cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
                      "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats)]
-                    + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver))
+                    + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver)
+                    + (["--run-batch", str(run_batch)] if run_batch is not None else []))
         seed0 += n
     results = run_workers(cmds, log=log)
     return {
@@ -403,6 +404,9 @@ def main(argv=None):
                    help="also profile one PPO iteration (physics / rest of rollout / update) at this many runs, e.g. 64")
     p.add_argument("--repeats", type=int, default=None,
                    help="timed chunks per measurement (default 3; 2 for sweeps of >= 64 runs, whose chunks are long)")
+    p.add_argument("--run-batch", type=int, default=None,
+                   help="runs per sequential sub-batch in each worker, as gsa_jax.sweep --run-batch (default: the sweep's, "
+                        "8; 0: all at once)")
     p.add_argument("--solver-variant", default=None,
                    help="ITER,LS: also measure the largest raw batch and mixture sweep (all cores) and MuJoCo C with this "
                         "many solver / line-search iterations (default 1,4; 'none' to skip; skipped with --quick)")
@@ -414,6 +418,10 @@ def main(argv=None):
                  ("--solver-iterations", int), ("--ls-iterations", int)):
         p.add_argument(a, type=t, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.run_batch is None:
+        from gsa_jax.sweep import RUN_BATCH
+
+        args.run_batch = RUN_BATCH
     if args.worker or args.raw_worker:
         args.repeats = args.repeats or 3
         (worker if args.worker else raw_worker)(args)
@@ -467,7 +475,8 @@ def main(argv=None):
         c_ref[variant] = measure_mujoco_c(args.env, solver=variant)
         print(f"MuJoCo C rollout with {variant[0]} solver / {variant[1]} line-search iterations: "
               f"{c_ref[variant]['env_steps_per_s']:,.0f} env-steps/s", flush=True)
-    report = {"env": args.env, "quick": args.quick, "repeats": repeats, "mujoco_c": mujoco_c, "raw": [], "sweeps": [],
+    report = {"env": args.env, "quick": args.quick, "repeats": repeats, "run_batch": args.run_batch, "mujoco_c": mujoco_c,
+              "raw": [], "sweeps": [],
               **({"mujoco_c_solver_variant": c_ref[variant]} if variant else {}), **run_metadata()}
 
     def add_ratios(r, solver):
@@ -497,7 +506,8 @@ def main(argv=None):
     print(f"{'policy':8} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} {'peak_MiB':>9}", flush=True)
     for pol, n, k, sol in plan:
         try:
-            r = measure_sweep(args.env, pol, n, k, reps(repeats, n, args.repeats is not None), solver=sol)
+            r = measure_sweep(args.env, pol, n, k, reps(repeats, n, args.repeats is not None), solver=sol,
+                              run_batch=args.run_batch)
             add_ratios(r, sol)
             print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
                   f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)

@@ -245,9 +245,32 @@ def stack_hparams(runs, names, iterations):
     return {k: jnp.stack([h[k] for h in per_run]) for k in per_run[0]}
 
 
-def make_group_program(cfg, chunk, devices):
+RUN_BATCH = 8  # runs per sub-batch (make_group_program); measured in experiments/README.md (benchmark)
+
+
+def sub_batched(fn, size):
+    """fn (vmapped over a leading run axis R) applied to sequential slices of `size` runs in a lax.scan,
+    when size divides R and is smaller; else fn itself. (Explicit shapes: jax.lax.map(batch_size=) fails
+    on MJX's zero-size arrays.)"""
+    import jax
+
+    def run(*xs):
+        n = jax.tree.leaves(xs)[0].shape[0]
+        if not size or size >= n or n % size:
+            return fn(*xs)
+        split = jax.tree.map(lambda x: x.reshape((n // size, size) + x.shape[1:]), xs)
+        _, ys = jax.lax.scan(lambda c, x: (c, fn(*x)), None, split)
+        return jax.tree.map(lambda y: y.reshape((n,) + y.shape[2:]), ys)
+
+    return run
+
+
+def make_group_program(cfg, chunk, devices, run_batch=None):
     """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
-    vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices))."""
+    vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
+    run_batch: train each device's runs in sequential sub-batches of this many (lax.map) instead of all
+    at once -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
+    slowest env instead of the whole device's."""
     import jax
     from jax.sharding import NamedSharding
     from jax.sharding import PartitionSpec as P
@@ -256,7 +279,7 @@ def make_group_program(cfg, chunk, devices):
 
     trainer = make_train(cfg)
     init = jax.vmap(trainer.init)
-    run = jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk))
+    run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
     if len(devices) > 1:
         # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
         # type check rejects; every op here is per-run, so nothing needs that check.
@@ -293,7 +316,8 @@ def group_csv(runs, id_cols, metrics, upto):
 
 
 # ----------------------------------------------------------------------------------------------- the worker
-def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None):
+def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None,
+              run_batch=RUN_BATCH):
     """Train (or resume) one group. Returns (iterations done, iterations total, metrics dict, runs)."""
     import jax
 
@@ -316,7 +340,7 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
         [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in runs]) + "\n")
 
     t0 = time.perf_counter()
-    trainer, init, run, place = make_group_program(cfg, chunk, devices)
+    trainer, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
     hps = place(stack_hparams(padded, list(spec["hparams"]), iterations))
     keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in padded]))
     states = init(keys, hps)
@@ -390,8 +414,10 @@ def write_tidy(out, spec, results):
         write_atomic(os.path.join(out, "metrics.csv"), header + "\n" + "\n".join(lines) + ("\n" if lines else ""))
 
 
-def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None):
-    """Train every group of the spec (this process's share of each). Returns True when all groups are done."""
+def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
+              run_batch=RUN_BATCH):
+    """Train every group of the spec (this process's share of each). Returns True when all groups are done.
+    run_batch: see make_group_program."""
     import jax
 
     from gsa_jax.runinfo import run_metadata
@@ -427,7 +453,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
         if not mine:
             continue
         res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
-                        on_chunk=lambda partial: write_tidy(out, spec, results + [partial]))
+                        on_chunk=lambda partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch)
         results.append(res)
         write_tidy(out, spec, results)
         if res[0] < res[1]:
@@ -507,6 +533,9 @@ def build_parser():
     p.add_argument("--coordinator", default=None, help="host:port of process 0, for multi-process sweeps")
     p.add_argument("--num-processes", type=int, default=1)
     p.add_argument("--process-id", type=int, default=0)
+    p.add_argument("--run-batch", type=int, default=RUN_BATCH,
+                   help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
+                        "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     return p
@@ -529,6 +558,9 @@ def main(argv=None):
         local = 1  # multi-host: one process per host runs here, as launched
     if local < 1:
         print("gsa_jax.sweep: error: --local-processes must be >= 1", file=sys.stderr)
+        return 2
+    if args.run_batch < 0:
+        print(f"gsa_jax.sweep: error: --run-batch must be >= 0, got {args.run_batch}", file=sys.stderr)
         return 2
     if not args.worker and (local > 1 or not args.no_watchdog):
         base = [a for a in argv]
@@ -572,7 +604,8 @@ def main(argv=None):
         write_atomic(os.path.join(wdir, "heartbeat.json"), json.dumps(beats))
 
     try:
-        complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes, heartbeat)
+        complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes, heartbeat,
+                             args.run_batch)
     except SpecError as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2

@@ -35,7 +35,7 @@ def test_solver_variant_lines(tmp_path, monkeypatch):
     solver option itself is tested in test_solver.py)."""
     calls = []
 
-    def sweep(env, policy, runs, processes, repeats, solver=None, log=print):
+    def sweep(env, policy, runs, processes, repeats, solver=None, run_batch=None, log=print):
         calls.append(("sweep", policy, runs, processes, solver))
         return {"env": env, "policy": policy, "runs": runs, "processes": processes, "env_steps_per_s": 1000.0 * (2 if solver else 1),
                 "compile_s": 1.0, "peak_rss_mib": 500.0, **bench._solver_field(solver)}
