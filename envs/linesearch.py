@@ -9,7 +9,7 @@ constraint rows), converged or not. We never differentiate through the simulator
 lax.while_loop the batch stops when its slowest env has converged (a batched while runs the body
 for all envs while any is unfinished and keeps the finished ones' values unchanged).
 Per env the sequence of iterates is the same as the scan's, so results are bitwise equal
-(tests/test_linesearch.py); what changes is the work: measured in experiments/README.md (speed).
+(tests/test_solver.py); what changes is the work: measured in experiments/README.md (speed).
 Set GSA_JAX_SCAN_LINESEARCH=1 to keep MJX's scan.
 """
 

@@ -9,7 +9,6 @@ same 1M steps, each evaluated deterministically in both simulators, and the mixt
 
 import argparse
 import csv
-import dataclasses
 import json
 import os
 import sys
@@ -36,7 +35,8 @@ def load_cell(sweep_dir, policy, k, tmp):
 
 
 def make_eval(cfg, policy_obj, episodes, solver):
-    """jit(vmap over runs) of `episodes` deterministic episodes in hopper with `solver` (None or (it, ls))."""
+    """jit(vmap over runs) of the returns [runs, episodes] of deterministic episodes in hopper with
+    `solver` (None or (it, ls)); params are arguments, so one compile serves a whole cell."""
     import jax
     import jax.numpy as jnp
 
@@ -51,16 +51,16 @@ def make_eval(cfg, policy_obj, episodes, solver):
         sched = schedule(hp, iteration)
 
         def step(carry, _):
-            s, alive, ret, length = carry
+            s, alive, ret = carry
             z = normalize(obs_stats, s.obs) if cfg.normalize_obs else s.obs
             a, _ = jax.vmap(policy_obj.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
             nxt = jax.vmap(env.step)(s, jnp.clip(a, -1.0, 1.0))
-            return (nxt, alive * (1.0 - nxt.done), ret + nxt.reward * alive, length + alive), None
+            return (nxt, alive * (1.0 - nxt.done), ret + nxt.reward * alive), None
 
         s0 = jax.vmap(env.reset)(jax.random.split(key, episodes))
-        z = jnp.zeros((episodes,))
-        (_, _, ret, length), _ = jax.lax.scan(step, (s0, jnp.ones((episodes,)), z, z), None, length=cfg.episode_length)
-        return ret, length
+        (_, _, ret), _ = jax.lax.scan(step, (s0, jnp.ones((episodes,)), jnp.zeros((episodes,))), None,
+                                      length=cfg.episode_length)
+        return ret
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None)))
 
@@ -72,12 +72,9 @@ def evaluate_cell(cell, episodes, solvers):
     stack = lambda xs: jax.tree.map(lambda *a: jnp.stack(a), *xs)
     params, obs_stats, hps = stack([c[2] for c in cell]), stack([c[3] for c in cell]), stack([c[4] for c in cell])
     its = jnp.asarray([c[5] for c in cell], jnp.int32)
-    cfg = dataclasses.replace(cell[0][1].cfg, solver_iterations=None, ls_iterations=None)
-    out = {}
-    for name, solver in solvers.items():
-        ret, length = make_eval(cfg, cell[0][1].policy, episodes, solver)(params, obs_stats, hps, its, jax.random.PRNGKey(123))
-        out[name] = (np.asarray(ret), np.asarray(length))
-    return out
+    cfg, policy = cell[0][1].cfg, cell[0][1].policy
+    return {name: np.asarray(make_eval(cfg, policy, episodes, solver)(params, obs_stats, hps, its, jax.random.PRNGKey(123)))
+            for name, solver in solvers.items()}
 
 
 def drift(episodes=64, steps=(1, 10, 100)):
@@ -128,7 +125,7 @@ def main(argv=None):
                     row = {"trained_with": trained, "policy": policy, "K": args.clusters if policy == "mixture" else "",
                            "seed": c[0]}
                     for name in solvers:
-                        row[name] = round(float(res[name][0][i].mean()), 1)
+                        row[name] = round(float(res[name][i].mean()), 1)
                     if policy == "mixture":
                         ctrl = os.path.join(c[6], "controller.npz")
                         save_npz_atomic(ctrl, **controller_arrays(c[6]))

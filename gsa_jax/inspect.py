@@ -58,13 +58,11 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
     import jax
     import jax.numpy as jnp
 
-    import envs
     from gsa_jax.normalize import normalize
-    from gsa_jax.ppo import schedule
+    from gsa_jax.ppo import make_env, schedule
 
     cfg = trainer.cfg
-    env = envs.make(cfg.env, cfg.episode_length, auto_reset=False, solver_iterations=cfg.solver_iterations,
-                    ls_iterations=cfg.ls_iterations)
+    env = make_env(cfg, auto_reset=False)
     pol = trainer.policy
     sched = schedule(hp, jnp.asarray(iteration, jnp.int32))
 

@@ -168,12 +168,15 @@ class Trainer(NamedTuple):
     value: Callable
 
 
+def make_env(cfg, auto_reset=True):
+    """The task as a Config describes it: time limit and MJX solver settings."""
+    return envs.make(cfg.env, cfg.episode_length, auto_reset, cfg.solver_iterations, cfg.ls_iterations)
+
+
 def make_train(cfg):
     """Build the pure functions of one training run for a static Config."""
     cfg.validate()
-    env = envs.make(cfg.env, cfg.episode_length, solver_iterations=cfg.solver_iterations, ls_iterations=cfg.ls_iterations)
-    eval_env = envs.make(cfg.env, cfg.episode_length, auto_reset=False, solver_iterations=cfg.solver_iterations,
-                         ls_iterations=cfg.ls_iterations)
+    env, eval_env = make_env(cfg), make_env(cfg, auto_reset=False)
     obs_size, action_size = env.observation_size, env.action_size
     policy = make_policy(cfg.policy, obs_size, action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale, cfg.subpolicy)
     n, t_len = cfg.num_envs, cfg.unroll_length

@@ -265,11 +265,11 @@ def sub_batched(fn, size):
     return run
 
 
-def make_group_program(cfg, chunk, devices, run_batch=None):
+def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
     """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
     vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
-    run_batch: train each device's runs in sequential sub-batches of this many (lax.map) instead of all
-    at once -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
+    run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
+    all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
     slowest env instead of the whole device's."""
     import jax
     from jax.sharding import NamedSharding
