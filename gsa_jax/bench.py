@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -34,6 +35,7 @@ import time
 
 import numpy as np
 
+from gsa_jax import xla_cache
 from gsa_jax.checkpoint import write_atomic
 
 SIZES = (1, 16, 64, 256)
@@ -65,6 +67,27 @@ def _time_chunks(args, fn, state):
     return times
 
 
+def _shared_compile(args):
+    """Workers of one measurement share one compile (gsa_jax.xla_cache) unless GSA_JAX_COMPILE_EACH=1."""
+    return args.num_workers > 1 and os.environ.get("GSA_JAX_COMPILE_EACH") != "1"
+
+
+def _enable_shared_compile(args):
+    if _shared_compile(args):
+        xla_cache.enable(os.path.join(args.barrier, "xla_cache"))
+
+
+def _share(args):
+    """compile_group's share: worker 0 compiles, the others load its executable (or each compiles alone)."""
+    return (os.path.join(args.barrier, "xla_cache"), args.worker_id == 0) if _shared_compile(args) else None
+
+
+def _compile(args, lowered):
+    """(compiled, how) for one lowered program, as compile_group does."""
+    share = _share(args)
+    return xla_cache.compile_shared(lowered, *share) if share else (lowered.compile(), "compiled")
+
+
 def worker(args):
     """One process: compile the group program for args.runs runs, wait at the barrier, time chunks of
     one PPO iteration."""
@@ -72,7 +95,7 @@ def worker(args):
 
     import jax
 
-    from gsa_jax.sweep import build_grid, check_spec, group_config, make_group_program, pad_runs, stack_hparams
+    from gsa_jax.sweep import build_grid, check_spec, compile_group, group_config, pad_runs
 
     spec = check_spec({"envs": [args.env], "policies": [args.policy], "clusters": [args.clusters],
                        "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9})
@@ -83,12 +106,9 @@ def worker(args):
     cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
-    _, init, run, place = make_group_program(cfg, 1, devices, run_batch=args.run_batch)
+    _enable_shared_compile(args)
     runs = pad_runs(runs, len(devices))
-    hps = place(stack_hparams(runs, [], 1000))
-    keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
-    states = init(keys, hps)
-    run = run.lower(states, hps).compile()
+    states, run, hps, _, how = compile_group(cfg, 1, devices, runs, [], 1000, args.run_batch, _share(args))
     compile_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     states, _ = run(states, hps)  # first execution (allocations, page faults) is not timed
@@ -98,7 +118,7 @@ def worker(args):
     times = _time_chunks(args, lambda st: jax.block_until_ready(run(st, hps)[0]), states)
     steps = len(runs) * cfg.batch_size
     print(json.dumps({
-        "compile_s": compile_s, "chunk_s": times, "env_steps_per_chunk": steps,
+        "compile_s": compile_s, "compile": how, "chunk_s": times, "env_steps_per_chunk": steps,
         "env_steps_per_s": steps / statistics.median(times),
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }), flush=True)
@@ -116,6 +136,7 @@ def raw_worker(args):
     env = envs.make(args.env, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
     b = args.batch
     t0 = time.perf_counter()
+    _enable_shared_compile(args)
 
     def chunk(carry):
         state, key = carry
@@ -129,9 +150,11 @@ def raw_worker(args):
         state, rewards = jax.lax.scan(body, state, jax.random.split(k, RAW_UNROLL))
         return state, key
 
-    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(args.seed0), b))
+    keys = jax.random.split(jax.random.PRNGKey(args.seed0), b)
+    reset, _ = _compile(args, jax.jit(jax.vmap(env.reset)).lower(keys))
+    state = reset(keys)
     carry = (state, jax.random.PRNGKey(args.seed0 + 1))
-    step = jax.jit(chunk, donate_argnums=0).lower(carry).compile()
+    step, how = _compile(args, jax.jit(chunk, donate_argnums=0).lower(carry))
     compile_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     carry = jax.block_until_ready(step(carry))
@@ -144,7 +167,7 @@ def raw_worker(args):
         return None
 
     times = _time_chunks(args, timed, None)
-    print(json.dumps({"compile_s": compile_s, "chunk_s": times, "env_steps_per_chunk": b * RAW_UNROLL,
+    print(json.dumps({"compile_s": compile_s, "compile": how, "chunk_s": times, "env_steps_per_chunk": b * RAW_UNROLL,
                       "env_steps_per_s": b * RAW_UNROLL / statistics.median(times),
                       "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}), flush=True)
 
@@ -182,11 +205,13 @@ def run_workers(cmds, compile_limit_s=900, retries=1, log=print):
                 break
         if problem is None:
             outs = [p.communicate()[0] for p in procs]
+            shutil.rmtree(barrier, ignore_errors=True)  # with the workers' compilation cache
             return [json.loads(o.strip().splitlines()[-1]) for o in outs]
         for p in procs:
             if p.poll() is None:
                 p.kill()
             p.wait()
+        shutil.rmtree(barrier, ignore_errors=True)
         log(f"  ! {problem}; " + ("retrying" if attempt < retries else "giving up"))
     raise BenchError(problem)
 
@@ -201,6 +226,11 @@ def _solver_args(solver):
 
 def _solver_field(solver):
     return {"solver": {"iterations": solver[0], "ls_iterations": solver[1]}} if solver else {}
+
+
+def _compile_fields(results):
+    """Per-process compile times and how each process got its program (compiled / loaded from worker 0)."""
+    return {"compile_s_per_process": [r["compile_s"] for r in results], "compile_per_process": [r["compile"] for r in results]}
 
 
 def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print):
@@ -218,7 +248,7 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None
         "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
         **_solver_field(solver),
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
-        "compile_s": max(r["compile_s"] for r in results),
+        "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),
         "peak_rss_mib_per_process": max(r["peak_rss_mib"] for r in results),
         "chunk_s": [r["chunk_s"] for r in results],
@@ -233,7 +263,7 @@ def measure_raw(env, batch, processes, repeats, solver=None, log=print):
     results = run_workers(cmds, log=log)
     return {"env": env, "batch": batch, "processes": processes, **_solver_field(solver),
             "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
-            "compile_s": max(r["compile_s"] for r in results), "chunk_s": [r["chunk_s"] for r in results]}
+            "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results), "chunk_s": [r["chunk_s"] for r in results]}
 
 
 def time_profile(env, policy, runs, repeats, log=print):

@@ -6,7 +6,9 @@
 Every run of an (env, policy) group trains at once: `jax.vmap` over the runs, the run axis
 sharded over the local devices (`shard_map`). On a CPU, use the cores with --local-processes N
 (default: one per core): N worker processes, each training its share of every group's runs
-on its own XLA CPU device (or set --xla_force_host_platform_device_count and --local-processes 1). Training goes in chunks of iterations; after each chunk the group's state, its
+on its own XLA CPU device (or set --xla_force_host_platform_device_count and --local-processes 1); worker 0
+compiles each group's program and the others load it from the sweep's compilation cache (gsa_jax.xla_cache).
+Training goes in chunks of iterations; after each chunk the group's state, its
 metrics and the tidy `metrics.csv` are written atomically, so a killed sweep resumes from its
 last chunk when the same command runs again and ends with the same results. A supervisor
 process watches a heartbeat and restarts a worker whose chunk takes far longer than usual
@@ -16,6 +18,8 @@ Output (DIR, default runs/sweeps/<name>):
   sweep.json            the spec, every run of the grid, versions, git commit
   metrics.csv           tidy: one row per run per iteration (env, policy, K, seed, swept hparams, metrics)
   groups/<env>-<policy>/{state.npz, metrics.npz, params.npz, runs.csv, DONE}
+  xla_cache/            compiled programs (JAX's persistent cache): worker 0 compiles each group's
+                        program once, the other workers and any resumed run load it (seconds)
 With --num-processes P each process writes its share under DIR/process-<i>/ (`gsa_jax.plot` merges them).
 
 Experiment file (TOML):
@@ -293,10 +297,35 @@ def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
     return trainer, jax.jit(init), jax.jit(run, donate_argnums=0), place
 
 
-def pad_runs(runs, multiple):
-    """Pad with copies of the last run so the run axis splits evenly over devices (copies are dropped later)."""
-    pad = (-len(runs)) % multiple
+def pad_runs(runs, multiple, at_least=0):
+    """Pad with copies of the last run to at least `at_least` runs and a multiple of `multiple` (the
+    devices), so the run axis splits evenly (copies are dropped later)."""
+    n = max(len(runs), at_least)
+    pad = n - len(runs) + (-n) % multiple
     return runs + [dict(runs[-1], run=-1)] * pad
+
+
+def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
+    """The group program for `runs` (already padded), compiled, and its initial state.
+    share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_shared;
+    inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
+    Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
+    import jax
+
+    from gsa_jax import xla_cache
+
+    def compile_(lowered):
+        if share is None:
+            return lowered.compile(), "compiled"
+        return xla_cache.compile_shared(lowered, share[0], share[1], log=log)
+
+    _, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
+    hps = place(stack_hparams(runs, hparam_names, iterations))
+    keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
+    init, _ = compile_(init.lower(keys, hps))
+    states = init(keys, hps)
+    run, how = compile_(run.lower(states, hps))
+    return states, run, hps, place, how
 
 
 # ----------------------------------------------------------------------------------------------- files
@@ -317,8 +346,10 @@ def group_csv(runs, id_cols, metrics, upto):
 
 # ----------------------------------------------------------------------------------------------- the worker
 def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None,
-              run_batch=RUN_BATCH):
-    """Train (or resume) one group. Returns (iterations done, iterations total, metrics dict, runs)."""
+              run_batch=RUN_BATCH, pad_to=0, share=None):
+    """Train (or resume) one group. Returns (iterations done, iterations total, metrics dict, runs).
+    pad_to: pad the runs to at least this many (every worker process builds the same program);
+    share: see compile_group."""
     import jax
 
     from gsa_jax.checkpoint import load_pytree, save_npz_atomic, save_pytree
@@ -329,7 +360,7 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
     cfg = group_config(spec, env_name, policy, runs)
     chunk = default_chunk(spec, cfg)
     iterations = group_iterations(spec, cfg, chunk)
-    padded = pad_runs(runs, len(devices))
+    padded = pad_runs(runs, len(devices), at_least=pad_to)
     R = len(padded)
     state_path, metrics_path = os.path.join(gdir, "state.npz"), os.path.join(gdir, "metrics.npz")
     if os.path.exists(os.path.join(gdir, "DONE")):
@@ -340,11 +371,8 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
         [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in runs]) + "\n")
 
     t0 = time.perf_counter()
-    trainer, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
-    hps = place(stack_hparams(padded, list(spec["hparams"]), iterations))
-    keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in padded]))
-    states = init(keys, hps)
-    run = run.lower(states, hps).compile()
+    states, run, hps, place, how = compile_group(cfg, chunk, devices, padded, list(spec["hparams"]), iterations, run_batch,
+                                                 share, log)
     compile_s = time.perf_counter() - t0
     metrics = {m: np.full((R, iterations), np.nan, np.float64) for m in SWEEP_METRICS}
     done = 0
@@ -359,7 +387,7 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
                 metrics[k][:, :done] = m[k][:, :done]
         log(f"[{tag}] resumed at iteration {done}/{iterations}")
     log(f"[{tag}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
-        f"{len(devices)} device(s); compiled in {compile_s:.1f}s")
+        f"{len(devices)} device(s); program {how} ({compile_s:.1f}s)")
     t_train, steps_run, chunks_run = time.perf_counter(), 0, 0
     while done < iterations:
         tc = time.perf_counter()
@@ -415,10 +443,13 @@ def write_tidy(out, spec, results):
 
 
 def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
-              run_batch=RUN_BATCH):
+              run_batch=RUN_BATCH, local_workers=True):
     """Train every group of the spec (this process's share of each). Returns True when all groups are done.
-    run_batch: see make_group_program."""
+    run_batch: see make_group_program. local_workers: the processes share this machine and `out`
+    (False for multi-host sweeps: each process compiles for itself)."""
     import jax
+
+    from gsa_jax import xla_cache
 
     from gsa_jax.runinfo import run_metadata
 
@@ -447,18 +478,24 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     total_runs = sum(len(r) for _, _, r in groups)
     log(f"sweep {spec['name']}: {total_runs} runs in {len(groups)} group(s) on {len(devices)} device(s)"
         + (f", process {process_id}/{num_processes}" if num_processes > 1 else "") + f" -> {out}")
+    # compiled programs are kept in a cache: a resumed or restarted worker loads them; local worker
+    # processes share one compile (worker 0 compiles, the others load -- gsa_jax.xla_cache)
+    cache_dir = os.path.join(root if local_workers else out, "xla_cache")
+    share = (cache_dir, process_id == 0 or not local_workers)
     results, complete = [], True
-    for env_name, policy, runs in groups:
-        mine = runs[process_id::num_processes]
-        if not mine:
-            continue
-        res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
-                        on_chunk=lambda partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch)
-        results.append(res)
-        write_tidy(out, spec, results)
-        if res[0] < res[1]:
-            complete = False
-            break
+    with xla_cache.enabled(cache_dir):
+        for env_name, policy, runs in groups:
+            mine = runs[process_id::num_processes]
+            if not mine:
+                continue
+            res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
+                            on_chunk=lambda partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
+                            pad_to=math.ceil(len(runs) / num_processes), share=share)
+            results.append(res)
+            write_tidy(out, spec, results)
+            if res[0] < res[1]:
+                complete = False
+                break
     return complete
 
 
@@ -605,7 +642,7 @@ def main(argv=None):
 
     try:
         complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes, heartbeat,
-                             args.run_batch)
+                             args.run_batch, local_workers=args.coordinator is None)
     except SpecError as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2

@@ -1,0 +1,119 @@
+"""One compile for all worker processes: JAX's persistent compilation cache, shared through a directory.
+
+Sweeps and the benchmark run one worker process per core, and every worker builds the same program
+(same shapes; seeds, K and hyperparameters are array arguments). Compiling it in every worker at once
+costs more wall time than compiling it once: the compiles compete for the same cores. So worker 0
+(the leader) compiles and writes the executable to the cache; the other workers lower their program
+meanwhile, wait for the leader's mark, and load the executable from the cache (seconds). A resumed or
+restarted worker loads its program from the cache the same way.
+
+The mark is named after a hash of the lowered program, so a follower only waits for the very program
+it needs; a follower whose program the leader does not build (a different run count) or whose leader
+has not announced a compile within `grace_s` compiles by itself, as it would without the cache.
+"""
+
+import contextlib
+import hashlib
+import os
+import re
+import sys
+import tempfile
+import time
+
+# XLA:CPU logs these at ERROR level on every load of a cached executable: LLVM's tuning flags
+# +prefer-no-gather/+prefer-no-scatter are recorded with the executable but never reported as host
+# features (openxla/xla#44565, jax-ml/jax#38445). The executable is used; the lines are noise.
+AOT_LOADER_NOISE = re.compile(r"cpu_aot_loader\.cc:\d+\] Loading XLA:CPU AOT result\. Target machine feature \+prefer-no-")
+
+
+_OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+            "jax_persistent_cache_min_entry_size_bytes")
+
+
+def _set(values):
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    for name, value in zip(_OPTIONS, values):
+        jax.config.update(name, value)
+    compilation_cache.reset_cache()  # JAX reads the options once, at its first compile
+
+
+def enable(cache_dir, min_compile_s=1.0):
+    """Use `cache_dir` as JAX's persistent compilation cache for programs that take at least
+    `min_compile_s` to compile (not the many small eager ops, whose loads XLA:CPU would log as errors)."""
+    os.makedirs(cache_dir, exist_ok=True)
+    _set((os.path.abspath(cache_dir), float(min_compile_s), -1))
+
+
+@contextlib.contextmanager
+def enabled(default_dir):
+    """A persistent compilation cache for every program inside the block: the one the user configured
+    (JAX_COMPILATION_CACHE_DIR), else `default_dir`. JAX's previous cache settings after it."""
+    import jax
+
+    before = tuple(getattr(jax.config, name) for name in _OPTIONS)
+    enable(before[0] or default_dir, min_compile_s=max(before[1], 1.0))
+    try:
+        yield
+    finally:
+        _set(before)
+
+
+@contextlib.contextmanager
+def quiet_aot_loader():
+    """Drop XLA:CPU's spurious cache-load errors (AOT_LOADER_NOISE) from stderr; pass every other line on.
+    Works on file descriptor 2, where XLA's C++ logging writes."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            kept = [ln for ln in tmp.read().decode(errors="replace").splitlines(keepends=True) if not AOT_LOADER_NOISE.search(ln)]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
+
+
+def program_hash(lowered):
+    """Short hash of a lowered program's text (StableHLO): equal programs, equal hashes."""
+    return hashlib.sha256(lowered.as_text().encode()).hexdigest()[:20]
+
+
+def compile_shared(lowered, mark_dir, leader, grace_s=120.0, max_wait_s=3600.0, log=None):
+    """lowered.compile(), once for all processes sharing `mark_dir` (with enable() on the same cache dir).
+
+    leader: True in exactly one process (worker 0). The leader announces `<hash>.compiling`, compiles
+    (writing the cache) and marks `<hash>.ready`; a follower waits for `<hash>.ready` and then compiles,
+    which loads from the cache. Returns (compiled, how) with how one of "compiled", "loaded after
+    waiting N s" or "compiled (no leader for this program)"."""
+    os.makedirs(mark_dir, exist_ok=True)
+    h = program_hash(lowered)
+    ready, compiling = os.path.join(mark_dir, h + ".ready"), os.path.join(mark_dir, h + ".compiling")
+    if leader:
+        if not os.path.exists(ready):
+            open(compiling, "w").close()
+            with quiet_aot_loader():
+                compiled = lowered.compile()
+            open(ready, "w").close()
+            return compiled, "compiled"
+        with quiet_aot_loader():
+            return lowered.compile(), "loaded"
+    t0 = time.monotonic()
+    while not os.path.exists(ready):
+        waited = time.monotonic() - t0
+        if waited > max_wait_s or (waited > grace_s and not os.path.exists(compiling)):
+            if log:
+                log(f"no compiled program from the leader process after {waited:.0f} s; compiling here")
+            with quiet_aot_loader():
+                return lowered.compile(), "compiled (no leader for this program)"
+        time.sleep(0.05)
+    waited = time.monotonic() - t0
+    with quiet_aot_loader():
+        return lowered.compile(), f"loaded after waiting {waited:.0f} s"
