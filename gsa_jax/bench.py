@@ -37,6 +37,7 @@ import numpy as np
 
 from gsa_jax import xla_cache
 from gsa_jax.checkpoint import write_atomic
+from gsa_jax.sweep import worker_env
 
 SIZES = (1, 16, 64, 256)
 QUICK_SIZES = (1, 16)
@@ -183,7 +184,8 @@ def run_workers(cmds, compile_limit_s=900, retries=1, log=print):
     for attempt in range(retries + 1):
         barrier = tempfile.mkdtemp(prefix="gsa_bench_")
         full = [c + ["--barrier", barrier, "--worker-id", str(i), "--num-workers", str(len(cmds))] for i, c in enumerate(cmds)]
-        procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in full]
+        env = worker_env(len(cmds))  # as the sweep's workers
+        procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for c in full]
         start, problem = time.time(), None
         while any(p.poll() is None for p in procs):
             time.sleep(0.5)
@@ -206,7 +208,7 @@ def run_workers(cmds, compile_limit_s=900, retries=1, log=print):
         if problem is None:
             outs = [p.communicate()[0] for p in procs]
             shutil.rmtree(barrier, ignore_errors=True)  # with the workers' compilation cache
-            return [json.loads(o.strip().splitlines()[-1]) for o in outs]
+            return [dict(json.loads(o.strip().splitlines()[-1]), xla_flags=env.get("XLA_FLAGS", "")) for o in outs]
         for p in procs:
             if p.poll() is None:
                 p.kill()
@@ -229,8 +231,10 @@ def _solver_field(solver):
 
 
 def _compile_fields(results):
-    """Per-process compile times and how each process got its program (compiled / loaded from worker 0)."""
-    return {"compile_s_per_process": [r["compile_s"] for r in results], "compile_per_process": [r["compile"] for r in results]}
+    """Per-process compile times, how each process got its program (compiled / loaded from worker 0),
+    and the workers' XLA_FLAGS."""
+    return {"compile_s_per_process": [r["compile_s"] for r in results], "compile_per_process": [r["compile"] for r in results],
+            "xla_flags": results[0]["xla_flags"]}
 
 
 def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print):

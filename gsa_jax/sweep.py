@@ -500,6 +500,19 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
 
 
 # ----------------------------------------------------------------------------------------------- supervisor
+SINGLE_THREAD_EIGEN = "--xla_cpu_multi_thread_eigen=false"
+
+
+def worker_env(processes):
+    """Environment of `processes` local worker processes. With a worker on every core, XLA's Eigen ops
+    run single-threaded in each (their thread pools would only compete with the other workers; 256
+    hopper runs on 2 cores: 1.05-1.12x, experiments/README.md), unless XLA_FLAGS already sets it."""
+    env = dict(os.environ)
+    if 1 < (os.cpu_count() or 1) <= processes and "xla_cpu_multi_thread_eigen" not in env.get("XLA_FLAGS", ""):
+        env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_EIGEN).strip()
+    return env
+
+
 def supervise(worker_argvs, heartbeat_dirs, watchdog_min_s, max_restarts, log=print):
     """Run one worker process per argv; kill and restart (from its last checkpoint) any worker whose
     heartbeat stalls for longer than max(watchdog_min_s, 10 x its median chunk time). Returns the
@@ -510,7 +523,8 @@ def supervise(worker_argvs, heartbeat_dirs, watchdog_min_s, max_restarts, log=pr
         hb = os.path.join(heartbeat_dirs[i], "heartbeat.json")
         if os.path.exists(hb):
             os.unlink(hb)
-        proc = subprocess.Popen([sys.executable, "-m", "gsa_jax.sweep", *worker_argvs[i], "--worker"], start_new_session=True)
+        proc = subprocess.Popen([sys.executable, "-m", "gsa_jax.sweep", *worker_argvs[i], "--worker"], start_new_session=True,
+                                env=worker_env(len(worker_argvs)))
         workers[i] = {"proc": proc, "hb": hb, "seen": None, "last": time.time(), "durations": [], "restarts": workers.get(i, {}).get("restarts", 0)}
 
     for i in range(len(worker_argvs)):

@@ -15,6 +15,20 @@ def test_mujoco_c_reference():
     assert r["env_steps_per_s"] > 0 and r["physics_steps_per_s"] == r["env_steps_per_s"] * r["substeps_per_env_step"]
 
 
+def test_worker_env_single_threads_eigen_with_a_worker_per_core(monkeypatch):
+    from gsa_jax.sweep import SINGLE_THREAD_EIGEN, worker_env
+
+    monkeypatch.setattr(bench.os, "cpu_count", lambda: 2)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
+    assert worker_env(2)["XLA_FLAGS"] == "--xla_dump_to=/tmp/x " + SINGLE_THREAD_EIGEN
+    assert worker_env(1)["XLA_FLAGS"] == "--xla_dump_to=/tmp/x"
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")  # the user's choice stands
+    assert worker_env(2)["XLA_FLAGS"] == "--xla_cpu_multi_thread_eigen=true"
+    monkeypatch.setattr(bench.os, "cpu_count", lambda: 16)  # 2 workers on 16 cores: Eigen keeps its threads
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert worker_env(2)["XLA_FLAGS"] == ""
+
+
 def test_bench_writes_report(tmp_path):
     out = tmp_path / "bench"
     assert main(["--env", "inverted_double_pendulum", "--sizes", "2", "--policies", "mixture", "--raw-batches", "8",
@@ -25,6 +39,8 @@ def test_bench_writes_report(tmp_path):
     for s in report["sweeps"] + report["raw"]:
         assert s["env_steps_per_s"] > 0 and s["compile_s"] > 0
         assert abs(s["ratio_vs_mujoco_c"] - s["env_steps_per_s"] / report["mujoco_c"]["env_steps_per_s"]) < 1e-9
+        # worker 0 compiled, worker 1 loaded its program (the tiny IDP programs take > 1 s to compile)
+        assert s["compile_per_process"][0] == "compiled" and s["compile_per_process"][1].startswith("loaded after waiting")
     assert report["sweeps"][0]["peak_rss_mib"] > 100
     assert report["versions"]["jax"] and (out / "bench.png").stat().st_size > 10_000
 
