@@ -41,7 +41,7 @@ bench-quick: $(STAMP)
 
 ## profile: where one PPO iteration's time goes (64 hopper runs, 1 process: physics / rollout / update; ~7 min)
 profile: $(STAMP)
-	$(BIN)/python -m gsa_jax.bench --sizes 64 --processes 1 --raw-batches 2048 --profile-runs 64 --solver-variant none --out runs/profile
+	$(BIN)/python -m gsa_jax.bench --sizes 64 --processes 1 --raw-batches 256 --profile-runs 64 --solver-variant none --out runs/profile
 
 ## scene: a picture of the Allegro task (offscreen OSMesa rendering; installs Debian's libosmesa6 if missing)
 scene: $(STAMP)

@@ -270,23 +270,26 @@ def measure_raw(env, batch, processes, repeats, solver=None, log=print):
             "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results), "chunk_s": [r["chunk_s"] for r in results]}
 
 
-def time_profile(env, policy, runs, repeats, log=print):
-    """Where one PPO iteration's time goes (1 process, `runs` runs): t(E epochs) = t_collect + E t_epoch,
-    measured at E = 1 and the default E; physics = the same number of env steps stepped raw.
+def time_profile(env, policy, runs, repeats, run_batch=0, log=print):
+    """Where one PPO iteration's time goes (1 process, `runs` runs in sub-batches of `run_batch`, 0 = all
+    at once): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the default E; physics = the same
+    number of env steps stepped raw, in batches of the envs one sub-batch steps at a time.
     Returns seconds per iteration for physics, the rest of the rollout (policy sampling, normalization,
     GAE, host), and the PPO update (all epochs)."""
     from gsa_jax.ppo import Config
 
     epochs = Config.num_epochs
-    full = measure_sweep(env, policy, runs, 1, repeats, log=log)
-    one = measure_sweep(env, policy, runs, 1, repeats, epochs=1, log=log)
+    full = measure_sweep(env, policy, runs, 1, repeats, run_batch=run_batch, log=log)
+    one = measure_sweep(env, policy, runs, 1, repeats, epochs=1, run_batch=run_batch, log=log)
     steps = full["env_steps_per_iteration"]
     t_full, t_one = steps / full["env_steps_per_s"], steps / one["env_steps_per_s"]
     t_epoch = max(0.0, (t_full - t_one) / (epochs - 1))
     t_collect = max(0.0, t_one - t_epoch)
-    raw = measure_raw(env, runs * Config.num_envs, 1, repeats, log=log)
+    raw_batch = (min(runs, run_batch) if run_batch else runs) * Config.num_envs
+    raw = measure_raw(env, raw_batch, 1, repeats, log=log)
     t_physics = min(t_collect, steps / raw["env_steps_per_s"])
-    return {"env": env, "policy": policy, "runs": runs, "num_epochs": epochs, "iteration_s": t_full,
+    return {"env": env, "policy": policy, "runs": runs, "run_batch": run_batch, "raw_batch": raw_batch,
+            "num_epochs": epochs, "iteration_s": t_full,
             "physics_s": t_physics, "rollout_other_s": t_collect - t_physics, "update_s": epochs * t_epoch,
             "fractions": {"physics": t_physics / t_full, "rollout_other": (t_collect - t_physics) / t_full,
                           "update": epochs * t_epoch / t_full},
@@ -551,7 +554,7 @@ def main(argv=None):
         save()
     if profile_runs:
         try:
-            prof = time_profile(args.env, "mixture", profile_runs, repeats)
+            prof = time_profile(args.env, "mixture", profile_runs, repeats, args.run_batch)
             f = prof["fractions"]
             print(f"time profile (mixture, {profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
                   f"physics {f['physics']:.0%}, rest of rollout (policy, normalization, GAE) {f['rollout_other']:.0%}, "

@@ -100,12 +100,17 @@ def test_time_profile_decomposition(monkeypatch):
     steps = 64 * 2048
     fake = {10: steps / 2.0, 1: steps / 0.65}
 
-    def sweep(env, policy, runs, processes, repeats, epochs=None, log=print):
+    def sweep(env, policy, runs, processes, repeats, epochs=None, run_batch=None, log=print):
+        assert run_batch == 8
         return {"env_steps_per_iteration": steps, "env_steps_per_s": fake[epochs or 10]}
 
+    def raw(env, batch, processes, repeats, log=print):
+        assert batch == 8 * 32  # physics as the rollout steps it: one sub-batch of 8 runs x 32 envs at a time
+        return {"env_steps_per_s": steps / 0.3}
+
     monkeypatch.setattr(bench, "measure_sweep", sweep)
-    monkeypatch.setattr(bench, "measure_raw", lambda env, batch, processes, repeats, log=print: {"env_steps_per_s": steps / 0.3})
-    p = bench.time_profile("hopper", "mixture", 64, 3)
+    monkeypatch.setattr(bench, "measure_raw", raw)
+    p = bench.time_profile("hopper", "mixture", 64, 3, run_batch=8)
     assert p["iteration_s"] == pytest.approx(2.0)
     assert p["update_s"] == pytest.approx(1.5) and p["physics_s"] == pytest.approx(0.3)
     assert p["rollout_other_s"] == pytest.approx(0.2)
