@@ -68,25 +68,14 @@ def _time_chunks(args, fn, state):
     return times
 
 
-def _shared_compile(args):
-    """Workers of one measurement share one compile (gsa_jax.xla_cache) unless GSA_JAX_COMPILE_EACH=1."""
-    return args.num_workers > 1 and os.environ.get("GSA_JAX_COMPILE_EACH") != "1"
-
-
-def _enable_shared_compile(args):
-    if _shared_compile(args):
-        xla_cache.enable(os.path.join(args.barrier, "xla_cache"))
-
-
 def _share(args):
-    """compile_group's share: worker 0 compiles, the others load its executable (or each compiles alone)."""
-    return (os.path.join(args.barrier, "xla_cache"), args.worker_id == 0) if _shared_compile(args) else None
-
-
-def _compile(args, lowered):
-    """(compiled, how) for one lowered program, as compile_group does."""
-    share = _share(args)
-    return xla_cache.compile_shared(lowered, *share) if share else (lowered.compile(), "compiled")
+    """The workers of one measurement share one compile (gsa_jax.xla_cache) unless GSA_JAX_COMPILE_EACH=1:
+    enables the cache and returns compile_with's share, or None when each worker compiles alone."""
+    if args.num_workers < 2 or os.environ.get("GSA_JAX_COMPILE_EACH") == "1":
+        return None
+    cache = os.path.join(args.barrier, "xla_cache")
+    xla_cache.enable(cache)
+    return cache, args.worker_id == 0
 
 
 def worker(args):
@@ -107,7 +96,6 @@ def worker(args):
     cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
-    _enable_shared_compile(args)
     runs = pad_runs(runs, len(devices))
     states, run, hps, _, how = compile_group(cfg, 1, devices, runs, [], 1000, args.run_batch, _share(args))
     compile_s = time.perf_counter() - t0
@@ -137,7 +125,7 @@ def raw_worker(args):
     env = envs.make(args.env, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
     b = args.batch
     t0 = time.perf_counter()
-    _enable_shared_compile(args)
+    share = _share(args)
 
     def chunk(carry):
         state, key = carry
@@ -152,10 +140,10 @@ def raw_worker(args):
         return state, key
 
     keys = jax.random.split(jax.random.PRNGKey(args.seed0), b)
-    reset, _ = _compile(args, jax.jit(jax.vmap(env.reset)).lower(keys))
+    reset, _ = xla_cache.compile_with(jax.jit(jax.vmap(env.reset)).lower(keys), share)
     state = reset(keys)
     carry = (state, jax.random.PRNGKey(args.seed0 + 1))
-    step, how = _compile(args, jax.jit(chunk, donate_argnums=0).lower(carry))
+    step, how = xla_cache.compile_with(jax.jit(chunk, donate_argnums=0).lower(carry), share)
     compile_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     carry = jax.block_until_ready(step(carry))

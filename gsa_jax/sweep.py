@@ -307,24 +307,19 @@ def pad_runs(runs, multiple, at_least=0):
 
 def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
     """The group program for `runs` (already padded), compiled, and its initial state.
-    share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_shared;
+    share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
     inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
     Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
     import jax
 
     from gsa_jax import xla_cache
 
-    def compile_(lowered):
-        if share is None:
-            return lowered.compile(), "compiled"
-        return xla_cache.compile_shared(lowered, share[0], share[1], log=log)
-
     _, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
     hps = place(stack_hparams(runs, hparam_names, iterations))
     keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
-    init, _ = compile_(init.lower(keys, hps))
+    init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
     states = init(keys, hps)
-    run, how = compile_(run.lower(states, hps))
+    run, how = xla_cache.compile_with(run.lower(states, hps), share, log)
     return states, run, hps, place, how
 
 

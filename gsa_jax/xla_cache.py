@@ -117,3 +117,11 @@ def compile_shared(lowered, mark_dir, leader, grace_s=120.0, max_wait_s=3600.0, 
     waited = time.monotonic() - t0
     with quiet_aot_loader():
         return lowered.compile(), f"loaded after waiting {waited:.0f} s"
+
+
+def compile_with(lowered, share=None, log=None):
+    """(compiled, how): lowered.compile() alone (share None) or compile_shared(lowered, *share)
+    with share = (mark_dir, leader)."""
+    if share is None:
+        return lowered.compile(), "compiled"
+    return compile_shared(lowered, *share, log=log)
