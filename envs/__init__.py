@@ -35,6 +35,12 @@ def default_episode_length(name):
     return DEFAULT_EPISODE_LENGTH
 
 
+def default_linesearch():
+    """The MJX solver's line search where a task allows a choice (envs/linesearch.py): 'exact', or MJX's
+    'iterative' one with GSA_JAX_ITERATIVE_LINESEARCH=1. No JAX or MuJoCo import."""
+    return "iterative" if os.environ.get("GSA_JAX_ITERATIVE_LINESEARCH", "") not in ("", "0") else "exact"
+
+
 def check_solver(solver_iterations=None, ls_iterations=None):
     for field, v in (("solver_iterations", solver_iterations), ("ls_iterations", ls_iterations)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
@@ -50,6 +56,10 @@ def make_base(name, solver_iterations=None, ls_iterations=None):
     contact forces), i.e. a changed task; the MuJoCo C model (mj_model(env), used by deploy, render
     and the bench's reference) keeps the MJCF's settings. See experiments/README.md (solver) for the
     measured effect on trajectories and returns.
+
+    The solver's line search is exact where the model allows it (envs/linesearch.py) unless
+    ls_iterations is given (a parameter of MJX's iterative search, which it then uses) or
+    GSA_JAX_ITERATIVE_LINESEARCH=1; solver_settings(env)['linesearch'] says which.
     """
     check_name(name)
     check_solver(solver_iterations, ls_iterations)
@@ -65,14 +75,30 @@ def make_base(name, solver_iterations=None, ls_iterations=None):
     override = {k: v for k, v in (("opt.iterations", solver_iterations), ("opt.ls_iterations", ls_iterations)) if v is not None}
     if override:
         env.sys = env.sys.tree_replace(override)
+    mode = "iterative" if ls_iterations is not None or not linesearch.exact_applies(env.sys) else default_linesearch()
+    env.linesearch_mode = mode
+    for name in ("reset", "step"):  # the solver is traced inside these: route its line search
+        setattr(env, name, _traced_with(getattr(env, name), mode))
     return env
 
 
+def _traced_with(fn, mode):
+    from envs import linesearch
+
+    def traced(*args, **kwargs):
+        with linesearch.using(mode):
+            return fn(*args, **kwargs)
+
+    return traced
+
+
 def solver_settings(env):
-    """{'iterations', 'ls_iterations'} of the MJX model a task made by make_base steps with, and the
-    MJCF's own ('task_iterations', 'task_ls_iterations')."""
+    """{'iterations', 'ls_iterations', 'linesearch'} of the MJX model a task made by make_base steps
+    with ('linesearch': 'exact' or MJX's 'iterative', see make_base), and the MJCF's own
+    ('task_iterations', 'task_ls_iterations')."""
     opt, own = env.sys.opt, mj_model(env).opt
     return {"iterations": int(opt.iterations), "ls_iterations": int(opt.ls_iterations),
+            "linesearch": env.linesearch_mode,
             "task_iterations": int(own.iterations), "task_ls_iterations": int(own.ls_iterations)}
 
 

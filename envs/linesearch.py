@@ -1,25 +1,48 @@
-"""MJX's line search as a while loop: same iterates, less work in a batch.
+"""MJX's constraint-solver line search, made cheap in a batch: exact where the cost allows it, and
+MJX's own iterative search as a while loop elsewhere.
 
-MJX (mujoco/mjx/_src/solver.py) runs each Newton/CG iteration's line search as
-`_while_loop_scan`: a lax.scan of opt.ls_iterations steps (hopper: 50) whose body is a lax.cond
-that turns into a no-op once the search has converged -- written so reverse-mode autodiff works.
-Under jax.vmap a cond with a batched predicate becomes a select that evaluates *both* branches,
-so every env pays all ls_iterations line-search steps (each three cost evaluations over the
-constraint rows), converged or not. We never differentiate through the simulator; as a
-lax.while_loop the batch stops when its slowest env has converged (a batched while runs the body
-for all envs while any is unfinished and keeps the finished ones' values unchanged).
-Per env the sequence of iterates is the same as the scan's, so results are bitwise equal
-(tests/test_solver.py); what changes is the work: measured in experiments/README.md (speed).
-Set GSA_JAX_SCAN_LINESEARCH=1 to keep MJX's scan.
+Each Newton (or CG) iteration of MJX's solver (mujoco/mjx/_src/solver.py) minimises the solver's
+cost along the search direction. MJX does this iteratively (`_linesearch`: a bracketing search of up
+to opt.ls_iterations steps, hopper: 50, each evaluating the cost at three points over all
+constraint rows) until the derivative is below tolerance * ls_tolerance or the bracket stops moving.
+
+1. Exact line search (`exact_linesearch`, the default where it applies). With pyramidal friction
+   cones and no friction loss the cost along the line, f(a), is a convex piecewise quadratic: the
+   Gauss term plus 0.5 * D_i * (Jaref_i + a * jv_i)^2 for each row that is active (equality rows
+   always, limit and contact rows while Jaref_i + a * jv_i < 0). Its minimiser is found directly: the
+   derivative at every row's breakpoint a_i = -Jaref_i / jv_i gives the two neighbouring breakpoints
+   between which it changes sign; on that piece the active set is fixed and the minimiser is the root
+   of a linear function. No loop: O(nefc^2) elementwise work, the same for every env of a batch. MJX's
+   iterative search approaches the same point and stops at a tolerance (or, in float32, when its
+   bracket collapses: measured on hopper, ~20% of searches run 24-25 iterations); under jax.vmap its
+   loop runs as long as the batch's slowest env, so every env pays for the slowest one. Same cost
+   function, same acceptance rule (move only if the cost decreases), a different -- exact rather than
+   tolerance-terminated -- answer to the same 1-D problem: results differ from MJX's by float32
+   rounding and line-search tolerance; measured against MuJoCo C (float64) in experiments/README.md
+   (exact line search). GSA_JAX_ITERATIVE_LINESEARCH=1 keeps MJX's search; envs.make_base also keeps
+   it when the caller sets ls_iterations (a parameter of that search only).
+2. MJX's iterative search as a while loop (`while_loop`, used for elliptic cones and friction loss,
+   or when the iterative search is asked for). MJX runs the search as `_while_loop_scan`: a lax.scan
+   of ls_iterations steps whose body is a lax.cond that turns into a no-op once the search has
+   converged (written so reverse-mode autodiff works). Under jax.vmap a cond with a batched predicate
+   becomes a select that evaluates both branches, so every env paid all ls_iterations steps. As a
+   lax.while_loop the batch stops when its slowest env has converged; per env the iterates are the
+   same, so results are bitwise equal (tests/test_solver.py). GSA_JAX_SCAN_LINESEARCH=1 keeps MJX's
+   scan.
 """
 
+import contextlib
 import os
 
 import jax
+import jax.numpy as jnp
 
-from mujoco.mjx._src import solver
+from mujoco.mjx._src import solver, support
+from mujoco.mjx._src.types import ConeType, DisableBit
 
 _ORIGINAL = solver._while_loop_scan
+_ORIGINAL_LINESEARCH = solver._linesearch
+_MODE = {"value": None}  # "exact" / "iterative" while a `using` block traces; None: the default
 
 
 def while_loop(cond_fun, body_fun, init_val, max_iter):
@@ -37,9 +60,93 @@ def while_loop(cond_fun, body_fun, init_val, max_iter):
     return jax.lax.while_loop(cond, body, (init_val, 0))[0]
 
 
+@contextlib.contextmanager
+def using(mode):
+    """Solver line searches traced inside this block use `mode` ('exact' or 'iterative')."""
+    if mode not in ("exact", "iterative"):
+        raise ValueError(f"line search mode must be 'exact' or 'iterative', got {mode!r}")
+    previous, _MODE["value"] = _MODE["value"], mode
+    try:
+        yield
+    finally:
+        _MODE["value"] = previous
+
+
+def exact_applies(m):
+    """Whether the solver cost along a line is piecewise quadratic: pyramidal cones, no friction loss."""
+    frictionloss = (bool(m._impl.dof_hasfrictionloss.any()) or bool(m._impl.tendon_hasfrictionloss.any())) and not (
+        m.opt.disableflags & DisableBit.FRICTIONLOSS)
+    return m.opt.cone == ConeType.PYRAMIDAL and not frictionloss
+
+
+def line_minimum(jaref, jv, efc_d, always, g1, g2):
+    """Exact minimiser a* of the convex piecewise quadratic
+        f(a) = g1 a + g2 a^2 + sum_i act_i(a) 0.5 efc_d_i (jaref_i + a jv_i)^2,
+        act_i(a) = always_i or jaref_i + a jv_i < 0,
+    and f(a*) - f(0). jaref, jv, efc_d, always: [nefc]; g1, g2 scalars (g2 > 0 unless the direction is 0).
+
+    f' is nondecreasing and linear between breakpoints b_i = -jaref_i / jv_i: lo is the largest
+    breakpoint with f'(b) <= 0, hi the smallest with f'(b) > 0; no breakpoint lies strictly between,
+    so the active set there is that of any interior point t, and a* = -(linear term)/(2 quadratic term)
+    of that piece, clipped to [lo, hi] against rounding."""
+    q1 = efc_d * jv * jaref
+    q2 = 0.5 * efc_d * jv * jv
+
+    def active(a):  # [..., nefc]
+        return always | (jaref + a[..., None] * jv < 0)
+
+    def slope(a):
+        act = active(a)
+        return 2 * a * (g2 + jnp.sum(act * q2, -1)) + g1 + jnp.sum(act * q1, -1)
+
+    has_b = (jv != 0) & ~always
+    b = jnp.where(has_b, -jaref / jnp.where(has_b, jv, 1.0), 0.0)
+    left = has_b & (slope(b) <= 0)
+    lo = jnp.max(jnp.where(left, b, -jnp.inf))
+    hi = jnp.min(jnp.where(has_b & ~left, b, jnp.inf))
+    lo_in, hi_in = jnp.isfinite(lo), jnp.isfinite(hi)
+    safe_lo, safe_hi = jnp.where(lo_in, lo, 0.0), jnp.where(hi_in, hi, 0.0)
+    t = jnp.where(lo_in & hi_in, 0.5 * (safe_lo + safe_hi),
+                  jnp.where(hi_in, safe_hi - jnp.maximum(1.0, jnp.abs(safe_hi)),
+                            jnp.where(lo_in, safe_lo + jnp.maximum(1.0, jnp.abs(safe_lo)), 0.0)))
+    act = active(t)
+    a2 = g2 + jnp.sum(act * q2)
+    a1 = g1 + jnp.sum(act * q1)
+    alpha = jnp.clip(-a1 / jnp.where(a2 > 0, 2 * a2, 1.0), lo, hi)
+    alpha = jnp.where(a2 > 0, alpha, 0.0)
+    act, act0 = active(alpha), active(jnp.zeros(()))
+    change = (alpha * (g1 + jnp.sum(act * q1)) + alpha * alpha * (g2 + jnp.sum(act * q2))
+              + jnp.sum((act.astype(jaref.dtype) - act0) * 0.5 * efc_d * jaref * jaref))
+    return alpha, change
+
+
+def exact_linesearch(m, d, ctx):
+    """MJX's _linesearch with the exact minimiser along ctx.search (module docstring); same inputs,
+    same outputs (qacc, Ma, Jaref moved by alpha * search when that lowers the cost)."""
+    mv = support.mul_m(m, d, ctx.search)
+    jv = d._impl.efc_J @ ctx.search
+    g1 = jnp.dot(ctx.search, ctx.Ma) - jnp.dot(ctx.search, d.qfrc_smooth)
+    g2 = 0.5 * jnp.dot(ctx.search, mv)
+    always = jnp.arange(jv.shape[0]) < d._impl.ne + d._impl.nf
+    alpha, change = line_minimum(ctx.Jaref, jv, d._impl.efc_D, always, g1, g2)
+    step = jnp.where(change < 0, alpha, 0.0)
+    return ctx.replace(qacc=ctx.qacc + ctx.search * step, Ma=ctx.Ma + mv * step, Jaref=ctx.Jaref + jv * step)
+
+
+def _linesearch(m, d, ctx):
+    from envs import default_linesearch
+
+    mode = _MODE["value"] or default_linesearch()
+    if mode == "exact" and exact_applies(m):
+        return exact_linesearch(m, d, ctx)
+    return _ORIGINAL_LINESEARCH(m, d, ctx)
+
+
 def install():
-    """Route MJX's line search through while_loop. Idempotent; a no-op (MJX's scan restored) with
-    GSA_JAX_SCAN_LINESEARCH=1. Returns True when installed. Affects programs traced afterwards."""
+    """Route MJX's line search through this module (exact where it applies, else the iterative search
+    as a while loop; GSA_JAX_SCAN_LINESEARCH=1 keeps MJX's scan for the latter). Idempotent. Returns
+    True when the while loop is installed. Affects programs traced afterwards."""
+    solver._linesearch = _linesearch
     if os.environ.get("GSA_JAX_SCAN_LINESEARCH", "") not in ("", "0"):
         solver._while_loop_scan = _ORIGINAL
         return False

@@ -30,6 +30,12 @@ def git_commit():
         return None
 
 
+def _linesearch():
+    from envs import default_linesearch
+
+    return default_linesearch()  # tasks with pyramidal cones, no friction loss, no ls_iterations override
+
+
 def run_metadata():
     import jax
 
@@ -47,5 +53,6 @@ def run_metadata():
         "platform": platform.platform(),
         "devices": [str(d) for d in jax.devices()],
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "mjx_linesearch": _linesearch(),
         "started_at": datetime.datetime.now().isoformat(timespec="seconds"),
     }

@@ -1,5 +1,7 @@
-"""MJX's constraint solver as we run it: the line search as a while loop (envs/linesearch.py) gives the
-same iterates as MJX's scan, bitwise; the solver-iterations option changes the MJX model only, says so,
+"""MJX's constraint solver as we run it (envs/linesearch.py): the exact line search finds the minimiser
+of the piecewise-quadratic line cost (against a float64 NumPy reference) and steps hopper as MJX's
+iterative search does to float32 precision; MJX's iterative search as a while loop gives the same
+iterates as MJX's scan, bitwise; the solver-iterations option changes the MJX model only, says so,
 and rejects bad values."""
 
 import jax
@@ -23,10 +25,79 @@ def test_while_loop_has_the_scan_contract_under_vmap():
         np.testing.assert_array_equal(np.asarray(out["x"]), [0.0, 1.0, 3.0, 6.0, 6.0])
 
 
+def line_cost(a, jaref, jv, efc_d, always, g1, g2):
+    """f(a) of linesearch.line_minimum in float64 NumPy; a: [n] points."""
+    x = jaref[None] + a[:, None] * jv[None]
+    act = always[None] | (x < 0)
+    return g1 * a + g2 * a * a + np.sum(act * 0.5 * efc_d * x * x, 1)
+
+
+def reference_minimum(jaref, jv, efc_d, always, g1, g2):
+    """min f over every breakpoint and every piece's own minimiser (f is convex and quadratic on each piece)."""
+    has_b = (jv != 0) & ~always
+    b = np.sort(-jaref[has_b] / jv[has_b])
+    edges = np.concatenate(([-np.inf], b, [np.inf]))
+    cands = list(b) + [0.0]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        t = 0.5 * (lo + hi) if np.isfinite(lo) and np.isfinite(hi) else (hi - 1 if np.isfinite(hi) else (lo + 1 if np.isfinite(lo) else 0.0))
+        act = always | (jaref + t * jv < 0)
+        a2, a1 = g2 + np.sum(act * 0.5 * efc_d * jv * jv), g1 + np.sum(act * efc_d * jv * jaref)
+        if a2 > 0:
+            cands.append(np.clip(-a1 / (2 * a2), lo, hi))
+    cands = np.asarray(cands)
+    return cands[np.argmin(line_cost(cands, jaref, jv, efc_d, always, g1, g2))]
+
+
+def test_exact_line_minimum_matches_float64_reference():
+    rng = np.random.default_rng(0)
+    n, probs = 11, 400
+    jaref = rng.normal(size=(probs, n))
+    jv = rng.normal(size=(probs, n)) * (rng.random((probs, n)) > 0.15)  # some rows do not move
+    efc_d = rng.uniform(0.2, 3.0, (probs, n)) * (rng.random((probs, n)) > 0.1)  # some padding rows
+    always = np.zeros((probs, n), bool)
+    always[::3, :2] = True  # equality rows in a third of the problems
+    g1, g2 = rng.normal(size=probs) * 3, rng.uniform(0.05, 2.0, probs)
+    g1[-1], g2[-1], jv[-1] = 0.0, 0.0, 0.0  # a zero search direction: stay
+    args = [x.astype(np.float32) for x in (jaref, jv, efc_d)] + [always] + [x.astype(np.float32) for x in (g1, g2)]
+    alpha, change = jax.device_get(jax.jit(jax.vmap(linesearch.line_minimum))(*args))
+    args64 = [a.astype(np.float64) if a.dtype != bool else a for a in args]
+    worse, moves = [], 0
+    for i in range(probs):
+        p = [a[i] for a in args64]
+        best = reference_minimum(*p)
+        f_best, f_ours, f0 = line_cost(np.array([best, alpha[i]], np.float64), *p).tolist() + line_cost(np.zeros(1), *p).tolist()
+        worse.append((f_ours - f_best) / (1.0 + abs(f_best)))
+        np.testing.assert_allclose(change[i], f_ours - f0, rtol=1e-3, atol=1e-4)
+        moves += abs(best) > 1e-3
+    assert max(worse) < 1e-5, max(worse)
+    assert moves > probs // 2  # the problems do move
+    assert alpha[-1] == 0.0 and change[-1] == 0.0
+
+
+def test_exact_line_search_applies_to_pyramidal_cones_only():
+    from mujoco.mjx._src.types import ConeType
+
+    sys = envs.make_base("hopper").sys
+    assert linesearch.exact_applies(sys)
+    assert not linesearch.exact_applies(sys.tree_replace({"opt.cone": ConeType.ELLIPTIC}))
+    assert envs.make_base("hopper").linesearch_mode == "exact"
+    assert envs.make_base("hopper", ls_iterations=50).linesearch_mode == "iterative"  # a parameter of MJX's search
+
+
+def test_iterative_line_search_by_environment_variable(monkeypatch):
+    monkeypatch.setenv("GSA_JAX_ITERATIVE_LINESEARCH", "1")
+    assert envs.make_base("hopper").linesearch_mode == "iterative"
+    monkeypatch.setenv("GSA_JAX_ITERATIVE_LINESEARCH", "0")
+    assert envs.make_base("hopper").linesearch_mode == "exact"
+    with pytest.raises(ValueError, match="exact' or 'iterative"):
+        with linesearch.using("bisect"):
+            pass
+
+
 @pytest.fixture(scope="module")
 def hopper():
-    env = envs.make_base("hopper")  # installs the while-loop line search
-    assert solver._while_loop_scan is linesearch.while_loop
+    env = envs.make_base("hopper", ls_iterations=50)  # the task's settings through MJX's iterative search
+    assert solver._while_loop_scan is linesearch.while_loop and env.linesearch_mode == "iterative"
     s0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 4))
     acts = jax.random.uniform(jax.random.PRNGKey(1), (12, 4, env.action_size), minval=-1, maxval=1)
     return env, s0, acts
@@ -54,10 +125,23 @@ def test_while_line_search_is_bitwise_mjx_scan(hopper):
         np.testing.assert_array_equal(a, b)
 
 
+def test_exact_line_search_steps_hopper_as_the_iterative_one(hopper):
+    """Same solver, same cost, the line minimum found exactly: 12 steps with contacts agree with MJX's
+    iterative search to float32 solver precision."""
+    env, s0, acts = hopper
+    exact = envs.make_base("hopper")
+    assert exact.linesearch_mode == "exact"
+    ours, theirs = roll(exact, s0, acts), roll(env, s0, acts)
+    assert np.abs(ours[2]).max() > 1.0
+    np.testing.assert_allclose(ours[0], theirs[0], atol=1e-4)  # qpos
+    np.testing.assert_allclose(ours[1], theirs[1], atol=2e-2)  # qvel (m/s, rad/s) after contact events
+
+
 def test_solver_option_changes_mjx_only(hopper):
     env, s0, acts = hopper
     fast = envs.make_base("hopper", solver_iterations=1, ls_iterations=4)
-    assert envs.solver_settings(fast) == {"iterations": 1, "ls_iterations": 4, "task_iterations": 4, "task_ls_iterations": 50}
+    assert envs.solver_settings(fast) == {"iterations": 1, "ls_iterations": 4, "linesearch": "iterative",
+                                          "task_iterations": 4, "task_ls_iterations": 50}
     assert envs.solver_settings(env)["iterations"] == 4 and envs.mj_model(fast).opt.ls_iterations == 50
     assert envs.make("hopper", solver_iterations=2).unwrapped.sys.opt.iterations == 2
     q_task, q_fast = roll(env, s0, acts[:3])[0], roll(fast, s0, acts[:3])[0]
