@@ -277,7 +277,7 @@ def time_profile(env, policy, runs, repeats, run_batch=0, log=print):
     raw = measure_raw(env, raw_batch, 1, repeats, log=log)
     t_physics = min(t_collect, steps / raw["env_steps_per_s"])
     return {"env": env, "policy": policy, "runs": runs, "run_batch": run_batch, "raw_batch": raw_batch,
-            "num_epochs": epochs, "iteration_s": t_full,
+            "num_epochs": epochs, "iteration_s": t_full, "env_steps_per_iteration": steps,
             "physics_s": t_physics, "rollout_other_s": t_collect - t_physics, "update_s": epochs * t_epoch,
             "fractions": {"physics": t_physics / t_full, "rollout_other": (t_collect - t_physics) / t_full,
                           "update": epochs * t_epoch / t_full},
@@ -403,6 +403,18 @@ def parse_solver_variant(text, quick):
 def reps(repeats, runs, explicit=False):
     """Timed chunks for a sweep of `runs` runs: chunks of >= 64 runs take 10-40 s each here, 2 are enough."""
     return repeats if explicit or runs < 64 else min(repeats, 2)
+
+
+def ratio_ceiling(prof, mujoco_c):
+    """The best ours / MuJoCo C a trainer with this profile's policy and PPO cost could reach if its
+    physics cost what MuJoCo C's does: per core and env step, 1/c (MuJoCo C: c = its env-steps/s per
+    thread) plus what the profile measures outside physics, r (rollout rest + update, 1 process):
+    ratio <= (1 / (1/c + r)) / c = 1 / (1 + r c). An upper bound (it assumes perfect scaling over cores;
+    a 1-process profile may use more than one core)."""
+    c = mujoco_c["env_steps_per_s"] / mujoco_c["threads"]
+    r = (prof["rollout_other_s"] + prof["update_s"]) / prof["env_steps_per_iteration"]
+    return {"non_physics_s_per_env_step": r, "mujoco_c_env_steps_per_s_per_thread": c,
+            "ratio_ceiling_with_mujoco_c_physics": 1.0 / (1.0 + r * c)}
 
 
 def estimate_s(plan, raw_plan, profile_runs, repeats):
@@ -547,6 +559,10 @@ def main(argv=None):
             print(f"time profile (mixture, {profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
                   f"physics {f['physics']:.0%}, rest of rollout (policy, normalization, GAE) {f['rollout_other']:.0%}, "
                   f"PPO update ({prof['num_epochs']} epochs) {f['update']:.0%}", flush=True)
+            if "error" not in mujoco_c:
+                prof.update(ratio_ceiling(prof, mujoco_c))
+                print(f"with physics as cheap as MuJoCo C's and this policy + PPO update, ours / MuJoCo C could reach at most "
+                      f"{prof['ratio_ceiling_with_mujoco_c_physics']:.2f}", flush=True)
         except BenchError as e:
             prof = {"error": str(e)}
         report["profile"] = prof

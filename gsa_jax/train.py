@@ -229,7 +229,8 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
         from envs import solver_settings
 
         sol = solver_settings(trainer.env.unwrapped)
-        log(f"MJX solver: {sol['iterations']} iterations, {sol['ls_iterations']} line-search iterations (the task's own: "
+        ls = "exact line search" if sol["linesearch"] == "exact" else f"{sol['ls_iterations']} line-search iterations"
+        log(f"MJX solver: {sol['iterations']} iterations, {ls} (the task's own: "
             f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/README.md (solver)")
 
     t0 = time.perf_counter()

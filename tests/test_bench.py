@@ -115,6 +115,10 @@ def test_time_profile_decomposition(monkeypatch):
     assert p["update_s"] == pytest.approx(1.5) and p["physics_s"] == pytest.approx(0.3)
     assert p["rollout_other_s"] == pytest.approx(0.2)
     assert sum(p["fractions"].values()) == pytest.approx(1.0)
+    # outside physics 1.7 s per 131,072 env steps; MuJoCo C 2 threads x 50,000 env-steps/s: per core and env
+    # step 20 us of physics + 12.97 us of the rest -> at most 20 / 32.97 of MuJoCo C
+    c = bench.ratio_ceiling(p, {"env_steps_per_s": 100_000.0, "threads": 2})
+    assert c["ratio_ceiling_with_mujoco_c_physics"] == pytest.approx(20e-6 / (20e-6 + 1.7 / steps))
 
 
 def test_hung_worker_is_killed_and_retried(tmp_path):
