@@ -14,7 +14,6 @@
 """
 
 import argparse
-import csv
 import json
 import os
 import sys
@@ -74,32 +73,16 @@ def one_step(states=4096, seed=0):
     return out
 
 
-def drift(env_name="hopper", episodes=64, steps=(1, 10, 100)):
-    """|qpos| between the two line searches from the same starts under the same random actions (the
-    task's own solver settings, given explicitly for the iterative one)."""
-    import jax
-
+def drift(env_name="hopper"):
+    """|qpos| between the two line searches (solver_hopper.qpos_drift; the task's own solver settings,
+    given explicitly for the iterative one)."""
     import envs
+    from solver_hopper import qpos_drift
 
     own = envs.mj_model(envs.make_base(env_name)).opt
-    envs_by = {"exact": envs.make_base(env_name),
-               "iterative": envs.make_base(env_name, int(own.iterations), int(own.ls_iterations))}
-    assert envs.solver_settings(envs_by["exact"])["linesearch"] == "exact"
-    assert envs.solver_settings(envs_by["iterative"])["linesearch"] == "iterative"
-    s0 = jax.vmap(envs_by["exact"].reset)(jax.random.split(jax.random.PRNGKey(7), episodes))
-    acts = jax.random.uniform(jax.random.PRNGKey(8), (max(steps), episodes, envs_by["exact"].action_size),
-                              minval=-1, maxval=1)
-    q = {}
-    for name, env in envs_by.items():
-        roll = jax.jit(lambda s: jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a),) * 2, s, acts)[1].pipeline_state.qpos)
-        q[name] = np.asarray(roll(s0))
-    res = {}
-    for n in steps:
-        d = np.abs(q["exact"][n - 1] - q["iterative"][n - 1])
-        res[f"after_{n}_steps"] = {"max_abs_qpos_diff": float(d.max()), "mean_abs_qpos_diff": float(d.mean())}
-        if env_name == "hopper":
-            res[f"after_{n}_steps"]["torso_height_mean_abs_diff_m"] = float(d[:, 1].mean())
-    return res
+    exact, iterative = envs.make_base(env_name), envs.make_base(env_name, int(own.iterations), int(own.ls_iterations))
+    assert (exact.linesearch_mode, iterative.linesearch_mode) == ("exact", "iterative")
+    return qpos_drift(exact, iterative, hopper=env_name == "hopper")
 
 
 def main(argv=None):
@@ -110,45 +93,21 @@ def main(argv=None):
     p.add_argument("--out", default="experiments/results/linesearch_hopper")
     args = p.parse_args(argv)
 
-    from solver_hopper import evaluate_cell, load_cell
+    from solver_hopper import mean_ci, score_sweep, write_rows
 
-    from gsa_jax.checkpoint import save_npz_atomic
-    from gsa_jax.deploy import run_mujoco_c
-    from gsa_jax.export import controller_arrays
     from gsa_jax.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     step = one_step()
     print(json.dumps(step, indent=1), flush=True)
     solvers = {"mjx_exact": None, "mjx_iterative": ITERATIVE}
-    rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for policy in ("mlp", "mixture"):
-            cell = load_cell(args.sweep, policy, args.clusters, tmp)
-            res = evaluate_cell(cell, args.episodes, solvers)
-            for i, c in enumerate(cell):
-                row = {"policy": policy, "K": args.clusters if policy == "mixture" else "", "seed": c[0]}
-                for name in solvers:
-                    row[name] = round(float(res[name][i].mean()), 1)
-                if policy == "mixture":
-                    ctrl = os.path.join(c[6], "controller.npz")
-                    save_npz_atomic(ctrl, **controller_arrays(c[6]))
-                    row["mujoco_c"] = round(run_mujoco_c(ctrl, args.episodes)[1]["return_mean"], 1)
-                else:
-                    row["mujoco_c"] = ""
-                rows.append(row)
-                print(row, flush=True)
-    with open(os.path.join(args.out, "returns.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+        rows = score_sweep(args.sweep, args.clusters, args.episodes, solvers, tmp)
+    write_rows(os.path.join(args.out, "returns.csv"), rows)
     summary = {}
     for policy in ("mlp", "mixture"):
         sel = [r for r in rows if r["policy"] == policy]
-        cols = list(solvers) + (["mujoco_c"] if policy == "mixture" else [])
-        summary[policy] = {col: {"mean": float(np.mean([r[col] for r in sel])),
-                                 "ci95": float(1.96 * np.std([r[col] for r in sel], ddof=1) / np.sqrt(len(sel)))}
-                           for col in cols}
+        summary[policy] = mean_ci(sel, list(solvers) + (["mujoco_c"] if policy == "mixture" else []))
         summary[policy]["mean_abs_seed_diff_exact_vs_iterative"] = float(
             np.mean([abs(r["mjx_exact"] - r["mjx_iterative"]) for r in sel]))
     result = {"one_step": step, "returns": summary, "trajectory_drift": drift(),

@@ -77,26 +77,71 @@ def evaluate_cell(cell, episodes, solvers):
             for name, solver in solvers.items()}
 
 
-def drift(episodes=64, steps=(1, 10, 100)):
-    """Max/mean |qpos difference| between the two solvers from the same starts under the same random
-    actions, after 1, 10, 100 env steps (no time limit, no reset)."""
+def qpos_drift(env_a, env_b, episodes=64, steps=(1, 10, 100), hopper=False):
+    """Max/mean |qpos difference| between two versions of one task from the same starts under the same
+    random actions, after 1, 10, 100 env steps (no time limit, no reset); with hopper=True also of the torso
+    height (qpos[1])."""
     import jax
 
+    s0 = jax.vmap(env_a.reset)(jax.random.split(jax.random.PRNGKey(7), episodes))
+    acts = jax.random.uniform(jax.random.PRNGKey(8), (max(steps), episodes, env_a.action_size), minval=-1, maxval=1)
+    q = []
+    for env in (env_a, env_b):
+        roll = jax.jit(lambda s: jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a),) * 2, s, acts)[1].pipeline_state.qpos)
+        q.append(np.asarray(roll(s0)))
+    res = {}
+    for n in steps:
+        d = np.abs(q[0][n - 1] - q[1][n - 1])
+        res[f"after_{n}_steps"] = {"max_abs_qpos_diff": float(d.max()), "mean_abs_qpos_diff": float(d.mean())}
+        if hopper:
+            res[f"after_{n}_steps"]["torso_height_mean_abs_diff_m"] = float(d[:, 1].mean())
+    return res
+
+
+def drift():
+    """The task's own solver vs solver 1/4 (qpos_drift)."""
     import envs
 
-    res = {}
-    envs_by = {"task": envs.make_base("hopper"), "fast": envs.make_base("hopper", 1, 4)}
-    s0 = jax.vmap(envs_by["task"].reset)(jax.random.split(jax.random.PRNGKey(7), episodes))
-    acts = jax.random.uniform(jax.random.PRNGKey(8), (max(steps), episodes, 3), minval=-1, maxval=1)
-    q = {}
-    for name, env in envs_by.items():
-        roll = jax.jit(lambda s: jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a),) * 2, s, acts)[1].pipeline_state.qpos)
-        q[name] = np.asarray(roll(s0))
-    for n in steps:
-        d = np.abs(q["task"][n - 1] - q["fast"][n - 1])
-        res[f"after_{n}_steps"] = {"max_abs_qpos_diff": float(d.max()), "mean_abs_qpos_diff": float(d.mean()),
-                                   "torso_height_mean_abs_diff_m": float(d[:, 1].mean())}
-    return res
+    return qpos_drift(envs.make_base("hopper"), envs.make_base("hopper", 1, 4), hopper=True)
+
+
+def score_sweep(sweep, clusters, episodes, solvers, tmp, **tags):
+    """Rows (tags, policy, K, seed, one mean return per MJX solver in `solvers`, and mujoco_c for the
+    exported mixtures) for the flat PPO and K=`clusters` hopper controllers of a sweep."""
+    from gsa_jax.checkpoint import save_npz_atomic
+    from gsa_jax.deploy import run_mujoco_c
+    from gsa_jax.export import controller_arrays
+
+    rows = []
+    for policy in ("mlp", "mixture"):
+        cell = load_cell(sweep, policy, clusters, tmp)
+        res = evaluate_cell(cell, episodes, solvers)
+        for i, c in enumerate(cell):
+            row = {**tags, "policy": policy, "K": clusters if policy == "mixture" else "", "seed": c[0]}
+            for name in solvers:
+                row[name] = round(float(res[name][i].mean()), 1)
+            if policy == "mixture":
+                ctrl = os.path.join(c[6], "controller.npz")
+                save_npz_atomic(ctrl, **controller_arrays(c[6]))
+                row["mujoco_c"] = round(run_mujoco_c(ctrl, episodes)[1]["return_mean"], 1)
+            else:
+                row["mujoco_c"] = ""
+            rows.append(row)
+            print(row, flush=True)
+    return rows
+
+
+def write_rows(path, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def mean_ci(rows, cols):
+    """{col: {mean, ci95}} over rows (seeds)."""
+    return {col: {"mean": float(np.mean([r[col] for r in rows])),
+                  "ci95": float(1.96 * np.std([r[col] for r in rows], ddof=1) / np.sqrt(len(rows)))} for col in cols}
 
 
 def main(argv=None):
@@ -108,9 +153,6 @@ def main(argv=None):
     p.add_argument("--out", default="experiments/results/solver_hopper")
     args = p.parse_args(argv)
 
-    from gsa_jax.checkpoint import save_npz_atomic
-    from gsa_jax.deploy import run_mujoco_c
-    from gsa_jax.export import controller_arrays
     from gsa_jax.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
@@ -118,34 +160,13 @@ def main(argv=None):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for trained, sweep in (("task", args.task_sweep), ("fast", args.fast_sweep)):
-            for policy in ("mlp", "mixture"):
-                cell = load_cell(sweep, policy, args.clusters, tmp)
-                res = evaluate_cell(cell, args.episodes, solvers)
-                for i, c in enumerate(cell):
-                    row = {"trained_with": trained, "policy": policy, "K": args.clusters if policy == "mixture" else "",
-                           "seed": c[0]}
-                    for name in solvers:
-                        row[name] = round(float(res[name][i].mean()), 1)
-                    if policy == "mixture":
-                        ctrl = os.path.join(c[6], "controller.npz")
-                        save_npz_atomic(ctrl, **controller_arrays(c[6]))
-                        row["mujoco_c"] = round(run_mujoco_c(ctrl, args.episodes)[1]["return_mean"], 1)
-                    else:
-                        row["mujoco_c"] = ""
-                    rows.append(row)
-                    print(row, flush=True)
-    with open(os.path.join(args.out, "returns.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+            rows += score_sweep(sweep, args.clusters, args.episodes, solvers, tmp, trained_with=trained)
+    write_rows(os.path.join(args.out, "returns.csv"), rows)
     summary = {}
     for trained in ("task", "fast"):
         for policy in ("mlp", "mixture"):
             sel = [r for r in rows if r["trained_with"] == trained and r["policy"] == policy]
-            cols = list(solvers) + (["mujoco_c"] if policy == "mixture" else [])
-            summary[f"{policy}_trained_{trained}"] = {
-                col: {"mean": float(np.mean([r[col] for r in sel])),
-                      "ci95": float(1.96 * np.std([r[col] for r in sel], ddof=1) / np.sqrt(len(sel)))} for col in cols}
+            summary[f"{policy}_trained_{trained}"] = mean_ci(sel, list(solvers) + (["mujoco_c"] if policy == "mixture" else []))
     result = {"summary": summary, "trajectory_drift": drift(), "episodes_per_seed": args.episodes,
               "sweeps": {"task": os.path.abspath(args.task_sweep), "fast": os.path.abspath(args.fast_sweep)},
               **run_metadata()}
