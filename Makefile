@@ -10,7 +10,7 @@ EXP ?= experiments/fig1_small.toml
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[test]"
+	$(BIN)/python -m pip install -q -e ".[test,deploy]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -1,12 +1,13 @@
 """Tasks in plain MuJoCo C (the `mujoco` package: no MJX, no JAX) on the same MJCF as their MJX
 versions, for running an exported controller outside the simulator it was trained in.
 
-    task = make_c("hopper")          # or "allegro_cylinder"
+    task = make_c("hopper")          # any of C_TASKS
     obs = task.reset(seed)
     obs, reward, done = task.step(action)
 
 Each task ports its MJX environment's reset distribution, observation, reward and termination to
-NumPy (hopper: Brax's `hopper` with its defaults; allegro_cylinder: envs/allegro.py). Nothing here
+NumPy (hopper, walker2d, halfcheetah, ant: Brax's tasks with their defaults on backend 'mjx';
+allegro_cylinder: envs/allegro.py). Nothing here
 imports JAX; tests/test_mujoco_c.py checks the ports step for step against the MJX environments.
 """
 
@@ -16,7 +17,7 @@ import os
 import mujoco
 import numpy as np
 
-C_TASKS = ("hopper", "allegro_cylinder")
+C_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")
 
 
 def brax_asset(name):
@@ -27,16 +28,26 @@ def brax_asset(name):
     return os.path.join(spec.submodule_search_locations[0], "envs", "assets", name)
 
 
-class HopperC:
-    """Brax's `hopper` (defaults: 4 substeps of 2 ms, healthy z > 0.7, |angle| < 0.2, |state| < 100,
-    reward = forward velocity + 1 - 1e-3 |a|^2, observation [z, angles, clip(qvel, -10, 10)], reset noise
-    U(-5e-3, 5e-3) on qpos and qvel) in MuJoCo C."""
+class BraxTaskC:
+    """A Brax locomotion task (its defaults, backend 'mjx') in MuJoCo C: the same MJCF and solver
+    options, reset noise, observation, reward and termination. Subclasses set the task's constants
+    and `observation(m, d)` / `healthy(m, d)`; both read only MjModel/MjData, so they also apply to
+    another simulator's model of the same robot (gsa_jax.gymnasium_task checks layouts with them).
 
-    n_frames = 4
-    noise = 5e-3
+    The torso is body 1 (Brax's x.pos[0]); the forward reward is its x velocity over the env step."""
+
+    asset = ""
+    n_frames = 1
+    noise = 0.0
+    qvel_noise = "uniform"  # 'uniform': U(-noise, noise); 'normal': noise * N(0, 1)
+    ctrl_cost = 0.0
+    healthy_reward = 0.0
+    options = {}  # MjOption overrides that Brax applies for backend 'mjx'
 
     def __init__(self):
-        self.model = mujoco.MjModel.from_xml_path(brax_asset("hopper.xml"))
+        self.model = mujoco.MjModel.from_xml_path(brax_asset(self.asset))
+        for k, v in self.options.items():
+            setattr(self.model.opt, k, v)
         self.data = mujoco.MjData(self.model)
         self.dt = self.model.opt.timestep * self.n_frames
 
@@ -44,39 +55,108 @@ class HopperC:
     def action_size(self):
         return self.model.nu
 
+    @staticmethod
+    def observation(m, d):
+        raise NotImplementedError
+
+    @staticmethod
+    def healthy(m, d):
+        return True
+
     def observe(self):
-        d = self.data
-        pos = d.qpos.copy()
-        pos[1] = d.xpos[1, 2]  # torso height (Brax: x.pos[0, 2])
-        return np.concatenate([pos[1:], np.clip(d.qvel, -10.0, 10.0)]).astype(np.float32)
+        return self.observation(self.model, self.data)
 
     def reset(self, seed):
         rng = np.random.default_rng(seed)
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
         d.qpos[:] = m.qpos0 + rng.uniform(-self.noise, self.noise, m.nq)
-        d.qvel[:] = rng.uniform(-self.noise, self.noise, m.nv)
+        if self.qvel_noise == "uniform":
+            d.qvel[:] = rng.uniform(-self.noise, self.noise, m.nv)
+        else:
+            d.qvel[:] = self.noise * rng.normal(size=m.nv)
         mujoco.mj_forward(m, d)
         return self.observe()
 
     def step(self, action):
+        """One env step (n_frames physics steps) -> (obs, reward, done)."""
         a = np.asarray(action, np.float64)
         if a.shape != (self.model.nu,):
-            raise ValueError(f"action has shape {a.shape}; hopper takes ({self.model.nu},)")
+            raise ValueError(f"action has shape {a.shape}; {type(self).__name__} takes ({self.model.nu},)")
         m, d = self.model, self.data
         x0 = d.xpos[1, 0]
         d.ctrl[:] = a
         mujoco.mj_step(m, d, nstep=self.n_frames)
         x_velocity = (d.xpos[1, 0] - x0) / self.dt
-        z, angle = d.xpos[1, 2], d.qpos[2]
-        state = np.concatenate([d.qpos[2:], d.qvel])
-        healthy = np.all(np.abs(state) < 100.0) and 0.7 < z and -0.2 < angle < 0.2
-        reward = x_velocity + 1.0 - 1e-3 * float(a @ a)
+        healthy = bool(self.healthy(m, d))
+        reward = x_velocity + self.healthy_reward - self.ctrl_cost * float(a @ a)
         return self.observe(), float(reward), not healthy
 
     def set_state(self, qpos, qvel):
         self.data.qpos[:], self.data.qvel[:] = qpos, qvel
         mujoco.mj_forward(self.model, self.data)
+
+
+class HopperC(BraxTaskC):
+    """Brax's `hopper`: 4 substeps of 2 ms; healthy while z > 0.7, |angle| < 0.2, |qpos[2:], qvel| < 100;
+    reward = forward velocity + 1 - 1e-3 |a|^2; observation [torso z, qpos[2:], clip(qvel, -10, 10)];
+    reset noise U(-5e-3, 5e-3) on qpos and qvel."""
+
+    asset, n_frames, noise, ctrl_cost, healthy_reward = "hopper.xml", 4, 5e-3, 1e-3, 1.0
+
+    @staticmethod
+    def observation(m, d):
+        pos = d.qpos.copy()
+        pos[1] = d.xpos[1, 2]  # torso height (Brax: x.pos[0, 2])
+        return np.concatenate([pos[1:], np.clip(d.qvel, -10.0, 10.0)]).astype(np.float32)
+
+    @staticmethod
+    def healthy(m, d):
+        z, angle = d.xpos[1, 2], d.qpos[2]
+        state = np.concatenate([d.qpos[2:], d.qvel])
+        return np.all(np.abs(state) < 100.0) and 0.7 < z and -0.2 < angle < 0.2
+
+
+class Walker2dC(HopperC):
+    """Brax's `walker2d`: 4 substeps of 2 ms; healthy while 0.8 < z < 2 and -1 < angle < 1; reward =
+    forward velocity + 1 - 1e-3 |a|^2; observation as hopper's; reset noise U(-5e-3, 5e-3)."""
+
+    asset = "walker2d.xml"
+
+    @staticmethod
+    def healthy(m, d):
+        z, angle = d.xpos[1, 2], d.qpos[2]
+        return 0.8 < z < 2.0 and -1.0 < angle < 1.0
+
+
+class HalfCheetahC(BraxTaskC):
+    """Brax's `halfcheetah`: 5 substeps of 10 ms; no termination; reward = forward velocity - 0.1 |a|^2;
+    observation [qpos[1:], qvel]; reset noise U(-0.1, 0.1) on qpos, 0.1 N(0, 1) on qvel."""
+
+    asset, n_frames, noise, qvel_noise, ctrl_cost = "half_cheetah.xml", 5, 0.1, "normal", 0.1
+
+    @staticmethod
+    def observation(m, d):
+        return np.concatenate([d.qpos[1:], d.qvel]).astype(np.float32)
+
+
+class AntC(BraxTaskC):
+    """Brax's `ant` on MJX: 5 substeps of 10 ms with Brax's MJX solver options (Newton, 1 iteration,
+    4 line-search iterations, Euler damping off); healthy while 0.2 <= torso z <= 1; reward = forward
+    velocity + 1 - 0.5 |a|^2 (no contact cost); observation [qpos[2:], qvel]; reset noise U(-0.1, 0.1)
+    on qpos, 0.1 N(0, 1) on qvel."""
+
+    asset, n_frames, noise, qvel_noise, ctrl_cost, healthy_reward = "ant.xml", 5, 0.1, "normal", 0.5, 1.0
+    options = {"solver": int(mujoco.mjtSolver.mjSOL_NEWTON), "disableflags": int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP),
+               "iterations": 1, "ls_iterations": 4}
+
+    @staticmethod
+    def observation(m, d):
+        return np.concatenate([d.qpos[2:], d.qvel]).astype(np.float32)
+
+    @staticmethod
+    def healthy(m, d):
+        return 0.2 <= d.xpos[1, 2] <= 1.0
 
 
 class AllegroC:
@@ -109,12 +189,54 @@ class AllegroC:
         return obs, reward, False
 
 
+BRAX_PORTS = {"hopper": HopperC, "walker2d": Walker2dC, "halfcheetah": HalfCheetahC, "ant": AntC}
+
+
 def make_c(name):
-    if name == "hopper":
-        return HopperC()
+    if name in BRAX_PORTS:
+        return BRAX_PORTS[name]()
     if name == "allegro_cylinder":
         return AllegroC()
     raise ValueError(f"no MuJoCo C port of {name!r}; ported: {', '.join(C_TASKS)}")
+
+
+def coordinate_names(m):
+    """Names of the qpos [nq] and qvel [nv] coordinates of a model, from its joint names."""
+    qpos, qvel = [], []
+    for j in range(m.njnt):
+        name, kind = m.joint(j).name, m.jnt_type[j]
+        if kind == mujoco.mjtJoint.mjJNT_FREE:
+            qpos += [f"{name}.{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+            qvel += [f"{name}.{c}" for c in ("vx", "vy", "vz", "wx", "wy", "wz")]
+        elif kind == mujoco.mjtJoint.mjJNT_BALL:
+            qpos += [f"{name}.{c}" for c in ("qw", "qx", "qy", "qz")]
+            qvel += [f"{name}.{c}" for c in ("wx", "wy", "wz")]
+        else:
+            qpos.append(name)
+            qvel.append(name)
+    return qpos, qvel
+
+
+IDP_LAYOUT = ["cart x", "sin(hinge)", "sin(hinge2)", "cos(hinge)", "cos(hinge2)",
+              "cart velocity (clipped to +-10)", "hinge velocity (clipped)", "hinge2 velocity (clipped)"]
+
+
+def observation_layout(name):
+    """One short description per observation entry of task `name` (for exported controllers' docs)."""
+    if name == "inverted_double_pendulum":
+        return list(IDP_LAYOUT)
+    task = make_c(name)
+    qpos, qvel = coordinate_names(task.model)
+    if name == "allegro_cylinder":
+        joints = [task.model.joint(task.model.actuator_trnid[i, 0]).name for i in range(task.model.nu)]
+        return [f"{j} position" for j in joints] + ["index tactile (mean taxel force)", "thumb tactile (mean taxel force)"]
+    if name in ("hopper", "walker2d"):
+        pos = ["torso height"] + qpos[2:]
+        vel = [f"{v} velocity (clipped to +-10)" for v in qvel]
+    else:
+        pos = qpos[1:] if name == "halfcheetah" else qpos[2:]
+        vel = [f"{v} velocity" for v in qvel]
+    return [f"{p} position" if p != "torso height" else p for p in pos] + vel
 
 
 def run_episodes(task, controller, episodes, episode_length, seed=0):

@@ -24,7 +24,7 @@ def main(argv=None):
     p.add_argument("--out", default="experiments/results/deploy_hopper")
     args = p.parse_args(argv)
 
-    from gsa_jax.deploy import run_mjx, run_mujoco_c
+    from gsa_jax.deploy import load_controller, run_mjx, run_mujoco_c
     from gsa_jax.export import controller_arrays
     from gsa_jax.checkpoint import save_npz_atomic
     from gsa_jax.extract import extract, finished_runs, select
@@ -40,7 +40,7 @@ def main(argv=None):
         extract(args.sweep_dir, *select(runs, args.env, "mixture", args.clusters, seed), run_dir)
         ctrl = os.path.join(run_dir, "controller.npz")
         save_npz_atomic(ctrl, **controller_arrays(run_dir))
-        _, c = run_mujoco_c(ctrl, args.episodes)
+        c = run_mujoco_c(*load_controller(ctrl), args.episodes)
         _, j = run_mjx(run_dir, args.episodes)
         rows.append({"seed": seed, "mujoco_c_return": round(c["return_mean"], 1), "mujoco_c_ci95": round(c["return_ci95"], 1),
                      "mujoco_c_length": round(c["length_mean"], 1), "mjx_return": round(j["return_mean"], 1),

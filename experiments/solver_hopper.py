@@ -109,7 +109,7 @@ def score_sweep(sweep, clusters, episodes, solvers, tmp, **tags):
     """Rows (tags, policy, K, seed, one mean return per MJX solver in `solvers`, and mujoco_c for the
     exported mixtures) for the flat PPO and K=`clusters` hopper controllers of a sweep."""
     from gsa_jax.checkpoint import save_npz_atomic
-    from gsa_jax.deploy import run_mujoco_c
+    from gsa_jax.deploy import load_controller, run_mujoco_c
     from gsa_jax.export import controller_arrays
 
     rows = []
@@ -123,7 +123,7 @@ def score_sweep(sweep, clusters, episodes, solvers, tmp, **tags):
             if policy == "mixture":
                 ctrl = os.path.join(c[6], "controller.npz")
                 save_npz_atomic(ctrl, **controller_arrays(c[6]))
-                row["mujoco_c"] = round(run_mujoco_c(ctrl, episodes)[1]["return_mean"], 1)
+                row["mujoco_c"] = round(run_mujoco_c(*load_controller(ctrl), episodes)["return_mean"], 1)
             else:
                 row["mujoco_c"] = ""
             rows.append(row)

@@ -426,6 +426,19 @@ def estimate_s(plan, raw_plan, profile_runs, repeats):
     return t
 
 
+def positive_ints(flag, text, default):
+    """Comma-separated positive integers of a flag (or the default); ValueError naming the flag."""
+    if not text:
+        return default
+    try:
+        values = [int(s) for s in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{flag} takes comma-separated positive integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise ValueError(f"{flag} takes comma-separated positive integers, got {text!r}")
+    return values
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true",
@@ -472,14 +485,18 @@ def main(argv=None):
         print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
         return 2
     cores = os.cpu_count() or 1
-    sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else list(QUICK_SIZES if args.quick else SIZES)
     policies = args.policies.split(",") if args.policies else ["mixture"]
-    procs = [int(s) for s in args.processes.split(",")] if args.processes else sorted({1, cores})
-    batches = [int(s) for s in args.raw_batches.split(",")] if args.raw_batches else ([256] if args.quick else list(RAW_BATCHES))
     profile_runs = args.profile_runs
     repeats = args.repeats or (2 if args.quick else 3)
     try:
+        sizes = positive_ints("--sizes", args.sizes, list(QUICK_SIZES if args.quick else SIZES))
+        procs = positive_ints("--processes", args.processes, sorted({1, cores}))
+        batches = positive_ints("--raw-batches", args.raw_batches, [256] if args.quick else list(RAW_BATCHES))
         variant = parse_solver_variant(args.solver_variant, args.quick)
+        from gsa_jax.sweep import check_spec
+
+        for pol in policies:  # the sweeps' own validation, before anything compiles
+            check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1}, source="bench")
     except ValueError as e:
         print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
         return 2

@@ -1,7 +1,15 @@
-"""Pytrees to and from .npz files, written atomically (temp file + rename), so a kill never leaves a torn file."""
+"""Pytrees to and from .npz files, written atomically (temp file + rename), so a kill never leaves a torn file.
 
+Checkpoints (keep_previous=True, read_with_fallback) keep the previous version next to the current one
+(`state.npz` -> `state.prev.npz`): a file that is unreadable on resume (truncated, garbage) falls back
+to the previous one. A full disk raises DiskFullError (no temp file left behind) naming the
+directory and the space the write needed.
+"""
+
+import errno
 import io
 import os
+import zipfile
 
 import jax
 import numpy as np
@@ -12,32 +20,98 @@ def _flat(tree):
     return {jax.tree_util.keystr(path): np.asarray(x) for path, x in leaves}, treedef
 
 
-def write_atomic(path, data, mode="w"):
-    """Write text or bytes to a temp file in the same directory, fsync, then rename over `path`."""
+class DiskFullError(OSError):
+    """A write ran out of space (ENOSPC / EDQUOT); the file it replaces is intact."""
+
+    def __init__(self, path, needed):
+        super().__init__(errno.ENOSPC, f"no space left writing {path}")
+        self.path, self.needed = path, needed
+
+    def describe(self, last_intact):
+        """One line for the user: directory, space needed, last intact checkpoint ('iteration N ...'), what to do."""
+        need = max(self.needed, 1) / 2**20
+        return (f"disk full: writing {os.path.dirname(os.path.abspath(self.path))} needs about {need:.1f} MiB more "
+                f"free space; the last intact checkpoint is {last_intact}; free space and run the same "
+                f"command with --resume (sweeps: the same command) to continue")
+
+
+class CheckpointError(ValueError):
+    """Neither a checkpoint nor its previous version can be read."""
+
+
+def _write_file(path, data, mode):
+    """Write and fsync one file (the single place files are written; tests inject faults here)."""
+    with open(path, mode) as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def previous_path(path):
+    """state.npz -> state.prev.npz: where a checkpoint keeps the version before the current one."""
+    root, ext = os.path.splitext(path)
+    return root + ".prev" + ext
+
+
+def write_atomic(path, data, mode="w", keep_previous=False):
+    """Write text or bytes to a temp file in the same directory, fsync, then rename over `path`
+    (keep_previous: first rename the current file to previous_path(path); renames only, so a kill
+    at any point leaves an intact current or previous file). A full disk raises DiskFullError; the
+    temp file is removed in every case."""
     tmp = path + ".tmp"
     try:
-        with open(tmp, mode) as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+        _write_file(tmp, data, mode)
+        if keep_previous and os.path.exists(path):
+            os.replace(path, previous_path(path))
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT) and not isinstance(e, DiskFullError):
+            raise DiskFullError(path, len(data)) from None
         raise
 
 
-def save_npz_atomic(path, **arrays):
+UNREADABLE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
+
+
+def read_with_fallback(path, read, log=print):
+    """read(p) of `path`, or of its previous version if `path` is missing or unreadable (one line says
+    which and why). Returns (value, path read). Raises CheckpointError if neither can be read."""
+    prev = previous_path(path)
+    errors = []
+    for p in (path, prev):
+        if not os.path.exists(p):
+            errors.append(f"{os.path.basename(p)} is missing")
+            continue
+        try:
+            value = read(p)
+        except UNREADABLE as e:
+            errors.append(f"{os.path.basename(p)} is unreadable ({type(e).__name__}: {str(e)[:80]})")
+            continue
+        if p == prev:
+            log(f"warning: {errors[0]}; resuming from the previous checkpoint {p}")
+        return value, p
+    raise CheckpointError(f"cannot resume from {os.path.dirname(os.path.abspath(path))}: " + "; ".join(errors)
+                          + "; delete the directory to start over")
+
+
+def npz_bytes(**arrays):
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    write_atomic(path, buf.getvalue(), "wb")
+    return buf.getvalue()
 
 
-def save_pytree(path, tree, **extra):
-    """Save every leaf under its key path (e.g. "['policy']['L']"); extra arrays are stored as given."""
+def save_npz_atomic(path, keep_previous=False, **arrays):
+    write_atomic(path, npz_bytes(**arrays), "wb", keep_previous)
+
+
+def save_pytree(path, tree, keep_previous=False, **extra):
+    """Save every leaf under its key path (e.g. "['policy']['L']"); extra arrays are stored as given.
+    keep_previous: keep the file it replaces as previous_path(path) (checkpoints)."""
     arrays, _ = _flat(tree)
     arrays.update({k: np.asarray(v) for k, v in extra.items()})
-    save_npz_atomic(path, **arrays)
+    save_npz_atomic(path, keep_previous, **arrays)
 
 
 def load_pytree(path, like):

@@ -1,12 +1,13 @@
-"""Run an exported controller in plain MuJoCo C (no MJX, no JAX) on the MJCF it was trained on:
+"""Run an exported controller in plain MuJoCo C (no MJX, no JAX) and in gymnasium's own tasks:
 
-    python -m gsa_jax.deploy controller.npz [--episodes 20] [--compare-mjx RUN_DIR] [--out deploy.json]
+    python -m gsa_jax.deploy controller.npz [--episodes 20] [--gymnasium Hopper-v5] [--compare-mjx RUN_DIR] [--out F]
 
 The controller file comes from `python -m gsa_jax.export RUN --out controller.npz`; its task is read
-from the file. Prints the mean return (and episode length) of the deterministic controller in
-MuJoCo C; with --compare-mjx RUN_DIR it also rolls out the same deterministic controller in the MJX
-environment it was trained in (this part uses JAX) for the same number of episodes, so a user sees
-whether the controller transfers between the two simulators. Ported tasks: envs.mujoco_c.C_TASKS.
+from the file. Prints the mean return (95% CI over episodes) and episode length of the deterministic
+controller in our MuJoCo C port of the task (the MJCF it was trained on; ported: envs.mujoco_c.C_TASKS);
+with --gymnasium ENV_ID also in gymnasium's own task (its MJCF, reward, termination and time limit;
+refused with the reason where its observation layout is not ours, gsa_jax.gymnasium_task); with
+--compare-mjx RUN_DIR also in the MJX environment it was trained in (this part uses JAX).
 """
 
 import argparse
@@ -29,10 +30,8 @@ def summarize(returns, lengths):
             "returns": [round(float(x), 3) for x in r]}
 
 
-def run_mujoco_c(controller_path, episodes, episode_length=None, seed=0):
-    """(env name, summary) of the controller's deterministic episodes in MuJoCo C."""
-    from envs import default_episode_length
-    from envs.mujoco_c import C_TASKS, make_c, run_episodes
+def load_controller(controller_path):
+    """(NumPy controller, its task name, its config) of an exported controller file."""
     from gsa_jax import numpy_policy
 
     if not os.path.exists(controller_path):
@@ -43,13 +42,32 @@ def run_mujoco_c(controller_path, episodes, episode_length=None, seed=0):
             meta = json.loads(str(f["config_json"]))
     except (OSError, KeyError, ValueError) as e:
         raise DeployError(f"{controller_path!r} is not an exported controller ({e})") from None
-    env_name = meta["config"]["env"]
+    return ctrl, meta["config"]["env"], meta["config"]
+
+
+def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
+    """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
+    from envs import default_episode_length
+    from envs.mujoco_c import C_TASKS, make_c, run_episodes
+
     if env_name not in C_TASKS:
         raise DeployError(f"the controller is for {env_name!r}; MuJoCo C ports exist for {', '.join(C_TASKS)}")
-    length = episode_length or meta["config"].get("episode_length") or default_episode_length(env_name)
-    task = make_c(env_name)
-    returns, lengths = run_episodes(task, ctrl, episodes, int(length), seed)
-    return env_name, {**summarize(returns, lengths), "episode_length_limit": int(length)}
+    length = episode_length or config.get("episode_length") or default_episode_length(env_name)
+    returns, lengths = run_episodes(make_c(env_name), ctrl, episodes, int(length), seed)
+    return {**summarize(returns, lengths), "episode_length_limit": int(length)}
+
+
+def run_gymnasium(ctrl, env_name, env_id, episodes, seed=0):
+    """Summary of the controller in gymnasium's own task `env_id` (its MJCF, reward, termination, time limit)."""
+    from gsa_jax.gymnasium_task import GymnasiumError, make_gym, run_episodes
+
+    try:
+        env, options = make_gym(env_name, env_id, seed=seed)
+    except GymnasiumError as e:
+        raise DeployError(str(e)) from None
+    returns, lengths = run_episodes(env, ctrl, episodes, seed)
+    return {**summarize(returns, lengths), "env_id": env_id, "options": options,
+            "episode_length_limit": int(env.spec.max_episode_steps or 0)}
 
 
 def run_mjx(run_dir, episodes, seed=0):
@@ -63,44 +81,70 @@ def run_mjx(run_dir, episodes, seed=0):
     return trainer.cfg.env, summarize(roll["reward"].sum(0), roll["alive"].sum(0))
 
 
+def report_line(env_name, where, s):
+    return (f"{env_name}: {where:<22} deterministic controller, {s['episodes']} episodes: return "
+            f"{s['return_mean']:.1f} +- {s['return_ci95']:.1f} (95% CI), episode length {s['length_mean']:.0f}")
+
+
+def compare_mjx(run_dir, env_name, episodes, seed):
+    from gsa_jax.inspect import InspectError
+
+    try:
+        mjx_env, summary = run_mjx(run_dir, episodes, seed)
+    except InspectError as e:
+        raise DeployError(str(e)) from None
+    if mjx_env != env_name:
+        raise DeployError(f"{run_dir!r} is a {mjx_env!r} run, the controller is for {env_name!r}")
+    return summary
+
+
+def deploy(args):
+    """Every requested simulator's summary, printed as it completes."""
+    from envs.mujoco_c import C_TASKS
+
+    if args.episodes < 1:
+        raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
+    ctrl, env_name, config = load_controller(args.controller)
+    result = {"env": env_name, "controller": args.controller}
+    if env_name in C_TASKS or not args.gymnasium:
+        result["mujoco_c"] = run_mujoco_c(ctrl, env_name, config, args.episodes, args.episode_length, args.seed)
+        print(report_line(env_name, "MuJoCo C (our port),", result["mujoco_c"]))
+    if args.gymnasium:
+        result["gymnasium"] = run_gymnasium(ctrl, env_name, args.gymnasium, args.episodes, args.seed)
+        print(report_line(env_name, f"gymnasium {args.gymnasium},", result["gymnasium"]))
+    if args.compare_mjx:
+        result["mjx"] = compare_mjx(args.compare_mjx, env_name, args.episodes, args.seed)
+        print(report_line(env_name, "MJX,", result["mjx"]))
+    return result
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.deploy", description=__doc__.split("\n")[0])
     p.add_argument("controller", help="an exported controller .npz (python -m gsa_jax.export)")
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--episode-length", type=int, default=None, help="default: the run's time limit")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--gymnasium", default=None, metavar="ENV_ID",
+                   help="also run it in gymnasium's own task, e.g. Hopper-v5 (needs the deploy extra)")
     p.add_argument("--compare-mjx", default=None, metavar="RUN_DIR", help="also roll out the run's controller in MJX")
     p.add_argument("--out", default=None, help="write the results as JSON")
     args = p.parse_args(argv)
     try:
-        if args.episodes < 1:
-            raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
-        env_name, c = run_mujoco_c(args.controller, args.episodes, args.episode_length, args.seed)
-        result = {"env": env_name, "controller": args.controller, "mujoco_c": c}
-        print(f"{env_name}: MuJoCo C, deterministic controller, {c['episodes']} episodes: return "
-              f"{c['return_mean']:.1f} +- {c['return_ci95']:.1f} (95% CI), episode length {c['length_mean']:.0f}")
-        if args.compare_mjx:
-            from gsa_jax.inspect import InspectError
-
-            try:
-                mjx_env, j = run_mjx(args.compare_mjx, args.episodes, args.seed)
-            except InspectError as e:
-                raise DeployError(str(e)) from None
-            if mjx_env != env_name:
-                raise DeployError(f"{args.compare_mjx!r} is a {mjx_env!r} run, the controller is for {env_name!r}")
-            result["mjx"] = j
-            print(f"{env_name}: MJX,       deterministic controller, {j['episodes']} episodes: return "
-                  f"{j['return_mean']:.1f} +- {j['return_ci95']:.1f} (95% CI), episode length {j['length_mean']:.0f}")
-        if args.out:
-            import mujoco
-
-            result["versions"] = {"mujoco": mujoco.__version__}
-            with open(args.out, "w") as f:
-                json.dump(result, f, indent=1)
-            print(f"wrote {args.out}")
+        result = deploy(args)
     except DeployError as e:
         print(f"gsa_jax.deploy: error: {e}", file=sys.stderr)
         return 2
+    if args.out:
+        import mujoco
+
+        result["versions"] = {"mujoco": mujoco.__version__}
+        if args.gymnasium:
+            import gymnasium
+
+            result["versions"]["gymnasium"] = gymnasium.__version__
+        with open(args.out, "w") as f:
+            json.dump(result, f, indent=1)
+        print(f"wrote {args.out}")
     return 0
 
 

@@ -5,6 +5,8 @@ env, the mean training return vs env steps for flat PPO and each K (95% confiden
 seeds, Student t), like the paper's Figure 1. Also writes `final_returns.csv` (per cell, the mean
 return over the last 10% of iterations, averaged over seeds, with its 95% interval) and
 `return_vs_k.png` (final return against K, flat PPO as a band: how many linear controllers a task needs).
+Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every mean and listed apart:
+in the legend and in final_returns.csv's failed_runs column (seed@iteration).
 """
 
 import argparse
@@ -57,6 +59,41 @@ def load_sweep(sweep_dir):
     return out
 
 
+def load_failed(sweep_dir):
+    """Runs that stopped at a NaN/inf: sweep.json's 'failed_runs', or the workers' failed_runs.json."""
+    import json
+
+    failed = []
+    metas = sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True))
+    for path in metas:
+        with open(path) as f:
+            failed.extend(json.load(f).get("failed_runs", []))
+    if not failed:  # a sweep still running or stopped: the workers' own lists
+        for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "failed_runs.json"), recursive=True)):
+            with open(path) as f:
+                failed.extend(json.load(f))
+    return failed
+
+
+def failed_cell(f):
+    """The cell (env, policy, K, (column, value)...) of a failed run, as load_sweep keys them."""
+    extras = [c for c in f if c not in ("run", "env", "policy", "K", "seed", "failed_at")]
+    return (f["env"], f["policy"], int(f["K"])) + tuple(
+        (f"hparam_{c}" if c in _METRIC_COLS else c, str(f[c])) for c in extras)
+
+
+def drop_failed(data, failed):
+    """(data without the failed runs, {cell: [(seed, failed_at)]}): failed runs are reported apart,
+    never averaged into a cell (their series end early; a run failing at once has none)."""
+    dropped = defaultdict(list)
+    for f in failed:
+        cell = failed_cell(f)
+        if cell in data:
+            data[cell].pop(int(f["seed"]), None)
+        dropped[cell].append((int(f["seed"]), int(f["failed_at"])))
+    return {c: s for c, s in data.items() if s}, dict(dropped)
+
+
 def smooth(y, window):
     """Trailing mean over `window` iterations, ignoring NaN (iterations where no episode ended)."""
     if window <= 1:
@@ -96,8 +133,15 @@ def cell_curve(seeds, window):
     return xs, mean, half, ys
 
 
-def final_table(data, action_dims):
+def final_table(data, action_dims, failed=None):
+    """Per cell: final return (mean over the last 10% of iterations) mean and 95% t-interval over seeds;
+    failed_runs lists the seeds that stopped at a NaN/inf (seed@iteration), left out of the statistics."""
     rows = []
+    failed = failed or {}
+    for cell in sorted(set(failed) - set(data), key=lambda c: (c[0], c[1] != "mlp", c[2], c[3:])):  # every seed failed
+        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", "K_over_action_dim": "",
+                     **{c: v for c, v in cell[3:]}, "seeds": 0, "final_return_mean": "", "ci95_halfwidth": "",
+                     "env_steps": "", "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
     for cell, seeds in sorted(data.items(), key=lambda kv: (kv[0][0], kv[0][1] != "mlp", kv[0][2], kv[0][3:])):
         finals = []
         for _, y in seeds.values():
@@ -111,7 +155,8 @@ def final_table(data, action_dims):
         rows.append({"env": env, "policy": policy, "K": k if policy == "mixture" else "",
                      "K_over_action_dim": round(k / action_dims[env], 3) if policy == "mixture" and env in action_dims else "",
                      **{c: v for c, v in cell[3:]}, "seeds": n, "final_return_mean": round(float(finals.mean()), 2) if n else "",
-                     "ci95_halfwidth": round(float(half), 2) if n > 1 else "", "env_steps": int(next(iter(seeds.values()))[0][-1])})
+                     "ci95_halfwidth": round(float(half), 2) if n > 1 else "", "env_steps": int(next(iter(seeds.values()))[0][-1]),
+                     "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, [])))})
     return rows
 
 
@@ -123,7 +168,7 @@ def plot_return_vs_k(rows, path):
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
-    fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "final_return_mean", "ci95_halfwidth", "env_steps"}
+    fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "final_return_mean", "ci95_halfwidth", "env_steps", "failed_runs"}
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
         mix = [r for r in rows if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]]
@@ -165,7 +210,7 @@ def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    data = load_sweep(sweep_dir)
+    data, failed = drop_failed(load_sweep(sweep_dir), load_failed(sweep_dir))
     if action_dims is None:
         action_dims = {}
         for env_name in {c[0] for c in data}:
@@ -186,7 +231,8 @@ def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
             w = window or max(1, len(next(iter(seeds.values()))[0]) // 50)
             xs, mean, half, _ = cell_curve(seeds, w)
             style = dict(color="black", lw=2.0) if cell[1] == "mlp" else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
-            ax.plot(xs, mean, label=f"{cell_label(cell, action_dims)} (n={len(seeds)})", **style)
+            n_failed = f", {len(failed[cell])} failed (NaN/inf), not shown" if cell in failed else ""
+            ax.plot(xs, mean, label=f"{cell_label(cell, action_dims)} (n={len(seeds)}{n_failed})", **style)
             ax.fill_between(xs, mean - half, mean + half, alpha=0.18, color=style["color"], lw=0)
         ax.set_title(env_name)
         ax.set_xlabel("environment steps")
@@ -200,7 +246,7 @@ def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
     out_png = out_png or os.path.join(sweep_dir, "figure.png")
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
-    rows = final_table(data, action_dims)
+    rows = final_table(data, action_dims, failed)
     table_path = os.path.join(os.path.dirname(os.path.abspath(out_png)), "final_returns.csv")
     cols = list(dict.fromkeys(k for r in rows for k in r))
     with open(table_path, "w", newline="") as f:

@@ -18,6 +18,7 @@ by their factors every iteration.
 """
 
 import dataclasses
+import math
 from typing import Callable, NamedTuple
 
 import jax
@@ -112,20 +113,54 @@ def make_hparams(**overrides):
     return {k: jnp.asarray(v, jnp.int32 if k in _INT_HPARAMS else jnp.float32) for k, v in hp.items()}
 
 
+# Allowed range of every hyperparameter: (low, high, low included, high included). K is checked against k_max.
+HPARAM_RANGES = {
+    "K": (1, None, True, True),
+    "lr": (0.0, None, False, True),
+    "anneal_lr": (0.0, 1.0, True, True),
+    "total_iterations": (1, None, True, True),
+    "clip_eps": (0.0, None, False, True),
+    "gamma": (0.0, 1.0, True, True),
+    "gae_lambda": (0.0, 1.0, True, True),
+    "vf_coef": (0.0, None, True, True),
+    "max_grad_norm": (0.0, None, False, True),
+    "eps_init": (0.0, 1.0, True, False),
+    "eps_decay": (0.0, 1.0, True, True),
+    "sigma_min_init": (0.0, None, True, True),
+    "sigma_min_decay": (0.0, 1.0, True, True),
+    "sigma_init_scale": (0.0, None, False, True),
+}
+
+
+def allowed_range(name):
+    lo, hi, lo_in, hi_in = HPARAM_RANGES[name]
+    if hi is None:
+        return f">= {lo:g}" if lo_in else f"> {lo:g}"
+    return f"in {'[' if lo_in else '('}{lo:g}, {hi:g}{']' if hi_in else ')'}"
+
+
+def check_hparam(name, value):
+    """Raise ValueError '<name> must be <range>, got <value>' unless value is a finite number in range."""
+    if name not in HPARAM_RANGES:
+        raise ValueError(f"unknown hyperparameter {name!r}; known: {', '.join(HPARAM_RANGES)}")
+    lo, hi, lo_in, hi_in = HPARAM_RANGES[name]
+    v = float(value)
+    ok = math.isfinite(v) and (v >= lo if lo_in else v > lo) and (hi is None or (v <= hi if hi_in else v < hi))
+    if name in _INT_HPARAMS and ok:
+        ok = v == int(v)
+    if not ok:
+        kind = "an integer " if name in _INT_HPARAMS else ""
+        raise ValueError(f"{name} must be {kind}{allowed_range(name)}, got {value!r}")
+
+
 def validate_hparams(cfg, hp):
-    k = int(hp["K"])
-    if cfg.policy == "mixture" and not 1 <= k <= cfg.k_max:
+    """Every hyperparameter in range (HPARAM_RANGES) and K <= k_max: the one check of train, sweep and bench."""
+    for name in HPARAM_RANGES:
+        if name in hp:
+            check_hparam(name, hp[name] if isinstance(hp[name], (int, float)) else float(hp[name]))
+    k = int(hp["K"]) if "K" in hp else 1
+    if cfg is not None and cfg.policy == "mixture" and not 1 <= k <= cfg.k_max:
         raise ValueError(f"clusters K must be in 1..k_max={cfg.k_max}, got {k}")
-    if not 0.0 <= float(hp["eps_init"]) < 1.0:
-        raise ValueError(f"eps_init must be in [0, 1), got {float(hp['eps_init'])}")
-    for name in ("lr", "clip_eps", "sigma_init_scale", "max_grad_norm"):
-        if not float(hp[name]) > 0:
-            raise ValueError(f"{name} must be > 0, got {float(hp[name])}")
-    for name in ("gamma", "gae_lambda", "eps_decay", "sigma_min_decay"):
-        if not 0.0 <= float(hp[name]) <= 1.0:
-            raise ValueError(f"{name} must be in [0, 1], got {float(hp[name])}")
-    if float(hp["sigma_min_init"]) < 0:
-        raise ValueError(f"sigma_min_init must be >= 0, got {float(hp['sigma_min_init'])}")
 
 
 def schedule(hp, iteration):
@@ -207,6 +242,7 @@ def make_train(cfg):
             "disc_return": jnp.zeros((n,), jnp.float32),
             "key": k_run,
             "iteration": jnp.zeros((), jnp.int32),
+            "failed_at": jnp.full((), -1, jnp.int32),  # the iteration whose loss or parameters were non-finite
         }
 
     def rollout(state, hp, sched, key):
@@ -315,6 +351,7 @@ def make_train(cfg):
             "disc_return": disc_ret,
             "key": key,
             "iteration": it + 1,
+            "failed_at": state["failed_at"],
         }
         metrics = {
             "iteration": it + 1,
@@ -332,7 +369,7 @@ def make_train(cfg):
 
     def run_chunk(state, hp, num_iterations):
         """num_iterations (static) PPO iterations in one lax.scan; metrics stacked [num_iterations]."""
-        return jax.lax.scan(lambda s, _: iteration(s, hp), state, None, length=num_iterations)
+        return jax.lax.scan(lambda s, _: guarded_iteration(iteration, s, hp), state, None, length=num_iterations)
 
     def evaluate(params, obs_stats, hp, key):
         """Mean return of the deterministic controller (most probable cluster, mean action) over
@@ -358,6 +395,23 @@ def make_train(cfg):
         return jnp.mean(ret)
 
     return Trainer(cfg, env, policy, init, iteration, run_chunk, evaluate, value)
+
+
+def all_finite(tree):
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
+
+
+def guarded_iteration(iteration, state, hp):
+    """iteration(state, hp), masked: a run whose loss or new parameters are non-finite keeps its last
+    state (last finite parameters), records the failing iteration in state['failed_at'] and stays
+    frozen from then on; metrics['failed_at'] says so per iteration (-1 while healthy). Inside the
+    compiled program, per run: a vmapped sweep keeps training its other runs, bit for bit."""
+    new_state, metrics = iteration(state, hp)
+    ok = (state["failed_at"] < 0) & jnp.isfinite(metrics["policy_loss"]) & jnp.isfinite(metrics["value_loss"])
+    ok = ok & all_finite(new_state["params"])
+    kept = jax.tree.map(lambda n, o: jnp.where(ok, n, o), new_state, state)
+    failed_at = jnp.where(ok | (state["failed_at"] >= 0), state["failed_at"], state["iteration"] + 1)
+    return dict(kept, failed_at=failed_at), dict(metrics, failed_at=failed_at)
 
 
 def train(cfg, key, hp, num_iterations):

@@ -1,6 +1,7 @@
 """What every results file records: library versions, git commit, machine."""
 
 import datetime
+import json
 import os
 import platform
 import subprocess
@@ -56,3 +57,17 @@ def run_metadata():
         "mjx_linesearch": _linesearch(),
         "started_at": datetime.datetime.now().isoformat(timespec="seconds"),
     }
+
+
+def describe_changes(old, new, prefix=""):
+    """'a.b: old -> new; ...' for every leaf that differs between two JSON-like dicts ('' if none)."""
+    changes = []
+    for k in sorted(set(old) | set(new), key=str):
+        a, b = old.get(k, "(absent)"), new.get(k, "(absent)")
+        if isinstance(a, dict) and isinstance(b, dict):
+            inner = describe_changes(a, b, f"{prefix}{k}.")
+            if inner:
+                changes.append(inner)
+        elif a != b:
+            changes.append(f"{prefix}{k}: {json.dumps(a)} -> {json.dumps(b)}")
+    return "; ".join(changes)

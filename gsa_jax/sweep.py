@@ -15,12 +15,21 @@ process watches a heartbeat and restarts a worker whose chunk takes far longer t
 (XLA:CPU has been seen to hang in large vmapped MJX programs).
 
 Output (DIR, default runs/sweeps/<name>):
-  sweep.json            the spec, every run of the grid, versions, git commit
-  metrics.csv           tidy: one row per run per iteration (env, policy, K, seed, swept hparams, metrics)
-  groups/<env>-<policy>/{state.npz, metrics.npz, params.npz, runs.csv, DONE}
+  sweep.json            the spec, every run of the grid, versions, git commit; failed_runs at the end
+  metrics.csv           tidy: one row per run per iteration (env, policy, K, seed, swept hparams, metrics; a swept
+                        hparam named like a metric is hparam_<name>, e.g. hparam_lr next to the annealed lr)
+  groups/<env>-<policy>/{state.npz, metrics.npz (+ their .prev.npz), params.npz, runs.csv, failed.json, DONE}
+  LOCK                  pid and host of the sweep writing DIR (a second one is refused)
   xla_cache/            compiled programs (JAX's persistent cache): worker 0 compiles each group's
                         program once, the other workers and any resumed run load it (seconds)
 With --num-processes P each process writes its share under DIR/process-<i>/ (`gsa_jax.plot` merges them).
+
+Failures are loud and lose nothing: a run whose loss or parameters turn NaN/inf is frozen inside the
+compiled program (ppo.guarded_iteration; the others train on bit for bit), its metrics end there and
+its last finite parameters are kept; sweep.json and the final summary list it and the sweep exits 1.
+A checkpoint unreadable on resume falls back to its previous version; a full disk stops with one line
+(exit 4) and the same command resumes once space is freed; a changed experiment file is refused with
+the difference (--force continues with it). Exit status: see main().
 
 Experiment file (TOML):
   name = "fig1_small"
@@ -38,26 +47,25 @@ Experiment file (TOML):
   num_envs = 32
 """
 
-import os
-import sys
-
 import argparse
-import dataclasses  # noqa: E402
-import itertools  # noqa: E402
-import json  # noqa: E402
-import math  # noqa: E402
-import signal  # noqa: E402
-import statistics  # noqa: E402
-import subprocess  # noqa: E402
-import time  # noqa: E402
-import tomllib  # noqa: E402
+import dataclasses
+import itertools
+import json
+import math
+import os
+import re
+import signal
+import statistics
+import subprocess
+import sys
+import time
+import tomllib
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from gsa_jax.checkpoint import write_atomic  # noqa: E402
-
-from gsa_jax.ppo import HPARAM_DEFAULTS, Config  # noqa: E402
-from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS  # noqa: E402
+from gsa_jax.checkpoint import CheckpointError, DiskFullError, read_with_fallback, write_atomic
+from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
+from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
                "hparams", "config")
@@ -65,7 +73,10 @@ SWEEP_METRICS = (
     "iteration", "env_steps", "episode_return", "episodes", "epsilon", "sigma_min", "lr", "policy_loss",
     "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used",
 )
+TRACKED = SWEEP_METRICS + ("failed_at",)  # per run and iteration on the host; failed_at is not a CSV column
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
 
 
 class SpecError(ValueError):
@@ -99,6 +110,8 @@ def check_spec(raw, source="spec"):
 
     spec = dict(raw)
     spec.setdefault("name", os.path.splitext(os.path.basename(source))[0])
+    if not isinstance(spec["name"], str) or not NAME_PATTERN.fullmatch(spec["name"]):
+        bad("name", f"must be a plain name (letters, digits, '-', '_', '.'; not starting with '.' or '-'), got {spec['name']!r}")
     for field in ("envs", "policies"):
         if field not in spec:
             bad(field, "missing")
@@ -157,6 +170,11 @@ def check_spec(raw, source="spec"):
         values = v if isinstance(v, list) else [v]
         if not values or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
             bad(f"hparams.{k}", f"must be a number or a list of numbers, got {v!r}")
+        for x in values:
+            try:
+                check_hparam(k, x)
+            except ValueError as e:
+                bad(f"hparams.{k}", str(e))
         hps[k] = values
     spec["hparams"] = hps
     cfg = spec.get("config", {})
@@ -305,117 +323,230 @@ def pad_runs(runs, multiple, at_least=0):
     return runs + [dict(runs[-1], run=-1)] * pad
 
 
+_PROGRAMS = {}  # (cfg, chunk, devices, run_batch, runs) -> compiled (init, run, place): reused within a process
+
+
 def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
     """The group program for `runs` (already padded), compiled, and its initial state.
     share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
     inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
+    A program this process compiled before (same shapes) is reused.
     Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
     import jax
 
     from gsa_jax import xla_cache
 
-    _, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
+    key = (cfg, chunk, tuple(devices), run_batch, len(runs))
+    how = "reused (compiled earlier in this process)"
+    if key not in _PROGRAMS:
+        _, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
+        hps = place(stack_hparams(runs, hparam_names, iterations))
+        keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
+        init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
+        run, how = xla_cache.compile_with(run.lower(init(keys, hps), hps), share, log)
+        _PROGRAMS.clear()  # keep the last program only: resumed groups and tests reuse it
+        _PROGRAMS[key] = (init, run, place)
+    init, run, place = _PROGRAMS[key]
     hps = place(stack_hparams(runs, hparam_names, iterations))
     keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
-    init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
-    states = init(keys, hps)
-    run, how = xla_cache.compile_with(run.lower(states, hps), share, log)
-    return states, run, hps, place, how
+    return init(keys, hps), run, hps, place, how
 
 
 # ----------------------------------------------------------------------------------------------- files
+def rows_of_run(metrics, i, upto):
+    """Iterations of run i to write: up to `upto`, ending before the iteration where it failed (NaN/inf)."""
+    failed_at = int(metrics["failed_at"][i, upto - 1]) if upto else -1
+    return upto if failed_at < 0 else min(upto, failed_at - 1)
+
+
 def group_csv(runs, id_cols, metrics, upto):
-    """Tidy rows (run-major) of one group's metrics [R, iters] for the first `upto` iterations."""
+    """Tidy rows (run-major) of one group's metrics [R, iters] for the first `upto` iterations (a failed
+    run's rows end before its failing iteration)."""
     lines = []
     for i, r in enumerate(runs):
         ids = ",".join(str(r[c]) for c in id_cols)
-        cols = [metrics[m][i, :upto] for m in SWEEP_METRICS]
-        for j in range(upto):
+        cols = [metrics[m][i] for m in SWEEP_METRICS]
+        for j in range(rows_of_run(metrics, i, upto)):
             vals = []
             for m, c in zip(SWEEP_METRICS, cols):
                 v = c[j]
                 vals.append("" if isinstance(v, float) and math.isnan(v) else (str(int(v)) if m in ("iteration", "env_steps", "clusters_used") else f"{float(v):.6g}"))
             lines.append(ids + "," + ",".join(vals))
-    return ",".join(id_cols + list(SWEEP_METRICS)), lines
+    return ",".join([tidy_name(c) for c in id_cols] + list(SWEEP_METRICS)), lines
+
+
+def tidy_name(column):
+    """A swept hyperparameter's column in the tidy table: 'hparam_<name>' where a metric has its name (lr)."""
+    return f"hparam_{column}" if column in SWEEP_METRICS else column
+
+
+def failed_runs(runs, metrics, upto):
+    """[run dict + failed_at] of the runs that stopped at a NaN/inf."""
+    out = []
+    for i, r in enumerate(runs):
+        fa = int(metrics["failed_at"][i, upto - 1]) if upto else -1
+        if fa >= 0:
+            out.append({**r, "failed_at": fa})
+    return out
+
+
+def warn(msg):
+    """A line the user must see even with --quiet (stderr)."""
+    print(msg, file=sys.stderr, flush=True)
+
+
+def load_group_checkpoint(gdir, states, iterations, log):
+    """(states, metrics arrays [R, iterations], done) of a group's last intact checkpoint: state.npz
+    (or state.prev.npz) and the metrics covering its iteration (metrics.npz or metrics.prev.npz)."""
+    from gsa_jax.checkpoint import load_pytree
+
+    def read_state(p):
+        with np.load(p) as f:
+            done = int(f["__done__"])
+        return load_pytree(p, states), done
+
+    (states, done), _ = read_with_fallback(os.path.join(gdir, "state.npz"), read_state, log)
+
+    def read_metrics(p):
+        with np.load(p) as m:
+            if int(m["__done__"]) < done:
+                raise ValueError(f"holds {int(m['__done__'])} iterations, the state {done}")
+            rows = m["iteration"].shape[0]
+            return {k: m[k][:, :done] if k in m.files else np.full((rows, done), -1.0) for k in TRACKED}
+
+    saved, _ = read_with_fallback(os.path.join(gdir, "metrics.npz"), read_metrics, log)
+    metrics = {m: np.full((saved["iteration"].shape[0], iterations), np.nan, np.float64) for m in TRACKED}
+    for k in TRACKED:
+        metrics[k][:, :done] = saved[k]
+    return states, metrics, done
+
+
+def save_group_checkpoint(gdir, states, metrics, done):
+    """Metrics, then state (both keeping their previous version); the state records `done`."""
+    from gsa_jax.checkpoint import save_npz_atomic, save_pytree
+
+    save_npz_atomic(os.path.join(gdir, "metrics.npz"), True, __done__=np.array(done),
+                    **{k: v[:, :done] for k, v in metrics.items()})
+    save_pytree(os.path.join(gdir, "state.npz"), states, True, __done__=np.array(done))
+
+
+def finish_group(gdir, states, runs, metrics, done, timing):
+    """Final parameters (a failed run's last finite ones), failed.json and DONE; drop the resume state."""
+    import jax
+
+    from gsa_jax.checkpoint import previous_path, save_pytree
+
+    params = jax.device_get({"params": states["params"], "obs_stats": states["obs_stats"]})
+    save_pytree(os.path.join(gdir, "params.npz"), jax.tree.map(lambda x: x[: len(runs)], params))
+    write_atomic(os.path.join(gdir, "failed.json"), json.dumps(failed_runs(runs, metrics, done)))
+    write_atomic(os.path.join(gdir, "DONE"), json.dumps(timing))
+    for name in ("state.npz", "state.prev.npz", "metrics.prev.npz"):  # the full state is only needed to resume
+        if os.path.exists(os.path.join(gdir, name)):
+            os.unlink(os.path.join(gdir, name))
 
 
 # ----------------------------------------------------------------------------------------------- the worker
+class GroupResult(tuple):
+    """(done, iterations, metrics, runs) of one group: iterations done and planned, the host's metric
+    arrays [R, iterations] (TRACKED), the group's runs."""
+
+    done = property(lambda self: self[0])
+    iterations = property(lambda self: self[1])
+    metrics = property(lambda self: self[2])
+    runs = property(lambda self: self[3])
+
+    @property
+    def finished(self):
+        return self.done >= self.iterations
+
+
+def progress(tag, runs, metrics, done, iterations, chunk, steps_per_s, batch, chunk_s):
+    """One progress line of a group after a chunk."""
+    last = metrics["episode_return"][: len(runs), max(0, done - chunk):done]
+    recent = np.array([np.nanmean(row) if np.any(np.isfinite(row)) else np.nan for row in last])
+    eta = (iterations - done) * batch * len(runs) / max(steps_per_s, 1e-9)
+    failed = int(np.sum(metrics["failed_at"][: len(runs), done - 1] >= 0))
+    best = np.nanmax(recent) if np.any(np.isfinite(recent)) else float("nan")
+    median = np.nanmedian(recent) if np.any(np.isfinite(recent)) else float("nan")
+    return (f"[{tag}] it {done}/{iterations} | {steps_per_s:,.0f} env-steps/s | ETA {eta / 60:.1f} min | return "
+            f"best {best:.1f} median {median:.1f}" + (f" | {failed} run(s) failed (NaN/inf)" if failed else "")
+            + f" | chunk {chunk_s:.1f}s")
+
+
 def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None,
               run_batch=RUN_BATCH, pad_to=0, share=None):
-    """Train (or resume) one group. Returns (iterations done, iterations total, metrics dict, runs).
-    pad_to: pad the runs to at least this many (every worker process builds the same program);
-    share: see compile_group."""
-    import jax
-
-    from gsa_jax.checkpoint import load_pytree, save_npz_atomic, save_pytree
-
+    """Train (or resume) one group. Returns a GroupResult. pad_to: pad the runs to at least this many
+    (every worker process builds the same program); share: see compile_group."""
     gdir = os.path.join(out, "groups", group_name(env_name, policy, runs))
-    tag = group_name(env_name, policy, runs).replace(f"{env_name}-", f"{env_name}/", 1)
     os.makedirs(gdir, exist_ok=True)
     cfg = group_config(spec, env_name, policy, runs)
     chunk = default_chunk(spec, cfg)
     iterations = group_iterations(spec, cfg, chunk)
-    padded = pad_runs(runs, len(devices), at_least=pad_to)
-    R = len(padded)
-    state_path, metrics_path = os.path.join(gdir, "state.npz"), os.path.join(gdir, "metrics.npz")
     if os.path.exists(os.path.join(gdir, "DONE")):
-        with np.load(metrics_path) as m:
-            return iterations, iterations, {k: m[k] for k in m.files}, runs
+        with np.load(os.path.join(gdir, "metrics.npz")) as m:
+            saved = {k: m[k] for k in m.files}
+        saved.setdefault("failed_at", np.full_like(saved["iteration"], -1.0))
+        return GroupResult((iterations, iterations, saved, runs))
     cols = id_columns(spec)
     write_atomic(os.path.join(gdir, "runs.csv"), "\n".join(
         [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in runs]) + "\n")
-
+    padded = pad_runs(runs, len(devices), at_least=pad_to)
     t0 = time.perf_counter()
     states, run, hps, place, how = compile_group(cfg, chunk, devices, padded, list(spec["hparams"]), iterations, run_batch,
                                                  share, log)
     compile_s = time.perf_counter() - t0
-    metrics = {m: np.full((R, iterations), np.nan, np.float64) for m in SWEEP_METRICS}
-    done = 0
-    if os.path.exists(state_path) and os.path.exists(metrics_path):
+    metrics = {m: np.full((len(padded), iterations), np.nan, np.float64) for m in TRACKED}
+    done, tag = 0, group_name(env_name, policy, runs).replace(f"{env_name}-", f"{env_name}/", 1)
+    if os.path.exists(os.path.join(gdir, "state.npz")) or os.path.exists(os.path.join(gdir, "state.prev.npz")):
         try:
-            states = place(load_pytree(state_path, states))
-        except ValueError as e:
-            raise SpecError(f"cannot resume {gdir} ({e}); resume with the same --devices as the interrupted sweep") from None
-        with np.load(metrics_path) as m:
-            done = int(m["__done__"])
-            for k in SWEEP_METRICS:
-                metrics[k][:, :done] = m[k][:, :done]
+            loaded, metrics, done = load_group_checkpoint(gdir, states, iterations, warn)
+        except CheckpointError as e:
+            raise SpecError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
+        states = place(loaded)
         log(f"[{tag}] resumed at iteration {done}/{iterations}")
     log(f"[{tag}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
         f"{len(devices)} device(s); program {how} ({compile_s:.1f}s)")
-    t_train, steps_run, chunks_run = time.perf_counter(), 0, 0
-    while done < iterations:
+    loop = {"done": done, "chunks": 0, "steps": 0, "t": time.perf_counter(), "states": states}
+    try:
+        train_chunks(run, hps, metrics, loop, iterations, chunk, stop_after_chunks, gdir, tag, runs, cfg, log,
+                     on_chunk, heartbeat)
+    except DiskFullError as e:
+        e.last_intact = f"iteration {loop['intact']} of group {tag}"
+        raise
+    if loop["done"] >= iterations:
+        train_s = time.perf_counter() - loop["t"]
+        finish_group(gdir, loop["states"], runs, metrics, loop["done"],
+                     {"compile_s": compile_s, "train_s": train_s, "env_steps_per_s": loop["steps"] / max(train_s, 1e-9)})
+    return GroupResult((loop["done"], iterations, metrics, runs))
+
+
+def train_chunks(run, hps, metrics, loop, iterations, chunk, stop_after_chunks, gdir, tag, runs, cfg, log,
+                 on_chunk, heartbeat):
+    """run_group's chunk loop: train, record, checkpoint, report. loop: done, chunks, steps, t, states (updated)."""
+    import jax
+
+    loop["intact"] = loop["done"]
+    while loop["done"] < iterations:
         tc = time.perf_counter()
-        states, m = run(states, hps)
+        loop["states"], m = run(loop["states"], hps)
         m = jax.device_get(m)
-        for k in SWEEP_METRICS:
+        done = loop["done"]
+        for k in TRACKED:
             metrics[k][:, done:done + chunk] = m[k]
-        done += chunk
-        steps_run += chunk * cfg.batch_size * len(runs)
-        chunks_run += 1
-        save_pytree(state_path, states)
-        save_npz_atomic(metrics_path, __done__=np.array(done), **{k: v[:, :done] for k, v in metrics.items()})
+        loop["done"] = done = done + chunk
+        loop["steps"] += chunk * cfg.batch_size * len(runs)
+        loop["chunks"] += 1
+        save_group_checkpoint(gdir, loop["states"], metrics, done)
+        loop["intact"] = done
         if on_chunk:
-            on_chunk((done, iterations, {k: v[: len(runs)] for k, v in metrics.items()}, runs))
+            on_chunk(GroupResult((done, iterations, {k: v[: len(runs)] for k, v in metrics.items()}, runs)))
         if heartbeat:
             heartbeat(time.perf_counter() - tc)
-        _maybe_inject_hang(gdir, chunks_run)
-        sps = steps_run / (time.perf_counter() - t_train)
-        last = metrics["episode_return"][: len(runs), max(0, done - chunk):done]
-        recent = np.array([np.nanmean(row) if np.any(np.isfinite(row)) else np.nan for row in last])
-        eta = (iterations - done) * cfg.batch_size * len(runs) / max(sps, 1e-9)
-        log(f"[{tag}] it {done}/{iterations} | {sps:,.0f} env-steps/s | ETA {eta / 60:.1f} min | return "
-            f"best {np.nanmax(recent) if np.any(np.isfinite(recent)) else float('nan'):.1f} "
-            f"median {np.nanmedian(recent) if np.any(np.isfinite(recent)) else float('nan'):.1f} | chunk {time.perf_counter() - tc:.1f}s")
-        if stop_after_chunks is not None and chunks_run >= stop_after_chunks and done < iterations:
-            return done, iterations, metrics, runs
-    params = jax.device_get({"params": states["params"], "obs_stats": states["obs_stats"]})
-    save_pytree(os.path.join(gdir, "params.npz"), jax.tree.map(lambda x: x[: len(runs)], params))
-    write_atomic(os.path.join(gdir, "DONE"), json.dumps({"compile_s": compile_s, "train_s": time.perf_counter() - t_train,
-                                                          "env_steps_per_s": steps_run / max(time.perf_counter() - t_train, 1e-9)}))
-    if os.path.exists(state_path):
-        os.unlink(state_path)  # the full state is only needed to resume
-    return done, iterations, metrics, runs
+        _maybe_inject_hang(gdir, loop["chunks"])
+        sps = loop["steps"] / (time.perf_counter() - loop["t"])
+        log(progress(tag, runs, metrics, done, iterations, chunk, sps, cfg.batch_size, time.perf_counter() - tc))
+        if stop_after_chunks is not None and loop["chunks"] >= stop_after_chunks and done < iterations:
+            break
 
 
 def _maybe_inject_hang(gdir, chunks_run):
@@ -437,15 +568,27 @@ def write_tidy(out, spec, results):
         write_atomic(os.path.join(out, "metrics.csv"), header + "\n" + "\n".join(lines) + ("\n" if lines else ""))
 
 
+def check_same_spec(meta_path, spec, force):
+    """Refuse (SpecError with a one-line diff) to resume a sweep whose spec changed, unless force."""
+    from gsa_jax.runinfo import describe_changes
+
+    with open(meta_path) as f:
+        old = json.load(f)
+    diff = describe_changes(old.get("spec", {}), json.loads(json.dumps(spec)))
+    if diff and not force:
+        raise SpecError(f"{os.path.dirname(meta_path) or '.'} holds a sweep with a different spec ({diff}); use another "
+                        "--out, or --force to continue it with the new spec")
+
+
 def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
-              run_batch=RUN_BATCH, local_workers=True):
-    """Train every group of the spec (this process's share of each). Returns True when all groups are done.
+              run_batch=RUN_BATCH, local_workers=True, force=False):
+    """Train every group of the spec (this process's share of each). Returns True when all groups are done;
+    the runs that failed (NaN/inf) are written to failed_runs.json in this process's directory.
     run_batch: see make_group_program. local_workers: the processes share this machine and `out`
-    (False for multi-host sweeps: each process compiles for itself)."""
+    (False for multi-host sweeps: each process compiles for itself). force: resume a changed spec."""
     import jax
 
     from gsa_jax import xla_cache
-
     from gsa_jax.runinfo import run_metadata
 
     prefix = f"[process {process_id}] " if num_processes > 1 else ""
@@ -463,10 +606,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     meta_path = os.path.join(root, "sweep.json")
     if process_id == 0:
         if os.path.exists(meta_path):
-            with open(meta_path) as f:
-                old = json.load(f)
-            if old.get("spec") != json.loads(json.dumps(spec)):
-                raise SpecError(f"{root} holds a sweep with a different spec; use another --out")
+            check_same_spec(meta_path, spec, force)
         meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes,
                 **run_metadata()}
         write_atomic(meta_path, json.dumps(meta, indent=1))
@@ -478,20 +618,55 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     cache_dir = os.path.join(root if local_workers else out, "xla_cache")
     share = (cache_dir, process_id == 0 or not local_workers)
     results, complete = [], True
-    with xla_cache.enabled(cache_dir):
-        for env_name, policy, runs in groups:
-            mine = runs[process_id::num_processes]
-            if not mine:
-                continue
-            res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
-                            on_chunk=lambda partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
-                            pad_to=math.ceil(len(runs) / num_processes), share=share)
-            results.append(res)
-            write_tidy(out, spec, results)
-            if res[0] < res[1]:
-                complete = False
-                break
+    try:
+        with xla_cache.enabled(cache_dir):
+            for env_name, policy, runs in groups:
+                mine = runs[process_id::num_processes]
+                if not mine:
+                    continue
+                res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
+                                on_chunk=lambda partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
+                                pad_to=math.ceil(len(runs) / num_processes), share=share)
+                results.append(res)
+                write_tidy(out, spec, results)
+                if not res.finished:
+                    complete = False
+                    break
+        failed = [f for res in results for f in failed_runs(res.runs, res.metrics, res.done)]
+        write_atomic(os.path.join(out, "failed_runs.json"), json.dumps(failed))
+    except DiskFullError as e:
+        if not hasattr(e, "last_intact"):
+            last = results[-1] if results else None
+            e.last_intact = (f"iteration {last.done} of group {group_name(last.runs[0]['env'], last.runs[0]['policy'], last.runs)}"
+                             if last else "none (nothing trained yet)")
+        raise
+    for f in failed:
+        log(f"run failed (NaN/inf in loss or parameters) at iteration {f['failed_at']}: "
+            + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "K", "seed") if k in f) + "; its metrics end there")
     return complete
+
+
+def report_failures(root, dirs, log=print):
+    """Collect the workers' failed_runs.json into sweep.json ('failed_runs') and print the summary.
+    Returns the failed runs."""
+    failed = []
+    for d in dirs:
+        path = os.path.join(d, "failed_runs.json")
+        if os.path.exists(path):
+            with open(path) as f:
+                failed.extend(json.load(f))
+    meta_path = os.path.join(root, "sweep.json")
+    if os.path.exists(meta_path):
+        with open(meta_path) as f:
+            meta = json.load(f)
+        meta["failed_runs"] = failed
+        write_atomic(meta_path, json.dumps(meta, indent=1))
+    if failed:
+        log(f"{len(failed)} run(s) failed (NaN/inf in the loss or parameters; listed in sweep.json 'failed_runs'):")
+        for f in failed:
+            log("  " + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "subpolicy", "K", "seed", "run") if k in f)
+                + f": failed at iteration {f['failed_at']}")
+    return failed
 
 
 # ----------------------------------------------------------------------------------------------- supervisor
@@ -582,51 +757,84 @@ def build_parser():
     p.add_argument("--run-batch", type=int, default=RUN_BATCH,
                    help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
                         "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
+    p.add_argument("--force", action="store_true", help="resume even if the experiment file changed (continues with the new spec)")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     return p
 
 
-def main(argv=None):
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
+def check_args(args, argv):
+    """(spec, out, local worker count) after checking every argument; raises SpecError. Nothing compiles."""
+    spec = load_spec(args.experiment)
+    if args.num_processes < 1 or not 0 <= args.process_id < args.num_processes:
+        raise SpecError(f"--process-id must be in 0..{args.num_processes - 1}")
+    out = args.out or os.path.join("runs", "sweeps", spec["name"])
     try:
-        spec = load_spec(args.experiment)
-        if args.num_processes < 1 or not 0 <= args.process_id < args.num_processes:
-            raise SpecError(f"--process-id must be in 0..{args.num_processes - 1}")
-        out = args.out or os.path.join("runs", "sweeps", spec["name"])
         os.makedirs(out, exist_ok=True)
-    except (SpecError, OSError) as e:
-        print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
-        return 2
+    except OSError as e:
+        raise SpecError(f"--out {out!r} cannot be created: {e.strerror or e}") from None
     local = args.local_processes if args.local_processes is not None else (1 if args.no_watchdog else (os.cpu_count() or 1))
     if args.num_processes > 1 or args.worker:
         local = 1  # multi-host: one process per host runs here, as launched
     if local < 1:
-        print("gsa_jax.sweep: error: --local-processes must be >= 1", file=sys.stderr)
-        return 2
+        raise SpecError("--local-processes must be >= 1")
     if args.run_batch < 0:
-        print(f"gsa_jax.sweep: error: --run-batch must be >= 0, got {args.run_batch}", file=sys.stderr)
-        return 2
-    if not args.worker and (local > 1 or not args.no_watchdog):
-        base = [a for a in argv]
-        if args.out is None:
-            base += ["--out", out]
-        if local > 1:
-            argvs = [base + ["--process-id", str(i), "--num-processes", str(local), "--local-processes", "1"] for i in range(local)]
-            dirs = [os.path.join(out, f"process-{i}") for i in range(local)]
-        else:
-            argvs = [base]
-            dirs = [out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")]
-        for d in dirs:
-            os.makedirs(d, exist_ok=True)
-        if local > 1:
-            print(f"sweep: {local} local worker processes (one XLA CPU device each); logs prefixed [process i]", flush=True)
-        status = supervise(argvs, dirs, args.watchdog_min, args.max_restarts)
-        if status == 0:
-            print(f"sweep complete: {out}", flush=True)
-        return status
+        raise SpecError(f"--run-batch must be >= 0, got {args.run_batch}")
+    return spec, out, local
 
+
+def main(argv=None):
+    """Exit status: 0 done (or stopped as asked), 1 some runs failed (NaN/inf), 2 bad input or a locked /
+    changed / unreadable output directory, 3 a worker hung repeatedly, 4 disk full, 130 interrupted."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    try:
+        spec, out, local = check_args(args, argv)
+    except SpecError as e:
+        print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
+        return 2
+    if args.worker:
+        return run_worker(args, spec, out)
+    from gsa_jax.runlock import LockError, hold
+
+    lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
+    os.makedirs(lock_dir, exist_ok=True)
+    try:
+        with hold(lock_dir, f"gsa_jax.sweep {spec['name']}", log=lambda m: print(m, file=sys.stderr)):
+            if local > 1 or not args.no_watchdog:
+                return supervise_workers(args, argv, out, local)
+            return run_worker(args, spec, out)
+    except LockError as e:
+        print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
+        return 2
+
+
+def supervise_workers(args, argv, out, local):
+    """Start the worker processes under the watchdog; then collect failed runs into sweep.json."""
+    base = list(argv) + (["--out", out] if args.out is None else [])
+    if local > 1:
+        argvs = [base + ["--process-id", str(i), "--num-processes", str(local), "--local-processes", "1"] for i in range(local)]
+        dirs = [os.path.join(out, f"process-{i}") for i in range(local)]
+        print(f"sweep: {local} local worker processes (one XLA CPU device each); logs prefixed [process i]", flush=True)
+    else:
+        argvs = [base]
+        dirs = [out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")]
+    for d in dirs:
+        os.makedirs(d, exist_ok=True)
+    status = supervise(argvs, dirs, args.watchdog_min, args.max_restarts)
+    if status == 0:
+        try:
+            if report_failures(out, dirs):
+                return EXIT_FAILED_RUNS
+        except DiskFullError as e:
+            print(f"gsa_jax.sweep: error: {e.describe('the final one of every group (training is done; only sweep.json is behind)')}", file=sys.stderr)
+            return EXIT_DISK_FULL
+        print(f"sweep complete: {out}", flush=True)
+    return status
+
+
+def run_worker(args, spec, out):
+    """Train this process's share in this process (a supervised worker, or --no-watchdog)."""
     import jax
 
     if args.num_processes > 1 and args.coordinator:
@@ -650,15 +858,25 @@ def main(argv=None):
         write_atomic(os.path.join(wdir, "heartbeat.json"), json.dumps(beats))
 
     try:
-        complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes, heartbeat,
-                             args.run_batch, local_workers=args.coordinator is None)
+        complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,
+                             heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force)
     except SpecError as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2
+    except DiskFullError as e:
+        print(f"gsa_jax.sweep: error: {e.describe(getattr(e, 'last_intact', 'none (nothing trained yet)'))}", file=sys.stderr)
+        return EXIT_DISK_FULL
     if not args.quiet:
         done_msg = "done" if complete else "stopped; run the same command again to resume"
         print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg + f": {out}", flush=True)
-    return 0
+    if args.worker or args.num_processes > 1:
+        return 0
+    try:
+        return EXIT_FAILED_RUNS if report_failures(out, [wdir], log=print) else 0
+    except DiskFullError as e:
+        print(f"gsa_jax.sweep: error: {e.describe('the final one of every group (training is done; only sweep.json is behind)')}",
+              file=sys.stderr)
+        return EXIT_DISK_FULL
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 kill -9 + resume; the watchdog restarting a stalled worker; jax.distributed with 2 processes."""
 
 import csv
+import json
 import glob
 import os
 import signal
@@ -254,3 +255,130 @@ def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp
     out = tmp_path / "sub"
     assert run_sweep(load_spec(tiny_spec_file), str(out), devices=jax.local_devices()[:1], quiet=True, run_batch=2)
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
+
+
+# --- failures: validation, NaN runs, full disks, unreadable checkpoints, changed specs, a second writer -----------
+
+def sweep_main(spec_file, out, *extra):
+    """The sweep CLI in this process (no supervisor): its exit status."""
+    from gsa_jax.sweep import main
+
+    return main([str(spec_file), "--out", str(out), "--no-watchdog", "--local-processes", "1", "--quiet", *extra])
+
+
+def canonical_rows(path):
+    with open(path) as f:
+        return sorted(f.read().splitlines())
+
+
+@pytest.mark.parametrize("extra, message", [
+    ('[hparams]\neps_init = 1.5', "field 'hparams.eps_init': eps_init must be in [0, 1), got 1.5"),
+    ('[hparams]\nlr = -0.1', "field 'hparams.lr': lr must be > 0, got -0.1"),
+    ('[hparams]\ngamma = [0.99, 1.5]', "field 'hparams.gamma': gamma must be in [0, 1], got 1.5"),
+])
+def test_out_of_range_hparams_rejected_before_compiling(tmp_path, capsys, extra, message):
+    spec = tmp_path / "bad.toml"
+    spec.write_text('envs = ["hopper"]\npolicies = ["mlp"]\nsteps = 100\n' + extra + "\n")
+    assert sweep_main(spec, tmp_path / "out") == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err, err
+    assert not (tmp_path / "out" / "sweep.json").exists()
+
+
+def test_experiment_name_cannot_escape_the_results_root(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    spec = tmp_path / "evil.toml"
+    spec.write_text('name = "../../etc/evil"\nenvs = ["hopper"]\npolicies = ["mlp"]\nsteps = 100\n')
+    from gsa_jax.sweep import main
+
+    assert main([str(spec), "--no-watchdog", "--quiet"]) == 2
+    assert "field 'name': must be a plain name" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["evil.toml"]
+
+
+def test_nan_run_is_frozen_listed_and_the_others_train_on(tiny_spec_file, inprocess, tmp_path, capsys):
+    """One lr per run: lr = 1e30 makes two runs of the vmapped group non-finite. They stop at the
+    failing iteration (metrics end there, last finite parameters kept, listed in sweep.json and the
+    summary, exit 1); the healthy runs are bit for bit those of the sweep without them; plot lists the
+    failed runs apart."""
+    spec = tmp_path / "nan.toml"
+    spec.write_text(open(tiny_spec_file).read().replace("seeds = [0, 1]", "seeds = [0]").replace(
+        "[config]", "[hparams]\nlr = [3e-4, 1e30]\n[config]"))
+    out = tmp_path / "nan"
+    assert sweep_main(spec, out) == 1
+    printed = capsys.readouterr().out
+    assert "2 run(s) failed" in printed and "failed at iteration" in printed
+    failed = json.loads((out / "sweep.json").read_text())["failed_runs"]
+    assert sorted((f["K"], f["lr"]) for f in failed) == [(1, 1e30), (3, 1e30)]
+    rows = read_rows(str(out / "metrics.csv"))
+    for f in failed:
+        mine = [r for r in rows if int(r["K"]) == f["K"] and float(r["hparam_lr"]) == 1e30]
+        assert len(mine) == f["failed_at"] - 1 < ITERS
+    healthy = [{k: v for k, v in r.items() if k not in ("hparam_lr", "run")} for r in rows if float(r["hparam_lr"]) == 3e-4]
+    ref = [{k: v for k, v in r.items() if k != "run"} for r in read_rows(str(inprocess / "metrics.csv")) if r["seed"] == "0"]
+    assert healthy == ref  # the same strings: bit for bit
+    with np.load(out / "groups" / "inverted_double_pendulum-mixture" / "params.npz") as p:
+        assert all(np.all(np.isfinite(p[k])) for k in p.files)
+    from gsa_jax.plot import plot_sweep
+
+    _, _, table = plot_sweep(str(out))
+    by_cell = {(r["K"], float(r["hparam_lr"])): r for r in table}
+    for f in failed:
+        assert by_cell[(f["K"], 1e30)]["failed_runs"] == f"0@{f['failed_at']}" and by_cell[(f["K"], 1e30)]["seeds"] == 0
+    assert by_cell[(1, 3e-4)]["failed_runs"] == "" and by_cell[(1, 3e-4)]["seeds"] == 1
+
+
+SWEEP_DISK_FULL = [("sweep.json", 1), ("metrics.npz", 1), ("state.npz", 1), ("metrics.csv", 1), ("heartbeat.json", 1),
+                   ("metrics.npz", 2), ("state.npz", 2), ("heartbeat.json", 2), ("metrics.csv", 1), ("sweep.json", 2)]
+
+
+def test_disk_full_at_every_sweep_write_then_resume(tiny_spec_file, inprocess, tmp_path, monkeypatch, capsys):
+    """Every sweep write path (sweep.json, a group's metrics.npz and state.npz, the tidy metrics.csv, the
+    heartbeat) fails once with ENOSPC, first and mid-run: one line, exit 4, no temp file; the same
+    command resumes; the end result equals the uninterrupted sweep, row for row."""
+    from test_faults import DiskFull, no_temp_files
+
+    out = tmp_path / "full"
+    for name, n in SWEEP_DISK_FULL:
+        with monkeypatch.context() as m:
+            inj = DiskFull(m, name, n)
+            status = sweep_main(tiny_spec_file, out)
+        err = capsys.readouterr().err.strip()
+        assert inj.fired and status == 4, (name, n, status, err)
+        assert err.count("\n") == 0 and "gsa_jax.sweep: error: disk full: writing" in err
+        assert "the last intact checkpoint is" in err and no_temp_files(out) == []
+    assert sweep_main(tiny_spec_file, out) == 0
+    assert canonical_rows(out / "metrics.csv") == canonical_rows(inprocess / "metrics.csv")
+    assert json.loads((out / "sweep.json").read_text())["failed_runs"] == []
+
+
+def test_unreadable_group_state_falls_back(tiny_spec_file, inprocess, tmp_path, capsys):
+    out = tmp_path / "trunc"
+    assert sweep_main(tiny_spec_file, out, "--stop-after-chunks", "3") == 0
+    state = out / "groups" / "inverted_double_pendulum-mixture" / "state.npz"
+    state.write_bytes(state.read_bytes()[:1000])
+    capsys.readouterr()
+    assert sweep_main(tiny_spec_file, out) == 0
+    printed = capsys.readouterr()
+    assert "state.npz is unreadable" in printed.out + printed.err and "state.prev.npz" in printed.out + printed.err
+    assert canonical_rows(out / "metrics.csv") == canonical_rows(inprocess / "metrics.csv")
+
+
+def test_changed_spec_and_second_writer_refused(tiny_spec_file, tmp_path, capsys):
+    from gsa_jax.runlock import acquire, release
+
+    out = tmp_path / "changed"
+    assert sweep_main(tiny_spec_file, out, "--stop-after-chunks", "1") == 0
+    changed = tmp_path / "tiny.toml"
+    changed.write_text(open(tiny_spec_file).read().replace("steps = 3072", "steps = 4096"))
+    capsys.readouterr()
+    assert sweep_main(changed, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "steps: 3072 -> 4096" in err and "--force" in err
+    lock = acquire(str(out), "another sweep")
+    try:
+        assert sweep_main(tiny_spec_file, out) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and f"in use by pid {os.getpid()}" in err and "another sweep" in err
+    finally:
+        release(lock)

@@ -1,0 +1,135 @@
+"""The deterministic controller as one ONNX graph, built with the `onnx` package's own API.
+
+Input `obs` float32 [N, d_s]; outputs `action` float32 [N, d_a] (unclipped, as numpy_policy's act) and
+`cluster` int64 [N] (0 for an MLP controller). The graph: normalize (subtract the running mean, divide by
+the std, clip), then for a mixture: partition MLP -> logits of the K active clusters -> ArgMax (first
+maximum, as NumPy's) -> gather that cluster's L_c, b_c -> L_c phi(z) + b_c; for an MLP controller its
+tanh MLP. Needs the optional `deploy` extra (`pip install gsa_jax[deploy]`).
+"""
+
+import json
+
+import numpy as np
+
+OPSET = 17
+IR_VERSION = 8  # the IR of opset 17: readable by every onnxruntime that runs opset 17
+
+
+def _const(nodes, name, value):
+    from onnx import helper, numpy_helper
+
+    nodes.append(helper.make_node("Constant", [], [name], value=numpy_helper.from_array(np.asarray(value), name)))
+    return name
+
+
+def _mlp(nodes, x, layers, prefix):
+    """Tanh MLP on tensor name x; the last layer is linear. Returns the output's name."""
+    from onnx import helper
+
+    for i, (w, b) in enumerate(layers):
+        mm = f"{prefix}{i}_matmul"
+        nodes.append(helper.make_node("MatMul", [x, _const(nodes, f"{prefix}{i}_w", w)], [mm]))
+        x = f"{prefix}{i}_pre" if i < len(layers) - 1 else f"{prefix}_out"
+        nodes.append(helper.make_node("Add", [mm, _const(nodes, f"{prefix}{i}_b", b)], [x]))
+        if i < len(layers) - 1:
+            nodes.append(helper.make_node("Tanh", [x], [f"{prefix}{i}_h"]))
+            x = f"{prefix}{i}_h"
+    return x
+
+
+def _normalize(nodes, ctrl):
+    from onnx import helper
+
+    nodes.append(helper.make_node("Sub", ["obs", _const(nodes, "obs_mean", ctrl.obs_mean)], ["centred"]))
+    nodes.append(helper.make_node("Div", ["centred", _const(nodes, "obs_std", ctrl.obs_std)], ["scaled"]))
+    lo, hi = (np.float32(-ctrl.obs_clip), np.float32(ctrl.obs_clip))
+    nodes.append(helper.make_node("Clip", ["scaled", _const(nodes, "clip_lo", lo), _const(nodes, "clip_hi", hi)], ["z"]))
+    return "z"
+
+
+def _features(nodes, ctrl, z):
+    """phi(z) of the sub-policy class (linear: z; quadratic: [z, z_i z_j, i <= j])."""
+    from onnx import helper
+
+    if ctrl.subpolicy == "linear":
+        return z
+    i, j = np.triu_indices(ctrl.obs_mean.shape[0])
+    nodes.append(helper.make_node("Gather", [z, _const(nodes, "quad_i", i.astype(np.int64))], ["z_i"], axis=1))
+    nodes.append(helper.make_node("Gather", [z, _const(nodes, "quad_j", j.astype(np.int64))], ["z_j"], axis=1))
+    nodes.append(helper.make_node("Mul", ["z_i", "z_j"], ["z_ij"]))
+    nodes.append(helper.make_node("Concat", [z, "z_ij"], ["phi"], axis=1))
+    return "phi"
+
+
+def _mixture(nodes, ctrl, z):
+    """Nodes of the mixture's deterministic controller; writes 'action' and 'cluster'."""
+    from onnx import helper
+
+    k = ctrl.num_clusters
+    layers = list(ctrl.layers[:-1]) + [(ctrl.layers[-1][0][:, :k], ctrl.layers[-1][1][:k])]  # the K active logits
+    logits = _mlp(nodes, z, layers, "partition")
+    nodes.append(helper.make_node("ArgMax", [logits], ["cluster"], axis=1, keepdims=0, select_last_index=0))
+    nodes.append(helper.make_node("Gather", [_const(nodes, "b", ctrl.b), "cluster"], ["b_c"], axis=0))
+    if ctrl.L.shape[-1] == 0:  # constant sub-policies: the cluster's action
+        nodes.append(helper.make_node("Identity", ["b_c"], ["action"]))
+        return
+    phi = _features(nodes, ctrl, z)
+    nodes.append(helper.make_node("Gather", [_const(nodes, "L", ctrl.L), "cluster"], ["L_c"], axis=0))
+    axes = _const(nodes, "axis2", np.array([2], np.int64))
+    nodes.append(helper.make_node("Unsqueeze", [phi, axes], ["phi_col"]))
+    nodes.append(helper.make_node("MatMul", ["L_c", "phi_col"], ["Lphi_col"]))
+    nodes.append(helper.make_node("Squeeze", ["Lphi_col", axes], ["Lphi"]))
+    nodes.append(helper.make_node("Add", ["Lphi", "b_c"], ["action"]))
+
+
+def build_model(arrays, layout=None):
+    """onnx.ModelProto of the controller in `arrays` (the export's arrays, see numpy_policy)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from gsa_jax.numpy_policy import Controller
+
+    ctrl = Controller(arrays)
+    d_s = ctrl.obs_mean.shape[0]
+    nodes = []
+    z = _normalize(nodes, ctrl)
+    if ctrl.kind == "mixture":
+        _mixture(nodes, ctrl, z)
+        d_a = ctrl.b.shape[-1]
+    else:
+        out = _mlp(nodes, z, ctrl.layers, "mlp")
+        nodes.append(helper.make_node("Identity", [out], ["action"]))
+        nodes.append(helper.make_node("Shape", ["obs"], ["batch"], start=0, end=1))
+        nodes.append(helper.make_node("ConstantOfShape", ["batch"], ["cluster"],
+                                      value=helper.make_tensor("zero", TensorProto.INT64, [1], [0])))
+        d_a = ctrl.layers[-1][0].shape[1]
+    graph = helper.make_graph(
+        nodes, "gsa_jax_controller",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["N", d_s])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["N", d_a]),
+         helper.make_tensor_value_info("cluster", TensorProto.INT64, ["N"])])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="gsa_jax")
+    model.ir_version = IR_VERSION
+    model.doc_string = describe(arrays)
+    meta = {"config_json": str(arrays["config_json"]) if "config_json" in arrays else "{}"}
+    if layout:
+        meta["observation_layout"] = json.dumps(layout)
+    helper.set_model_props(model, meta)
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+def describe(arrays):
+    """One line saying what the controller is."""
+    meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
+    cfg = meta.get("config", {})
+    kind = str(arrays["kind"])
+    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {arrays['subpolicy'] if 'subpolicy' in arrays else 'linear'} "
+            "controllers (most probable cluster, mean action)" if kind == "mixture" else "tanh MLP (mean action)")
+    return (f"gsa_jax deterministic controller: {what}; task {cfg.get('env', '?')}, seed {meta.get('seed', '?')}, "
+            f"commit {meta.get('git_commit') or '?'}")
+
+
+def to_bytes(arrays, layout=None):
+    """The serialized, checked ONNX model of the controller."""
+    return build_model(arrays, layout).SerializeToString()
