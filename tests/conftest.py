@@ -12,3 +12,27 @@ def _compile_cache(tmp_path_factory):
     jax.config.update("jax_compilation_cache_dir", str(tmp_path_factory.mktemp("xla_cache")))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     yield
+
+
+@pytest.fixture
+def random_hopper_controller(tmp_path):
+    """make(**config) -> path of an exported hopper mixture controller (2 random linear pieces), as
+    `python -m gsa_jax.export` writes it; config entries go into its config (e.g. episode_length)."""
+    import json
+
+    import numpy as np
+
+    from gsa_jax.checkpoint import save_npz_atomic
+
+    def make(**config):
+        rng = np.random.default_rng(0)
+        arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(11, np.float32),
+                  "obs_var": np.ones(11, np.float32), "obs_clip": np.array(10.0, np.float32), "n_layers": np.array(1),
+                  "w0": rng.normal(size=(11, 2)).astype(np.float32), "b0": np.zeros(2, np.float32),
+                  "L": 0.1 * rng.normal(size=(2, 3, 11)).astype(np.float32), "b": np.zeros((2, 3), np.float32),
+                  "config_json": np.array(json.dumps({"config": {"env": "hopper", **config}}))}
+        path = tmp_path / "controller.npz"
+        save_npz_atomic(str(path), **arrays)
+        return path
+
+    return make

@@ -54,18 +54,9 @@ def test_bad_requests_are_one_line_errors(task, env_id, message):
     assert "\n" not in str(e.value)
 
 
-def test_deploy_cli_in_gymnasium(tmp_path):
+def test_deploy_cli_in_gymnasium(tmp_path, random_hopper_controller):
     """A (random) hopper controller in our MuJoCo C port and gymnasium's Hopper-v5 via the CLI, no JAX imported."""
-    from gsa_jax.checkpoint import save_npz_atomic
-
-    rng = np.random.default_rng(0)
-    arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(11, np.float32),
-              "obs_var": np.ones(11, np.float32), "obs_clip": np.array(10.0, np.float32), "n_layers": np.array(1),
-              "w0": rng.normal(size=(11, 2)).astype(np.float32), "b0": np.zeros(2, np.float32),
-              "L": 0.1 * rng.normal(size=(2, 3, 11)).astype(np.float32), "b": np.zeros((2, 3), np.float32),
-              "config_json": np.array(json.dumps({"config": {"env": "hopper"}}))}
-    path = tmp_path / "controller.npz"
-    save_npz_atomic(str(path), **arrays)
+    path = random_hopper_controller()
     code = ("import sys; from gsa_jax.deploy import main; rc = main([sys.argv[1], '--episodes', '3', '--gymnasium', "
             "'Hopper-v5', '--out', sys.argv[2]]); assert 'jax' not in sys.modules, 'jax was imported'; sys.exit(rc)")
     r = subprocess.run([sys.executable, "-c", code, str(path), str(tmp_path / "d.json")], capture_output=True, text=True)

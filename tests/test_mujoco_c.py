@@ -109,18 +109,9 @@ def test_allegro_port_matches_mjx_reset():
         make_c("inverted_double_pendulum")
 
 
-def test_deploy_runs_without_jax_and_reports(tmp_path):
+def test_deploy_runs_without_jax_and_reports(tmp_path, random_hopper_controller):
     """An exported (random) hopper controller runs in MuJoCo C via the CLI, with no JAX module imported."""
-    from gsa_jax.checkpoint import save_npz_atomic
-
-    rng = np.random.default_rng(0)
-    arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(11, np.float32),
-              "obs_var": np.ones(11, np.float32), "obs_clip": np.array(10.0, np.float32), "n_layers": np.array(1),
-              "w0": rng.normal(size=(11, 2)).astype(np.float32), "b0": np.zeros(2, np.float32),
-              "L": 0.1 * rng.normal(size=(2, 3, 11)).astype(np.float32), "b": np.zeros((2, 3), np.float32),
-              "config_json": np.array(json.dumps({"config": {"env": "hopper", "episode_length": 50}}))}
-    path = tmp_path / "controller.npz"
-    save_npz_atomic(str(path), **arrays)
+    path = random_hopper_controller(episode_length=50)
     code = ("import sys; from gsa_jax.deploy import main; rc = main([sys.argv[1], '--episodes', '3', '--out', sys.argv[2]]);"
             "assert 'jax' not in sys.modules, 'jax was imported'; sys.exit(rc)")
     r = subprocess.run([sys.executable, "-c", code, str(path), str(tmp_path / "d.json")], capture_output=True, text=True)
@@ -131,3 +122,6 @@ def test_deploy_runs_without_jax_and_reports(tmp_path):
     assert len(c["returns"]) == 3 and np.isfinite(c["return_mean"])
     bad = subprocess.run([sys.executable, "-m", "gsa_jax.deploy", str(tmp_path / "none.npz")], capture_output=True, text=True)
     assert bad.returncode == 2 and "does not exist" in bad.stderr
+    (tmp_path / "junk.npz").write_bytes(b"junk")  # not a zip: refused in one line, nothing unpickled
+    bad = subprocess.run([sys.executable, "-m", "gsa_jax.deploy", str(tmp_path / "junk.npz")], capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "is not an exported controller" in bad.stderr
