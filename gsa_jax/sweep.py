@@ -125,6 +125,38 @@ def check_spec(raw, source="spec"):
     for p in spec["policies"]:
         if p not in POLICY_KINDS:
             bad("policies", f"unknown policy {p!r}; choose from {', '.join(POLICY_KINDS)}")
+    check_cluster_fields(spec, bad)
+    seeds = spec.get("seeds", 1)
+    if isinstance(seeds, int):
+        if seeds < 1:
+            bad("seeds", f"must be >= 1 or a list of seeds, got {seeds}")
+        seeds = list(range(seeds))
+    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+        bad("seeds", "must be a count >= 1 or a list of non-negative integers")
+    if len(set(seeds)) != len(seeds):
+        bad("seeds", "repeats a seed")
+    spec["seeds"] = seeds
+    if not isinstance(spec.get("steps"), int) or spec["steps"] < 1:
+        bad("steps", f"must be a positive integer, got {spec.get('steps')!r}")
+    if "chunk" in spec and (not isinstance(spec["chunk"], int) or spec["chunk"] < 1):
+        bad("chunk", f"must be a positive integer, got {spec['chunk']!r}")
+    spec["hparams"] = check_hparams_table(spec.get("hparams", {}), bad)
+    cfg = spec.get("config", {})
+    if not isinstance(cfg, dict):
+        bad("config", "must be a table")
+    for k in cfg:
+        if k not in _STATIC_FIELDS:
+            bad(f"config.{k}", f"unknown; allowed: {', '.join(sorted(_STATIC_FIELDS))}")
+    spec["config"] = cfg
+    try:
+        Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
+    except (ValueError, TypeError) as e:
+        bad("config", str(e))
+    return spec
+
+
+def check_cluster_fields(spec, bad):
+    """clusters / cluster_multipliers / subpolicies of a spec, normalized to lists in place."""
     if "mixture" in spec["policies"]:
         if ("clusters" in spec) == ("cluster_multipliers" in spec):
             bad("clusters", "a mixture sweep needs exactly one of 'clusters' (absolute K) or 'cluster_multipliers' (K / action_dim)")
@@ -145,23 +177,13 @@ def check_spec(raw, source="spec"):
         if not subs or any(x not in SUBPOLICY_KINDS for x in subs) or len(set(subs)) != len(subs):
             bad("subpolicies", f"must be distinct names from {', '.join(SUBPOLICY_KINDS)}, got {spec['subpolicies']!r}")
         spec["subpolicies"] = subs
-    seeds = spec.get("seeds", 1)
-    if isinstance(seeds, int):
-        if seeds < 1:
-            bad("seeds", f"must be >= 1 or a list of seeds, got {seeds}")
-        seeds = list(range(seeds))
-    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
-        bad("seeds", "must be a count >= 1 or a list of non-negative integers")
-    if len(set(seeds)) != len(seeds):
-        bad("seeds", "repeats a seed")
-    spec["seeds"] = seeds
-    if not isinstance(spec.get("steps"), int) or spec["steps"] < 1:
-        bad("steps", f"must be a positive integer, got {spec.get('steps')!r}")
-    if "chunk" in spec and (not isinstance(spec["chunk"], int) or spec["chunk"] < 1):
-        bad("chunk", f"must be a positive integer, got {spec['chunk']!r}")
-    hps = spec.get("hparams", {})
+
+
+def check_hparams_table(hps, bad):
+    """The [hparams] table: known names, numbers (or lists of numbers) in their ranges -> {name: [values]}."""
     if not isinstance(hps, dict):
         bad("hparams", "must be a table")
+    out = {}
     for k, v in hps.items():
         if k in ("K", "total_iterations"):
             bad(f"hparams.{k}", "is set by the sweep (use 'clusters'/'cluster_multipliers' and 'steps')")
@@ -175,20 +197,8 @@ def check_spec(raw, source="spec"):
                 check_hparam(k, x)
             except ValueError as e:
                 bad(f"hparams.{k}", str(e))
-        hps[k] = values
-    spec["hparams"] = hps
-    cfg = spec.get("config", {})
-    if not isinstance(cfg, dict):
-        bad("config", "must be a table")
-    for k in cfg:
-        if k not in _STATIC_FIELDS:
-            bad(f"config.{k}", f"unknown; allowed: {', '.join(sorted(_STATIC_FIELDS))}")
-    spec["config"] = cfg
-    try:
-        Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
-    except (ValueError, TypeError) as e:
-        bad("config", str(e))
-    return spec
+        out[k] = values
+    return out
 
 
 def action_size(env_name):
@@ -580,6 +590,17 @@ def check_same_spec(meta_path, spec, force):
                         "--out, or --force to continue it with the new spec")
 
 
+def write_sweep_meta(root, spec, groups, num_processes, force):
+    """sweep.json: spec, every run, versions, commit (a resumed sweep must have the same spec, unless force)."""
+    from gsa_jax.runinfo import run_metadata
+
+    meta_path = os.path.join(root, "sweep.json")
+    if os.path.exists(meta_path):
+        check_same_spec(meta_path, spec, force)
+    meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes, **run_metadata()}
+    write_atomic(meta_path, json.dumps(meta, indent=1))
+
+
 def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
               run_batch=RUN_BATCH, local_workers=True, force=False):
     """Train every group of the spec (this process's share of each). Returns True when all groups are done;
@@ -589,7 +610,6 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     import jax
 
     from gsa_jax import xla_cache
-    from gsa_jax.runinfo import run_metadata
 
     prefix = f"[process {process_id}] " if num_processes > 1 else ""
 
@@ -603,13 +623,8 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
         out = os.path.join(out, f"process-{process_id}")
     os.makedirs(out, exist_ok=True)
     groups = build_grid(spec)
-    meta_path = os.path.join(root, "sweep.json")
     if process_id == 0:
-        if os.path.exists(meta_path):
-            check_same_spec(meta_path, spec, force)
-        meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes,
-                **run_metadata()}
-        write_atomic(meta_path, json.dumps(meta, indent=1))
+        write_sweep_meta(root, spec, groups, num_processes, force)
     total_runs = sum(len(r) for _, _, r in groups)
     log(f"sweep {spec['name']}: {total_runs} runs in {len(groups)} group(s) on {len(devices)} device(s)"
         + (f", process {process_id}/{num_processes}" if num_processes > 1 else "") + f" -> {out}")
