@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import sys
+import zipfile
 
 import numpy as np
 
@@ -36,6 +37,8 @@ def load_controller(controller_path):
 
     if not os.path.exists(controller_path):
         raise DeployError(f"{controller_path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
+    if not zipfile.is_zipfile(controller_path):
+        raise DeployError(f"{controller_path!r} is not an exported controller (not an .npz archive)")
     try:
         ctrl = numpy_policy.load(controller_path)
         with np.load(controller_path, allow_pickle=False) as f:

@@ -11,6 +11,7 @@ import argparse
 import json
 import os
 import sys
+import zipfile
 
 import numpy as np
 
@@ -68,6 +69,8 @@ SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
 def load_arrays(source):
     """Controller arrays of a run directory or of an exported controller .npz."""
     if os.path.isfile(source) and source.endswith(".npz"):
+        if not zipfile.is_zipfile(source):
+            raise ExportError(f"{source!r} is not an exported controller (not an .npz archive)")
         try:
             with np.load(source, allow_pickle=False) as f:
                 arrays = {k: f[k] for k in f.files}
