@@ -439,7 +439,7 @@ def positive_ints(flag, text, default):
     return values
 
 
-def main(argv=None):
+def build_parser():
     p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true",
                    help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
@@ -467,39 +467,24 @@ def main(argv=None):
                  ("--worker-id", int), ("--num-workers", int), ("--batch", int), ("--epochs", int),
                  ("--solver-iterations", int), ("--ls-iterations", int)):
         p.add_argument(a, type=t, default=None, help=argparse.SUPPRESS)
-    args = p.parse_args(argv)
-    if args.run_batch is None:
-        from gsa_jax.sweep import RUN_BATCH
+    return p
 
-        args.run_batch = RUN_BATCH
-    if args.worker or args.raw_worker:
-        args.repeats = args.repeats or 3
-        (worker if args.worker else raw_worker)(args)
-        return 0
 
+def make_plan(args):
+    """What to measure: {sizes, procs, batches, policies, variant, repeats, plan, raw_plan}; ValueError on bad input."""
     import envs
 
-    try:
-        envs.check_name(args.env)
-    except ValueError as e:
-        print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
-        return 2
+    from gsa_jax.sweep import check_spec
+
+    envs.check_name(args.env)
     cores = os.cpu_count() or 1
     policies = args.policies.split(",") if args.policies else ["mixture"]
-    profile_runs = args.profile_runs
-    repeats = args.repeats or (2 if args.quick else 3)
-    try:
-        sizes = positive_ints("--sizes", args.sizes, list(QUICK_SIZES if args.quick else SIZES))
-        procs = positive_ints("--processes", args.processes, sorted({1, cores}))
-        batches = positive_ints("--raw-batches", args.raw_batches, [256] if args.quick else list(RAW_BATCHES))
-        variant = parse_solver_variant(args.solver_variant, args.quick)
-        from gsa_jax.sweep import check_spec
-
-        for pol in policies:  # the sweeps' own validation, before anything compiles
-            check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1}, source="bench")
-    except ValueError as e:
-        print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
-        return 2
+    sizes = positive_ints("--sizes", args.sizes, list(QUICK_SIZES if args.quick else SIZES))
+    procs = positive_ints("--processes", args.processes, sorted({1, cores}))
+    batches = positive_ints("--raw-batches", args.raw_batches, [256] if args.quick else list(RAW_BATCHES))
+    variant = parse_solver_variant(args.solver_variant, args.quick)
+    for pol in policies:  # the sweeps' own validation, before anything compiles
+        check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1}, source="bench")
     plan = [(pol, n, k, None) for pol in policies for n in sizes for k in procs if k <= n]
     raw_plan = [(b, k, None) for b in batches for k in procs if k <= b]
     if args.quick and not args.processes:  # under 3 min: each size on as many processes as it can use
@@ -511,78 +496,120 @@ def main(argv=None):
     if variant:
         plan += [("mixture", max(sizes), k_all, variant)]
         raw_plan += [(max(batches), max(k for k in procs if k <= max(batches)), variant)]
-    print(f"gsa_jax.bench: {args.env}: raw stepping at batch {batches}, {len(plan)} sweep configurations (runs {sizes}, "
-          f"policies {policies}, processes {procs})" + (f", a time profile at {profile_runs} runs" if profile_runs else "")
-          + (f", the largest sizes again with {variant[0]} solver / {variant[1]} line-search iterations" if variant else "")
-          + f"; {repeats} timed chunks each (median); about {estimate_s(plan, raw_plan, profile_runs, repeats) / 60:.0f} min",
-          flush=True)
-    from gsa_jax.runinfo import run_metadata
+    return {"sizes": sizes, "procs": procs, "batches": batches, "policies": policies, "variant": variant,
+            "repeats": args.repeats or (2 if args.quick else 3), "plan": plan, "raw_plan": raw_plan}
 
-    os.makedirs(args.out, exist_ok=True)
-    t_start = time.perf_counter()
-    mujoco_c = measure_mujoco_c(args.env)
-    c_sps = mujoco_c["env_steps_per_s"]
-    print(f"MuJoCo C rollout: {c_sps:,.0f} env-steps/s ({mujoco_c['threads']} threads, "
+
+def add_ratios(r, c_ref, solver):
+    """ratio_vs_mujoco_c: against MuJoCo C with the same solver settings (the same simulator);
+    ratio_vs_mujoco_c_task_solver: against MuJoCo C with the MJCF's own (differs for the variant)."""
+    r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_ref[solver]["env_steps_per_s"]
+    r["ratio_vs_mujoco_c_task_solver"] = r["env_steps_per_s"] / c_ref[None]["env_steps_per_s"]
+
+
+def solver_tag(solver):
+    return f"  solver {solver[0]}/{solver[1]}" if solver else ""
+
+
+def measure_references(env, variant):
+    """MuJoCo C's rate with the task's solver (key None) and, if asked, with the variant's."""
+    mujoco_c = measure_mujoco_c(env)
+    print(f"MuJoCo C rollout: {mujoco_c['env_steps_per_s']:,.0f} env-steps/s ({mujoco_c['threads']} threads, "
           f"batch {mujoco_c['batch']}, {mujoco_c['substeps_per_env_step']} substeps)", flush=True)
     c_ref = {None: mujoco_c}
     if variant:
-        c_ref[variant] = measure_mujoco_c(args.env, solver=variant)
+        c_ref[variant] = measure_mujoco_c(env, solver=variant)
         print(f"MuJoCo C rollout with {variant[0]} solver / {variant[1]} line-search iterations: "
               f"{c_ref[variant]['env_steps_per_s']:,.0f} env-steps/s", flush=True)
-    report = {"env": args.env, "quick": args.quick, "repeats": repeats, "run_batch": args.run_batch, "mujoco_c": mujoco_c,
-              "raw": [], "sweeps": [],
-              **({"mujoco_c_solver_variant": c_ref[variant]} if variant else {}), **run_metadata()}
+    return c_ref
 
-    def add_ratios(r, solver):
-        """ratio_vs_mujoco_c: against MuJoCo C with the same solver settings (the same simulator);
-        ratio_vs_mujoco_c_task_solver: against MuJoCo C with the MJCF's own (differs for the variant)."""
-        r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_ref[solver]["env_steps_per_s"]
-        r["ratio_vs_mujoco_c_task_solver"] = r["env_steps_per_s"] / c_sps
 
-    def solver_tag(solver):
-        return f"  solver {solver[0]}/{solver[1]}" if solver else ""
-
-    def save():
-        report["wall_s"] = time.perf_counter() - t_start
-        write_atomic(os.path.join(args.out, "bench.json"), json.dumps(report, indent=1))
-
+def measure_raw_plan(args, info, report, c_ref, save):
     print(f"{'raw MJX':8} {'batch':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9}", flush=True)
-    for b, k, sol in raw_plan:
+    for b, k, sol in info["raw_plan"]:
         try:
-            r = measure_raw(args.env, b, k, repeats, solver=sol)
-            add_ratios(r, sol)
+            r = measure_raw(args.env, b, k, info["repeats"], solver=sol)
+            add_ratios(r, c_ref, sol)
             print(f"{'':8} {b:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} {r['compile_s']:9.1f}"
                   + solver_tag(sol), flush=True)
         except BenchError as e:
             r = {"env": args.env, "batch": b, "processes": k, **_solver_field(sol), "error": str(e)}
         report["raw"].append(r)
         save()
+
+
+def measure_sweep_plan(args, info, report, c_ref, save):
     print(f"{'policy':8} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} {'peak_MiB':>9}", flush=True)
-    for pol, n, k, sol in plan:
+    for pol, n, k, sol in info["plan"]:
         try:
-            r = measure_sweep(args.env, pol, n, k, reps(repeats, n, args.repeats is not None), solver=sol,
+            r = measure_sweep(args.env, pol, n, k, reps(info["repeats"], n, args.repeats is not None), solver=sol,
                               run_batch=args.run_batch)
-            add_ratios(r, sol)
+            add_ratios(r, c_ref, sol)
             print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
                   f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)
         except BenchError as e:
             r = {"env": args.env, "policy": pol, "runs": n, "processes": k, **_solver_field(sol), "error": str(e)}
         report["sweeps"].append(r)
         save()
-    if profile_runs:
-        try:
-            prof = time_profile(args.env, "mixture", profile_runs, repeats, args.run_batch)
-            f = prof["fractions"]
-            print(f"time profile (mixture, {profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
-                  f"physics {f['physics']:.0%}, rest of rollout (policy, normalization, GAE) {f['rollout_other']:.0%}, "
-                  f"PPO update ({prof['num_epochs']} epochs) {f['update']:.0%}", flush=True)
-            if "error" not in mujoco_c:
-                prof.update(ratio_ceiling(prof, mujoco_c))
-                print(f"with physics as cheap as MuJoCo C's and this policy + PPO update, ours / MuJoCo C could reach at most "
-                      f"{prof['ratio_ceiling_with_mujoco_c_physics']:.2f}", flush=True)
-        except BenchError as e:
-            prof = {"error": str(e)}
-        report["profile"] = prof
+
+
+def measure_profile(args, repeats, mujoco_c):
+    """The time profile at --profile-runs runs, with the ratio ceiling when MuJoCo C was measured."""
+    try:
+        prof = time_profile(args.env, "mixture", args.profile_runs, repeats, args.run_batch)
+        f = prof["fractions"]
+        print(f"time profile (mixture, {args.profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
+              f"physics {f['physics']:.0%}, rest of rollout (policy, normalization, GAE) {f['rollout_other']:.0%}, "
+              f"PPO update ({prof['num_epochs']} epochs) {f['update']:.0%}", flush=True)
+        if "error" not in mujoco_c:
+            prof.update(ratio_ceiling(prof, mujoco_c))
+            print(f"with physics as cheap as MuJoCo C's and this policy + PPO update, ours / MuJoCo C could reach at most "
+                  f"{prof['ratio_ceiling_with_mujoco_c_physics']:.2f}", flush=True)
+    except BenchError as e:
+        prof = {"error": str(e)}
+    return prof
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    if args.run_batch is None:
+        from gsa_jax.sweep import RUN_BATCH
+
+        args.run_batch = RUN_BATCH
+    if args.worker or args.raw_worker:
+        args.repeats = args.repeats or 3
+        (worker if args.worker else raw_worker)(args)
+        return 0
+    try:
+        info = make_plan(args)
+    except ValueError as e:
+        print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
+        return 2
+    plan, raw_plan, variant, repeats = info["plan"], info["raw_plan"], info["variant"], info["repeats"]
+    print(f"gsa_jax.bench: {args.env}: raw stepping at batch {info['batches']}, {len(plan)} sweep configurations (runs "
+          f"{info['sizes']}, policies {info['policies']}, processes {info['procs']})"
+          + (f", a time profile at {args.profile_runs} runs" if args.profile_runs else "")
+          + (f", the largest sizes again with {variant[0]} solver / {variant[1]} line-search iterations" if variant else "")
+          + f"; {repeats} timed chunks each (median); about {estimate_s(plan, raw_plan, args.profile_runs, repeats) / 60:.0f} min",
+          flush=True)
+    from gsa_jax.runinfo import run_metadata
+
+    os.makedirs(args.out, exist_ok=True)
+    t_start = time.perf_counter()
+    c_ref = measure_references(args.env, variant)
+    mujoco_c = c_ref[None]
+    report = {"env": args.env, "quick": args.quick, "repeats": repeats, "run_batch": args.run_batch, "mujoco_c": mujoco_c,
+              "raw": [], "sweeps": [],
+              **({"mujoco_c_solver_variant": c_ref[variant]} if variant else {}), **run_metadata()}
+
+    def save():
+        report["wall_s"] = time.perf_counter() - t_start
+        write_atomic(os.path.join(args.out, "bench.json"), json.dumps(report, indent=1))
+
+    measure_raw_plan(args, info, report, c_ref, save)
+    measure_sweep_plan(args, info, report, c_ref, save)
+    if args.profile_runs:
+        report["profile"] = measure_profile(args, repeats, mujoco_c)
         save()
     plot(report["sweeps"], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"), report.get("mujoco_c_solver_variant"))
     print(f"wrote {args.out}/bench.json and bench.png in {(time.perf_counter() - t_start) / 60:.1f} min", flush=True)

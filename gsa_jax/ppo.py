@@ -18,6 +18,7 @@ by their factors every iteration.
 """
 
 import dataclasses
+import functools
 import math
 from typing import Callable, NamedTuple
 
@@ -208,193 +209,220 @@ def make_env(cfg, auto_reset=True):
     return envs.make(cfg.env, cfg.episode_length, auto_reset, cfg.solver_iterations, cfg.ls_iterations)
 
 
+class Parts(NamedTuple):
+    """What the pieces of a training run share: the static Config, the tasks and the policy with its vmapped methods."""
+    cfg: Config
+    env: object
+    eval_env: object
+    policy: object
+    obs_size: int
+    v_sample: Callable
+    v_log_prob: Callable
+    v_mode: Callable
+    v_probs: Callable
+
+
+def value(params, obs):
+    """V(obs) of the value MLP: [..., d_s] -> [...]."""
+    return apply_mlp(params, obs)[..., 0]
+
+
+def norm_obs(cfg, stats, obs):
+    return normalize(stats, obs) if cfg.normalize_obs else obs
+
+
+def init_state(p, key, hp):
+    """The initial training state of one run."""
+    k_pol, k_val, k_env, k_run = jax.random.split(key, 4)
+    params = {
+        "policy": p.policy.init(k_pol, hp),
+        "value": init_mlp(k_val, (p.obs_size, *p.cfg.hidden, 1), out_scale=1.0),
+    }
+    return {
+        "params": params,
+        "opt": init_adam(params),
+        "obs_stats": init_stats(p.obs_size),
+        "ret_stats": init_stats(None),
+        "env_state": jax.vmap(p.env.reset)(jax.random.split(k_env, p.cfg.num_envs)),
+        "ep_return": jnp.zeros((p.cfg.num_envs,), jnp.float32),
+        "disc_return": jnp.zeros((p.cfg.num_envs,), jnp.float32),
+        "key": k_run,
+        "iteration": jnp.zeros((), jnp.int32),
+        "failed_at": jnp.full((), -1, jnp.int32),  # the iteration whose loss or parameters were non-finite
+    }
+
+
+def rollout(p, state, hp, sched, key):
+    """cfg.unroll_length steps of cfg.num_envs envs -> (final carry, trajectory dict [T, N, ...])."""
+    params = state["params"]["policy"]
+
+    def step(carry, k):
+        env_state, ep_ret, disc_ret, fin_sum, fin_cnt = carry
+        obs = norm_obs(p.cfg, state["obs_stats"], env_state.obs)
+        action, cluster, logp = p.v_sample(params, obs, jax.random.split(k, p.cfg.num_envs), sched)
+        nxt = jax.vmap(p.env.step)(env_state, jnp.clip(action, -1.0, 1.0))
+        r, done = nxt.reward, nxt.done
+        ep_ret = ep_ret + r
+        fin_sum = fin_sum + jnp.sum(done * ep_ret)
+        fin_cnt = fin_cnt + jnp.sum(done)
+        disc_ret = disc_ret * hp["gamma"] + r
+        tr = {
+            "raw_obs": env_state.obs,
+            "obs": obs,
+            "next_obs": norm_obs(p.cfg, state["obs_stats"], nxt.info["final_obs"]),
+            "action": action,
+            "cluster": cluster,
+            "logp": logp,
+            "reward": r,
+            "done": done,
+            "term": done * (1.0 - nxt.info["truncation"]),
+            "disc_return": disc_ret,
+        }
+        carry = (nxt, ep_ret * (1.0 - done), disc_ret * (1.0 - done), fin_sum, fin_cnt)
+        return carry, tr
+
+    carry0 = (state["env_state"], state["ep_return"], state["disc_return"], 0.0, 0.0)
+    carry, traj = jax.lax.scan(step, carry0, jax.random.split(key, p.cfg.unroll_length))
+    return carry, traj
+
+
+def ppo_loss(p, params, mb, hp, sched):
+    """Clipped surrogate on the joint log-probability of (cluster, action) + vf_coef x value loss; (loss, aux)."""
+    logp = p.v_log_prob(params["policy"], mb["obs"], mb["action"], mb["cluster"], sched)
+    log_ratio = logp - mb["logp"]
+    ratio = jnp.exp(log_ratio)
+    adv = (mb["adv"] - jnp.mean(mb["adv"])) / (jnp.std(mb["adv"]) + 1e-8)
+    clipped = jnp.clip(ratio, 1.0 - hp["clip_eps"], 1.0 + hp["clip_eps"])
+    pg_loss = -jnp.mean(jnp.minimum(ratio * adv, clipped * adv))
+    v_loss = 0.5 * jnp.mean(jnp.square(value(params["value"], mb["obs"]) - mb["target"]))
+    aux = {
+        "policy_loss": pg_loss,
+        "value_loss": v_loss,
+        "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
+        "clip_fraction": jnp.mean((jnp.abs(ratio - 1.0) > hp["clip_eps"]).astype(jnp.float32)),
+    }
+    return pg_loss + hp["vf_coef"] * v_loss, aux
+
+
+def sgd_update(p, params, opt, batch, hp, sched, lr, key):
+    """cfg.num_epochs epochs of shuffled minibatch Adam steps -> (params, opt, mean stats)."""
+
+    def minibatch(carry, mb):
+        params, opt = carry
+        grads, aux = jax.grad(lambda prm: ppo_loss(p, prm, mb, hp, sched), has_aux=True)(params)
+        grads, gnorm = clip_by_global_norm(grads, hp["max_grad_norm"])
+        params, opt = adam_step(params, grads, opt, lr)
+        return (params, opt), dict(aux, grad_norm=gnorm)
+
+    def epoch(carry, k):
+        perm = jax.random.permutation(k, p.cfg.batch_size)
+        mbs = jax.tree.map(
+            lambda x: x[perm].reshape((p.cfg.num_minibatches, p.cfg.minibatch_size) + x.shape[1:]), batch
+        )
+        return jax.lax.scan(minibatch, carry, mbs)
+
+    (params, opt), stats = jax.lax.scan(epoch, (params, opt), jax.random.split(key, p.cfg.num_epochs))
+    return params, opt, jax.tree.map(jnp.mean, stats)
+
+
+def ppo_iteration(p, state, hp):
+    """One PPO iteration. Returns (new state, dict of scalar metrics)."""
+    it = state["iteration"]
+    sched = schedule(hp, it)
+    key, k_roll, k_upd = jax.random.split(state["key"], 3)
+    (env_state, ep_ret, disc_ret, fin_sum, fin_cnt), traj = rollout(p, state, hp, sched, k_roll)
+
+    params = state["params"]
+    ret_stats = update_stats(state["ret_stats"], traj["disc_return"])
+    ret_scale = jnp.sqrt(ret_stats["var"] + 1e-8) if p.cfg.normalize_reward else 1.0
+    values = value(params["value"], traj["obs"])
+    next_values = value(params["value"], traj["next_obs"])
+    adv, target = compute_gae(
+        traj["reward"] / ret_scale, values, next_values, traj["term"], traj["done"], hp["gamma"], hp["gae_lambda"]
+    )
+    batch = {
+        "obs": traj["obs"],
+        "action": traj["action"],
+        "cluster": traj["cluster"],
+        "logp": traj["logp"],
+        "adv": adv,
+        "target": target,
+    }
+    batch = jax.tree.map(lambda x: x.reshape((p.cfg.batch_size,) + x.shape[2:]), batch)
+    frac = it.astype(jnp.float32) / jnp.maximum(hp["total_iterations"], 1).astype(jnp.float32)
+    lr = hp["lr"] * (1.0 - hp["anneal_lr"] * jnp.clip(frac, 0.0, 1.0))
+    new_params, opt, stats = sgd_update(p, params, state["opt"], batch, hp, sched, lr, k_upd)
+
+    probs = p.v_probs(params["policy"], traj["obs"].reshape(-1, p.obs_size), sched)
+    usage = jnp.mean(jax.nn.one_hot(traj["cluster"].reshape(-1), probs.shape[-1]), axis=0)
+    new_state = {
+        "params": new_params,
+        "opt": opt,
+        "obs_stats": update_stats(state["obs_stats"], traj["raw_obs"]) if p.cfg.normalize_obs else state["obs_stats"],
+        "ret_stats": ret_stats,
+        "env_state": env_state,
+        "ep_return": ep_ret,
+        "disc_return": disc_ret,
+        "key": key,
+        "iteration": it + 1,
+        "failed_at": state["failed_at"],
+    }
+    metrics = {
+        "iteration": it + 1,
+        "env_steps": (it + 1) * p.cfg.batch_size,
+        "episode_return": jnp.where(fin_cnt > 0, fin_sum / jnp.maximum(fin_cnt, 1.0), jnp.nan),
+        "episodes": fin_cnt,
+        "epsilon": sched["epsilon"],
+        "sigma_min": sched["sigma_min"],
+        "lr": lr,
+        "partition_entropy": jnp.mean(partition_entropy(probs)),
+        "clusters_used": jnp.sum(usage >= 0.01).astype(jnp.int32),
+        **stats,
+    }
+    return new_state, metrics
+
+
+def run_chunk(p, state, hp, num_iterations):
+    """num_iterations (static) PPO iterations in one lax.scan; metrics stacked [num_iterations]."""
+    iteration = functools.partial(ppo_iteration, p)
+    return jax.lax.scan(lambda s, _: guarded_iteration(iteration, s, hp), state, None, length=num_iterations)
+
+
+def evaluate(p, params, obs_stats, hp, key):
+    """Mean return of the deterministic controller (most probable cluster, mean action) over
+    p.cfg.eval_envs full episodes from random starts."""
+    sched = schedule(hp, jnp.zeros((), jnp.int32))
+    s0 = jax.vmap(p.eval_env.reset)(jax.random.split(key, p.cfg.eval_envs))
+
+    def cond(carry):
+        _, _, alive, t = carry
+        return (t < p.cfg.episode_length) & jnp.any(alive > 0)
+
+    def body(carry):
+        s, ret, alive, t = carry
+        action, _ = p.v_mode(params["policy"], norm_obs(p.cfg, obs_stats, s.obs), sched)
+        s = jax.vmap(p.eval_env.step)(s, jnp.clip(action, -1.0, 1.0))
+        ret = ret + alive * s.reward
+        return s, ret, alive * (1.0 - s.done), t + 1
+
+    # stop once every episode has ended: stepping finished envs is wasted work (and fallen
+    # bodies pressed against limits make MJX's solver loop run long)
+    zeros = jnp.zeros((p.cfg.eval_envs,), jnp.float32)
+    _, ret, _, _ = jax.lax.while_loop(cond, body, (s0, zeros, zeros + 1.0, jnp.zeros((), jnp.int32)))
+    return jnp.mean(ret)
+
+
 def make_train(cfg):
-    """Build the pure functions of one training run for a static Config."""
+    """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...)."""
     cfg.validate()
     env, eval_env = make_env(cfg), make_env(cfg, auto_reset=False)
-    obs_size, action_size = env.observation_size, env.action_size
-    policy = make_policy(cfg.policy, obs_size, action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale, cfg.subpolicy)
-    n, t_len = cfg.num_envs, cfg.unroll_length
-    v_sample = jax.vmap(policy.sample, in_axes=(None, 0, 0, None))
-    v_log_prob = jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None))
-    v_mode = jax.vmap(policy.mode, in_axes=(None, 0, None))
-    v_probs = jax.vmap(policy.partition_probs, in_axes=(None, 0, None))
-
-    def value(params, obs):
-        return apply_mlp(params, obs)[..., 0]
-
-    def norm_obs(stats, obs):
-        return normalize(stats, obs) if cfg.normalize_obs else obs
-
-    def init(key, hp):
-        k_pol, k_val, k_env, k_run = jax.random.split(key, 4)
-        params = {
-            "policy": policy.init(k_pol, hp),
-            "value": init_mlp(k_val, (obs_size, *cfg.hidden, 1), out_scale=1.0),
-        }
-        return {
-            "params": params,
-            "opt": init_adam(params),
-            "obs_stats": init_stats(obs_size),
-            "ret_stats": init_stats(None),
-            "env_state": jax.vmap(env.reset)(jax.random.split(k_env, n)),
-            "ep_return": jnp.zeros((n,), jnp.float32),
-            "disc_return": jnp.zeros((n,), jnp.float32),
-            "key": k_run,
-            "iteration": jnp.zeros((), jnp.int32),
-            "failed_at": jnp.full((), -1, jnp.int32),  # the iteration whose loss or parameters were non-finite
-        }
-
-    def rollout(state, hp, sched, key):
-        params = state["params"]["policy"]
-
-        def step(carry, k):
-            env_state, ep_ret, disc_ret, fin_sum, fin_cnt = carry
-            obs = norm_obs(state["obs_stats"], env_state.obs)
-            action, cluster, logp = v_sample(params, obs, jax.random.split(k, n), sched)
-            nxt = jax.vmap(env.step)(env_state, jnp.clip(action, -1.0, 1.0))
-            r, done = nxt.reward, nxt.done
-            ep_ret = ep_ret + r
-            fin_sum = fin_sum + jnp.sum(done * ep_ret)
-            fin_cnt = fin_cnt + jnp.sum(done)
-            disc_ret = disc_ret * hp["gamma"] + r
-            tr = {
-                "raw_obs": env_state.obs,
-                "obs": obs,
-                "next_obs": norm_obs(state["obs_stats"], nxt.info["final_obs"]),
-                "action": action,
-                "cluster": cluster,
-                "logp": logp,
-                "reward": r,
-                "done": done,
-                "term": done * (1.0 - nxt.info["truncation"]),
-                "disc_return": disc_ret,
-            }
-            carry = (nxt, ep_ret * (1.0 - done), disc_ret * (1.0 - done), fin_sum, fin_cnt)
-            return carry, tr
-
-        carry0 = (state["env_state"], state["ep_return"], state["disc_return"], 0.0, 0.0)
-        carry, traj = jax.lax.scan(step, carry0, jax.random.split(key, t_len))
-        return carry, traj
-
-    def loss_fn(params, mb, hp, sched):
-        logp = v_log_prob(params["policy"], mb["obs"], mb["action"], mb["cluster"], sched)
-        log_ratio = logp - mb["logp"]
-        ratio = jnp.exp(log_ratio)
-        adv = (mb["adv"] - jnp.mean(mb["adv"])) / (jnp.std(mb["adv"]) + 1e-8)
-        clipped = jnp.clip(ratio, 1.0 - hp["clip_eps"], 1.0 + hp["clip_eps"])
-        pg_loss = -jnp.mean(jnp.minimum(ratio * adv, clipped * adv))
-        v_loss = 0.5 * jnp.mean(jnp.square(value(params["value"], mb["obs"]) - mb["target"]))
-        aux = {
-            "policy_loss": pg_loss,
-            "value_loss": v_loss,
-            "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
-            "clip_fraction": jnp.mean((jnp.abs(ratio - 1.0) > hp["clip_eps"]).astype(jnp.float32)),
-        }
-        return pg_loss + hp["vf_coef"] * v_loss, aux
-
-    def update(params, opt, batch, hp, sched, lr, key):
-        def minibatch(carry, mb):
-            params, opt = carry
-            grads, aux = jax.grad(loss_fn, has_aux=True)(params, mb, hp, sched)
-            grads, gnorm = clip_by_global_norm(grads, hp["max_grad_norm"])
-            params, opt = adam_step(params, grads, opt, lr)
-            return (params, opt), dict(aux, grad_norm=gnorm)
-
-        def epoch(carry, k):
-            perm = jax.random.permutation(k, cfg.batch_size)
-            mbs = jax.tree.map(
-                lambda x: x[perm].reshape((cfg.num_minibatches, cfg.minibatch_size) + x.shape[1:]), batch
-            )
-            return jax.lax.scan(minibatch, carry, mbs)
-
-        (params, opt), stats = jax.lax.scan(epoch, (params, opt), jax.random.split(key, cfg.num_epochs))
-        return params, opt, jax.tree.map(jnp.mean, stats)
-
-    def iteration(state, hp):
-        """One PPO iteration. Returns (new state, dict of scalar metrics)."""
-        it = state["iteration"]
-        sched = schedule(hp, it)
-        key, k_roll, k_upd = jax.random.split(state["key"], 3)
-        (env_state, ep_ret, disc_ret, fin_sum, fin_cnt), traj = rollout(state, hp, sched, k_roll)
-
-        params = state["params"]
-        ret_stats = update_stats(state["ret_stats"], traj["disc_return"])
-        ret_scale = jnp.sqrt(ret_stats["var"] + 1e-8) if cfg.normalize_reward else 1.0
-        values = value(params["value"], traj["obs"])
-        next_values = value(params["value"], traj["next_obs"])
-        adv, target = compute_gae(
-            traj["reward"] / ret_scale, values, next_values, traj["term"], traj["done"], hp["gamma"], hp["gae_lambda"]
-        )
-        batch = {
-            "obs": traj["obs"],
-            "action": traj["action"],
-            "cluster": traj["cluster"],
-            "logp": traj["logp"],
-            "adv": adv,
-            "target": target,
-        }
-        batch = jax.tree.map(lambda x: x.reshape((cfg.batch_size,) + x.shape[2:]), batch)
-        frac = it.astype(jnp.float32) / jnp.maximum(hp["total_iterations"], 1).astype(jnp.float32)
-        lr = hp["lr"] * (1.0 - hp["anneal_lr"] * jnp.clip(frac, 0.0, 1.0))
-        new_params, opt, stats = update(params, state["opt"], batch, hp, sched, lr, k_upd)
-
-        probs = v_probs(params["policy"], traj["obs"].reshape(-1, obs_size), sched)
-        usage = jnp.mean(jax.nn.one_hot(traj["cluster"].reshape(-1), probs.shape[-1]), axis=0)
-        new_state = {
-            "params": new_params,
-            "opt": opt,
-            "obs_stats": update_stats(state["obs_stats"], traj["raw_obs"]) if cfg.normalize_obs else state["obs_stats"],
-            "ret_stats": ret_stats,
-            "env_state": env_state,
-            "ep_return": ep_ret,
-            "disc_return": disc_ret,
-            "key": key,
-            "iteration": it + 1,
-            "failed_at": state["failed_at"],
-        }
-        metrics = {
-            "iteration": it + 1,
-            "env_steps": (it + 1) * cfg.batch_size,
-            "episode_return": jnp.where(fin_cnt > 0, fin_sum / jnp.maximum(fin_cnt, 1.0), jnp.nan),
-            "episodes": fin_cnt,
-            "epsilon": sched["epsilon"],
-            "sigma_min": sched["sigma_min"],
-            "lr": lr,
-            "partition_entropy": jnp.mean(partition_entropy(probs)),
-            "clusters_used": jnp.sum(usage >= 0.01).astype(jnp.int32),
-            **stats,
-        }
-        return new_state, metrics
-
-    def run_chunk(state, hp, num_iterations):
-        """num_iterations (static) PPO iterations in one lax.scan; metrics stacked [num_iterations]."""
-        return jax.lax.scan(lambda s, _: guarded_iteration(iteration, s, hp), state, None, length=num_iterations)
-
-    def evaluate(params, obs_stats, hp, key):
-        """Mean return of the deterministic controller (most probable cluster, mean action) over
-        cfg.eval_envs full episodes from random starts."""
-        sched = schedule(hp, jnp.zeros((), jnp.int32))
-        s0 = jax.vmap(eval_env.reset)(jax.random.split(key, cfg.eval_envs))
-
-        def cond(carry):
-            _, _, alive, t = carry
-            return (t < cfg.episode_length) & jnp.any(alive > 0)
-
-        def body(carry):
-            s, ret, alive, t = carry
-            action, _ = v_mode(params["policy"], norm_obs(obs_stats, s.obs), sched)
-            s = jax.vmap(eval_env.step)(s, jnp.clip(action, -1.0, 1.0))
-            ret = ret + alive * s.reward
-            return s, ret, alive * (1.0 - s.done), t + 1
-
-        # stop once every episode has ended: stepping finished envs is wasted work (and fallen
-        # bodies pressed against limits make MJX's solver loop run long)
-        zeros = jnp.zeros((cfg.eval_envs,), jnp.float32)
-        _, ret, _, _ = jax.lax.while_loop(cond, body, (s0, zeros, zeros + 1.0, jnp.zeros((), jnp.int32)))
-        return jnp.mean(ret)
-
-    return Trainer(cfg, env, policy, init, iteration, run_chunk, evaluate, value)
+    policy = make_policy(cfg.policy, env.observation_size, env.action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale,
+                         cfg.subpolicy)
+    p = Parts(cfg, env, eval_env, policy, env.observation_size,
+              jax.vmap(policy.sample, in_axes=(None, 0, 0, None)), jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None)),
+              jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
+    bind = functools.partial
+    return Trainer(cfg, env, policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p), value)
 
 
 def all_finite(tree):
