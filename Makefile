@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
 .PHONY: install demo test sweep figures bench bench-quick profile scene clean
-EXP ?= experiments/fig1_small.toml
+EXP ?= experiments/fig1_small/fig1_small.toml
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -23,7 +23,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests -m "not benchmark"
 
-## sweep: train an experiment's whole grid as vmapped programs (make sweep EXP=experiments/fig1.toml)
+## sweep: train an experiment's whole grid as vmapped programs (make sweep EXP=experiments/fig1/fig1.toml)
 sweep: $(STAMP)
 	$(BIN)/python -m gsa_jax.sweep $(EXP)
 
@@ -48,7 +48,7 @@ scene: $(STAMP)
 	@ldconfig -p | grep -q libOSMesa || (apt-get install -y -q libosmesa6 >/dev/null || sudo apt-get install -y -q libosmesa6 >/dev/null) \
 		|| (echo "could not install libosmesa6; install it (Debian/Ubuntu: apt-get install libosmesa6) and re-run" && false)
 	@mkdir -p runs
-	MUJOCO_GL=osmesa $(BIN)/python -m envs.render allegro_cylinder --out runs/allegro_scene.png
+	MUJOCO_GL=osmesa $(BIN)/python -m gsa_jax.render allegro_cylinder --out runs/allegro_scene.png
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

@@ -11,7 +11,7 @@ import os
 import warnings
 
 # No renderer is needed for training. mujoco picks its GL backend when it is first imported, so
-# envs.render (which does need one) sets MUJOCO_GL itself unless the user did: nothing here imports
+# gsa_jax.render (which does need one) sets MUJOCO_GL itself unless the user did: nothing here imports
 # mujoco before a function is called.
 GL_FROM_USER = "MUJOCO_GL" in os.environ
 os.environ.setdefault("MUJOCO_GL", "disable")
@@ -35,71 +35,69 @@ def default_episode_length(name):
     return DEFAULT_EPISODE_LENGTH
 
 
-def default_linesearch():
-    """The MJX solver's line search where a task allows a choice (envs/linesearch.py): 'exact', or MJX's
-    'iterative' one with GSA_JAX_ITERATIVE_LINESEARCH=1. No JAX or MuJoCo import."""
-    return "iterative" if os.environ.get("GSA_JAX_ITERATIVE_LINESEARCH", "") not in ("", "0") else "exact"
+def task_model(name):
+    """The MuJoCo C model (MjModel) of a task's MJCF with the solver options its MJX version steps with
+    (Brax's for the gym tasks), loaded without JAX or MJX: for sizes and physics records."""
+    import mujoco
 
+    from envs import mujoco_c
 
-def check_solver(solver_iterations=None, ls_iterations=None):
-    for field, v in (("solver_iterations", solver_iterations), ("ls_iterations", ls_iterations)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-            raise ValueError(f"{field} must be an integer >= 1 (or None: the task's own), got {v!r}")
-
-
-def make_base(name, solver_iterations=None, ls_iterations=None):
-    """The unwrapped task (no time limit, no auto-reset).
-
-    solver_iterations / ls_iterations: None keeps the task's own MJCF settings (hopper: Newton, 4
-    iterations, 50 line-search iterations). An integer overrides MuJoCo's opt.iterations /
-    opt.ls_iterations in the MJX model only -- a cheaper but *different* simulator (less converged
-    contact forces), i.e. a changed task; the MuJoCo C model (mj_model(env), used by deploy, render
-    and the bench's reference) keeps the MJCF's settings. See experiments/README.md (solver) for the
-    measured effect on trajectories and returns.
-
-    The solver's line search is exact where the model allows it (envs/linesearch.py) unless
-    ls_iterations is given (a parameter of MJX's iterative search, which it then uses) or
-    GSA_JAX_ITERATIVE_LINESEARCH=1; solver_settings(env)['linesearch'] says which.
-    """
     check_name(name)
-    check_solver(solver_iterations, ls_iterations)
+    if name in mujoco_c.C_TASKS:
+        return mujoco_c.make_c(name).model
+    return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(name + ".xml"))
+
+
+def action_size(name):
+    """Actions of a task, read from its MJCF (no MJX environment is built)."""
+    return int(task_model(name).nu)
+
+
+def make_base(name, physics=None):
+    """The unwrapped task (no time limit, no auto-reset), stepped by MJX as `physics` says
+    (envs.physics.Physics; None: the defaults). Its reset and step run inside physics.applied, so the
+    solver routing holds while they are traced and nothing else in the process changes.
+
+    physics.solver_iterations / ls_iterations override opt.iterations / opt.ls_iterations in the MJX
+    model only -- a cheaper but *different* simulator; the MuJoCo C model (mj_model(env), used by
+    deploy, render and the bench's reference) keeps the MJCF's settings.
+    """
+    from envs.physics import Physics
+
+    check_name(name)
+    physics = (physics or Physics()).validate()
     with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
         from brax import envs as brax_envs
 
-        from envs import allegro, linalg, linesearch
-    linalg.install()  # MJX's small Cholesky factor/solves without batched LAPACK (envs/linalg.py)
-    linesearch.install()  # MJX's line search as a while loop, not a scan of no-op conds (envs/linesearch.py)
+        from envs import allegro
     with warnings.catch_warnings(), _process_local_devices():
         warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
         env = allegro.AllegroCylinder() if name == "allegro_cylinder" else brax_envs.get_environment(name, backend="mjx")
-    override = {k: v for k, v in (("opt.iterations", solver_iterations), ("opt.ls_iterations", ls_iterations)) if v is not None}
+    override = {k: v for k, v in (("opt.iterations", physics.solver_iterations),
+                                  ("opt.ls_iterations", physics.ls_iterations)) if v is not None}
     if override:
         env.sys = env.sys.tree_replace(override)
-    mode = "iterative" if ls_iterations is not None or not linesearch.exact_applies(env.sys) else default_linesearch()
-    env.linesearch_mode = mode
-    for name in ("reset", "step"):  # the solver is traced inside these: route its line search
-        setattr(env, name, _traced_with(getattr(env, name), mode))
+    env.physics = physics
+    for fn in ("reset", "step"):  # the solver is traced inside these
+        setattr(env, fn, _applying(getattr(env, fn), physics, mj_model(env)))
     return env
 
 
-def _traced_with(fn, mode):
-    from envs import linesearch
+def _applying(fn, physics, model):
+    from envs.physics import applied
 
     def traced(*args, **kwargs):
-        with linesearch.using(mode):
+        with applied(physics, model):
             return fn(*args, **kwargs)
 
     return traced
 
 
 def solver_settings(env):
-    """{'iterations', 'ls_iterations', 'linesearch'} of the MJX model a task made by make_base steps
-    with ('linesearch': 'exact' or MJX's 'iterative', see make_base), and the MJCF's own
-    ('task_iterations', 'task_ls_iterations')."""
-    opt, own = env.sys.opt, mj_model(env).opt
-    return {"iterations": int(opt.iterations), "ls_iterations": int(opt.ls_iterations),
-            "linesearch": env.linesearch_mode,
-            "task_iterations": int(own.iterations), "task_ls_iterations": int(own.ls_iterations)}
+    """Every physics option in force for a task made by make_base (envs.physics.record)."""
+    from envs.physics import record
+
+    return record(env.physics, mj_model(env))
 
 
 @contextlib.contextmanager
@@ -129,10 +127,9 @@ def substeps(env):
     return int(getattr(env, "n_frames", None) or getattr(env, "_n_frames", 1))
 
 
-def make(name, episode_length=None, auto_reset=True, solver_iterations=None, ls_iterations=None):
+def make(name, episode_length=None, auto_reset=True, physics=None):
     """Task `name` with a time limit of `episode_length` steps (default: the task's own,
-    `default_episode_length(name)`) and (by default) Brax-style auto-reset. solver_iterations,
-    ls_iterations: see make_base (None: the task's own).
+    `default_episode_length(name)`) and (by default) Brax-style auto-reset. physics: see make_base.
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
@@ -143,5 +140,5 @@ def make(name, episode_length=None, auto_reset=True, solver_iterations=None, ls_
         episode_length = default_episode_length(name)
     if episode_length < 1:
         raise ValueError(f"episode_length must be >= 1, got {episode_length}")
-    env = EpisodeLimit(make_base(name, solver_iterations, ls_iterations), episode_length)
+    env = EpisodeLimit(make_base(name, physics), episode_length)
     return AutoReset(env) if auto_reset else env

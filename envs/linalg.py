@@ -7,14 +7,14 @@ cores (a) have deadlocked here: the kernel splits its batch over XLA's intra-op 
 thread of that same pool and waits for work that no free thread can run (seen with gdb at 0% CPU,
 2 cores, 256 vmapped hopper runs); and (b) pay a per-matrix call for 6x6 ... 30x30 matrices.
 
-`install()` swaps jax.scipy.linalg.cho_factor / cho_solve for versions that, for matrices up to
+`routed()` swaps jax.scipy.linalg.cho_factor / cho_solve, for the duration of a block, for versions that, for matrices up to
 MAX_N, compute the same factorization column by column with batched elementwise/matmul ops (no
 custom call, so nothing to deadlock, and vectorized over the run and env axes); larger or other
 inputs go to the originals. The result equals LAPACK's to float rounding: a change of arithmetic
-order, not of the model or solver. Set GSA_JAX_LAPACK_CHOLESKY=1 to keep LAPACK.
+order, not of the model or solver. The physics option cholesky='lapack' keeps LAPACK (envs/physics.py).
 """
 
-import os
+import contextlib
 
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
@@ -83,11 +83,14 @@ def cho_solve(c_and_lower, b, overwrite_b=False, check_finite=True):
     return solve_upper_factor(c, jnp.asarray(b))
 
 
-def install():
-    """Route jax.scipy.linalg.cho_factor/cho_solve (as MJX calls them) through the small-matrix path.
-    Idempotent; a no-op with GSA_JAX_LAPACK_CHOLESKY=1. Returns True when installed."""
-    if os.environ.get("GSA_JAX_LAPACK_CHOLESKY", "") not in ("", "0"):
-        jsl.cho_factor, jsl.cho_solve = _ORIGINAL["cho_factor"], _ORIGINAL["cho_solve"]
-        return False
-    jsl.cho_factor, jsl.cho_solve = cho_factor, cho_solve  # jsl is the module MJX reaches as jax.scipy.linalg
-    return True
+@contextlib.contextmanager
+def routed(unrolled=True):
+    """Inside this block jax.scipy.linalg.cho_factor/cho_solve (as MJX calls them) take the small-matrix
+    path (unrolled=True) or LAPACK's (False); the previous functions are restored on exit."""
+    previous = jsl.cho_factor, jsl.cho_solve
+    chosen = (cho_factor, cho_solve) if unrolled else (_ORIGINAL["cho_factor"], _ORIGINAL["cho_solve"])
+    jsl.cho_factor, jsl.cho_solve = chosen  # jsl is the module MJX reaches as jax.scipy.linalg
+    try:
+        yield
+    finally:
+        jsl.cho_factor, jsl.cho_solve = previous

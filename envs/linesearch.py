@@ -18,31 +18,28 @@ constraint rows) until the derivative is below tolerance * ls_tolerance or the b
    loop runs as long as the batch's slowest env, so every env pays for the slowest one. Same cost
    function, same acceptance rule (move only if the cost decreases), a different -- exact rather than
    tolerance-terminated -- answer to the same 1-D problem: results differ from MJX's by float32
-   rounding and line-search tolerance; measured against MuJoCo C (float64) in experiments/README.md
-   (exact line search). GSA_JAX_ITERATIVE_LINESEARCH=1 keeps MJX's search; envs.make_base also keeps
-   it when the caller sets ls_iterations (a parameter of that search only).
+   rounding and line-search tolerance; measured against MuJoCo C (float64) in
+   experiments/linesearch_hopper/. The physics option linesearch='iterative' keeps MJX's search, and
+   so does setting ls_iterations (a parameter of that search only): envs/physics.py.
 2. MJX's iterative search as a while loop (`while_loop`, used for elliptic cones and friction loss,
    or when the iterative search is asked for). MJX runs the search as `_while_loop_scan`: a lax.scan
    of ls_iterations steps whose body is a lax.cond that turns into a no-op once the search has
    converged (written so reverse-mode autodiff works). Under jax.vmap a cond with a batched predicate
    becomes a select that evaluates both branches, so every env paid all ls_iterations steps. As a
    lax.while_loop the batch stops when its slowest env has converged; per env the iterates are the
-   same, so results are bitwise equal (tests/test_solver.py). GSA_JAX_SCAN_LINESEARCH=1 keeps MJX's
-   scan.
+   same, so results are bitwise equal (tests/test_solver.py). The physics option search_loop='scan'
+   keeps MJX's scan.
 """
 
 import contextlib
-import os
 
 import jax
 import jax.numpy as jnp
 
 from mujoco.mjx._src import solver, support
-from mujoco.mjx._src.types import ConeType, DisableBit
 
 _ORIGINAL = solver._while_loop_scan
 _ORIGINAL_LINESEARCH = solver._linesearch
-_MODE = {"value": None}  # "exact" / "iterative" while a `using` block traces; None: the default
 
 
 def while_loop(cond_fun, body_fun, init_val, max_iter):
@@ -58,25 +55,6 @@ def while_loop(cond_fun, body_fun, init_val, max_iter):
         return body_fun(val), i + 1
 
     return jax.lax.while_loop(cond, body, (init_val, 0))[0]
-
-
-@contextlib.contextmanager
-def using(mode):
-    """Solver line searches traced inside this block use `mode` ('exact' or 'iterative')."""
-    if mode not in ("exact", "iterative"):
-        raise ValueError(f"line search mode must be 'exact' or 'iterative', got {mode!r}")
-    previous, _MODE["value"] = _MODE["value"], mode
-    try:
-        yield
-    finally:
-        _MODE["value"] = previous
-
-
-def exact_applies(m):
-    """Whether the solver cost along a line is piecewise quadratic: pyramidal cones, no friction loss."""
-    frictionloss = (bool(m._impl.dof_hasfrictionloss.any()) or bool(m._impl.tendon_hasfrictionloss.any())) and not (
-        m.opt.disableflags & DisableBit.FRICTIONLOSS)
-    return m.opt.cone == ConeType.PYRAMIDAL and not frictionloss
 
 
 def line_minimum(jaref, jv, efc_d, always, g1, g2):
@@ -133,22 +111,17 @@ def exact_linesearch(m, d, ctx):
     return ctx.replace(qacc=ctx.qacc + ctx.search * step, Ma=ctx.Ma + mv * step, Jaref=ctx.Jaref + jv * step)
 
 
-def _linesearch(m, d, ctx):
-    from envs import default_linesearch
-
-    mode = _MODE["value"] or default_linesearch()
-    if mode == "exact" and exact_applies(m):
-        return exact_linesearch(m, d, ctx)
-    return _ORIGINAL_LINESEARCH(m, d, ctx)
-
-
-def install():
-    """Route MJX's line search through this module (exact where it applies, else the iterative search
-    as a while loop; GSA_JAX_SCAN_LINESEARCH=1 keeps MJX's scan for the latter). Idempotent. Returns
-    True when the while loop is installed. Affects programs traced afterwards."""
-    solver._linesearch = _linesearch
-    if os.environ.get("GSA_JAX_SCAN_LINESEARCH", "") not in ("", "0"):
-        solver._while_loop_scan = _ORIGINAL
-        return False
-    solver._while_loop_scan = while_loop
-    return True
+@contextlib.contextmanager
+def routed(mode, loop="while"):
+    """Inside this block MJX's solver searches with `mode` ('exact': exact_linesearch; 'iterative': MJX's
+    own) and runs iterative searches as `loop` ('while': while_loop; 'scan': MJX's scan of conds); the
+    previous routing is restored on exit. The caller checks that 'exact' applies (envs/physics.py)."""
+    if mode not in ("exact", "iterative") or loop not in ("while", "scan"):
+        raise ValueError(f"line search must be 'exact' or 'iterative' and its loop 'while' or 'scan', got {mode!r}, {loop!r}")
+    previous = solver._linesearch, solver._while_loop_scan
+    solver._linesearch = exact_linesearch if mode == "exact" else _ORIGINAL_LINESEARCH
+    solver._while_loop_scan = while_loop if loop == "while" else _ORIGINAL
+    try:
+        yield
+    finally:
+        solver._linesearch, solver._while_loop_scan = previous

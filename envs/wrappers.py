@@ -8,7 +8,7 @@ true last observation of the step, before the reset replaced it.
 
 import jax
 import jax.numpy as jnp
-from brax.envs.base import State, Wrapper
+from brax.envs.base import Wrapper
 
 
 class EpisodeLimit(Wrapper):

@@ -14,7 +14,7 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
 - the same largest raw batch and largest mixture sweep on all cores again with a cheaper MJX solver
   (`--solver-variant ITER,LS`, default 1,4: 1 Newton iteration, 4 line-search iterations), and MuJoCo C
   with those settings too -- a changed simulator, offered as the explicit `--solver-iterations` /
-  `--ls-iterations` option of training and sweeps (experiments/README.md, solver).
+  `--ls-iterations` option of training and sweeps (experiments/solver_hopper/).
 The default run takes ~20 min on 2 cores (the estimate is printed first), --quick ~3 min.
 Every figure is the median of repeated timed chunks; workers of a multi-process measurement start
 their timed chunks together. A worker that hangs (no heartbeat) is killed and the measurement retried
@@ -37,7 +37,7 @@ import numpy as np
 
 from gsa_jax import xla_cache
 from gsa_jax.checkpoint import write_atomic
-from gsa_jax.sweep import worker_env
+from gsa_jax.supervise import worker_env
 
 SIZES = (1, 16, 64, 256)
 QUICK_SIZES = (1, 16)
@@ -69,9 +69,9 @@ def _time_chunks(args, fn, state):
 
 
 def _share(args):
-    """The workers of one measurement share one compile (gsa_jax.xla_cache) unless GSA_JAX_COMPILE_EACH=1:
+    """The workers of one measurement share one compile (gsa_jax.xla_cache) unless --compile-each:
     enables the cache and returns compile_with's share, or None when each worker compiles alone."""
-    if args.num_workers < 2 or os.environ.get("GSA_JAX_COMPILE_EACH") == "1":
+    if args.num_workers < 2 or args.compile_each:
         return None
     cache = os.path.join(args.barrier, "xla_cache")
     xla_cache.enable(cache)
@@ -85,7 +85,8 @@ def worker(args):
 
     import jax
 
-    from gsa_jax.sweep import build_grid, check_spec, compile_group, group_config, pad_runs
+    from gsa_jax.programs import compile_group, pad_runs
+    from gsa_jax.sweep import build_grid, check_spec, group_config
 
     spec = check_spec({"envs": [args.env], "policies": [args.policy], "clusters": [args.clusters],
                        "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9})
@@ -118,11 +119,12 @@ def raw_worker(args):
     env.step with uniform random actions, with the training loop's time limit and auto-reset,
     in scans of RAW_UNROLL steps."""
     import jax
-    import jax.numpy as jnp
 
     import envs
 
-    env = envs.make(args.env, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
+    from envs.physics import Physics
+
+    env = envs.make(args.env, physics=Physics(args.solver_iterations, args.ls_iterations))
     b = args.batch
     t0 = time.perf_counter()
     share = _share(args)
@@ -134,9 +136,9 @@ def raw_worker(args):
         def body(st, kk):
             a = jax.random.uniform(kk, (b, env.action_size), minval=-1.0, maxval=1.0)
             st = jax.vmap(env.step)(st, a)
-            return st, st.reward
+            return st, None
 
-        state, rewards = jax.lax.scan(body, state, jax.random.split(k, RAW_UNROLL))
+        state, _ = jax.lax.scan(body, state, jax.random.split(k, RAW_UNROLL))
         return state, key
 
     keys = jax.random.split(jax.random.PRNGKey(args.seed0), b)
@@ -165,13 +167,15 @@ class BenchError(Exception):
     pass
 
 
-def run_workers(cmds, compile_limit_s=900, retries=1, log=print):
-    """Start one worker per command (they meet at a barrier), collect their JSON lines. A worker that
+def run_workers(cmds, compile_limit_s=900, retries=1, log=print, compile_each=False):
+    """Start one worker per command (they meet at a barrier), collect their JSON lines (compile_each: every
+    worker compiles its program itself instead of loading worker 0's). A worker that
     fails, or stops beating (no heartbeat for compile_limit_s before its first chunk, or 60 s + 10x its
     first chunk after it) gets the whole measurement killed and retried, at most `retries` times."""
     for attempt in range(retries + 1):
         barrier = tempfile.mkdtemp(prefix="gsa_bench_")
-        full = [c + ["--barrier", barrier, "--worker-id", str(i), "--num-workers", str(len(cmds))] for i, c in enumerate(cmds)]
+        full = [c + ["--barrier", barrier, "--worker-id", str(i), "--num-workers", str(len(cmds))]
+                + (["--compile-each"] if compile_each else []) for i, c in enumerate(cmds)]
         env = worker_env(len(cmds))  # as the sweep's workers
         procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for c in full]
         start, problem = time.time(), None
@@ -225,9 +229,10 @@ def _compile_fields(results):
             "xla_flags": results[0]["xla_flags"]}
 
 
-def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print):
+def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print,
+                  compile_each=False):
     """Throughput of `runs` runs split over `processes` workers, measured together. solver: None (the
-    task's own) or (iterations, ls_iterations)."""
+    task's own) or (iterations, ls_iterations); compile_each: see run_workers."""
     cmds, seed0 = [], 0
     for n in _split(runs, processes):
         cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
@@ -235,7 +240,7 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None
                     + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver)
                     + (["--run-batch", str(run_batch)] if run_batch is not None else []))
         seed0 += n
-    results = run_workers(cmds, log=log)
+    results = run_workers(cmds, log=log, compile_each=compile_each)
     return {
         "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
         **_solver_field(solver),
@@ -463,6 +468,7 @@ def build_parser():
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--compile-each", action="store_true", help=argparse.SUPPRESS)
     for a, t in (("--policy", str), ("--clusters", int), ("--runs", int), ("--seed0", int), ("--barrier", str),
                  ("--worker-id", int), ("--num-workers", int), ("--batch", int), ("--epochs", int),
                  ("--solver-iterations", int), ("--ls-iterations", int)):
@@ -573,7 +579,7 @@ def measure_profile(args, repeats, mujoco_c):
 def main(argv=None):
     args = build_parser().parse_args(argv)
     if args.run_batch is None:
-        from gsa_jax.sweep import RUN_BATCH
+        from gsa_jax.programs import RUN_BATCH
 
         args.run_batch = RUN_BATCH
     if args.worker or args.raw_worker:

@@ -9,6 +9,7 @@ directory and the space the write needed.
 import errno
 import io
 import os
+import re
 import zipfile
 
 import jax
@@ -114,6 +115,12 @@ def save_pytree(path, tree, keep_previous=False, **extra):
     save_npz_atomic(path, keep_previous, **arrays)
 
 
+def dict_spelling(key):
+    """A NamedTuple field's key path ".name[...]" spelled as a dict's: "['name'][...]"."""
+    m = re.match(r"\.(\w+)(.*)", key)
+    return f"['{m.group(1)}']{m.group(2)}" if m else key
+
+
 def load_pytree(path, like):
     """Load arrays saved by save_pytree into the structure of `like` (shapes and dtypes must match)."""
     with np.load(path) as data:
@@ -121,8 +128,10 @@ def load_pytree(path, like):
         out = []
         for p, ref in leaves:
             key = jax.tree_util.keystr(p)
+            if key not in data:  # a checkpoint written when the state was a dict of the same fields
+                key = dict_spelling(key)
             if key not in data:
-                raise KeyError(f"{path}: missing array {key}")
+                raise KeyError(f"{path}: missing array {jax.tree_util.keystr(p)}")
             arr = data[key]
             if arr.shape != np.shape(ref):
                 raise ValueError(f"{path}: {key} has shape {arr.shape}, expected {np.shape(ref)}")

@@ -77,7 +77,7 @@ def run_mjx(run_dir, episodes, seed=0):
     """Summary of the same deterministic controller in the run's MJX environment (JAX)."""
     import jax
 
-    from gsa_jax.inspect import last_iteration, load_run, rollout
+    from gsa_jax.inspection import last_iteration, load_run, rollout
 
     trainer, params, obs_stats, hp, meta = load_run(run_dir, require_mixture=False)
     roll = rollout(trainer, params, obs_stats, hp, jax.random.PRNGKey(seed), episodes, True, last_iteration(meta))
@@ -90,7 +90,7 @@ def report_line(env_name, where, s):
 
 
 def compare_mjx(run_dir, env_name, episodes, seed):
-    from gsa_jax.inspect import InspectError
+    from gsa_jax.inspection import InspectError
 
     try:
         mjx_env, summary = run_mjx(run_dir, episodes, seed)

@@ -1,5 +1,5 @@
 """Take one finished run out of a sweep as a run directory (config.json + params.npz), so that the
-single-run tools work on it (inspect, export, deploy, envs.render --run):
+single-run tools work on it (inspect, export, deploy, gsa_jax.render --run):
 
     python -m gsa_jax.extract runs/sweeps/fig1_idp_hopper --env hopper --policy mixture --clusters 6 --seed 0 --out runs/hopper-K6-s0
     python -m gsa_jax.extract SWEEP_DIR --list      # the finished runs it holds

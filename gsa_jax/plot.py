@@ -1,4 +1,5 @@
-"""Paper-style figures of a sweep: `python -m gsa_jax.plot <sweep dir> [--out fig.png]`.
+"""Figures: paper-style figures of a sweep (`python -m gsa_jax.plot <sweep dir> [--out fig.png]`), and the
+learning curve of a single run (plot_curve, written by gsa_jax.train as curve.png).
 
 Merges every metrics.csv under the directory (one per worker process or host), then draws, per
 env, the mean training return vs env steps for flat PPO and each K (95% confidence band over
@@ -20,12 +21,13 @@ from collections import defaultdict
 
 import numpy as np
 
+from gsa_jax.metrics import ITERATION_METRICS
+
 # two-sided 95% Student t quantiles by degrees of freedom (1..30); beyond, 1.96
 _T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
         2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042]
 _ID_COLS = ("env", "policy", "K", "seed", "run")
-_METRIC_COLS = {"iteration", "env_steps", "episode_return", "episodes", "epsilon", "sigma_min", "lr", "policy_loss",
-                "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used"}
+_METRIC_COLS = set(ITERATION_METRICS)
 
 
 def t95(n):
@@ -160,6 +162,36 @@ def final_table(data, action_dims, failed=None):
     return rows
 
 
+def plot_curve(rows, path, title=""):
+    """A single run's learning curve: rows are metrics.csv rows as dicts. Training return per iteration
+    (with a trailing mean), deterministic evaluation returns as markers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def col(name):
+        pts = [(float(r["env_steps"]), float(r[name])) for r in rows if r.get(name, "") not in ("", None)]
+        pts = [p for p in pts if not math.isnan(p[1])]
+        return zip(*pts) if pts else ((), ())
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    xs, ys = col("episode_return")
+    ax.plot(xs, ys, lw=0.8, alpha=0.35, color="C0", label="training episodes (stochastic policy)")
+    if len(ys) >= 10:  # few episodes end per iteration late in training: show a trailing mean too
+        w = max(5, len(ys) // 30)
+        trailing = [sum(ys[max(0, i - w + 1):i + 1]) / len(ys[max(0, i - w + 1):i + 1]) for i in range(len(ys))]
+        ax.plot(xs, trailing, lw=1.8, color="C0", label=f"  trailing mean over {w} iterations")
+    xs, ys = col("eval_return")
+    ax.plot(xs, ys, "o-", ms=4, lw=1, color="C1", label="evaluation (deterministic controller)")
+    ax.set(xlabel="environment steps", ylabel="episode return", title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def plot_return_vs_k(rows, path):
     """Final return (mean, 95% CI over seeds) against K per env; flat PPO as a horizontal band."""
     import matplotlib
@@ -217,7 +249,7 @@ def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
             try:
                 import envs
 
-                action_dims[env_name] = envs.make_base(env_name).action_size
+                action_dims[env_name] = envs.action_size(env_name)
             except Exception:  # noqa: BLE001 - a label detail; plotting must not fail on it
                 pass
     env_names = list(dict.fromkeys(c[0] for c in sorted(data)))

@@ -37,7 +37,8 @@ _PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 6
 
 
 class Policy(NamedTuple):
-    kind: str
+    """A policy's pure functions (make_mixture_policy / make_mlp_policy say what each takes)."""
+
     init: Callable
     sample: Callable
     log_prob: Callable
@@ -96,14 +97,14 @@ def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_sc
     d_phi = feature_size(subpolicy, obs_size)
 
     def init(key, hp):
-        k = jnp.asarray(hp["K"], jnp.float32)
+        k = jnp.asarray(hp.K, jnp.float32)
         return {
             # zero last layer: uniform partition at init, independent of K_max
             "partition": init_mlp(key, (obs_size, *hidden, k_max), out_scale=0.0),
             "L": jnp.zeros((k_max, action_size, d_phi), jnp.float32),
             "b": bias_init,
             "log_sigma": jnp.full((k_max, action_size), 1.0, jnp.float32)
-            * jnp.log(hp["sigma_init_scale"] / k),
+            * jnp.log(hp.sigma_init_scale / k),
         }
 
     def _log_softmax(params, obs, sched):
@@ -150,7 +151,7 @@ def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_sc
         c = jnp.argmax(logits).astype(jnp.int32)
         return params["L"][c] @ subpolicy_features(subpolicy, obs) + params["b"][c], c
 
-    return Policy("mixture", init, sample, log_prob, mode, partition_probs)
+    return Policy(init, sample, log_prob, mode, partition_probs)
 
 
 def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
@@ -177,7 +178,7 @@ def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
     def partition_probs(params, obs, sched):
         return jnp.ones((1,), jnp.float32)
 
-    return Policy("mlp", init, sample, log_prob, mode, partition_probs)
+    return Policy(init, sample, log_prob, mode, partition_probs)
 
 
 def make_policy(kind, obs_size, action_size, k_max=1, hidden=(64, 64), b_init_scale=1.0, subpolicy="linear"):

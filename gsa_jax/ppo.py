@@ -6,7 +6,7 @@
     state, metrics = train(Config(...), key, hp, n)     # a whole run
 
 `Config` is static (it changes shapes or program structure). `hp` is a dict of array
-scalars (see `make_hparams`): everything a sweep varies (seed via the key, K, lr, clip,
+scalars (`Hparams`, see `make_hparams`): everything a sweep varies (seed via the key, K, lr, clip,
 the epsilon and sigma_min schedules, ...) so runs can be vmapped over it.
 
 One iteration: roll out num_envs x unroll_length steps with the current policy; GAE(lambda)
@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from envs.physics import Physics
 from gsa_jax.nn import apply_mlp, init_mlp
 from gsa_jax.normalize import init_stats, normalize, update_stats
 from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
@@ -51,10 +52,13 @@ class Config:
     normalize_reward: bool = True
     b_init_scale: float = 1.0
     eval_envs: int = 16
-    # MJX constraint solver: None = the task's own MJCF settings; an int overrides opt.iterations /
-    # opt.ls_iterations -- faster, but a changed simulator (envs.make_base; experiments/README.md, solver)
-    solver_iterations: int | None = None
-    ls_iterations: int | None = None
+    # physics options (envs/physics.py): MJX solver iterations (None = the task's own MJCF settings; an int
+    # is faster but a changed simulator), the line search, its loop, and the Cholesky factorization
+    solver_iterations: int | None = Physics.solver_iterations
+    ls_iterations: int | None = Physics.ls_iterations
+    linesearch: str = Physics.linesearch
+    search_loop: str = Physics.search_loop
+    cholesky: str = Physics.cholesky
 
     def __post_init__(self):
         if self.episode_length is None and self.env in envs.NAMES:
@@ -63,6 +67,11 @@ class Config:
     @property
     def batch_size(self):
         return self.num_envs * self.unroll_length
+
+    @property
+    def physics(self):
+        """The physics options of this config (envs.physics.Physics)."""
+        return Physics(self.solver_iterations, self.ls_iterations, self.linesearch, self.search_loop, self.cholesky)
 
     @property
     def minibatch_size(self):
@@ -78,7 +87,7 @@ class Config:
         for name in ("k_max", "num_envs", "unroll_length", "num_epochs", "num_minibatches", "episode_length", "eval_envs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        envs.check_solver(self.solver_iterations, self.ls_iterations)
+        self.physics.validate()
         if self.batch_size % self.num_minibatches:
             raise ValueError(
                 f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"
@@ -86,32 +95,37 @@ class Config:
         return self
 
 
-HPARAM_DEFAULTS = {
-    "K": 4,  # active clusters (mixture); must be <= Config.k_max
-    "lr": 3e-4,
-    "anneal_lr": 1.0,  # 1: lr decays linearly to 0 over total_iterations; 0: constant
-    "total_iterations": 1000,
-    "clip_eps": 0.2,
-    "gamma": 0.99,
-    "gae_lambda": 0.95,
-    "vf_coef": 0.5,
-    "max_grad_norm": 0.5,
-    "eps_init": 0.2,  # uniform exploration of the partition policy ...
-    "eps_decay": 0.995,  # ... times this every iteration
-    "sigma_min_init": 0.1,  # floor of every sub-policy std ...
-    "sigma_min_decay": 0.995,  # ... times this every iteration
-    "sigma_init_scale": 1.0,  # initial sub-policy std = sigma_init_scale / K
-}
+class Hparams(NamedTuple):
+    """Per-run hyperparameters: everything a sweep may vary, as array scalars inside the programs (float32;
+    K and total_iterations int32), so runs vmap over them. Defaults: the paper's PPO settings."""
+
+    K: int = 4  # active clusters (mixture); must be <= Config.k_max
+    lr: float = 3e-4
+    anneal_lr: float = 1.0  # 1: lr decays linearly to 0 over total_iterations; 0: constant
+    total_iterations: int = 1000
+    clip_eps: float = 0.2
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    eps_init: float = 0.2  # uniform exploration of the partition policy ...
+    eps_decay: float = 0.995  # ... times this every iteration
+    sigma_min_init: float = 0.1  # floor of every sub-policy std ...
+    sigma_min_decay: float = 0.995  # ... times this every iteration
+    sigma_init_scale: float = 1.0  # initial sub-policy std = sigma_init_scale / K
+
+
+HPARAM_DEFAULTS = Hparams()._asdict()
 _INT_HPARAMS = ("K", "total_iterations")
 
 
 def make_hparams(**overrides):
-    """Hyperparameters as a dict of array scalars (float32; K and total_iterations int32)."""
+    """Hparams of array scalars (float32; K and total_iterations int32): the defaults with `overrides`."""
     unknown = set(overrides) - set(HPARAM_DEFAULTS)
     if unknown:
         raise ValueError(f"unknown hyperparameter(s) {sorted(unknown)}; known: {', '.join(HPARAM_DEFAULTS)}")
     hp = dict(HPARAM_DEFAULTS, **overrides)
-    return {k: jnp.asarray(v, jnp.int32 if k in _INT_HPARAMS else jnp.float32) for k, v in hp.items()}
+    return Hparams(**{k: jnp.asarray(v, jnp.int32 if k in _INT_HPARAMS else jnp.float32) for k, v in hp.items()})
 
 
 # Allowed range of every hyperparameter: (low, high, low included, high included). K is checked against k_max.
@@ -155,11 +169,13 @@ def check_hparam(name, value):
 
 
 def validate_hparams(cfg, hp):
-    """Every hyperparameter in range (HPARAM_RANGES) and K <= k_max: the one check of train, sweep and bench."""
+    """Every hyperparameter of an Hparams (or a dict of some of them) in range (HPARAM_RANGES) and K <= k_max:
+    the one check of train, sweep and bench."""
+    values = hp._asdict() if isinstance(hp, Hparams) else hp
     for name in HPARAM_RANGES:
-        if name in hp:
-            check_hparam(name, hp[name] if isinstance(hp[name], (int, float)) else float(hp[name]))
-    k = int(hp["K"]) if "K" in hp else 1
+        if name in values:
+            check_hparam(name, float(values[name]))
+    k = int(values["K"]) if "K" in values else 1
     if cfg is not None and cfg.policy == "mixture" and not 1 <= k <= cfg.k_max:
         raise ValueError(f"clusters K must be in 1..k_max={cfg.k_max}, got {k}")
 
@@ -168,9 +184,9 @@ def schedule(hp, iteration):
     """Exploration at iteration `iteration` (int32 scalar): K, epsilon, sigma_min."""
     t = iteration.astype(jnp.float32)
     return {
-        "K": hp["K"],
-        "epsilon": hp["eps_init"] * hp["eps_decay"] ** t,
-        "sigma_min": hp["sigma_min_init"] * hp["sigma_min_decay"] ** t,
+        "K": hp.K,
+        "epsilon": hp.eps_init * hp.eps_decay ** t,
+        "sigma_min": hp.sigma_min_init * hp.sigma_min_decay ** t,
     }
 
 
@@ -201,12 +217,11 @@ class Trainer(NamedTuple):
     iteration: Callable
     run_chunk: Callable
     evaluate: Callable
-    value: Callable
 
 
 def make_env(cfg, auto_reset=True):
-    """The task as a Config describes it: time limit and MJX solver settings."""
-    return envs.make(cfg.env, cfg.episode_length, auto_reset, cfg.solver_iterations, cfg.ls_iterations)
+    """The task as a Config describes it: time limit and physics options."""
+    return envs.make(cfg.env, cfg.episode_length, auto_reset, cfg.physics)
 
 
 class Parts(NamedTuple):
@@ -231,45 +246,60 @@ def norm_obs(cfg, stats, obs):
     return normalize(stats, obs) if cfg.normalize_obs else obs
 
 
+class TrainState(NamedTuple):
+    """Everything one run carries from iteration to iteration (a pytree; a sweep vmaps it over runs)."""
+
+    params: dict  # {'policy': the policy's parameters, 'value': the value MLP}
+    opt: dict  # Adam's moments and step count
+    obs_stats: dict  # running mean / variance of observations (normalization)
+    ret_stats: dict  # running statistics of discounted returns (reward scaling)
+    env_state: object  # the num_envs tasks' states
+    ep_return: jax.Array  # [num_envs] return of each env's current episode
+    disc_return: jax.Array  # [num_envs] its discounted return
+    key: jax.Array
+    iteration: jax.Array  # int32 scalar: iterations done
+    failed_at: jax.Array  # int32 scalar: the iteration whose loss or parameters were non-finite; -1 while healthy
+
+
 def init_state(p, key, hp):
-    """The initial training state of one run."""
+    """The initial TrainState of one run."""
     k_pol, k_val, k_env, k_run = jax.random.split(key, 4)
     params = {
         "policy": p.policy.init(k_pol, hp),
         "value": init_mlp(k_val, (p.obs_size, *p.cfg.hidden, 1), out_scale=1.0),
     }
-    return {
-        "params": params,
-        "opt": init_adam(params),
-        "obs_stats": init_stats(p.obs_size),
-        "ret_stats": init_stats(None),
-        "env_state": jax.vmap(p.env.reset)(jax.random.split(k_env, p.cfg.num_envs)),
-        "ep_return": jnp.zeros((p.cfg.num_envs,), jnp.float32),
-        "disc_return": jnp.zeros((p.cfg.num_envs,), jnp.float32),
-        "key": k_run,
-        "iteration": jnp.zeros((), jnp.int32),
-        "failed_at": jnp.full((), -1, jnp.int32),  # the iteration whose loss or parameters were non-finite
-    }
+    return TrainState(
+        params=params,
+        opt=init_adam(params),
+        obs_stats=init_stats(p.obs_size),
+        ret_stats=init_stats(None),
+        env_state=jax.vmap(p.env.reset)(jax.random.split(k_env, p.cfg.num_envs)),
+        ep_return=jnp.zeros((p.cfg.num_envs,), jnp.float32),
+        disc_return=jnp.zeros((p.cfg.num_envs,), jnp.float32),
+        key=k_run,
+        iteration=jnp.zeros((), jnp.int32),
+        failed_at=jnp.full((), -1, jnp.int32),
+    )
 
 
 def rollout(p, state, hp, sched, key):
     """cfg.unroll_length steps of cfg.num_envs envs -> (final carry, trajectory dict [T, N, ...])."""
-    params = state["params"]["policy"]
+    params = state.params["policy"]
 
     def step(carry, k):
         env_state, ep_ret, disc_ret, fin_sum, fin_cnt = carry
-        obs = norm_obs(p.cfg, state["obs_stats"], env_state.obs)
+        obs = norm_obs(p.cfg, state.obs_stats, env_state.obs)
         action, cluster, logp = p.v_sample(params, obs, jax.random.split(k, p.cfg.num_envs), sched)
         nxt = jax.vmap(p.env.step)(env_state, jnp.clip(action, -1.0, 1.0))
         r, done = nxt.reward, nxt.done
         ep_ret = ep_ret + r
         fin_sum = fin_sum + jnp.sum(done * ep_ret)
         fin_cnt = fin_cnt + jnp.sum(done)
-        disc_ret = disc_ret * hp["gamma"] + r
+        disc_ret = disc_ret * hp.gamma + r
         tr = {
             "raw_obs": env_state.obs,
             "obs": obs,
-            "next_obs": norm_obs(p.cfg, state["obs_stats"], nxt.info["final_obs"]),
+            "next_obs": norm_obs(p.cfg, state.obs_stats, nxt.info["final_obs"]),
             "action": action,
             "cluster": cluster,
             "logp": logp,
@@ -281,7 +311,7 @@ def rollout(p, state, hp, sched, key):
         carry = (nxt, ep_ret * (1.0 - done), disc_ret * (1.0 - done), fin_sum, fin_cnt)
         return carry, tr
 
-    carry0 = (state["env_state"], state["ep_return"], state["disc_return"], 0.0, 0.0)
+    carry0 = (state.env_state, state.ep_return, state.disc_return, 0.0, 0.0)
     carry, traj = jax.lax.scan(step, carry0, jax.random.split(key, p.cfg.unroll_length))
     return carry, traj
 
@@ -292,16 +322,16 @@ def ppo_loss(p, params, mb, hp, sched):
     log_ratio = logp - mb["logp"]
     ratio = jnp.exp(log_ratio)
     adv = (mb["adv"] - jnp.mean(mb["adv"])) / (jnp.std(mb["adv"]) + 1e-8)
-    clipped = jnp.clip(ratio, 1.0 - hp["clip_eps"], 1.0 + hp["clip_eps"])
+    clipped = jnp.clip(ratio, 1.0 - hp.clip_eps, 1.0 + hp.clip_eps)
     pg_loss = -jnp.mean(jnp.minimum(ratio * adv, clipped * adv))
     v_loss = 0.5 * jnp.mean(jnp.square(value(params["value"], mb["obs"]) - mb["target"]))
     aux = {
         "policy_loss": pg_loss,
         "value_loss": v_loss,
         "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
-        "clip_fraction": jnp.mean((jnp.abs(ratio - 1.0) > hp["clip_eps"]).astype(jnp.float32)),
+        "clip_fraction": jnp.mean((jnp.abs(ratio - 1.0) > hp.clip_eps).astype(jnp.float32)),
     }
-    return pg_loss + hp["vf_coef"] * v_loss, aux
+    return pg_loss + hp.vf_coef * v_loss, aux
 
 
 def sgd_update(p, params, opt, batch, hp, sched, lr, key):
@@ -310,7 +340,7 @@ def sgd_update(p, params, opt, batch, hp, sched, lr, key):
     def minibatch(carry, mb):
         params, opt = carry
         grads, aux = jax.grad(lambda prm: ppo_loss(p, prm, mb, hp, sched), has_aux=True)(params)
-        grads, gnorm = clip_by_global_norm(grads, hp["max_grad_norm"])
+        grads, gnorm = clip_by_global_norm(grads, hp.max_grad_norm)
         params, opt = adam_step(params, grads, opt, lr)
         return (params, opt), dict(aux, grad_norm=gnorm)
 
@@ -327,18 +357,18 @@ def sgd_update(p, params, opt, batch, hp, sched, lr, key):
 
 def ppo_iteration(p, state, hp):
     """One PPO iteration. Returns (new state, dict of scalar metrics)."""
-    it = state["iteration"]
+    it = state.iteration
     sched = schedule(hp, it)
-    key, k_roll, k_upd = jax.random.split(state["key"], 3)
+    key, k_roll, k_upd = jax.random.split(state.key, 3)
     (env_state, ep_ret, disc_ret, fin_sum, fin_cnt), traj = rollout(p, state, hp, sched, k_roll)
 
-    params = state["params"]
-    ret_stats = update_stats(state["ret_stats"], traj["disc_return"])
+    params = state.params
+    ret_stats = update_stats(state.ret_stats, traj["disc_return"])
     ret_scale = jnp.sqrt(ret_stats["var"] + 1e-8) if p.cfg.normalize_reward else 1.0
     values = value(params["value"], traj["obs"])
     next_values = value(params["value"], traj["next_obs"])
     adv, target = compute_gae(
-        traj["reward"] / ret_scale, values, next_values, traj["term"], traj["done"], hp["gamma"], hp["gae_lambda"]
+        traj["reward"] / ret_scale, values, next_values, traj["term"], traj["done"], hp.gamma, hp.gae_lambda
     )
     batch = {
         "obs": traj["obs"],
@@ -349,24 +379,24 @@ def ppo_iteration(p, state, hp):
         "target": target,
     }
     batch = jax.tree.map(lambda x: x.reshape((p.cfg.batch_size,) + x.shape[2:]), batch)
-    frac = it.astype(jnp.float32) / jnp.maximum(hp["total_iterations"], 1).astype(jnp.float32)
-    lr = hp["lr"] * (1.0 - hp["anneal_lr"] * jnp.clip(frac, 0.0, 1.0))
-    new_params, opt, stats = sgd_update(p, params, state["opt"], batch, hp, sched, lr, k_upd)
+    frac = it.astype(jnp.float32) / jnp.maximum(hp.total_iterations, 1).astype(jnp.float32)
+    lr = hp.lr * (1.0 - hp.anneal_lr * jnp.clip(frac, 0.0, 1.0))
+    new_params, opt, stats = sgd_update(p, params, state.opt, batch, hp, sched, lr, k_upd)
 
     probs = p.v_probs(params["policy"], traj["obs"].reshape(-1, p.obs_size), sched)
     usage = jnp.mean(jax.nn.one_hot(traj["cluster"].reshape(-1), probs.shape[-1]), axis=0)
-    new_state = {
-        "params": new_params,
-        "opt": opt,
-        "obs_stats": update_stats(state["obs_stats"], traj["raw_obs"]) if p.cfg.normalize_obs else state["obs_stats"],
-        "ret_stats": ret_stats,
-        "env_state": env_state,
-        "ep_return": ep_ret,
-        "disc_return": disc_ret,
-        "key": key,
-        "iteration": it + 1,
-        "failed_at": state["failed_at"],
-    }
+    new_state = TrainState(
+        params=new_params,
+        opt=opt,
+        obs_stats=update_stats(state.obs_stats, traj["raw_obs"]) if p.cfg.normalize_obs else state.obs_stats,
+        ret_stats=ret_stats,
+        env_state=env_state,
+        ep_return=ep_ret,
+        disc_return=disc_ret,
+        key=key,
+        iteration=it + 1,
+        failed_at=state.failed_at,
+    )
     metrics = {
         "iteration": it + 1,
         "env_steps": (it + 1) * p.cfg.batch_size,
@@ -422,7 +452,7 @@ def make_train(cfg):
               jax.vmap(policy.sample, in_axes=(None, 0, 0, None)), jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None)),
               jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
     bind = functools.partial
-    return Trainer(cfg, env, policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p), value)
+    return Trainer(cfg, env, policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
 
 
 def all_finite(tree):
@@ -431,15 +461,15 @@ def all_finite(tree):
 
 def guarded_iteration(iteration, state, hp):
     """iteration(state, hp), masked: a run whose loss or new parameters are non-finite keeps its last
-    state (last finite parameters), records the failing iteration in state['failed_at'] and stays
+    state (last finite parameters), records the failing iteration in state.failed_at and stays
     frozen from then on; metrics['failed_at'] says so per iteration (-1 while healthy). Inside the
     compiled program, per run: a vmapped sweep keeps training its other runs, bit for bit."""
     new_state, metrics = iteration(state, hp)
-    ok = (state["failed_at"] < 0) & jnp.isfinite(metrics["policy_loss"]) & jnp.isfinite(metrics["value_loss"])
-    ok = ok & all_finite(new_state["params"])
+    ok = (state.failed_at < 0) & jnp.isfinite(metrics["policy_loss"]) & jnp.isfinite(metrics["value_loss"])
+    ok = ok & all_finite(new_state.params)
     kept = jax.tree.map(lambda n, o: jnp.where(ok, n, o), new_state, state)
-    failed_at = jnp.where(ok | (state["failed_at"] >= 0), state["failed_at"], state["iteration"] + 1)
-    return dict(kept, failed_at=failed_at), dict(metrics, failed_at=failed_at)
+    failed_at = jnp.where(ok | (state.failed_at >= 0), state.failed_at, state.iteration + 1)
+    return kept._replace(failed_at=failed_at), dict(metrics, failed_at=failed_at)
 
 
 def train(cfg, key, hp, num_iterations):

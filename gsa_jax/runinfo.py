@@ -31,10 +31,12 @@ def git_commit():
         return None
 
 
-def _linesearch():
-    from envs import default_linesearch
+def physics_record(cfg):
+    """Every physics option in force for a Config's task (envs.physics.record; no MJX env is built)."""
+    import envs
+    from envs.physics import record
 
-    return default_linesearch()  # tasks with pyramidal cones, no friction loss, no ls_iterations override
+    return record(cfg.physics, envs.task_model(cfg.env))
 
 
 def run_metadata():
@@ -54,7 +56,6 @@ def run_metadata():
         "platform": platform.platform(),
         "devices": [str(d) for d in jax.devices()],
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
-        "mjx_linesearch": _linesearch(),
         "started_at": datetime.datetime.now().isoformat(timespec="seconds"),
     }
 

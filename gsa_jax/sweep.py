@@ -1,7 +1,7 @@
 """Sweeps: a grid of (env, policy, K, seed, hyperparameters) trained as one vmapped program per (env, policy).
 
-    python -m gsa_jax.sweep experiments/fig1_small.toml [--out DIR] [--devices N]
-    make sweep EXP=experiments/fig1_small.toml
+    python -m gsa_jax.sweep experiments/fig1_small/fig1_small.toml [--out DIR] [--devices N]
+    make sweep EXP=experiments/fig1_small/fig1_small.toml
 
 Every run of an (env, policy) group trains at once: `jax.vmap` over the runs, the run axis
 sharded over the local devices (`shard_map`). On a CPU, use the cores with --local-processes N
@@ -54,9 +54,6 @@ import json
 import math
 import os
 import re
-import signal
-import statistics
-import subprocess
 import sys
 import time
 import tomllib
@@ -64,16 +61,15 @@ import tomllib
 import numpy as np
 
 from gsa_jax.checkpoint import CheckpointError, DiskFullError, read_with_fallback, write_atomic
+from gsa_jax.driver import rows_before_failure
+from gsa_jax.metrics import INTEGER_METRICS, ITERATION_METRICS
 from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
+from gsa_jax.programs import RUN_BATCH, pad_runs
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
                "hparams", "config")
-SWEEP_METRICS = (
-    "iteration", "env_steps", "episode_return", "episodes", "epsilon", "sigma_min", "lr", "policy_loss",
-    "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used",
-)
-TRACKED = SWEEP_METRICS + ("failed_at",)  # per run and iteration on the host; failed_at is not a CSV column
+TRACKED = ITERATION_METRICS + ("failed_at",)  # per run and iteration on the host; failed_at is not a CSV column
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
@@ -201,17 +197,13 @@ def check_hparams_table(hps, bad):
     return out
 
 
-def action_size(env_name):
-    import envs
-
-    return envs.make_base(env_name).action_size
-
-
 def cluster_counts(spec, env_name):
     """K values of a mixture group: absolute, or ceil(m * action_dim) for each multiplier (deduplicated, sorted)."""
     if "clusters" in spec:
         return sorted(set(spec["clusters"]))
-    d_a = action_size(env_name)
+    import envs
+
+    d_a = envs.action_size(env_name)
     return sorted({max(1, math.ceil(m * d_a - 1e-9)) for m in spec["cluster_multipliers"]})
 
 
@@ -267,127 +259,26 @@ def default_chunk(spec, cfg):
     return spec.get("chunk") or max(1, min(10, math.ceil(spec["steps"] / cfg.batch_size) // 20))
 
 
-# ----------------------------------------------------------------------------------------------- programs
-def stack_hparams(runs, names, iterations):
-    import jax.numpy as jnp
-
-    from gsa_jax.ppo import make_hparams
-
-    per_run = [make_hparams(K=r["K"], total_iterations=iterations, **{n: r[n] for n in names}) for r in runs]
-    return {k: jnp.stack([h[k] for h in per_run]) for k in per_run[0]}
-
-
-RUN_BATCH = 8  # runs per sub-batch (make_group_program); measured in experiments/README.md (benchmark)
-
-
-def sub_batched(fn, size):
-    """fn (vmapped over a leading run axis R) applied to sequential slices of `size` runs in a lax.scan,
-    when size divides R and is smaller; else fn itself. (Explicit shapes: jax.lax.map(batch_size=) fails
-    on MJX's zero-size arrays.)"""
-    import jax
-
-    def run(*xs):
-        n = jax.tree.leaves(xs)[0].shape[0]
-        if not size or size >= n or n % size:
-            return fn(*xs)
-        split = jax.tree.map(lambda x: x.reshape((n // size, size) + x.shape[1:]), xs)
-        _, ys = jax.lax.scan(lambda c, x: (c, fn(*x)), None, split)
-        return jax.tree.map(lambda y: y.reshape((n,) + y.shape[2:]), ys)
-
-    return run
-
-
-def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
-    """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
-    vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
-    run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
-    all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
-    slowest env instead of the whole device's."""
-    import jax
-    from jax.sharding import NamedSharding
-    from jax.sharding import PartitionSpec as P
-
-    from gsa_jax.ppo import make_train
-
-    trainer = make_train(cfg)
-    init = jax.vmap(trainer.init)
-    run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
-    if len(devices) > 1:
-        # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
-        # type check rejects; every op here is per-run, so nothing needs that check.
-        mesh = jax.sharding.Mesh(np.array(devices), ("runs",))
-        init = jax.shard_map(init, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
-        run = jax.shard_map(run, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
-        sharding = NamedSharding(mesh, P("runs"))
-    else:
-        sharding = jax.sharding.SingleDeviceSharding(devices[0])
-    place = lambda tree: jax.device_put(tree, sharding)  # noqa: E731
-    return trainer, jax.jit(init), jax.jit(run, donate_argnums=0), place
-
-
-def pad_runs(runs, multiple, at_least=0):
-    """Pad with copies of the last run to at least `at_least` runs and a multiple of `multiple` (the
-    devices), so the run axis splits evenly (copies are dropped later)."""
-    n = max(len(runs), at_least)
-    pad = n - len(runs) + (-n) % multiple
-    return runs + [dict(runs[-1], run=-1)] * pad
-
-
-_PROGRAMS = {}  # (cfg, chunk, devices, run_batch, runs) -> compiled (init, run, place): reused within a process
-
-
-def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
-    """The group program for `runs` (already padded), compiled, and its initial state.
-    share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
-    inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
-    A program this process compiled before (same shapes) is reused.
-    Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
-    import jax
-
-    from gsa_jax import xla_cache
-
-    key = (cfg, chunk, tuple(devices), run_batch, len(runs))
-    how = "reused (compiled earlier in this process)"
-    if key not in _PROGRAMS:
-        _, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
-        hps = place(stack_hparams(runs, hparam_names, iterations))
-        keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
-        init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
-        run, how = xla_cache.compile_with(run.lower(init(keys, hps), hps), share, log)
-        _PROGRAMS.clear()  # keep the last program only: resumed groups and tests reuse it
-        _PROGRAMS[key] = (init, run, place)
-    init, run, place = _PROGRAMS[key]
-    hps = place(stack_hparams(runs, hparam_names, iterations))
-    keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
-    return init(keys, hps), run, hps, place, how
-
-
 # ----------------------------------------------------------------------------------------------- files
-def rows_of_run(metrics, i, upto):
-    """Iterations of run i to write: up to `upto`, ending before the iteration where it failed (NaN/inf)."""
-    failed_at = int(metrics["failed_at"][i, upto - 1]) if upto else -1
-    return upto if failed_at < 0 else min(upto, failed_at - 1)
-
-
 def group_csv(runs, id_cols, metrics, upto):
     """Tidy rows (run-major) of one group's metrics [R, iters] for the first `upto` iterations (a failed
     run's rows end before its failing iteration)."""
     lines = []
     for i, r in enumerate(runs):
         ids = ",".join(str(r[c]) for c in id_cols)
-        cols = [metrics[m][i] for m in SWEEP_METRICS]
-        for j in range(rows_of_run(metrics, i, upto)):
+        cols = [metrics[m][i] for m in ITERATION_METRICS]
+        for j in range(rows_before_failure(metrics, i, upto)):
             vals = []
-            for m, c in zip(SWEEP_METRICS, cols):
+            for m, c in zip(ITERATION_METRICS, cols):
                 v = c[j]
-                vals.append("" if isinstance(v, float) and math.isnan(v) else (str(int(v)) if m in ("iteration", "env_steps", "clusters_used") else f"{float(v):.6g}"))
+                vals.append("" if isinstance(v, float) and math.isnan(v) else (str(int(v)) if m in INTEGER_METRICS else f"{float(v):.6g}"))
             lines.append(ids + "," + ",".join(vals))
-    return ",".join([tidy_name(c) for c in id_cols] + list(SWEEP_METRICS)), lines
+    return ",".join([tidy_name(c) for c in id_cols] + list(ITERATION_METRICS)), lines
 
 
 def tidy_name(column):
     """A swept hyperparameter's column in the tidy table: 'hparam_<name>' where a metric has its name (lr)."""
-    return f"hparam_{column}" if column in SWEEP_METRICS else column
+    return f"hparam_{column}" if column in ITERATION_METRICS else column
 
 
 def failed_runs(runs, metrics, upto):
@@ -444,9 +335,9 @@ def finish_group(gdir, states, runs, metrics, done, timing):
     """Final parameters (a failed run's last finite ones), failed.json and DONE; drop the resume state."""
     import jax
 
-    from gsa_jax.checkpoint import previous_path, save_pytree
+    from gsa_jax.checkpoint import save_pytree
 
-    params = jax.device_get({"params": states["params"], "obs_stats": states["obs_stats"]})
+    params = jax.device_get({"params": states.params, "obs_stats": states.obs_stats})
     save_pytree(os.path.join(gdir, "params.npz"), jax.tree.map(lambda x: x[: len(runs)], params))
     write_atomic(os.path.join(gdir, "failed.json"), json.dumps(failed_runs(runs, metrics, done)))
     write_atomic(os.path.join(gdir, "DONE"), json.dumps(timing))
@@ -456,122 +347,73 @@ def finish_group(gdir, states, runs, metrics, done, timing):
 
 
 # ----------------------------------------------------------------------------------------------- the worker
-class GroupResult(tuple):
-    """(done, iterations, metrics, runs) of one group: iterations done and planned, the host's metric
-    arrays [R, iterations] (TRACKED), the group's runs."""
+class GroupStore:
+    """The files of one group (the driver's store) in gdir: state.npz and metrics.npz after every chunk
+    (each keeping its previous version); at the end params.npz, failed.json and DONE. on_chunk(runs,
+    metrics [len(runs), iterations], done) runs after every save (the tidy table)."""
 
-    done = property(lambda self: self[0])
-    iterations = property(lambda self: self[1])
-    metrics = property(lambda self: self[2])
-    runs = property(lambda self: self[3])
+    def __init__(self, gdir, runs, iterations, on_chunk=None):
+        self.gdir, self.runs, self.iterations, self.on_chunk = gdir, runs, iterations, on_chunk
 
-    @property
-    def finished(self):
-        return self.done >= self.iterations
+    def load(self, template):
+        if not any(os.path.exists(os.path.join(self.gdir, n)) for n in ("state.npz", "state.prev.npz")):
+            return None
+        try:
+            return load_group_checkpoint(self.gdir, template, self.iterations, warn)
+        except CheckpointError as e:
+            raise SpecError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
+
+    def save(self, states, metrics, done):
+        save_group_checkpoint(self.gdir, states, {k: metrics[k] for k in TRACKED}, done)
+        if self.on_chunk:
+            self.on_chunk(self.runs, {k: v[: len(self.runs)] for k, v in metrics.items()}, done)
+
+    def finish(self, states, metrics, done, timing):
+        finish_group(self.gdir, states, self.runs, metrics, done, timing)
 
 
-def progress(tag, runs, metrics, done, iterations, chunk, steps_per_s, batch, chunk_s):
-    """One progress line of a group after a chunk."""
-    last = metrics["episode_return"][: len(runs), max(0, done - chunk):done]
-    recent = np.array([np.nanmean(row) if np.any(np.isfinite(row)) else np.nan for row in last])
-    eta = (iterations - done) * batch * len(runs) / max(steps_per_s, 1e-9)
-    failed = int(np.sum(metrics["failed_at"][: len(runs), done - 1] >= 0))
-    best = np.nanmax(recent) if np.any(np.isfinite(recent)) else float("nan")
-    median = np.nanmedian(recent) if np.any(np.isfinite(recent)) else float("nan")
-    return (f"[{tag}] it {done}/{iterations} | {steps_per_s:,.0f} env-steps/s | ETA {eta / 60:.1f} min | return "
-            f"best {best:.1f} median {median:.1f}" + (f" | {failed} run(s) failed (NaN/inf)" if failed else "")
-            + f" | chunk {chunk_s:.1f}s")
+def finished_group(gdir, iterations):
+    """The driver Result of a group whose DONE marker exists, from its metrics.npz."""
+    from gsa_jax.driver import Result
+
+    with np.load(os.path.join(gdir, "metrics.npz")) as m:
+        saved = {k: m[k] for k in m.files if k != "__done__"}
+    saved.setdefault("failed_at", np.full_like(saved["iteration"], -1.0))
+    done = saved["iteration"].shape[1]
+    return Result(done, iterations, saved, "finished" if done >= iterations else "failed", {}, done)
 
 
 def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None,
               run_batch=RUN_BATCH, pad_to=0, share=None):
-    """Train (or resume) one group. Returns a GroupResult. pad_to: pad the runs to at least this many
-    (every worker process builds the same program); share: see compile_group."""
+    """Train (or resume) one group with the run driver. Returns its driver Result. pad_to: pad the runs to
+    at least this many (every worker process builds the same program); share: see programs.compile_group."""
+    from gsa_jax.driver import Plan, drive
+    from gsa_jax.programs import group_program
+
     gdir = os.path.join(out, "groups", group_name(env_name, policy, runs))
     os.makedirs(gdir, exist_ok=True)
     cfg = group_config(spec, env_name, policy, runs)
     chunk = default_chunk(spec, cfg)
     iterations = group_iterations(spec, cfg, chunk)
     if os.path.exists(os.path.join(gdir, "DONE")):
-        with np.load(os.path.join(gdir, "metrics.npz")) as m:
-            saved = {k: m[k] for k in m.files}
-        saved.setdefault("failed_at", np.full_like(saved["iteration"], -1.0))
-        return GroupResult((iterations, iterations, saved, runs))
+        return finished_group(gdir, iterations)
     cols = id_columns(spec)
     write_atomic(os.path.join(gdir, "runs.csv"), "\n".join(
         [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in runs]) + "\n")
-    padded = pad_runs(runs, len(devices), at_least=pad_to)
     t0 = time.perf_counter()
-    states, run, hps, place, how = compile_group(cfg, chunk, devices, padded, list(spec["hparams"]), iterations, run_batch,
-                                                 share, log)
-    compile_s = time.perf_counter() - t0
-    metrics = {m: np.full((len(padded), iterations), np.nan, np.float64) for m in TRACKED}
-    done, tag = 0, group_name(env_name, policy, runs).replace(f"{env_name}-", f"{env_name}/", 1)
-    if os.path.exists(os.path.join(gdir, "state.npz")) or os.path.exists(os.path.join(gdir, "state.prev.npz")):
-        try:
-            loaded, metrics, done = load_group_checkpoint(gdir, states, iterations, warn)
-        except CheckpointError as e:
-            raise SpecError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
-        states = place(loaded)
-        log(f"[{tag}] resumed at iteration {done}/{iterations}")
+    program = group_program(cfg, chunk, devices, pad_runs(runs, len(devices), at_least=pad_to), list(spec["hparams"]),
+                            iterations, run_batch, share, log)
+    tag = group_name(env_name, policy, runs).replace(f"{env_name}-", f"{env_name}/", 1)
     log(f"[{tag}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
-        f"{len(devices)} device(s); program {how} ({compile_s:.1f}s)")
-    loop = {"done": done, "chunks": 0, "steps": 0, "t": time.perf_counter(), "states": states}
-    try:
-        train_chunks(run, hps, metrics, loop, iterations, chunk, stop_after_chunks, gdir, tag, runs, cfg, log,
-                     on_chunk, heartbeat)
-    except DiskFullError as e:
-        e.last_intact = f"iteration {loop['intact']} of group {tag}"
-        raise
-    if loop["done"] >= iterations:
-        train_s = time.perf_counter() - loop["t"]
-        finish_group(gdir, loop["states"], runs, metrics, loop["done"],
-                     {"compile_s": compile_s, "train_s": train_s, "env_steps_per_s": loop["steps"] / max(train_s, 1e-9)})
-    return GroupResult((loop["done"], iterations, metrics, runs))
-
-
-def train_chunks(run, hps, metrics, loop, iterations, chunk, stop_after_chunks, gdir, tag, runs, cfg, log,
-                 on_chunk, heartbeat):
-    """run_group's chunk loop: train, record, checkpoint, report. loop: done, chunks, steps, t, states (updated)."""
-    import jax
-
-    loop["intact"] = loop["done"]
-    while loop["done"] < iterations:
-        tc = time.perf_counter()
-        loop["states"], m = run(loop["states"], hps)
-        m = jax.device_get(m)
-        done = loop["done"]
-        for k in TRACKED:
-            metrics[k][:, done:done + chunk] = m[k]
-        loop["done"] = done = done + chunk
-        loop["steps"] += chunk * cfg.batch_size * len(runs)
-        loop["chunks"] += 1
-        save_group_checkpoint(gdir, loop["states"], metrics, done)
-        loop["intact"] = done
-        if on_chunk:
-            on_chunk(GroupResult((done, iterations, {k: v[: len(runs)] for k, v in metrics.items()}, runs)))
-        if heartbeat:
-            heartbeat(time.perf_counter() - tc)
-        _maybe_inject_hang(gdir, loop["chunks"])
-        sps = loop["steps"] / (time.perf_counter() - loop["t"])
-        log(progress(tag, runs, metrics, done, iterations, chunk, sps, cfg.batch_size, time.perf_counter() - tc))
-        if stop_after_chunks is not None and loop["chunks"] >= stop_after_chunks and done < iterations:
-            break
-
-
-def _maybe_inject_hang(gdir, chunks_run):
-    """Fault injection for the watchdog test: with GSA_JAX_FAULT_HANG_AFTER_CHUNKS=N the worker stalls
-    (like an XLA:CPU hang: alive, no progress) once, after its N-th chunk in a group."""
-    n = os.environ.get("GSA_JAX_FAULT_HANG_AFTER_CHUNKS")
-    marker = os.path.join(gdir, ".fault_injected")
-    if n and chunks_run == int(n) and not os.path.exists(marker):
-        write_atomic(marker, "1")
-        time.sleep(1e9)
+        f"{len(devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
+    plan = Plan(iterations, chunk, cfg.batch_size, len(runs), stop_after_chunks=stop_after_chunks, tag=tag)
+    return drive(program, GroupStore(gdir, runs, iterations, on_chunk), plan, log, heartbeat, clock_start=t0)
 
 
 def write_tidy(out, spec, results):
+    """The tidy metrics.csv of out from [(runs, metrics [len(runs), iterations], done)] of its groups."""
     header, lines = None, []
-    for done, _, metrics, runs in results:
+    for runs, metrics, done in results:
         header, ls = group_csv(runs, id_columns(spec), metrics, done)
         lines.extend(ls)
     if header:
@@ -592,12 +434,14 @@ def check_same_spec(meta_path, spec, force):
 
 def write_sweep_meta(root, spec, groups, num_processes, force):
     """sweep.json: spec, every run, versions, commit (a resumed sweep must have the same spec, unless force)."""
-    from gsa_jax.runinfo import run_metadata
+    from gsa_jax.runinfo import physics_record, run_metadata
 
     meta_path = os.path.join(root, "sweep.json")
     if os.path.exists(meta_path):
         check_same_spec(meta_path, spec, force)
-    meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes, **run_metadata()}
+    physics = {group_name(e, p, runs): physics_record(group_config(spec, e, p, runs)) for e, p, runs in groups}
+    meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes,
+            "physics": physics, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 
@@ -605,7 +449,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
               run_batch=RUN_BATCH, local_workers=True, force=False):
     """Train every group of the spec (this process's share of each). Returns True when all groups are done;
     the runs that failed (NaN/inf) are written to failed_runs.json in this process's directory.
-    run_batch: see make_group_program. local_workers: the processes share this machine and `out`
+    run_batch: see programs.make_group_program. local_workers: the processes share this machine and `out`
     (False for multi-host sweeps: each process compiles for itself). force: resume a changed spec."""
     import jax
 
@@ -640,20 +484,20 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
                 if not mine:
                     continue
                 res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
-                                on_chunk=lambda partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
+                                on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
                                 pad_to=math.ceil(len(runs) / num_processes), share=share)
-                results.append(res)
+                results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))
                 write_tidy(out, spec, results)
                 if not res.finished:
                     complete = False
                     break
-        failed = [f for res in results for f in failed_runs(res.runs, res.metrics, res.done)]
+        failed = [f for runs, metrics, done in results for f in failed_runs(runs, metrics, done)]
         write_atomic(os.path.join(out, "failed_runs.json"), json.dumps(failed))
     except DiskFullError as e:
         if not hasattr(e, "last_intact"):
-            last = results[-1] if results else None
-            e.last_intact = (f"iteration {last.done} of group {group_name(last.runs[0]['env'], last.runs[0]['policy'], last.runs)}"
-                             if last else "none (nothing trained yet)")
+            runs, _, done = results[-1] if results else (None, None, None)
+            e.last_intact = (f"iteration {done} of group {group_name(runs[0]['env'], runs[0]['policy'], runs)}"
+                             if results else "none (nothing trained yet)")
         raise
     for f in failed:
         log(f"run failed (NaN/inf in loss or parameters) at iteration {f['failed_at']}: "
@@ -684,80 +528,9 @@ def report_failures(root, dirs, log=print):
     return failed
 
 
-# ----------------------------------------------------------------------------------------------- supervisor
-SINGLE_THREAD_EIGEN = "--xla_cpu_multi_thread_eigen=false"
-
-
-def worker_env(processes):
-    """Environment of `processes` local worker processes. With a worker on every core, XLA's Eigen ops
-    run single-threaded in each (their thread pools would only compete with the other workers; 256
-    hopper runs on 2 cores: 1.05-1.12x, experiments/README.md), unless XLA_FLAGS already sets it."""
-    env = dict(os.environ)
-    if 1 < (os.cpu_count() or 1) <= processes and "xla_cpu_multi_thread_eigen" not in env.get("XLA_FLAGS", ""):
-        env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_EIGEN).strip()
-    return env
-
-
-def supervise(worker_argvs, heartbeat_dirs, watchdog_min_s, max_restarts, log=print):
-    """Run one worker process per argv; kill and restart (from its last checkpoint) any worker whose
-    heartbeat stalls for longer than max(watchdog_min_s, 10 x its median chunk time). Returns the
-    first non-zero exit status, or 0."""
-    workers = {}
-
-    def start(i):
-        hb = os.path.join(heartbeat_dirs[i], "heartbeat.json")
-        if os.path.exists(hb):
-            os.unlink(hb)
-        proc = subprocess.Popen([sys.executable, "-m", "gsa_jax.sweep", *worker_argvs[i], "--worker"], start_new_session=True,
-                                env=worker_env(len(worker_argvs)))
-        workers[i] = {"proc": proc, "hb": hb, "seen": None, "last": time.time(), "durations": [], "restarts": workers.get(i, {}).get("restarts", 0)}
-
-    for i in range(len(worker_argvs)):
-        start(i)
-    status = 0
-    try:
-        while workers:
-            time.sleep(1.0)
-            for i, w in list(workers.items()):
-                rc = w["proc"].poll()
-                if rc is not None:
-                    del workers[i]
-                    status = status or rc
-                    continue
-                try:
-                    with open(w["hb"]) as f:
-                        hb = json.load(f)
-                    if hb["count"] != w["seen"]:
-                        w["seen"], w["last"], w["durations"] = hb["count"], time.time(), hb["durations"][-20:]
-                except (OSError, ValueError, KeyError):
-                    pass
-                # before the first chunk (compiling, possibly several minutes for big groups): generous
-                limit = (max(watchdog_min_s, 10 * statistics.median(w["durations"])) if w["durations"]
-                         else max(3 * watchdog_min_s, 600.0))
-                if time.time() - w["last"] > limit:
-                    log(f"watchdog: worker {i} made no progress for {time.time() - w['last']:.0f}s (limit {limit:.0f}s); "
-                        f"killing it and restarting from its last checkpoint")
-                    os.killpg(w["proc"].pid, signal.SIGKILL)
-                    w["proc"].wait()
-                    if w["restarts"] >= max_restarts:
-                        log(f"watchdog: worker {i} gave up after {max_restarts} restarts")
-                        del workers[i]
-                        status = status or 3
-                        continue
-                    w["restarts"] += 1
-                    start(i)
-    except KeyboardInterrupt:
-        for w in workers.values():
-            os.killpg(w["proc"].pid, signal.SIGKILL)
-            w["proc"].wait()
-        log("\ninterrupted; finished chunks are saved: run the same command again to resume")
-        return 130
-    return status
-
-
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m gsa_jax.sweep", description=__doc__.split("\n")[0])
-    p.add_argument("experiment", help="experiment file (TOML), e.g. experiments/fig1_small.toml")
+    p.add_argument("experiment", help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml")
     p.add_argument("--out", default=None, help="output directory (default runs/sweeps/<name>)")
     p.add_argument("--devices", type=int, default=None, help="shard each worker's runs over its first N local devices (default: all)")
     p.add_argument("--local-processes", type=int, default=None,
@@ -798,9 +571,10 @@ def check_args(args, argv):
     return spec, out, local
 
 
-def main(argv=None):
+def main(argv=None, after_chunk=None):
     """Exit status: 0 done (or stopped as asked), 1 some runs failed (NaN/inf), 2 bad input or a locked /
-    changed / unreadable output directory, 3 a worker hung repeatedly, 4 disk full, 130 interrupted."""
+    changed / unreadable output directory, 3 a worker hung repeatedly, 4 disk full, 130 interrupted.
+    after_chunk: see run_worker."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     try:
@@ -809,7 +583,7 @@ def main(argv=None):
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2
     if args.worker:
-        return run_worker(args, spec, out)
+        return run_worker(args, spec, out, after_chunk)
     from gsa_jax.runlock import LockError, hold
 
     lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
@@ -818,7 +592,7 @@ def main(argv=None):
         with hold(lock_dir, f"gsa_jax.sweep {spec['name']}", log=lambda m: print(m, file=sys.stderr)):
             if local > 1 or not args.no_watchdog:
                 return supervise_workers(args, argv, out, local)
-            return run_worker(args, spec, out)
+            return run_worker(args, spec, out, after_chunk)
     except LockError as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2
@@ -836,7 +610,10 @@ def supervise_workers(args, argv, out, local):
         dirs = [out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")]
     for d in dirs:
         os.makedirs(d, exist_ok=True)
-    status = supervise(argvs, dirs, args.watchdog_min, args.max_restarts)
+    from gsa_jax.supervise import supervise
+
+    cmds = [[sys.executable, "-m", "gsa_jax.sweep", *a, "--worker"] for a in argvs]
+    status = supervise(cmds, dirs, args.watchdog_min, args.max_restarts)
     if status == 0:
         try:
             if report_failures(out, dirs):
@@ -848,9 +625,12 @@ def supervise_workers(args, argv, out, local):
     return status
 
 
-def run_worker(args, spec, out):
-    """Train this process's share in this process (a supervised worker, or --no-watchdog)."""
+def run_worker(args, spec, out, after_chunk=None):
+    """Train this process's share in this process (a supervised worker, or --no-watchdog). after_chunk:
+    called after every chunk's heartbeat (tests inject faults with it)."""
     import jax
+
+    from gsa_jax.supervise import heartbeat_writer
 
     if args.num_processes > 1 and args.coordinator:
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
@@ -865,12 +645,12 @@ def run_worker(args, spec, out):
         devices = devices[: args.devices]
     wdir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
     os.makedirs(wdir, exist_ok=True)
-    beats = {"count": 0, "durations": []}
+    beat = heartbeat_writer(wdir)
 
     def heartbeat(duration):
-        beats["count"] += 1
-        beats["durations"] = (beats["durations"] + [duration])[-50:]
-        write_atomic(os.path.join(wdir, "heartbeat.json"), json.dumps(beats))
+        beat(duration)
+        if after_chunk:
+            after_chunk()
 
     try:
         complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,

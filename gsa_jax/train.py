@@ -12,7 +12,6 @@ Training runs as compiled chunks of iterations; between chunks the CLI logs, eva
 import argparse
 import csv
 import dataclasses
-import functools
 import io
 import json
 import math
@@ -21,14 +20,12 @@ import sys
 import time
 
 from gsa_jax.checkpoint import write_atomic
+from gsa_jax.driver import duration, fmt
+from gsa_jax.metrics import INTEGER_METRICS
+from gsa_jax.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.policies import SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config
 
-METRIC_COLUMNS = (
-    "iteration", "env_steps", "episode_return", "eval_return", "episodes", "epsilon", "sigma_min", "lr",
-    "policy_loss", "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy",
-    "clusters_used", "wall_s",
-)
 _HP_FLAGS = {  # CLI flag -> hparam name
     "lr": "lr", "clip": "clip_eps", "gamma": "gamma", "gae_lambda": "gae_lambda", "vf_coef": "vf_coef",
     "max_grad_norm": "max_grad_norm", "eps_init": "eps_init", "eps_decay": "eps_decay",
@@ -62,9 +59,13 @@ def build_parser():
     p.add_argument("--episode-length", type=int, default=None, help="time limit in steps (default: the task's own)")
     p.add_argument("--solver-iterations", type=int, default=None,
                    help="MJX constraint-solver iterations (default: the task's own; hopper 4). Fewer is faster but a "
-                        "changed simulator -- see experiments/README.md (solver)")
+                        "changed simulator -- see experiments/solver_hopper/")
     p.add_argument("--ls-iterations", type=int, default=None,
                    help="MJX line-search iterations per solver iteration (default: the task's own; hopper 50)")
+    p.add_argument("--linesearch", default=Config.linesearch, choices=("exact", "iterative"),
+                   help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
+    p.add_argument("--cholesky", default=Config.cholesky, choices=("unrolled", "lapack"),
+                   help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
     p.add_argument("--b-init-scale", type=float, default=Config.b_init_scale, help="initial biases spread over [-s, s]^d_a")
     for flag, name in _HP_FLAGS.items():
         p.add_argument("--" + flag.replace("_", "-"), type=float, default=HPARAM_DEFAULTS[name], dest=flag)
@@ -100,7 +101,8 @@ def resolve(args):
         unroll_length=args.unroll_length, num_epochs=args.epochs, num_minibatches=args.minibatches,
         episode_length=args.episode_length, normalize_reward=not args.no_normalize_reward,
         b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
-        solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
+        solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
+        cholesky=args.cholesky,
     )
     try:
         cfg.validate()
@@ -164,15 +166,6 @@ def read_rows(path):
         return list(csv.DictReader(f))
 
 
-def _fmt(x, spec):
-    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
-
-
-def _duration(s):
-    s = int(max(0, s))
-    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
-
-
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -203,35 +196,69 @@ RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk")
 def check_resume_config(old, config, force):
     """Raise UsageError with a one-line diff if the saved run's config differs (unless force)."""
     mine = {k: json.loads(json.dumps(config[k])) for k in RESUME_KEYS}
-    # runs saved before a config field existed hold its default (None) implicitly
-    mine["config"] = {k: v for k, v in mine["config"].items() if v is not None or k in old.get("config", {})}
+    theirs = {k: old.get(k) for k in RESUME_KEYS}
+    # a run saved before a config field existed ran with that field's default
+    defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(Config)}))
+    theirs["config"] = {**{k: defaults[k] for k in mine["config"] if k in defaults}, **(theirs["config"] or {})}
     from gsa_jax.runinfo import describe_changes
 
-    diff = describe_changes({k: old.get(k) for k in RESUME_KEYS}, mine)
+    diff = describe_changes(theirs, mine)
     if diff and not force:
         raise UsageError(f"--resume with a different run than the one in the output directory ({diff}); "
                          "pass --force to continue it with the new settings")
 
 
-def resume_state(state, out, log):
-    """(state, metrics rows, iteration) of the run saved in out: state.npz, or state.prev.npz if that is
-    unreadable; metrics.csv (or its previous version) cut to the state's iteration."""
-    from gsa_jax.checkpoint import load_pytree, read_with_fallback
+class RunStore:
+    """The files of a single run (the driver's store): metrics.csv, params.npz and state.npz (the
+    checkpoint files keep their previous version) in `out`."""
 
-    def warn(msg):  # seen even with --quiet
-        print(msg, file=sys.stderr, flush=True)
+    def __init__(self, out, config, resume):
+        self.out, self.config, self.resume = out, config, resume
 
-    state, path = read_with_fallback(os.path.join(out, "state.npz"), lambda p: load_pytree(p, state), warn)
-    done_it = int(state["iteration"])
-    rows, _ = read_with_fallback(os.path.join(out, "metrics.csv"), read_rows_checked, warn)
-    if int(state["failed_at"]) >= 0:
-        raise UsageError(f"the run in {out} stopped at a NaN/inf at iteration {int(state['failed_at'])}; nothing to resume")
-    rows = [r for r in rows if int(r["iteration"]) <= done_it]
-    if len(rows) < done_it:
-        raise UsageError(f"{out}: metrics.csv holds {len(rows)} iterations but {os.path.basename(path)} is at "
-                         f"iteration {done_it}; delete the directory to start over")
-    log(f"resumed at iteration {done_it} from {path}")
-    return state, rows, done_it
+    def path(self, name):
+        return os.path.join(self.out, name)
+
+    def load(self, template):
+        """(state, metrics [1, done], done) of the run saved in out: state.npz, or state.prev.npz if that
+        is unreadable; metrics.csv (or its previous version) cut to the state's iteration. None if
+        there is nothing to resume."""
+        from gsa_jax.checkpoint import load_pytree, read_with_fallback
+
+        if not self.resume or not any(os.path.exists(self.path(n)) for n in ("state.npz", "state.prev.npz")):
+            return None
+        state, path = read_with_fallback(self.path("state.npz"), lambda p: load_pytree(p, template), _warn)
+        done = int(state.iteration)
+        rows, _ = read_with_fallback(self.path("metrics.csv"), read_rows_checked, _warn)
+        if int(state.failed_at) >= 0:
+            raise UsageError(f"the run in {self.out} stopped at a NaN/inf at iteration {int(state.failed_at)}; nothing to resume")
+        rows = [r for r in rows if int(r["iteration"]) <= done]
+        if len(rows) < done:
+            raise UsageError(f"{self.out}: metrics.csv holds {len(rows)} iterations but {os.path.basename(path)} is at "
+                             f"iteration {done}; delete the directory to start over")
+        return state, rows_to_metrics(rows), done
+
+    def save(self, state, metrics, done):
+        """Metrics, parameters and state after a chunk."""
+        from gsa_jax.checkpoint import save_pytree
+
+        write_atomic(self.path("metrics.csv"), rows_to_csv(metrics_to_rows(metrics, done)), keep_previous=True)
+        self.save_params(state)
+        save_pytree(self.path("state.npz"), state, keep_previous=True)
+
+    def save_params(self, state):
+        import numpy as np
+
+        from gsa_jax.checkpoint import save_pytree
+
+        save_pytree(self.path("params.npz"), {"params": state.params, "obs_stats": state.obs_stats},
+                    **{"meta/config_json": np.array(json.dumps(self.config))})
+
+    def finish(self, state, metrics, done, timing):
+        """Nothing beyond the last chunk's files: train.finish writes the result into config.json."""
+
+
+def _warn(msg):  # seen even with --quiet
+    print(msg, file=sys.stderr, flush=True)
 
 
 def read_rows_checked(path):
@@ -243,41 +270,29 @@ def read_rows_checked(path):
     return rows
 
 
-def save_chunk(out, state, rows, config):
-    """Metrics, parameters and state after a chunk; the checkpoint files keep their previous version."""
-    import numpy as np
+def metrics_to_rows(metrics, done):
+    """metrics.csv rows (dicts) of the single run in the driver's metrics {name: [1, iterations]}: the
+    first `done` iterations, ending before a failing iteration; NaN as an empty cell."""
+    from gsa_jax.driver import rows_before_failure
 
-    from gsa_jax.checkpoint import save_pytree
-
-    write_atomic(os.path.join(out, "metrics.csv"), rows_to_csv(rows), keep_previous=True)
-    save_pytree(os.path.join(out, "params.npz"), {k: state[k] for k in ("params", "obs_stats")},
-                **{"meta/config_json": np.array(json.dumps(config))})
-    save_pytree(os.path.join(out, "state.npz"), state, keep_previous=True)
-
-
-def chunk_rows(metrics, count, eval_ret, wall):
-    """The first `count` iterations of a chunk's metrics as CSV rows (eval_return on the last)."""
     rows = []
-    for i in range(count):
-        row = {k: (v[i].item() if hasattr(v[i], "item") else v[i]) for k, v in metrics.items() if k in METRIC_COLUMNS}
-        row["eval_return"] = eval_ret if i == count - 1 else math.nan
-        row["wall_s"] = round(wall, 3)
-        rows.append({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
+    for j in range(rows_before_failure(metrics, 0, done)):
+        row = {}
+        for k in METRIC_COLUMNS:
+            v = float(metrics[k][0, j])
+            row[k] = "" if math.isnan(v) else (int(v) if k in INTEGER_METRICS else v)
+        rows.append(row)
     return rows
 
 
-def progress_line(cfg, rows, metrics, it, iterations, chunk, eval_ret, sps, t_chunk):
+def rows_to_metrics(rows):
+    """The inverse of metrics_to_rows: {name: float64 [1, len(rows)]} (a written row never failed)."""
     import numpy as np
 
-    eta = (iterations - it) * cfg.batch_size / max(sps, 1e-9)
-    recent = [float(r["episode_return"]) for r in rows[-chunk:] if r["episode_return"] != ""]
-    line = (f"it {it}/{iterations} | steps {it * cfg.batch_size:,} | return {_fmt(np.mean(recent) if recent else None, '.1f')}"
-            + (f" | eval {eval_ret:.1f}" if not math.isnan(eval_ret) else "")
-            + f" | {sps:,.0f} steps/s | ETA {_duration(eta)}")
-    if cfg.policy == "mixture":
-        line += (f" | eps {float(metrics['epsilon'][-1]):.3f} sigma_min {float(metrics['sigma_min'][-1]):.4f}"
-                 f" | clusters used {int(metrics['clusters_used'][-1])}")
-    return line + f" | chunk {time.perf_counter() - t_chunk:.1f}s"
+    metrics = {k: np.array([[float(r[k]) if r.get(k, "") != "" else math.nan for r in rows]], np.float64)
+               for k in METRIC_COLUMNS}
+    metrics["failed_at"] = np.full((1, len(rows)), -1.0)
+    return metrics
 
 
 def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=False, argv=None, stop_after=None, force=False):
@@ -285,108 +300,68 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
     4 (disk full), 130 (interrupted)."""
     from gsa_jax.checkpoint import CheckpointError, DiskFullError
 
-    def log(msg):
-        if not quiet:
-            print(msg, flush=True)
-
+    log = (lambda msg: None) if quiet else (lambda msg: print(msg, flush=True))
     config = {
         "config": dataclasses.asdict(cfg), "hparams": hp_py, "seed": seed, "iterations": iterations,
         "chunk": chunk, "eval_every": eval_every, "env_steps": iterations * cfg.batch_size,
         "argv": list(sys.argv[1:] if argv is None else argv),
     }
-    loop = {"done_it": 0, "intact_it": 0}
     try:
         config_path = os.path.join(out, "config.json")
         if resume and os.path.exists(config_path):
             with open(config_path) as f:
                 check_resume_config(json.load(f), config, force)
-        from gsa_jax.runinfo import run_metadata
+        from gsa_jax.runinfo import physics_record, run_metadata
 
-        config.update(run_metadata())
+        config.update(physics=physics_record(cfg), **run_metadata())
         write_atomic(config_path, json.dumps(config, indent=2))
-        return train_loop(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, config, log, stop_after, loop)
+        return train_run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, config, log, stop_after)
     except (UsageError, CheckpointError) as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
     except DiskFullError as e:
-        intact = "iteration {}".format(loop["intact_it"])
+        intact = getattr(e, "last_intact", None) or f"iteration {saved_iteration(out)}"
         print(f"gsa_jax.train: error: {e.describe(intact)}", file=sys.stderr)
         return 4
 
 
-@functools.lru_cache(maxsize=8)
-def compiled_program(cfg, chunk):
-    """(trainer, jitted init, compiled run_chunk of `chunk` iterations, jitted evaluate) of a Config,
-    built once per process (a second run of the same shapes in this process, e.g. a test, reuses it)."""
-    import jax
-
-    from gsa_jax.ppo import make_hparams, make_train
-
-    trainer = make_train(cfg)
-    init = jax.jit(trainer.init)
-    hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
-    state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
-    run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
-    return trainer, init, run_chunk, jax.jit(trainer.evaluate)
-
-
-def train_loop(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, config, log, stop_after, loop):
-    import jax
+def saved_iteration(out):
+    """The iteration of the newest readable checkpoint in out (0 if none)."""
     import numpy as np
 
-    from gsa_jax.checkpoint import save_pytree
+    for name in ("state.npz", "state.prev.npz"):
+        try:
+            with np.load(os.path.join(out, name)) as f:
+                return int(f[".iteration"] if ".iteration" in f.files else f["['iteration']"])
+        except (OSError, KeyError, ValueError):
+            continue
+    return 0
 
-    from gsa_jax.ppo import make_hparams
+
+def train_run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, config, log, stop_after):
+    """Compile (or reuse) the run's program and drive it with a RunStore; then finish. Returns the exit status."""
+    from gsa_jax.driver import Plan, drive
+    from gsa_jax.programs import single_program
 
     t0 = time.perf_counter()
-    trainer, init, run_chunk, evaluate = compiled_program(cfg, chunk)
-    hp = make_hparams(**hp_py)
-    state = init(jax.random.PRNGKey(seed), hp)
+    program, trainer = single_program(cfg, chunk, seed, hp_py)
     log_start(cfg, trainer, hp_py, iterations, out, log)
-    compile_s = time.perf_counter() - t0
-    log(f"compiled in {compile_s:.1f}s")
-    rows, params_path = [], os.path.join(out, "params.npz")
-    if resume and (os.path.exists(os.path.join(out, "state.npz")) or os.path.exists(os.path.join(out, "state.prev.npz"))):
-        state, rows, _ = resume_state(state, out, log)
-    start_it = loop["done_it"] = loop["intact_it"] = int(state["iteration"])  # host copy: `state` is donated
-    if not os.path.exists(params_path):  # the initial parameters: "last good" even if chunk 1 diverges
-        save_pytree(params_path, {k: state[k] for k in ("params", "obs_stats")},
-                    **{"meta/config_json": np.array(json.dumps(config))})
-    stop_at = iterations if stop_after is None else min(iterations, start_it + stop_after)
-    eval_key = jax.random.PRNGKey(seed + 1_000_003)
-    t_train, clock = time.perf_counter(), {"eval_s": 0.0, "steps_run": 0}
-    status = 0
-    try:
-        while loop["done_it"] < stop_at:
-            t_chunk = time.perf_counter()
-            state, metrics = run_chunk(state, hp)
-            metrics = jax.device_get(metrics)
-            failed_at = int(state["failed_at"])
-            it = int(state["iteration"])
-            good = chunk if failed_at < 0 else failed_at - 1 - loop["done_it"]
-            eval_ret = math.nan
-            if failed_at < 0 and eval_every and (it % eval_every < chunk or it == iterations):
-                te = time.perf_counter()
-                eval_ret = float(evaluate(state["params"], state["obs_stats"], hp, jax.random.fold_in(eval_key, it)))
-                clock["eval_s"] += time.perf_counter() - te
-            rows.extend(chunk_rows(metrics, good, eval_ret, time.perf_counter() - t0))
-            loop["done_it"] = it
-            clock["steps_run"] += good * cfg.batch_size
-            save_chunk(out, state, rows, config)
-            loop["intact_it"] = it
-            if failed_at >= 0:
-                print(f"gsa_jax.train: error: NaN/inf in the loss or parameters at iteration {failed_at}; stopped. "
-                      f"Last good parameters (iteration {failed_at - 1}) are in {params_path}", file=sys.stderr)
-                status = 1
-                break
-            sps = clock["steps_run"] / max(time.perf_counter() - t_train - clock["eval_s"], 1e-9)
-            log(progress_line(cfg, rows, metrics, it, iterations, chunk, eval_ret, sps, t_chunk))
-    except KeyboardInterrupt:
-        status = 130
-        print(f"\ninterrupted; everything up to iteration {loop['intact_it']} is saved in {out} "
+    log(f"compiled in {time.perf_counter() - t0:.1f}s")
+    store = RunStore(out, config, resume)
+    if not os.path.exists(store.path("params.npz")):  # the initial parameters: "last good" even if chunk 1 diverges
+        store.save_params(program.state)
+    plan = Plan(iterations, chunk, cfg.batch_size, 1, eval_every, mixture=cfg.policy == "mixture",
+                stop_after_chunks=None if stop_after is None else math.ceil(stop_after / chunk))
+    result = drive(program, store, plan, log, clock_start=t0)
+    status = {"failed": 1, "interrupted": 130}.get(result.status, 0)
+    if result.status == "failed":
+        failed_at = int(result.metrics["failed_at"][0, result.done - 1])
+        print(f"gsa_jax.train: error: NaN/inf in the loss or parameters at iteration {failed_at}; stopped. "
+              f"Last good parameters (iteration {failed_at - 1}) are in {store.path('params.npz')}", file=sys.stderr)
+    elif result.status == "interrupted":
+        print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
               f"(continue with --resume --out {out})", file=sys.stderr)
-    finish(cfg, hp_py, seed, out, config, rows, status, loop["done_it"], iterations, start_it,
-           {"compile_s": compile_s, "t0": t0, "t_train": t_train, **clock}, log)
+    finish(cfg, hp_py, seed, out, config, metrics_to_rows(result.metrics, result.done), status, result, log)
     return status
 
 
@@ -398,43 +373,37 @@ def log_start(cfg, trainer, hp_py, iterations, out, log):
         from envs import solver_settings
 
         sol = solver_settings(trainer.env.unwrapped)
-        ls = "exact line search" if sol["linesearch"] == "exact" else f"{sol['ls_iterations']} line-search iterations"
-        log(f"MJX solver: {sol['iterations']} iterations, {ls} (the task's own: "
-            f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/README.md (solver)")
+        ls = "exact line search" if sol["linesearch_in_force"] == "exact" else f"{sol['ls_iterations'] or sol['task_ls_iterations']} line-search iterations"
+        log(f"MJX solver: {sol['iterations_in_force']} iterations, {ls} (the task's own: "
+            f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/solver_hopper/")
 
 
-def finish(cfg, hp_py, seed, out, config, rows, status, done_it, iterations, start_it, clock, log):
+def finish(cfg, hp_py, seed, out, config, rows, status, result, log):
     """Curve, timings and result into config.json; the closing line."""
-    from gsa_jax.plotting import plot_curve
+    from gsa_jax.plot import plot_curve
 
-    total = time.perf_counter() - clock["t0"]
-    train_time = time.perf_counter() - clock["t_train"] - clock["eval_s"]
     if rows:
         title = f"{cfg.env} - {cfg.policy}" + (f" K={hp_py['K']}" if cfg.policy == "mixture" else "") + f" - seed {seed}"
         try:
             plot_curve(rows, os.path.join(out, "curve.png"), title)
         except OSError as e:  # a figure is not worth failing a run for (e.g. a full disk)
             print(f"gsa_jax.train: warning: curve.png not written ({e.strerror or e})", file=sys.stderr)
-    config["timing"] = {
-        "compile_s": round(clock["compile_s"], 2), "train_s": round(train_time, 2), "eval_s": round(clock["eval_s"], 2),
-        "wall_s": round(total, 2), "env_steps_run": clock["steps_run"], "start_iteration": start_it,
-        "env_steps_per_s": round(clock["steps_run"] / max(train_time, 1e-9), 1),
-    }
+    config["timing"] = result.timing
     last = [r for r in rows if r["episode_return"] != ""]
     config["result"] = {
-        "iterations_done": done_it,
+        "iterations_done": result.done,
         "final_episode_return": float(last[-1]["episode_return"]) if last else None,
         "final_eval_return": next((float(r["eval_return"]) for r in reversed(rows) if r["eval_return"] != ""), None),
-        "status": "nan" if status == 1 else "interrupted" if status == 130 or done_it < iterations else "finished",
+        "status": "nan" if status == 1 else "interrupted" if status == 130 or result.done < result.iterations else "finished",
     }
     write_atomic(os.path.join(out, "config.json"), json.dumps(config, indent=2))
-    if status == 0 and done_it < iterations:
-        log(f"stopped at iteration {done_it}/{iterations} as asked; continue with --resume --out {out}")
+    timing, res = config["timing"], config["result"]
+    if status == 0 and result.done < result.iterations:
+        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with --resume --out {out}")
     elif status == 0:
-        log(f"done: {clock['steps_run']:,} steps in {_duration(total)} (compile {clock['compile_s']:.1f}s, "
-            f"{config['timing']['env_steps_per_s']:,.0f} steps/s); final return "
-            f"{_fmt(config['result']['final_episode_return'], '.1f')}, eval {_fmt(config['result']['final_eval_return'], '.1f')}; "
-            f"results in {out}")
+        log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
+            f"{timing['env_steps_per_s']:,.0f} steps/s); final return {fmt(res['final_episode_return'], '.1f')}, "
+            f"eval {fmt(res['final_eval_return'], '.1f')}; results in {out}")
 
 
 if __name__ == "__main__":

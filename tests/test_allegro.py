@@ -124,13 +124,13 @@ def test_wrong_action_shape_is_a_clear_error(task):
 
 
 def test_render_scene_png(tmp_path):
-    from envs.render import pick_gl
+    from gsa_jax.render import pick_gl
 
     if pick_gl() is None:
         pytest.skip("no libOSMesa or libEGL on this machine (`make scene` installs libosmesa6)")
     out = tmp_path / "scene.png"
     env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
-    r = subprocess.run([sys.executable, "-m", "envs.render", "allegro_cylinder", "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "gsa_jax.render", "allegro_cylinder", "--out", str(out)],
                        capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0, r.stderr
     import matplotlib.pyplot as plt
@@ -138,6 +138,6 @@ def test_render_scene_png(tmp_path):
     img = plt.imread(out)
     assert img.shape[0] == 480 and img.shape[1] == 2 * 640  # the model's two cameras side by side
     assert img[..., :3].std() > 0.05  # a picture, not a blank frame
-    bad = subprocess.run([sys.executable, "-m", "envs.render", "allegro_cylinder", "--out", str(tmp_path / "x.jpg")],
+    bad = subprocess.run([sys.executable, "-m", "gsa_jax.render", "allegro_cylinder", "--out", str(tmp_path / "x.jpg")],
                          capture_output=True, text=True, env=env, timeout=300)
     assert bad.returncode == 2 and "must end in .png" in bad.stderr

@@ -16,7 +16,7 @@ def test_mujoco_c_reference():
 
 
 def test_worker_env_single_threads_eigen_with_a_worker_per_core(monkeypatch):
-    from gsa_jax.sweep import SINGLE_THREAD_EIGEN, worker_env
+    from gsa_jax.supervise import SINGLE_THREAD_EIGEN, worker_env
 
     monkeypatch.setattr(bench.os, "cpu_count", lambda: 2)
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")

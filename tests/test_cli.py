@@ -119,7 +119,7 @@ def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):
 
 
 def test_inspect_mixture_run(full_run, tmp_path, capsys):
-    from gsa_jax.inspect import main as inspect_main
+    from gsa_jax.inspection import main as inspect_main
 
     out = tmp_path / "inspect"
     assert inspect_main([str(full_run), "--episodes", "3", "--out", str(out)]) == 0
@@ -135,7 +135,7 @@ def test_inspect_mixture_run(full_run, tmp_path, capsys):
 
 
 def test_inspect_bad_run_dirs(tmp_path, capsys):
-    from gsa_jax.inspect import main as inspect_main
+    from gsa_jax.inspection import main as inspect_main
 
     assert inspect_main([str(tmp_path / "nope")]) == 2
     assert "is not a directory" in capsys.readouterr().err
@@ -162,7 +162,7 @@ def test_export_real_run_matches_jax(which, request, tmp_path):
 
     from gsa_jax import numpy_policy
     from gsa_jax.export import main as export_main
-    from gsa_jax.inspect import load_run
+    from gsa_jax.inspection import load_run
     from gsa_jax.normalize import normalize
 
     full_run = request.getfixturevalue(which)
@@ -170,7 +170,7 @@ def test_export_real_run_matches_jax(which, request, tmp_path):
     ctrl = numpy_policy.load(str(tmp_path / "c.npz"))
     trainer, params, stats, hp, _ = load_run(str(full_run))
     obs = np.random.default_rng(0).normal(size=(200, trainer.env.observation_size)).astype(np.float32)
-    sched = {"K": hp["K"], "epsilon": hp["eps_init"], "sigma_min": hp["sigma_min_init"]}
+    sched = {"K": hp.K, "epsilon": hp.eps_init, "sigma_min": hp.sigma_min_init}
     a, c = jax.vmap(trainer.policy.mode, in_axes=(None, 0, None))(params["policy"], normalize(stats, obs), sched)
     np.testing.assert_allclose(ctrl.act(obs), np.asarray(a), rtol=1e-5, atol=1e-5)
     np.testing.assert_array_equal(ctrl.cluster(obs), np.asarray(c))

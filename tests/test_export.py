@@ -71,7 +71,7 @@ def test_numpy_policy_imports_without_jax():
 def test_controller_table_every_class(subpolicy, d_phi):
     """inspect's controllers.md: one row per actuator, the linear terms as columns, strongest inputs
     ranked over every feature (e.g. the quadratic term x*z)."""
-    from gsa_jax.inspect import controller_table, feature_names
+    from gsa_jax.inspection import controller_table, feature_names
 
     names = feature_names(subpolicy, ["x", "y", "z"])
     assert len(names) == d_phi and (subpolicy != "quadratic" or names[3:] == ["x*x", "x*y", "x*z", "y*y", "y*z", "z*z"])

@@ -2,7 +2,6 @@
 
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 import numpy as np
 import pytest
 
@@ -36,27 +35,19 @@ def test_large_or_lower_go_to_lapack():
 
 
 def test_mjx_same_with_and_without_lapack():
-    """Installed (as envs.make_base does): no LAPACK custom call in a vmapped MJX step, same trajectory
-    (inverted_double_pendulum: the cheapest task to compile with a dense inertia and the Newton solver)."""
+    """cholesky='unrolled' (the default): no LAPACK custom call in a vmapped MJX step, the same trajectory
+    as cholesky='lapack' (inverted_double_pendulum: the cheapest task to compile with a dense inertia
+    and the Newton solver)."""
     import envs
+    from envs.physics import Physics
 
-    env = envs.make_base("inverted_double_pendulum")  # installs
-    assert jsl.cho_factor is linalg.cho_factor
-    s0 = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 8))
-    acts = jax.random.uniform(jax.random.PRNGKey(1), (10, 8, env.action_size), minval=-1, maxval=1)
-
-    def make_roll():  # a new function per trace: jit must not reuse the trace made with the other Cholesky
+    def roll_of(env):  # a new function per env: jit must not reuse the other's trace
         return jax.jit(lambda s: jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a), None), s, acts)[0].pipeline_state.qpos)
 
-    ours = make_roll()
-    text = ours.lower(s0).as_text().lower()
-    q_ours = ours(s0)
-    jsl.cho_factor, jsl.cho_solve = linalg._ORIGINAL["cho_factor"], linalg._ORIGINAL["cho_solve"]
-    try:
-        lapack = make_roll()
-        assert "lapack" in lapack.lower(s0).as_text().lower()  # the check below can see a LAPACK call
-        q_lapack = lapack(s0)
-    finally:
-        linalg.install()
-    assert "lapack" not in text
-    np.testing.assert_allclose(np.asarray(q_ours), np.asarray(q_lapack), atol=1e-4)
+    env = envs.make_base("inverted_double_pendulum")
+    s0 = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 8))
+    acts = jax.random.uniform(jax.random.PRNGKey(1), (10, 8, env.action_size), minval=-1, maxval=1)
+    ours, lapack = roll_of(env), roll_of(envs.make_base("inverted_double_pendulum", Physics(cholesky="lapack")))
+    assert "lapack" in lapack.lower(s0).as_text().lower()  # the check below can see a LAPACK call
+    assert "lapack" not in ours.lower(s0).as_text().lower()
+    np.testing.assert_allclose(np.asarray(ours(s0)), np.asarray(lapack(s0)), atol=1e-4)

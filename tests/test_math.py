@@ -102,6 +102,17 @@ def test_checkpoint_round_trip(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["x.npz"]  # no temp file left behind
 
 
+def test_checkpoint_of_a_dict_state_loads_into_the_named_tuple(tmp_path):
+    """A state.npz written when the training state was a dict of the same fields resumes as TrainState."""
+    from gsa_jax.ppo import TrainState
+
+    fields = {f: {"a": np.arange(3.0) + i} if f == "params" else np.float32(i) for i, f in enumerate(TrainState._fields)}
+    save_pytree(str(tmp_path / "old.npz"), fields)
+    back = load_pytree(str(tmp_path / "old.npz"), TrainState(**fields))
+    assert isinstance(back, TrainState) and float(back.iteration) == TrainState._fields.index("iteration")
+    np.testing.assert_array_equal(back.params["a"], np.arange(3.0))
+
+
 def test_orthogonal_init_without_lapack():
     """Semi-orthogonal for every MLP shape, scaled; and no LAPACK call in a vmapped init (batched QR
     deadlocks XLA:CPU's thread pool on 2 cores)."""

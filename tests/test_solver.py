@@ -11,6 +11,7 @@ import pytest
 
 import envs
 from envs import linesearch
+from envs.physics import Physics
 from mujoco.mjx._src import solver
 
 
@@ -75,36 +76,62 @@ def test_exact_line_minimum_matches_float64_reference():
 
 
 def test_exact_line_search_applies_to_pyramidal_cones_only():
-    from mujoco.mjx._src.types import ConeType
+    import copy
 
-    sys = envs.make_base("hopper").sys
-    assert linesearch.exact_applies(sys)
-    assert not linesearch.exact_applies(sys.tree_replace({"opt.cone": ConeType.ELLIPTIC}))
-    assert envs.make_base("hopper").linesearch_mode == "exact"
-    assert envs.make_base("hopper", ls_iterations=50).linesearch_mode == "iterative"  # a parameter of MJX's search
+    import mujoco
+
+    from envs.physics import Physics, exact_applies, linesearch_in_force
+
+    model = envs.task_model("hopper")
+    assert exact_applies(model)
+    elliptic = copy.deepcopy(model)
+    elliptic.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    assert not exact_applies(elliptic)
+    assert linesearch_in_force(Physics(), elliptic) == "iterative"
+    assert envs.solver_settings(envs.make_base("hopper"))["linesearch_in_force"] == "exact"
+    # ls_iterations is a parameter of MJX's search, which it then uses
+    assert linesearch_in_force(Physics(ls_iterations=50), model) == "iterative"
+    assert linesearch_in_force(Physics(linesearch="iterative"), model) == "iterative"
 
 
-def test_iterative_line_search_by_environment_variable(monkeypatch):
-    monkeypatch.setenv("GSA_JAX_ITERATIVE_LINESEARCH", "1")
-    assert envs.make_base("hopper").linesearch_mode == "iterative"
-    monkeypatch.setenv("GSA_JAX_ITERATIVE_LINESEARCH", "0")
-    assert envs.make_base("hopper").linesearch_mode == "exact"
-    with pytest.raises(ValueError, match="exact' or 'iterative"):
-        with linesearch.using("bisect"):
-            pass
+def test_physics_options_apply_only_while_the_task_runs():
+    """Making a task patches nothing; its step routes MJX's solver and the Cholesky while it runs and
+    restores them after, also after an error."""
+    import jax.scipy.linalg as jsl
+
+    from envs import linalg
+    from envs.physics import Physics, applied
+
+    before = (solver._linesearch, solver._while_loop_scan, jsl.cho_factor)
+    envs.make_base("hopper")
+    assert (solver._linesearch, solver._while_loop_scan, jsl.cho_factor) == before
+    model = envs.task_model("hopper")
+    with applied(Physics(), model):
+        assert solver._linesearch is linesearch.exact_linesearch and solver._while_loop_scan is linesearch.while_loop
+        assert jsl.cho_factor is linalg.cho_factor
+        with applied(Physics(linesearch="iterative", search_loop="scan", cholesky="lapack"), model):
+            assert solver._linesearch is linesearch._ORIGINAL_LINESEARCH and solver._while_loop_scan is linesearch._ORIGINAL
+            assert jsl.cho_factor is linalg._ORIGINAL["cho_factor"]
+        assert solver._linesearch is linesearch.exact_linesearch
+    with pytest.raises(RuntimeError):
+        with applied(Physics(), model):
+            raise RuntimeError
+    assert (solver._linesearch, solver._while_loop_scan, jsl.cho_factor) == before
+    with pytest.raises(ValueError, match="linesearch must be one of exact, iterative"):
+        Physics(linesearch="bisect").validate()
 
 
 @pytest.fixture(scope="module")
 def hopper():
-    env = envs.make_base("hopper", ls_iterations=50)  # the task's settings through MJX's iterative search
-    assert solver._while_loop_scan is linesearch.while_loop and env.linesearch_mode == "iterative"
+    env = envs.make_base("hopper", Physics(ls_iterations=50))  # the task's settings through MJX's iterative search
+    assert envs.solver_settings(env)["linesearch_in_force"] == "iterative"
     s0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 4))
     acts = jax.random.uniform(jax.random.PRNGKey(1), (12, 4, env.action_size), minval=-1, maxval=1)
     return env, s0, acts
 
 
 def roll(env, s0, acts):
-    """A new function per call, so each trace sees the currently installed line search."""
+    """A new function per call: a fresh trace (jit caches by function)."""
     def body(s, a):
         s = jax.vmap(env.step)(s, a)
         return s, (s.pipeline_state.qpos, s.pipeline_state.qvel, s.pipeline_state.qfrc_constraint)
@@ -116,11 +143,8 @@ def test_while_line_search_is_bitwise_mjx_scan(hopper):
     env, s0, acts = hopper
     ours = roll(env, s0, acts)
     assert np.abs(ours[2]).max() > 1.0  # the foot is on the floor: the constraint solver works
-    solver._while_loop_scan = linesearch._ORIGINAL
-    try:
-        theirs = roll(env, s0, acts)
-    finally:
-        linesearch.install()
+    scan = envs.make_base("hopper", Physics(ls_iterations=50, search_loop="scan"))
+    theirs = roll(scan, s0, acts)
     for a, b in zip(ours, theirs):
         np.testing.assert_array_equal(a, b)
 
@@ -130,7 +154,7 @@ def test_exact_line_search_steps_hopper_as_the_iterative_one(hopper):
     iterative search to float32 solver precision."""
     env, s0, acts = hopper
     exact = envs.make_base("hopper")
-    assert exact.linesearch_mode == "exact"
+    assert envs.solver_settings(exact)["linesearch_in_force"] == "exact"
     ours, theirs = roll(exact, s0, acts), roll(env, s0, acts)
     assert np.abs(ours[2]).max() > 1.0
     np.testing.assert_allclose(ours[0], theirs[0], atol=1e-4)  # qpos
@@ -139,11 +163,12 @@ def test_exact_line_search_steps_hopper_as_the_iterative_one(hopper):
 
 def test_solver_option_changes_mjx_only(hopper):
     env, s0, acts = hopper
-    fast = envs.make_base("hopper", solver_iterations=1, ls_iterations=4)
-    assert envs.solver_settings(fast) == {"iterations": 1, "ls_iterations": 4, "linesearch": "iterative",
-                                          "task_iterations": 4, "task_ls_iterations": 50}
-    assert envs.solver_settings(env)["iterations"] == 4 and envs.mj_model(fast).opt.ls_iterations == 50
-    assert envs.make("hopper", solver_iterations=2).unwrapped.sys.opt.iterations == 2
+    fast = envs.make_base("hopper", Physics(solver_iterations=1, ls_iterations=4))
+    assert envs.solver_settings(fast) == {"solver_iterations": 1, "ls_iterations": 4, "linesearch": "exact",
+                                          "search_loop": "while", "cholesky": "unrolled", "linesearch_in_force": "iterative",
+                                          "iterations_in_force": 1, "task_iterations": 4, "task_ls_iterations": 50}
+    assert envs.solver_settings(env)["iterations_in_force"] == 4 and envs.mj_model(fast).opt.ls_iterations == 50
+    assert envs.make("hopper", physics=Physics(solver_iterations=2)).unwrapped.sys.opt.iterations == 2
     q_task, q_fast = roll(env, s0, acts[:3])[0], roll(fast, s0, acts[:3])[0]
     diff = np.abs(q_task - q_fast).max()
     assert 0.0 < diff < 0.05, diff  # a different, nearby simulator over 3 steps
@@ -152,9 +177,9 @@ def test_solver_option_changes_mjx_only(hopper):
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True, "4"])
 def test_solver_option_rejects_bad_values(bad):
     with pytest.raises(ValueError, match="solver_iterations must be an integer >= 1"):
-        envs.check_solver(solver_iterations=bad)
+        Physics(solver_iterations=bad).validate()
     with pytest.raises(ValueError, match="ls_iterations must be an integer >= 1"):
-        envs.check_solver(ls_iterations=bad)
+        Physics(ls_iterations=bad).validate()
     from gsa_jax.ppo import Config
 
     with pytest.raises(ValueError, match="ls_iterations"):

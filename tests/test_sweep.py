@@ -197,14 +197,21 @@ def test_kill9_then_resume_equals_uninterrupted(tiny_spec_file, inprocess, tmp_p
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=1e-6)
 
 
-def test_watchdog_restarts_a_stalled_worker(tiny_spec_file, inprocess, tmp_path):
-    out = tmp_path / "stalled"
-    env = subprocess_env()
-    env["GSA_JAX_FAULT_HANG_AFTER_CHUNKS"] = "2"
-    res = subprocess.run(sweep_cmd(tiny_spec_file, out, "--local-processes", "1", "--watchdog-min", "8"),
-                         env=env, capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert "watchdog: worker 0 made no progress" in res.stdout
+def test_watchdog_restarts_a_stalled_worker(tiny_spec_file, inprocess, tmp_path, monkeypatch):
+    """A worker that stalls after its 2nd chunk (tests/hang_worker.py) is killed and restarted from its
+    checkpoint; the results equal an uninterrupted sweep's."""
+    from gsa_jax.supervise import supervise
+
+    for k, v in subprocess_env().items():
+        monkeypatch.setenv(k, v)
+    out, lines = tmp_path / "stalled", []
+    out.mkdir()
+    hang = os.path.join(os.path.dirname(__file__), "hang_worker.py")
+    cmd = [sys.executable, hang, "2", str(tmp_path / "hung_once"), tiny_spec_file, "--out", str(out), "--quiet",
+           "--local-processes", "1", "--worker"]
+    assert supervise([cmd], [str(out)], watchdog_min_s=8, max_restarts=2, log=lines.append) == 0
+    assert any("watchdog: worker 0 made no progress" in line for line in lines), lines
+    assert (tmp_path / "hung_once").exists()
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=1e-6)
 
 
@@ -237,7 +244,7 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
 def test_sub_batched_equals_vmap_with_empty_leaves():
     """sub_batched runs slices of the run axis in a scan: same outputs as one vmap, also for
     zero-size leaves (MJX data has some) and for sizes that do not divide the runs (plain vmap)."""
-    from gsa_jax.sweep import sub_batched
+    from gsa_jax.programs import sub_batched
 
     f = jax.vmap(lambda x, h: ({"y": jnp.sin(x) * h, "e": jnp.zeros((0, 2))}, x.sum() + h))
     x, h = jnp.arange(24.0).reshape(6, 4), jnp.arange(6.0)

@@ -89,6 +89,6 @@ def test_evaluate_deterministic_controller(mixture4, mixture_runs):
     tr, _, _ = mixture4
     hp, (state, _) = mixture_runs
     ev = jax.jit(tr.evaluate)
-    r1 = float(ev(state["params"], state["obs_stats"], hp, jax.random.PRNGKey(3)))
-    r2 = float(ev(state["params"], state["obs_stats"], hp, jax.random.PRNGKey(3)))
+    r1 = float(ev(state.params, state.obs_stats, hp, jax.random.PRNGKey(3)))
+    r2 = float(ev(state.params, state.obs_stats, hp, jax.random.PRNGKey(3)))
     assert r1 == r2 and r1 > 0

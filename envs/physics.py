@@ -1,0 +1,86 @@
+"""Physics options: how MJX steps a task, chosen when the task is made and recorded with every result.
+
+    physics = Physics(linesearch="exact", cholesky="unrolled")      # the defaults
+    env = envs.make("hopper", physics=physics)
+
+The options change the compiled program (they are static, like the network sizes):
+- solver_iterations / ls_iterations: None keeps the task's own MJCF settings; an integer overrides
+  MuJoCo's opt.iterations / opt.ls_iterations in the MJX model only -- a cheaper but *different*
+  simulator (a changed task; experiments/solver_hopper/).
+- linesearch: 'exact' (envs/linesearch.py: the line cost's minimiser computed directly; used where the
+  model allows it -- pyramidal cones, no friction loss -- and ls_iterations is not set) or MJX's
+  'iterative' search.
+- search_loop: MJX's iterative search as a 'while' loop (stops at the batch's slowest env; bitwise the
+  same iterates) or MJX's own 'scan' of conds.
+- cholesky: 'unrolled' (envs/linalg.py: small factorizations as elementwise ops) or 'lapack'.
+
+Nothing is patched as a side effect of making a task: `applied(physics, model)` routes MJX's solver
+and jax.scipy's Cholesky for the duration of a block, and envs.make_base wraps the task's reset and
+step in it, so they take effect exactly while those functions run (are traced) and are restored after.
+No JAX or MuJoCo import at module level.
+"""
+
+import contextlib
+import dataclasses
+
+LINESEARCHES = ("exact", "iterative")
+SEARCH_LOOPS = ("while", "scan")
+CHOLESKYS = ("unrolled", "lapack")
+
+
+@dataclasses.dataclass(frozen=True)
+class Physics:
+    """Static physics options of a task (see the module docstring)."""
+
+    solver_iterations: int | None = None
+    ls_iterations: int | None = None
+    linesearch: str = "exact"
+    search_loop: str = "while"
+    cholesky: str = "unrolled"
+
+    def validate(self):
+        """Raise ValueError naming the bad field."""
+        for field in ("solver_iterations", "ls_iterations"):
+            v = getattr(self, field)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+                raise ValueError(f"{field} must be an integer >= 1 (or None: the task's own), got {v!r}")
+        for field, allowed in (("linesearch", LINESEARCHES), ("search_loop", SEARCH_LOOPS), ("cholesky", CHOLESKYS)):
+            if getattr(self, field) not in allowed:
+                raise ValueError(f"{field} must be one of {', '.join(allowed)}, got {getattr(self, field)!r}")
+        return self
+
+
+def exact_applies(mj_model):
+    """Whether the solver cost along a line is piecewise quadratic for this MjModel: pyramidal cones and
+    no friction loss (the exact line search's condition)."""
+    import mujoco
+
+    disabled = bool(mj_model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)
+    frictionloss = (bool((mj_model.dof_frictionloss > 0).any()) or bool((mj_model.tendon_frictionloss > 0).any())) and not disabled
+    return int(mj_model.opt.cone) == int(mujoco.mjtCone.mjCONE_PYRAMIDAL) and not frictionloss
+
+
+def linesearch_in_force(physics, mj_model):
+    """'exact' or 'iterative': the line search a task with this MjModel steps with under `physics`."""
+    exact = physics.linesearch == "exact" and physics.ls_iterations is None and exact_applies(mj_model)
+    return "exact" if exact else "iterative"
+
+
+def record(physics, mj_model):
+    """Every physics option in force, as written to config.json / sweep.json: the options, the line
+    search they resolve to for this model, and the MJCF's own solver settings."""
+    own = mj_model.opt
+    return {**dataclasses.asdict(physics), "linesearch_in_force": linesearch_in_force(physics, mj_model),
+            "iterations_in_force": physics.solver_iterations or int(own.iterations),
+            "task_iterations": int(own.iterations), "task_ls_iterations": int(own.ls_iterations)}
+
+
+@contextlib.contextmanager
+def applied(physics, mj_model):
+    """Inside this block MJX's solver and jax.scipy's Cholesky run as `physics` says for a task with this
+    MjModel; the previous routing is restored on exit (blocks nest)."""
+    from envs import linalg, linesearch
+
+    mode = linesearch_in_force(physics, mj_model)
+    with linalg.routed(physics.cholesky == "unrolled"), linesearch.routed(mode, physics.search_loop):
+        yield

@@ -1,0 +1,213 @@
+"""The run driver: trains a group of R runs in compiled chunks -- a single run is a group of one.
+
+    result = drive(program, store, plan, log=print)
+
+One loop for `python -m gsa_jax.train` and for every group of a sweep. It owns resume, the chunk
+loop, atomic checkpoints after every chunk (through the store), the heartbeat, the NaN guard's
+outcome (a run whose loss or parameters turned NaN/inf is frozen inside the compiled program; the
+group stops once every run has failed), the deterministic-evaluation schedule, progress lines with
+steps/s and ETA, and the timings. What differs between a single run and a sweep group is
+outside it: the compiled program (gsa_jax.programs) and the files (a store: train.RunStore,
+sweep.GroupStore).
+
+A store has three methods: `load(state)` -> (state, metrics, done) of the last intact checkpoint or
+None; `save(state, metrics, done)` after every chunk; `finish(state, metrics, done, timing)` once
+all iterations are done. Metrics live on the host as {name: float64 [R, iterations]}: the
+compiled program's ITERATION_METRICS and failed_at, plus eval_return and wall_s.
+"""
+
+import math
+import time
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from gsa_jax.metrics import ITERATION_METRICS
+
+HOST_METRICS = ITERATION_METRICS + ("failed_at", "eval_return", "wall_s")
+
+
+class Program(NamedTuple):
+    """A compiled training program of `runs` runs. run(state, hps) -> (state, metrics {name: [R, chunk]}
+    or [chunk] when not batched); evaluate(state, hps, iteration) -> [R] (or a scalar) deterministic
+    returns, or None; place(host tree) -> the tree on the program's devices; how: how it was obtained."""
+
+    runs: int
+    state: object
+    hps: object
+    run: Callable
+    evaluate: Callable | None
+    place: Callable
+    batched: bool
+    how: str = "compiled"
+
+
+class Plan(NamedTuple):
+    """What to train: iterations (a multiple of chunk), chunk, batch (env steps per run and iteration),
+    real_runs (the program's first real_runs runs are real, the rest padding copies), eval_every (0:
+    never), stop_after_chunks (None: to the end; else stop resumably after that many chunks), tag
+    (progress prefix), mixture (progress shows the epsilon / sigma_min schedules)."""
+
+    iterations: int
+    chunk: int
+    batch: int
+    real_runs: int = 1
+    eval_every: int = 0
+    stop_after_chunks: int | None = None
+    tag: str = ""
+    mixture: bool = False
+
+
+class Result(NamedTuple):
+    """done: iterations trained (intact: of those, saved); metrics {name: [R, iterations]} (NaN after `done`); status:
+    'finished', 'stopped' (as asked, resumable), 'failed' (every run hit NaN/inf: final, the store
+    finished it), 'interrupted';
+    timing: compile_s, train_s, eval_s, env_steps_run, env_steps_per_s, start_iteration."""
+
+    done: int
+    iterations: int
+    metrics: dict
+    status: str
+    timing: dict
+    intact: int = 0
+
+    @property
+    def finished(self):
+        """Nothing left to train: every iteration done, or every run failed."""
+        return self.done >= self.iterations or self.status == "failed"
+
+
+def empty_metrics(runs, iterations):
+    return {k: np.full((runs, iterations), np.nan, np.float64) for k in HOST_METRICS}
+
+
+def failed_mask(metrics, done):
+    """[R] bool: runs frozen at a NaN/inf by iteration `done`."""
+    return metrics["failed_at"][:, done - 1] >= 0 if done else np.zeros(metrics["failed_at"].shape[0], bool)
+
+
+def eval_due(plan, it):
+    """Whether the deterministic controller is evaluated after the chunk that ends at iteration `it`."""
+    return bool(plan.eval_every) and (it % plan.eval_every < plan.chunk or it == plan.iterations)
+
+
+def drive(program, store, plan, log=print, heartbeat=None, clock_start=None):
+    """Train (or resume) the program's runs as the plan says; checkpoint through the store. Returns a
+    Result. A KeyboardInterrupt ends it with status 'interrupted' (everything saved stays saved); a
+    DiskFullError propagates with `.last_intact` naming the last intact iteration."""
+    t0 = clock_start if clock_start is not None else time.perf_counter()
+    compile_s = time.perf_counter() - t0
+    state, metrics, done = resume(program, store, plan, log)
+    loop = {"state": state, "done": done, "intact": done, "chunks": 0, "steps": 0, "eval_s": 0.0,
+            "t_train": time.perf_counter(), "t0": t0, "start": done}
+    status = "stopped"
+    try:
+        status = chunk_loop(program, store, plan, metrics, loop, log, heartbeat)
+    except KeyboardInterrupt:
+        status = "interrupted"
+    except OSError as e:
+        e.last_intact = f"iteration {loop['intact']}" + (f" of group {plan.tag}" if plan.tag else "")
+        raise
+    train_s = time.perf_counter() - loop["t_train"] - loop["eval_s"]
+    timing = {"compile_s": round(compile_s, 2), "train_s": round(train_s, 2), "eval_s": round(loop["eval_s"], 2),
+              "wall_s": round(time.perf_counter() - t0, 2), "env_steps_run": loop["steps"], "start_iteration": loop["start"],
+              "env_steps_per_s": round(loop["steps"] / max(train_s, 1e-9), 1)}
+    if (loop["done"] >= plan.iterations and status != "interrupted") or status == "failed":
+        store.finish(loop["state"], metrics, loop["done"], timing)
+    return Result(loop["done"], plan.iterations, metrics, status, timing, loop["intact"])
+
+
+def resume(program, store, plan, log):
+    """(state, metrics [R, iterations], done): the store's last intact checkpoint, or the fresh program."""
+    metrics = empty_metrics(program.runs, plan.iterations)
+    saved = store.load(program.state)
+    if saved is None:
+        return program.state, metrics, 0
+    state, old, done = saved
+    for k, v in old.items():
+        metrics[k][:, :done] = v[:, :done]
+    log(f"{prefix(plan)}resumed at iteration {done}/{plan.iterations}")
+    return program.place(state), metrics, done
+
+
+def prefix(plan):
+    return f"[{plan.tag}] " if plan.tag else ""
+
+
+def chunk_loop(program, store, plan, metrics, loop, log, heartbeat):
+    """Chunks until done, stopped as asked, or every run failed; returns the status."""
+    while loop["done"] < plan.iterations:
+        tc = time.perf_counter()
+        loop["state"], m = program.run(loop["state"], program.hps)
+        done = record_chunk(program, plan, metrics, loop, m)
+        store.save(loop["state"], metrics, done)
+        loop["intact"] = done
+        if heartbeat:
+            heartbeat(time.perf_counter() - tc)
+        sps = loop["steps"] / max(time.perf_counter() - loop["t_train"] - loop["eval_s"], 1e-9)
+        if failed_mask(metrics, done)[: plan.real_runs].all():
+            return "failed"
+        log(progress_line(plan, metrics, done, sps, time.perf_counter() - tc))
+        if plan.stop_after_chunks is not None and loop["chunks"] >= plan.stop_after_chunks and done < plan.iterations:
+            return "stopped"
+    return "finished"
+
+
+def record_chunk(program, plan, metrics, loop, m):
+    """A chunk's metrics into the host arrays, its evaluation when due, steps and clocks. Returns done."""
+    import jax
+
+    m = jax.device_get(m)
+    done, chunk, runs = loop["done"], plan.chunk, program.runs
+    for k in ITERATION_METRICS + ("failed_at",):
+        metrics[k][:, done:done + chunk] = np.reshape(m[k], (runs, chunk))
+    it = done + chunk
+    failed = failed_mask(metrics, it)
+    if eval_due(plan, it) and not failed[: plan.real_runs].all():
+        te = time.perf_counter()
+        returns = np.reshape(np.asarray(jax.device_get(program.evaluate(loop["state"], program.hps, it)), np.float64), (runs,))
+        metrics["eval_return"][:, it - 1] = np.where(failed, np.nan, returns)
+        loop["eval_s"] += time.perf_counter() - te
+    metrics["wall_s"][:, done:it] = round(time.perf_counter() - loop["t0"], 3)
+    good = [rows_before_failure(metrics, i, it) - done for i in range(plan.real_runs)]
+    loop["steps"] += sum(max(0, g) for g in good) * plan.batch
+    loop["done"], loop["chunks"] = it, loop["chunks"] + 1
+    return it
+
+
+def rows_before_failure(metrics, i, upto):
+    """Iterations of run i that count: up to `upto`, ending before the iteration where it failed."""
+    failed_at = int(metrics["failed_at"][i, upto - 1]) if upto else -1
+    return upto if failed_at < 0 else min(upto, failed_at - 1)
+
+
+def progress_line(plan, metrics, done, sps, chunk_s):
+    """One line after a chunk: iteration, return (a single run: its mean over the chunk and its last
+    evaluation; a group: best and median run), throughput, ETA."""
+    runs = plan.real_runs
+    eta = (plan.iterations - done) * plan.batch * runs / max(sps, 1e-9)
+    recent = metrics["episode_return"][:runs, max(0, done - plan.chunk):done]
+    per_run = np.array([np.nanmean(r) if np.any(np.isfinite(r)) else np.nan for r in recent])
+    ev = metrics["eval_return"][:runs, done - 1]
+    if runs == 1:
+        line = (f"it {done}/{plan.iterations} | steps {done * plan.batch:,} | return {fmt(per_run[0], '.1f')}"
+                + (f" | eval {ev[0]:.1f}" if np.isfinite(ev[0]) else "") + f" | {sps:,.0f} steps/s | ETA {duration(eta)}")
+        if plan.mixture:
+            line += (f" | eps {metrics['epsilon'][0, done - 1]:.3f} sigma_min {metrics['sigma_min'][0, done - 1]:.4f}"
+                     f" | clusters used {int(metrics['clusters_used'][0, done - 1])}")
+        return prefix(plan) + line + f" | chunk {chunk_s:.1f}s"
+    failed = int(failed_mask(metrics, done)[:runs].sum())
+    finite = np.isfinite(per_run)
+    best, median = (np.nanmax(per_run), np.nanmedian(per_run)) if finite.any() else (math.nan, math.nan)
+    return (f"{prefix(plan)}it {done}/{plan.iterations} | {sps:,.0f} env-steps/s | ETA {duration(eta)} | return "
+            f"best {best:.1f} median {median:.1f}" + (f" | eval median {np.nanmedian(ev):.1f}" if np.isfinite(ev).any() else "")
+            + (f" | {failed} run(s) failed (NaN/inf)" if failed else "") + f" | chunk {chunk_s:.1f}s")
+
+
+def fmt(x, spec):
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+def duration(s):
+    s = int(max(0, s))
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"

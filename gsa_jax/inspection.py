@@ -1,0 +1,255 @@
+"""Read a trained mixture controller: `python -m gsa_jax.inspect <run dir> [--episodes 8] [--out DIR]`.
+
+Rolls out the deterministic controller (most probable cluster, mean action) and the stochastic
+policy for a few episodes, then writes to DIR (default <run dir>/inspect/):
+  summary.json        returns (deterministic vs stochastic), cluster usage, clusters ever used,
+                      mean dwell time and switches per episode
+  clusters_time.png   the active cluster over one episode, above the main state variables
+  clusters_pca.png    visited states (PCA of normalized observations) coloured by cluster
+  controllers.md      each active cluster's L and b (normalized observation units), with the state
+                      variables that drive each actuator most
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+
+class InspectError(Exception):
+    pass
+
+
+def load_run(run_dir, require_mixture=True):
+    """(trainer, params, obs_stats, hparams, meta) of a finished or interrupted (mixture) run."""
+    import jax
+
+    from gsa_jax.checkpoint import load_pytree
+    from gsa_jax.ppo import Config, make_hparams, make_train
+
+    for name in ("config.json", "params.npz"):
+        if not os.path.exists(os.path.join(run_dir, name)):
+            raise InspectError(f"{run_dir!r} is not a gsa_jax run: {name} is missing")
+    with open(os.path.join(run_dir, "config.json")) as f:
+        meta = json.load(f)
+    if require_mixture and meta["config"]["policy"] != "mixture":
+        raise InspectError(f"{run_dir!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
+    c = dict(meta["config"])
+    c["hidden"] = tuple(c["hidden"])
+    cfg = Config(**c)
+    trainer = make_train(cfg)
+    hp = make_hparams(**meta["hparams"])
+    like = jax.eval_shape(trainer.init, jax.random.PRNGKey(0), hp)
+    like = {"params": like.params, "obs_stats": like.obs_stats}
+    like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
+    loaded = jax.tree.map(jax.numpy.asarray, load_pytree(os.path.join(run_dir, "params.npz"), like))
+    return trainer, loaded["params"], loaded["obs_stats"], hp, meta
+
+
+def last_iteration(meta):
+    """The iteration a run's saved params belong to (its schedules of eps and sigma_min depend on it)."""
+    return int(meta.get("result", {}).get("iterations_done") or meta.get("iterations", 0))
+
+
+def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iteration):
+    """Full episodes (no auto-reset) -> dict of arrays [T, episodes, ...] and alive mask."""
+    import jax
+    import jax.numpy as jnp
+
+    from gsa_jax.normalize import normalize
+    from gsa_jax.ppo import make_env, schedule
+
+    cfg = trainer.cfg
+    env = make_env(cfg, auto_reset=False)
+    pol = trainer.policy
+    sched = schedule(hp, jnp.asarray(iteration, jnp.int32))
+
+    def step(carry, k):
+        s, alive = carry
+        z = normalize(obs_stats, s.obs) if cfg.normalize_obs else s.obs
+        if deterministic:
+            a, c = jax.vmap(pol.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
+        else:
+            a, c, _ = jax.vmap(pol.sample, in_axes=(None, 0, 0, None))(params["policy"], z, jax.random.split(k, episodes), sched)
+        nxt = jax.vmap(env.step)(s, jnp.clip(a, -1.0, 1.0))
+        out = {"obs": s.obs, "qpos": s.pipeline_state.qpos, "z": z, "cluster": c, "action": a, "reward": nxt.reward * alive, "alive": alive}
+        return (nxt, alive * (1.0 - nxt.done)), out
+
+    k_reset, k_run = jax.random.split(key)
+    s0 = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+    fn = jax.jit(lambda s0, ks: jax.lax.scan(step, (s0, jnp.ones((episodes,))), ks)[1])
+    return jax.device_get(fn(s0, jax.random.split(k_run, cfg.episode_length)))
+
+
+def cluster_stats(cluster, alive, k):
+    """Usage fraction per cluster over alive steps, clusters used, mean dwell time (steps) and switches per episode."""
+    mask = alive > 0.5
+    used = cluster[mask]
+    usage = np.bincount(used, minlength=k)[:k] / max(1, used.size)
+    dwell, switches = [], []
+    for e in range(cluster.shape[1]):
+        seq = cluster[mask[:, e], e]
+        if seq.size == 0:
+            continue
+        change = np.flatnonzero(np.diff(seq) != 0)
+        switches.append(len(change))
+        bounds = np.concatenate([[0], change + 1, [seq.size]])
+        dwell.extend(np.diff(bounds))
+    return {
+        "usage": usage.tolist(),
+        "clusters_used": int(np.sum(usage > 0)),
+        "mean_dwell_steps": float(np.mean(dwell)) if dwell else 0.0,
+        "switches_per_episode": float(np.mean(switches)) if switches else 0.0,
+    }
+
+
+def feature_names(subpolicy, obs_names):
+    """Names of the sub-policy features phi(z) (see gsa_jax.policies.subpolicy_features)."""
+    if subpolicy == "constant":
+        return []
+    if subpolicy == "linear":
+        return list(obs_names)
+    i, j = np.triu_indices(len(obs_names))
+    return list(obs_names) + [f"{obs_names[a]}*{obs_names[b]}" for a, b in zip(i, j)]
+
+
+def controller_table(params, k, obs_names, act_names, subpolicy="linear", top=3):
+    L = np.asarray(params["policy"]["L"])[:k]
+    b = np.asarray(params["policy"]["b"])[:k]
+    names = feature_names(subpolicy, obs_names)
+    shown = names[: len(obs_names)]  # quadratic: the table shows the linear terms; "strongest" ranks all
+    rule = {"constant": "a = b_c", "linear": "a = L_c z + b_c",
+            "quadratic": "a = L_c [z, z_i z_j (i <= j)] + b_c"}[subpolicy]
+    lines = [f"# {subpolicy.capitalize()} controllers", "",
+             f"{rule} on the normalized observation z = (obs - mean) / std (clipped to +-10), "
+             "for the cluster c the partition network picks.", ""]
+    for c in range(k):
+        head = ["actuator", "b", *shown] + (["strongest inputs"] if names else [])
+        lines += [f"## cluster {c}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for i, a in enumerate(act_names):
+            cells = [a, f"{b[c, i]:+.3f}", *(f"{x:+.2f}" for x in L[c, i, : len(shown)])]
+            if names:
+                order = np.argsort(-np.abs(L[c, i]))[:top]
+                cells.append(", ".join(f"{names[j]} ({L[c, i, j]:+.2f})" for j in order))
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot_time(data, k, path, episode=0, n_state=6):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    alive = data["alive"][:, episode] > 0.5
+    t = np.flatnonzero(alive)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True, gridspec_kw={"height_ratios": [1, 2]})
+    ax1.step(t, data["cluster"][t, episode], where="post", color="k", lw=1)
+    ax1.scatter(t, data["cluster"][t, episode], c=data["cluster"][t, episode], cmap="tab10", vmin=0, vmax=9, s=6)
+    ax1.set_ylabel("active cluster")
+    ax1.set_yticks(range(k))
+    ax1.set_title(f"deterministic controller, episode {episode}: return {data['reward'][:, episode].sum():.1f}")
+    obs = data["obs"][t, episode]
+    var = np.argsort(-obs.std(axis=0))[:n_state]
+    for j in var:
+        ax2.plot(t, obs[:, j], lw=1, label=f"obs[{j}]")
+    ax2.set_xlabel("step")
+    ax2.set_ylabel("state (raw)")
+    ax2.legend(fontsize=7, ncol=3, loc="upper right")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_pca(data, k, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    mask = data["alive"] > 0.5
+    z = data["z"][mask]
+    c = data["cluster"][mask]
+    zc = z - z.mean(axis=0)
+    _, s, vt = np.linalg.svd(zc, full_matrices=False)
+    p = zc @ vt[:2].T
+    explained = (s[:2] ** 2) / max(np.sum(s**2), 1e-12)
+    fig, ax = plt.subplots(figsize=(6.4, 5))
+    for ci in range(k):
+        sel = c == ci
+        if np.any(sel):
+            ax.scatter(p[sel, 0], p[sel, 1], s=3, alpha=0.5, color=plt.cm.tab10(ci % 10), label=f"cluster {ci} ({sel.mean():.0%})")
+    ax.set_xlabel(f"PC1 ({explained[0]:.0%} of variance)")
+    ax.set_ylabel(f"PC2 ({explained[1]:.0%} of variance)" if len(explained) > 1 else "PC2")
+    ax.set_title("visited states (normalized), coloured by active cluster")
+    ax.legend(fontsize=8, markerscale=4)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def inspect_run(run_dir, out=None, episodes=8, seed=0):
+    import jax
+
+    trainer, params, obs_stats, hp, meta = load_run(run_dir)
+    k = int(meta["hparams"]["K"])
+    out = out or os.path.join(run_dir, "inspect")
+    os.makedirs(out, exist_ok=True)
+    last_it = last_iteration(meta)
+    key = jax.random.PRNGKey(seed)
+    det = rollout(trainer, params, obs_stats, hp, key, episodes, True, last_it)
+    sto = rollout(trainer, params, obs_stats, hp, key, episodes, False, last_it)
+    ret_det, ret_sto = det["reward"].sum(0), sto["reward"].sum(0)
+    summary = {
+        "run_dir": run_dir, "env": trainer.cfg.env, "K": k, "episodes": episodes,
+        "return_deterministic_mean": float(ret_det.mean()), "return_deterministic": ret_det.tolist(),
+        "return_stochastic_mean": float(ret_sto.mean()), "return_stochastic": ret_sto.tolist(),
+        "episode_length_deterministic": (det["alive"].sum(0)).tolist(),
+        "deterministic": cluster_stats(det["cluster"], det["alive"], k),
+        "stochastic": cluster_stats(sto["cluster"], sto["alive"], k),
+    }
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=1)
+    d_s, d_a = det["obs"].shape[-1], det["action"].shape[-1]
+    with open(os.path.join(out, "controllers.md"), "w") as f:
+        f.write(controller_table(params, k, [f"obs[{j}]" for j in range(d_s)], [f"act[{i}]" for i in range(d_a)],
+                                  trainer.cfg.subpolicy))
+    plot_time(det, k, os.path.join(out, "clusters_time.png"))
+    plot_pca(det, k, os.path.join(out, "clusters_pca.png"))
+    return summary, out
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.inspect", description=__doc__.split("\n")[0])
+    p.add_argument("run_dir")
+    p.add_argument("--out", default=None)
+    p.add_argument("--episodes", type=int, default=8)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    if not os.path.isdir(args.run_dir):
+        print(f"gsa_jax.inspect: error: {args.run_dir!r} is not a directory", file=sys.stderr)
+        return 2
+    if args.episodes < 1:
+        print("gsa_jax.inspect: error: --episodes must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        s, out = inspect_run(args.run_dir, args.out, args.episodes, args.seed)
+    except InspectError as e:
+        print(f"gsa_jax.inspect: error: {e}", file=sys.stderr)
+        return 2
+    d = s["deterministic"]
+    print(f"{s['env']}, K={s['K']}: return deterministic {s['return_deterministic_mean']:.1f} vs stochastic "
+          f"{s['return_stochastic_mean']:.1f} over {s['episodes']} episodes")
+    print(f"deterministic controller: {d['clusters_used']}/{s['K']} clusters used, usage "
+          + ", ".join(f"{u:.0%}" for u in d["usage"])
+          + f"; mean dwell {d['mean_dwell_steps']:.1f} steps, {d['switches_per_episode']:.1f} switches/episode")
+    print(f"wrote {out}/summary.json, controllers.md, clusters_time.png, clusters_pca.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

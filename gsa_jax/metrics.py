@@ -1,0 +1,13 @@
+"""The names of what a training run measures, defined once (no JAX import: the plotting tools read them).
+
+ITERATION_METRICS: what the compiled program returns for every PPO iteration (gsa_jax.ppo), in the
+column order of the tidy tables. A single run's metrics.csv adds the deterministic evaluation and
+the wall clock (RUN_COLUMNS); a sweep's tidy metrics.csv has ITERATION_METRICS after its run columns.
+"""
+
+ITERATION_METRICS = (
+    "iteration", "env_steps", "episode_return", "episodes", "epsilon", "sigma_min", "lr", "policy_loss",
+    "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used",
+)
+RUN_COLUMNS = ITERATION_METRICS[:3] + ("eval_return",) + ITERATION_METRICS[3:] + ("wall_s",)
+INTEGER_METRICS = ("iteration", "env_steps", "clusters_used")  # written as integers in the tables

@@ -1,0 +1,152 @@
+"""The batched-program layer: one compiled program trains many runs at once.
+
+A group of runs (same Config, any hyperparameters and seeds) becomes one program: `jax.vmap` over
+the runs, optionally in sequential sub-batches (sub_batched), and with several devices the run axis
+sharded over them (shard_map). Used by gsa_jax.sweep and gsa_jax.bench.
+
+    states, run, hps, place, how = compile_group(cfg, chunk, devices, pad_runs(runs, len(devices)), names, iterations)
+    states, metrics = run(states, hps)          # metrics [R, chunk]
+"""
+
+import functools
+
+import numpy as np
+
+
+def stack_hparams(runs, names, iterations):
+    """The runs' hyperparameters stacked along the run axis: Hparams of [R] arrays (make_hparams per run)."""
+    import jax
+    import jax.numpy as jnp
+
+    from gsa_jax.ppo import make_hparams
+
+    per_run = [make_hparams(K=r["K"], total_iterations=iterations, **{n: r[n] for n in names}) for r in runs]
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *per_run)
+
+
+RUN_BATCH = 8  # runs per sub-batch (make_group_program); measured in experiments/bench_run_batch/
+
+
+def sub_batched(fn, size):
+    """fn (vmapped over a leading run axis R) applied to sequential slices of `size` runs in a lax.scan,
+    when size divides R and is smaller; else fn itself. (Explicit shapes: jax.lax.map(batch_size=) fails
+    on MJX's zero-size arrays.)"""
+    import jax
+
+    def run(*xs):
+        n = jax.tree.leaves(xs)[0].shape[0]
+        if not size or size >= n or n % size:
+            return fn(*xs)
+        split = jax.tree.map(lambda x: x.reshape((n // size, size) + x.shape[1:]), xs)
+        _, ys = jax.lax.scan(lambda c, x: (c, fn(*x)), None, split)
+        return jax.tree.map(lambda y: y.reshape((n,) + y.shape[2:]), ys)
+
+    return run
+
+
+def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
+    """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
+    vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
+    run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
+    all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
+    slowest env instead of the whole device's."""
+    import jax
+    from jax.sharding import NamedSharding
+    from jax.sharding import PartitionSpec as P
+
+    from gsa_jax.ppo import make_train
+
+    trainer = make_train(cfg)
+    init = jax.vmap(trainer.init)
+    run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
+    if len(devices) > 1:
+        # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
+        # type check rejects; every op here is per-run, so nothing needs that check.
+        mesh = jax.sharding.Mesh(np.array(devices), ("runs",))
+        init = jax.shard_map(init, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
+        run = jax.shard_map(run, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
+        sharding = NamedSharding(mesh, P("runs"))
+    else:
+        sharding = jax.sharding.SingleDeviceSharding(devices[0])
+    place = lambda tree: jax.device_put(tree, sharding)  # noqa: E731
+    return trainer, jax.jit(init), jax.jit(run, donate_argnums=0), place
+
+
+def pad_runs(runs, multiple, at_least=0):
+    """Pad with copies of the last run to at least `at_least` runs and a multiple of `multiple` (the
+    devices), so the run axis splits evenly (copies are dropped later)."""
+    n = max(len(runs), at_least)
+    pad = n - len(runs) + (-n) % multiple
+    return runs + [dict(runs[-1], run=-1)] * pad
+
+
+_PROGRAMS = {}  # (cfg, chunk, devices, run_batch, runs) -> compiled (init, run, place): reused within a process
+
+
+def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
+    """The group program for `runs` (already padded), compiled, and its initial state.
+    share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
+    inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
+    A program this process compiled before (same shapes) is reused.
+    Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
+    import jax
+
+    from gsa_jax import xla_cache
+
+    key = (cfg, chunk, tuple(devices), run_batch, len(runs))
+    how = "reused (compiled earlier in this process)"
+    if key not in _PROGRAMS:
+        _, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
+        hps = place(stack_hparams(runs, hparam_names, iterations))
+        keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
+        init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
+        run, how = xla_cache.compile_with(run.lower(init(keys, hps), hps), share, log)
+        _PROGRAMS.clear()  # keep the last program only: resumed groups and tests reuse it
+        _PROGRAMS[key] = (init, run, place)
+    init, run, place = _PROGRAMS[key]
+    hps = place(stack_hparams(runs, hparam_names, iterations))
+    keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
+    return init(keys, hps), run, hps, place, how
+
+
+@functools.lru_cache(maxsize=8)
+def compile_single(cfg, chunk):
+    """(trainer, jitted init, compiled run_chunk of `chunk` iterations, jitted evaluate) of one run of a
+    Config, built once per process (a second run of the same shapes in this process reuses it)."""
+    import jax
+
+    from gsa_jax.ppo import make_hparams, make_train
+
+    trainer = make_train(cfg)
+    init = jax.jit(trainer.init)
+    hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
+    state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
+    run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
+    return trainer, init, run_chunk, jax.jit(trainer.evaluate)
+
+
+def single_program(cfg, chunk, seed, hp_py):
+    """(Program of one run, not vmapped, its trainer). The deterministic evaluation after iteration `it`
+    starts its episodes from fold_in(PRNGKey(seed + 1_000_003), it)."""
+    import jax
+
+    from gsa_jax.driver import Program
+    from gsa_jax.ppo import make_hparams
+
+    trainer, init, run_chunk, evaluate = compile_single(cfg, chunk)
+    hp = make_hparams(**hp_py)
+    eval_key = jax.random.PRNGKey(seed + 1_000_003)
+
+    def evaluate_state(state, hps, it):
+        return evaluate(state.params, state.obs_stats, hps, jax.random.fold_in(eval_key, it))
+
+    program = Program(1, init(jax.random.PRNGKey(seed), hp), hp, run_chunk, evaluate_state, lambda tree: tree, batched=False)
+    return program, trainer
+
+
+def group_program(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
+    """compile_group as a driver Program of len(runs) (padded) runs."""
+    from gsa_jax.driver import Program
+
+    states, run, hps, place, how = compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch, share, log)
+    return Program(len(runs), states, hps, run, None, place, batched=True, how=how)
