@@ -2,12 +2,15 @@
 
 ITERATION_METRICS: what the compiled program returns for every PPO iteration (gsa_jax.ppo), in the
 column order of the tidy tables. A single run's metrics.csv adds the deterministic evaluation and
-the wall clock (RUN_COLUMNS); a sweep's tidy metrics.csv has ITERATION_METRICS after its run columns.
+the wall clock (RUN_COLUMNS); a sweep's tidy metrics.csv has TIDY_METRICS after its run columns.
 """
 
 ITERATION_METRICS = (
     "iteration", "env_steps", "episode_return", "episodes", "epsilon", "sigma_min", "lr", "policy_loss",
     "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used",
 )
-RUN_COLUMNS = ITERATION_METRICS[:3] + ("eval_return",) + ITERATION_METRICS[3:] + ("wall_s",)
+TIDY_METRICS = ITERATION_METRICS[:3] + ("eval_return",) + ITERATION_METRICS[3:]  # a sweep's tidy metrics.csv
+RUN_COLUMNS = TIDY_METRICS + ("wall_s",)  # a single run's metrics.csv
+EVALUATIONS_PER_RUN = 25  # default number of deterministic evaluations in a run (eval_every = iterations // 25)
+FINAL_EVALUATIONS = 3  # a run's final score: the mean deterministic return of its last 3 evaluations
 INTEGER_METRICS = ("iteration", "env_steps", "clusters_used")  # written as integers in the tables

@@ -1,70 +1,109 @@
-"""Figures: paper-style figures of a sweep (`python -m gsa_jax.plot <sweep dir> [--out fig.png]`), and the
-learning curve of a single run (plot_curve, written by gsa_jax.train as curve.png).
+"""Figures and tables of sweeps: `python -m gsa_jax.plot DIR [DIR ...] [--out OUT]`, and the learning curve
+of a single run (plot_curve, written by gsa_jax.train as curve.png).
 
-Merges every metrics.csv under the directory (one per worker process or host), then draws, per
-env, the mean training return vs env steps for flat PPO and each K (95% confidence band over
-seeds, Student t), like the paper's Figure 1. Also writes `final_returns.csv` (per cell, the mean
-return over the last 10% of iterations, averaged over seeds, with its 95% interval) and
-`return_vs_k.png` (final return against K, flat PPO as a band: how many linear controllers a task needs).
-Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every mean and listed apart:
-in the legend and in final_returns.csv's failed_runs column (seed@iteration).
+Merges every tidy metrics.csv under the directories (one per worker process, host, or separately run
+sweep: a task's sweep may run on another day or machine; sweeps that hold the same group with other
+steps, hyperparameters or settings are refused with the difference). Statistics with rliable
+(gsa_jax/stats.py): a run's final score is the mean deterministic return of its last 3 evaluations
+(the training return over the last 10% of iterations for sweeps without evaluations). Writes to OUT
+(default: the first DIR):
+  figure.png               per task, IQM learning curves of the deterministic controllers (95% bootstrap bands)
+  figure_training.png      the same for the training return (the stochastic policy)
+  return_vs_k.png          final score IQM (95% CI) against K, flat PPO as a band
+  performance_profile.png  fraction of runs above each normalized score, per configuration over tasks
+  final_returns.csv        per cell: mean (t CI), IQM (bootstrap CI), P(better than flat PPO) (CI), training return
+  aggregate.csv            per configuration over tasks: IQM of normalized scores (0 = random policy, 1 = flat
+                           PPO's final IQM on that task) and P(better than flat PPO), with CIs
+Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every statistic and listed apart.
 """
 
 import argparse
 import csv
 import glob
+import json
 import math
 import os
 import sys
-import warnings
 from collections import defaultdict
 
 import numpy as np
 
-from gsa_jax.metrics import ITERATION_METRICS
+from gsa_jax import stats
+from gsa_jax.metrics import TIDY_METRICS
 
-# two-sided 95% Student t quantiles by degrees of freedom (1..30); beyond, 1.96
-_T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
-        2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042]
 _ID_COLS = ("env", "policy", "K", "seed", "run")
-_METRIC_COLS = set(ITERATION_METRICS)
+_METRIC_COLS = set(TIDY_METRICS)
+_SERIES = ("env_steps", "episode_return", "eval_return")
 
 
-def t95(n):
-    return _T95[n - 2] if 2 <= n <= 31 else 1.96
+class PlotError(ValueError):
+    pass
+
+
+def read_tidy(path, series):
+    """Add one tidy metrics.csv to series {cell: {seed: {column: [(iteration, value)]}}}; False if not a sweep's."""
+    with open(path) as f:
+        reader = csv.DictReader(f)
+        if reader.fieldnames is None or not set(_ID_COLS) <= set(reader.fieldnames):
+            return False  # a single run's metrics.csv (train.py) or a foreign file
+        extra = [c for c in reader.fieldnames if c not in _ID_COLS and c not in _METRIC_COLS]
+        for r in reader:
+            cell = (r["env"], r["policy"], int(r["K"])) + tuple((c, r[c]) for c in extra)
+            run = series[cell][int(r["seed"])]
+            for c in _SERIES:
+                v = r.get(c, "")
+                run[c].append((int(r["iteration"]), float(v) if v != "" else math.nan))
+    return True
 
 
 def load_sweep(sweep_dir):
-    """All tidy rows under sweep_dir -> {cell: {seed: (env_steps [T], returns [T])}}, cell = (env, policy, K, extra...)."""
+    """All tidy rows under sweep_dir -> {cell: {seed: {env_steps, episode_return, eval_return: [T]}}},
+    cell = (env, policy, K, (column, value)...)."""
     paths = sorted(glob.glob(os.path.join(sweep_dir, "**", "metrics.csv"), recursive=True))
     if not paths:
         raise FileNotFoundError(f"no metrics.csv under {sweep_dir!r} (is it a sweep directory?)")
-    series = defaultdict(lambda: defaultdict(list))
-    for path in paths:
-        with open(path) as f:
-            reader = csv.DictReader(f)
-            if reader.fieldnames is None or not set(_ID_COLS) <= set(reader.fieldnames):
-                continue  # a single-run metrics.csv (train.py) or foreign file
-            extra = [c for c in reader.fieldnames if c not in _ID_COLS and c not in _METRIC_COLS]
-            for r in reader:
-                cell = (r["env"], r["policy"], int(r["K"])) + tuple((c, r[c]) for c in extra)
-                ret = float(r["episode_return"]) if r["episode_return"] != "" else math.nan
-                series[cell][int(r["seed"])].append((int(r["env_steps"]), ret))
-    out = {}
-    for cell, seeds in series.items():
-        out[cell] = {}
-        for seed, pts in seeds.items():
-            pts.sort()
-            out[cell][seed] = (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
-    if not out:
+    series = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
+    if not any([read_tidy(p, series) for p in paths]):
         raise FileNotFoundError(f"no sweep metrics.csv under {sweep_dir!r}")
+    return {cell: {seed: {c: np.array([v for _, v in sorted(pts)]) for c, pts in cols.items()}
+                   for seed, cols in seeds.items()} for cell, seeds in series.items()}
+
+
+def group_settings(sweep_dir):
+    """{(env, policy): what makes its runs comparable (steps, hyperparameters, static config)} of a sweep."""
+    out = {}
+    for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True)):
+        with open(path) as f:
+            spec = json.load(f).get("spec", {})
+        for env_name in spec.get("envs", []):
+            for policy in spec.get("policies", []):
+                out[(env_name, policy)] = {k: spec.get(k) for k in ("steps", "hparams", "config")}
     return out
+
+
+def load_sweeps(dirs):
+    """load_sweep of every directory, merged; PlotError naming the difference when two hold the same
+    group with other settings, or the same run twice."""
+    from gsa_jax.runinfo import describe_changes
+
+    data, seen = {}, {}
+    for d in dirs:
+        for group, settings in group_settings(d).items():
+            if group in seen and seen[group][1] != settings:
+                diff = describe_changes(seen[group][1], settings)
+                raise PlotError(f"{seen[group][0]} and {d} both hold {group[0]}/{group[1]} runs, with different "
+                                f"settings ({diff}); plot them apart")
+            seen.setdefault(group, (d, settings))
+        for cell, seeds in load_sweep(d).items():
+            twice = set(seeds) & set(data.get(cell, {}))
+            if twice:
+                raise PlotError(f"{d}: seed {min(twice)} of {cell[0]}/{cell[1]} K={cell[2]} is already in another directory")
+            data.setdefault(cell, {}).update(seeds)
+    return data
 
 
 def load_failed(sweep_dir):
     """Runs that stopped at a NaN/inf: sweep.json's 'failed_runs', or the workers' failed_runs.json."""
-    import json
-
     failed = []
     metas = sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True))
     for path in metas:
@@ -120,47 +159,6 @@ def cell_label(cell, action_dims):
     return f"K={k}{mult}" + extra
 
 
-def cell_curve(seeds, window):
-    """Mean and 95% half-width over seeds of smoothed returns, on the common env_steps grid
-    (NaN where no seed finished an episode yet)."""
-    length = min(len(x) for x, _ in seeds.values())
-    xs = next(iter(seeds.values()))[0][:length]
-    ys = np.stack([smooth(y[:length], window) for _, y in seeds.values()])
-    n = np.sum(np.isfinite(ys), axis=0)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: iterations before any episode ended
-        mean = np.nanmean(np.where(np.isfinite(ys), ys, np.nan), axis=0) if ys.size else ys
-        sd = np.nanstd(ys, axis=0, ddof=1) if ys.shape[0] > 1 else np.zeros_like(mean)
-    half = np.array([t95(k) for k in n]) * sd / np.sqrt(np.maximum(n, 1))
-    return xs, mean, half, ys
-
-
-def final_table(data, action_dims, failed=None):
-    """Per cell: final return (mean over the last 10% of iterations) mean and 95% t-interval over seeds;
-    failed_runs lists the seeds that stopped at a NaN/inf (seed@iteration), left out of the statistics."""
-    rows = []
-    failed = failed or {}
-    for cell in sorted(set(failed) - set(data), key=lambda c: (c[0], c[1] != "mlp", c[2], c[3:])):  # every seed failed
-        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", "K_over_action_dim": "",
-                     **{c: v for c, v in cell[3:]}, "seeds": 0, "final_return_mean": "", "ci95_halfwidth": "",
-                     "env_steps": "", "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
-    for cell, seeds in sorted(data.items(), key=lambda kv: (kv[0][0], kv[0][1] != "mlp", kv[0][2], kv[0][3:])):
-        finals = []
-        for _, y in seeds.values():
-            tail = y[-max(1, len(y) // 10):]
-            if np.any(np.isfinite(tail)):
-                finals.append(np.nanmean(tail))
-        finals = np.array(finals)
-        n = len(finals)
-        half = t95(n) * finals.std(ddof=1) / math.sqrt(n) if n > 1 else math.nan
-        env, policy, k = cell[:3]
-        rows.append({"env": env, "policy": policy, "K": k if policy == "mixture" else "",
-                     "K_over_action_dim": round(k / action_dims[env], 3) if policy == "mixture" and env in action_dims else "",
-                     **{c: v for c, v in cell[3:]}, "seeds": n, "final_return_mean": round(float(finals.mean()), 2) if n else "",
-                     "ci95_halfwidth": round(float(half), 2) if n > 1 else "", "env_steps": int(next(iter(seeds.values()))[0][-1]),
-                     "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, [])))})
-    return rows
-
 
 def plot_curve(rows, path, title=""):
     """A single run's learning curve: rows are metrics.csv rows as dicts. Training return per iteration
@@ -192,122 +190,307 @@ def plot_curve(rows, path, title=""):
     plt.close(fig)
 
 
+
+
+def cell_order(cell):
+    return cell[0], cell[1] != "mlp", cell[2], cell[3:]
+
+
+def final_scores(data):
+    """{cell: (scores [n], kind)}: each run's final score (stats.final_score), seeds in order; kind is
+    'deterministic' when every run has evaluations, else 'training'."""
+    out = {}
+    for cell, seeds in data.items():
+        got = [stats.final_score(s["eval_return"], s["episode_return"]) for _, s in sorted(seeds.items())]
+        kind = "deterministic" if all(k == "deterministic" for _, k in got) else "training"
+        if kind == "training":
+            got = [stats.final_score([], s["episode_return"]) for _, s in sorted(seeds.items())]
+        scores = np.array([v for v, _ in got])
+        out[cell] = (scores[np.isfinite(scores)], kind)
+    return out
+
+
+def flat_cell(cell, cells):
+    """The flat PPO cell a mixture cell is compared with: same env and swept settings (sub-policy aside)."""
+    rest = tuple((c, v) for c, v in cell[3:] if c != "subpolicy")
+    flats = [c for c in cells if c[0] == cell[0] and c[1] == "mlp"]
+    same = [c for c in flats if tuple((k, v) for k, v in c[3:] if k != "subpolicy") == rest]
+    return (same or (flats if len(flats) == 1 else [None]))[0]
+
+
+def cell_row(cell, scores, kind, data, action_dims, versus):
+    """One row of final_returns.csv (statistics of a cell's final scores)."""
+    env, policy, k = cell[:3]
+    n = len(scores)
+    mean, half = stats.mean_ci(scores) if n else (math.nan, math.nan)
+    iqm = stats.iqm_ci({"c": scores[:, None]})["c"] if n else (math.nan,) * 3
+    train = np.array([stats.final_score([], s["episode_return"])[0] for s in data[cell].values()])
+    t_mean, t_half = stats.mean_ci(train[np.isfinite(train)]) if np.isfinite(train).any() else (math.nan, math.nan)
+    p = versus or (math.nan,) * 3
+    r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
+    return {"env": env, "policy": policy, "K": k if policy == "mixture" else "",
+            "K_over_action_dim": round(k / action_dims[env], 3) if policy == "mixture" and env in action_dims else "",
+            **dict(cell[3:]), "seeds": n, "score": kind, "final_return_mean": r(mean), "ci95_halfwidth": r(half),
+            "iqm": r(iqm[0]), "iqm_ci_low": r(iqm[1]), "iqm_ci_high": r(iqm[2]),
+            "p_better_than_flat_ppo": r(p[0]), "p_ci_low": r(p[1]), "p_ci_high": r(p[2]),
+            "training_return_mean": r(t_mean), "training_ci95_halfwidth": r(t_half),
+            "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
+
+
+def final_table(data, action_dims, failed=None):
+    """final_returns.csv rows: per cell, statistics of its final scores and P(better than flat PPO)."""
+    failed = failed or {}
+    scores = final_scores(data)
+    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == "mixture"
+             for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
+    versus = stats.improvement_probability(pairs) if pairs else {}
+    rows = []
+    for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
+        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
+                     "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
+    for cell in sorted(data, key=cell_order):
+        row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell))
+        rows.append(dict(row, failed_runs=" ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, [])))))
+    return rows
+
+
+def config_key(cell, action_dims):
+    """A configuration across tasks: flat PPO, or K / action_dim (as Figure 1 sets K), with the swept settings."""
+    env, policy, k = cell[:3]
+    if policy == "mlp":
+        return ("flat PPO",) + tuple(cell[3:])
+    return (f"K = {k / action_dims[env]:.3g} d_a" if env in action_dims else f"K = {k}",) + tuple(cell[3:])
+
+
+def normalized_scores(data, action_dims, random_returns):
+    """{config: [runs, tasks] normalized final scores} (0 = random policy, 1 = flat PPO's final IQM on the
+    task); tasks without a flat PPO cell or a random-policy return are left out; runs cut to the fewest."""
+    scores = final_scores(data)
+    by_config = defaultdict(dict)
+    for cell in data:
+        flat = flat_cell(cell, data) if cell[1] == "mixture" else cell
+        if flat is None or cell[0] not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
+            continue
+        ref = stats.iqm_ci({"f": scores[flat][0][:, None]})["f"][0]
+        by_config[config_key(cell, action_dims)][cell[0]] = stats.normalize(scores[cell][0], random_returns[cell[0]], ref)
+    out = {}
+    for config, tasks in by_config.items():
+        n = min(len(v) for v in tasks.values())
+        out[config] = (sorted(tasks), np.stack([tasks[t][:n] for t in sorted(tasks)], axis=1))
+    return out
+
+
+def aggregate_table(normalized):
+    """aggregate.csv rows: per configuration, IQM of normalized scores over tasks and P(better than flat PPO)."""
+    if not normalized:
+        return []
+    iqm = stats.iqm_ci({str(k): m for k, (_, m) in normalized.items()})
+    flats = {tuple(c for c in k[1:] if c[0] != "subpolicy"): k for k in normalized if k[0] == "flat PPO"}
+    pairs = {}
+    for k, (tasks, m) in normalized.items():
+        f = flats.get(tuple(c for c in k[1:] if c[0] != "subpolicy"))
+        if k[0] != "flat PPO" and f is not None and normalized[f][0] == tasks:
+            n = min(len(m), len(normalized[f][1]))
+            pairs[str(k)] = (m[:n], normalized[f][1][:n])
+    better = stats.improvement_probability(pairs) if pairs else {}
+    rows = []
+    for k, (tasks, m) in normalized.items():
+        p = better.get(str(k), ("",) * 3)
+        rows.append({"config": k[0], **dict(k[1:]), "tasks": " ".join(tasks), "runs_per_task": m.shape[0],
+                     "normalized_iqm": round(iqm[str(k)][0], 3), "iqm_ci_low": round(iqm[str(k)][1], 3),
+                     "iqm_ci_high": round(iqm[str(k)][2], 3), "p_better_than_flat_ppo": p[0] if p[0] == "" else round(p[0], 3),
+                     "p_ci_low": p[1] if p[1] == "" else round(p[1], 3), "p_ci_high": p[2] if p[2] == "" else round(p[2], 3)})
+    return rows
+
+
+def cell_curves(data, column, window):
+    """{cell: (env_steps [P], IQM [P], low [P], high [P])}: IQM over seeds with bootstrap bands of the
+    training return (smoothed over `window` iterations) or of the evaluations (where evaluated)."""
+    curves, steps = {}, {}
+    for cell, seeds in data.items():
+        n = min(len(s[column]) for s in seeds.values())
+        m = np.stack([s[column][:n] for s in seeds.values()])
+        if column == "episode_return":
+            m = np.stack([smooth(y, window) for y in m])
+        if column == "eval_return":
+            keep = np.where(np.all(np.isfinite(m), axis=0))[0]
+            m = m[:, keep]
+        else:
+            keep = np.arange(n)
+        curves[cell], steps[cell] = m, next(iter(seeds.values()))["env_steps"][:n][keep]
+    est = stats.iqm_curves({c: m for c, m in curves.items() if m.size})
+    return {c: (steps[c][idx], iqm, lo, hi) for c, (idx, iqm, lo, hi) in est.items()}
+
+
+def plot_curves(data, action_dims, failed, column, path, title):
+    """Per task, the IQM learning curve of every cell with its 95% bootstrap band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    window = max(1, min(len(s["episode_return"]) for seeds in data.values() for s in seeds.values()) // 50)
+    curves = cell_curves(data, column, window)
+    env_names = list(dict.fromkeys(c[0] for c in sorted(data)))
+    ncols = min(3, len(env_names))
+    fig, axes = plt.subplots(math.ceil(len(env_names) / ncols), ncols, figsize=(max(7.0, 5.2 * ncols), 3.9 * math.ceil(len(env_names) / ncols) + 0.3), squeeze=False)
+    for ax, env_name in zip(axes.flat, env_names):
+        cells = sorted((c for c in data if c[0] == env_name), key=cell_order)
+        for i, cell in enumerate(c for c in cells if c in curves):
+            xs, iqm, lo, hi = curves[cell]
+            style = dict(color="black", lw=2.0) if cell[1] == "mlp" else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
+            n_failed = f", {len(failed[cell])} failed (NaN/inf), not shown" if cell in failed else ""
+            ax.plot(xs, iqm, marker="o" if column == "eval_return" else None, ms=3,
+                    label=f"{cell_label(cell, action_dims)} (n={len(data[cell])}{n_failed})", **style)
+            ax.fill_between(xs, lo, hi, alpha=0.18, color=style["color"], lw=0)
+        ax.set(title=env_name, xlabel="environment steps", ylabel="episode return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    for ax in list(axes.flat)[len(env_names):]:
+        ax.axis("off")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def plot_return_vs_k(rows, path):
-    """Final return (mean, 95% CI over seeds) against K per env; flat PPO as a horizontal band."""
+    """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
-    fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "final_return_mean", "ci95_halfwidth", "env_steps", "failed_runs"}
+    fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "score", "final_return_mean", "ci95_halfwidth", "iqm",
+             "iqm_ci_low", "iqm_ci_high", "p_better_than_flat_ppo", "p_ci_low", "p_ci_high", "training_return_mean",
+             "training_ci95_halfwidth", "env_steps", "failed_runs"}
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
-        mix = [r for r in rows if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]]
-        # one curve per sub-policy class (and per other swept setting): the whole complexity/return trade-off
-        curves = defaultdict(list)
-        for r in mix:
-            curves[tuple((c, v) for c, v in r.items() if c not in fixed)].append(r)
-        all_ks = sorted({r["K"] for r in mix})
+        curves = defaultdict(list)  # one curve per sub-policy class (and per other swept setting)
+        for r in rows:
+            if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]:
+                curves[tuple((c, v) for c, v in r.items() if c not in fixed)].append(r)
+        all_ks = sorted({r["K"] for pts in curves.values() for r in pts})
         for extra, pts in curves.items():
             pts = sorted(pts, key=lambda r: r["K"])
-            ks = np.array([r["K"] for r in pts], float)
-            mean = np.array([r["final_return_mean"] for r in pts], float)
-            half = np.array([r["ci95_halfwidth"] if r["ci95_halfwidth"] != "" else 0.0 for r in pts], float)
+            iqm = np.array([r["iqm"] for r in pts], float)
+            err = np.array([[r["iqm"] - r["iqm_ci_low"], r["iqm_ci_high"] - r["iqm"]] for r in pts], float).T
             sub = dict(extra).get("subpolicy") or "linear"
             rest = "".join(f", {c}={v}" for c, v in extra if c != "subpolicy")
-            ax.errorbar(ks, mean, yerr=half, fmt="o-", capsize=3, label=f"mixture of K {sub} controllers{rest}")
+            ax.errorbar([r["K"] for r in pts], iqm, yerr=err, fmt="o-", capsize=3, label=f"mixture of K {sub} controllers{rest}")
         if all_ks:
             ax.set_xscale("log", base=2)
             ax.set_xticks(all_ks, [f"{int(k)}" for k in all_ks])
         for r in rows:
             if r["env"] == env_name and r["policy"] == "mlp" and r["seeds"]:
-                h = r["ci95_halfwidth"] if r["ci95_halfwidth"] != "" else 0.0
-                ax.axhspan(r["final_return_mean"] - h, r["final_return_mean"] + h, color="k", alpha=0.15, lw=0)
-                ax.axhline(r["final_return_mean"], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
-        ax.set_title(env_name)
-        ax.set_xlabel("K (number of clusters / sub-policies)")
-        ax.set_ylabel("final return")
+                ax.axhspan(r["iqm_ci_low"], r["iqm_ci_high"], color="k", alpha=0.15, lw=0)
+                ax.axhline(r["iqm"], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
+        ax.set(title=env_name, xlabel="K (number of clusters / sub-policies)", ylabel=f"final score ({rows[0].get('score', '')})")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("How many (and how complex) controllers does the task need? (final return, mean, 95% CI over seeds)", fontsize=9)
+    fig.suptitle("How many (and how complex) controllers does the task need? (final score: IQM, 95% bootstrap CI)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def plot_sweep(sweep_dir, out_png=None, window=None, action_dims=None):
+def plot_profiles(normalized, path):
+    """Performance profiles: the fraction of runs (averaged over tasks) whose normalized score exceeds tau."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    data, failed = drop_failed(load_sweep(sweep_dir), load_failed(sweep_dir))
-    if action_dims is None:
-        action_dims = {}
-        for env_name in {c[0] for c in data}:
-            try:
-                import envs
-
-                action_dims[env_name] = envs.action_size(env_name)
-            except Exception:  # noqa: BLE001 - a label detail; plotting must not fail on it
-                pass
-    env_names = list(dict.fromkeys(c[0] for c in sorted(data)))
-    ncols = min(3, len(env_names))
-    nrows = math.ceil(len(env_names) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(max(7.0, 5.2 * ncols), 3.9 * nrows + 0.3), squeeze=False)
-    for ax, env_name in zip(axes.flat, env_names):
-        cells = sorted((c for c in data if c[0] == env_name), key=lambda c: (c[1] != "mlp", c[2], c[3:]))
-        for i, cell in enumerate(cells):
-            seeds = data[cell]
-            w = window or max(1, len(next(iter(seeds.values()))[0]) // 50)
-            xs, mean, half, _ = cell_curve(seeds, w)
-            style = dict(color="black", lw=2.0) if cell[1] == "mlp" else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
-            n_failed = f", {len(failed[cell])} failed (NaN/inf), not shown" if cell in failed else ""
-            ax.plot(xs, mean, label=f"{cell_label(cell, action_dims)} (n={len(seeds)}{n_failed})", **style)
-            ax.fill_between(xs, mean - half, mean + half, alpha=0.18, color=style["color"], lw=0)
-        ax.set_title(env_name)
-        ax.set_xlabel("environment steps")
-        ax.set_ylabel("episode return")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
-    for ax in list(axes.flat)[len(env_names):]:
-        ax.axis("off")
-    fig.suptitle("Flat PPO vs mixtures of K linear controllers (mean, 95% CI over seeds)", fontsize=11)
+    top = max(1.5, max(float(np.max(m)) for _, m in normalized.values()))
+    taus = np.linspace(0.0, top, 60)
+    prof = stats.performance_profiles({str(k): m for k, (_, m) in normalized.items()}, taus)
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for i, (k, (tasks, _)) in enumerate(normalized.items()):
+        frac, lo, hi = prof[str(k)]
+        color = "black" if k[0] == "flat PPO" else plt.cm.viridis(i / max(1, len(normalized) - 1) * 0.9)
+        ax.plot(taus, frac, color=color, label=" ".join([k[0]] + [f"{c}={v}" for c, v in k[1:] if v != ""]) + f" ({len(tasks)} tasks)")
+        ax.fill_between(taus, lo, hi, color=color, alpha=0.15, lw=0)
+    ax.set(xlabel="normalized score tau (0 = random policy, 1 = flat PPO's final IQM)", ylabel="fraction of runs with score > tau")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
     fig.tight_layout()
-    out_png = out_png or os.path.join(sweep_dir, "figure.png")
-    fig.savefig(out_png, dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
-    rows = final_table(data, action_dims, failed)
-    table_path = os.path.join(os.path.dirname(os.path.abspath(out_png)), "final_returns.csv")
+
+
+def random_returns_of(dirs, env_names, out_dir, log=print):
+    """{env: random-policy return}: from the sweeps' random_returns.json, measured (and saved in out_dir) where missing."""
+    found = {}
+    for d in dirs:
+        for path in glob.glob(os.path.join(d, "**", "random_returns.json"), recursive=True):
+            with open(path) as f:
+                found.update(json.load(f))
+    missing = [e for e in env_names if e not in found]
+    if missing:
+        from gsa_jax.scoring import random_policy_return
+
+        for env_name in missing:
+            log(f"measuring the random-policy return of {env_name} (for normalized scores)")
+            found[env_name] = random_policy_return(env_name)
+        with open(os.path.join(out_dir, "random_returns.json"), "w") as f:
+            json.dump({e: found[e] for e in env_names}, f, indent=1)
+    return {e: found[e] for e in env_names}
+
+
+def write_csv(path, rows):
     cols = list(dict.fromkeys(k for r in rows for k in r))
-    with open(table_path, "w", newline="") as f:
+    with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=cols)
         w.writeheader()
         w.writerows(rows)
-    plot_return_vs_k(rows, os.path.join(os.path.dirname(os.path.abspath(out_png)), "return_vs_k.png"))
-    return out_png, table_path, rows
+
+
+def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, log=print):
+    """Every figure and table of the merged sweeps into out_dir (default: the first directory).
+    Returns (figure.png path, final_returns.csv path, final_returns rows)."""
+    dirs = [sweep_dirs] if isinstance(sweep_dirs, str) else list(sweep_dirs)
+    out_dir = out_dir or dirs[0]
+    os.makedirs(out_dir, exist_ok=True)
+    failed_runs = [f for d in dirs for f in load_failed(d)]
+    data, failed = drop_failed(load_sweeps(dirs), failed_runs)
+    if action_dims is None:
+        import envs
+
+        action_dims = {e: envs.action_size(e) for e in {c[0] for c in data}}
+    evaluated = any(np.isfinite(s["eval_return"]).any() for seeds in data.values() for s in seeds.values())
+    png = os.path.join(out_dir, "figure.png")
+    plot_curves(data, action_dims, failed, "eval_return" if evaluated else "episode_return", png,
+                "Flat PPO vs mixtures of K linear controllers: " + ("deterministic controllers" if evaluated else "training return")
+                + " (IQM over seeds, 95% bootstrap band)")
+    plot_curves(data, action_dims, failed, "episode_return", os.path.join(out_dir, "figure_training.png"),
+                "Training return (stochastic policy; IQM over seeds, 95% bootstrap band)")
+    rows = final_table(data, action_dims, failed)
+    table = os.path.join(out_dir, "final_returns.csv")
+    write_csv(table, rows)
+    plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"))
+    if random_returns is None:
+        random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
+    normalized = normalized_scores(data, action_dims, random_returns)
+    if normalized:
+        write_csv(os.path.join(out_dir, "aggregate.csv"), aggregate_table(normalized))
+        plot_profiles(normalized, os.path.join(out_dir, "performance_profile.png"))
+    return png, table, rows
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.plot", description=__doc__.split("\n")[0])
-    p.add_argument("sweep_dir")
-    p.add_argument("--out", default=None,
-                   help="PNG path, or a directory for figure.png and the tables (default <sweep_dir>/figure.png)")
-    p.add_argument("--window", type=int, default=None, help="smoothing window in iterations (default: 2%% of the run)")
+    p.add_argument("sweep_dirs", nargs="+", metavar="DIR", help="sweep directories (merged)")
+    p.add_argument("--out", default=None, help="directory for the figures and tables (default: the first DIR)")
     args = p.parse_args(argv)
-    out = args.out
-    if out is not None and (os.path.isdir(out) or not out.lower().endswith(".png")):
-        os.makedirs(out, exist_ok=True)
-        out = os.path.join(out, "figure.png")
     try:
-        png, table, rows = plot_sweep(args.sweep_dir, out, args.window)
-    except FileNotFoundError as e:
+        png, table, rows = plot_sweep(args.sweep_dirs, args.out)
+    except (FileNotFoundError, PlotError) as e:
         print(f"gsa_jax.plot: error: {e}", file=sys.stderr)
         return 2
     print(f"wrote {png} and {table}")
     for r in rows:
-        print("  " + "  ".join(f"{k}={v}" for k, v in r.items()))
+        print("  " + "  ".join(f"{k}={v}" for k, v in r.items() if v != ""))
     return 0
 
 

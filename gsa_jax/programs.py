@@ -72,6 +72,17 @@ def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
     return trainer, jax.jit(init), jax.jit(run, donate_argnums=0), place
 
 
+def make_group_evaluate(cfg, run_batch=RUN_BATCH):
+    """jit of evaluate(params, obs_stats, hps, keys) -> [R] deterministic returns, vmapped over runs in
+    sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one)."""
+    import jax
+
+    from gsa_jax.ppo import make_train
+
+    trainer = make_train(cfg)
+    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch))
+
+
 def pad_runs(runs, multiple, at_least=0):
     """Pad with copies of the last run to at least `at_least` runs and a multiple of `multiple` (the
     devices), so the run axis splits evenly (copies are dropped later)."""
@@ -125,9 +136,9 @@ def compile_single(cfg, chunk):
     return trainer, init, run_chunk, jax.jit(trainer.evaluate)
 
 
-def single_program(cfg, chunk, seed, hp_py):
+def single_program(cfg, chunk, seed, hp_py, eval_seed=0):
     """(Program of one run, not vmapped, its trainer). The deterministic evaluation after iteration `it`
-    starts its episodes from fold_in(PRNGKey(seed + 1_000_003), it)."""
+    starts its episodes from fold_in(PRNGKey(eval_seed), it): the same starts for every seed."""
     import jax
 
     from gsa_jax.driver import Program
@@ -135,7 +146,7 @@ def single_program(cfg, chunk, seed, hp_py):
 
     trainer, init, run_chunk, evaluate = compile_single(cfg, chunk)
     hp = make_hparams(**hp_py)
-    eval_key = jax.random.PRNGKey(seed + 1_000_003)
+    eval_key = jax.random.PRNGKey(eval_seed)
 
     def evaluate_state(state, hps, it):
         return evaluate(state.params, state.obs_stats, hps, jax.random.fold_in(eval_key, it))
@@ -144,9 +155,43 @@ def single_program(cfg, chunk, seed, hp_py):
     return program, trainer
 
 
-def group_program(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
-    """compile_group as a driver Program of len(runs) (padded) runs."""
+_EVALUATORS = {}  # (cfg, devices, run_batch, runs) -> compiled group evaluation: reused within a process
+
+
+def compile_group_evaluate(cfg, devices, states, hps, place, run_batch=RUN_BATCH, share=None, log=print):
+    """The compiled evaluation of a group's runs: (states, hps, key) -> [R] mean deterministic returns,
+    every run from the same eval_envs start states (drawn from `key`)."""
+    import jax
+
+    from gsa_jax import xla_cache
+
+    runs = jax.tree.leaves(hps)[0].shape[0]
+    cache_key = (cfg, tuple(devices), run_batch, runs)
+    if cache_key not in _EVALUATORS:
+        keys = place(jax.numpy.stack([jax.random.PRNGKey(0)] * runs))
+        lowered = make_group_evaluate(cfg, run_batch).lower(states.params, states.obs_stats, hps, keys)
+        _EVALUATORS.clear()
+        _EVALUATORS[cache_key], _ = xla_cache.compile_with(lowered, share, log)
+    compiled = _EVALUATORS[cache_key]
+
+    def evaluate(st, h, key):
+        return compiled(st.params, st.obs_stats, h, place(jax.numpy.stack([key] * runs)))
+
+    return evaluate
+
+
+def group_program(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print,
+                  eval_seed=None):
+    """compile_group as a driver Program of len(runs) (padded) runs; with an eval_seed, its deterministic
+    evaluation after iteration `it` starts every run's episodes from fold_in(PRNGKey(eval_seed), it)."""
+    import jax
+
     from gsa_jax.driver import Program
 
     states, run, hps, place, how = compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch, share, log)
-    return Program(len(runs), states, hps, run, None, place, batched=True, how=how)
+    evaluate = None
+    if eval_seed is not None:
+        group_eval = compile_group_evaluate(cfg, devices, states, hps, place, run_batch, share, log)
+        base = jax.random.PRNGKey(eval_seed)
+        evaluate = lambda st, h, it: group_eval(st, h, jax.random.fold_in(base, it))  # noqa: E731
+    return Program(len(runs), states, hps, run, evaluate, place, batched=True, how=how)

@@ -129,3 +129,31 @@ def mean_ci(rows, cols):
     """{col: {mean, ci95}} over rows (seeds)."""
     return {col: {"mean": float(np.mean([r[col] for r in rows])),
                   "ci95": float(1.96 * np.std([r[col] for r in rows], ddof=1) / np.sqrt(len(rows)))} for col in cols}
+
+
+def random_policy_return(env_name, episodes=16, seed=0, episode_length=None):
+    """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
+    score that normalizes to 0), from the start states of PRNGKey(seed)."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+
+    env = envs.make(env_name, episode_length, auto_reset=False)
+    length = episode_length or envs.default_episode_length(env_name)
+
+    def run(key):
+        k_reset, k_act = jax.random.split(key)
+        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+
+        def step(carry, k):
+            s, ret, alive = carry
+            a = jax.random.uniform(k, (episodes, env.action_size), minval=-1.0, maxval=1.0)
+            s = jax.vmap(env.step)(s, a)
+            return (s, ret + alive * s.reward, alive * (1.0 - s.done)), None
+
+        zeros = jnp.zeros((episodes,))
+        (_, ret, _), _ = jax.lax.scan(step, (s0, zeros, zeros + 1.0), jax.random.split(k_act, length))
+        return jnp.mean(ret)
+
+    return float(jax.jit(run)(jax.random.PRNGKey(seed)))

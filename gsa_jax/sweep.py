@@ -16,7 +16,8 @@ process watches a heartbeat and restarts a worker whose chunk takes far longer t
 
 Output (DIR, default runs/sweeps/<name>):
   sweep.json            the spec, every run of the grid, versions, git commit; failed_runs at the end
-  metrics.csv           tidy: one row per run per iteration (env, policy, K, seed, swept hparams, metrics; a swept
+  metrics.csv           tidy: one row per run per iteration (env, policy, K, seed, swept hparams, metrics with
+                        eval_return, the deterministic controller's mean return where evaluated; a swept
                         hparam named like a metric is hparam_<name>, e.g. hparam_lr next to the annealed lr)
   groups/<env>-<policy>/{state.npz, metrics.npz (+ their .prev.npz), params.npz, runs.csv, failed.json, DONE}
   LOCK                  pid and host of the sweep writing DIR (a second one is refused)
@@ -40,6 +41,8 @@ Experiment file (TOML):
   seeds = 8                               # seeds 0..7, or a list [0, 5, 9]
   steps = 200_000                         # env steps per run
   chunk = 10                              # PPO iterations per compiled chunk (optional)
+  eval_every = 8                          # iterations between deterministic evaluations (default ~25 per run; 0: none)
+  eval_seed = 0                           # evaluation start states: the same for every run of the sweep
   [hparams]                               # scalars, or lists to sweep over (every combination)
   lr = 3e-4
   eps_decay = [0.99, 0.995]
@@ -62,14 +65,15 @@ import numpy as np
 
 from gsa_jax.checkpoint import CheckpointError, DiskFullError, read_with_fallback, write_atomic
 from gsa_jax.driver import rows_before_failure
-from gsa_jax.metrics import INTEGER_METRICS, ITERATION_METRICS
+from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.programs import RUN_BATCH, pad_runs
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
+               "eval_every", "eval_seed",
                "hparams", "config")
-TRACKED = ITERATION_METRICS + ("failed_at",)  # per run and iteration on the host; failed_at is not a CSV column
+TRACKED = TIDY_METRICS + ("failed_at",)  # per run and iteration in metrics.npz; failed_at is not a CSV column
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
@@ -136,6 +140,9 @@ def check_spec(raw, source="spec"):
         bad("steps", f"must be a positive integer, got {spec.get('steps')!r}")
     if "chunk" in spec and (not isinstance(spec["chunk"], int) or spec["chunk"] < 1):
         bad("chunk", f"must be a positive integer, got {spec['chunk']!r}")
+    for field in ("eval_every", "eval_seed"):
+        if field in spec and (not isinstance(spec[field], int) or isinstance(spec[field], bool) or spec[field] < 0):
+            bad(field, f"must be an integer >= 0, got {spec[field]!r}")
     spec["hparams"] = check_hparams_table(spec.get("hparams", {}), bad)
     cfg = spec.get("config", {})
     if not isinstance(cfg, dict):
@@ -255,6 +262,11 @@ def group_iterations(spec, cfg, chunk):
     return math.ceil(iters / chunk) * chunk
 
 
+def group_eval_every(spec, iterations):
+    """Iterations between deterministic evaluations of a group's runs (0: none); default ~25 per run."""
+    return spec["eval_every"] if "eval_every" in spec else max(1, iterations // EVALUATIONS_PER_RUN)
+
+
 def default_chunk(spec, cfg):
     return spec.get("chunk") or max(1, min(10, math.ceil(spec["steps"] / cfg.batch_size) // 20))
 
@@ -266,19 +278,19 @@ def group_csv(runs, id_cols, metrics, upto):
     lines = []
     for i, r in enumerate(runs):
         ids = ",".join(str(r[c]) for c in id_cols)
-        cols = [metrics[m][i] for m in ITERATION_METRICS]
+        cols = [metrics[m][i] for m in TIDY_METRICS]
         for j in range(rows_before_failure(metrics, i, upto)):
             vals = []
-            for m, c in zip(ITERATION_METRICS, cols):
+            for m, c in zip(TIDY_METRICS, cols):
                 v = c[j]
                 vals.append("" if isinstance(v, float) and math.isnan(v) else (str(int(v)) if m in INTEGER_METRICS else f"{float(v):.6g}"))
             lines.append(ids + "," + ",".join(vals))
-    return ",".join([tidy_name(c) for c in id_cols] + list(ITERATION_METRICS)), lines
+    return ",".join([tidy_name(c) for c in id_cols] + list(TIDY_METRICS)), lines
 
 
 def tidy_name(column):
     """A swept hyperparameter's column in the tidy table: 'hparam_<name>' where a metric has its name (lr)."""
-    return f"hparam_{column}" if column in ITERATION_METRICS else column
+    return f"hparam_{column}" if column in TIDY_METRICS else column
 
 
 def failed_runs(runs, metrics, upto):
@@ -313,7 +325,8 @@ def load_group_checkpoint(gdir, states, iterations, log):
             if int(m["__done__"]) < done:
                 raise ValueError(f"holds {int(m['__done__'])} iterations, the state {done}")
             rows = m["iteration"].shape[0]
-            return {k: m[k][:, :done] if k in m.files else np.full((rows, done), -1.0) for k in TRACKED}
+            missing = {"failed_at": -1.0}  # a checkpoint older than a tracked metric: never failed, not evaluated
+            return {k: m[k][:, :done] if k in m.files else np.full((rows, done), missing.get(k, np.nan)) for k in TRACKED}
 
     saved, _ = read_with_fallback(os.path.join(gdir, "metrics.npz"), read_metrics, log)
     metrics = {m: np.full((saved["iteration"].shape[0], iterations), np.nan, np.float64) for m in TRACKED}
@@ -401,13 +414,19 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
     write_atomic(os.path.join(gdir, "runs.csv"), "\n".join(
         [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in runs]) + "\n")
     t0 = time.perf_counter()
+    eval_every = group_eval_every(spec, iterations)
     program = group_program(cfg, chunk, devices, pad_runs(runs, len(devices), at_least=pad_to), list(spec["hparams"]),
-                            iterations, run_batch, share, log)
+                            iterations, run_batch, share, log, spec.get("eval_seed", 0) if eval_every else None)
     tag = group_name(env_name, policy, runs).replace(f"{env_name}-", f"{env_name}/", 1)
     log(f"[{tag}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
         f"{len(devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
-    plan = Plan(iterations, chunk, cfg.batch_size, len(runs), stop_after_chunks=stop_after_chunks, tag=tag)
-    return drive(program, GroupStore(gdir, runs, iterations, on_chunk), plan, log, heartbeat, clock_start=t0)
+    plan = Plan(iterations, chunk, cfg.batch_size, len(runs), eval_every, stop_after_chunks=stop_after_chunks, tag=tag)
+    result = drive(program, GroupStore(gdir, runs, iterations, on_chunk), plan, log, heartbeat, clock_start=t0)
+    t = result.timing
+    if t.get("eval_s"):
+        log(f"[{tag}] deterministic evaluation: {t['eval_s']:.1f}s = {t['eval_s'] / max(t['train_s'] + t['eval_s'], 1e-9):.1%} "
+            f"of this invocation's training and evaluation time")
+    return result
 
 
 def write_tidy(out, spec, results):

@@ -21,7 +21,7 @@ import time
 
 from gsa_jax.checkpoint import write_atomic
 from gsa_jax.driver import duration, fmt
-from gsa_jax.metrics import INTEGER_METRICS
+from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS
 from gsa_jax.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.policies import SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config
@@ -71,7 +71,10 @@ def build_parser():
         p.add_argument("--" + flag.replace("_", "-"), type=float, default=HPARAM_DEFAULTS[name], dest=flag)
     p.add_argument("--no-anneal-lr", action="store_true", help="keep the learning rate constant")
     p.add_argument("--no-normalize-reward", action="store_true", help="train on raw rewards")
-    p.add_argument("--eval-every", type=int, default=None, help="iterations between deterministic evaluations (0: none; default ~10 per run)")
+    p.add_argument("--eval-every", type=int, default=None,
+                   help="iterations between deterministic evaluations (0: none; default ~25 per run)")
+    p.add_argument("--eval-seed", type=int, default=0,
+                   help="evaluation start states: the same for every training seed (default 0)")
     p.add_argument("--eval-envs", type=int, default=Config.eval_envs)
     p.add_argument("--chunk", type=int, default=None, help="PPO iterations per compiled chunk (default: auto)")
     p.add_argument("--stop-after", type=int, default=None,
@@ -122,9 +125,11 @@ def resolve(args):
         validate_hparams(cfg, make_hparams(**hp))
     except ValueError as e:
         raise UsageError(str(e).replace("clusters K", "--clusters")) from None
-    eval_every = args.eval_every if args.eval_every is not None else max(chunk, iterations // 10)
+    eval_every = args.eval_every if args.eval_every is not None else max(1, iterations // EVALUATIONS_PER_RUN)
     if eval_every < 0:
         raise UsageError(f"--eval-every must be >= 0, got {eval_every}")
+    if args.eval_seed < 0:
+        raise UsageError(f"--eval-seed must be >= 0, got {args.eval_seed}")
     if args.stop_after is not None and args.stop_after < 1:
         raise UsageError(f"--stop-after must be >= 1, got {args.stop_after}")
     return cfg, hp, iterations, chunk, eval_every
@@ -183,7 +188,7 @@ def main(argv=None):
 
     try:
         with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)):
-            return run(cfg, hp, iterations, chunk, eval_every, args.seed, out, args.resume, args.quiet, argv,
+            return run(cfg, hp, iterations, chunk, (eval_every, args.eval_seed), args.seed, out, args.resume, args.quiet, argv,
                        args.stop_after, args.force)
     except LockError as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
@@ -295,15 +300,15 @@ def rows_to_metrics(rows):
     return metrics
 
 
-def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=False, argv=None, stop_after=None, force=False):
-    """Train (or resume) one run into `out`. Returns the exit status: 0, 1 (NaN/inf), 2 (bad resume),
-    4 (disk full), 130 (interrupted)."""
+def run(cfg, hp_py, iterations, chunk, evaluation, seed, out, resume, quiet=False, argv=None, stop_after=None, force=False):
+    """Train (or resume) one run into `out`; evaluation: (eval_every, eval_seed). Returns the exit status:
+    0, 1 (NaN/inf), 2 (bad resume), 4 (disk full), 130 (interrupted)."""
     from gsa_jax.checkpoint import CheckpointError, DiskFullError
 
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, flush=True))
     config = {
         "config": dataclasses.asdict(cfg), "hparams": hp_py, "seed": seed, "iterations": iterations,
-        "chunk": chunk, "eval_every": eval_every, "env_steps": iterations * cfg.batch_size,
+        "chunk": chunk, "eval_every": evaluation[0], "eval_seed": evaluation[1], "env_steps": iterations * cfg.batch_size,
         "argv": list(sys.argv[1:] if argv is None else argv),
     }
     try:
@@ -315,7 +320,7 @@ def run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, quiet=Fals
 
         config.update(physics=physics_record(cfg), **run_metadata())
         write_atomic(config_path, json.dumps(config, indent=2))
-        return train_run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, config, log, stop_after)
+        return train_run(cfg, hp_py, iterations, chunk, seed, out, resume, config, log, stop_after)
     except (UsageError, CheckpointError) as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
@@ -338,19 +343,19 @@ def saved_iteration(out):
     return 0
 
 
-def train_run(cfg, hp_py, iterations, chunk, eval_every, seed, out, resume, config, log, stop_after):
+def train_run(cfg, hp_py, iterations, chunk, seed, out, resume, config, log, stop_after):
     """Compile (or reuse) the run's program and drive it with a RunStore; then finish. Returns the exit status."""
     from gsa_jax.driver import Plan, drive
     from gsa_jax.programs import single_program
 
     t0 = time.perf_counter()
-    program, trainer = single_program(cfg, chunk, seed, hp_py)
+    program, trainer = single_program(cfg, chunk, seed, hp_py, config["eval_seed"])
     log_start(cfg, trainer, hp_py, iterations, out, log)
     log(f"compiled in {time.perf_counter() - t0:.1f}s")
     store = RunStore(out, config, resume)
     if not os.path.exists(store.path("params.npz")):  # the initial parameters: "last good" even if chunk 1 diverges
         store.save_params(program.state)
-    plan = Plan(iterations, chunk, cfg.batch_size, 1, eval_every, mixture=cfg.policy == "mixture",
+    plan = Plan(iterations, chunk, cfg.batch_size, 1, config["eval_every"], mixture=cfg.policy == "mixture",
                 stop_after_chunks=None if stop_after is None else math.ceil(stop_after / chunk))
     result = drive(program, store, plan, log, clock_start=t0)
     status = {"failed": 1, "interrupted": 130}.get(result.status, 0)

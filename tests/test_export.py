@@ -12,6 +12,7 @@ from gsa_jax.checkpoint import save_pytree
 from gsa_jax.export import main as export_main
 from gsa_jax.normalize import normalize
 from gsa_jax.policies import make_policy
+from gsa_jax.ppo import make_hparams
 
 D_S, D_A = 6, 2
 
@@ -19,7 +20,7 @@ D_S, D_A = 6, 2
 def fake_run(tmp_path, kind, K, k_max, subpolicy="linear"):
     """A run directory as train.py writes it, with trained-looking (random) parameters."""
     pol = make_policy(kind, D_S, D_A, k_max, subpolicy=subpolicy)
-    params = pol.init(jax.random.PRNGKey(0), {"K": jnp.int32(K), "sigma_init_scale": jnp.float32(1.0)})
+    params = pol.init(jax.random.PRNGKey(0), make_hparams(K=K, sigma_init_scale=1.0))
     leaves, tdef = jax.tree.flatten(params)
     keys = jax.random.split(jax.random.PRNGKey(1), len(leaves))
     params = jax.tree.unflatten(tdef, [jax.random.normal(k, x.shape) for k, x in zip(keys, leaves)])

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gsa_jax.policies import bias_spread, feature_size, make_policy, partition_entropy
+from gsa_jax.ppo import make_hparams
 
 D_S, D_A = 5, 3
 
@@ -43,7 +44,7 @@ def np_mixture_log_prob(params, obs, action, c, K, eps, sigma_min, subpolicy="li
 
 def random_mixture_params(policy, key, K):
     """Init, then randomise every leaf so the check is not on a special point (L=0, zero head)."""
-    params = policy.init(key, {"K": jnp.int32(K), "sigma_init_scale": jnp.float32(1.0)})
+    params = policy.init(key, make_hparams(K=K, sigma_init_scale=1.0))
     leaves, treedef = jax.tree.flatten(params)
     keys = jax.random.split(jax.random.PRNGKey(7), len(leaves))
     leaves = [0.5 * jax.random.normal(k, x.shape) for k, x in zip(keys, leaves)]
@@ -156,7 +157,7 @@ def test_sigma_min_floor(mix16):
 def test_masked_k_equals_unpadded(mix16, mix4):
     """K=4 inside K_max=16 == K=4 with K_max=4: init, samples, log-probs, deterministic actions, gradients."""
     K = 4
-    hp = {"K": jnp.int32(K), "sigma_init_scale": jnp.float32(1.0)}
+    hp = make_hparams(K=K, sigma_init_scale=1.0)
     p16 = mix16.init(jax.random.PRNGKey(0), hp)
     p4 = mix4.init(jax.random.PRNGKey(0), hp)
     np.testing.assert_array_equal(np.asarray(p16["b"][:K]), np.asarray(p4["b"]))
@@ -201,7 +202,7 @@ def test_masked_k_equals_unpadded(mix16, mix4):
 
 def test_init_properties(mix16):
     for K in (1, 2, 6, 16):
-        p = mix16.init(jax.random.PRNGKey(K), {"K": jnp.int32(K), "sigma_init_scale": jnp.float32(0.8)})
+        p = mix16.init(jax.random.PRNGKey(K), make_hparams(K=K, sigma_init_scale=0.8))
         assert np.all(np.asarray(p["L"]) == 0.0)
         np.testing.assert_allclose(np.exp(np.asarray(p["log_sigma"])), 0.8 / K, rtol=1e-6)
         b = np.asarray(p["b"][:K])

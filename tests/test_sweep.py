@@ -28,7 +28,9 @@ clusters = [1, 3]
 seeds = [0, 1]
 steps = 3072
 chunk = 1
+eval_every = 2
 [config]
+eval_envs = 4
 {chr(10).join(f"{k} = {v}" for k, v in SMALL_CONFIG.items())}
 """
 ITERS = 6  # 3072 / 512
@@ -78,7 +80,7 @@ def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
             for it in range(20):
                 lines.append(f"hopper,{pol},{sub},{k},{seed},0,{it},{(it + 1) * 100},{value + seed - 1}")
     (tmp_path / "metrics.csv").write_text("\n".join(lines) + "\n")
-    _, table, rows = plot_sweep(str(tmp_path), action_dims={"hopper": 3})
+    _, table, rows = plot_sweep(str(tmp_path), action_dims={"hopper": 3}, random_returns={"hopper": 0.0})
     got = {(r["policy"], r["subpolicy"], r["K"] or 1): r["final_return_mean"] for r in rows}
     assert got == final
     assert all(r["seeds"] == 3 for r in rows)
@@ -139,12 +141,23 @@ def inprocess(tiny_spec_file, tmp_path_factory):
     return out
 
 
+def test_every_experiment_file_is_valid():
+    root = os.path.join(os.path.dirname(__file__), "..", "experiments")
+    files = sorted(glob.glob(os.path.join(root, "*", "*.toml")))
+    assert len(files) >= 10
+    for f in files:
+        assert load_spec(f)["name"] == os.path.splitext(os.path.basename(f))[0], f
+
+
 def test_tidy_table(inprocess):
     rows = read_rows(str(inprocess / "metrics.csv"))
     assert len(rows) == 4 * ITERS
     assert {(r["K"], r["seed"]) for r in rows} == {("1", "0"), ("1", "1"), ("3", "0"), ("3", "1")}
     assert list(rows[0])[:5] == ["env", "policy", "K", "seed", "run"]
-    assert os.path.exists(inprocess / "sweep.json")
+    evaluated = [int(r["iteration"]) for r in rows if r["eval_return"] != ""]
+    assert sorted(set(evaluated)) == [2, 4, 6] and len(evaluated) == 4 * 3  # eval_every = 2, every run
+    meta = json.loads((inprocess / "sweep.json").read_text())
+    assert meta["physics"]["inverted_double_pendulum-mixture"]["linesearch_in_force"] == "exact"
     assert os.path.exists(inprocess / "groups" / "inverted_double_pendulum-mixture" / "params.npz")
 
 
@@ -237,8 +250,9 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
     assert_same_results(merged, read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
     from gsa_jax.plot import plot_sweep
 
-    png, table, rows = plot_sweep(str(out))
+    png, table, rows = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0})
     assert os.path.getsize(png) > 10_000 and [r["K"] for r in rows] == [1, 3] and all(r["seeds"] == 2 for r in rows)
+    assert all(r["score"] == "deterministic" for r in rows)  # the sweep evaluated its controllers
 
 
 def test_sub_batched_equals_vmap_with_empty_leaves():
@@ -328,7 +342,7 @@ def test_nan_run_is_frozen_listed_and_the_others_train_on(tiny_spec_file, inproc
         assert all(np.all(np.isfinite(p[k])) for k in p.files)
     from gsa_jax.plot import plot_sweep
 
-    _, _, table = plot_sweep(str(out))
+    _, _, table = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0})
     by_cell = {(r["K"], float(r["hparam_lr"])): r for r in table}
     for f in failed:
         assert by_cell[(f["K"], 1e30)]["failed_runs"] == f"0@{f['failed_at']}" and by_cell[(f["K"], 1e30)]["seeds"] == 0

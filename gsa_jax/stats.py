@@ -1,0 +1,107 @@
+"""Statistics over runs with rliable (Agarwal et al., "Deep RL at the edge of the statistical precipice"):
+IQM with stratified bootstrap confidence intervals, probability of improvement, performance profiles.
+Plain NumPy in, plain NumPy out; gsa_jax.plot draws and tabulates them.
+
+A run's final score is the mean deterministic return of its last FINAL_EVALUATIONS evaluations
+(gsa_jax.metrics); runs of a sweep without evaluations fall back to the mean training return over the
+last 10% of iterations (final_score says which).
+"""
+
+import math
+
+import numpy as np
+
+from gsa_jax.metrics import FINAL_EVALUATIONS
+
+REPS = 2000  # bootstrap resamples of the tables' intervals
+CURVE_REPS = 300  # ... of learning-curve bands (one interval per plotted point: rliable takes ~0.5 ms a resample)
+# two-sided 95% Student t quantiles by degrees of freedom (1..30); beyond, 1.96
+_T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
+        2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042]
+
+
+def t95(n):
+    """The two-sided 95% t quantile for a mean over n values."""
+    return _T95[n - 2] if 2 <= n <= 31 else 1.96
+
+
+def final_score(eval_returns, train_returns):
+    """(score, kind) of one run: the mean of its last FINAL_EVALUATIONS finite deterministic returns
+    ('deterministic'), else the mean training return over the last 10% of iterations ('training')."""
+    ev = np.asarray(eval_returns, float)
+    ev = ev[np.isfinite(ev)]
+    if len(ev):
+        return float(np.mean(ev[-FINAL_EVALUATIONS:])), "deterministic"
+    tr = np.asarray(train_returns, float)
+    tail = tr[-max(1, len(tr) // 10):]
+    return (float(np.nanmean(tail)) if np.any(np.isfinite(tail)) else math.nan), "training"
+
+
+def mean_ci(x):
+    """(mean, 95% t half-width) of the values x [n] (half-width NaN for n < 2)."""
+    x = np.asarray(x, float)
+    n = len(x)
+    return float(x.mean()), (float(t95(n) * x.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan)
+
+
+def iqm_ci(scores, seed=0, reps=REPS):
+    """{name: (IQM, low, high)} of score matrices {name: [runs, tasks]}: the interquartile mean over all
+    runs and tasks, with a 95% stratified bootstrap interval (rliable)."""
+    from rliable import metrics
+
+    point, interval = bootstrap({k: np.asarray(v, float) for k, v in scores.items()},
+                                lambda x: np.array([metrics.aggregate_iqm(x)]), seed, reps)
+    return {k: (float(np.ravel(point[k])[0]), *(float(v) for v in np.ravel(interval[k])[:2])) for k in scores}
+
+
+def bootstrap(score_dict, func, seed, reps=REPS):
+    """rliable's stratified bootstrap (percentile intervals, `reps` resamples, a fixed seed: reproducible tables)."""
+    import warnings
+
+    from rliable import library as rly
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # arch: "random_state is deprecated" (rliable passes one)
+        return rly.get_interval_estimates(score_dict, func, reps=reps, random_state=np.random.RandomState(seed))
+
+
+def improvement_probability(pairs, seed=0):
+    """{name: (P(X > Y), low, high)} for pairs {name: (X [runs, tasks], Y [runs, tasks])}: the probability
+    that a run of X scores higher than a run of Y on the same task (ties count half), averaged over tasks,
+    with a 95% stratified bootstrap interval (rliable)."""
+    from rliable import metrics
+
+    point, interval = bootstrap(
+        {k: (np.asarray(x, float), np.asarray(y, float)) for k, (x, y) in pairs.items()}, metrics.probability_of_improvement, seed)
+    return {k: (float(np.ravel(point[k])[0]), *(float(v) for v in np.ravel(interval[k])[:2])) for k in pairs}
+
+
+def iqm_curves(curves, points=20, seed=0):
+    """{name: (index [P], IQM [P], low [P], high [P])} of learning curves {name: [runs, T]} at P points
+    spread over T (every column where every run has a value); stratified bootstrap bands (rliable)."""
+    out = {}
+    for name, m in curves.items():
+        m = np.asarray(m, float)
+        cols = np.where(np.all(np.isfinite(m), axis=0))[0]
+        if len(cols) == 0:
+            continue
+        cols = cols[np.unique(np.linspace(0, len(cols) - 1, min(points, len(cols))).round().astype(int))]
+        est = iqm_ci({str(c): m[:, [c]] for c in cols}, seed, CURVE_REPS)
+        out[name] = (cols, *(np.array([est[str(c)][i] for c in cols]) for i in range(3)))
+    return out
+
+
+def performance_profiles(scores, taus):
+    """{name: (fraction [len(taus)], low, high)}: the fraction of runs (averaged over tasks) whose
+    normalized score exceeds each tau, with 95% stratified bootstrap bands (rliable)."""
+    from rliable import library as rly
+
+    dist, cis = rly.create_performance_profile({k: np.asarray(v, float) for k, v in scores.items()}, np.asarray(taus),
+                                               reps=REPS)
+    return {k: (np.asarray(dist[k]), np.asarray(cis[k][0]), np.asarray(cis[k][1])) for k in scores}
+
+
+def normalize(score, random_return, reference):
+    """(score - random_return) / (reference - random_return): 0 = a random policy, 1 = the reference."""
+    scale = reference - random_return
+    return (np.asarray(score, float) - random_return) / (scale if abs(scale) > 1e-9 else 1.0)

@@ -1,0 +1,85 @@
+"""gsa_jax.stats against NumPy / SciPy references, and gsa_jax.plot merging sweeps (fabricated tables:
+nothing to compile)."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+from gsa_jax import stats
+from gsa_jax.plot import PlotError, plot_sweep
+
+
+def test_final_score_is_the_mean_of_the_last_evaluations():
+    ev = [np.nan, 10.0, np.nan, 20.0, 30.0, np.nan, 40.0]
+    assert stats.final_score(ev, [1.0] * 7) == (30.0, "deterministic")  # mean of 20, 30, 40
+    train = np.arange(1.0, 21.0)
+    assert stats.final_score([np.nan] * 20, train) == (19.5, "training")  # last 10%: 19, 20
+
+
+def test_iqm_point_is_the_trimmed_mean_and_the_interval_covers_it():
+    x = np.random.default_rng(0).normal(size=(20, 1)) * 10 + 100
+    iqm, lo, hi = stats.iqm_ci({"x": x})["x"]
+    assert iqm == pytest.approx(sps.trim_mean(x[:, 0], 0.25))
+    assert lo < iqm < hi and hi - lo < 15
+
+
+def test_probability_of_improvement_is_mann_whitney():
+    x, y = np.array([[3.0], [5.0], [7.0]]), np.array([[1.0], [4.0], [6.0], [8.0]])
+    want = np.mean([(a > b) + 0.5 * (a == b) for a in x[:, 0] for b in y[:, 0]])  # 6 of 12 pairs
+    p, lo, hi = stats.improvement_probability({"x>y": (x, y)})["x>y"]
+    assert p == pytest.approx(want) and lo <= p <= hi
+    assert stats.improvement_probability({"x>x": (x, x)})["x>x"][0] == 0.5
+
+
+def test_normalize_and_profiles():
+    np.testing.assert_allclose(stats.normalize([10.0, 55.0, 100.0], 10.0, 100.0), [0.0, 0.5, 1.0])
+    frac, lo, hi = stats.performance_profiles({"a": np.array([[0.2], [0.6], [1.2]])}, [0.0, 0.5, 1.0, 2.0])["a"]
+    np.testing.assert_allclose(frac, [1.0, 2 / 3, 1 / 3, 0.0])
+    assert np.all(lo <= frac) and np.all(frac <= hi)
+
+
+def write_sweep(d, env, steps=100, final=None, seeds=4, evaluated=True):
+    """A fabricated sweep directory: tidy metrics.csv (flat PPO and K=2) and its sweep.json."""
+    d.mkdir(parents=True, exist_ok=True)
+    final = final or {"mlp": 100.0, "mixture": 120.0}
+    with open(d / "metrics.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["env", "policy", "K", "seed", "run", "iteration", "env_steps", "episode_return", "eval_return"])
+        for policy, value in final.items():
+            for seed in range(seeds):
+                for it in range(1, 11):
+                    ev = value + 3 * seed if evaluated and it % 2 == 0 else ""
+                    w.writerow([env, policy, 2 if policy == "mixture" else 1, seed, 0, it, it * steps // 10, value / 2 + seed, ev])
+    spec = {"envs": [env], "policies": list(final), "steps": steps, "hparams": {}, "config": {}}
+    (d / "sweep.json").write_text(json.dumps({"spec": spec}))
+    return d
+
+
+def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
+    a = write_sweep(tmp_path / "hopper", "hopper")
+    b = write_sweep(tmp_path / "walker", "walker2d", final={"mlp": 50.0, "mixture": 40.0})
+    out = tmp_path / "out"
+    _, _, rows = plot_sweep([str(a), str(b)], str(out), action_dims={"hopper": 3, "walker2d": 6},
+                            random_returns={"hopper": 0.0, "walker2d": 0.0})
+    by = {(r["env"], r["policy"]): r for r in rows}
+    assert by[("hopper", "mixture")]["score"] == "deterministic" and by[("hopper", "mixture")]["seeds"] == 4
+    assert by[("hopper", "mixture")]["final_return_mean"] == pytest.approx(120.0 + 4.5)  # evaluated, not training
+    assert by[("hopper", "mixture")]["p_better_than_flat_ppo"] == 1.0 and by[("walker2d", "mixture")]["p_better_than_flat_ppo"] == 0.0
+    with open(out / "aggregate.csv") as f:
+        agg = {r["config"]: r for r in csv.DictReader(f)}
+    assert agg["flat PPO"]["tasks"] == "hopper walker2d" and float(agg["flat PPO"]["normalized_iqm"]) == pytest.approx(1.0, abs=0.05)
+    assert float(agg["K = 0.667 d_a"]["normalized_iqm"]) > 1.0 and agg["K = 0.333 d_a"]["tasks"] == "walker2d"
+    for name in ("figure.png", "figure_training.png", "return_vs_k.png", "performance_profile.png"):
+        assert (out / name).stat().st_size > 10_000, name
+
+
+def test_sweeps_with_other_settings_are_not_merged(tmp_path):
+    a = write_sweep(tmp_path / "a", "hopper", steps=100)
+    b = write_sweep(tmp_path / "b", "hopper", steps=200)
+    with pytest.raises(PlotError, match=r"both hold hopper/mlp runs, with different settings \(steps: 100 -> 200\)"):
+        plot_sweep([str(a), str(b)], str(tmp_path / "out"), action_dims={"hopper": 3}, random_returns={"hopper": 0.0})
+    with pytest.raises(PlotError, match="seed 0 of hopper/mlp K=1 is already in another directory"):
+        plot_sweep([str(a), str(a)], str(tmp_path / "out"), action_dims={"hopper": 3}, random_returns={"hopper": 0.0})
