@@ -389,7 +389,7 @@ def plot_return_vs_k(rows, path):
         ax.set(title=env_name, xlabel="K (number of clusters / sub-policies)", ylabel=f"final score ({rows[0].get('score', '')})")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("How many (and how complex) controllers does the task need? (final score: IQM, 95% bootstrap CI)", fontsize=9)
+    fig.suptitle("How many (and how complex) controllers does the task need?\n(final score: IQM, 95% bootstrap CI)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -462,9 +462,9 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     png = os.path.join(out_dir, "figure.png")
     plot_curves(data, action_dims, failed, "eval_return" if evaluated else "episode_return", png,
                 "Flat PPO vs mixtures of K linear controllers: " + ("deterministic controllers" if evaluated else "training return")
-                + " (IQM over seeds, 95% bootstrap band)")
+                + "\n(IQM over seeds, 95% bootstrap band)")
     plot_curves(data, action_dims, failed, "episode_return", os.path.join(out_dir, "figure_training.png"),
-                "Training return (stochastic policy; IQM over seeds, 95% bootstrap band)")
+                "Training return (stochastic policy)\n(IQM over seeds, 95% bootstrap band)")
     rows = final_table(data, action_dims, failed)
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)

@@ -55,14 +55,21 @@ def iqm_ci(scores, seed=0, reps=REPS):
 
 
 def bootstrap(score_dict, func, seed, reps=REPS):
-    """rliable's stratified bootstrap (percentile intervals, `reps` resamples, a fixed seed: reproducible tables)."""
+    """rliable.library.get_interval_estimates (stratified bootstrap, 95% percentile intervals). rliable draws
+    its resamples from NumPy's global RNG: it is seeded with `seed` for the call (reproducible tables) and
+    restored afterwards."""
     import warnings
 
     from rliable import library as rly
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)  # arch: "random_state is deprecated" (rliable passes one)
-        return rly.get_interval_estimates(score_dict, func, reps=reps, random_state=np.random.RandomState(seed))
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)  # arch: "random_state is deprecated"
+            return rly.get_interval_estimates(score_dict, func, reps=reps)
+    finally:
+        np.random.set_state(saved)
 
 
 def improvement_probability(pairs, seed=0):

@@ -118,6 +118,23 @@ def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):
     assert json.loads((out / "config.json").read_text())["result"]["status"] == "nan"
 
 
+def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
+    """The same parameters evaluated by the programs of two training seeds score the same (same starts);
+    another eval seed draws other starts. (The program is the one full_run compiled.)"""
+    import jax
+
+    from gsa_jax.programs import single_program
+    from gsa_jax.train import build_parser, resolve
+
+    cfg, hp, _, chunk, _ = resolve(build_parser().parse_args(SMALL))
+    p0, _ = single_program(cfg, chunk, 0, hp)
+    p1, _ = single_program(cfg, chunk, 1, hp)
+    p2, _ = single_program(cfg, chunk, 0, hp, eval_seed=7)
+    state = jax.device_get(p0.state)
+    returns = [float(p.evaluate(state, p.hps, 3)) for p in (p0, p1, p2)]
+    assert returns[0] == returns[1] and returns[2] != returns[0], returns
+
+
 def test_inspect_mixture_run(full_run, tmp_path, capsys):
     from gsa_jax.inspection import main as inspect_main
 

@@ -24,6 +24,9 @@ def test_iqm_point_is_the_trimmed_mean_and_the_interval_covers_it():
     iqm, lo, hi = stats.iqm_ci({"x": x})["x"]
     assert iqm == pytest.approx(sps.trim_mean(x[:, 0], 0.25))
     assert lo < iqm < hi and hi - lo < 15
+    np.random.seed(3)
+    assert stats.iqm_ci({"x": x})["x"] == (iqm, lo, hi)  # reproducible ...
+    assert np.random.rand() == np.random.RandomState(3).rand()  # ... without touching NumPy's global RNG
 
 
 def test_probability_of_improvement_is_mann_whitney():
