@@ -271,7 +271,7 @@ def normalized_scores(data, action_dims, random_returns):
         flat = flat_cell(cell, data) if cell[1] == "mixture" else cell
         if flat is None or cell[0] not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
             continue
-        ref = stats.iqm_ci({"f": scores[flat][0][:, None]})["f"][0]
+        ref = stats.iqm(scores[flat][0][:, None])  # the point only: no bootstrap per mixture cell
         by_config[config_key(cell, action_dims)][cell[0]] = stats.normalize(scores[cell][0], random_returns[cell[0]], ref)
     out = {}
     for config, tasks in by_config.items():

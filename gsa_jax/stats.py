@@ -54,6 +54,13 @@ def iqm_ci(scores, seed=0, reps=REPS):
     return {k: (float(np.ravel(point[k])[0]), *(float(v) for v in np.ravel(interval[k])[:2])) for k in scores}
 
 
+def iqm(scores):
+    """The interquartile mean of scores [runs, tasks] (rliable's aggregate_iqm): a point, no interval."""
+    from rliable import metrics
+
+    return float(metrics.aggregate_iqm(np.asarray(scores, float)))
+
+
 def bootstrap(score_dict, func, seed, reps=REPS):
     """rliable.library.get_interval_estimates (stratified bootstrap, 95% percentile intervals). rliable draws
     its resamples from NumPy's global RNG: it is seeded with `seed` for the call (reproducible tables) and

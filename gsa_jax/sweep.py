@@ -64,7 +64,7 @@ import tomllib
 import numpy as np
 
 from gsa_jax.checkpoint import CheckpointError, DiskFullError, read_with_fallback, write_atomic
-from gsa_jax.driver import rows_before_failure
+from gsa_jax.driver import failed_mask, rows_before_failure
 from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
@@ -295,12 +295,8 @@ def tidy_name(column):
 
 def failed_runs(runs, metrics, upto):
     """[run dict + failed_at] of the runs that stopped at a NaN/inf."""
-    out = []
-    for i, r in enumerate(runs):
-        fa = int(metrics["failed_at"][i, upto - 1]) if upto else -1
-        if fa >= 0:
-            out.append({**r, "failed_at": fa})
-    return out
+    failed = failed_mask(metrics, upto)
+    return [{**r, "failed_at": int(metrics["failed_at"][i, upto - 1])} for i, r in enumerate(runs) if failed[i]]
 
 
 def warn(msg):
