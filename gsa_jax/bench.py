@@ -94,7 +94,8 @@ def worker(args):
     cfg = group_config(spec, args.env, args.policy, runs)
     if args.epochs:
         cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
-    cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations)
+    cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
+                              value_target=args.value_target)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
     runs = pad_runs(runs, len(devices))
@@ -230,20 +231,21 @@ def _compile_fields(results):
 
 
 def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print,
-                  compile_each=False):
+                  compile_each=False, value_target="gae"):
     """Throughput of `runs` runs split over `processes` workers, measured together. solver: None (the
-    task's own) or (iterations, ls_iterations); compile_each: see run_workers."""
+    task's own) or (iterations, ls_iterations); compile_each: see run_workers; value_target: the critic."""
     cmds, seed0 = [], 0
     for n in _split(runs, processes):
         cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
                      "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats)]
                     + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver)
-                    + (["--run-batch", str(run_batch)] if run_batch is not None else []))
+                    + (["--run-batch", str(run_batch)] if run_batch is not None else [])
+                    + ["--value-target", value_target])
         seed0 += n
     results = run_workers(cmds, log=log, compile_each=compile_each)
     return {
         "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
-        **_solver_field(solver),
+        **_solver_field(solver), "value_target": value_target,
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
         "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),
@@ -465,6 +467,8 @@ def build_parser():
     p.add_argument("--solver-variant", default=None,
                    help="ITER,LS: also measure the largest raw batch and mixture sweep (all cores) and MuJoCo C with this "
                         "many solver / line-search iterations (default 1,4; 'none' to skip; skipped with --quick)")
+    p.add_argument("--value-target", default="gae",
+                   help="the critic of the measured sweeps: gae (default) or retrace (with its default buffer)")
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
@@ -490,7 +494,8 @@ def make_plan(args):
     batches = positive_ints("--raw-batches", args.raw_batches, [256] if args.quick else list(RAW_BATCHES))
     variant = parse_solver_variant(args.solver_variant, args.quick)
     for pol in policies:  # the sweeps' own validation, before anything compiles
-        check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1}, source="bench")
+        check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1,
+                    "config": {"value_target": args.value_target}}, source="bench")
     plan = [(pol, n, k, None) for pol in policies for n in sizes for k in procs if k <= n]
     raw_plan = [(b, k, None) for b in batches for k in procs if k <= b]
     if args.quick and not args.processes:  # under 3 min: each size on as many processes as it can use
@@ -549,7 +554,7 @@ def measure_sweep_plan(args, info, report, c_ref, save):
     for pol, n, k, sol in info["plan"]:
         try:
             r = measure_sweep(args.env, pol, n, k, reps(info["repeats"], n, args.repeats is not None), solver=sol,
-                              run_batch=args.run_batch)
+                              run_batch=args.run_batch, value_target=args.value_target)
             add_ratios(r, c_ref, sol)
             print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
                   f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)

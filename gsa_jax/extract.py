@@ -4,7 +4,8 @@ single-run tools work on it (inspect, export, deploy, gsa_jax.render --run):
     python -m gsa_jax.extract runs/sweeps/fig1_idp_hopper --env hopper --policy mixture --clusters 6 --seed 0 --out runs/hopper-K6-s0
     python -m gsa_jax.extract SWEEP_DIR --list      # the finished runs it holds
 
-Swept hyperparameters and sub-policy classes select with --hparam NAME=VALUE and --subpolicy.
+Swept hyperparameters, sub-policy classes and critics select with --hparam NAME=VALUE, --subpolicy and
+--value-target.
 """
 
 import argparse
@@ -37,13 +38,15 @@ def finished_runs(sweep_dir):
     return out
 
 
-def select(runs, env, policy, k, seed, subpolicy=None, hparams=()):
+def select(runs, env, policy, k, seed, subpolicy=None, hparams=(), value_target=None):
     """The one finished run matching the arguments (hparams: [(name, value string)])."""
 
     def matches(row):
         if (row["env"], row["policy"], row["seed"]) != (env, policy, str(seed)):
             return False
         if policy == "mixture" and (row["K"] != str(k) or (subpolicy and (row.get("subpolicy") or "linear") != subpolicy)):
+            return False
+        if value_target and (row.get("value_target") or "gae") != value_target:
             return False
         return all(n in row and float(row[n]) == float(v) for n, v in hparams)
 
@@ -52,7 +55,7 @@ def select(runs, env, policy, k, seed, subpolicy=None, hparams=()):
     if not hits:
         raise ExtractError(f"no finished run with {desc} (see --list)")
     if len(hits) > 1:
-        raise ExtractError(f"{len(hits)} runs match {desc}; narrow it with --hparam NAME=VALUE or --subpolicy (see --list)")
+        raise ExtractError(f"{len(hits)} runs match {desc}; narrow it with --hparam NAME=VALUE, --subpolicy or --value-target (see --list)")
     return hits[0]
 
 
@@ -94,6 +97,7 @@ def main(argv=None):
     p.add_argument("--policy", default="mixture")
     p.add_argument("--clusters", "-K", type=int, default=None)
     p.add_argument("--subpolicy", default=None)
+    p.add_argument("--value-target", default=None, help="gae or retrace, in a sweep that lists value_targets")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--hparam", action="append", default=[], metavar="NAME=VALUE", help="a swept hyperparameter's value")
     p.add_argument("--out", default=None)
@@ -113,7 +117,7 @@ def main(argv=None):
             if "=" not in item:
                 raise ExtractError(f"--hparam takes NAME=VALUE, got {item!r}")
             hps.append(tuple(item.split("=", 1)))
-        gdir, i, row = select(runs, args.env, args.policy, args.clusters, args.seed, args.subpolicy, hps)
+        gdir, i, row = select(runs, args.env, args.policy, args.clusters, args.seed, args.subpolicy, hps, args.value_target)
         out = extract(args.sweep_dir, gdir, i, row, args.out)
     except ExtractError as e:
         print(f"gsa_jax.extract: error: {e}", file=sys.stderr)

@@ -19,6 +19,7 @@ Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every 
 
 import argparse
 import csv
+import gzip
 import glob
 import json
 import math
@@ -42,7 +43,7 @@ class PlotError(ValueError):
 
 def read_tidy(path, series):
     """Add one tidy metrics.csv to series {cell: {seed: {column: [(iteration, value)]}}}; False if not a sweep's."""
-    with open(path) as f:
+    with (gzip.open(path, "rt", newline="") if path.endswith(".gz") else open(path, newline="")) as f:
         reader = csv.DictReader(f)
         if reader.fieldnames is None or not set(_ID_COLS) <= set(reader.fieldnames):
             return False  # a single run's metrics.csv (train.py) or a foreign file
@@ -57,9 +58,11 @@ def read_tidy(path, series):
 
 
 def load_sweep(sweep_dir):
-    """All tidy rows under sweep_dir -> {cell: {seed: {env_steps, episode_return, eval_return: [T]}}},
-    cell = (env, policy, K, (column, value)...)."""
-    paths = sorted(glob.glob(os.path.join(sweep_dir, "**", "metrics.csv"), recursive=True))
+    """All tidy rows under sweep_dir (metrics*.csv, or gzipped as experiments/ keep them) ->
+    {cell: {seed: {env_steps, episode_return, eval_return: [T]}}}, cell = (env, policy, K, (column, value)...)."""
+    plain = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv"), recursive=True)
+    zipped = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv.gz"), recursive=True)
+    paths = sorted(plain + [p for p in zipped if p[:-3] not in plain])
     if not paths:
         raise FileNotFoundError(f"no metrics.csv under {sweep_dir!r} (is it a sweep directory?)")
     series = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
@@ -237,6 +240,18 @@ def cell_row(cell, scores, kind, data, action_dims, versus):
             "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
 
 
+def critic_comparisons(scores):
+    """{retrace cell: P(better than the same cell with GAE's critic) with its CI} for sweeps that list
+    value_targets; {} otherwise."""
+    pairs = {}
+    for cell, (sc, _) in scores.items():
+        if ("value_target", "retrace") in cell[3:]:
+            gae = cell[:3] + tuple((c, "gae" if c == "value_target" else v) for c, v in cell[3:])
+            if gae in scores and len(sc) and len(scores[gae][0]):
+                pairs[cell] = (sc[:, None], scores[gae][0][:, None])
+    return stats.improvement_probability(pairs) if pairs else {}
+
+
 def final_table(data, action_dims, failed=None):
     """final_returns.csv rows: per cell, statistics of its final scores and P(better than flat PPO)."""
     failed = failed or {}
@@ -244,12 +259,17 @@ def final_table(data, action_dims, failed=None):
     pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == "mixture"
              for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
     versus = stats.improvement_probability(pairs) if pairs else {}
+    critics = critic_comparisons(scores)
     rows = []
     for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
         rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
                      "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
     for cell in sorted(data, key=cell_order):
         row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell))
+        if critics:
+            p = critics.get(cell, (math.nan,) * 3)
+            row.update({k: "" if not np.isfinite(v) else round(float(v), 3)
+                        for k, v in zip(("p_better_than_gae", "p_gae_ci_low", "p_gae_ci_high"), p)})
         rows.append(dict(row, failed_runs=" ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, [])))))
     return rows
 

@@ -31,6 +31,7 @@ from gsa_jax.nn import apply_mlp, init_mlp
 from gsa_jax.normalize import init_stats, normalize, update_stats
 from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
 from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS, make_policy, partition_entropy
+from gsa_jax.retrace import VALUE_TARGETS, buffer_targets, init_buffer, store
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +53,10 @@ class Config:
     normalize_reward: bool = True
     b_init_scale: float = 1.0
     eval_envs: int = 16
+    # the value function's targets: "gae" (GAE(lambda) on the iteration's own samples) or "retrace"
+    # (the paper's critic: Retrace over the samples of the last retrace_iterations iterations, gsa_jax/retrace.py)
+    value_target: str = "gae"
+    retrace_iterations: int = 4
     # physics options (envs/physics.py): MJX solver iterations (None = the task's own MJCF settings; an int
     # is faster but a changed simulator), the line search, its loop, and the Cholesky factorization
     solver_iterations: int | None = Physics.solver_iterations
@@ -84,7 +89,10 @@ class Config:
             raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
         if self.subpolicy not in SUBPOLICY_KINDS:
             raise ValueError(f"unknown subpolicy {self.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
-        for name in ("k_max", "num_envs", "unroll_length", "num_epochs", "num_minibatches", "episode_length", "eval_envs"):
+        if self.value_target not in VALUE_TARGETS:
+            raise ValueError(f"unknown value_target {self.value_target!r}; choose one of {', '.join(VALUE_TARGETS)}")
+        for name in ("k_max", "num_envs", "unroll_length", "num_epochs", "num_minibatches", "episode_length", "eval_envs",
+                     "retrace_iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         self.physics.validate()
@@ -259,6 +267,7 @@ class TrainState(NamedTuple):
     key: jax.Array
     iteration: jax.Array  # int32 scalar: iterations done
     failed_at: jax.Array  # int32 scalar: the iteration whose loss or parameters were non-finite; -1 while healthy
+    buffer: dict | None = None  # value_target "retrace": the last iterations' samples (gsa_jax/retrace.py); else None
 
 
 def init_state(p, key, hp):
@@ -279,6 +288,8 @@ def init_state(p, key, hp):
         key=k_run,
         iteration=jnp.zeros((), jnp.int32),
         failed_at=jnp.full((), -1, jnp.int32),
+        buffer=init_buffer(p.cfg.retrace_iterations, p.cfg.unroll_length, p.cfg.num_envs, p.obs_size,
+                           p.env.action_size) if p.cfg.value_target == "retrace" else None,
     )
 
 
@@ -308,6 +319,8 @@ def rollout(p, state, hp, sched, key):
             "term": done * (1.0 - nxt.info["truncation"]),
             "disc_return": disc_ret,
         }
+        if p.cfg.value_target == "retrace":
+            tr["raw_next_obs"] = nxt.info["final_obs"]
         carry = (nxt, ep_ret * (1.0 - done), disc_ret * (1.0 - done), fin_sum, fin_cnt)
         return carry, tr
 
@@ -324,7 +337,7 @@ def ppo_loss(p, params, mb, hp, sched):
     adv = (mb["adv"] - jnp.mean(mb["adv"])) / (jnp.std(mb["adv"]) + 1e-8)
     clipped = jnp.clip(ratio, 1.0 - hp.clip_eps, 1.0 + hp.clip_eps)
     pg_loss = -jnp.mean(jnp.minimum(ratio * adv, clipped * adv))
-    v_loss = 0.5 * jnp.mean(jnp.square(value(params["value"], mb["obs"]) - mb["target"]))
+    v_loss = value_loss(params["value"], mb)
     aux = {
         "policy_loss": pg_loss,
         "value_loss": v_loss,
@@ -332,6 +345,15 @@ def ppo_loss(p, params, mb, hp, sched):
         "clip_fraction": jnp.mean((jnp.abs(ratio - 1.0) > hp.clip_eps).astype(jnp.float32)),
     }
     return pg_loss + hp.vf_coef * v_loss, aux
+
+
+def value_loss(params, mb):
+    """Half the mean squared error of V: on the minibatch's own samples (GAE targets), or, with Retrace,
+    on v_obs [mb, N, d_s] / v_target [mb, N] of the buffer's slots, weighted by v_weight [mb, N] (0: empty)."""
+    if "v_obs" not in mb:
+        return 0.5 * jnp.mean(jnp.square(value(params, mb["obs"]) - mb["target"]))
+    sq = jnp.square(value(params, mb["v_obs"]) - mb["v_target"])
+    return 0.5 * jnp.sum(mb["v_weight"] * sq) / jnp.maximum(jnp.sum(mb["v_weight"]), 1.0)
 
 
 def sgd_update(p, params, opt, batch, hp, sched, lr, key):
@@ -355,6 +377,42 @@ def sgd_update(p, params, opt, batch, hp, sched, lr, key):
     return params, opt, jax.tree.map(jnp.mean, stats)
 
 
+def make_batch(p, state, traj, hp, sched, ret_scale):
+    """The update's samples, flattened to [B, ...]: the iteration's own (obs, action, cluster, logp) with
+    GAE(lambda) advantages, and the value function's targets: GAE's on the same samples, or Retrace's on
+    every slot of the buffer (which first takes this iteration's samples). -> (batch, new buffer)."""
+    values = value(state.params["value"], traj["obs"])
+    next_values = value(state.params["value"], traj["next_obs"])
+    adv, target = compute_gae(
+        traj["reward"] / ret_scale, values, next_values, traj["term"], traj["done"], hp.gamma, hp.gae_lambda
+    )
+    batch = {
+        "obs": traj["obs"],
+        "action": traj["action"],
+        "cluster": traj["cluster"],
+        "logp": traj["logp"],
+        "adv": adv,
+    }
+    buffer = state.buffer
+    if p.cfg.value_target == "gae":
+        batch["target"] = target
+    else:
+        buffer = store(state.buffer, traj, state.iteration)
+        batch.update(retrace_batch(p, state, buffer, hp, sched, ret_scale))
+    return jax.tree.map(lambda x: x.reshape((p.cfg.batch_size,) + x.shape[2:]), batch), buffer
+
+
+def retrace_batch(p, state, buffer, hp, sched, ret_scale):
+    """Retrace targets of the buffer under the current policy: v_obs [T, E, N, d_s], v_target and v_weight
+    [T, E, N] (slot axis after the sample axes, so minibatches take every slot of the samples they draw)."""
+    obs, targets, _ = buffer_targets(
+        buffer, lambda x: norm_obs(p.cfg, state.obs_stats, x), lambda x: value(state.params["value"], x),
+        lambda o, a, c: p.v_log_prob(state.params["policy"], o, a, c, sched), ret_scale, hp.gamma, hp.gae_lambda)
+    weight = jnp.broadcast_to(buffer["filled"][:, None, None], targets.shape)
+    to_samples_first = lambda x: jnp.moveaxis(x, 0, 2)  # noqa: E731
+    return {"v_obs": to_samples_first(obs), "v_target": to_samples_first(targets), "v_weight": to_samples_first(weight)}
+
+
 def ppo_iteration(p, state, hp):
     """One PPO iteration. Returns (new state, dict of scalar metrics)."""
     it = state.iteration
@@ -365,20 +423,7 @@ def ppo_iteration(p, state, hp):
     params = state.params
     ret_stats = update_stats(state.ret_stats, traj["disc_return"])
     ret_scale = jnp.sqrt(ret_stats["var"] + 1e-8) if p.cfg.normalize_reward else 1.0
-    values = value(params["value"], traj["obs"])
-    next_values = value(params["value"], traj["next_obs"])
-    adv, target = compute_gae(
-        traj["reward"] / ret_scale, values, next_values, traj["term"], traj["done"], hp.gamma, hp.gae_lambda
-    )
-    batch = {
-        "obs": traj["obs"],
-        "action": traj["action"],
-        "cluster": traj["cluster"],
-        "logp": traj["logp"],
-        "adv": adv,
-        "target": target,
-    }
-    batch = jax.tree.map(lambda x: x.reshape((p.cfg.batch_size,) + x.shape[2:]), batch)
+    batch, buffer = make_batch(p, state, traj, hp, sched, ret_scale)
     frac = it.astype(jnp.float32) / jnp.maximum(hp.total_iterations, 1).astype(jnp.float32)
     lr = hp.lr * (1.0 - hp.anneal_lr * jnp.clip(frac, 0.0, 1.0))
     new_params, opt, stats = sgd_update(p, params, state.opt, batch, hp, sched, lr, k_upd)
@@ -396,6 +441,7 @@ def ppo_iteration(p, state, hp):
         key=key,
         iteration=it + 1,
         failed_at=state.failed_at,
+        buffer=buffer,
     )
     metrics = {
         "iteration": it + 1,
@@ -442,17 +488,21 @@ def evaluate(p, params, obs_stats, hp, key):
     return jnp.mean(ret)
 
 
+def make_parts(cfg, env, eval_env):
+    """Parts of a run on the tasks env / eval_env (anything with reset, step, observation_size, action_size)."""
+    policy = make_policy(cfg.policy, env.observation_size, env.action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale,
+                         cfg.subpolicy)
+    return Parts(cfg, env, eval_env, policy, env.observation_size,
+                 jax.vmap(policy.sample, in_axes=(None, 0, 0, None)), jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None)),
+                 jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
+
+
 def make_train(cfg):
     """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...)."""
     cfg.validate()
-    env, eval_env = make_env(cfg), make_env(cfg, auto_reset=False)
-    policy = make_policy(cfg.policy, env.observation_size, env.action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale,
-                         cfg.subpolicy)
-    p = Parts(cfg, env, eval_env, policy, env.observation_size,
-              jax.vmap(policy.sample, in_axes=(None, 0, 0, None)), jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None)),
-              jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
+    p = make_parts(cfg, make_env(cfg), make_env(cfg, auto_reset=False))
     bind = functools.partial
-    return Trainer(cfg, env, policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
+    return Trainer(cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
 
 
 def all_finite(tree):

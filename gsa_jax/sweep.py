@@ -38,6 +38,7 @@ Experiment file (TOML):
   policies = ["mlp", "mixture"]
   cluster_multipliers = [0.5, 1, 2, 4]   # K = ceil(m * action_dim); or: clusters = [2, 4, 6]
   subpolicies = ["constant", "linear"]    # optional: sub-policy classes of the mixtures (default linear)
+  value_targets = ["gae", "retrace"]      # optional: the critics to compare (default [config] value_target, gae)
   seeds = 8                               # seeds 0..7, or a list [0, 5, 9]
   steps = 200_000                         # env steps per run
   chunk = 10                              # PPO iterations per compiled chunk (optional)
@@ -69,12 +70,16 @@ from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.programs import RUN_BATCH, pad_runs
+from gsa_jax.retrace import VALUE_TARGETS
 
-SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
+SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
                "eval_every", "eval_seed",
                "hparams", "config")
 TRACKED = TIDY_METRICS + ("failed_at",)  # per run and iteration in metrics.npz; failed_at is not a CSV column
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
+# Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
+# the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
+GROUP_AXES = (("subpolicies", "subpolicy", "mixture", SUBPOLICY_KINDS), ("value_targets", "value_target", None, VALUE_TARGETS))
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
 
@@ -155,11 +160,12 @@ def check_spec(raw, source="spec"):
         Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
     except (ValueError, TypeError) as e:
         bad("config", str(e))
+    check_group_axes(spec, bad)
     return spec
 
 
 def check_cluster_fields(spec, bad):
-    """clusters / cluster_multipliers / subpolicies of a spec, normalized to lists in place."""
+    """clusters / cluster_multipliers of a spec, normalized to lists in place."""
     if "mixture" in spec["policies"]:
         if ("clusters" in spec) == ("cluster_multipliers" in spec):
             bad("clusters", "a mixture sweep needs exactly one of 'clusters' (absolute K) or 'cluster_multipliers' (K / action_dim)")
@@ -173,13 +179,22 @@ def check_cluster_fields(spec, bad):
             if not ms or not all(isinstance(m, (int, float)) and m > 0 for m in ms):
                 bad("cluster_multipliers", f"must be positive numbers, got {spec['cluster_multipliers']!r}")
             spec["cluster_multipliers"] = ms
-    if "subpolicies" in spec:  # absent stays absent: a spec's identity (sweep.json) must not change
-        subs = spec["subpolicies"] if isinstance(spec["subpolicies"], list) else [spec["subpolicies"]]
-        if "mixture" not in spec["policies"]:
-            bad("subpolicies", "applies to mixture policies; add 'mixture' to policies")
-        if not subs or any(x not in SUBPOLICY_KINDS for x in subs) or len(set(subs)) != len(subs):
-            bad("subpolicies", f"must be distinct names from {', '.join(SUBPOLICY_KINDS)}, got {spec['subpolicies']!r}")
-        spec["subpolicies"] = subs
+
+
+def check_group_axes(spec, bad):
+    """subpolicies / value_targets (GROUP_AXES) of a spec, normalized to lists in place; absent stays absent
+    (a spec's identity, sweep.json, must not change)."""
+    for field, column, policy, allowed in GROUP_AXES:
+        if field not in spec:
+            continue
+        values = spec[field] if isinstance(spec[field], list) else [spec[field]]
+        if policy is not None and policy not in spec["policies"]:
+            bad(field, f"applies to {policy} policies; add '{policy}' to policies")
+        if not values or any(x not in allowed for x in values) or len(set(values)) != len(values):
+            bad(field, f"must be distinct names from {', '.join(allowed)}, got {spec[field]!r}")
+        if column in spec.get("config", {}):
+            bad(field, f"set {column} either here or in [config], not both")
+        spec[field] = values
 
 
 def check_hparams_table(hps, bad):
@@ -220,41 +235,49 @@ def swept_names(spec):
 
 def id_columns(spec):
     """Columns that identify a run in runs.csv and the tidy metrics.csv."""
-    sub = ["subpolicy"] if "subpolicies" in spec else []
-    return ["env", "policy", *sub, "K", "seed", "run", *swept_names(spec)]
+    axes = [column for field, column, _, _ in GROUP_AXES if field in spec]
+    return ["env", "policy", *axes, "K", "seed", "run", *swept_names(spec)]
+
+
+def axis_values(spec, axis, policy):
+    """A group axis's values for one policy: [None] (not in the spec: no column), the listed values,
+    or [""] (listed, but it does not apply to this policy)."""
+    field, _, applies_to, _ = axis
+    if field not in spec:
+        return [None]
+    return spec[field] if applies_to in (None, policy) else [""]
 
 
 def build_grid(spec):
     """[(env, policy, [run dicts])]: every combination of K x swept hparams x seed exactly once, per group.
-    A group is one compiled program: (env, policy), and for mixtures with `subpolicies`, one per class."""
+    A group is one compiled program: (env, policy), and one per value of each listed GROUP_AXES field."""
     names = list(spec["hparams"])
     combos = list(itertools.product(*(spec["hparams"][n] for n in names))) or [()]
     groups = []
     for env_name in spec["envs"]:
         for policy in spec["policies"]:
             ks = cluster_counts(spec, env_name) if policy == "mixture" else [1]
-            subs = spec.get("subpolicies", [None]) if policy == "mixture" else ([""] if "subpolicies" in spec else [None])
-            for sub in subs:
+            for values in itertools.product(*(axis_values(spec, axis, policy) for axis in GROUP_AXES)):
+                axes = {axis[1]: v for axis, v in zip(GROUP_AXES, values) if v is not None}
                 runs = []
                 for k in ks:
                     for combo in combos:
                         for seed in spec["seeds"]:
-                            runs.append({"run": len(runs), "env": env_name, "policy": policy,
-                                         **({} if sub is None else {"subpolicy": sub}),
+                            runs.append({"run": len(runs), "env": env_name, "policy": policy, **axes,
                                          "K": k, "seed": seed, **dict(zip(names, combo))})
                 groups.append((env_name, policy, runs))
     return groups
 
 
 def group_name(env_name, policy, runs):
-    sub = runs[0].get("subpolicy") if runs else None
-    return f"{env_name}-{policy}" + (f"-{sub}" if sub else "")
+    first = runs[0] if runs else {}
+    return f"{env_name}-{policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
 
 
 def group_config(spec, env_name, policy, runs):
     static = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["config"].items()}
-    sub = runs[0].get("subpolicy") or "linear"
-    return Config(env=env_name, policy=policy, subpolicy=sub, k_max=max(r["K"] for r in runs), **static)
+    static.update({c: runs[0][c] for _, c, _, _ in GROUP_AXES if runs[0].get(c)})
+    return Config(env=env_name, policy=policy, k_max=max(r["K"] for r in runs), **static)
 
 
 def group_iterations(spec, cfg, chunk):
@@ -538,7 +561,7 @@ def report_failures(root, dirs, log=print):
     if failed:
         log(f"{len(failed)} run(s) failed (NaN/inf in the loss or parameters; listed in sweep.json 'failed_runs'):")
         for f in failed:
-            log("  " + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "subpolicy", "K", "seed", "run") if k in f)
+            log("  " + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "subpolicy", "value_target", "K", "seed", "run") if k in f)
                 + f": failed at iteration {f['failed_at']}")
     return failed
 

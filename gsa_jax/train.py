@@ -25,6 +25,7 @@ from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS
 from gsa_jax.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.policies import SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config
+from gsa_jax.retrace import VALUE_TARGETS
 
 _HP_FLAGS = {  # CLI flag -> hparam name
     "lr": "lr", "clip": "clip_eps", "gamma": "gamma", "gae_lambda": "gae_lambda", "vf_coef": "vf_coef",
@@ -66,6 +67,12 @@ def build_parser():
                    help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
     p.add_argument("--cholesky", default=Config.cholesky, choices=("unrolled", "lapack"),
                    help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
+    p.add_argument("--value-target", default=Config.value_target,
+                   help=f"the value function's targets, one of {', '.join(VALUE_TARGETS)}: GAE(lambda) on each "
+                        "iteration's samples (default), or Retrace "
+                        "over the samples of the last --retrace-iterations iterations (the paper's critic)")
+    p.add_argument("--retrace-iterations", type=int, default=Config.retrace_iterations,
+                   help="iterations of samples the Retrace critic is fitted on (default %(default)s)")
     p.add_argument("--b-init-scale", type=float, default=Config.b_init_scale, help="initial biases spread over [-s, s]^d_a")
     for flag, name in _HP_FLAGS.items():
         p.add_argument("--" + flag.replace("_", "-"), type=float, default=HPARAM_DEFAULTS[name], dest=flag)
@@ -81,6 +88,27 @@ def build_parser():
                    help="stop (resumably) after this many iterations in this invocation; continue with --resume")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
+
+
+def make_config(args, k_max):
+    """The run's validated Config; a bad field is a UsageError naming its flag."""
+    cfg = Config(
+        env=args.env, policy=args.policy, subpolicy=args.subpolicy, k_max=max(k_max, 1), num_envs=args.num_envs,
+        unroll_length=args.unroll_length, num_epochs=args.epochs, num_minibatches=args.minibatches,
+        episode_length=args.episode_length, normalize_reward=not args.no_normalize_reward,
+        b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
+        solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
+        cholesky=args.cholesky, value_target=args.value_target, retrace_iterations=args.retrace_iterations,
+    )
+    try:
+        return cfg.validate()
+    except ValueError as e:
+        msg = str(e)
+        for field, flag in (("num_envs", "--num-envs"), ("num_minibatches", "--minibatches"),
+                            ("solver_iterations", "--solver-iterations"), ("ls_iterations", "--ls-iterations"),
+                            ("retrace_iterations", "--retrace-iterations"), ("value_target", "--value-target")):
+            msg = msg.replace(field, flag)
+        raise UsageError(msg) from None
 
 
 def resolve(args):
@@ -99,19 +127,7 @@ def resolve(args):
         raise UsageError(f"unknown --subpolicy {args.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
     if args.policy != "mixture" and args.subpolicy != "linear":
         raise UsageError("--subpolicy applies to --policy mixture only")
-    cfg = Config(
-        env=args.env, policy=args.policy, subpolicy=args.subpolicy, k_max=max(k_max, 1), num_envs=args.num_envs,
-        unroll_length=args.unroll_length, num_epochs=args.epochs, num_minibatches=args.minibatches,
-        episode_length=args.episode_length, normalize_reward=not args.no_normalize_reward,
-        b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
-        solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
-        cholesky=args.cholesky,
-    )
-    try:
-        cfg.validate()
-    except ValueError as e:
-        msg = str(e).replace("num_envs", "--num-envs").replace("num_minibatches", "--minibatches")
-        raise UsageError(msg.replace("solver_iterations", "--solver-iterations").replace("ls_iterations", "--ls-iterations")) from None
+    cfg = make_config(args, k_max)
     iterations = math.ceil(args.steps / cfg.batch_size)
     chunk = args.chunk if args.chunk is not None else max(1, min(10, iterations // 20))
     if chunk < 1:
@@ -138,6 +154,7 @@ def resolve(args):
 def default_out(cfg, hp, seed):
     tag = f"{cfg.env}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == "mixture" else "")
     tag += f"-{cfg.subpolicy}" if cfg.policy == "mixture" and cfg.subpolicy != "linear" else ""
+    tag += "-retrace" if cfg.value_target == "retrace" else ""
     return os.path.join("runs", f"{tag}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
@@ -351,6 +368,12 @@ def train_run(cfg, hp_py, iterations, chunk, seed, out, resume, config, log, sto
     t0 = time.perf_counter()
     program, trainer = single_program(cfg, chunk, seed, hp_py, config["eval_seed"])
     log_start(cfg, trainer, hp_py, iterations, out, log)
+    if cfg.value_target == "retrace":
+        from gsa_jax.retrace import buffer_bytes
+
+        config["retrace_buffer_bytes"] = buffer_bytes(program.state.buffer)
+        log(f"value targets: Retrace over the samples of the last {cfg.retrace_iterations} iterations "
+            f"(buffer {config['retrace_buffer_bytes'] / 2**20:.2f} MiB)")
     log(f"compiled in {time.perf_counter() - t0:.1f}s")
     store = RunStore(out, config, resume)
     if not os.path.exists(store.path("params.npz")):  # the initial parameters: "last good" even if chunk 1 diverges

@@ -28,6 +28,8 @@ SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--mini
         (["--policy", "mlp", "--subpolicy", "constant"], "--subpolicy applies to --policy mixture only"),
         (["--solver-iterations", "0"], "--solver-iterations must be an integer >= 1"),
         (["--ls-iterations", "-2"], "--ls-iterations must be an integer >= 1"),
+        (["--value-target", "td"], "unknown --value-target 'td'; choose one of gae, retrace"),
+        (["--value-target", "retrace", "--retrace-iterations", "0"], "--retrace-iterations must be >= 1, got 0"),
     ],
 )
 def test_bad_input_one_line_error(argv, message, capsys, tmp_path):

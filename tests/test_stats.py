@@ -2,6 +2,7 @@
 nothing to compile)."""
 
 import csv
+import gzip
 import json
 
 import numpy as np
@@ -37,6 +38,19 @@ def test_probability_of_improvement_is_mann_whitney():
     assert stats.improvement_probability({"x>x": (x, x)})["x>x"][0] == 0.5
 
 
+def test_critics_compared_cell_by_cell():
+    """A sweep listing value_targets: P(Retrace's run beats GAE's) for each retrace cell, nothing for others."""
+    from gsa_jax.plot import critic_comparisons
+
+    gae, rt = np.array([1.0, 4.0, 6.0, 8.0]), np.array([3.0, 5.0, 7.0])
+    cell = lambda env, target: (env, "mixture", 6, ("value_target", target))  # noqa: E731
+    scores = {cell("hopper", "gae"): (gae, "deterministic"), cell("hopper", "retrace"): (rt, "deterministic"),
+              cell("walker2d", "retrace"): (rt, "deterministic")}  # no GAE cell to compare with
+    got = critic_comparisons(scores)
+    assert list(got) == [cell("hopper", "retrace")] and got[cell("hopper", "retrace")][0] == pytest.approx(0.5)
+    assert critic_comparisons({("hopper", "mixture", 6): (rt, "deterministic")}) == {}
+
+
 def test_normalize_and_profiles():
     np.testing.assert_allclose(stats.normalize([10.0, 55.0, 100.0], 10.0, 100.0), [0.0, 0.5, 1.0])
     frac, lo, hi = stats.performance_profiles({"a": np.array([[0.2], [0.6], [1.2]])}, [0.0, 0.5, 1.0, 2.0])["a"]
@@ -64,6 +78,9 @@ def write_sweep(d, env, steps=100, final=None, seeds=4, evaluated=True):
 def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
     a = write_sweep(tmp_path / "hopper", "hopper")
     b = write_sweep(tmp_path / "walker", "walker2d", final={"mlp": 50.0, "mixture": 40.0})
+    with open(b / "metrics.csv", "rb") as src, gzip.open(b / "metrics-process-0.csv.gz", "wb") as dst:
+        dst.write(src.read())  # committed results keep their tidy metrics gzipped
+    (b / "metrics.csv").unlink()
     out = tmp_path / "out"
     _, _, rows = plot_sweep([str(a), str(b)], str(out), action_dims={"hopper": 3, "walker2d": 6},
                             random_returns={"hopper": 0.0, "walker2d": 0.0})

@@ -68,6 +68,21 @@ def test_grid_with_subpolicy_classes():
     assert [group_name(e, p, runs) for e, p, runs in build_grid(plain)] == ["hopper-mixture"]
 
 
+def test_grid_with_value_targets():
+    """One compiled group per critic, for flat PPO and mixtures alike, crossed with sub-policy classes."""
+    spec = check_spec({"envs": ["hopper"], "policies": ["mlp", "mixture"], "subpolicies": ["constant", "linear"],
+                       "value_targets": ["gae", "retrace"], "clusters": [2], "seeds": 2, "steps": 1000,
+                       "config": {"retrace_iterations": 3}})
+    groups = build_grid(spec)
+    assert [group_name(e, p, runs) for e, p, runs in groups] == [
+        "hopper-mlp-gae", "hopper-mlp-retrace", "hopper-mixture-constant-gae", "hopper-mixture-constant-retrace",
+        "hopper-mixture-linear-gae", "hopper-mixture-linear-retrace"]
+    cfgs = [group_config(spec, e, p, runs) for e, p, runs in groups]
+    assert [c.value_target for c in cfgs] == ["gae", "retrace"] * 3
+    assert {c.retrace_iterations for c in cfgs} == {3} and [c.subpolicy for c in cfgs][2:4] == ["constant"] * 2
+    assert id_columns(spec) == ["env", "policy", "subpolicy", "value_target", "K", "seed", "run"]
+
+
 def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
     """plot_sweep on a tidy table with a subpolicy column: final returns per (class, K), flat PPO separate."""
     from gsa_jax.plot import plot_sweep
@@ -99,6 +114,12 @@ def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "colour": "red"}, "colour"),
     ({"envs": ["hopper"], "policies": ["mixture"], "clusters": 2, "steps": 10, "subpolicies": ["cubic"]}, "subpolicies"),
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "subpolicies": ["constant"]}, "subpolicies"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "value_targets": ["gae", "td"]}, "value_targets"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "value_targets": ["gae", "gae"]}, "value_targets"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "value_targets": ["retrace"],
+      "config": {"value_target": "gae"}}, "value_targets"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "config": {"value_target": "td"}}, "config"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "config": {"retrace_iterations": 0}}, "config"),
 ])
 def test_malformed_spec_names_the_field(raw, field):
     with pytest.raises(SpecError, match=f"field '{field}'"):
