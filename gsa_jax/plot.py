@@ -11,7 +11,9 @@ steps, hyperparameters or settings are refused with the difference). Statistics 
   figure_training.png      the same for the training return (the stochastic policy)
   return_vs_k.png          final score IQM (95% CI) against K, flat PPO as a band
   performance_profile.png  fraction of runs above each normalized score, per configuration over tasks
-  final_returns.csv        per cell: mean (t CI), IQM (bootstrap CI), P(better than flat PPO) (CI), training return
+  final_returns.csv        per cell: mean (t CI), IQM (bootstrap CI), P(better than flat PPO) (CI), training return,
+                           learning speed (curve_*: IQM of each run's mean over all its evaluations), and in
+                           sweeps that list value_targets P(Retrace better than GAE) (CI)
   aggregate.csv            per configuration over tasks: IQM of normalized scores (0 = random policy, 1 = flat
                            PPO's final IQM on that task) and P(better than flat PPO), with CIs
 Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every statistic and listed apart.
@@ -229,6 +231,9 @@ def cell_row(cell, scores, kind, data, action_dims, versus):
     iqm = stats.iqm_ci({"c": scores[:, None]})["c"] if n else (math.nan,) * 3
     train = np.array([stats.final_score([], s["episode_return"])[0] for s in data[cell].values()])
     t_mean, t_half = stats.mean_ci(train[np.isfinite(train)]) if np.isfinite(train).any() else (math.nan, math.nan)
+    area = np.array([stats.curve_score(s["eval_return"]) for s in data[cell].values()])
+    area = area[np.isfinite(area)]
+    auc = stats.iqm_ci({"c": area[:, None]})["c"] if len(area) else (math.nan,) * 3
     p = versus or (math.nan,) * 3
     r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
     return {"env": env, "policy": policy, "K": k if policy == "mixture" else "",
@@ -237,6 +242,7 @@ def cell_row(cell, scores, kind, data, action_dims, versus):
             "iqm": r(iqm[0]), "iqm_ci_low": r(iqm[1]), "iqm_ci_high": r(iqm[2]),
             "p_better_than_flat_ppo": r(p[0]), "p_ci_low": r(p[1]), "p_ci_high": r(p[2]),
             "training_return_mean": r(t_mean), "training_ci95_halfwidth": r(t_half),
+            "curve_iqm": r(auc[0]), "curve_ci_low": r(auc[1]), "curve_ci_high": r(auc[2]),
             "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
 
 

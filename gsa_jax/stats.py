@@ -37,6 +37,14 @@ def final_score(eval_returns, train_returns):
     return (float(np.nanmean(tail)) if np.any(np.isfinite(tail)) else math.nan), "training"
 
 
+def curve_score(eval_returns):
+    """The mean of a run's finite deterministic returns over all its evaluations: the area under its
+    learning curve per evaluation, which rewards learning early (NaN without evaluations)."""
+    ev = np.asarray(eval_returns, float)
+    ev = ev[np.isfinite(ev)]
+    return float(np.mean(ev)) if len(ev) else math.nan
+
+
 def mean_ci(x):
     """(mean, 95% t half-width) of the values x [n] (half-width NaN for n < 2)."""
     x = np.asarray(x, float)

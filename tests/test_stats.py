@@ -30,6 +30,11 @@ def test_iqm_point_is_the_trimmed_mean_and_the_interval_covers_it():
     assert np.random.rand() == np.random.RandomState(3).rand()  # ... without touching NumPy's global RNG
 
 
+def test_curve_score_is_the_mean_over_all_evaluations():
+    assert stats.curve_score([np.nan, 10.0, np.nan, 20.0, 60.0]) == 30.0
+    assert np.isnan(stats.curve_score([np.nan, np.nan]))
+
+
 def test_probability_of_improvement_is_mann_whitney():
     x, y = np.array([[3.0], [5.0], [7.0]]), np.array([[1.0], [4.0], [6.0], [8.0]])
     want = np.mean([(a > b) + 0.5 * (a == b) for a in x[:, 0] for b in y[:, 0]])  # 6 of 12 pairs
@@ -87,6 +92,7 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
     by = {(r["env"], r["policy"]): r for r in rows}
     assert by[("hopper", "mixture")]["score"] == "deterministic" and by[("hopper", "mixture")]["seeds"] == 4
     assert by[("hopper", "mixture")]["final_return_mean"] == pytest.approx(120.0 + 4.5)  # evaluated, not training
+    assert by[("hopper", "mixture")]["curve_iqm"] == pytest.approx(124.5)  # IQM of 120, 123, 126, 129: (123 + 126) / 2
     assert by[("hopper", "mixture")]["p_better_than_flat_ppo"] == 1.0 and by[("walker2d", "mixture")]["p_better_than_flat_ppo"] == 0.0
     with open(out / "aggregate.csv") as f:
         agg = {r["config"]: r for r in csv.DictReader(f)}
