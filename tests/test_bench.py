@@ -51,7 +51,8 @@ def test_solver_variant_lines(tmp_path, monkeypatch):
     solver option itself is tested in test_solver.py)."""
     calls = []
 
-    def sweep(env, policy, runs, processes, repeats, solver=None, run_batch=None, log=print):
+    def sweep(env, policy, runs, processes, repeats, solver=None, run_batch=None, log=print, value_target=None):
+        assert value_target == "gae"  # the default critic
         calls.append(("sweep", policy, runs, processes, solver))
         return {"env": env, "policy": policy, "runs": runs, "processes": processes, "env_steps_per_s": 1000.0 * (2 if solver else 1),
                 "compile_s": 1.0, "peak_rss_mib": 500.0, **bench._solver_field(solver)}
@@ -100,7 +101,7 @@ def test_time_profile_decomposition(monkeypatch):
     steps = 64 * 2048
     fake = {10: steps / 2.0, 1: steps / 0.65}
 
-    def sweep(env, policy, runs, processes, repeats, epochs=None, run_batch=None, log=print):
+    def sweep(env, policy, runs, processes, repeats, epochs=None, run_batch=None, log=print, value_target=None):
         assert run_batch == 8
         return {"env_steps_per_iteration": steps, "env_steps_per_s": fake[epochs or 10]}
 

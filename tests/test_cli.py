@@ -166,17 +166,9 @@ def test_inspect_bad_run_dirs(tmp_path, capsys):
     assert "is a 'mlp' run; inspect reads mixture-of-linear runs" in capsys.readouterr().err
 
 
-@pytest.fixture(scope="module")
-def quadratic_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cli") / "quadratic"
-    assert main(SMALL + ["--subpolicy", "quadratic", "--clusters", "2", "--out", str(out)]) == 0
-    return out
-
-
-@pytest.mark.parametrize("which", ["full_run", "quadratic_run"])
-def test_export_real_run_matches_jax(which, request, tmp_path):
-    """The exported controller of a trained run (linear / quadratic sub-policies) acts like the JAX
-    deterministic policy."""
+def test_export_real_run_matches_jax(full_run, tmp_path):
+    """The exported controller of a trained run acts like the JAX deterministic policy (every sub-policy
+    class, on fabricated run directories: tests/test_export.py)."""
     import jax
 
     from gsa_jax import numpy_policy
@@ -184,7 +176,6 @@ def test_export_real_run_matches_jax(which, request, tmp_path):
     from gsa_jax.inspection import load_run
     from gsa_jax.normalize import normalize
 
-    full_run = request.getfixturevalue(which)
     assert export_main([str(full_run), "--out", str(tmp_path / "c.npz")]) == 0
     ctrl = numpy_policy.load(str(tmp_path / "c.npz"))
     trainer, params, stats, hp, _ = load_run(str(full_run))
@@ -193,5 +184,5 @@ def test_export_real_run_matches_jax(which, request, tmp_path):
     a, c = jax.vmap(trainer.policy.mode, in_axes=(None, 0, None))(params["policy"], normalize(stats, obs), sched)
     np.testing.assert_allclose(ctrl.act(obs), np.asarray(a), rtol=1e-5, atol=1e-5)
     np.testing.assert_array_equal(ctrl.cluster(obs), np.asarray(c))
-    assert ctrl.subpolicy == trainer.cfg.subpolicy == ("quadratic" if which == "quadratic_run" else "linear")
+    assert ctrl.subpolicy == trainer.cfg.subpolicy == "linear"
     assert np.abs(ctrl.L).sum() > 0  # trained: not the L = 0 init
