@@ -390,7 +390,8 @@ def plot_return_vs_k(rows, path):
     env_names = list(dict.fromkeys(r["env"] for r in rows))
     fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "score", "final_return_mean", "ci95_halfwidth", "iqm",
              "iqm_ci_low", "iqm_ci_high", "p_better_than_flat_ppo", "p_ci_low", "p_ci_high", "training_return_mean",
-             "training_ci95_halfwidth", "env_steps", "failed_runs"}
+             "training_ci95_halfwidth", "curve_iqm", "curve_ci_low", "curve_ci_high", "p_better_than_gae",
+             "p_gae_ci_low", "p_gae_ci_high", "env_steps", "failed_runs"}  # every final_returns.csv column but the settings
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
         curves = defaultdict(list)  # one curve per sub-policy class (and per other swept setting)
