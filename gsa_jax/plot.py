@@ -380,24 +380,21 @@ def plot_curves(data, action_dims, failed, column, path, title):
     plt.close(fig)
 
 
-def plot_return_vs_k(rows, path):
-    """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band."""
+def plot_return_vs_k(rows, path, settings=()):
+    """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band. One
+    curve per value of the `settings` columns (the cells' sub-policy class, critic, swept hyperparameters)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
-    fixed = {"env", "policy", "K", "K_over_action_dim", "seeds", "score", "final_return_mean", "ci95_halfwidth", "iqm",
-             "iqm_ci_low", "iqm_ci_high", "p_better_than_flat_ppo", "p_ci_low", "p_ci_high", "training_return_mean",
-             "training_ci95_halfwidth", "curve_iqm", "curve_ci_low", "curve_ci_high", "p_better_than_gae",
-             "p_gae_ci_low", "p_gae_ci_high", "env_steps", "failed_runs"}  # every final_returns.csv column but the settings
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
         curves = defaultdict(list)  # one curve per sub-policy class (and per other swept setting)
         for r in rows:
             if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]:
-                curves[tuple((c, v) for c, v in r.items() if c not in fixed)].append(r)
+                curves[tuple((c, r.get(c, "")) for c in settings)].append(r)
         all_ks = sorted({r["K"] for pts in curves.values() for r in pts})
         for extra, pts in curves.items():
             pts = sorted(pts, key=lambda r: r["K"])
@@ -495,7 +492,8 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     rows = final_table(data, action_dims, failed)
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
-    plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"))
+    settings = list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))
+    plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"), settings)
     if random_returns is None:
         random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
     normalized = normalized_scores(data, action_dims, random_returns)
