@@ -75,31 +75,51 @@ def load_sweep(sweep_dir):
 
 
 def group_settings(sweep_dir):
-    """{(env, policy): what makes its runs comparable (steps, hyperparameters, static config)} of a sweep."""
+    """{(env, policy, critic): what makes its runs comparable (steps, hyperparameters, static config)} of a
+    sweep; a sweep listing no value_targets trained with its [config] critic (default GAE)."""
     out = {}
     for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True)):
         with open(path) as f:
             spec = json.load(f).get("spec", {})
-        for env_name in spec.get("envs", []):
-            for policy in spec.get("policies", []):
-                out[(env_name, policy)] = {k: spec.get(k) for k in ("steps", "hparams", "config")}
+        config = spec.get("config") or {}
+        for critic in spec.get("value_targets") or [config.get("value_target", "gae")]:
+            # retrace_iterations does not change a GAE run
+            kept = {k: v for k, v in config.items() if k != "value_target" and (critic != "gae" or k != "retrace_iterations")}
+            for env_name in spec.get("envs", []):
+                for policy in spec.get("policies", []):
+                    out[(env_name, policy, critic)] = {"steps": spec.get("steps"), "hparams": spec.get("hparams"), "config": kept}
     return out
+
+
+def with_critic(cell):
+    """A cell with ("value_target", "gae") among its settings when it has no critic column (after the
+    sub-policy class, where sweeps write it): sweeps that list no value_targets trained with GAE."""
+    if any(c == "value_target" for c, _ in cell[3:]):
+        return cell
+    i = 4 if len(cell) > 3 and cell[3][0] == "subpolicy" else 3
+    return cell[:i] + (("value_target", "gae"),) + cell[i:]
 
 
 def load_sweeps(dirs):
     """load_sweep of every directory, merged; PlotError naming the difference when two hold the same
-    group with other settings, or the same run twice."""
+    group with other settings, or the same run twice. When one sweep lists critics (value_targets), the
+    cells of those that do not get the GAE critic's column, so the two critics' cells meet."""
     from gsa_jax.runinfo import describe_changes
 
-    data, seen = {}, {}
+    seen = {}
     for d in dirs:
         for group, settings in group_settings(d).items():
             if group in seen and seen[group][1] != settings:
                 diff = describe_changes(seen[group][1], settings)
-                raise PlotError(f"{seen[group][0]} and {d} both hold {group[0]}/{group[1]} runs, with different "
-                                f"settings ({diff}); plot them apart")
+                raise PlotError(f"{seen[group][0]} and {d} both hold {group[0]}/{group[1]} runs ({group[2]} critic), "
+                                f"with different settings ({diff}); plot them apart")
             seen.setdefault(group, (d, settings))
-        for cell, seeds in load_sweep(d).items():
+    loaded = [(d, load_sweep(d)) for d in dirs]
+    if any(c == "value_target" for _, cells in loaded for cell in cells for c, _ in cell[3:]):
+        loaded = [(d, {with_critic(cell): seeds for cell, seeds in cells.items()}) for d, cells in loaded]
+    data = {}
+    for d, cells in loaded:
+        for cell, seeds in cells.items():
             twice = set(seeds) & set(data.get(cell, {}))
             if twice:
                 raise PlotError(f"{d}: seed {min(twice)} of {cell[0]}/{cell[1]} K={cell[2]} is already in another directory")
@@ -132,8 +152,9 @@ def drop_failed(data, failed):
     """(data without the failed runs, {cell: [(seed, failed_at)]}): failed runs are reported apart,
     never averaged into a cell (their series end early; a run failing at once has none)."""
     dropped = defaultdict(list)
+    critics = any(c == "value_target" for cell in data for c, _ in cell[3:])
     for f in failed:
-        cell = failed_cell(f)
+        cell = with_critic(failed_cell(f)) if critics else failed_cell(f)
         if cell in data:
             data[cell].pop(int(f["seed"]), None)
         dropped[cell].append((int(f["seed"]), int(f["failed_at"])))

@@ -63,19 +63,25 @@ def test_normalize_and_profiles():
     assert np.all(lo <= frac) and np.all(frac <= hi)
 
 
-def write_sweep(d, env, steps=100, final=None, seeds=4, evaluated=True):
-    """A fabricated sweep directory: tidy metrics.csv (flat PPO and K=2) and its sweep.json."""
+def write_sweep(d, env, steps=100, final=None, seeds=4, evaluated=True, critic=None):
+    """A fabricated sweep directory: tidy metrics.csv (flat PPO and K=2) and its sweep.json; `critic`: the
+    one entry of its value_targets (a value_target column), None for a sweep that lists none."""
     d.mkdir(parents=True, exist_ok=True)
     final = final or {"mlp": 100.0, "mixture": 120.0}
+    listed = [critic] if critic else []
     with open(d / "metrics.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["env", "policy", "K", "seed", "run", "iteration", "env_steps", "episode_return", "eval_return"])
+        w.writerow(["env", "policy", *(["value_target"] if critic else []), "K", "seed", "run", "iteration", "env_steps",
+                    "episode_return", "eval_return"])
         for policy, value in final.items():
             for seed in range(seeds):
                 for it in range(1, 11):
                     ev = value + 3 * seed if evaluated and it % 2 == 0 else ""
-                    w.writerow([env, policy, 2 if policy == "mixture" else 1, seed, 0, it, it * steps // 10, value / 2 + seed, ev])
+                    w.writerow([env, policy, *listed, 2 if policy == "mixture" else 1, seed, 0, it, it * steps // 10,
+                                value / 2 + seed, ev])
     spec = {"envs": [env], "policies": list(final), "steps": steps, "hparams": {}, "config": {}}
+    if critic:
+        spec.update(value_targets=listed, config={"retrace_iterations": 4})
     (d / "sweep.json").write_text(json.dumps({"spec": spec}))
     return d
 
@@ -105,7 +111,23 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
 def test_sweeps_with_other_settings_are_not_merged(tmp_path):
     a = write_sweep(tmp_path / "a", "hopper", steps=100)
     b = write_sweep(tmp_path / "b", "hopper", steps=200)
-    with pytest.raises(PlotError, match=r"both hold hopper/mlp runs, with different settings \(steps: 100 -> 200\)"):
+    with pytest.raises(PlotError, match=r"both hold hopper/mlp runs \(gae critic\), with different settings \(steps: 100 -> 200\)"):
         plot_sweep([str(a), str(b)], str(tmp_path / "out"), action_dims={"hopper": 3}, random_returns={"hopper": 0.0})
     with pytest.raises(PlotError, match="seed 0 of hopper/mlp K=1 is already in another directory"):
         plot_sweep([str(a), str(a)], str(tmp_path / "out"), action_dims={"hopper": 3}, random_returns={"hopper": 0.0})
+
+
+def test_a_critic_sweep_merges_with_a_sweep_that_lists_none(tmp_path):
+    """A sweep of Retrace runs alone, merged with a sweep that lists no critics (GAE): the latter's cells
+    become the GAE cells the Retrace ones are compared with; the same runs with other settings are refused."""
+    from gsa_jax.plot import critic_comparisons, final_scores, load_sweeps
+
+    gae = write_sweep(tmp_path / "fig1", "hopper")
+    rt = write_sweep(tmp_path / "retrace", "hopper", final={"mixture": 130.0}, critic="retrace")
+    data = load_sweeps([str(gae), str(rt)])
+    cell = lambda policy, k, critic: ("hopper", policy, k, ("value_target", critic))  # noqa: E731
+    assert sorted(data) == [cell("mixture", 2, "gae"), cell("mixture", 2, "retrace"), cell("mlp", 1, "gae")]
+    assert critic_comparisons(final_scores(data))[cell("mixture", 2, "retrace")][0] == 1.0  # 130..139 vs 120..129
+    other = write_sweep(tmp_path / "other", "hopper", steps=200, final={"mixture": 1.0})
+    with pytest.raises(PlotError, match=r"hopper/mixture runs \(gae critic\), with different settings"):
+        load_sweeps([str(gae), str(other)])
