@@ -244,17 +244,17 @@ def flat_cell(cell, cells):
     return (same or (flats if len(flats) == 1 else [None]))[0]
 
 
-def cell_row(cell, scores, kind, data, action_dims, versus):
+def cell_row(cell, scores, kind, data, action_dims, versus, reps=stats.REPS):
     """One row of final_returns.csv (statistics of a cell's final scores)."""
     env, policy, k = cell[:3]
     n = len(scores)
     mean, half = stats.mean_ci(scores) if n else (math.nan, math.nan)
-    iqm = stats.iqm_ci({"c": scores[:, None]})["c"] if n else (math.nan,) * 3
+    iqm = stats.iqm_ci({"c": scores[:, None]}, reps=reps)["c"] if n else (math.nan,) * 3
     train = np.array([stats.final_score([], s["episode_return"])[0] for s in data[cell].values()])
     t_mean, t_half = stats.mean_ci(train[np.isfinite(train)]) if np.isfinite(train).any() else (math.nan, math.nan)
     area = np.array([stats.curve_score(s["eval_return"]) for s in data[cell].values()])
     area = area[np.isfinite(area)]
-    auc = stats.iqm_ci({"c": area[:, None]})["c"] if len(area) else (math.nan,) * 3
+    auc = stats.iqm_ci({"c": area[:, None]}, reps=reps)["c"] if len(area) else (math.nan,) * 3
     p = versus or (math.nan,) * 3
     r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
     return {"env": env, "policy": policy, "K": k if policy == "mixture" else "",
@@ -267,7 +267,7 @@ def cell_row(cell, scores, kind, data, action_dims, versus):
             "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
 
 
-def critic_comparisons(scores):
+def critic_comparisons(scores, reps=stats.REPS):
     """{retrace cell: P(better than the same cell with GAE's critic) with its CI} for sweeps that list
     value_targets; {} otherwise."""
     pairs = {}
@@ -276,23 +276,23 @@ def critic_comparisons(scores):
             gae = cell[:3] + tuple((c, "gae" if c == "value_target" else v) for c, v in cell[3:])
             if gae in scores and len(sc) and len(scores[gae][0]):
                 pairs[cell] = (sc[:, None], scores[gae][0][:, None])
-    return stats.improvement_probability(pairs) if pairs else {}
+    return stats.improvement_probability(pairs, reps=reps) if pairs else {}
 
 
-def final_table(data, action_dims, failed=None):
+def final_table(data, action_dims, failed=None, reps=stats.REPS):
     """final_returns.csv rows: per cell, statistics of its final scores and P(better than flat PPO)."""
     failed = failed or {}
     scores = final_scores(data)
     pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == "mixture"
              for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
-    versus = stats.improvement_probability(pairs) if pairs else {}
-    critics = critic_comparisons(scores)
+    versus = stats.improvement_probability(pairs, reps=reps) if pairs else {}
+    critics = critic_comparisons(scores, reps)
     rows = []
     for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
         rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
                      "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
     for cell in sorted(data, key=cell_order):
-        row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell))
+        row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell), reps)
         if critics:
             p = critics.get(cell, (math.nan,) * 3)
             row.update({k: "" if not np.isfinite(v) else round(float(v), 3)
@@ -327,11 +327,11 @@ def normalized_scores(data, action_dims, random_returns):
     return out
 
 
-def aggregate_table(normalized):
+def aggregate_table(normalized, reps=stats.REPS):
     """aggregate.csv rows: per configuration, IQM of normalized scores over tasks and P(better than flat PPO)."""
     if not normalized:
         return []
-    iqm = stats.iqm_ci({str(k): m for k, (_, m) in normalized.items()})
+    iqm = stats.iqm_ci({str(k): m for k, (_, m) in normalized.items()}, reps=reps)
     flats = {tuple(c for c in k[1:] if c[0] != "subpolicy"): k for k in normalized if k[0] == "flat PPO"}
     pairs = {}
     for k, (tasks, m) in normalized.items():
@@ -339,7 +339,7 @@ def aggregate_table(normalized):
         if k[0] != "flat PPO" and f is not None and normalized[f][0] == tasks:
             n = min(len(m), len(normalized[f][1]))
             pairs[str(k)] = (m[:n], normalized[f][1][:n])
-    better = stats.improvement_probability(pairs) if pairs else {}
+    better = stats.improvement_probability(pairs, reps=reps) if pairs else {}
     rows = []
     for k, (tasks, m) in normalized.items():
         p = better.get(str(k), ("",) * 3)
@@ -350,7 +350,7 @@ def aggregate_table(normalized):
     return rows
 
 
-def cell_curves(data, column, window):
+def cell_curves(data, column, window, reps=stats.CURVE_REPS):
     """{cell: (env_steps [P], IQM [P], low [P], high [P])}: IQM over seeds with bootstrap bands of the
     training return (smoothed over `window` iterations) or of the evaluations (where evaluated)."""
     curves, steps = {}, {}
@@ -365,11 +365,11 @@ def cell_curves(data, column, window):
         else:
             keep = np.arange(n)
         curves[cell], steps[cell] = m, next(iter(seeds.values()))["env_steps"][:n][keep]
-    est = stats.iqm_curves({c: m for c, m in curves.items() if m.size})
+    est = stats.iqm_curves({c: m for c, m in curves.items() if m.size}, reps=reps)
     return {c: (steps[c][idx], iqm, lo, hi) for c, (idx, iqm, lo, hi) in est.items()}
 
 
-def plot_curves(data, action_dims, failed, column, path, title):
+def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE_REPS):
     """Per task, the IQM learning curve of every cell with its 95% bootstrap band."""
     import matplotlib
 
@@ -377,7 +377,7 @@ def plot_curves(data, action_dims, failed, column, path, title):
     import matplotlib.pyplot as plt
 
     window = max(1, min(len(s["episode_return"]) for seeds in data.values() for s in seeds.values()) // 50)
-    curves = cell_curves(data, column, window)
+    curves = cell_curves(data, column, window, reps)
     env_names = list(dict.fromkeys(c[0] for c in sorted(data)))
     ncols = min(3, len(env_names))
     fig, axes = plt.subplots(math.ceil(len(env_names) / ncols), ncols, figsize=(max(7.0, 5.2 * ncols), 3.9 * math.ceil(len(env_names) / ncols) + 0.3), squeeze=False)
@@ -440,7 +440,7 @@ def plot_return_vs_k(rows, path, settings=()):
     plt.close(fig)
 
 
-def plot_profiles(normalized, path):
+def plot_profiles(normalized, path, reps=stats.REPS):
     """Performance profiles: the fraction of runs (averaged over tasks) whose normalized score exceeds tau."""
     import matplotlib
 
@@ -449,7 +449,7 @@ def plot_profiles(normalized, path):
 
     top = max(1.5, max(float(np.max(m)) for _, m in normalized.values()))
     taus = np.linspace(0.0, top, 60)
-    prof = stats.performance_profiles({str(k): m for k, (_, m) in normalized.items()}, taus)
+    prof = stats.performance_profiles({str(k): m for k, (_, m) in normalized.items()}, taus, reps)
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for i, (k, (tasks, _)) in enumerate(normalized.items()):
         frac, lo, hi = prof[str(k)]
@@ -491,8 +491,10 @@ def write_csv(path, rows):
         w.writerows(rows)
 
 
-def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, log=print):
-    """Every figure and table of the merged sweeps into out_dir (default: the first directory).
+def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, log=print, reps=stats.REPS,
+               curve_reps=stats.CURVE_REPS):
+    """Every figure and table of the merged sweeps into out_dir (default: the first directory); reps /
+    curve_reps: bootstrap resamples of the tables' intervals / of each learning-curve point's band.
     Returns (figure.png path, final_returns.csv path, final_returns rows)."""
     dirs = [sweep_dirs] if isinstance(sweep_dirs, str) else list(sweep_dirs)
     out_dir = out_dir or dirs[0]
@@ -507,10 +509,10 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     png = os.path.join(out_dir, "figure.png")
     plot_curves(data, action_dims, failed, "eval_return" if evaluated else "episode_return", png,
                 "Flat PPO vs mixtures of K linear controllers: " + ("deterministic controllers" if evaluated else "training return")
-                + "\n(IQM over seeds, 95% bootstrap band)")
+                + "\n(IQM over seeds, 95% bootstrap band)", curve_reps)
     plot_curves(data, action_dims, failed, "episode_return", os.path.join(out_dir, "figure_training.png"),
-                "Training return (stochastic policy)\n(IQM over seeds, 95% bootstrap band)")
-    rows = final_table(data, action_dims, failed)
+                "Training return (stochastic policy)\n(IQM over seeds, 95% bootstrap band)", curve_reps)
+    rows = final_table(data, action_dims, failed, reps)
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
     settings = list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))
@@ -519,8 +521,8 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
         random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
     normalized = normalized_scores(data, action_dims, random_returns)
     if normalized:
-        write_csv(os.path.join(out_dir, "aggregate.csv"), aggregate_table(normalized))
-        plot_profiles(normalized, os.path.join(out_dir, "performance_profile.png"))
+        write_csv(os.path.join(out_dir, "aggregate.csv"), aggregate_table(normalized, reps))
+        plot_profiles(normalized, os.path.join(out_dir, "performance_profile.png"), reps)
     return png, table, rows
 
 
@@ -528,9 +530,14 @@ def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.plot", description=__doc__.split("\n")[0])
     p.add_argument("sweep_dirs", nargs="+", metavar="DIR", help="sweep directories (merged)")
     p.add_argument("--out", default=None, help="directory for the figures and tables (default: the first DIR)")
+    p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples of the tables' intervals (default %(default)s)")
+    p.add_argument("--curve-reps", type=int, default=stats.CURVE_REPS,
+                   help="bootstrap resamples of each learning-curve point's band (default %(default)s)")
     args = p.parse_args(argv)
     try:
-        png, table, rows = plot_sweep(args.sweep_dirs, args.out)
+        if min(args.reps, args.curve_reps) < 1:
+            raise PlotError(f"--reps and --curve-reps must be >= 1, got {args.reps} and {args.curve_reps}")
+        png, table, rows = plot_sweep(args.sweep_dirs, args.out, reps=args.reps, curve_reps=args.curve_reps)
     except (FileNotFoundError, PlotError) as e:
         print(f"gsa_jax.plot: error: {e}", file=sys.stderr)
         return 2

@@ -87,18 +87,19 @@ def bootstrap(score_dict, func, seed, reps=REPS):
         np.random.set_state(saved)
 
 
-def improvement_probability(pairs, seed=0):
+def improvement_probability(pairs, seed=0, reps=REPS):
     """{name: (P(X > Y), low, high)} for pairs {name: (X [runs, tasks], Y [runs, tasks])}: the probability
     that a run of X scores higher than a run of Y on the same task (ties count half), averaged over tasks,
     with a 95% stratified bootstrap interval (rliable)."""
     from rliable import metrics
 
     point, interval = bootstrap(
-        {k: (np.asarray(x, float), np.asarray(y, float)) for k, (x, y) in pairs.items()}, metrics.probability_of_improvement, seed)
+        {k: (np.asarray(x, float), np.asarray(y, float)) for k, (x, y) in pairs.items()}, metrics.probability_of_improvement, seed,
+        reps)
     return {k: (float(np.ravel(point[k])[0]), *(float(v) for v in np.ravel(interval[k])[:2])) for k in pairs}
 
 
-def iqm_curves(curves, points=20, seed=0):
+def iqm_curves(curves, points=20, seed=0, reps=CURVE_REPS):
     """{name: (index [P], IQM [P], low [P], high [P])} of learning curves {name: [runs, T]} at P points
     spread over T (every column where every run has a value); stratified bootstrap bands (rliable)."""
     out = {}
@@ -108,18 +109,18 @@ def iqm_curves(curves, points=20, seed=0):
         if len(cols) == 0:
             continue
         cols = cols[np.unique(np.linspace(0, len(cols) - 1, min(points, len(cols))).round().astype(int))]
-        est = iqm_ci({str(c): m[:, [c]] for c in cols}, seed, CURVE_REPS)
+        est = iqm_ci({str(c): m[:, [c]] for c in cols}, seed, reps)
         out[name] = (cols, *(np.array([est[str(c)][i] for c in cols]) for i in range(3)))
     return out
 
 
-def performance_profiles(scores, taus):
+def performance_profiles(scores, taus, reps=REPS):
     """{name: (fraction [len(taus)], low, high)}: the fraction of runs (averaged over tasks) whose
     normalized score exceeds each tau, with 95% stratified bootstrap bands (rliable)."""
     from rliable import library as rly
 
     dist, cis = rly.create_performance_profile({k: np.asarray(v, float) for k, v in scores.items()}, np.asarray(taus),
-                                               reps=REPS)
+                                               reps=reps)
     return {k: (np.asarray(dist[k]), np.asarray(cis[k][0]), np.asarray(cis[k][1])) for k in scores}
 
 

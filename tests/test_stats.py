@@ -11,6 +11,9 @@ from scipy import stats as sps
 
 from gsa_jax import stats
 from gsa_jax.plot import PlotError, plot_sweep
+from gsa_jax.plot import main as plot_main
+
+FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples: enough for the checks, cheap
 
 
 def test_final_score_is_the_mean_of_the_last_evaluations():
@@ -92,9 +95,13 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
     with open(b / "metrics.csv", "rb") as src, gzip.open(b / "metrics-process-0.csv.gz", "wb") as dst:
         dst.write(src.read())  # committed results keep their tidy metrics gzipped
     (b / "metrics.csv").unlink()
+    (a / "random_returns.json").write_text(json.dumps({"hopper": 0.0, "walker2d": 0.0}))
     out = tmp_path / "out"
-    _, _, rows = plot_sweep([str(a), str(b)], str(out), action_dims={"hopper": 3, "walker2d": 6},
-                            random_returns={"hopper": 0.0, "walker2d": 0.0})
+    assert plot_main([str(a), str(b), "--out", str(out), "--reps", "0"]) == 2  # one-line error, nothing drawn
+    assert plot_main([str(a), str(b), "--out", str(out), "--reps", "50", "--curve-reps", "20"]) == 0
+    with open(out / "final_returns.csv") as f:
+        rows = [{k: (float(v) if k not in ("env", "policy", "score") and v != "" else v) for k, v in r.items()}
+                for r in csv.DictReader(f)]
     by = {(r["env"], r["policy"]): r for r in rows}
     assert by[("hopper", "mixture")]["score"] == "deterministic" and by[("hopper", "mixture")]["seeds"] == 4
     assert by[("hopper", "mixture")]["final_return_mean"] == pytest.approx(120.0 + 4.5)  # evaluated, not training

@@ -19,6 +19,7 @@ import pytest
 from gsa_jax.ppo import Config, make_hparams, make_train
 from gsa_jax.sweep import SpecError, build_grid, check_spec, group_config, group_name, id_columns, load_spec, run_sweep
 
+FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples of gsa_jax.plot: enough for the checks, cheap
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
 TINY = f"""
 name = "tiny"
@@ -95,7 +96,7 @@ def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
             for it in range(20):
                 lines.append(f"hopper,{pol},{sub},{k},{seed},0,{it},{(it + 1) * 100},{value + seed - 1}")
     (tmp_path / "metrics.csv").write_text("\n".join(lines) + "\n")
-    _, table, rows = plot_sweep(str(tmp_path), action_dims={"hopper": 3}, random_returns={"hopper": 0.0})
+    _, table, rows = plot_sweep(str(tmp_path), action_dims={"hopper": 3}, random_returns={"hopper": 0.0}, **FEW)
     got = {(r["policy"], r["subpolicy"], r["K"] or 1): r["final_return_mean"] for r in rows}
     assert got == final
     assert all(r["seeds"] == 3 for r in rows)
@@ -271,7 +272,7 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
     assert_same_results(merged, read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
     from gsa_jax.plot import plot_sweep
 
-    png, table, rows = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0})
+    png, table, rows = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     assert os.path.getsize(png) > 10_000 and [r["K"] for r in rows] == [1, 3] and all(r["seeds"] == 2 for r in rows)
     assert all(r["score"] == "deterministic" for r in rows)  # the sweep evaluated its controllers
 
@@ -363,7 +364,7 @@ def test_nan_run_is_frozen_listed_and_the_others_train_on(tiny_spec_file, inproc
         assert all(np.all(np.isfinite(p[k])) for k in p.files)
     from gsa_jax.plot import plot_sweep
 
-    _, _, table = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0})
+    _, _, table = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     by_cell = {(r["K"], float(r["hparam_lr"])): r for r in table}
     for f in failed:
         assert by_cell[(f["K"], 1e30)]["failed_runs"] == f"0@{f['failed_at']}" and by_cell[(f["K"], 1e30)]["seeds"] == 0
