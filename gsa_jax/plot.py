@@ -401,6 +401,21 @@ def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE
     plt.close(fig)
 
 
+def setting_columns(data):
+    """The columns that set cells apart beyond (env, policy, K): sub-policy class, critic, swept hyperparameters."""
+    return list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))
+
+
+def k_curves(rows, env_name, settings):
+    """{((column, value) of `settings`...): the task's mixture rows of final_returns.csv sorted by K}: one
+    return-vs-K curve per sub-policy class, critic and other swept setting."""
+    curves = defaultdict(list)
+    for r in rows:
+        if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]:
+            curves[tuple((c, r.get(c, "")) for c in settings)].append(r)
+    return {k: sorted(pts, key=lambda r: r["K"]) for k, pts in curves.items()}
+
+
 def plot_return_vs_k(rows, path, settings=()):
     """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band. One
     curve per value of the `settings` columns (the cells' sub-policy class, critic, swept hyperparameters)."""
@@ -412,13 +427,9 @@ def plot_return_vs_k(rows, path, settings=()):
     env_names = list(dict.fromkeys(r["env"] for r in rows))
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
-        curves = defaultdict(list)  # one curve per sub-policy class (and per other swept setting)
-        for r in rows:
-            if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]:
-                curves[tuple((c, r.get(c, "")) for c in settings)].append(r)
+        curves = k_curves(rows, env_name, settings)
         all_ks = sorted({r["K"] for pts in curves.values() for r in pts})
         for extra, pts in curves.items():
-            pts = sorted(pts, key=lambda r: r["K"])
             iqm = np.array([r["iqm"] for r in pts], float)
             err = np.array([[r["iqm"] - r["iqm_ci_low"], r["iqm_ci_high"] - r["iqm"]] for r in pts], float).T
             sub = dict(extra).get("subpolicy") or "linear"
@@ -515,8 +526,7 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     rows = final_table(data, action_dims, failed, reps)
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
-    settings = list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))
-    plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"), settings)
+    plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
     if random_returns is None:
         random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
     normalized = normalized_scores(data, action_dims, random_returns)

@@ -85,21 +85,28 @@ def test_grid_with_value_targets():
 
 
 def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
-    """plot_sweep on a tidy table with a subpolicy column: final returns per (class, K), flat PPO separate."""
-    from gsa_jax.plot import plot_sweep
+    """plot_sweep on an evaluated tidy table with a subpolicy column: final scores per (class, K), flat PPO
+    separate; return-vs-K draws one curve per class, its points in K order."""
+    from gsa_jax.plot import k_curves, load_sweeps, plot_sweep, setting_columns
 
-    lines = ["env,policy,subpolicy,K,seed,run,iteration,env_steps,episode_return"]
+    lines = ["env,policy,subpolicy,K,seed,run,iteration,env_steps,episode_return,eval_return"]
     final = {("mlp", "", 1): 50.0, ("mixture", "constant", 2): 10.0, ("mixture", "constant", 4): 20.0,
              ("mixture", "linear", 2): 30.0, ("mixture", "linear", 4): 40.0}
     for (pol, sub, k), value in final.items():
         for seed in range(3):
             for it in range(20):
-                lines.append(f"hopper,{pol},{sub},{k},{seed},0,{it},{(it + 1) * 100},{value + seed - 1}")
+                ev = value + seed - 1 if it % 4 == 3 else ""
+                lines.append(f"hopper,{pol},{sub},{k},{seed},0,{it},{(it + 1) * 100},{value / 2},{ev}")
     (tmp_path / "metrics.csv").write_text("\n".join(lines) + "\n")
     _, table, rows = plot_sweep(str(tmp_path), action_dims={"hopper": 3}, random_returns={"hopper": 0.0}, **FEW)
     got = {(r["policy"], r["subpolicy"], r["K"] or 1): r["final_return_mean"] for r in rows}
-    assert got == final
+    assert got == final and all(r["score"] == "deterministic" for r in rows)
     assert all(r["seeds"] == 3 for r in rows)
+    settings = setting_columns(load_sweeps([str(tmp_path)]))
+    assert settings == ["subpolicy"]  # not the statistics columns of the rows
+    curves = k_curves(rows, "hopper", settings)
+    assert {k: [(r["K"], r["final_return_mean"]) for r in pts] for k, pts in curves.items()} == {
+        (("subpolicy", "constant"),): [(2, 10.0), (4, 20.0)], (("subpolicy", "linear"),): [(2, 30.0), (4, 40.0)]}
     assert os.path.getsize(tmp_path / "return_vs_k.png") > 10_000
 
 
