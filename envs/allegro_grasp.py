@@ -1,6 +1,7 @@
 """Find the start pose of the Allegro cylinder task and write it into envs/assets/allegro_cylinder.xml.
 
     python -m envs.allegro_grasp [--seed 0]
+    python -m envs.allegro_grasp --pairs      # which geoms can touch: the basis of the MJCF's <contact> pairs
 
 How the asset's object placement and keyframe "grasp" were made (run once; the result is committed):
 1. sample index-finger and thumb configurations (middle 70% of each joint range), pair them, and keep
@@ -100,6 +101,50 @@ def solve_tip(m, finger, q0, target, iters=200):
     return q, float(np.linalg.norm(err))
 
 
+def sample_joints(m, n, rng):
+    """n configurations of the 8 finger joints (n, 8): each joint at its lower limit, its upper limit or
+    uniform in between, with probability 1/4, 1/4, 1/2 (contacts happen at the limits)."""
+    lo, hi = m.jnt_range[:8].T
+    u = rng.uniform(lo, hi, size=(n, 8))
+    pick = rng.integers(0, 4, size=(n, 8))
+    return np.where(pick == 0, lo, np.where(pick == 1, hi, u))
+
+
+def candidate_pairs(m):
+    """Geom pairs of different bodies that are neither welded together nor parent and child (the object's
+    visual marker aside)."""
+    marker = [g for g in range(m.ngeom) if m.geom_bodyid[g] == m.body("object").id and m.geom(g).name != "object"]
+    geoms = [g for g in range(m.ngeom) if g not in marker]
+    body, weld, parent = m.geom_bodyid, m.body_weldid, m.body_parentid
+    return [(a, b) for i, a in enumerate(geoms) for b in geoms[i + 1:]
+            if weld[body[a]] != weld[body[b]] and parent[body[a]] != body[b] and parent[body[b]] != body[a]]
+
+
+def reachable_pairs(m, n=20000, seed=0, cutoff=0.05):
+    """{(geom1 name, geom2 name): (smallest distance [m], fraction of configurations in overlap)} over n
+    sampled finger configurations (sample_joints), for every candidate pair (distances capped at cutoff).
+    A pair that can touch has a smallest distance <= 0; one in overlap in every configuration is two
+    shapes sharing a joint, not a contact."""
+    d = mujoco.MjData(m)
+    pairs = candidate_pairs(m)
+    dist = np.zeros((n, len(pairs)))
+    fromto = np.zeros(6)
+    for i, q in enumerate(sample_joints(m, n, np.random.default_rng(seed))):
+        d.qpos[:8] = q
+        mujoco.mj_kinematics(m, d)
+        dist[i] = [mujoco.mj_geomDistance(m, d, a, b, cutoff, fromto) for a, b in pairs]
+    name = lambda g: m.geom(g).name or m.body(m.geom_bodyid[g]).name  # noqa: E731
+    return {(name(a), name(b)): (float(dist[:, j].min()), float(np.mean(dist[:, j] < 0))) for j, (a, b) in enumerate(pairs)}
+
+
+def report_pairs(m, paired):
+    """Print reachable_pairs, closest first, marking the pairs the MJCF collides."""
+    got = reachable_pairs(m)
+    print(f"{'geom pair':>24} {'closest (mm)':>13} {'overlap':>8}  paired in the MJCF")
+    for (a, b), (dmin, frac) in sorted(got.items(), key=lambda kv: kv[1][0]):
+        print(f"{a:>11} {b:>12} {dmin * 1e3:13.1f} {frac:8.3f}  {'yes' if {a, b} in paired else ''}")
+
+
 def _set_object(xml, pos, quat, half):
     xml = re.sub(r'(<body name="object" pos=")[^"]*(" quat=")[^"]*(")',
                  lambda g: f'{g[1]}{" ".join(f"{x:.6f}" for x in pos)}{g[2]}{" ".join(f"{x:.6f}" for x in quat)}{g[3]}', xml)
@@ -116,10 +161,14 @@ def _set_keyframe(xml, qpos, ctrl):
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m envs.allegro_grasp", description=__doc__.split("\n")[0])
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pairs", action="store_true", help="report which geoms can touch (nothing is written)")
     args = p.parse_args(argv)
 
     xml = ASSET.read_text()
     m = mujoco.MjModel.from_xml_string(xml)
+    if args.pairs:
+        name = lambda g: m.geom(g).name  # noqa: E731
+        return report_pairs(m, [{name(m.pair_geom1[i]), name(m.pair_geom2[i])} for i in range(m.npair)])
     u = object_axis()
     qa, qb, centre, normal, cost = choose_pair(m, u, seed=args.seed)
     print(f"pair cost {cost:.3f}, centre {np.round(centre, 4)}")

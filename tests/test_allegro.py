@@ -111,6 +111,44 @@ def test_mjx_and_mujoco_c_trajectories_agree_for_one_second(task):
     assert abs(ret_mjx - ret_c) <= 0.02 * abs(ret_c) + 0.05, (ret_mjx, ret_c)
 
 
+CURL = np.array([0, 1, -1, -1, 0, 0, 0, 0], np.float32)  # index: flex the base joint, open the others: wraps the cylinder
+
+
+def object_contacts(names, geom_pairs, dists):
+    """{link name: deepest signed distance [m]} of the contacts between the cylinder and the hand's links."""
+    out = {}
+    for (a, b), dist in zip(geom_pairs, dists):
+        if "object" in (names[a], names[b]):
+            link = names[b] if names[a] == "object" else names[a]
+            out[link] = min(out.get(link, np.inf), float(dist))
+    return out
+
+
+def test_curled_index_finger_stops_at_the_cylinder(task):
+    """1.2 s of CURL from the grasp: the index finger's middle and distal links touch the cylinder and stay
+    on its surface (penetration < 3 mm at every step), in MJX and in MuJoCo C alike."""
+    env, reset, step, _ = task
+    m = env.mj_model
+    names = [m.geom(g).name for g in range(m.ngeom)]
+    s = reset(jax.random.PRNGKey(0))
+    d = c_data(m, s.pipeline_state)
+    mujoco.mj_forward(m, d)
+    deepest = {"mjx": 0.0, "c": 0.0}
+    for _ in range(120):
+        s = step(s, jnp.asarray(CURL))
+        allegro.step_mujoco(m, d, CURL)
+        c = s.pipeline_state._impl.contact
+        touching = {"mjx": object_contacts(names, np.asarray(c.geom), np.asarray(c.dist)),
+                    "c": object_contacts(names, [(x.geom1, x.geom2) for x in d.contact], d.contact.dist)}
+        for k, got in touching.items():
+            deepest[k] = min([deepest[k], *got.values()])
+    assert deepest["mjx"] > -0.003 and deepest["c"] > -0.003, deepest
+    for k, got in touching.items():
+        links = {link for link, dist in got.items() if dist < 0}
+        assert {"ff_med", "ff_dist"} <= links, (k, got)  # link contact, not only the tip
+    np.testing.assert_allclose(np.asarray(s.pipeline_state.qpos[:4]), d.qpos[:4], atol=0.02)
+
+
 def test_wrong_action_shape_is_a_clear_error(task):
     env, reset, step, _ = task
     s = reset(jax.random.PRNGKey(0))
