@@ -15,22 +15,24 @@ def _compile_cache(tmp_path_factory):
 
 
 @pytest.fixture
-def random_hopper_controller(tmp_path):
-    """make(**config) -> path of an exported hopper mixture controller (2 random linear pieces), as
-    `python -m gsa_jax.export` writes it; config entries go into its config (e.g. episode_length)."""
+def random_controller(tmp_path):
+    """make(env="hopper", **config) -> path of an exported mixture controller (2 random linear pieces) for
+    hopper or allegro_cylinder, as `python -m gsa_jax.export` writes it; config entries go into its config
+    (e.g. episode_length)."""
     import json
 
     import numpy as np
 
     from gsa_jax.checkpoint import save_npz_atomic
 
-    def make(**config):
+    def make(env="hopper", **config):
+        obs, act = {"hopper": (11, 3), "allegro_cylinder": (10, 8)}[env]
         rng = np.random.default_rng(0)
-        arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(11, np.float32),
-                  "obs_var": np.ones(11, np.float32), "obs_clip": np.array(10.0, np.float32), "n_layers": np.array(1),
-                  "w0": rng.normal(size=(11, 2)).astype(np.float32), "b0": np.zeros(2, np.float32),
-                  "L": 0.1 * rng.normal(size=(2, 3, 11)).astype(np.float32), "b": np.zeros((2, 3), np.float32),
-                  "config_json": np.array(json.dumps({"config": {"env": "hopper", **config}}))}
+        arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(obs, np.float32),
+                  "obs_var": np.ones(obs, np.float32), "obs_clip": np.array(10.0, np.float32), "n_layers": np.array(1),
+                  "w0": rng.normal(size=(obs, 2)).astype(np.float32), "b0": np.zeros(2, np.float32),
+                  "L": 0.1 * rng.normal(size=(2, act, obs)).astype(np.float32), "b": np.zeros((2, act), np.float32),
+                  "config_json": np.array(json.dumps({"config": {"env": env, **config}}))}
         path = tmp_path / "controller.npz"
         save_npz_atomic(str(path), **arrays)
         return path

@@ -54,9 +54,9 @@ def test_bad_requests_are_one_line_errors(task, env_id, message):
     assert "\n" not in str(e.value)
 
 
-def test_deploy_cli_in_gymnasium(tmp_path, random_hopper_controller):
+def test_deploy_cli_in_gymnasium(tmp_path, random_controller):
     """A (random) hopper controller in our MuJoCo C port and gymnasium's Hopper-v5 via the CLI, no JAX imported."""
-    path = random_hopper_controller()
+    path = random_controller()
     code = ("import sys; from gsa_jax.deploy import main; rc = main([sys.argv[1], '--episodes', '3', '--gymnasium', "
             "'Hopper-v5', '--out', sys.argv[2]]); assert 'jax' not in sys.modules, 'jax was imported'; sys.exit(rc)")
     r = subprocess.run([sys.executable, "-c", code, str(path), str(tmp_path / "d.json")], capture_output=True, text=True)

@@ -109,9 +109,19 @@ def test_allegro_port_matches_mjx_reset():
         make_c("inverted_double_pendulum")
 
 
-def test_deploy_runs_without_jax_and_reports(tmp_path, random_hopper_controller):
+def test_deploy_on_the_allegro_hand(tmp_path, random_controller):
+    """A (random) Allegro controller runs in MuJoCo C through the deploy CLI: full 2 s episodes."""
+    from gsa_jax.deploy import main
+
+    assert main([str(random_controller("allegro_cylinder")), "--episodes", "2", "--out", str(tmp_path / "d.json")]) == 0
+    res = json.loads((tmp_path / "d.json").read_text())
+    assert res["env"] == "allegro_cylinder" and res["mujoco_c"]["length_mean"] == 200
+    assert np.all(np.isfinite(res["mujoco_c"]["returns"]))
+
+
+def test_deploy_runs_without_jax_and_reports(tmp_path, random_controller):
     """An exported (random) hopper controller runs in MuJoCo C via the CLI, with no JAX module imported."""
-    path = random_hopper_controller(episode_length=50)
+    path = random_controller(episode_length=50)
     code = ("import sys; from gsa_jax.deploy import main; rc = main([sys.argv[1], '--episodes', '3', '--out', sys.argv[2]]);"
             "assert 'jax' not in sys.modules, 'jax was imported'; sys.exit(rc)")
     r = subprocess.run([sys.executable, "-c", code, str(path), str(tmp_path / "d.json")], capture_output=True, text=True)
