@@ -19,9 +19,9 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python -m gsa_jax.train --env inverted_double_pendulum --policy mixture --clusters 4 --steps 150000 --out runs/demo
 
-## test: the pytest suite (~ a few minutes on 2 cores)
+## test: the pytest suite (~31 min on 2 cores; the 15 slowest tests are listed at the end)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q tests -m "not benchmark"
+	$(BIN)/python -m pytest -q tests -m "not benchmark" --durations=15
 
 ## sweep: train an experiment's whole grid as vmapped programs (make sweep EXP=experiments/fig1/fig1.toml)
 sweep: $(STAMP)
