@@ -91,6 +91,11 @@ def group_settings(sweep_dir):
     return out
 
 
+def lists_critics(cells):
+    """Whether any of the cells carries a critic column (its sweep listed value_targets)."""
+    return any(c == "value_target" for cell in cells for c, _ in cell[3:])
+
+
 def with_critic(cell):
     """A cell with ("value_target", "gae") among its settings when it has no critic column (after the
     sub-policy class, where sweeps write it): sweeps that list no value_targets trained with GAE."""
@@ -115,7 +120,7 @@ def load_sweeps(dirs):
                                 f"with different settings ({diff}); plot them apart")
             seen.setdefault(group, (d, settings))
     loaded = [(d, load_sweep(d)) for d in dirs]
-    if any(c == "value_target" for _, cells in loaded for cell in cells for c, _ in cell[3:]):
+    if lists_critics(cell for _, cells in loaded for cell in cells):
         loaded = [(d, {with_critic(cell): seeds for cell, seeds in cells.items()}) for d, cells in loaded]
     data = {}
     for d, cells in loaded:
@@ -152,7 +157,7 @@ def drop_failed(data, failed):
     """(data without the failed runs, {cell: [(seed, failed_at)]}): failed runs are reported apart,
     never averaged into a cell (their series end early; a run failing at once has none)."""
     dropped = defaultdict(list)
-    critics = any(c == "value_target" for cell in data for c, _ in cell[3:])
+    critics = lists_critics(data)
     for f in failed:
         cell = with_critic(failed_cell(f)) if critics else failed_cell(f)
         if cell in data:
