@@ -306,17 +306,45 @@ def final_table(data, action_dims, failed=None, reps=stats.REPS):
     return rows
 
 
-def config_key(cell, action_dims):
-    """A configuration across tasks: flat PPO, or K / action_dim (as Figure 1 sets K), with the swept settings."""
+def spec_multipliers(dirs):
+    """{env: sorted cluster multipliers} of the sweeps that set K as multiples of the action dimension
+    (cluster_multipliers), read from their sweep.json."""
+    out = defaultdict(set)
+    for d in dirs:
+        for path in glob.glob(os.path.join(d, "**", "sweep.json"), recursive=True):
+            with open(path) as f:
+                spec = json.load(f).get("spec", {})
+            for env_name in spec.get("envs", []) if spec.get("cluster_multipliers") else []:
+                out[env_name].update(spec["cluster_multipliers"])
+    return {e: sorted(ms) for e, ms in out.items()}
+
+
+def config_keys(cell, action_dims, multipliers):
+    """The configurations across tasks a cell belongs to: flat PPO, or "K = m d_a" for every multiplier m
+    of its sweep that gives its K (K = ceil(m d_a), as Figure 1 sets K: on a task with one action, K = 1
+    is both 0.5 d_a and 1 d_a), or K / d_a when K was set directly; with the swept settings."""
+    from gsa_jax.sweep import cluster_count
+
     env, policy, k = cell[:3]
     if policy == "mlp":
-        return ("flat PPO",) + tuple(cell[3:])
-    return (f"K = {k / action_dims[env]:.3g} d_a" if env in action_dims else f"K = {k}",) + tuple(cell[3:])
+        return [("flat PPO",) + tuple(cell[3:])]
+    if env not in action_dims:
+        return [(f"K = {k}",) + tuple(cell[3:])]
+    ms = [m for m in multipliers.get(env, []) if cluster_count(m, action_dims[env]) == k]
+    labels = [f"K = {m:g} d_a" for m in ms] or [f"K = {k / action_dims[env]:.3g} d_a"]
+    return [(label,) + tuple(cell[3:]) for label in labels]
 
 
-def normalized_scores(data, action_dims, random_returns):
+def config_order(key):
+    """Sort key of a configuration: flat PPO first, then by K (or K / d_a), then the settings."""
+    words = key[0].split()
+    return (key[0] != "flat PPO", float(words[2]) if len(words) > 2 else 0.0, str(key[1:]))
+
+
+def normalized_scores(data, action_dims, random_returns, multipliers=None):
     """{config: [runs, tasks] normalized final scores} (0 = random policy, 1 = flat PPO's final IQM on the
-    task); tasks without a flat PPO cell or a random-policy return are left out; runs cut to the fewest."""
+    task); tasks without a flat PPO cell or a random-policy return are left out; runs cut to the fewest.
+    multipliers: spec_multipliers of the sweeps (configs named by them, see config_keys)."""
     scores = final_scores(data)
     by_config = defaultdict(dict)
     for cell in data:
@@ -324,9 +352,10 @@ def normalized_scores(data, action_dims, random_returns):
         if flat is None or cell[0] not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
             continue
         ref = stats.iqm(scores[flat][0][:, None])  # the point only: no bootstrap per mixture cell
-        by_config[config_key(cell, action_dims)][cell[0]] = stats.normalize(scores[cell][0], random_returns[cell[0]], ref)
+        for key in config_keys(cell, action_dims, multipliers or {}):
+            by_config[key][cell[0]] = stats.normalize(scores[cell][0], random_returns[cell[0]], ref)
     out = {}
-    for config, tasks in by_config.items():
+    for config, tasks in sorted(by_config.items(), key=lambda kv: config_order(kv[0])):
         n = min(len(v) for v in tasks.values())
         out[config] = (sorted(tasks), np.stack([tasks[t][:n] for t in sorted(tasks)], axis=1))
     return out
@@ -534,7 +563,7 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
     if random_returns is None:
         random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
-    normalized = normalized_scores(data, action_dims, random_returns)
+    normalized = normalized_scores(data, action_dims, random_returns, spec_multipliers(dirs))
     if normalized:
         write_csv(os.path.join(out_dir, "aggregate.csv"), aggregate_table(normalized, reps))
         plot_profiles(normalized, os.path.join(out_dir, "performance_profile.png"), reps)

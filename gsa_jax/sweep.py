@@ -226,7 +226,12 @@ def cluster_counts(spec, env_name):
     import envs
 
     d_a = envs.action_size(env_name)
-    return sorted({max(1, math.ceil(m * d_a - 1e-9)) for m in spec["cluster_multipliers"]})
+    return sorted({cluster_count(m, d_a) for m in spec["cluster_multipliers"]})
+
+
+def cluster_count(multiplier, action_dim):
+    """K of a cluster multiplier m on a task with action_dim actions: ceil(m * action_dim), at least 1."""
+    return max(1, math.ceil(multiplier * action_dim - 1e-9))
 
 
 def swept_names(spec):

@@ -115,6 +115,25 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
         assert (out / name).stat().st_size > 10_000, name
 
 
+def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):
+    """Figure 1 sets K = ceil(m d_a): hopper's K = 2 is the 0.5 d_a configuration (not 0.667 d_a), and on a
+    one-action task K = 1 is both 0.5 d_a and 1 d_a; K set directly is named K / d_a."""
+    from gsa_jax.plot import config_keys, spec_multipliers
+
+    d = tmp_path / "fig1"
+    d.mkdir()
+    spec = {"envs": ["hopper", "inverted_double_pendulum"], "policies": ["mlp", "mixture"], "cluster_multipliers": [0.5, 1, 2]}
+    (d / "sweep.json").write_text(json.dumps({"spec": spec}))
+    mult = spec_multipliers([str(d)])
+    dims = {"hopper": 3, "inverted_double_pendulum": 1}
+    assert mult == {"hopper": [0.5, 1, 2], "inverted_double_pendulum": [0.5, 1, 2]}
+    assert config_keys(("hopper", "mixture", 2), dims, mult) == [("K = 0.5 d_a",)]
+    assert config_keys(("hopper", "mixture", 6, ("subpolicy", "linear")), dims, mult) == [("K = 2 d_a", ("subpolicy", "linear"))]
+    assert config_keys(("inverted_double_pendulum", "mixture", 1), dims, mult) == [("K = 0.5 d_a",), ("K = 1 d_a",)]
+    assert config_keys(("hopper", "mixture", 5), dims, {}) == [("K = 1.67 d_a",)]
+    assert config_keys(("hopper", "mlp", 1), dims, mult) == [("flat PPO",)]
+
+
 def test_sweeps_with_other_settings_are_not_merged(tmp_path):
     a = write_sweep(tmp_path / "a", "hopper", steps=100)
     b = write_sweep(tmp_path / "b", "hopper", steps=200)
