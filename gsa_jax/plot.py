@@ -74,13 +74,21 @@ def load_sweep(sweep_dir):
                    for seed, cols in seeds.items()} for cell, seeds in series.items()}
 
 
+def sweep_metas(sweep_dir):
+    """The contents of every sweep.json under sweep_dir (one per sweep; merged results may hold several)."""
+    out = []
+    for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True)):
+        with open(path) as f:
+            out.append(json.load(f))
+    return out
+
+
 def group_settings(sweep_dir):
     """{(env, policy, critic): what makes its runs comparable (steps, hyperparameters, static config)} of a
     sweep; a sweep listing no value_targets trained with its [config] critic (default GAE)."""
     out = {}
-    for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True)):
-        with open(path) as f:
-            spec = json.load(f).get("spec", {})
+    for meta in sweep_metas(sweep_dir):
+        spec = meta.get("spec", {})
         config = spec.get("config") or {}
         for critic in spec.get("value_targets") or [config.get("value_target", "gae")]:
             # retrace_iterations does not change a GAE run
@@ -134,11 +142,7 @@ def load_sweeps(dirs):
 
 def load_failed(sweep_dir):
     """Runs that stopped at a NaN/inf: sweep.json's 'failed_runs', or the workers' failed_runs.json."""
-    failed = []
-    metas = sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True))
-    for path in metas:
-        with open(path) as f:
-            failed.extend(json.load(f).get("failed_runs", []))
+    failed = [f for meta in sweep_metas(sweep_dir) for f in meta.get("failed_runs", [])]
     if not failed:  # a sweep still running or stopped: the workers' own lists
         for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "failed_runs.json"), recursive=True)):
             with open(path) as f:
@@ -310,12 +314,9 @@ def spec_multipliers(dirs):
     """{env: sorted cluster multipliers} of the sweeps that set K as multiples of the action dimension
     (cluster_multipliers), read from their sweep.json."""
     out = defaultdict(set)
-    for d in dirs:
-        for path in glob.glob(os.path.join(d, "**", "sweep.json"), recursive=True):
-            with open(path) as f:
-                spec = json.load(f).get("spec", {})
-            for env_name in spec.get("envs", []) if spec.get("cluster_multipliers") else []:
-                out[env_name].update(spec["cluster_multipliers"])
+    for spec in (meta.get("spec", {}) for d in dirs for meta in sweep_metas(d)):
+        for env_name in spec.get("envs", []) if spec.get("cluster_multipliers") else []:
+            out[env_name].update(spec["cluster_multipliers"])
     return {e: sorted(ms) for e, ms in out.items()}
 
 
