@@ -19,11 +19,20 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")
 NAMES = BRAX_TASKS + ("allegro_cylinder",)
 DEFAULT_EPISODE_LENGTH = 1000
+C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant")  # tasks physics backend 'c' runs (envs/c_backend.py)
 
 
 def check_name(name):
     if name not in NAMES:
         raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES)}")
+
+
+def check_backend(name, physics):
+    """ValueError if `physics` (envs.physics.Physics) cannot step task `name`."""
+    check_name(name)
+    physics.validate()
+    if physics.backend == "c" and name not in C_BACKEND_TASKS:
+        raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)}; {name!r} runs on backend 'mjx'")
 
 
 def default_episode_length(name):
@@ -54,9 +63,10 @@ def action_size(name):
 
 
 def make_base(name, physics=None):
-    """The unwrapped task (no time limit, no auto-reset), stepped by MJX as `physics` says
-    (envs.physics.Physics; None: the defaults). Its reset and step run inside physics.applied, so the
-    solver routing holds while they are traced and nothing else in the process changes.
+    """The unwrapped task (no time limit, no auto-reset), stepped as `physics` says (envs.physics.Physics;
+    None: the defaults, MJX; backend 'c': MuJoCo C, envs/c_backend.py). An MJX task's reset and step run
+    inside physics.applied, so the solver routing holds while they are traced and nothing else in the
+    process changes.
 
     physics.solver_iterations / ls_iterations override opt.iterations / opt.ls_iterations in the MJX
     model only -- a cheaper but *different* simulator; the MuJoCo C model (mj_model(env), used by
@@ -64,8 +74,10 @@ def make_base(name, physics=None):
     """
     from envs.physics import Physics
 
-    check_name(name)
-    physics = (physics or Physics()).validate()
+    physics = physics or Physics()
+    check_backend(name, physics)
+    if physics.backend == "c":
+        return _make_c_backend(name, physics)
     with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
         from brax import envs as brax_envs
 
@@ -81,6 +93,13 @@ def make_base(name, physics=None):
     for fn in ("reset", "step"):  # the solver is traced inside these
         setattr(env, fn, _applying(getattr(env, fn), physics, mj_model(env)))
     return env
+
+
+def _make_c_backend(name, physics):
+    """The task stepped by MuJoCo C inside the program (envs/c_backend.py)."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        from envs.c_backend import CTask
+    return CTask(name, physics)
 
 
 def _applying(fn, physics, model):

@@ -31,8 +31,10 @@ def brax_asset(name):
 class BraxTaskC:
     """A Brax locomotion task (its defaults, backend 'mjx') in MuJoCo C: the same MJCF and solver
     options, reset noise, observation, reward and termination. Subclasses set the task's constants
-    and `observation(m, d)` / `healthy(m, d)`; both read only MjModel/MjData, so they also apply to
-    another simulator's model of the same robot (gsa_jax.gymnasium_task checks layouts with them).
+    and `observe_state` / `healthy_state`, written once over (qpos, qvel, torso position) for NumPy and
+    jax.numpy alike: MuJoCo C here, the C physics backend inside the compiled trainer
+    (envs/c_backend.py). `observation(m, d)` / `healthy(m, d)` read them from an MjData, so they also
+    apply to another simulator's model of the same robot (gsa_jax.gymnasium_task checks layouts with them).
 
     The torso is body 1 (Brax's x.pos[0]); the forward reward is its x velocity over the env step."""
 
@@ -56,12 +58,27 @@ class BraxTaskC:
         return self.model.nu
 
     @staticmethod
-    def observation(m, d):
+    def observe_state(qpos, qvel, torso, xp=np):
+        """Observation from qpos [nq], qvel [nv] and the torso's position torso [3] (Brax's x.pos[0]);
+        xp is numpy or jax.numpy, so the C physics backend (envs/c_backend.py) uses the same definition."""
         raise NotImplementedError
 
     @staticmethod
-    def healthy(m, d):
-        return True
+    def healthy_state(qpos, qvel, torso, xp=np):
+        """Whether the episode goes on, from the same arrays as observe_state (a bool array)."""
+        return xp.asarray(True)
+
+    def reward_state(self, torso0, torso1, action, xp=np):
+        """Forward velocity of the torso over the env step + healthy reward - control cost."""
+        return (torso1[0] - torso0[0]) / self.dt + self.healthy_reward - self.ctrl_cost * xp.sum(action * action)
+
+    @classmethod
+    def observation(cls, m, d):
+        return cls.observe_state(d.qpos, d.qvel, d.xpos[1], np).astype(np.float32)
+
+    @classmethod
+    def healthy(cls, m, d):
+        return bool(cls.healthy_state(d.qpos, d.qvel, d.xpos[1], np))
 
     def observe(self):
         return self.observation(self.model, self.data)
@@ -84,13 +101,11 @@ class BraxTaskC:
         if a.shape != (self.model.nu,):
             raise ValueError(f"action has shape {a.shape}; {type(self).__name__} takes ({self.model.nu},)")
         m, d = self.model, self.data
-        x0 = d.xpos[1, 0]
+        torso0 = d.xpos[1].copy()
         d.ctrl[:] = a
         mujoco.mj_step(m, d, nstep=self.n_frames)
-        x_velocity = (d.xpos[1, 0] - x0) / self.dt
-        healthy = bool(self.healthy(m, d))
-        reward = x_velocity + self.healthy_reward - self.ctrl_cost * float(a @ a)
-        return self.observe(), float(reward), not healthy
+        reward = self.reward_state(torso0, d.xpos[1], a)
+        return self.observe(), float(reward), not self.healthy(m, d)
 
     def set_state(self, qpos, qvel):
         self.data.qpos[:], self.data.qvel[:] = qpos, qvel
@@ -105,16 +120,15 @@ class HopperC(BraxTaskC):
     asset, n_frames, noise, ctrl_cost, healthy_reward = "hopper.xml", 4, 5e-3, 1e-3, 1.0
 
     @staticmethod
-    def observation(m, d):
-        pos = d.qpos.copy()
-        pos[1] = d.xpos[1, 2]  # torso height (Brax: x.pos[0, 2])
-        return np.concatenate([pos[1:], np.clip(d.qvel, -10.0, 10.0)]).astype(np.float32)
+    def observe_state(qpos, qvel, torso, xp=np):
+        # qpos[1] replaced by the torso height (Brax: x.pos[0, 2])
+        return xp.concatenate([torso[2:3], qpos[2:], xp.clip(qvel, -10.0, 10.0)])
 
     @staticmethod
-    def healthy(m, d):
-        z, angle = d.xpos[1, 2], d.qpos[2]
-        state = np.concatenate([d.qpos[2:], d.qvel])
-        return np.all(np.abs(state) < 100.0) and 0.7 < z and -0.2 < angle < 0.2
+    def healthy_state(qpos, qvel, torso, xp=np):
+        z, angle = torso[2], qpos[2]
+        state = xp.concatenate([qpos[2:], qvel])
+        return xp.all(xp.abs(state) < 100.0) & (z > 0.7) & (angle > -0.2) & (angle < 0.2)
 
 
 class Walker2dC(HopperC):
@@ -124,9 +138,9 @@ class Walker2dC(HopperC):
     asset = "walker2d.xml"
 
     @staticmethod
-    def healthy(m, d):
-        z, angle = d.xpos[1, 2], d.qpos[2]
-        return 0.8 < z < 2.0 and -1.0 < angle < 1.0
+    def healthy_state(qpos, qvel, torso, xp=np):
+        z, angle = torso[2], qpos[2]
+        return (z > 0.8) & (z < 2.0) & (angle > -1.0) & (angle < 1.0)
 
 
 class HalfCheetahC(BraxTaskC):
@@ -136,8 +150,8 @@ class HalfCheetahC(BraxTaskC):
     asset, n_frames, noise, qvel_noise, ctrl_cost = "half_cheetah.xml", 5, 0.1, "normal", 0.1
 
     @staticmethod
-    def observation(m, d):
-        return np.concatenate([d.qpos[1:], d.qvel]).astype(np.float32)
+    def observe_state(qpos, qvel, torso, xp=np):
+        return xp.concatenate([qpos[1:], qvel])
 
 
 class AntC(BraxTaskC):
@@ -151,12 +165,12 @@ class AntC(BraxTaskC):
                "iterations": 1, "ls_iterations": 4}
 
     @staticmethod
-    def observation(m, d):
-        return np.concatenate([d.qpos[2:], d.qvel]).astype(np.float32)
+    def observe_state(qpos, qvel, torso, xp=np):
+        return xp.concatenate([qpos[2:], qvel])
 
     @staticmethod
-    def healthy(m, d):
-        return 0.2 <= d.xpos[1, 2] <= 1.0
+    def healthy_state(qpos, qvel, torso, xp=np):
+        return (torso[2] >= 0.2) & (torso[2] <= 1.0)
 
 
 class AllegroC:

@@ -1,9 +1,13 @@
-"""Physics options: how MJX steps a task, chosen when the task is made and recorded with every result.
+"""Physics options: what steps a task, chosen when the task is made and recorded with every result.
 
-    physics = Physics(linesearch="exact", cholesky="unrolled")      # the defaults
+    physics = Physics(linesearch="exact", cholesky="unrolled")      # the defaults (MJX)
     env = envs.make("hopper", physics=physics)
+    env = envs.make("hopper", physics=Physics(backend="c"))          # MuJoCo C inside the program
 
 The options change the compiled program (they are static, like the network sizes):
+- backend: 'mjx' (the default; what accelerators run) or 'c' (envs/c_backend.py: MuJoCo C stepped from
+  inside the compiled program through a host callback, on `threads` threads per process (0: all cores);
+  the CPU speed path, for hopper, walker2d, halfcheetah and ant). The options below are MJX's.
 - solver_iterations / ls_iterations: None keeps the task's own MJCF settings; an integer overrides
   MuJoCo's opt.iterations / opt.ls_iterations in the MJX model only -- a cheaper but *different*
   simulator (a changed task; experiments/solver_hopper/).
@@ -23,6 +27,7 @@ No JAX or MuJoCo import at module level.
 import contextlib
 import dataclasses
 
+BACKENDS = ("mjx", "c")
 LINESEARCHES = ("exact", "iterative")
 SEARCH_LOOPS = ("while", "scan")
 CHOLESKYS = ("unrolled", "lapack")
@@ -37,9 +42,18 @@ class Physics:
     linesearch: str = "exact"
     search_loop: str = "while"
     cholesky: str = "unrolled"
+    backend: str = "mjx"
+    threads: int = 0
 
     def validate(self):
         """Raise ValueError naming the bad field."""
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+        if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 0:
+            raise ValueError(f"threads must be an integer >= 0 (0: all cores), got {self.threads!r}")
+        if self.backend == "c" and (self.solver_iterations is not None or self.ls_iterations is not None):
+            raise ValueError("solver_iterations and ls_iterations change MJX's model only; backend 'c' steps the "
+                             "task's own MJCF settings")
         for field in ("solver_iterations", "ls_iterations"):
             v = getattr(self, field)
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
@@ -68,9 +82,11 @@ def linesearch_in_force(physics, mj_model):
 
 def record(physics, mj_model):
     """Every physics option in force, as written to config.json / sweep.json: the options, the line
-    search they resolve to for this model, and the MJCF's own solver settings."""
+    search they resolve to for this model (MuJoCo C's own for backend 'c'), and the MJCF's own solver
+    settings."""
     own = mj_model.opt
-    return {**dataclasses.asdict(physics), "linesearch_in_force": linesearch_in_force(physics, mj_model),
+    search = linesearch_in_force(physics, mj_model) if physics.backend == "mjx" else "mujoco_c"
+    return {**dataclasses.asdict(physics), "linesearch_in_force": search,
             "iterations_in_force": physics.solver_iterations or int(own.iterations),
             "task_iterations": int(own.iterations), "task_ls_iterations": int(own.ls_iterations)}
 

@@ -11,6 +11,8 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
   for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them,
   in its sub-batches of --run-batch runs), with compile time and peak resident memory;
 - with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update);
+- with --physics mjx,c, the raw stepping, sweeps and profile for each physics backend (envs/physics.py;
+  'c': MuJoCo C stepped from inside the compiled program), in the same invocation;
 - the same largest raw batch and largest mixture sweep on all cores again with a cheaper MJX solver
   (`--solver-variant ITER,LS`, default 1,4: 1 Newton iteration, 4 line-search iterations), and MuJoCo C
   with those settings too -- a changed simulator, offered as the explicit `--solver-iterations` /
@@ -95,7 +97,7 @@ def worker(args):
     if args.epochs:
         cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
     cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
-                              value_target=args.value_target)
+                              value_target=args.value_target, backend=args.physics, physics_threads=args.physics_threads)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
     runs = pad_runs(runs, len(devices))
@@ -125,7 +127,8 @@ def raw_worker(args):
 
     from envs.physics import Physics
 
-    env = envs.make(args.env, physics=Physics(args.solver_iterations, args.ls_iterations))
+    env = envs.make(args.env, physics=Physics(args.solver_iterations, args.ls_iterations, backend=args.physics,
+                                              threads=args.physics_threads))
     b = args.batch
     t0 = time.perf_counter()
     share = _share(args)
@@ -231,21 +234,22 @@ def _compile_fields(results):
 
 
 def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print,
-                  compile_each=False, value_target="gae"):
+                  compile_each=False, value_target="gae", backend="mjx", physics_threads=0):
     """Throughput of `runs` runs split over `processes` workers, measured together. solver: None (the
-    task's own) or (iterations, ls_iterations); compile_each: see run_workers; value_target: the critic."""
+    task's own) or (iterations, ls_iterations); compile_each: see run_workers; value_target: the critic;
+    backend, physics_threads: the physics backend and its threads per process."""
     cmds, seed0 = [], 0
     for n in _split(runs, processes):
         cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
                      "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats)]
                     + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver)
                     + (["--run-batch", str(run_batch)] if run_batch is not None else [])
-                    + ["--value-target", value_target])
+                    + ["--value-target", value_target, "--physics", backend, "--physics-threads", str(physics_threads)])
         seed0 += n
     results = run_workers(cmds, log=log, compile_each=compile_each)
     return {
         "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
-        **_solver_field(solver), "value_target": value_target,
+        **_solver_field(solver), "value_target": value_target, "backend": backend, "physics_threads": physics_threads,
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
         "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),
@@ -255,17 +259,19 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None
     }
 
 
-def measure_raw(env, batch, processes, repeats, solver=None, log=print):
-    """Raw MJX stepping throughput of `batch` envs split over `processes` workers."""
+def measure_raw(env, batch, processes, repeats, solver=None, log=print, backend="mjx", physics_threads=0):
+    """Raw stepping throughput (physics backend `backend`) of `batch` envs split over `processes` workers."""
     cmds = [[sys.executable, "-m", "gsa_jax.bench", "--raw-worker", "--env", env, "--batch", str(b), "--seed0", str(i),
-             "--repeats", str(repeats)] + _solver_args(solver) for i, b in enumerate(_split(batch, processes))]
+             "--repeats", str(repeats), "--physics", backend, "--physics-threads", str(physics_threads)] + _solver_args(solver)
+            for i, b in enumerate(_split(batch, processes))]
     results = run_workers(cmds, log=log)
-    return {"env": env, "batch": batch, "processes": processes, **_solver_field(solver),
+    return {"env": env, "batch": batch, "processes": processes, **_solver_field(solver), "backend": backend,
+            "physics_threads": physics_threads,
             "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
             "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results), "chunk_s": [r["chunk_s"] for r in results]}
 
 
-def time_profile(env, policy, runs, repeats, run_batch=0, log=print):
+def time_profile(env, policy, runs, repeats, run_batch=0, log=print, backend="mjx"):
     """Where one PPO iteration's time goes (1 process, `runs` runs in sub-batches of `run_batch`, 0 = all
     at once): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the default E; physics = the same
     number of env steps stepped raw, in batches of the envs one sub-batch steps at a time.
@@ -274,16 +280,16 @@ def time_profile(env, policy, runs, repeats, run_batch=0, log=print):
     from gsa_jax.ppo import Config
 
     epochs = Config.num_epochs
-    full = measure_sweep(env, policy, runs, 1, repeats, run_batch=run_batch, log=log)
-    one = measure_sweep(env, policy, runs, 1, repeats, epochs=1, run_batch=run_batch, log=log)
+    full = measure_sweep(env, policy, runs, 1, repeats, run_batch=run_batch, log=log, backend=backend)
+    one = measure_sweep(env, policy, runs, 1, repeats, epochs=1, run_batch=run_batch, log=log, backend=backend)
     steps = full["env_steps_per_iteration"]
     t_full, t_one = steps / full["env_steps_per_s"], steps / one["env_steps_per_s"]
     t_epoch = max(0.0, (t_full - t_one) / (epochs - 1))
     t_collect = max(0.0, t_one - t_epoch)
     raw_batch = (min(runs, run_batch) if run_batch else runs) * Config.num_envs
-    raw = measure_raw(env, raw_batch, 1, repeats, log=log)
+    raw = measure_raw(env, raw_batch, 1, repeats, log=log, backend=backend)
     t_physics = min(t_collect, steps / raw["env_steps_per_s"])
-    return {"env": env, "policy": policy, "runs": runs, "run_batch": run_batch, "raw_batch": raw_batch,
+    return {"env": env, "policy": policy, "runs": runs, "run_batch": run_batch, "raw_batch": raw_batch, "backend": backend,
             "num_epochs": epochs, "iteration_s": t_full, "env_steps_per_iteration": steps,
             "physics_s": t_physics, "rollout_other_s": t_collect - t_physics, "update_s": epochs * t_epoch,
             "fractions": {"physics": t_physics / t_full, "rollout_other": (t_collect - t_physics) / t_full,
@@ -343,6 +349,18 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, so
 
 
 # ----------------------------------------------------------------------------------------------- report
+_BACKEND_NAMES = {"mjx": "MJX", "c": "MuJoCo C in the program"}
+
+
+def _lines(rows, keys, x):
+    """{key values: [(x, env_steps_per_s)] sorted by x} over measurement rows (backend 'mjx' where absent)."""
+    lines = {}
+    for r in rows:
+        key = tuple(r.get(k, "mjx") for k in keys)
+        lines.setdefault(key, []).append((r[x], r["env_steps_per_s"]))
+    return {k: sorted(v) for k, v in sorted(lines.items())}
+
+
 def plot(results, raw, mujoco_c, path, mujoco_c_variant=None):
     """Left: training throughput vs runs (a line per policy and process count); right: raw stepping vs
     batch. Measurements with a changed solver are separate markers (stars), with their MuJoCo C line."""
@@ -354,20 +372,17 @@ def plot(results, raw, mujoco_c, path, mujoco_c_variant=None):
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
     ax = axes[0]
     ok = [r for r in results if "error" not in r and "solver" not in r]
-    for policy in sorted({r["policy"] for r in ok}):
-        for procs in sorted({r["processes"] for r in ok}):
-            pts = sorted((r["runs"], r["env_steps_per_s"]) for r in ok if r["policy"] == policy and r["processes"] == procs)
-            if pts:
-                ax.plot(*zip(*pts), "o-" if policy == "mixture" else "s--", label=f"{policy}, {procs} process(es)")
+    for (policy, procs, be), pts in _lines(ok, ("policy", "processes", "backend"), "runs").items():
+        ax.plot(*zip(*pts), ("o" if policy == "mixture" else "s") + ("-" if be == "mjx" else "--"),
+                label=f"{policy}, {procs} process(es), {_BACKEND_NAMES[be]}")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("runs trained together (vmapped)")
     ax.set_ylabel("env steps / s (training, end to end)")
     ax.set_title(f"{mujoco_c['env']}: sweep throughput vs MuJoCo C")
     ax2 = axes[1]
     okr = [r for r in raw if "error" not in r and "solver" not in r]
-    for procs in sorted({r["processes"] for r in okr}):
-        pts = sorted((r["batch"], r["env_steps_per_s"]) for r in okr if r["processes"] == procs)
-        ax2.plot(*zip(*pts), "o-", label=f"MJX env.step, {procs} process(es)")
+    for (procs, be), pts in _lines(okr, ("processes", "backend"), "batch").items():
+        ax2.plot(*zip(*pts), "o-" if be == "mjx" else "o--", label=f"{_BACKEND_NAMES[be]} env.step, {procs} process(es)")
     ax2.set_xscale("log", base=2)
     ax2.set_xlabel("envs stepped together (batch)")
     ax2.set_ylabel("env steps / s (physics only, random actions)")
@@ -426,8 +441,8 @@ def ratio_ceiling(prof, mujoco_c):
 
 def estimate_s(plan, raw_plan, profile_runs, repeats):
     """Rough wall time: ~50 s compile + start per measurement, timed chunks at ~10k steps/s per process."""
-    t = 30 + sum(60 + (reps(repeats, n) + 1) * n * 2048 / (8000 + 4000 * k) / (2 if sol else 1) for _, n, k, sol in plan)
-    t += sum(40 + (repeats + 1) * b * RAW_UNROLL / (15000 * k) / (2 if sol else 1) for b, k, sol in raw_plan)
+    t = 30 + sum(60 + (reps(repeats, n) + 1) * n * 2048 / (8000 + 4000 * k) / (2 if sol else 1) for _, n, k, sol, _ in plan)
+    t += sum(40 + (repeats + 1) * b * RAW_UNROLL / (15000 * k) / (2 if sol else 1) for b, k, sol, _ in raw_plan)
     if profile_runs:
         t += 2 * (50 + (repeats + 1) * profile_runs * 2048 / 10000) + 40
     return t
@@ -469,6 +484,11 @@ def build_parser():
                         "many solver / line-search iterations (default 1,4; 'none' to skip; skipped with --quick)")
     p.add_argument("--value-target", default="gae",
                    help="the critic of the measured sweeps: gae (default) or retrace (with its default buffer)")
+    p.add_argument("--physics", default="mjx",
+                   help="comma-separated physics backends to measure, each for every raw batch, sweep and profile: "
+                        "mjx (default), c (MuJoCo C inside the program), or mjx,c")
+    p.add_argument("--physics-threads", type=int, default=0,
+                   help="MuJoCo C threads per worker process for --physics c (default 0: all cores)")
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
@@ -480,13 +500,30 @@ def build_parser():
     return p
 
 
+def parse_backends(text, env):
+    """--physics: the backends to measure, each checked against the task; ValueError naming the flag."""
+    import envs
+    from envs.physics import Physics
+
+    backends = [b.strip() for b in text.split(",")]
+    for b in backends:
+        try:
+            envs.check_backend(env, Physics(backend=b))
+        except ValueError as e:
+            raise ValueError(f"--physics: {e}") from None
+    return list(dict.fromkeys(backends))
+
+
 def make_plan(args):
-    """What to measure: {sizes, procs, batches, policies, variant, repeats, plan, raw_plan}; ValueError on bad input."""
+    """What to measure: {sizes, procs, batches, policies, variant, repeats, backends, plan, raw_plan}: plan
+    entries (policy, runs, processes, solver variant, backend), raw_plan (batch, processes, variant, backend);
+    ValueError on bad input."""
     import envs
 
     from gsa_jax.sweep import check_spec
 
     envs.check_name(args.env)
+    backends = parse_backends(args.physics, args.env)
     cores = os.cpu_count() or 1
     policies = args.policies.split(",") if args.policies else ["mixture"]
     sizes = positive_ints("--sizes", args.sizes, list(QUICK_SIZES if args.quick else SIZES))
@@ -496,18 +533,18 @@ def make_plan(args):
     for pol in policies:  # the sweeps' own validation, before anything compiles
         check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1,
                     "config": {"value_target": args.value_target}}, source="bench")
-    plan = [(pol, n, k, None) for pol in policies for n in sizes for k in procs if k <= n]
-    raw_plan = [(b, k, None) for b in batches for k in procs if k <= b]
+    plan = [(pol, n, k, None, be) for be in backends for pol in policies for n in sizes for k in procs if k <= n]
+    raw_plan = [(b, k, None, be) for be in backends for b in batches for k in procs if k <= b]
     if args.quick and not args.processes:  # under 3 min: each size on as many processes as it can use
-        plan = [(pol, n, max(k for k in procs if k <= n), None) for pol in policies for n in sizes]
-        raw_plan = [(b, max(k for k in procs if k <= b), None) for b in batches]
+        plan = [(pol, n, max(k for k in procs if k <= n), None, be) for be in backends for pol in policies for n in sizes]
+        raw_plan = [(b, max(k for k in procs if k <= b), None, be) for be in backends for b in batches]
     k_all = max(k for k in procs if k <= max(sizes))
     if not args.policies and not args.quick:  # the flat baseline where it matters most, to stay under ~20 min
-        plan += [("mlp", max(sizes), k_all, None)]
-    if variant:
-        plan += [("mixture", max(sizes), k_all, variant)]
-        raw_plan += [(max(batches), max(k for k in procs if k <= max(batches)), variant)]
-    return {"sizes": sizes, "procs": procs, "batches": batches, "policies": policies, "variant": variant,
+        plan += [("mlp", max(sizes), k_all, None, be) for be in backends]
+    if variant and "mjx" in backends:  # MJX's solver options
+        plan += [("mixture", max(sizes), k_all, variant, "mjx")]
+        raw_plan += [(max(batches), max(k for k in procs if k <= max(batches)), variant, "mjx")]
+    return {"sizes": sizes, "procs": procs, "batches": batches, "policies": policies, "variant": variant, "backends": backends,
             "repeats": args.repeats or (2 if args.quick else 3), "plan": plan, "raw_plan": raw_plan}
 
 
@@ -536,40 +573,42 @@ def measure_references(env, variant):
 
 
 def measure_raw_plan(args, info, report, c_ref, save):
-    print(f"{'raw MJX':8} {'batch':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9}", flush=True)
-    for b, k, sol in info["raw_plan"]:
+    print(f"{'raw':8} {'physics':>7} {'batch':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9}", flush=True)
+    for b, k, sol, be in info["raw_plan"]:
         try:
-            r = measure_raw(args.env, b, k, info["repeats"], solver=sol)
+            r = measure_raw(args.env, b, k, info["repeats"], solver=sol, backend=be, physics_threads=args.physics_threads)
             add_ratios(r, c_ref, sol)
-            print(f"{'':8} {b:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} {r['compile_s']:9.1f}"
+            print(f"{'':8} {be:>7} {b:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} {r['compile_s']:9.1f}"
                   + solver_tag(sol), flush=True)
         except BenchError as e:
-            r = {"env": args.env, "batch": b, "processes": k, **_solver_field(sol), "error": str(e)}
+            r = {"env": args.env, "batch": b, "processes": k, **_solver_field(sol), "backend": be, "error": str(e)}
         report["raw"].append(r)
         save()
 
 
 def measure_sweep_plan(args, info, report, c_ref, save):
-    print(f"{'policy':8} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} {'peak_MiB':>9}", flush=True)
-    for pol, n, k, sol in info["plan"]:
+    print(f"{'policy':8} {'physics':>7} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} "
+          f"{'peak_MiB':>9}", flush=True)
+    for pol, n, k, sol, be in info["plan"]:
         try:
             r = measure_sweep(args.env, pol, n, k, reps(info["repeats"], n, args.repeats is not None), solver=sol,
-                              run_batch=args.run_batch, value_target=args.value_target)
+                              run_batch=args.run_batch, value_target=args.value_target, backend=be,
+                              physics_threads=args.physics_threads)
             add_ratios(r, c_ref, sol)
-            print(f"{pol:8} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
+            print(f"{pol:8} {be:>7} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
                   f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)
         except BenchError as e:
-            r = {"env": args.env, "policy": pol, "runs": n, "processes": k, **_solver_field(sol), "error": str(e)}
+            r = {"env": args.env, "policy": pol, "runs": n, "processes": k, **_solver_field(sol), "backend": be, "error": str(e)}
         report["sweeps"].append(r)
         save()
 
 
-def measure_profile(args, repeats, mujoco_c):
+def measure_profile(args, repeats, mujoco_c, backend="mjx"):
     """The time profile at --profile-runs runs, with the ratio ceiling when MuJoCo C was measured."""
     try:
-        prof = time_profile(args.env, "mixture", args.profile_runs, repeats, args.run_batch)
+        prof = time_profile(args.env, "mixture", args.profile_runs, repeats, args.run_batch, backend=backend)
         f = prof["fractions"]
-        print(f"time profile (mixture, {args.profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
+        print(f"time profile ({backend}, mixture, {args.profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
               f"physics {f['physics']:.0%}, rest of rollout (policy, normalization, GAE) {f['rollout_other']:.0%}, "
               f"PPO update ({prof['num_epochs']} epochs) {f['update']:.0%}", flush=True)
         if "error" not in mujoco_c:
@@ -577,7 +616,7 @@ def measure_profile(args, repeats, mujoco_c):
             print(f"with physics as cheap as MuJoCo C's and this policy + PPO update, ours / MuJoCo C could reach at most "
                   f"{prof['ratio_ceiling_with_mujoco_c_physics']:.2f}", flush=True)
     except BenchError as e:
-        prof = {"error": str(e)}
+        prof = {"backend": backend, "error": str(e)}
     return prof
 
 
@@ -620,7 +659,7 @@ def main(argv=None):
     measure_raw_plan(args, info, report, c_ref, save)
     measure_sweep_plan(args, info, report, c_ref, save)
     if args.profile_runs:
-        report["profile"] = measure_profile(args, repeats, mujoco_c)
+        report["profiles"] = [measure_profile(args, repeats, mujoco_c, be) for be in info["backends"]]
         save()
     plot(report["sweeps"], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"), report.get("mujoco_c_solver_variant"))
     print(f"wrote {args.out}/bench.json and bench.png in {(time.perf_counter() - t_start) / 60:.1f} min", flush=True)

@@ -64,6 +64,10 @@ class Config:
     linesearch: str = Physics.linesearch
     search_loop: str = Physics.search_loop
     cholesky: str = Physics.cholesky
+    # the physics backend: 'mjx' (default) or 'c' (MuJoCo C inside the program, envs/c_backend.py) on
+    # physics_threads threads per process (0: all cores); results are the same at any thread count
+    backend: str = Physics.backend
+    physics_threads: int = Physics.threads
 
     def __post_init__(self):
         if self.episode_length is None and self.env in envs.NAMES:
@@ -76,7 +80,8 @@ class Config:
     @property
     def physics(self):
         """The physics options of this config (envs.physics.Physics)."""
-        return Physics(self.solver_iterations, self.ls_iterations, self.linesearch, self.search_loop, self.cholesky)
+        return Physics(self.solver_iterations, self.ls_iterations, self.linesearch, self.search_loop, self.cholesky,
+                       self.backend, self.physics_threads)
 
     @property
     def minibatch_size(self):
@@ -95,7 +100,7 @@ class Config:
                      "retrace_iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        self.physics.validate()
+        envs.check_backend(self.env, self.physics)
         if self.batch_size % self.num_minibatches:
             raise ValueError(
                 f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"

@@ -157,7 +157,8 @@ def check_spec(raw, source="spec"):
             bad(f"config.{k}", f"unknown; allowed: {', '.join(sorted(_STATIC_FIELDS))}")
     spec["config"] = cfg
     try:
-        Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
+        for e in spec["envs"]:  # every env: the physics backend must run it
+            Config(env=e, **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
     except (ValueError, TypeError) as e:
         bad("config", str(e))
     check_group_axes(spec, bad)

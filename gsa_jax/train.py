@@ -67,6 +67,11 @@ def build_parser():
                    help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
     p.add_argument("--cholesky", default=Config.cholesky, choices=("unrolled", "lapack"),
                    help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
+    p.add_argument("--physics", default=Config.backend, choices=("mjx", "c"),
+                   help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
+                        "compiled program (the CPU speed path; hopper, walker2d, halfcheetah, ant)")
+    p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
+                   help="--physics c: MuJoCo C threads in this process (default 0: all cores)")
     p.add_argument("--value-target", default=Config.value_target,
                    help=f"the value function's targets, one of {', '.join(VALUE_TARGETS)}: GAE(lambda) on each "
                         "iteration's samples (default), or Retrace "
@@ -99,6 +104,7 @@ def make_config(args, k_max):
         b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
         solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
         cholesky=args.cholesky, value_target=args.value_target, retrace_iterations=args.retrace_iterations,
+        backend=args.physics, physics_threads=args.physics_threads,
     )
     try:
         return cfg.validate()
@@ -106,7 +112,8 @@ def make_config(args, k_max):
         msg = str(e)
         for field, flag in (("num_envs", "--num-envs"), ("num_minibatches", "--minibatches"),
                             ("solver_iterations", "--solver-iterations"), ("ls_iterations", "--ls-iterations"),
-                            ("retrace_iterations", "--retrace-iterations"), ("value_target", "--value-target")):
+                            ("retrace_iterations", "--retrace-iterations"), ("value_target", "--value-target"),
+                            ("backend", "--physics"), ("threads", "--physics-threads")):
             msg = msg.replace(field, flag)
         raise UsageError(msg) from None
 
@@ -404,6 +411,8 @@ def log_start(cfg, trainer, hp_py, iterations, out, log):
         ls = "exact line search" if sol["linesearch_in_force"] == "exact" else f"{sol['ls_iterations'] or sol['task_ls_iterations']} line-search iterations"
         log(f"MJX solver: {sol['iterations_in_force']} iterations, {ls} (the task's own: "
             f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/solver_hopper/")
+    if cfg.backend == "c":
+        log(f"physics: MuJoCo C inside the program ({cfg.physics_threads or 'all'} thread(s))")
 
 
 def finish(cfg, hp_py, seed, out, config, rows, status, result, log):

@@ -119,9 +119,17 @@ def compile_shared(lowered, mark_dir, leader, grace_s=120.0, max_wait_s=3600.0, 
         return lowered.compile(), f"loaded after waiting {waited:.0f} s"
 
 
+def has_host_callbacks(lowered):
+    """Whether a lowered program calls back into Python (physics backend 'c'). JAX never writes such a
+    program to the persistent cache (the callbacks are baked into the executable), so it cannot be shared."""
+    return "python_cpu_callback" in lowered.as_text()
+
+
 def compile_with(lowered, share=None, log=None):
-    """(compiled, how): lowered.compile() alone (share None) or compile_shared(lowered, *share)
-    with share = (mark_dir, leader)."""
+    """(compiled, how): lowered.compile() alone (share None, or a program with host callbacks: every
+    process compiles its own) or compile_shared(lowered, *share) with share = (mark_dir, leader)."""
     if share is None:
         return lowered.compile(), "compiled"
+    if has_host_callbacks(lowered):
+        return lowered.compile(), "compiled (host callbacks: not shareable)"
     return compile_shared(lowered, *share, log=log)

@@ -51,13 +51,15 @@ def test_solver_variant_lines(tmp_path, monkeypatch):
     solver option itself is tested in test_solver.py)."""
     calls = []
 
-    def sweep(env, policy, runs, processes, repeats, solver=None, run_batch=None, log=print, value_target=None):
-        assert value_target == "gae"  # the default critic
+    def sweep(env, policy, runs, processes, repeats, solver=None, run_batch=None, log=print, value_target=None, backend=None,
+              physics_threads=0):
+        assert value_target == "gae" and backend == "mjx"  # the default critic and physics
         calls.append(("sweep", policy, runs, processes, solver))
         return {"env": env, "policy": policy, "runs": runs, "processes": processes, "env_steps_per_s": 1000.0 * (2 if solver else 1),
                 "compile_s": 1.0, "peak_rss_mib": 500.0, **bench._solver_field(solver)}
 
-    def raw(env, batch, processes, repeats, solver=None, log=print):
+    def raw(env, batch, processes, repeats, solver=None, log=print, backend=None, physics_threads=0):
+        assert backend == "mjx"
         calls.append(("raw", batch, processes, solver))
         return {"env": env, "batch": batch, "processes": processes, "env_steps_per_s": 3000.0, "compile_s": 1.0,
                 **bench._solver_field(solver)}
@@ -83,6 +85,21 @@ def test_solver_variant_lines(tmp_path, monkeypatch):
     assert report["mujoco_c_solver_variant"]["env_steps_per_s"] == 40000 and (out / "bench.png").exists()
 
 
+def test_physics_backends_plan():
+    """--physics mjx,c measures every raw batch and sweep on each backend; MJX's solver variant only on MJX;
+    a backend that cannot run the task is refused before anything runs."""
+    args = bench.build_parser().parse_args(["--sizes", "2,4", "--raw-batches", "8", "--processes", "2", "--physics", "mjx,c"])
+    info = bench.make_plan(args)
+    assert info["backends"] == ["mjx", "c"]
+    assert [(n, be) for _, n, _, sol, be in info["plan"] if not sol] == [(2, "mjx"), (4, "mjx"), (2, "c"), (4, "c"),
+                                                                          (4, "mjx"), (4, "c")]
+    assert {be for *_, sol, be in info["plan"] + info["raw_plan"] if sol} == {"mjx"}
+    assert [(b, be) for b, _, sol, be in info["raw_plan"] if not sol] == [(8, "mjx"), (8, "c")]
+    args = bench.build_parser().parse_args(["--env", "inverted_double_pendulum", "--physics", "c"])
+    with pytest.raises(ValueError, match="--physics: physics backend 'c' runs"):
+        bench.make_plan(args)
+
+
 @pytest.mark.parametrize("text, quick, expected", [(None, False, bench.SOLVER_VARIANT), (None, True, None), ("none", False, None),
                                                    ("2,8", True, (2, 8))])
 def test_solver_variant_parsing(text, quick, expected):
@@ -101,17 +118,17 @@ def test_time_profile_decomposition(monkeypatch):
     steps = 64 * 2048
     fake = {10: steps / 2.0, 1: steps / 0.65}
 
-    def sweep(env, policy, runs, processes, repeats, epochs=None, run_batch=None, log=print, value_target=None):
-        assert run_batch == 8
+    def sweep(env, policy, runs, processes, repeats, epochs=None, run_batch=None, log=print, value_target=None, backend=None):
+        assert run_batch == 8 and backend == "c"
         return {"env_steps_per_iteration": steps, "env_steps_per_s": fake[epochs or 10]}
 
-    def raw(env, batch, processes, repeats, log=print):
-        assert batch == 8 * 32  # physics as the rollout steps it: one sub-batch of 8 runs x 32 envs at a time
+    def raw(env, batch, processes, repeats, log=print, backend=None):
+        assert batch == 8 * 32 and backend == "c"  # physics as the rollout steps it: one sub-batch of 8 runs x 32 envs at a time
         return {"env_steps_per_s": steps / 0.3}
 
     monkeypatch.setattr(bench, "measure_sweep", sweep)
     monkeypatch.setattr(bench, "measure_raw", raw)
-    p = bench.time_profile("hopper", "mixture", 64, 3, run_batch=8)
+    p = bench.time_profile("hopper", "mixture", 64, 3, run_batch=8, backend="c")
     assert p["iteration_s"] == pytest.approx(2.0)
     assert p["update_s"] == pytest.approx(1.5) and p["physics_s"] == pytest.approx(0.3)
     assert p["rollout_other_s"] == pytest.approx(0.2)

@@ -165,7 +165,8 @@ def test_solver_option_changes_mjx_only(hopper):
     env, s0, acts = hopper
     fast = envs.make_base("hopper", Physics(solver_iterations=1, ls_iterations=4))
     assert envs.solver_settings(fast) == {"solver_iterations": 1, "ls_iterations": 4, "linesearch": "exact",
-                                          "search_loop": "while", "cholesky": "unrolled", "linesearch_in_force": "iterative",
+                                          "search_loop": "while", "cholesky": "unrolled", "backend": "mjx", "threads": 0,
+                                          "linesearch_in_force": "iterative",
                                           "iterations_in_force": 1, "task_iterations": 4, "task_ls_iterations": 50}
     assert envs.solver_settings(env)["iterations_in_force"] == 4 and envs.mj_model(fast).opt.ls_iterations == 50
     assert envs.make("hopper", physics=Physics(solver_iterations=2)).unwrapped.sys.opt.iterations == 2

@@ -1,0 +1,172 @@
+"""Physics backend 'c' (envs/c_backend.py): MuJoCo C stepped from inside the compiled program.
+
+The simulation state equals mujoco.mj_step's bit for bit, per task and with contacts; observations,
+rewards and terminations equal the MuJoCo C ports'; a batch equals each env alone at any thread count;
+a run in a sweep equals the run alone, and a stopped and resumed sweep equals an uninterrupted one."""
+
+import csv
+import glob
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+from envs.c_backend import STATE_SPEC, float64_rows
+from envs.mujoco_c import BRAX_PORTS, make_c
+from envs.physics import Physics
+from gsa_jax.ppo import Config, make_hparams, make_train
+from gsa_jax.sweep import load_spec, run_sweep
+
+C = Physics(backend="c")
+
+
+def mj_row(m, d):
+    row = np.zeros(mujoco.mj_stateSize(m, STATE_SPEC))
+    mujoco.mj_getState(m, d, row, STATE_SPEC)
+    return row
+
+
+def test_backend_runs_every_ported_task():
+    assert set(envs.C_BACKEND_TASKS) == set(BRAX_PORTS)
+
+
+@pytest.mark.parametrize("name", envs.C_BACKEND_TASKS)
+def test_steps_equal_mj_step_bit_for_bit(name):
+    """From the backend's reset state, 60 random actions: every env step's mjSTATE_INTEGRATION row (qpos,
+    qvel, solver warmstart, ctrl, time) equals mj_step's in float64, bit for bit; observation, reward and
+    termination equal the MuJoCo C port's (float32 of the same values)."""
+    env = envs.make_base(name, C)
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    task = make_c(name)
+    m, d = task.model, task.data
+    s = reset(jax.random.PRNGKey(1))
+    mujoco.mj_setState(m, d, float64_rows(s.pipeline_state.rows), STATE_SPEC)
+    mujoco.mj_forward(m, d)
+    np.testing.assert_array_equal(np.asarray(s.obs), task.observe())
+    rng, contacts = np.random.default_rng(0), 0
+    for t in range(60):
+        a = rng.uniform(-1, 1, env.action_size).astype(np.float32)
+        s = step(s, jnp.asarray(a))
+        obs, r, done = task.step(a)
+        contacts += d.ncon
+        np.testing.assert_array_equal(float64_rows(s.pipeline_state.rows), mj_row(m, d), err_msg=f"step {t}")
+        np.testing.assert_array_equal(np.asarray(s.obs), obs, err_msg=f"step {t}")
+        assert abs(float(s.reward) - r) <= 1e-5 * max(1.0, abs(r)), (t, float(s.reward), r)
+        assert bool(s.done > 0.5) == done
+        if done:
+            break
+    assert contacts > 0  # the feet touch the floor within these steps: the contact solver is compared too
+
+
+@pytest.fixture(scope="module")
+def hopper_batch():
+    """vmapped reset and step of the hopper at 1 and 2 threads."""
+    fns = {}
+    for threads in (1, 2):
+        env = envs.make_base("hopper", Physics(backend="c", threads=threads))
+        fns[threads] = env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+    return fns
+
+
+def rollout_rows(reset, step, keys, actions):
+    s = reset(keys)
+    for a in actions:
+        s = step(s, a)
+    return np.asarray(s.pipeline_state.rows), np.asarray(s.obs)
+
+
+def test_batch_equals_each_env_alone_at_any_thread_count(hopper_batch):
+    env, reset, step = hopper_batch[1]
+    keys = jax.random.split(jax.random.PRNGKey(3), 5)
+    actions = jax.random.uniform(jax.random.PRNGKey(4), (20, 5, env.action_size), minval=-1, maxval=1)
+    rows, obs = rollout_rows(reset, step, keys, actions)
+    for i in range(5):
+        alone, alone_obs = rollout_rows(jax.jit(env.reset), jax.jit(env.step), keys[i], actions[:, i])
+        np.testing.assert_array_equal(rows[i], alone)
+        np.testing.assert_array_equal(obs[i], alone_obs)
+    _, reset2, step2 = hopper_batch[2]
+    np.testing.assert_array_equal(rollout_rows(reset2, step2, keys, actions)[0], rows)
+    assert len({r.tobytes() for r in rows}) == 5
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"env": "inverted_double_pendulum", "backend": "c"}, "'inverted_double_pendulum' runs on backend 'mjx'"),
+    ({"env": "hopper", "backend": "bullet"}, "backend must be one of mjx, c"),
+    ({"env": "hopper", "backend": "c", "physics_threads": -1}, "threads must be an integer >= 0"),
+    ({"env": "hopper", "backend": "c", "solver_iterations": 2}, "change MJX's model only"),
+])
+def test_bad_physics_options_are_refused_before_compiling(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        Config(**kwargs).validate()
+
+
+def test_cli_physics_flag_errors_in_one_line():
+    out = subprocess.run([sys.executable, "-m", "gsa_jax.train", "--env", "inverted_double_pendulum", "--physics", "c"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    lines = [ln for ln in out.stderr.strip().splitlines() if ln.strip()]
+    assert "--physics" in lines[-1] and "inverted_double_pendulum" in lines[-1]
+
+
+SMALL = {"num_envs": 8, "unroll_length": 32, "num_minibatches": 4, "num_epochs": 2, "episode_length": 100, "eval_envs": 4}
+SPEC = f"""
+name = "c_tiny"
+envs = ["hopper"]
+policies = ["mixture"]
+clusters = [1, 2]
+seeds = [0, 1]
+steps = 1024
+chunk = 2
+eval_every = 2
+[config]
+backend = "c"
+{chr(10).join(f"{k} = {v}" for k, v in SMALL.items())}
+"""
+
+
+def read_rows(path):
+    with open(path) as f:
+        return sorted(csv.DictReader(f), key=lambda r: (int(r["K"]), int(r["seed"]), int(r["iteration"])))
+
+
+@pytest.fixture(scope="module")
+def c_sweep(tmp_path_factory):
+    """The tiny backend-'c' sweep, uninterrupted, in this process."""
+    spec_file = tmp_path_factory.mktemp("spec") / "c_tiny.toml"
+    spec_file.write_text(SPEC)
+    out = tmp_path_factory.mktemp("sweep") / "ref"
+    assert run_sweep(load_spec(str(spec_file)), str(out), devices=jax.local_devices()[:1], quiet=True)
+    return spec_file, out
+
+
+def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(c_sweep):
+    import json
+
+    _, out = c_sweep
+    physics = json.loads((out / "sweep.json").read_text())["physics"]["hopper-mixture"]
+    assert physics["backend"] == "c" and physics["linesearch_in_force"] == "mujoco_c"
+    rows = [r for r in read_rows(out / "metrics.csv") if r["K"] == "2" and r["seed"] == "1"]
+    tr = make_train(Config(env="hopper", policy="mixture", k_max=2, backend="c", **SMALL))
+    hp = make_hparams(K=2, total_iterations=4)
+    _, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, 2)
+    for col in ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl"):
+        got = np.array([float(r[col]) for r in rows[:2]])
+        np.testing.assert_allclose(got, np.asarray(m[col], np.float64), rtol=2e-3, atol=1e-5, err_msg=col)
+
+
+def test_stopped_and_resumed_sweep_equals_uninterrupted(c_sweep, tmp_path):
+    spec_file, ref = c_sweep
+    out = tmp_path / "resumed"
+    spec = load_spec(str(spec_file))
+    assert not run_sweep(spec, str(out), devices=jax.local_devices()[:1], quiet=True, stop_after_chunks=1)
+    assert run_sweep(spec, str(out), devices=jax.local_devices()[:1], quiet=True)
+    a, b = read_rows(ref / "metrics.csv"), read_rows(out / "metrics.csv")
+    assert [(r["K"], r["seed"], r["iteration"]) for r in a] == [(r["K"], r["seed"], r["iteration"]) for r in b]
+    for col in ("episode_return", "policy_loss", "value_loss", "eval_return"):
+        assert [r[col] for r in a] == [r[col] for r in b], col
+    assert len(glob.glob(str(out / "groups" / "*" / "DONE"))) == 1
