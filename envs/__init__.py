@@ -19,7 +19,7 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")
 NAMES = BRAX_TASKS + ("allegro_cylinder",)
 DEFAULT_EPISODE_LENGTH = 1000
-C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant")  # tasks physics backend 'c' runs (envs/c_backend.py)
+C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")  # physics backend 'c' (envs/c_backend.py)
 
 
 def check_name(name):
@@ -98,8 +98,8 @@ def make_base(name, physics=None):
 def _make_c_backend(name, physics):
     """The task stepped by MuJoCo C inside the program (envs/c_backend.py)."""
     with contextlib.redirect_stdout(io.StringIO()):
-        from envs.c_backend import CTask
-    return CTask(name, physics)
+        from envs.c_backend import make_task
+    return make_task(name, physics)
 
 
 def _applying(fn, physics, model):

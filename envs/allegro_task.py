@@ -60,3 +60,31 @@ def step_mujoco(m, d, action):
     mujoco.mj_step(m, d, nstep=SUBSTEPS)
     reward = (d.qpos[hinge] - angle0) / (TIMESTEP * SUBSTEPS) - ACTION_COST * float(a @ a)
     return observe_mujoco(m, d), float(reward)
+
+
+def load_tactile_model():
+    """The task's model with one MuJoCo contact sensor per fingertip (data "found force", one slot for
+    every contact the tip's explicit pairs can make: 2 per capsule pair), so batched MuJoCo C can report
+    the tactile observation through sensordata. Sensors do not act on the simulation: the state evolves
+    bit for bit as in load_mj_model(). Returns (model, slots per tip)."""
+    spec = mujoco.MjSpec.from_file(str(ASSET))
+    m = spec.compile()
+    slots = []
+    for tip in FINGER_TIPS:
+        g = m.geom(tip).id
+        slots.append(2 * int(np.sum((m.pair_geom1 == g) | (m.pair_geom2 == g))))
+        field = mujoco.mjtConDataField
+        data = (1 << int(field.mjCONDATA_FOUND)) | (1 << int(field.mjCONDATA_FORCE))  # a bit per field
+        spec.add_sensor(name=f"tactile_{tip}", type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_GEOM,
+                        objname=tip, intprm=[data, 0, slots[-1]])
+    return spec.compile(), slots
+
+
+def tactile_from_sensordata(sensordata, slots):
+    """The tactile observation [..., 2] from load_tactile_model()'s sensordata [..., sum(4 slots)]: each
+    slot holds (found, normal force, two tangential forces); the normal forces summed per tip / TAXELS."""
+    out, start = [], 0
+    for n in slots:
+        out.append(sensordata[..., start:start + 4 * n].reshape(*sensordata.shape[:-1], n, 4)[..., 1].sum(-1))
+        start += 4 * n
+    return np.stack(out, -1) / TAXELS

@@ -8,9 +8,11 @@ float32). A step is one jax.pure_callback into mujoco.batch.Batch, which steps e
 batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjData per env. The state
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
 
-Observations, rewards and terminations are envs/mujoco_c.py's definitions (written once for NumPy and
-jax.numpy), evaluated here with jax.numpy on the float32 qpos, qvel and torso position the callback
-returns. Tasks: the MuJoCo C ports of hopper, walker2d, halfcheetah and ant (BRAX_PORTS).
+Tasks (C_TASKS): the Brax locomotion tasks, whose observations, rewards and terminations are
+envs/mujoco_c.py's definitions (written once for NumPy and jax.numpy), evaluated here with jax.numpy on
+the float32 qpos, qvel and torso position the callback returns; and allegro_cylinder, whose PD-target
+update, reward and tactile values (MuJoCo contact sensors on the fingertips, envs/allegro_task.py) are
+computed on the host in float64 as envs/allegro_task.step_mujoco computes them.
 """
 
 import threading
@@ -23,7 +25,8 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import batch as mj_batch
 
-from envs import mujoco_c
+from envs import allegro_task, mujoco_c
+from envs.physics import resolve_threads
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 
@@ -34,73 +37,155 @@ class SimState(NamedTuple):
     rows: jax.Array  # uint32 [2 nstate]: the float64 mjSTATE_INTEGRATION row, bit for bit
     qpos: jax.Array  # float32 [nq]
     qvel: jax.Array  # float32 [nv]
-    torso: jax.Array  # float32 [3]: body 1's position, as mj_step leaves xpos (before its last substep)
+    extra: jax.Array  # float32 [n_extra]: the task's derived values (HostBatches.extra)
 
 
 class HostBatches:
-    """The host side: one mujoco.batch.Batch per batch size the program calls with, made on first use."""
+    """The host side: one mujoco.batch.Batch per batch size the program calls with, made on first use.
+    Subclasses say what a reset and a step write into the rows and which derived values come back."""
+
+    n_extra = 0
+    bound = ()  # derived MjData fields the batch copies out after every call
 
     def __init__(self, model, n_frames, threads):
-        self.model, self.n_frames, self.threads = model, int(n_frames), int(threads)
-        data = mujoco.MjData(model)
+        self.model, self.n_frames, self.threads = model, int(n_frames), resolve_threads(threads)
         self.nstate = mujoco.mj_stateSize(model, STATE_SPEC)
-        self.template = np.zeros(self.nstate)  # the reset state's row (mj_resetData)
-        mujoco.mj_getState(model, data, self.template, STATE_SPEC)
+        self.template = self.reset_row()
         self._batches, self._lock = {}, threading.Lock()
+
+    def reset_row(self):
+        """The row every reset starts from: mj_resetData's state [nstate]."""
+        data = mujoco.MjData(self.model)
+        row = np.zeros(self.nstate)
+        mujoco.mj_getState(self.model, data, row, STATE_SPEC)
+        return row
 
     def _get(self, nsim):
         with self._lock:
             if nsim not in self._batches:
                 b = mj_batch.Batch(self.model, nsim=nsim, nthread=self.threads)
-                b.bind("xpos")  # a derived field is copied out by the calls after it is bound
+                for name in self.bound:
+                    b.bind(name)  # a derived field is copied out by the calls after it is bound
                 self._batches[nsim] = (b, threading.Lock())
             return self._batches[nsim]
 
-    def _outputs(self, b, lead):
+    def extra(self, b, before):
+        """float64 [nsim, n_extra] derived values after a call; before: the qpos [nsim, nq] it started from."""
+        raise NotImplementedError
+
+    def _run(self, lead, write, call):
+        """Load a batch of prod(lead) sims with write(b), run call(b) -> SimState fields shaped lead."""
+        b, lock = self._get(int(np.prod(lead, dtype=int)))
         m = self.model
-        return (b.state.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
-                b.qvel.astype(np.float32).reshape(*lead, m.nv), b.xpos[:, 1].astype(np.float32).reshape(*lead, 3))
+        with lock:
+            write(b)
+            before = b.qpos.copy()
+            call(b)
+            return (b.state.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
+                    b.qvel.astype(np.float32).reshape(*lead, m.nv),
+                    self.extra(b, before).astype(np.float32).reshape(*lead, self.n_extra))
+
+    def step_rows(self, rows, action, fn):
+        """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64) set the controls."""
+        lead = rows.shape[:-1]
+
+        def write(b):
+            b.state[:] = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
+            fn(b, np.asarray(action, np.float64).reshape(-1, self.model.nu))
+
+        return self._run(lead, write, lambda b: b.step(nstep=self.n_frames))
+
+
+class BraxHost(HostBatches):
+    """A Brax locomotion task: resets add noise to qpos0, actions are the controls; extra = the torso's
+    position [3] (body 1's xpos, as mj_step leaves it: before its last substep)."""
+
+    n_extra = 3
+    bound = ("xpos",)
+
+    def extra(self, b, before):
+        return b.xpos[:, 1]
 
     def reset(self, dq, dv):
         """Rows at qpos0 + dq [..., nq], qvel dv [..., nv] after mj_forward -> SimState fields."""
-        lead = dq.shape[:-1]
-        b, lock = self._get(int(np.prod(lead, dtype=int)))
-        with lock:
+        m = self.model
+
+        def write(b):
             b.state[:] = self.template
-            b.qpos[:] = self.model.qpos0 + np.asarray(dq, np.float64).reshape(-1, self.model.nq)
-            b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, self.model.nv)
-            b.forward()
-            return self._outputs(b, lead)
+            b.qpos[:] = m.qpos0 + np.asarray(dq, np.float64).reshape(-1, m.nq)
+            b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, m.nv)
+
+        return self._run(dq.shape[:-1], write, lambda b: b.forward())
 
     def step(self, rows, ctrl):
-        """n_frames mj_steps of every row [..., 2 nstate] under ctrl [..., nu] -> SimState fields."""
-        lead = rows.shape[:-1]
-        b, lock = self._get(int(np.prod(lead, dtype=int)))
-        with lock:
-            b.state[:] = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
-            b.ctrl[:] = np.asarray(ctrl, np.float64).reshape(-1, self.model.nu)
-            b.step(nstep=self.n_frames)
-            return self._outputs(b, lead)
+        def set_ctrl(b, u):
+            b.ctrl[:] = u
+
+        return self.step_rows(rows, ctrl, set_ctrl)
+
+
+class AllegroHost(HostBatches):
+    """allegro_cylinder: resets start from the "grasp" keyframe, actions move the PD targets (ctrl);
+    extra = [index tactile, thumb tactile, the cylinder's angular velocity over the step] in float64
+    before the float32 cast, as envs/allegro_task.step_mujoco computes them."""
+
+    n_extra = 3
+    bound = ("sensordata",)
+
+    def __init__(self, threads):
+        model, self.slots = allegro_task.load_tactile_model()
+        self.hinge = int(model.jnt_qposadr[model.joint("object_hinge").id])
+        self.lo, self.hi = model.actuator_ctrlrange.T.copy()
+        super().__init__(model, allegro_task.SUBSTEPS, threads)
+
+    def reset_row(self):
+        m = self.model
+        data = mujoco.MjData(m)
+        mujoco.mj_resetDataKeyframe(m, data, m.key("grasp").id)
+        row = np.zeros(self.nstate)
+        mujoco.mj_getState(m, data, row, STATE_SPEC)
+        return row
+
+    def extra(self, b, before):
+        dt = allegro_task.TIMESTEP * allegro_task.SUBSTEPS
+        omega = (b.qpos[:, self.hinge] - before[:, self.hinge]) / dt
+        return np.concatenate([allegro_task.tactile_from_sensordata(b.sensordata, self.slots), omega[:, None]], 1)
+
+    def reset(self, noise, angle):
+        """Rows at the keyframe with PD targets ctrl0 + TARGET_NOISE * noise [..., nu] (clipped) and the
+        cylinder at `angle` [...], after mj_forward -> SimState fields."""
+        m = self.model
+
+        def write(b):
+            b.state[:] = self.template
+            b.ctrl[:] = np.clip(b.ctrl + allegro_task.TARGET_NOISE * np.asarray(noise, np.float64).reshape(-1, m.nu),
+                                self.lo, self.hi)
+            b.qpos[:, self.hinge] = np.asarray(angle, np.float64).reshape(-1)
+
+        return self._run(angle.shape, write, lambda b: b.forward())
+
+    def step(self, rows, action):
+        """action [..., nu], already clipped to [-1, 1], moves the PD targets by ACTION_SCALE per unit."""
+        def move_targets(b, a):
+            b.ctrl[:] = np.clip(b.ctrl + allegro_task.ACTION_SCALE * a, self.lo, self.hi)
+
+        return self.step_rows(rows, action, move_targets)
 
 
 class CTask(Env):
-    """A BraxTaskC task (envs/mujoco_c.py) as a single-env Brax environment stepped by MuJoCo C."""
+    """A task as a single-env Brax environment stepped by MuJoCo C (subclasses: the task's JAX side)."""
 
-    def __init__(self, name, physics):
-        self.name, self.physics = name, physics
-        self.port = mujoco_c.BRAX_PORTS[name]()
-        self.mj_model = self.port.model
-        self.n_frames, self.dt = self.port.n_frames, self.port.dt
-        self.host = HostBatches(self.mj_model, self.n_frames, physics.threads)
+    def __init__(self, name, physics, port, host):
+        self.name, self.physics, self.port, self.host = name, physics, port, host
+        self.mj_model = port.model  # the task's own model (physics records, deployment)
         m = self.mj_model
         f32 = jnp.float32
-        self._shapes = (jax.ShapeDtypeStruct((2 * self.host.nstate,), jnp.uint32), jax.ShapeDtypeStruct((m.nq,), f32),
-                        jax.ShapeDtypeStruct((m.nv,), f32), jax.ShapeDtypeStruct((3,), f32))
+        self._shapes = (jax.ShapeDtypeStruct((2 * host.nstate,), jnp.uint32), jax.ShapeDtypeStruct((m.nq,), f32),
+                        jax.ShapeDtypeStruct((m.nv,), f32), jax.ShapeDtypeStruct((host.n_extra,), f32))
 
     @property
     def observation_size(self):
-        m = self.mj_model
-        return int(self.port.observe_state(np.zeros(m.nq), np.zeros(m.nv), np.zeros(3)).shape[-1])
+        return int(jax.eval_shape(self.reset, jax.random.PRNGKey(0)).obs.shape[-1])
 
     @property
     def action_size(self):
@@ -113,8 +198,21 @@ class CTask(Env):
     def _call(self, fn, *args):
         return SimState(*jax.pure_callback(fn, self._shapes, *args, vmap_method="broadcast_all"))
 
+    def _check_action(self, action):
+        if action.shape[-1:] != (self.action_size,):
+            raise ValueError(f"action has shape {action.shape}; this environment takes ({self.action_size},)")
+
+
+class BraxCTask(CTask):
+    """A BraxTaskC task (envs/mujoco_c.py) stepped by MuJoCo C."""
+
+    def __init__(self, name, physics):
+        port = mujoco_c.BRAX_PORTS[name]()
+        super().__init__(name, physics, port, BraxHost(port.model, port.n_frames, physics.threads))
+        self.n_frames, self.dt = port.n_frames, port.dt
+
     def _observe(self, sim):
-        return self.port.observe_state(sim.qpos, sim.qvel, sim.torso, jnp).astype(jnp.float32)
+        return self.port.observe_state(sim.qpos, sim.qvel, sim.extra, jnp).astype(jnp.float32)
 
     def reset(self, rng):
         """Brax's reset noise for the task (port.noise, port.qvel_noise), drawn here from rng."""
@@ -130,13 +228,51 @@ class CTask(Env):
         return State(sim, self._observe(sim), zero, zero, {}, {})
 
     def step(self, state, action):
-        if action.shape[-1:] != (self.action_size,):
-            raise ValueError(f"action has shape {action.shape}; this environment takes ({self.action_size},)")
+        self._check_action(action)
         sim = self._call(self.host.step, state.pipeline_state.rows, action.astype(jnp.float32))
-        reward = self.port.reward_state(state.pipeline_state.torso, sim.torso, action, jnp)
-        healthy = self.port.healthy_state(sim.qpos, sim.qvel, sim.torso, jnp)
+        reward = self.port.reward_state(state.pipeline_state.extra, sim.extra, action, jnp)
+        healthy = self.port.healthy_state(sim.qpos, sim.qvel, sim.extra, jnp)
         return state.replace(pipeline_state=sim, obs=self._observe(sim), reward=reward.astype(jnp.float32),
                              done=1.0 - healthy.astype(jnp.float32))
+
+
+class AllegroCTask(CTask):
+    """allegro_cylinder (envs/allegro.py) stepped by MuJoCo C: the same start distribution (the same
+    draws from rng as the MJX task), action clipping, PD-target update, reward and observation."""
+
+    def __init__(self, name, physics):
+        port = mujoco_c.AllegroC()
+        super().__init__(name, physics, port, AllegroHost(physics.threads))
+        m = self.mj_model
+        self.n_frames, self.dt = allegro_task.SUBSTEPS, allegro_task.TIMESTEP * allegro_task.SUBSTEPS
+        self._finger_qpos = np.array([m.jnt_qposadr[m.actuator_trnid[i, 0]] for i in range(m.nu)])
+
+    def _observe(self, sim):
+        return jnp.concatenate([sim.qpos[self._finger_qpos], sim.extra[:2]])
+
+    def reset(self, rng):
+        k_targets, k_angle = jax.random.split(rng)
+        noise = jax.random.normal(k_targets, (self.mj_model.nu,))
+        angle = jax.random.uniform(k_angle, (), minval=-jnp.pi, maxval=jnp.pi)
+        sim = self._call(self.host.reset, noise, angle)
+        zero = jnp.zeros((), jnp.float32)
+        return State(sim, self._observe(sim), zero, zero, {}, {})
+
+    def step(self, state, action):
+        self._check_action(action)
+        a = jnp.clip(action.astype(jnp.float32), -1.0, 1.0)
+        sim = self._call(self.host.step, state.pipeline_state.rows, a)
+        reward = sim.extra[2] - allegro_task.ACTION_COST * jnp.sum(a * a)
+        return state.replace(pipeline_state=sim, obs=self._observe(sim), reward=reward, done=jnp.zeros_like(state.done))
+
+
+TASKS = {"hopper": BraxCTask, "walker2d": BraxCTask, "halfcheetah": BraxCTask, "ant": BraxCTask,
+         "allegro_cylinder": AllegroCTask}
+
+
+def make_task(name, physics):
+    """Task `name` stepped by MuJoCo C (envs.make_base with backend 'c')."""
+    return TASKS[name](name, physics)
 
 
 def float64_rows(rows):

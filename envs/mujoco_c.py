@@ -198,6 +198,9 @@ class AllegroC:
         mujoco.mj_forward(m, d)
         return self._allegro.observe_mujoco(m, d)
 
+    def observe(self):
+        return self._allegro.observe_mujoco(self.model, self.data)
+
     def step(self, action):
         obs, reward = self._allegro.step_mujoco(self.model, self.data, action)
         return obs, reward, False

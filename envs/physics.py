@@ -6,8 +6,9 @@
 
 The options change the compiled program (they are static, like the network sizes):
 - backend: 'mjx' (the default; what accelerators run) or 'c' (envs/c_backend.py: MuJoCo C stepped from
-  inside the compiled program through a host callback, on `threads` threads per process (0: all cores);
-  the CPU speed path, for hopper, walker2d, halfcheetah and ant). The options below are MJX's.
+  inside the compiled program through a host callback, on `threads` threads per process (0: the process's
+  share of the cores, resolve_threads);
+  the CPU speed path, for hopper, walker2d, halfcheetah, ant and allegro_cylinder). The options below are MJX's.
 - solver_iterations / ls_iterations: None keeps the task's own MJCF settings; an integer overrides
   MuJoCo's opt.iterations / opt.ls_iterations in the MJX model only -- a cheaper but *different*
   simulator (a changed task; experiments/solver_hopper/).
@@ -26,11 +27,14 @@ No JAX or MuJoCo import at module level.
 
 import contextlib
 import dataclasses
+import os
 
 BACKENDS = ("mjx", "c")
 LINESEARCHES = ("exact", "iterative")
 SEARCH_LOOPS = ("while", "scan")
 CHOLESKYS = ("unrolled", "lapack")
+# set by gsa_jax.supervise for the worker processes it starts: how many of them share this host's cores
+LOCAL_WORKERS_ENV = "GSA_LOCAL_WORKERS"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,7 +54,7 @@ class Physics:
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 0:
-            raise ValueError(f"threads must be an integer >= 0 (0: all cores), got {self.threads!r}")
+            raise ValueError(f"threads must be an integer >= 0 (0: this process's share of the cores), got {self.threads!r}")
         if self.backend == "c" and (self.solver_iterations is not None or self.ls_iterations is not None):
             raise ValueError("solver_iterations and ls_iterations change MJX's model only; backend 'c' steps the "
                              "task's own MJCF settings")
@@ -62,6 +66,20 @@ class Physics:
             if getattr(self, field) not in allowed:
                 raise ValueError(f"{field} must be one of {', '.join(allowed)}, got {getattr(self, field)!r}")
         return self
+
+
+def resolve_threads(threads):
+    """MuJoCo C threads for backend 'c' in this process: `threads`, or for 0 this process's share of the
+    cores it may run on -- divided among the worker processes a sweep or bench started on this host
+    (LOCAL_WORKERS_ENV), so that workers do not oversubscribe the cores. Results are the same at any count."""
+    if threads:
+        return int(threads)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    try:
+        workers = max(1, int(os.environ.get(LOCAL_WORKERS_ENV, "1")))
+    except ValueError:
+        workers = 1
+    return max(1, cores // workers)
 
 
 def exact_applies(mj_model):

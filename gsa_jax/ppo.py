@@ -65,7 +65,8 @@ class Config:
     search_loop: str = Physics.search_loop
     cholesky: str = Physics.cholesky
     # the physics backend: 'mjx' (default) or 'c' (MuJoCo C inside the program, envs/c_backend.py) on
-    # physics_threads threads per process (0: all cores); results are the same at any thread count
+    # physics_threads threads per process (0: the process's share of the cores); results are the same at any
+    # thread count
     backend: str = Physics.backend
     physics_threads: int = Physics.threads
 

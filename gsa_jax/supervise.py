@@ -19,8 +19,11 @@ SINGLE_THREAD_EIGEN = "--xla_cpu_multi_thread_eigen=false"
 def worker_env(processes):
     """Environment of `processes` local worker processes. With a worker on every core, XLA's Eigen ops
     run single-threaded in each (their thread pools would only compete with the other workers; 256
-    hopper runs on 2 cores: 1.05-1.12x, experiments/bench_eigen_threads/), unless XLA_FLAGS already sets it."""
-    env = dict(os.environ)
+    hopper runs on 2 cores: 1.05-1.12x, experiments/bench_eigen_threads/), unless XLA_FLAGS already sets it;
+    and each worker's MuJoCo C threads (physics backend 'c', threads 0) take its share of the cores."""
+    from envs.physics import LOCAL_WORKERS_ENV
+
+    env = dict(os.environ, **{LOCAL_WORKERS_ENV: str(processes)})  # physics backend 'c' threads: envs.physics
     if 1 < (os.cpu_count() or 1) <= processes and "xla_cpu_multi_thread_eigen" not in env.get("XLA_FLAGS", ""):
         env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_EIGEN).strip()
     return env

@@ -19,6 +19,7 @@ import os
 import sys
 import time
 
+from envs.physics import resolve_threads
 from gsa_jax.checkpoint import write_atomic
 from gsa_jax.driver import duration, fmt
 from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS
@@ -69,9 +70,9 @@ def build_parser():
                    help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
     p.add_argument("--physics", default=Config.backend, choices=("mjx", "c"),
                    help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
-                        "compiled program (the CPU speed path; hopper, walker2d, halfcheetah, ant)")
+                        "compiled program (the CPU speed path; hopper, walker2d, halfcheetah, ant, allegro_cylinder)")
     p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
-                   help="--physics c: MuJoCo C threads in this process (default 0: all cores)")
+                   help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
     p.add_argument("--value-target", default=Config.value_target,
                    help=f"the value function's targets, one of {', '.join(VALUE_TARGETS)}: GAE(lambda) on each "
                         "iteration's samples (default), or Retrace "
@@ -412,7 +413,7 @@ def log_start(cfg, trainer, hp_py, iterations, out, log):
         log(f"MJX solver: {sol['iterations_in_force']} iterations, {ls} (the task's own: "
             f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/solver_hopper/")
     if cfg.backend == "c":
-        log(f"physics: MuJoCo C inside the program ({cfg.physics_threads or 'all'} thread(s))")
+        log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics_threads)} thread(s))")
 
 
 def finish(cfg, hp_py, seed, out, config, rows, status, result, log):

@@ -1,7 +1,7 @@
 """Physics backend 'c' (envs/c_backend.py): MuJoCo C stepped from inside the compiled program.
 
-The simulation state equals mujoco.mj_step's bit for bit, per task and with contacts; observations,
-rewards and terminations equal the MuJoCo C ports'; a batch equals each env alone at any thread count;
+The simulation state equals mujoco.mj_step's bit for bit, per task and with contacts; observations
+(the Allegro tactile values included), rewards and terminations equal the MuJoCo C ports'; a batch equals each env alone at any thread count;
 a run in a sweep equals the run alone, and a stopped and resumed sweep equals an uninterrupted one."""
 
 import csv
@@ -17,7 +17,7 @@ import pytest
 
 import envs
 from envs.c_backend import STATE_SPEC, float64_rows
-from envs.mujoco_c import BRAX_PORTS, make_c
+from envs.mujoco_c import C_TASKS, make_c
 from envs.physics import Physics
 from gsa_jax.ppo import Config, make_hparams, make_train
 from gsa_jax.sweep import load_spec, run_sweep
@@ -32,14 +32,15 @@ def mj_row(m, d):
 
 
 def test_backend_runs_every_ported_task():
-    assert set(envs.C_BACKEND_TASKS) == set(BRAX_PORTS)
+    assert set(envs.C_BACKEND_TASKS) == set(C_TASKS)
 
 
 @pytest.mark.parametrize("name", envs.C_BACKEND_TASKS)
 def test_steps_equal_mj_step_bit_for_bit(name):
-    """From the backend's reset state, 60 random actions: every env step's mjSTATE_INTEGRATION row (qpos,
-    qvel, solver warmstart, ctrl, time) equals mj_step's in float64, bit for bit; observation, reward and
-    termination equal the MuJoCo C port's (float32 of the same values)."""
+    """From the backend's reset state, 60 random actions (some outside [-1, 1]): every env step's
+    mjSTATE_INTEGRATION row (qpos, qvel, solver warmstart, ctrl, time) equals mj_step's in float64, bit
+    for bit; observation (Allegro: its tactile values too), reward and termination equal the MuJoCo C
+    port's (float32 of the same values)."""
     env = envs.make_base(name, C)
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     task = make_c(name)
@@ -48,19 +49,21 @@ def test_steps_equal_mj_step_bit_for_bit(name):
     mujoco.mj_setState(m, d, float64_rows(s.pipeline_state.rows), STATE_SPEC)
     mujoco.mj_forward(m, d)
     np.testing.assert_array_equal(np.asarray(s.obs), task.observe())
-    rng, contacts = np.random.default_rng(0), 0
+    rng, contacts, touch = np.random.default_rng(0), 0, 0.0
     for t in range(60):
-        a = rng.uniform(-1, 1, env.action_size).astype(np.float32)
+        a = rng.uniform(-1.2, 1.2, env.action_size).astype(np.float32)
         s = step(s, jnp.asarray(a))
         obs, r, done = task.step(a)
         contacts += d.ncon
+        touch += float(np.sum(obs[8:])) if name == "allegro_cylinder" else 0.0
         np.testing.assert_array_equal(float64_rows(s.pipeline_state.rows), mj_row(m, d), err_msg=f"step {t}")
         np.testing.assert_array_equal(np.asarray(s.obs), obs, err_msg=f"step {t}")
         assert abs(float(s.reward) - r) <= 1e-5 * max(1.0, abs(r)), (t, float(s.reward), r)
         assert bool(s.done > 0.5) == done
         if done:
             break
-    assert contacts > 0  # the feet touch the floor within these steps: the contact solver is compared too
+    assert contacts > 0  # feet on the floor, fingers on the cylinder: the contact solver is compared too
+    assert name != "allegro_cylinder" or touch > 1.0  # the tactile values compared are not all zero
 
 
 @pytest.fixture(scope="module")
@@ -170,3 +173,17 @@ def test_stopped_and_resumed_sweep_equals_uninterrupted(c_sweep, tmp_path):
     for col in ("episode_return", "policy_loss", "value_loss", "eval_return"):
         assert [r[col] for r in a] == [r[col] for r in b], col
     assert len(glob.glob(str(out / "groups" / "*" / "DONE"))) == 1
+
+
+def test_threads_zero_takes_this_process_share_of_the_cores(monkeypatch):
+    """Backend 'c' threads 0: the cores this process may run on, divided among the local workers a sweep
+    started (supervise.worker_env says how many); an explicit count is kept."""
+    from envs.physics import LOCAL_WORKERS_ENV, resolve_threads
+    from gsa_jax.supervise import worker_env
+
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: set(range(8)), raising=False)
+    monkeypatch.delenv(LOCAL_WORKERS_ENV, raising=False)
+    assert resolve_threads(0) == 8 and resolve_threads(3) == 3
+    for workers, share in ((2, 4), (3, 2), (8, 1), (16, 1)):
+        monkeypatch.setenv(LOCAL_WORKERS_ENV, worker_env(workers)[LOCAL_WORKERS_ENV])
+        assert resolve_threads(0) == share
