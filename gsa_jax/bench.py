@@ -488,7 +488,7 @@ def build_parser():
                    help="comma-separated physics backends to measure, each for every raw batch, sweep and profile: "
                         "mjx (default), c (MuJoCo C inside the program), or mjx,c")
     p.add_argument("--physics-threads", type=int, default=0,
-                   help="MuJoCo C threads per worker process for --physics c (default 0: all cores)")
+                   help="MuJoCo C threads per worker process for --physics c (default 0: its share of the cores)")
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
