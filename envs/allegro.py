@@ -29,7 +29,7 @@ from mujoco import mjx
 
 from envs.allegro_task import (  # noqa: F401 - re-exported: the task's constants and MuJoCo C reference
     ACTION_COST, ACTION_SCALE, ASSET, DEFAULT_EPISODE_LENGTH, FINGER_TIPS, SUBSTEPS, TARGET_NOISE, TAXELS, TIMESTEP,
-    load_mj_model, observe_mujoco, step_mujoco, tactile_numpy,
+    finger_qpos, hinge_qpos, load_mj_model, observe_mujoco, step_mujoco, tactile_numpy,
 )
 
 
@@ -44,8 +44,7 @@ class AllegroCylinder(Env):
         self._qpos0 = jnp.asarray(key.qpos, jnp.float32)
         self._ctrl0 = jnp.asarray(key.ctrl, jnp.float32)
         self._ctrl_lo, self._ctrl_hi = (jnp.asarray(x, jnp.float32) for x in m.actuator_ctrlrange.T)
-        self._hinge_qpos = int(m.jnt_qposadr[m.joint("object_hinge").id])
-        self._finger_qpos = np.array([m.jnt_qposadr[m.actuator_trnid[i, 0]] for i in range(m.nu)])
+        self._hinge_qpos, self._finger_qpos = hinge_qpos(m), finger_qpos(m)
         self._tip_ids = jnp.array([m.geom(n).id for n in FINGER_TIPS])
         self._data0 = mjx.make_data(self.sys)
 

@@ -27,6 +27,16 @@ def load_mj_model():
     return m
 
 
+def finger_qpos(m):
+    """qpos addresses [nu] of the actuated finger joints (the observation's joint positions), in actuator order."""
+    return np.array([m.jnt_qposadr[m.actuator_trnid[i, 0]] for i in range(m.nu)])
+
+
+def hinge_qpos(m):
+    """qpos address of the cylinder's hinge angle."""
+    return int(m.jnt_qposadr[m.joint("object_hinge").id])
+
+
 def tactile_numpy(m, d):
     """MuJoCo C reference of the tactile observation: mj_contactForce normal forces summed per
     fingertip, / TAXELS. (2,)"""
@@ -43,8 +53,7 @@ def tactile_numpy(m, d):
 
 def observe_mujoco(m, d):
     """The observation (10,) of a MuJoCo C MjData (after mj_forward or mj_step)."""
-    qadr = [m.jnt_qposadr[m.actuator_trnid[i, 0]] for i in range(m.nu)]
-    return np.concatenate([d.qpos[qadr], tactile_numpy(m, d)]).astype(np.float32)
+    return np.concatenate([d.qpos[finger_qpos(m)], tactile_numpy(m, d)]).astype(np.float32)
 
 
 def step_mujoco(m, d, action):
@@ -55,7 +64,7 @@ def step_mujoco(m, d, action):
         raise ValueError(f"action has shape {a.shape}; allegro_cylinder takes ({m.nu},)")
     lo, hi = m.actuator_ctrlrange.T
     d.ctrl[:] = np.clip(d.ctrl + ACTION_SCALE * a, lo, hi)
-    hinge = m.jnt_qposadr[m.joint("object_hinge").id]
+    hinge = hinge_qpos(m)
     angle0 = d.qpos[hinge]
     mujoco.mj_step(m, d, nstep=SUBSTEPS)
     reward = (d.qpos[hinge] - angle0) / (TIMESTEP * SUBSTEPS) - ACTION_COST * float(a @ a)

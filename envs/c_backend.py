@@ -46,6 +46,7 @@ class HostBatches:
 
     n_extra = 0
     bound = ()  # derived MjData fields the batch copies out after every call
+    keyframe = None  # the keyframe resets start from (None: mj_resetData's state)
 
     def __init__(self, model, n_frames, threads):
         self.model, self.n_frames, self.threads = model, int(n_frames), resolve_threads(threads)
@@ -54,8 +55,10 @@ class HostBatches:
         self._batches, self._lock = {}, threading.Lock()
 
     def reset_row(self):
-        """The row every reset starts from: mj_resetData's state [nstate]."""
+        """The row every reset starts from [nstate]: mj_resetData's state, or the keyframe's."""
         data = mujoco.MjData(self.model)
+        if self.keyframe is not None:
+            mujoco.mj_resetDataKeyframe(self.model, data, self.model.key(self.keyframe).id)
         row = np.zeros(self.nstate)
         mujoco.mj_getState(self.model, data, row, STATE_SPEC)
         return row
@@ -70,28 +73,28 @@ class HostBatches:
             return self._batches[nsim]
 
     def extra(self, b, before):
-        """float64 [nsim, n_extra] derived values after a call; before: the qpos [nsim, nq] it started from."""
+        """float64 [nsim, n_extra] derived values after a call; before: what the call's write returned."""
         raise NotImplementedError
 
     def _run(self, lead, write, call):
-        """Load a batch of prod(lead) sims with write(b), run call(b) -> SimState fields shaped lead."""
+        """Load a batch of prod(lead) sims with before = write(b), run call(b) -> SimState fields shaped lead."""
         b, lock = self._get(int(np.prod(lead, dtype=int)))
         m = self.model
         with lock:
-            write(b)
-            before = b.qpos.copy()
+            before = write(b)
             call(b)
             return (b.state.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
                     b.qvel.astype(np.float32).reshape(*lead, m.nv),
                     self.extra(b, before).astype(np.float32).reshape(*lead, self.n_extra))
 
     def step_rows(self, rows, action, fn):
-        """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64) set the controls."""
+        """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64) set the
+        controls; fn's return value is passed to extra()."""
         lead = rows.shape[:-1]
 
         def write(b):
             b.state[:] = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
-            fn(b, np.asarray(action, np.float64).reshape(-1, self.model.nu))
+            return fn(b, np.asarray(action, np.float64).reshape(-1, self.model.nu))
 
         return self._run(lead, write, lambda b: b.step(nstep=self.n_frames))
 
@@ -131,24 +134,17 @@ class AllegroHost(HostBatches):
 
     n_extra = 3
     bound = ("sensordata",)
+    keyframe = "grasp"
 
     def __init__(self, threads):
         model, self.slots = allegro_task.load_tactile_model()
-        self.hinge = int(model.jnt_qposadr[model.joint("object_hinge").id])
+        self.hinge = allegro_task.hinge_qpos(model)
         self.lo, self.hi = model.actuator_ctrlrange.T.copy()
         super().__init__(model, allegro_task.SUBSTEPS, threads)
 
-    def reset_row(self):
-        m = self.model
-        data = mujoco.MjData(m)
-        mujoco.mj_resetDataKeyframe(m, data, m.key("grasp").id)
-        row = np.zeros(self.nstate)
-        mujoco.mj_getState(m, data, row, STATE_SPEC)
-        return row
-
     def extra(self, b, before):
-        dt = allegro_task.TIMESTEP * allegro_task.SUBSTEPS
-        omega = (b.qpos[:, self.hinge] - before[:, self.hinge]) / dt
+        """before: the hinge angles [nsim] the call started from."""
+        omega = (b.qpos[:, self.hinge] - before) / (allegro_task.TIMESTEP * allegro_task.SUBSTEPS)
         return np.concatenate([allegro_task.tactile_from_sensordata(b.sensordata, self.slots), omega[:, None]], 1)
 
     def reset(self, noise, angle):
@@ -161,6 +157,7 @@ class AllegroHost(HostBatches):
             b.ctrl[:] = np.clip(b.ctrl + allegro_task.TARGET_NOISE * np.asarray(noise, np.float64).reshape(-1, m.nu),
                                 self.lo, self.hi)
             b.qpos[:, self.hinge] = np.asarray(angle, np.float64).reshape(-1)
+            return b.qpos[:, self.hinge].copy()
 
         return self._run(angle.shape, write, lambda b: b.forward())
 
@@ -168,6 +165,7 @@ class AllegroHost(HostBatches):
         """action [..., nu], already clipped to [-1, 1], moves the PD targets by ACTION_SCALE per unit."""
         def move_targets(b, a):
             b.ctrl[:] = np.clip(b.ctrl + allegro_task.ACTION_SCALE * a, self.lo, self.hi)
+            return b.qpos[:, self.hinge].copy()
 
         return self.step_rows(rows, action, move_targets)
 
@@ -245,7 +243,7 @@ class AllegroCTask(CTask):
         super().__init__(name, physics, port, AllegroHost(physics.threads))
         m = self.mj_model
         self.n_frames, self.dt = allegro_task.SUBSTEPS, allegro_task.TIMESTEP * allegro_task.SUBSTEPS
-        self._finger_qpos = np.array([m.jnt_qposadr[m.actuator_trnid[i, 0]] for i in range(m.nu)])
+        self._finger_qpos = allegro_task.finger_qpos(m)
 
     def _observe(self, sim):
         return jnp.concatenate([sim.qpos[self._finger_qpos], sim.extra[:2]])

@@ -194,7 +194,7 @@ class AllegroC:
         mujoco.mj_resetDataKeyframe(m, d, m.key("grasp").id)
         lo, hi = m.actuator_ctrlrange.T
         d.ctrl[:] = np.clip(d.ctrl + self._allegro.TARGET_NOISE * rng.normal(size=m.nu), lo, hi)
-        d.qpos[m.jnt_qposadr[m.joint("object_hinge").id]] = rng.uniform(-np.pi, np.pi)
+        d.qpos[self._allegro.hinge_qpos(m)] = rng.uniform(-np.pi, np.pi)
         mujoco.mj_forward(m, d)
         return self._allegro.observe_mujoco(m, d)
 
