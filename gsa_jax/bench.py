@@ -10,7 +10,9 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
   <cores> worker processes, and of the flat mlp at 256 runs on all cores (`--policies mixture,mlp`
   for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them,
   in its sub-batches of --run-batch runs), with compile time and peak resident memory;
-- with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update);
+- with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update) on
+  --profile-processes workers (default 1; <cores> measures the update as the sweep's workers run it), and
+  the ceiling it puts on ours / MuJoCo C (ratio_ceiling);
 - with --physics mjx,c, the raw stepping, sweeps and profile for each physics backend (envs/physics.py;
   'c': MuJoCo C stepped from inside the compiled program), in the same invocation;
 - the same largest raw batch and largest mixture sweep on all cores again with a cheaper MJX solver
@@ -271,25 +273,28 @@ def measure_raw(env, batch, processes, repeats, solver=None, log=print, backend=
             "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results), "chunk_s": [r["chunk_s"] for r in results]}
 
 
-def time_profile(env, policy, runs, repeats, run_batch=0, log=print, backend="mjx"):
-    """Where one PPO iteration's time goes (1 process, `runs` runs in sub-batches of `run_batch`, 0 = all
-    at once): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the default E; physics = the same
-    number of env steps stepped raw, in batches of the envs one sub-batch steps at a time.
-    Returns seconds per iteration for physics, the rest of the rollout (policy sampling, normalization,
-    GAE, host), and the PPO update (all epochs)."""
+def time_profile(env, policy, runs, repeats, run_batch=0, log=print, backend="mjx", processes=1):
+    """Where one PPO iteration's time goes (`runs` runs split over `processes` workers, each in sub-batches
+    of `run_batch`, 0 = all at once): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the
+    default E; physics = the same number of env steps stepped raw, each worker stepping the envs one
+    sub-batch steps at a time. Returns wall seconds per iteration of all the runs (the workers together)
+    for physics, the rest of the rollout (policy sampling, normalization, GAE, host), and the PPO update
+    (all epochs)."""
     from gsa_jax.ppo import Config
 
     epochs = Config.num_epochs
-    full = measure_sweep(env, policy, runs, 1, repeats, run_batch=run_batch, log=log, backend=backend)
-    one = measure_sweep(env, policy, runs, 1, repeats, epochs=1, run_batch=run_batch, log=log, backend=backend)
+    full = measure_sweep(env, policy, runs, processes, repeats, run_batch=run_batch, log=log, backend=backend)
+    one = measure_sweep(env, policy, runs, processes, repeats, epochs=1, run_batch=run_batch, log=log, backend=backend)
     steps = full["env_steps_per_iteration"]
     t_full, t_one = steps / full["env_steps_per_s"], steps / one["env_steps_per_s"]
     t_epoch = max(0.0, (t_full - t_one) / (epochs - 1))
     t_collect = max(0.0, t_one - t_epoch)
-    raw_batch = (min(runs, run_batch) if run_batch else runs) * Config.num_envs
-    raw = measure_raw(env, raw_batch, 1, repeats, log=log, backend=backend)
+    per_worker = max(_split(runs, processes))
+    raw_batch = (min(per_worker, run_batch) if run_batch else per_worker) * Config.num_envs * processes
+    raw = measure_raw(env, raw_batch, processes, repeats, log=log, backend=backend)
     t_physics = min(t_collect, steps / raw["env_steps_per_s"])
-    return {"env": env, "policy": policy, "runs": runs, "run_batch": run_batch, "raw_batch": raw_batch, "backend": backend,
+    return {"env": env, "policy": policy, "runs": runs, "processes": processes, "run_batch": run_batch, "raw_batch": raw_batch,
+            "backend": backend,
             "num_epochs": epochs, "iteration_s": t_full, "env_steps_per_iteration": steps,
             "physics_s": t_physics, "rollout_other_s": t_collect - t_physics, "update_s": epochs * t_epoch,
             "fractions": {"physics": t_physics / t_full, "rollout_other": (t_collect - t_physics) / t_full,
@@ -430,21 +435,24 @@ def reps(repeats, runs, explicit=False):
 def ratio_ceiling(prof, mujoco_c):
     """The best ours / MuJoCo C a trainer with this profile's policy and PPO cost could reach if its
     physics cost what MuJoCo C's does: per core and env step, 1/c (MuJoCo C: c = its env-steps/s per
-    thread) plus what the profile measures outside physics, r (rollout rest + update, 1 process):
-    ratio <= (1 / (1/c + r)) / c = 1 / (1 + r c). An upper bound (it assumes perfect scaling over cores;
-    a 1-process profile may use more than one core)."""
+    thread) plus what the profile measures outside physics, r (rollout rest + update; wall seconds per env
+    step of the profile's P processes together, so P r per process): ratio <= (1 / (1/c + P r)) / c =
+    1 / (1 + P r c). Each process counts as one core: a 1-process profile whose update used more cores
+    gives a higher ceiling than the sweep's P = cores processes can reach; a P = cores profile measures the
+    update as the sweep's workers run it, competing for the same caches and memory."""
     c = mujoco_c["env_steps_per_s"] / mujoco_c["threads"]
-    r = (prof["rollout_other_s"] + prof["update_s"]) / prof["env_steps_per_iteration"]
+    r = prof.get("processes", 1) * (prof["rollout_other_s"] + prof["update_s"]) / prof["env_steps_per_iteration"]
     return {"non_physics_s_per_env_step": r, "mujoco_c_env_steps_per_s_per_thread": c,
             "ratio_ceiling_with_mujoco_c_physics": 1.0 / (1.0 + r * c)}
 
 
-def estimate_s(plan, raw_plan, profile_runs, repeats):
-    """Rough wall time: ~50 s compile + start per measurement, timed chunks at ~10k steps/s per process."""
+def estimate_s(plan, raw_plan, profile_runs, repeats, profiles=1):
+    """Rough wall time: ~50 s compile + start per measurement, timed chunks at ~10k steps/s per process;
+    `profiles` time profiles of profile_runs runs."""
     t = 30 + sum(60 + (reps(repeats, n) + 1) * n * 2048 / (8000 + 4000 * k) / (2 if sol else 1) for _, n, k, sol, _ in plan)
     t += sum(40 + (repeats + 1) * b * RAW_UNROLL / (15000 * k) / (2 if sol else 1) for b, k, sol, _ in raw_plan)
     if profile_runs:
-        t += 2 * (50 + (repeats + 1) * profile_runs * 2048 / 10000) + 40
+        t += profiles * (2 * (50 + (repeats + 1) * profile_runs * 2048 / 10000) + 40)
     return t
 
 
@@ -474,6 +482,9 @@ def build_parser():
     p.add_argument("--raw-batches", default=None, help="comma-separated env batches for raw stepping (default 256,4096)")
     p.add_argument("--profile-runs", type=int, default=0,
                    help="also profile one PPO iteration (physics / rest of rollout / update) at this many runs, e.g. 64")
+    p.add_argument("--profile-processes", default="1",
+                   help="comma-separated worker counts of the time profile (default 1; <cores>: as the sweep's workers "
+                        "run, which gives the ceiling the sweep on all cores can reach)")
     p.add_argument("--repeats", type=int, default=None,
                    help="timed chunks per measurement (default 3; 2 for sweeps of >= 64 runs, whose chunks are long)")
     p.add_argument("--run-batch", type=int, default=None,
@@ -530,6 +541,9 @@ def make_plan(args):
     procs = positive_ints("--processes", args.processes, sorted({1, cores}))
     batches = positive_ints("--raw-batches", args.raw_batches, [256] if args.quick else list(RAW_BATCHES))
     variant = parse_solver_variant(args.solver_variant, args.quick)
+    profile_procs = positive_ints("--profile-processes", args.profile_processes, [1])
+    if args.profile_runs and max(profile_procs) > args.profile_runs:
+        raise ValueError(f"--profile-processes {max(profile_procs)} is more than --profile-runs {args.profile_runs}")
     for pol in policies:  # the sweeps' own validation, before anything compiles
         check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1,
                     "config": {"value_target": args.value_target}}, source="bench")
@@ -545,6 +559,7 @@ def make_plan(args):
         plan += [("mixture", max(sizes), k_all, variant, "mjx")]
         raw_plan += [(max(batches), max(k for k in procs if k <= max(batches)), variant, "mjx")]
     return {"sizes": sizes, "procs": procs, "batches": batches, "policies": policies, "variant": variant, "backends": backends,
+            "profile_procs": profile_procs,
             "repeats": args.repeats or (2 if args.quick else 3), "plan": plan, "raw_plan": raw_plan}
 
 
@@ -603,12 +618,15 @@ def measure_sweep_plan(args, info, report, c_ref, save):
         save()
 
 
-def measure_profile(args, repeats, mujoco_c, backend="mjx"):
-    """The time profile at --profile-runs runs, with the ratio ceiling when MuJoCo C was measured."""
+def measure_profile(args, repeats, mujoco_c, backend="mjx", processes=1):
+    """The time profile at --profile-runs runs on `processes` workers, with the ratio ceiling when MuJoCo C
+    was measured."""
     try:
-        prof = time_profile(args.env, "mixture", args.profile_runs, repeats, args.run_batch, backend=backend)
+        prof = time_profile(args.env, "mixture", args.profile_runs, repeats, args.run_batch, backend=backend,
+                            processes=processes)
         f = prof["fractions"]
-        print(f"time profile ({backend}, mixture, {args.profile_runs} runs, 1 process), per PPO iteration {prof['iteration_s']:.2f} s: "
+        print(f"time profile ({backend}, mixture, {args.profile_runs} runs, {processes} process(es)), per PPO iteration "
+              f"{prof['iteration_s']:.2f} s: "
               f"physics {f['physics']:.0%}, rest of rollout (policy, normalization, GAE) {f['rollout_other']:.0%}, "
               f"PPO update ({prof['num_epochs']} epochs) {f['update']:.0%}", flush=True)
         if "error" not in mujoco_c:
@@ -616,7 +634,7 @@ def measure_profile(args, repeats, mujoco_c, backend="mjx"):
             print(f"with physics as cheap as MuJoCo C's and this policy + PPO update, ours / MuJoCo C could reach at most "
                   f"{prof['ratio_ceiling_with_mujoco_c_physics']:.2f}", flush=True)
     except BenchError as e:
-        prof = {"backend": backend, "error": str(e)}
+        prof = {"backend": backend, "processes": processes, "error": str(e)}
     return prof
 
 
@@ -636,11 +654,12 @@ def main(argv=None):
         print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
         return 2
     plan, raw_plan, variant, repeats = info["plan"], info["raw_plan"], info["variant"], info["repeats"]
+    n_profiles = len(info["backends"]) * len(info["profile_procs"])
     print(f"gsa_jax.bench: {args.env}: raw stepping at batch {info['batches']}, {len(plan)} sweep configurations (runs "
           f"{info['sizes']}, policies {info['policies']}, processes {info['procs']})"
-          + (f", a time profile at {args.profile_runs} runs" if args.profile_runs else "")
+          + (f", a time profile at {args.profile_runs} runs on {info['profile_procs']} process(es)" if args.profile_runs else "")
           + (f", the largest sizes again with {variant[0]} solver / {variant[1]} line-search iterations" if variant else "")
-          + f"; {repeats} timed chunks each (median); about {estimate_s(plan, raw_plan, args.profile_runs, repeats) / 60:.0f} min",
+          + f"; {repeats} timed chunks each (median); about {estimate_s(plan, raw_plan, args.profile_runs, repeats, n_profiles) / 60:.0f} min",
           flush=True)
     from gsa_jax.runinfo import run_metadata
 
@@ -659,7 +678,8 @@ def main(argv=None):
     measure_raw_plan(args, info, report, c_ref, save)
     measure_sweep_plan(args, info, report, c_ref, save)
     if args.profile_runs:
-        report["profiles"] = [measure_profile(args, repeats, mujoco_c, be) for be in info["backends"]]
+        report["profiles"] = [measure_profile(args, repeats, mujoco_c, be, k) for be in info["backends"]
+                              for k in info["profile_procs"]]
         save()
     plot(report["sweeps"], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"), report.get("mujoco_c_solver_variant"))
     print(f"wrote {args.out}/bench.json and bench.png in {(time.perf_counter() - t_start) / 60:.1f} min", flush=True)

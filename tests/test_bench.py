@@ -112,31 +112,43 @@ def test_solver_variant_errors(text, capsys):
     assert "--solver-variant" in capsys.readouterr().err
 
 
-def test_time_profile_decomposition(monkeypatch):
-    """t(E) = collect + E * epoch: with E=10 -> 2.0 s and E=1 -> 0.65 s per iteration, an epoch is 0.15 s,
-    the rollout 0.5 s of which raw physics takes 0.3 s."""
+@pytest.mark.parametrize("processes", [1, 2])
+def test_time_profile_decomposition(monkeypatch, processes):
+    """t(E) = collect + E * epoch: with E=10 -> 2.0 s and E=1 -> 0.65 s per iteration (all the workers'
+    runs together), an epoch is 0.15 s, the rollout 0.5 s of which raw physics takes 0.3 s."""
     steps = 64 * 2048
     fake = {10: steps / 2.0, 1: steps / 0.65}
 
-    def sweep(env, policy, runs, processes, repeats, epochs=None, run_batch=None, log=print, value_target=None, backend=None):
-        assert run_batch == 8 and backend == "c"
+    def sweep(env, policy, runs, procs, repeats, epochs=None, run_batch=None, log=print, value_target=None, backend=None):
+        assert run_batch == 8 and backend == "c" and procs == processes
         return {"env_steps_per_iteration": steps, "env_steps_per_s": fake[epochs or 10]}
 
-    def raw(env, batch, processes, repeats, log=print, backend=None):
-        assert batch == 8 * 32 and backend == "c"  # physics as the rollout steps it: one sub-batch of 8 runs x 32 envs at a time
+    def raw(env, batch, procs, repeats, log=print, backend=None):
+        # physics as the rollout steps it: in each worker one sub-batch of 8 runs x 32 envs at a time
+        assert batch == 8 * 32 * processes and procs == processes and backend == "c"
         return {"env_steps_per_s": steps / 0.3}
 
     monkeypatch.setattr(bench, "measure_sweep", sweep)
     monkeypatch.setattr(bench, "measure_raw", raw)
-    p = bench.time_profile("hopper", "mixture", 64, 3, run_batch=8, backend="c")
-    assert p["iteration_s"] == pytest.approx(2.0)
+    p = bench.time_profile("hopper", "mixture", 64, 3, run_batch=8, backend="c", processes=processes)
+    assert p["iteration_s"] == pytest.approx(2.0) and p["processes"] == processes
     assert p["update_s"] == pytest.approx(1.5) and p["physics_s"] == pytest.approx(0.3)
     assert p["rollout_other_s"] == pytest.approx(0.2)
     assert sum(p["fractions"].values()) == pytest.approx(1.0)
-    # outside physics 1.7 s per 131,072 env steps; MuJoCo C 2 threads x 50,000 env-steps/s: per core and env
-    # step 20 us of physics + 12.97 us of the rest -> at most 20 / 32.97 of MuJoCo C
+    # outside physics 1.7 s per 131,072 env steps of P processes, P x that per process; MuJoCo C 2 threads x
+    # 50,000 env-steps/s: per core and env step 20 us of physics + P x 12.97 us of the rest
     c = bench.ratio_ceiling(p, {"env_steps_per_s": 100_000.0, "threads": 2})
-    assert c["ratio_ceiling_with_mujoco_c_physics"] == pytest.approx(20e-6 / (20e-6 + 1.7 / steps))
+    assert c["ratio_ceiling_with_mujoco_c_physics"] == pytest.approx(20e-6 / (20e-6 + processes * 1.7 / steps))
+
+
+def test_profile_processes_flag():
+    """--profile-processes: the profiles' worker counts, checked before anything runs."""
+    args = bench.build_parser().parse_args(["--profile-runs", "64", "--profile-processes", "1,2", "--solver-variant", "none"])
+    assert bench.make_plan(args)["profile_procs"] == [1, 2]
+    assert bench.make_plan(bench.build_parser().parse_args(["--solver-variant", "none"]))["profile_procs"] == [1]
+    for bad in ("0", "x", "128"):
+        with pytest.raises(ValueError, match="--profile-processes"):
+            bench.make_plan(bench.build_parser().parse_args(["--profile-runs", "64", "--profile-processes", bad]))
 
 
 def test_hung_worker_is_killed_and_retried(tmp_path):
