@@ -437,11 +437,11 @@ def ratio_ceiling(prof, mujoco_c):
     physics cost what MuJoCo C's does: per core and env step, 1/c (MuJoCo C: c = its env-steps/s per
     thread) plus what the profile measures outside physics, r (rollout rest + update; wall seconds per env
     step of the profile's P processes together, so P r per process): ratio <= (1 / (1/c + P r)) / c =
-    1 / (1 + P r c). Each process counts as one core: a 1-process profile whose update used more cores
-    gives a higher ceiling than the sweep's P = cores processes can reach; a P = cores profile measures the
-    update as the sweep's workers run it, competing for the same caches and memory."""
+    1 / (1 + P r c). Each process counts as one core. A P = cores profile measures the update as the
+    sweep's workers run it (one per core, sharing caches and memory); a 1-process profile measures it
+    alone on the machine, which can differ either way (experiments/bench_c_backend/)."""
     c = mujoco_c["env_steps_per_s"] / mujoco_c["threads"]
-    r = prof.get("processes", 1) * (prof["rollout_other_s"] + prof["update_s"]) / prof["env_steps_per_iteration"]
+    r = prof["processes"] * (prof["rollout_other_s"] + prof["update_s"]) / prof["env_steps_per_iteration"]
     return {"non_physics_s_per_env_step": r, "mujoco_c_env_steps_per_s_per_thread": c,
             "ratio_ceiling_with_mujoco_c_physics": 1.0 / (1.0 + r * c)}
 
