@@ -4,7 +4,7 @@
 
 Each env's simulation state is its float64 mjSTATE_INTEGRATION row (time, qpos, qvel, act, solver
 warmstart, ctrl, ...), carried through the JAX program bit for bit as uint32 pairs (the program runs
-float32). A step is one jax.pure_callback into mujoco.batch.Batch, which steps every env of the vmapped
+float32). A step is one host call (envs/host_call.py) into mujoco.batch.Batch, which steps every env of the vmapped
 batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjData per env. The state
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
 
@@ -26,6 +26,7 @@ from brax.envs.base import Env, State
 from mujoco import batch as mj_batch
 
 from envs import allegro_task, mujoco_c
+from envs.host_call import host_call
 from envs.physics import resolve_threads
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -194,7 +195,7 @@ class CTask(Env):
         return "c"
 
     def _call(self, fn, *args):
-        return SimState(*jax.pure_callback(fn, self._shapes, *args, vmap_method="broadcast_all"))
+        return SimState(*host_call(fn, self._shapes, *args))
 
     def _check_action(self, action):
         if action.shape[-1:] != (self.action_size,):

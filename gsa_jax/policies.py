@@ -117,7 +117,10 @@ def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_sc
         return jnp.log(sched["epsilon"]) - jnp.log(sched["K"].astype(jnp.float32))
 
     def _component(params, obs, c, sched):
-        mean = params["L"][c] @ subpolicy_features(subpolicy, obs) + params["b"][c]
+        # every cluster's mean [K_max, d_a], then cluster c's by a one-hot product: the batched gradient is
+        # then dense products instead of a scatter into L (1.06x faster updates, experiments/bench_c_backend/)
+        means = params["L"] @ subpolicy_features(subpolicy, obs) + params["b"]
+        mean = jax.nn.one_hot(c, k_max, dtype=means.dtype) @ means
         sigma = jnp.maximum(jnp.exp(params["log_sigma"][c]), sched["sigma_min"])
         return mean, sigma
 

@@ -362,6 +362,12 @@ def value_loss(params, mb):
     return 0.5 * jnp.sum(mb["v_weight"] * sq) / jnp.maximum(jnp.sum(mb["v_weight"]), 1.0)
 
 
+def shuffle(key, n):
+    """A random permutation of range(n) [n] from one sort of 32-bit random keys (jax.random.permutation
+    sorts twice); tied keys, ~n^2/2^33 pairs per call, keep their index order."""
+    return jnp.argsort(jax.random.bits(key, (n,)))
+
+
 def sgd_update(p, params, opt, batch, hp, sched, lr, key):
     """cfg.num_epochs epochs of shuffled minibatch Adam steps -> (params, opt, mean stats)."""
 
@@ -373,7 +379,7 @@ def sgd_update(p, params, opt, batch, hp, sched, lr, key):
         return (params, opt), dict(aux, grad_norm=gnorm)
 
     def epoch(carry, k):
-        perm = jax.random.permutation(k, p.cfg.batch_size)
+        perm = shuffle(k, p.cfg.batch_size)
         mbs = jax.tree.map(
             lambda x: x[perm].reshape((p.cfg.num_minibatches, p.cfg.minibatch_size) + x.shape[1:]), batch
         )

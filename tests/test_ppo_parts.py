@@ -10,7 +10,7 @@ import numpy as np
 from gsa_jax.metrics import ITERATION_METRICS
 from gsa_jax.nn import init_mlp
 from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.ppo import Config, Parts, TrainState, make_hparams, ppo_loss, rollout, schedule, sgd_update
+from gsa_jax.ppo import Config, Parts, TrainState, make_hparams, ppo_loss, rollout, schedule, sgd_update, shuffle
 
 HP = make_hparams(K=1, clip_eps=0.2, vf_coef=0.5, gamma=0.9, max_grad_norm=0.5)
 
@@ -97,6 +97,17 @@ class ToyEnv:
         reset = self.reset(jnp.zeros(2, jnp.uint32)).obs + (s.obs - s.obs)  # same start for the toy
         return ToyState(jnp.where(done > 0, reset, x), -jnp.abs(x[0]), done,
                         {"final_obs": x, "truncation": done}, jnp.where(done > 0, 0, steps))
+
+
+def test_shuffle_is_a_uniform_permutation():
+    """Each draw is a permutation of range(n); over 4,800 keys the 24 orders of 4 items are about equally
+    frequent (each expected 200; a chi-square of 23 degrees of freedom stays far below 80)."""
+    perms = np.asarray(jax.jit(jax.vmap(lambda k: shuffle(k, 4)))(jax.random.split(jax.random.PRNGKey(0), 4800)))
+    assert (np.sort(perms, axis=1) == np.arange(4)).all()
+    _, counts = np.unique(perms, axis=0, return_counts=True)
+    assert len(counts) == 24 and np.sum((counts - 200.0) ** 2 / 200.0) < 80
+    big = np.asarray(shuffle(jax.random.PRNGKey(1), 2048))
+    assert (np.sort(big) == np.arange(2048)).all() and not (big == np.arange(2048)).all()
 
 
 def test_rollout_counts_episodes_and_resets_returns():
