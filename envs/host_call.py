@@ -14,7 +14,6 @@ No derivatives (as pure_callback). Built on jax 0.10.1's internals (pinned in py
 
 import functools
 
-import numpy as np
 from jax._src import callback as jax_callback
 from jax._src import core, dispatch, ffi
 from jax._src.interpreters import ad, batching, mlir
@@ -41,12 +40,8 @@ def _no_derivatives(*args, **kwargs):
 
 def _lower(ctx, *args, callback, result_avals, vmap_method):
     del result_avals, vmap_method
-
-    def call(*arrays):
-        return tuple(np.asarray(x) for x in callback(*arrays))
-
     sharding = jax_callback._callback_op_sharding(ctx.module_context.axis_context, None, ctx.avals_out)
-    results, _, _ = jax_callback.emit_python_callback(ctx, call, None, list(args), ctx.avals_in, ctx.avals_out,
+    results, _, _ = jax_callback.emit_python_callback(ctx, callback, None, list(args), ctx.avals_in, ctx.avals_out,
                                                       has_side_effect=False, returns_token=False, sharding=sharding)
     return results
 

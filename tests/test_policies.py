@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax.policies import bias_spread, feature_size, make_policy, partition_entropy
+from gsa_jax.policies import bias_spread, component, feature_size, make_policy, partition_entropy
 from gsa_jax.ppo import make_hparams
 
 D_S, D_A = 5, 3
@@ -104,6 +104,23 @@ def test_subpolicy_classes_match_numpy(subpolicy):
         np.testing.assert_allclose(np.asarray(a), L @ np_features(subpolicy, obs) + b, rtol=1e-4, atol=1e-4)
     with pytest.raises(ValueError, match="unknown subpolicy"):
         make_policy("mixture", D_S, D_A, subpolicy="cubic")
+
+
+def test_component_is_the_cluster_s_gaussian_and_its_gradient_touches_only_that_cluster():
+    """mean = L[c] phi + b[c] exactly, std = max(exp(log_sigma[c]), sigma_min) (XLA's exp to 1e-6); d mean_i / d L is phi in
+    row (c, i) and zero for every other cluster."""
+    rng = np.random.default_rng(0)
+    params = {"L": jnp.asarray(rng.normal(size=(4, D_A, D_S)), jnp.float32),
+              "b": jnp.asarray(rng.normal(size=(4, D_A)), jnp.float32),
+              "log_sigma": jnp.asarray(rng.normal(size=(4, D_A)), jnp.float32)}
+    phi = jnp.asarray(rng.normal(size=D_S), jnp.float32)
+    mean, sigma = component(params, phi, 2, 0.5)
+    np.testing.assert_array_equal(np.asarray(mean), np.asarray(params["L"][2] @ phi + params["b"][2]))
+    np.testing.assert_allclose(np.asarray(sigma), np.maximum(np.exp(np.asarray(params["log_sigma"][2])), 0.5), rtol=1e-6)
+    grad_l = np.asarray(jax.grad(lambda p: component(p, phi, 2, 0.5)[0][1])(params)["L"])
+    expected = np.zeros((4, D_A, D_S), np.float32)
+    expected[2, 1] = np.asarray(phi)
+    np.testing.assert_array_equal(grad_l, expected)
 
 
 def test_partition_entropy_matches_numpy(mix16):
