@@ -363,9 +363,31 @@ def value_loss(params, mb):
 
 
 def shuffle(key, n):
-    """A random permutation of range(n) [n] from one sort of 32-bit random keys (jax.random.permutation
-    sorts twice); tied keys, ~n^2/2^33 pairs per call, keep their index order."""
-    return jnp.argsort(jax.random.bits(key, (n,)))
+    """A random permutation of range(n) [n] (int32): shuffle_by_sorts with the random bits that fit above
+    the index bits of a uint32 key and enough rounds that a pair ties in every round with probability
+    below 2^-10 / (n^2 / 2); beyond 2^24 items, jax.random.permutation."""
+    index_bits = max(1, (n - 1).bit_length())
+    random_bits = 32 - index_bits
+    if random_bits < 8:
+        return jax.random.permutation(key, n)
+    return shuffle_by_sorts(key, n, random_bits, -(-(2 * index_bits + 10) // random_bits))
+
+
+def shuffle_by_sorts(key, n, random_bits, rounds):
+    """A random permutation of range(n) [n] (int32) from `rounds` sorts of uint32 keys, each `random_bits`
+    random bits above an item's position: XLA:CPU sorts one integer operand ~7x faster than argsort's
+    (key, index) pairs (0.56 vs 4.2 ms for 8 x 2,048 keys). Items whose random bits tie keep the previous
+    round's order, itself random after the first round."""
+    index_bits = 32 - random_bits
+    if n > 1 << index_bits:
+        raise ValueError(f"{n} items do not fit {index_bits} index bits")
+    low = jnp.uint32((1 << index_bits) - 1)
+    position = jnp.arange(n, dtype=jnp.uint32)
+    perm = position
+    for k in jax.random.split(key, rounds):
+        keys = (jax.random.bits(k, (n,), jnp.uint32) & ~low) | position
+        perm = perm[jax.lax.sort(keys) & low]
+    return perm.astype(jnp.int32)
 
 
 def sgd_update(p, params, opt, batch, hp, sched, lr, key):

@@ -6,11 +6,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from gsa_jax.metrics import ITERATION_METRICS
 from gsa_jax.nn import init_mlp
 from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.ppo import Config, Parts, TrainState, make_hparams, ppo_loss, rollout, schedule, sgd_update, shuffle
+from gsa_jax.ppo import Config, Parts, TrainState, make_hparams, ppo_loss, rollout, schedule, sgd_update, shuffle, shuffle_by_sorts
 
 HP = make_hparams(K=1, clip_eps=0.2, vf_coef=0.5, gamma=0.9, max_grad_norm=0.5)
 
@@ -99,15 +100,35 @@ class ToyEnv:
                         {"final_obs": x, "truncation": done}, jnp.where(done > 0, 0, steps))
 
 
-def test_shuffle_is_a_uniform_permutation():
-    """Each draw is a permutation of range(n); over 4,800 keys the 24 orders of 4 items are about equally
-    frequent (each expected 200; a chi-square of 23 degrees of freedom stays far below 80)."""
-    perms = np.asarray(jax.jit(jax.vmap(lambda k: shuffle(k, 4)))(jax.random.split(jax.random.PRNGKey(0), 4800)))
+def orders_of_four_are_uniform(perms):
+    """perms [4800, 4]: every row a permutation of range(4), and the 24 orders about equally frequent (each
+    expected 200; a chi-square of 23 degrees of freedom stays far below 80)."""
+    perms = np.asarray(perms)
     assert (np.sort(perms, axis=1) == np.arange(4)).all()
     _, counts = np.unique(perms, axis=0, return_counts=True)
-    assert len(counts) == 24 and np.sum((counts - 200.0) ** 2 / 200.0) < 80
+    return len(counts) == 24 and np.sum((counts - 200.0) ** 2 / 200.0) < 80
+
+
+def test_shuffle_is_a_uniform_permutation():
+    """Each draw is a permutation of range(n) with int32 indices, uniform over the 24 orders of 4 items; at
+    2,048 items (two rounds of sorts) still a permutation, and not the identity."""
+    keys = jax.random.split(jax.random.PRNGKey(0), 4800)
+    assert orders_of_four_are_uniform(jax.jit(jax.vmap(lambda k: shuffle(k, 4)))(keys))
     big = np.asarray(shuffle(jax.random.PRNGKey(1), 2048))
-    assert (np.sort(big) == np.arange(2048)).all() and not (big == np.arange(2048)).all()
+    assert big.dtype == np.int32 and (np.sort(big) == np.arange(2048)).all() and not (big == np.arange(2048)).all()
+
+
+def test_shuffle_rounds_break_ties_at_random():
+    """With one random bit per key, every round ties most pairs; ties keep the previous round's order, so
+    12 rounds still give a uniform order of 4 items, while one round is far from it (a tied pair of the
+    first round keeps index order: the identity comes out at least 1/16 of the time). Too many items for
+    the index bits is an error."""
+    keys = jax.random.split(jax.random.PRNGKey(2), 4800)
+    assert orders_of_four_are_uniform(jax.vmap(lambda k: shuffle_by_sorts(k, 4, 1, 12))(keys))
+    one_round = np.asarray(jax.vmap(lambda k: shuffle_by_sorts(k, 4, 1, 1))(keys))
+    assert np.mean((one_round == np.arange(4)).all(axis=1)) > 1 / 16
+    with pytest.raises(ValueError, match="index bits"):
+        shuffle_by_sorts(jax.random.PRNGKey(0), 5, 30, 1)
 
 
 def test_rollout_counts_episodes_and_resets_returns():
