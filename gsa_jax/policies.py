@@ -3,7 +3,8 @@
 Both are given as a `Policy` of pure functions on one observation (vmap for batches):
 
     init(key, hp)                          -> params
-    sample(params, obs, key, sched)        -> (action [d_a], cluster int32, log_prob)
+    sample(params, obs, noise, sched)      -> (action [d_a], cluster int32, log_prob); noise: draw_noise's
+                                              draws for one observation, drawn ahead for a whole rollout
     log_prob(params, obs, action, cluster, sched) -> log pi(c, a | s)
     mode(params, obs, sched)               -> (action [d_a], cluster): the deterministic controller
     partition_probs(params, obs, sched)    -> [K_max] (mixture) or [1] (mlp)
@@ -67,6 +68,14 @@ def bias_spread(n, action_size, scale=1.0):
     """Diverse initial biases b_c in [-scale, scale)^d_a: a Halton set shifted by 1/2, so cluster 0 sits
     at the centre of the action box and the first K points spread over it for every K. [n, d_a]."""
     return (scale * (2.0 * np.mod(halton(n, action_size) + 0.5, 1.0) - 1.0)).astype(np.float32)
+
+
+def draw_noise(key, shape, action_size):
+    """The random draws `sample` turns into actions, for a batch `shape` of observations at once (one
+    generator call for a whole rollout instead of several per step): {"u": uniform [0, 1) [*shape] (the
+    cluster), "z": standard normal [*shape, d_a] (the action)}."""
+    k_c, k_a = jax.random.split(key)
+    return {"u": jax.random.uniform(k_c, shape), "z": jax.random.normal(k_a, (*shape, action_size))}
 
 
 def gaussian_log_prob(x, mean, sigma):
@@ -135,15 +144,13 @@ def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_sc
         uniform = jnp.where(active, sched["epsilon"] / sched["K"].astype(jnp.float32), 0.0)
         return (1.0 - sched["epsilon"]) * jnp.exp(log_soft) + uniform
 
-    def sample(params, obs, key, sched):
-        k_c, k_a = jax.random.split(key)
+    def sample(params, obs, noise, sched):
         probs = partition_probs(params, obs, sched)
         # inverse-CDF draw: masked clusters add exact zeros to the CDF, so the draw is K_max-independent
         cdf = jnp.cumsum(probs)
-        u = jax.random.uniform(k_c) * cdf[-1]
-        c = jnp.minimum(jnp.sum(cdf < u), sched["K"] - 1).astype(jnp.int32)
+        c = jnp.minimum(jnp.sum(cdf < noise["u"] * cdf[-1]), sched["K"] - 1).astype(jnp.int32)
         mean, sigma = _component(params, obs, c, sched)
-        a = mean + sigma * jax.random.normal(k_a, (action_size,))
+        a = mean + sigma * noise["z"]
         return a, c, log_prob(params, obs, a, c, sched)
 
     def log_prob(params, obs, action, cluster, sched):
@@ -171,10 +178,10 @@ def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
             "log_std": jnp.zeros((action_size,), jnp.float32),
         }
 
-    def sample(params, obs, key, sched):
+    def sample(params, obs, noise, sched):
         mean = apply_mlp(params["mlp"], obs)
         sigma = jnp.exp(params["log_std"])
-        a = mean + sigma * jax.random.normal(key, (action_size,))
+        a = mean + sigma * noise["z"]
         return a, jnp.zeros((), jnp.int32), gaussian_log_prob(a, mean, sigma)
 
     def log_prob(params, obs, action, cluster, sched):

@@ -30,7 +30,7 @@ from envs.physics import Physics
 from gsa_jax.nn import apply_mlp, init_mlp
 from gsa_jax.normalize import init_stats, normalize, update_stats
 from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS, make_policy, partition_entropy
+from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS, draw_noise, make_policy, partition_entropy
 from gsa_jax.retrace import VALUE_TARGETS, buffer_targets, init_buffer, store
 
 
@@ -300,13 +300,14 @@ def init_state(p, key, hp):
 
 
 def rollout(p, state, hp, sched, key):
-    """cfg.unroll_length steps of cfg.num_envs envs -> (final carry, trajectory dict [T, N, ...])."""
+    """cfg.unroll_length steps of cfg.num_envs envs -> (final carry, trajectory dict [T, N, ...]). The
+    policy's random draws for all T x N steps come from one generator call before the loop."""
     params = state.params["policy"]
 
-    def step(carry, k):
+    def step(carry, noise):
         env_state, ep_ret, disc_ret, fin_sum, fin_cnt = carry
         obs = norm_obs(p.cfg, state.obs_stats, env_state.obs)
-        action, cluster, logp = p.v_sample(params, obs, jax.random.split(k, p.cfg.num_envs), sched)
+        action, cluster, logp = p.v_sample(params, obs, noise, sched)
         nxt = jax.vmap(p.env.step)(env_state, jnp.clip(action, -1.0, 1.0))
         r, done = nxt.reward, nxt.done
         ep_ret = ep_ret + r
@@ -331,7 +332,8 @@ def rollout(p, state, hp, sched, key):
         return carry, tr
 
     carry0 = (state.env_state, state.ep_return, state.disc_return, 0.0, 0.0)
-    carry, traj = jax.lax.scan(step, carry0, jax.random.split(key, p.cfg.unroll_length))
+    noise = draw_noise(key, (p.cfg.unroll_length, p.cfg.num_envs), p.env.action_size)
+    carry, traj = jax.lax.scan(step, carry0, noise)
     return carry, traj
 
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax.policies import bias_spread, component, feature_size, make_policy, partition_entropy
+from gsa_jax.policies import bias_spread, component, draw_noise, feature_size, make_policy, partition_entropy
 from gsa_jax.ppo import make_hparams
 
 D_S, D_A = 5, 3
@@ -147,7 +147,7 @@ def test_epsilon_uniform_and_sampling_frequencies(mix16):
     np.testing.assert_allclose(probs[2], 1 - eps + eps / K, rtol=1e-5)
     n = 20000
     _, c, _ = jax.jit(jax.vmap(mix16.sample, in_axes=(None, None, 0, None)))(
-        params, obs, jax.random.split(jax.random.PRNGKey(3), n), sched(K, eps)
+        params, obs, draw_noise(jax.random.PRNGKey(3), (n,), D_A), sched(K, eps)
     )
     freq = np.bincount(np.asarray(c), minlength=16) / n
     assert np.all(freq[K:] == 0)
@@ -162,7 +162,7 @@ def test_sigma_min_floor(mix16):
     obs = jnp.asarray(np.random.default_rng(4).normal(size=D_S), jnp.float32)
     n = 20000
     a, c, logp = jax.jit(jax.vmap(mix16.sample, in_axes=(None, None, 0, None)))(
-        params, obs, jax.random.split(jax.random.PRNGKey(5), n), sched(K, 0.1, smin)
+        params, obs, draw_noise(jax.random.PRNGKey(5), (n,), D_A), sched(K, 0.1, smin)
     )
     a, c = np.asarray(a), np.asarray(c)
     mean = np.einsum("nij,j->ni", np.asarray(params["L"])[c], np.asarray(obs)) + np.asarray(params["b"])[c]
@@ -192,8 +192,8 @@ def test_masked_k_equals_unpadded(mix16, mix4):
     }
     s = sched(K, 0.15, 0.05)
     obs = jax.random.normal(jax.random.PRNGKey(10), (256, D_S))
-    keys = jax.random.split(jax.random.PRNGKey(11), 256)
-    samp = lambda pol, p: jax.jit(jax.vmap(pol.sample, in_axes=(None, 0, 0, None)))(p, obs, keys, s)
+    noise = draw_noise(jax.random.PRNGKey(11), (256,), D_A)
+    samp = lambda pol, p: jax.jit(jax.vmap(pol.sample, in_axes=(None, 0, 0, None)))(p, obs, noise, s)
     a16, c16, l16 = samp(mix16, p16)
     a4, c4, l4 = samp(mix4, p4)
     np.testing.assert_array_equal(np.asarray(c16), np.asarray(c4))

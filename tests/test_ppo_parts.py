@@ -87,6 +87,8 @@ class ToyState(NamedTuple):
 class ToyEnv:
     """x' = x + a, reward -|x'|, a time limit of 3 steps (truncation) with auto-reset to x = 1 + 0.5 * env."""
 
+    action_size = 1
+
     def reset(self, key):
         x = jnp.ones((1,)) + 0.5 * key[0].astype(jnp.float32)
         z = jnp.zeros(())
@@ -134,7 +136,7 @@ def test_shuffle_rounds_break_ties_at_random():
 def test_rollout_counts_episodes_and_resets_returns():
     """Constant actions 0.5 from x = 1: rewards -1.5, -2, -2.5 then a time-limit reset; episode returns,
     counts, discounted returns and 'term' (0 at a truncation) against a hand computation."""
-    p = toy_parts()._replace(v_sample=lambda prm, obs, keys, sched: (jnp.full((obs.shape[0], 1), 0.5),
+    p = toy_parts()._replace(v_sample=lambda prm, obs, noise, sched: (jnp.full((obs.shape[0], 1), 0.5),
                                                                       jnp.zeros(obs.shape[0], jnp.int32),
                                                                       jnp.zeros(obs.shape[0])))
     p = p._replace(cfg=Config(num_envs=2, unroll_length=7, normalize_obs=False))
@@ -150,6 +152,21 @@ def test_rollout_counts_episodes_and_resets_returns():
     disc_ref = [-1.5, -1.5 * 0.9 - 2.0, (-1.5 * 0.9 - 2.0) * 0.9 - 2.5]
     np.testing.assert_allclose(np.asarray(traj["disc_return"][:3, 0]), disc_ref, rtol=1e-6)
     np.testing.assert_allclose(np.asarray(disc), [-1.5, -1.5])
+
+
+def test_rollout_draws_fresh_noise_for_every_step_and_env():
+    """The policy gets its own standard normal draw at each of the T x N steps (none reused)."""
+    p = toy_parts()._replace(v_sample=lambda prm, obs, noise, sched: (noise["z"], jnp.zeros(obs.shape[0], jnp.int32),
+                                                                      noise["u"]))
+    p = p._replace(cfg=Config(num_envs=32, unroll_length=64, normalize_obs=False))
+    env_state = jax.vmap(ToyEnv().reset)(jnp.zeros((32, 2), jnp.uint32))
+    state = TrainState({"policy": None}, None, None, None, env_state, jnp.zeros(32), jnp.zeros(32), None, None, None)
+    _, traj = rollout(p, state, HP, schedule(HP, jnp.int32(0)), jax.random.PRNGKey(1))
+    z, u = np.asarray(traj["action"][..., 0]).ravel(), np.asarray(traj["logp"]).ravel()
+    # float32 draws repeat by chance only rarely; a draw shared between steps or envs would repeat 32 or 64 times
+    assert z.shape == u.shape == (64 * 32,) and len(np.unique(z)) > 0.99 * len(z) and len(np.unique(u)) > 0.99 * len(u)
+    assert abs(z.mean()) < 4 / np.sqrt(len(z)) and abs(z.std() - 1) < 0.06
+    assert np.all((u >= 0) & (u < 1)) and abs(u.mean() - 0.5) < 4 * np.sqrt(1 / 12 / len(u))
 
 
 def test_iteration_returns_exactly_the_listed_metrics():
