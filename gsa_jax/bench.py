@@ -41,7 +41,6 @@ import numpy as np
 
 from gsa_jax import xla_cache
 from gsa_jax.checkpoint import write_atomic
-from gsa_jax.programs import resolve_run_batch
 from gsa_jax.supervise import worker_env
 
 SIZES = (1, 16, 64, 256)
@@ -253,7 +252,7 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None
     return {
         "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
         **_solver_field(solver), "value_target": value_target, "backend": backend, "physics_threads": physics_threads,
-        "run_batch": resolve_run_batch(backend, run_batch), "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
+        "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
         "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),
         "peak_rss_mib_per_process": max(r["peak_rss_mib"] for r in results),
@@ -274,9 +273,9 @@ def measure_raw(env, batch, processes, repeats, solver=None, log=print, backend=
             "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results), "chunk_s": [r["chunk_s"] for r in results]}
 
 
-def time_profile(env, policy, runs, repeats, run_batch=None, log=print, backend="mjx", processes=1):
+def time_profile(env, policy, runs, repeats, run_batch=0, log=print, backend="mjx", processes=1):
     """Where one PPO iteration's time goes (`runs` runs split over `processes` workers, each in sub-batches
-    of `run_batch`, 0 = all at once, None = the sweep's default): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the
+    of `run_batch`, 0 = all at once): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the
     default E; physics = the same number of env steps stepped raw, each worker stepping the envs one
     sub-batch steps at a time. Returns wall seconds per iteration of all the runs (the workers together)
     for physics, the rest of the rollout (policy sampling, normalization, GAE, host), and the PPO update
@@ -291,7 +290,6 @@ def time_profile(env, policy, runs, repeats, run_batch=None, log=print, backend=
     t_epoch = max(0.0, (t_full - t_one) / (epochs - 1))
     t_collect = max(0.0, t_one - t_epoch)
     per_worker = max(_split(runs, processes))
-    run_batch = resolve_run_batch(backend, run_batch)
     raw_batch = (min(per_worker, run_batch) if run_batch else per_worker) * Config.num_envs * processes
     raw = measure_raw(env, raw_batch, processes, repeats, log=log, backend=backend)
     t_physics = min(t_collect, steps / raw["env_steps_per_s"])
@@ -490,8 +488,8 @@ def build_parser():
     p.add_argument("--repeats", type=int, default=None,
                    help="timed chunks per measurement (default 3; 2 for sweeps of >= 64 runs, whose chunks are long)")
     p.add_argument("--run-batch", type=int, default=None,
-                   help="runs per sequential sub-batch in each worker, as gsa_jax.sweep --run-batch (default: the sweep's "
-                        "for each physics backend; 0: all at once)")
+                   help="runs per sequential sub-batch in each worker, as gsa_jax.sweep --run-batch (default: the sweep's, "
+                        "8; 0: all at once)")
     p.add_argument("--solver-variant", default=None,
                    help="ITER,LS: also measure the largest raw batch and mixture sweep (all cores) and MuJoCo C with this "
                         "many solver / line-search iterations (default 1,4; 'none' to skip; skipped with --quick)")
@@ -642,6 +640,10 @@ def measure_profile(args, repeats, mujoco_c, backend="mjx", processes=1):
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
+    if args.run_batch is None:
+        from gsa_jax.programs import RUN_BATCH
+
+        args.run_batch = RUN_BATCH
     if args.worker or args.raw_worker:
         args.repeats = args.repeats or 3
         (worker if args.worker else raw_worker)(args)

@@ -24,15 +24,7 @@ def stack_hparams(runs, names, iterations):
     return jax.tree.map(lambda *xs: jnp.stack(xs), *per_run)
 
 
-# runs per sub-batch (make_group_program) per physics backend: MJX's batched solver loops favour small
-# sub-batches (experiments/bench_run_batch/); backend 'c' steps every env at the same cost, and larger
-# sub-batches share each host call and each op's fixed cost over more runs (experiments/bench_c_backend/)
-RUN_BATCH = {"mjx": 8, "c": 128}
-
-
-def resolve_run_batch(backend, run_batch):
-    """run_batch, or with None the default of physics backend `backend` (RUN_BATCH); 0 = all at once."""
-    return RUN_BATCH[backend] if run_batch is None else run_batch
+RUN_BATCH = 8  # runs per sub-batch (make_group_program); measured in experiments/bench_run_batch/
 
 
 def sub_batched(fn, size):
@@ -52,12 +44,12 @@ def sub_batched(fn, size):
     return run
 
 
-def make_group_program(cfg, chunk, devices, run_batch=None):
+def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
     """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
     vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
     run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
-    all at once (0) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
-    slowest env instead of the whole device's. None: the backend's default (resolve_run_batch)."""
+    all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
+    slowest env instead of the whole device's."""
     import jax
     from jax.sharding import NamedSharding
     from jax.sharding import PartitionSpec as P
@@ -66,7 +58,7 @@ def make_group_program(cfg, chunk, devices, run_batch=None):
 
     trainer = make_train(cfg)
     init = jax.vmap(trainer.init)
-    run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), resolve_run_batch(cfg.physics.backend, run_batch))
+    run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
     if len(devices) > 1:
         # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
         # type check rejects; every op here is per-run, so nothing needs that check.
@@ -80,7 +72,7 @@ def make_group_program(cfg, chunk, devices, run_batch=None):
     return trainer, jax.jit(init), jax.jit(run, donate_argnums=0), place
 
 
-def make_group_evaluate(cfg, run_batch=None):
+def make_group_evaluate(cfg, run_batch=RUN_BATCH):
     """jit of evaluate(params, obs_stats, hps, keys) -> [R] deterministic returns, vmapped over runs in
     sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one)."""
     import jax
@@ -88,7 +80,7 @@ def make_group_evaluate(cfg, run_batch=None):
     from gsa_jax.ppo import make_train
 
     trainer = make_train(cfg)
-    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), resolve_run_batch(cfg.physics.backend, run_batch)))
+    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch))
 
 
 def pad_runs(runs, multiple, at_least=0):
@@ -102,7 +94,7 @@ def pad_runs(runs, multiple, at_least=0):
 _PROGRAMS = {}  # (cfg, chunk, devices, run_batch, runs) -> compiled (init, run, place): reused within a process
 
 
-def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=None, share=None, log=print):
+def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
     """The group program for `runs` (already padded), compiled, and its initial state.
     share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
     inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
@@ -112,7 +104,6 @@ def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch
 
     from gsa_jax import xla_cache
 
-    run_batch = resolve_run_batch(cfg.physics.backend, run_batch)
     key = (cfg, chunk, tuple(devices), run_batch, len(runs))
     how = "reused (compiled earlier in this process)"
     if key not in _PROGRAMS:
@@ -167,7 +158,7 @@ def single_program(cfg, chunk, seed, hp_py, eval_seed=0):
 _EVALUATORS = {}  # (cfg, devices, run_batch, runs) -> compiled group evaluation: reused within a process
 
 
-def compile_group_evaluate(cfg, devices, states, hps, place, run_batch=None, share=None, log=print):
+def compile_group_evaluate(cfg, devices, states, hps, place, run_batch=RUN_BATCH, share=None, log=print):
     """The compiled evaluation of a group's runs: (states, hps, key) -> [R] mean deterministic returns,
     every run from the same eval_envs start states (drawn from `key`)."""
     import jax
@@ -175,7 +166,6 @@ def compile_group_evaluate(cfg, devices, states, hps, place, run_batch=None, sha
     from gsa_jax import xla_cache
 
     runs = jax.tree.leaves(hps)[0].shape[0]
-    run_batch = resolve_run_batch(cfg.physics.backend, run_batch)
     cache_key = (cfg, tuple(devices), run_batch, runs)
     if cache_key not in _EVALUATORS:
         keys = place(jax.numpy.stack([jax.random.PRNGKey(0)] * runs))
@@ -190,7 +180,7 @@ def compile_group_evaluate(cfg, devices, states, hps, place, run_batch=None, sha
     return evaluate
 
 
-def group_program(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=None, share=None, log=print,
+def group_program(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print,
                   eval_seed=None):
     """compile_group as a driver Program of len(runs) (padded) runs; with an eval_seed, its deterministic
     evaluation after iteration `it` starts every run's episodes from fold_in(PRNGKey(eval_seed), it)."""

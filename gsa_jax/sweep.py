@@ -69,7 +69,7 @@ from gsa_jax.driver import failed_mask, rows_before_failure
 from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
-from gsa_jax.programs import RUN_BATCH, pad_runs, resolve_run_batch
+from gsa_jax.programs import RUN_BATCH, pad_runs
 from gsa_jax.retrace import VALUE_TARGETS
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
@@ -422,7 +422,7 @@ def finished_group(gdir, iterations):
 
 
 def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None,
-              run_batch=None, pad_to=0, share=None):
+              run_batch=RUN_BATCH, pad_to=0, share=None):
     """Train (or resume) one group with the run driver. Returns its driver Result. pad_to: pad the runs to
     at least this many (every worker process builds the same program); share: see programs.compile_group."""
     from gsa_jax.driver import Plan, drive
@@ -476,23 +476,21 @@ def check_same_spec(meta_path, spec, force):
                         "--out, or --force to continue it with the new spec")
 
 
-def write_sweep_meta(root, spec, groups, num_processes, force, run_batch=None):
-    """sweep.json: spec, every run, each group's physics options and runs per sub-batch, versions, commit (a
-    resumed sweep must have the same spec, unless force)."""
+def write_sweep_meta(root, spec, groups, num_processes, force):
+    """sweep.json: spec, every run, versions, commit (a resumed sweep must have the same spec, unless force)."""
     from gsa_jax.runinfo import physics_record, run_metadata
 
     meta_path = os.path.join(root, "sweep.json")
     if os.path.exists(meta_path):
         check_same_spec(meta_path, spec, force)
-    configs = {group_name(e, p, runs): group_config(spec, e, p, runs) for e, p, runs in groups}
+    physics = {group_name(e, p, runs): physics_record(group_config(spec, e, p, runs)) for e, p, runs in groups}
     meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes,
-            "physics": {g: physics_record(cfg) for g, cfg in configs.items()},
-            "run_batch": {g: resolve_run_batch(cfg.physics.backend, run_batch) for g, cfg in configs.items()}, **run_metadata()}
+            "physics": physics, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 
 def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
-              run_batch=None, local_workers=True, force=False):
+              run_batch=RUN_BATCH, local_workers=True, force=False):
     """Train every group of the spec (this process's share of each). Returns True when all groups are done;
     the runs that failed (NaN/inf) are written to failed_runs.json in this process's directory.
     run_batch: see programs.make_group_program. local_workers: the processes share this machine and `out`
@@ -514,7 +512,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     os.makedirs(out, exist_ok=True)
     groups = build_grid(spec)
     if process_id == 0:
-        write_sweep_meta(root, spec, groups, num_processes, force, run_batch)
+        write_sweep_meta(root, spec, groups, num_processes, force)
     total_runs = sum(len(r) for _, _, r in groups)
     log(f"sweep {spec['name']}: {total_runs} runs in {len(groups)} group(s) on {len(devices)} device(s)"
         + (f", process {process_id}/{num_processes}" if num_processes > 1 else "") + f" -> {out}")
@@ -588,10 +586,9 @@ def build_parser():
     p.add_argument("--coordinator", default=None, help="host:port of process 0, for multi-process sweeps")
     p.add_argument("--num-processes", type=int, default=1)
     p.add_argument("--process-id", type=int, default=0)
-    p.add_argument("--run-batch", type=int, default=None,
-                   help="train each device's runs in sequential sub-batches of N (0: all at once; default per physics "
-                        + ", ".join(f"{b} {n}" for b, n in RUN_BATCH.items()) + ", recorded in sweep.json). Same runs; "
-                        "MJX's batched solver loops stop at each sub-batch's slowest env")
+    p.add_argument("--run-batch", type=int, default=RUN_BATCH,
+                   help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
+                        "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
     p.add_argument("--force", action="store_true", help="resume even if the experiment file changed (continues with the new spec)")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -613,7 +610,7 @@ def check_args(args, argv):
         local = 1  # multi-host: one process per host runs here, as launched
     if local < 1:
         raise SpecError("--local-processes must be >= 1")
-    if args.run_batch is not None and args.run_batch < 0:
+    if args.run_batch < 0:
         raise SpecError(f"--run-batch must be >= 0, got {args.run_batch}")
     return spec, out, local
 
