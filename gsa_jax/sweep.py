@@ -15,7 +15,7 @@ process watches a heartbeat and restarts a worker whose chunk takes far longer t
 (XLA:CPU has been seen to hang in large vmapped MJX programs).
 
 Output (DIR, default runs/sweeps/<name>):
-  sweep.json            the spec, every run of the grid, versions, git commit; failed_runs at the end
+  sweep.json            the spec, every run of the grid, runs per sub-batch, versions, git commit; failed_runs at the end
   metrics.csv           tidy: one row per run per iteration (env, policy, K, seed, swept hparams, metrics with
                         eval_return, the deterministic controller's mean return where evaluated; a swept
                         hparam named like a metric is hparam_<name>, e.g. hparam_lr next to the annealed lr)
@@ -476,8 +476,9 @@ def check_same_spec(meta_path, spec, force):
                         "--out, or --force to continue it with the new spec")
 
 
-def write_sweep_meta(root, spec, groups, num_processes, force):
-    """sweep.json: spec, every run, versions, commit (a resumed sweep must have the same spec, unless force)."""
+def write_sweep_meta(root, spec, groups, num_processes, force, run_batch=RUN_BATCH):
+    """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
+    spec, unless force)."""
     from gsa_jax.runinfo import physics_record, run_metadata
 
     meta_path = os.path.join(root, "sweep.json")
@@ -485,7 +486,7 @@ def write_sweep_meta(root, spec, groups, num_processes, force):
         check_same_spec(meta_path, spec, force)
     physics = {group_name(e, p, runs): physics_record(group_config(spec, e, p, runs)) for e, p, runs in groups}
     meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes,
-            "physics": physics, **run_metadata()}
+            "run_batch": run_batch, "physics": physics, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 
@@ -512,7 +513,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     os.makedirs(out, exist_ok=True)
     groups = build_grid(spec)
     if process_id == 0:
-        write_sweep_meta(root, spec, groups, num_processes, force)
+        write_sweep_meta(root, spec, groups, num_processes, force, run_batch)
     total_runs = sum(len(r) for _, _, r in groups)
     log(f"sweep {spec['name']}: {total_runs} runs in {len(groups)} group(s) on {len(devices)} device(s)"
         + (f", process {process_id}/{num_processes}" if num_processes > 1 else "") + f" -> {out}")

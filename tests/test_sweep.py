@@ -187,6 +187,7 @@ def test_tidy_table(inprocess):
     assert sorted(set(evaluated)) == [2, 4, 6] and len(evaluated) == 4 * 3  # eval_every = 2, every run
     meta = json.loads((inprocess / "sweep.json").read_text())
     assert meta["physics"]["inverted_double_pendulum-mixture"]["linesearch_in_force"] == "exact"
+    assert meta["run_batch"] == 8  # the default runs per sub-batch, as the program used
     assert os.path.exists(inprocess / "groups" / "inverted_double_pendulum-mixture" / "params.npz")
 
 
@@ -305,6 +306,7 @@ def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp
     out = tmp_path / "sub"
     assert run_sweep(load_spec(tiny_spec_file), str(out), devices=jax.local_devices()[:1], quiet=True, run_batch=2)
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
+    assert json.loads((out / "sweep.json").read_text())["run_batch"] == 2
 
 
 # --- failures: validation, NaN runs, full disks, unreadable checkpoints, changed specs, a second writer -----------
