@@ -59,6 +59,7 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
     import jax.numpy as jnp
 
     from gsa_jax.normalize import normalize
+    from gsa_jax.policies import draw_noise
     from gsa_jax.ppo import make_env, schedule
 
     cfg = trainer.cfg
@@ -66,21 +67,21 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
     pol = trainer.policy
     sched = schedule(hp, jnp.asarray(iteration, jnp.int32))
 
-    def step(carry, k):
+    def step(carry, noise):
         s, alive = carry
         z = normalize(obs_stats, s.obs) if cfg.normalize_obs else s.obs
         if deterministic:
             a, c = jax.vmap(pol.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
         else:
-            a, c, _ = jax.vmap(pol.sample, in_axes=(None, 0, 0, None))(params["policy"], z, jax.random.split(k, episodes), sched)
+            a, c, _ = jax.vmap(pol.sample, in_axes=(None, 0, 0, None))(params["policy"], z, noise, sched)
         nxt = jax.vmap(env.step)(s, jnp.clip(a, -1.0, 1.0))
         out = {"obs": s.obs, "qpos": s.pipeline_state.qpos, "z": z, "cluster": c, "action": a, "reward": nxt.reward * alive, "alive": alive}
         return (nxt, alive * (1.0 - nxt.done)), out
 
     k_reset, k_run = jax.random.split(key)
     s0 = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
-    fn = jax.jit(lambda s0, ks: jax.lax.scan(step, (s0, jnp.ones((episodes,))), ks)[1])
-    return jax.device_get(fn(s0, jax.random.split(k_run, cfg.episode_length)))
+    fn = jax.jit(lambda s0, noise: jax.lax.scan(step, (s0, jnp.ones((episodes,))), noise)[1])
+    return jax.device_get(fn(s0, draw_noise(k_run, (cfg.episode_length, episodes), env.action_size)))
 
 
 def cluster_stats(cluster, alive, k):
