@@ -16,6 +16,8 @@ computed on the host in float64 as envs/allegro_task.step_mujoco computes them.
 """
 
 import threading
+import time
+import weakref
 from typing import NamedTuple
 
 import jax
@@ -30,6 +32,20 @@ from envs.host_call import host_call
 from envs.physics import resolve_threads
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+_HOSTS = weakref.WeakSet()  # this process's live hosts, read by host_seconds()
+CLOCK_FIELDS = ("calls", "host_s", "mujoco_c_s")
+
+
+def host_seconds():
+    """{"calls", "host_s", "mujoco_c_s"} summed over this process's live hosts since they were made: host calls
+    run, seconds inside them (the host function: state copies in and out, the task's derived values) and,
+    of those, inside MuJoCo C. For benchmarks (gsa_jax.bench splits a sweep's time with it); no result
+    depends on it."""
+    total = dict.fromkeys(CLOCK_FIELDS, 0)
+    for host in list(_HOSTS):
+        for k, v in host.clock.items():
+            total[k] += v
+    return total
 
 
 class SimState(NamedTuple):
@@ -54,6 +70,8 @@ class HostBatches:
         self.nstate = mujoco.mj_stateSize(model, STATE_SPEC)
         self.template = self.reset_row()
         self._batches, self._lock = {}, threading.Lock()
+        self.clock = {"calls": 0, "host_s": 0.0, "mujoco_c_s": 0.0}  # see host_seconds()
+        _HOSTS.add(self)
 
     def reset_row(self):
         """The row every reset starts from [nstate]: mj_resetData's state, or the keyframe's."""
@@ -79,14 +97,22 @@ class HostBatches:
 
     def _run(self, lead, write, call):
         """Load a batch of prod(lead) sims with before = write(b), run call(b) -> SimState fields shaped lead."""
+        t0 = time.perf_counter()
         b, lock = self._get(int(np.prod(lead, dtype=int)))
         m = self.model
         with lock:
             before = write(b)
+            t1 = time.perf_counter()
             call(b)
-            return (b.state.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
-                    b.qvel.astype(np.float32).reshape(*lead, m.nv),
-                    self.extra(b, before).astype(np.float32).reshape(*lead, self.n_extra))
+            t2 = time.perf_counter()
+            out = (b.state.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
+                   b.qvel.astype(np.float32).reshape(*lead, m.nv),
+                   self.extra(b, before).astype(np.float32).reshape(*lead, self.n_extra))
+        with self._lock:
+            self.clock["calls"] += 1
+            self.clock["host_s"] += time.perf_counter() - t0
+            self.clock["mujoco_c_s"] += t2 - t1
+        return out
 
     def step_rows(self, rows, action, fn):
         """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64) set the

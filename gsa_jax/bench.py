@@ -14,7 +14,9 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
   --profile-processes workers (default 1; <cores> measures the update as the sweep's workers run it), and
   the ceiling it puts on ours / MuJoCo C (ratio_ceiling);
 - with --physics mjx,c, the raw stepping, sweeps and profile for each physics backend (envs/physics.py;
-  'c': MuJoCo C stepped from inside the compiled program), in the same invocation;
+  'c': MuJoCo C stepped from inside the compiled program), in the same invocation; every 'c' sweep also
+  splits its own timed chunks (MuJoCo C / the rest of the host calls / the rest of the program, from
+  envs.c_backend.host_seconds) and puts its ceiling on them (in_run_ceiling): no separate profile;
 - the same largest raw batch and largest mixture sweep on all cores again with a cheaper MJX solver
   (`--solver-variant ITER,LS`, default 1,4: 1 Newton iteration, 4 line-search iterations), and MuJoCo C
   with those settings too -- a changed simulator, offered as the explicit `--solver-iterations` /
@@ -62,14 +64,18 @@ def _wait_barrier(args):
         time.sleep(0.01)
 
 
-def _time_chunks(args, fn, state):
-    times = []
+def _time_chunks(args, fn, state, clock=None):
+    """(wall seconds of args.repeats calls of fn, each call's change of clock()'s counts ({} without a clock))."""
+    times, changes = [], []
     for _ in range(args.repeats):
+        c0 = clock() if clock else {}
         t = time.perf_counter()
         state = fn(state)
         times.append(time.perf_counter() - t)
+        c1 = clock() if clock else {}
+        changes.append({k: c1[k] - c0[k] for k in c1})
         _beat(args, {"chunk_s": times[-1]})
-    return times
+    return times, changes
 
 
 def _share(args):
@@ -110,10 +116,14 @@ def worker(args):
     jax.block_until_ready(states)
     _beat(args, {"chunk_s": time.perf_counter() - t1})
     _wait_barrier(args)
-    times = _time_chunks(args, lambda st: jax.block_until_ready(run(st, hps)[0]), states)
+    clock = None
+    if args.physics == "c":  # where the chunks' time goes: MuJoCo C, the rest of the host calls, the program
+        from envs.c_backend import host_seconds as clock
+    times, host = _time_chunks(args, lambda st: jax.block_until_ready(run(st, hps)[0]), states, clock)
     steps = len(runs) * cfg.batch_size
     print(json.dumps({
         "compile_s": compile_s, "compile": how, "chunk_s": times, "env_steps_per_chunk": steps,
+        **({"host_chunks": host} if clock else {}),
         "env_steps_per_s": steps / statistics.median(times),
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }), flush=True)
@@ -163,7 +173,7 @@ def raw_worker(args):
         holder[0] = jax.block_until_ready(step(holder[0]))
         return None
 
-    times = _time_chunks(args, timed, None)
+    times, _ = _time_chunks(args, timed, None)
     print(json.dumps({"compile_s": compile_s, "compile": how, "chunk_s": times, "env_steps_per_chunk": b * RAW_UNROLL,
                       "env_steps_per_s": b * RAW_UNROLL / statistics.median(times),
                       "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}), flush=True)
@@ -258,7 +268,39 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None
         "peak_rss_mib_per_process": max(r["peak_rss_mib"] for r in results),
         "chunk_s": [r["chunk_s"] for r in results],
         "env_steps_per_iteration": sum(r["env_steps_per_chunk"] for r in results),
+        **({"in_run": split} if (split := in_run_split(results)) else {}),
     }
+
+
+def in_run_split(results):
+    """Where the time of a backend-'c' sweep's chunks went, from its workers' host_chunks: per worker the
+    medians over its chunks of the seconds inside MuJoCo C, in the rest of the host calls (state copies, the
+    task's derived values) and in the rest of the program (policy, GAE, PPO update, the host calls'
+    hand-over). -> {"per_process": [...], "fractions": {...}}, or None when a worker has no host_chunks (MJX)."""
+    if not all("host_chunks" in r for r in results):
+        return None
+    per_process = []
+    for r in results:
+        parts = [(h["mujoco_c_s"], h["host_s"] - h["mujoco_c_s"], t - h["host_s"]) for t, h in zip(r["chunk_s"], r["host_chunks"])]
+        m, h, p = (statistics.median(x) for x in zip(*parts))
+        per_process.append({"mujoco_c_s": m, "host_other_s": h, "program_s": p, "env_steps": r["env_steps_per_chunk"],
+                            "host_calls": statistics.median(c["calls"] for c in r["host_chunks"])})
+    total = sum(w["mujoco_c_s"] + w["host_other_s"] + w["program_s"] for w in per_process)
+    fractions = {k: sum(w[f"{k}_s"] for w in per_process) / total for k in ("mujoco_c", "host_other", "program")}
+    return {"per_process": per_process, "fractions": fractions}
+
+
+def in_run_ceiling(split, mujoco_c):
+    """The ceiling of a sweep from its own split: each worker's chunk with its host calls (MuJoCo C and the
+    copies around it) costing what MuJoCo C's rollout costs per env step on one thread (c = its env-steps/s /
+    threads) and the rest of the program as it ran: sum_i steps_i / (steps_i / c + program_i), over MuJoCo
+    C's env-steps/s. Measured in the same chunks as the sweep, unlike ratio_ceiling's separate profile."""
+    c = mujoco_c["env_steps_per_s"] / mujoco_c["threads"]
+    rate = sum(w["env_steps"] / (w["env_steps"] / c + w["program_s"]) for w in split["per_process"])
+    steps = sum(w["env_steps"] for w in split["per_process"])
+    return {"ratio_ceiling_in_run": rate / mujoco_c["env_steps_per_s"],
+            "mujoco_c_us_per_env_step": 1e6 * sum(w["mujoco_c_s"] for w in split["per_process"]) / steps,
+            "rollout_us_per_env_step": 1e6 / c}
 
 
 def measure_raw(env, batch, processes, repeats, solver=None, log=print, backend="mjx", physics_threads=0):
@@ -612,10 +654,23 @@ def measure_sweep_plan(args, info, report, c_ref, save):
             add_ratios(r, c_ref, sol)
             print(f"{pol:8} {be:>7} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
                   f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)
+            if "in_run" in r:
+                r["in_run"].update(in_run_ceiling(r["in_run"], c_ref[sol]))
+                r["in_run"]["sweep_of_ceiling"] = r["ratio_vs_mujoco_c"] / r["in_run"]["ratio_ceiling_in_run"]
+                print_in_run(r["in_run"])
         except BenchError as e:
             r = {"env": args.env, "policy": pol, "runs": n, "processes": k, **_solver_field(sol), "backend": be, "error": str(e)}
         report["sweeps"].append(r)
         save()
+
+
+def print_in_run(split):
+    """One line: a 'c' sweep's split of its time and its in-run ceiling."""
+    f = split["fractions"]
+    print(f"{'':8} in the run: MuJoCo C {f['mujoco_c']:.0%} ({split['mujoco_c_us_per_env_step']:.1f} us per env step and "
+          f"worker; its rollout {split['rollout_us_per_env_step']:.1f}), rest of the host calls {f['host_other']:.0%}, "
+          f"program {f['program']:.0%}; ceiling {split['ratio_ceiling_in_run']:.2f} of MuJoCo C, the sweep at "
+          f"{split['sweep_of_ceiling']:.2f} of it", flush=True)
 
 
 def measure_profile(args, repeats, mujoco_c, backend="mjx", processes=1):

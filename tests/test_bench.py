@@ -161,3 +161,34 @@ def test_hung_worker_is_killed_and_retried(tmp_path):
     fail = [sys.executable, "-c", "import sys; sys.exit(3)"]
     with pytest.raises(BenchError, match="exited with 3"):
         run_workers([fail], compile_limit_s=30, retries=0, log=logs.append)
+
+
+def test_in_run_split_and_ceiling():
+    """Two 'c' workers of 1,000 env steps per chunk: per worker the chunk medians of the seconds in MuJoCo C,
+    in the rest of the host calls and in the program; the ceiling puts MuJoCo C's rollout cost (2 threads x
+    10,000 env-steps/s: 100 us per env step) in place of the host calls."""
+    chunk = lambda t, host, mj: ({"calls": 64, "host_s": host, "mujoco_c_s": mj}, t)  # noqa: E731
+    workers = []
+    for chunks in ([chunk(0.30, 0.20, 0.18), chunk(0.32, 0.21, 0.19), chunk(0.40, 0.20, 0.18)],
+                   [chunk(0.20, 0.10, 0.09), chunk(0.20, 0.10, 0.09), chunk(0.20, 0.10, 0.09)]):
+        workers.append({"env_steps_per_chunk": 1000, "chunk_s": [t for _, t in chunks], "host_chunks": [h for h, _ in chunks]})
+    split = bench.in_run_split(workers)
+    w0, w1 = split["per_process"]
+    assert (w0["mujoco_c_s"], w0["host_other_s"], w0["program_s"]) == pytest.approx((0.18, 0.02, 0.11))
+    assert (w1["mujoco_c_s"], w1["host_other_s"], w1["program_s"]) == pytest.approx((0.09, 0.01, 0.10))
+    assert split["fractions"]["mujoco_c"] == pytest.approx(0.27 / 0.51) and sum(split["fractions"].values()) == pytest.approx(1)
+    c = bench.in_run_ceiling(split, {"env_steps_per_s": 20_000.0, "threads": 2})
+    assert c["ratio_ceiling_in_run"] == pytest.approx((1000 / (0.1 + 0.11) + 1000 / (0.1 + 0.10)) / 20_000)
+    assert c["mujoco_c_us_per_env_step"] == pytest.approx(1e6 * 0.27 / 2000) and c["rollout_us_per_env_step"] == pytest.approx(100)
+    assert bench.in_run_split([{"chunk_s": [1.0], "env_steps_per_chunk": 10}]) is None  # MJX: no host calls, no split
+
+
+def test_timed_chunks_record_each_chunks_clock_change(tmp_path):
+    """A worker's timed chunks: each chunk's wall seconds and its change of the clock's counts."""
+    import argparse
+
+    counts = iter([{"calls": 0}, {"calls": 3}, {"calls": 3}, {"calls": 10}])
+    args = argparse.Namespace(repeats=2, barrier=str(tmp_path), worker_id=0)
+    times, changes = bench._time_chunks(args, lambda s: s + 1, 0, clock=lambda: next(counts))
+    assert len(times) == 2 and min(times) >= 0 and changes == [{"calls": 3}, {"calls": 7}]
+    assert bench._time_chunks(args, lambda s: s, 0)[1] == [{}, {}]

@@ -187,3 +187,21 @@ def test_threads_zero_takes_this_process_share_of_the_cores(monkeypatch):
     for workers, share in ((2, 4), (3, 2), (8, 1), (16, 1)):
         monkeypatch.setenv(LOCAL_WORKERS_ENV, worker_env(workers)[LOCAL_WORKERS_ENV])
         assert resolve_threads(0) == share
+
+
+def test_host_seconds_count_the_calls_and_the_time_inside_mujoco_c():
+    """host_seconds(): every host call is counted once, with its seconds inside MuJoCo C a part of its seconds
+    in the host function, summed over the process's live hosts (what gsa_jax.bench splits a sweep with)."""
+    from envs.c_backend import BraxHost, host_seconds
+    from envs.mujoco_c import BRAX_PORTS
+
+    port = BRAX_PORTS["hopper"]()
+    host = BraxHost(port.model, port.n_frames, threads=1)
+    before = host_seconds()
+    rows, *_ = host.reset(np.zeros((4, port.model.nq), np.float32), np.zeros((4, port.model.nv), np.float32))
+    for _ in range(3):
+        rows, *_ = host.step(np.ascontiguousarray(rows), np.zeros((4, port.model.nu), np.float32))
+    after = host_seconds()
+    assert host.clock["calls"] == 4 and after["calls"] - before["calls"] == 4
+    assert 0 < host.clock["mujoco_c_s"] <= host.clock["host_s"]
+    assert after["host_s"] - before["host_s"] == pytest.approx(host.clock["host_s"])
