@@ -180,6 +180,7 @@ def test_in_run_split_and_ceiling():
     c = bench.in_run_ceiling(split, {"env_steps_per_s": 20_000.0, "threads": 2})
     assert c["ratio_ceiling_in_run"] == pytest.approx((1000 / (0.1 + 0.11) + 1000 / (0.1 + 0.10)) / 20_000)
     assert c["mujoco_c_us_per_env_step"] == pytest.approx(1e6 * 0.27 / 2000) and c["rollout_us_per_env_step"] == pytest.approx(100)
+    assert c["sweep_of_ceiling_at_own_mujoco_c"] == pytest.approx((1000 / 0.31 + 1000 / 0.20) / (1000 / 0.29 + 1000 / 0.19))
     assert bench.in_run_split([{"chunk_s": [1.0], "env_steps_per_chunk": 10}]) is None  # MJX: no host calls, no split
 
 
