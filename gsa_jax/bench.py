@@ -295,7 +295,7 @@ def in_run_ceiling(split, mujoco_c):
     copies around it) costing what MuJoCo C's rollout costs per env step on one thread (c = its env-steps/s /
     threads) and the rest of the program as it ran: sum_i steps_i / (steps_i / c + program_i), over MuJoCo
     C's env-steps/s. Measured in the same chunks as the sweep, unlike ratio_ceiling's separate profile; the
-    rollout's rate is a separate measurement on other states (it moves by up to +-20% between invocations
+    rollout's rate is a separate measurement on other states (it moves by up to +-25% between invocations
     here), so the same ceiling with MuJoCo C's own seconds in the run is given too."""
     c = mujoco_c["env_steps_per_s"] / mujoco_c["threads"]
     ws = split["per_process"]
@@ -307,7 +307,7 @@ def in_run_ceiling(split, mujoco_c):
             # the same ceiling with MuJoCo C at its own seconds in this run (the sweep's states, the same moment):
             # what the host calls' copies cost the sweep
             "sweep_of_ceiling_at_own_mujoco_c": at_own,
-            "mujoco_c_us_per_env_step": 1e6 * sum(w["mujoco_c_s"] for w in split["per_process"]) / steps,
+            "mujoco_c_us_per_env_step": 1e6 * sum(w["mujoco_c_s"] for w in ws) / steps,
             "rollout_us_per_env_step": 1e6 / c}
 
 
