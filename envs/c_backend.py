@@ -70,7 +70,7 @@ class HostBatches:
         self.nstate = mujoco.mj_stateSize(model, STATE_SPEC)
         self.template = self.reset_row()
         self._batches, self._lock = {}, threading.Lock()
-        self.clock = {"calls": 0, "host_s": 0.0, "mujoco_c_s": 0.0}  # see host_seconds()
+        self.clock = dict.fromkeys(CLOCK_FIELDS, 0)  # see host_seconds()
         _HOSTS.add(self)
 
     def reset_row(self):

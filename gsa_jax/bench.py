@@ -42,6 +42,7 @@ import time
 import numpy as np
 
 from gsa_jax import xla_cache
+from gsa_jax.programs import RUN_BATCH
 from gsa_jax.checkpoint import write_atomic
 from gsa_jax.supervise import worker_env
 
@@ -245,7 +246,7 @@ def _compile_fields(results):
             "xla_flags": results[0]["xla_flags"]}
 
 
-def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=None, log=print,
+def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=RUN_BATCH, log=print,
                   compile_each=False, value_target="gae", backend="mjx", physics_threads=0):
     """Throughput of `runs` runs split over `processes` workers, measured together. solver: None (the
     task's own) or (iterations, ls_iterations); compile_each: see run_workers; value_target: the critic;
@@ -255,7 +256,7 @@ def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None
         cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
                      "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats)]
                     + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver)
-                    + (["--run-batch", str(run_batch)] if run_batch is not None else [])
+                    + ["--run-batch", str(run_batch)]
                     + ["--value-target", value_target, "--physics", backend, "--physics-threads", str(physics_threads)])
         seed0 += n
     results = run_workers(cmds, log=log, compile_each=compile_each)
@@ -323,7 +324,7 @@ def measure_raw(env, batch, processes, repeats, solver=None, log=print, backend=
             "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results), "chunk_s": [r["chunk_s"] for r in results]}
 
 
-def time_profile(env, policy, runs, repeats, run_batch=0, log=print, backend="mjx", processes=1):
+def time_profile(env, policy, runs, repeats, run_batch=RUN_BATCH, log=print, backend="mjx", processes=1):
     """Where one PPO iteration's time goes (`runs` runs split over `processes` workers, each in sub-batches
     of `run_batch`, 0 = all at once): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the
     default E; physics = the same number of env steps stepped raw, each worker stepping the envs one
@@ -537,9 +538,9 @@ def build_parser():
                         "run, which gives the ceiling the sweep on all cores can reach)")
     p.add_argument("--repeats", type=int, default=None,
                    help="timed chunks per measurement (default 3; 2 for sweeps of >= 64 runs, whose chunks are long)")
-    p.add_argument("--run-batch", type=int, default=None,
-                   help="runs per sequential sub-batch in each worker, as gsa_jax.sweep --run-batch (default: the sweep's, "
-                        "8; 0: all at once)")
+    p.add_argument("--run-batch", type=int, default=RUN_BATCH,
+                   help=f"runs per sequential sub-batch in each worker, as gsa_jax.sweep --run-batch (default {RUN_BATCH}, "
+                        "the sweep's; 0: all at once)")
     p.add_argument("--solver-variant", default=None,
                    help="ITER,LS: also measure the largest raw batch and mixture sweep (all cores) and MuJoCo C with this "
                         "many solver / line-search iterations (default 1,4; 'none' to skip; skipped with --quick)")
@@ -704,10 +705,6 @@ def measure_profile(args, repeats, mujoco_c, backend="mjx", processes=1):
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
-    if args.run_batch is None:
-        from gsa_jax.programs import RUN_BATCH
-
-        args.run_batch = RUN_BATCH
     if args.worker or args.raw_worker:
         args.repeats = args.repeats or 3
         (worker if args.worker else raw_worker)(args)
