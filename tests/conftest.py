@@ -2,6 +2,14 @@ import os
 
 # Keep test programs small and compiled once: a persistent XLA cache shared by the CLI runs in a session.
 os.environ.setdefault("MUJOCO_GL", "disable")
+# The suite is compile-bound: its processes, and the processes its tests start (through XLA_FLAGS), compile
+# without LLVM's optimizations, which takes about 0.7x the default's compile time for the same programs and
+# gives the same results to float rounding (tests/test_sweep.py checks a run against one compiled at XLA's
+# default level 3). Every comparison in the suite is between programs compiled the same way. To run the
+# suite as users' programs compile: XLA_FLAGS=--xla_backend_optimization_level=3 make test
+TEST_XLA_FLAGS = "--xla_backend_optimization_level=0"
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS).strip()
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

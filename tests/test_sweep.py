@@ -191,15 +191,47 @@ def test_tidy_table(inprocess):
     assert os.path.exists(inprocess / "groups" / "inverted_double_pendulum-mixture" / "params.npz")
 
 
-def test_run_in_sweep_equals_run_alone(inprocess):
-    """K=3, seed 1 of the vmapped K grid == the same config trained alone (as train.py does)."""
-    rows = [r for r in read_rows(str(inprocess / "metrics.csv")) if r["K"] == "3" and r["seed"] == "1"]
-    cfg = Config(env="inverted_double_pendulum", policy="mixture", k_max=3, **SMALL_CONFIG)
-    tr = make_train(cfg)
+ALONE_COLUMNS = ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl", "partition_entropy", "grad_norm")
+
+
+def train_alone(iterations=3):
+    """{column: [iterations]} and the final parameters ("param<i>", flattened leaves) of K=3, seed 1 of the
+    tiny grid trained alone (as train.py does), as this process compiles it."""
+    tr = make_train(Config(env="inverted_double_pendulum", policy="mixture", k_max=3, **SMALL_CONFIG))
     hp = make_hparams(K=3, total_iterations=ITERS)
-    _, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, 3)
-    for col in ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl", "partition_entropy"):
-        np.testing.assert_allclose(as_array(rows, col)[:3], np.asarray(m[col], np.float64), rtol=2e-3, atol=1e-5, err_msg=col)
+    state, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, iterations)
+    out = {c: np.asarray(m[c], np.float64) for c in ALONE_COLUMNS}
+    return dict(out, **{f"param{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state.params))})
+
+
+@pytest.fixture(scope="module")
+def alone():
+    return train_alone()
+
+
+def test_run_in_sweep_equals_run_alone(inprocess, alone):
+    """K=3, seed 1 of the vmapped K grid == the same config trained alone."""
+    rows = [r for r in read_rows(str(inprocess / "metrics.csv")) if r["K"] == "3" and r["seed"] == "1"]
+    for col in ALONE_COLUMNS[:-1]:
+        np.testing.assert_allclose(as_array(rows, col)[:3], alone[col], rtol=2e-3, atol=1e-5, err_msg=col)
+
+
+def test_run_compiled_at_the_default_level_equals_the_suites(alone, tmp_path):
+    """The suite compiles without LLVM's optimizations (tests/conftest.py); a user's programs compile at
+    XLA's default level 3. The run alone compiled at level 3 in another process equals this process's to
+    float rounding (level 3 may contract a multiply and an add into one FMA), metrics and parameters."""
+    level = [f for f in os.environ["XLA_FLAGS"].split() if f.startswith("--xla_backend_optimization_level")]
+    assert level, "tests/conftest.py sets the suite's compile level"
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}  # compiled there, not loaded
+    env["XLA_FLAGS"] = " ".join([f for f in env["XLA_FLAGS"].split() if f not in level] + ["--xla_backend_optimization_level=3"])
+    code = ("import sys, numpy as np; sys.path.insert(0, sys.argv[1]); from test_sweep import train_alone; "
+            "np.savez(sys.argv[2], **train_alone())")
+    subprocess.run([sys.executable, "-c", code, os.path.dirname(__file__), str(tmp_path / "l3.npz")], env=env, check=True,
+                   timeout=600)
+    with np.load(tmp_path / "l3.npz") as default:
+        assert sorted(default.files) == sorted(alone)
+        for name, ours in alone.items():
+            np.testing.assert_allclose(ours, default[name], rtol=1e-3, atol=1e-5, err_msg=name)
 
 
 def sweep_cmd(spec_file, out, *extra):
@@ -299,14 +331,6 @@ def test_sub_batched_equals_vmap_with_empty_leaves():
         for a, b in zip(jax.tree.leaves(out), jax.tree.leaves(ref)):
             assert a.shape == b.shape
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-
-
-def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp_path):
-    """--run-batch 2: the group's 4 runs trained as 2 sequential sub-batches give the same runs."""
-    out = tmp_path / "sub"
-    assert run_sweep(load_spec(tiny_spec_file), str(out), devices=jax.local_devices()[:1], quiet=True, run_batch=2)
-    assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
-    assert json.loads((out / "sweep.json").read_text())["run_batch"] == 2
 
 
 # --- failures: validation, NaN runs, full disks, unreadable checkpoints, changed specs, a second writer -----------
@@ -434,3 +458,13 @@ def test_changed_spec_and_second_writer_refused(tiny_spec_file, tmp_path, capsys
         assert err.count("\n") == 0 and f"in use by pid {os.getpid()}" in err and "another sweep" in err
     finally:
         release(lock)
+
+
+# Last in this file: it compiles the group with 2 runs per sub-batch, which replaces the 4-run program the
+# tests above reuse in this process (gsa_jax.programs keeps one).
+def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp_path):
+    """--run-batch 2: the group's 4 runs trained as 2 sequential sub-batches give the same runs."""
+    out = tmp_path / "sub"
+    assert run_sweep(load_spec(tiny_spec_file), str(out), devices=jax.local_devices()[:1], quiet=True, run_batch=2)
+    assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
+    assert json.loads((out / "sweep.json").read_text())["run_batch"] == 2
