@@ -19,7 +19,7 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python -m gsa_jax.train --env inverted_double_pendulum --policy mixture --clusters 4 --steps 150000 --out runs/demo
 
-## test: the pytest suite, one worker per core (at most 4), each test file on one worker (9-21 min on 2 cores;
+## test: the pytest suite, one worker per core (at most 4), each test file on one worker (~15 min on 2 cores;
 ## the 15 slowest tests are listed at the end). One worker: $(BIN)/python -m pytest tests -m "not benchmark"
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests -m "not benchmark" -n auto --maxprocesses 4 --dist loadfile --durations=15
