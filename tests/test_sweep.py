@@ -191,7 +191,7 @@ def test_tidy_table(inprocess):
     assert os.path.exists(inprocess / "groups" / "inverted_double_pendulum-mixture" / "params.npz")
 
 
-ALONE_COLUMNS = ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl", "partition_entropy", "grad_norm")
+ALONE_COLUMNS = ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl", "partition_entropy")
 
 
 def train_alone(iterations=3):
@@ -200,7 +200,7 @@ def train_alone(iterations=3):
     tr = make_train(Config(env="inverted_double_pendulum", policy="mixture", k_max=3, **SMALL_CONFIG))
     hp = make_hparams(K=3, total_iterations=ITERS)
     state, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, iterations)
-    out = {c: np.asarray(m[c], np.float64) for c in ALONE_COLUMNS}
+    out = {c: np.asarray(m[c], np.float64) for c in ALONE_COLUMNS + ("grad_norm",)}
     return dict(out, **{f"param{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(state.params))})
 
 
@@ -212,7 +212,7 @@ def alone():
 def test_run_in_sweep_equals_run_alone(inprocess, alone):
     """K=3, seed 1 of the vmapped K grid == the same config trained alone."""
     rows = [r for r in read_rows(str(inprocess / "metrics.csv")) if r["K"] == "3" and r["seed"] == "1"]
-    for col in ALONE_COLUMNS[:-1]:
+    for col in ALONE_COLUMNS:
         np.testing.assert_allclose(as_array(rows, col)[:3], alone[col], rtol=2e-3, atol=1e-5, err_msg=col)
 
 
@@ -298,8 +298,8 @@ def free_port():
 
 def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, inprocess, tmp_path):
     """Two processes on localhost (jax.distributed coordinator), each its share of the grid with seeds 0-3:
-    4 runs each, the one-process reference's program (loaded from the suite's cache); the runs of seeds 0
-    and 1 equal the reference's."""
+    4 runs each, the shape of the one-process reference, so the suite's compilation cache can serve its
+    program; the runs of seeds 0 and 1 equal the reference's."""
     spec, out = tmp_path / "tiny.toml", tmp_path / "dist"
     spec.write_text(open(tiny_spec_file).read().replace("seeds = [0, 1]", "seeds = [0, 1, 2, 3]"))
     coord = f"127.0.0.1:{free_port()}"
