@@ -2,10 +2,12 @@
 
 The simulation state equals mujoco.mj_step's bit for bit, per task and with contacts; observations
 (the Allegro tactile values included), rewards and terminations equal the MuJoCo C ports'; a batch equals each env alone at any thread count;
-a run in a sweep equals the run alone, and a stopped and resumed sweep equals an uninterrupted one."""
+a run in a sweep equals the run alone, and a stopped and resumed sweep (also a worker the watchdog killed with
+SIGKILL and restarted) equals an uninterrupted one."""
 
 import csv
 import glob
+import os
 import subprocess
 import sys
 
@@ -162,17 +164,38 @@ def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(c_sweep):
         np.testing.assert_allclose(got, np.asarray(m[col], np.float64), rtol=2e-3, atol=1e-5, err_msg=col)
 
 
+def compare_rows(a, b):
+    """Two sweeps' metrics.csv rows: the same runs and iterations, and the same numbers bit for bit."""
+    assert [(r["K"], r["seed"], r["iteration"]) for r in a] == [(r["K"], r["seed"], r["iteration"]) for r in b]
+    for col in ("episode_return", "policy_loss", "value_loss", "eval_return"):
+        assert [r[col] for r in a] == [r[col] for r in b], col
+
+
 def test_stopped_and_resumed_sweep_equals_uninterrupted(c_sweep, tmp_path):
     spec_file, ref = c_sweep
     out = tmp_path / "resumed"
     spec = load_spec(str(spec_file))
     assert not run_sweep(spec, str(out), devices=jax.local_devices()[:1], quiet=True, stop_after_chunks=1)
     assert run_sweep(spec, str(out), devices=jax.local_devices()[:1], quiet=True)
-    a, b = read_rows(ref / "metrics.csv"), read_rows(out / "metrics.csv")
-    assert [(r["K"], r["seed"], r["iteration"]) for r in a] == [(r["K"], r["seed"], r["iteration"]) for r in b]
-    for col in ("episode_return", "policy_loss", "value_loss", "eval_return"):
-        assert [r[col] for r in a] == [r[col] for r in b], col
+    compare_rows(read_rows(ref / "metrics.csv"), read_rows(out / "metrics.csv"))
     assert len(glob.glob(str(out / "groups" / "*" / "DONE"))) == 1
+
+
+def test_watchdog_kills_a_stalled_worker_and_its_restart_equals_uninterrupted(c_sweep, tmp_path):
+    """A backend-'c' worker that stalls after its 1st chunk (tests/hang_worker.py; MuJoCo C's threads in it) is
+    killed with SIGKILL by the watchdog and restarted from its checkpoint: the sweep equals the uninterrupted one."""
+    from gsa_jax.supervise import supervise
+
+    spec_file, ref = c_sweep
+    out, lines = tmp_path / "stalled", []
+    out.mkdir()
+    hang = os.path.join(os.path.dirname(__file__), "hang_worker.py")
+    cmd = [sys.executable, hang, "1", str(tmp_path / "hung_once"), str(spec_file), "--out", str(out), "--quiet",
+           "--local-processes", "1", "--worker"]
+    assert supervise([cmd], [str(out)], watchdog_min_s=8, max_restarts=2, log=lines.append) == 0
+    assert any("watchdog: worker 0 made no progress" in line for line in lines), lines
+    assert (tmp_path / "hung_once").exists()
+    compare_rows(read_rows(ref / "metrics.csv"), read_rows(out / "metrics.csv"))
 
 
 def test_threads_zero_takes_this_process_share_of_the_cores(monkeypatch):
