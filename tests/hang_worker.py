@@ -3,13 +3,24 @@
     python tests/hang_worker.py N MARKER <gsa_jax.sweep arguments ... --worker>
 
 After its N-th chunk it sleeps forever, unless MARKER exists (it creates MARKER first, so the
-restarted worker runs through)."""
+restarted worker runs through). supervise_stalling_worker runs one under the watchdog, as the tests do."""
 
 import os
 import sys
 import time
 
 from gsa_jax import sweep
+
+
+def supervise_stalling_worker(hang_after, marker, spec_file, out):
+    """One such worker training spec_file into out (an existing folder), under gsa_jax.supervise's watchdog
+    (8 s without progress, at most 2 restarts) -> (supervise's exit code, the watchdog's log lines)."""
+    from gsa_jax.supervise import supervise
+
+    lines = []
+    cmd = [sys.executable, os.path.abspath(__file__), str(hang_after), str(marker), str(spec_file), "--out", str(out),
+           "--quiet", "--local-processes", "1", "--worker"]
+    return supervise([cmd], [str(out)], watchdog_min_s=8, max_restarts=2, log=lines.append), lines
 
 
 def main():

@@ -7,7 +7,6 @@ SIGKILL and restarted) equals an uninterrupted one."""
 
 import csv
 import glob
-import os
 import subprocess
 import sys
 
@@ -184,15 +183,13 @@ def test_stopped_and_resumed_sweep_equals_uninterrupted(c_sweep, tmp_path):
 def test_watchdog_kills_a_stalled_worker_and_its_restart_equals_uninterrupted(c_sweep, tmp_path):
     """A backend-'c' worker that stalls after its 1st chunk (tests/hang_worker.py; MuJoCo C's threads in it) is
     killed with SIGKILL by the watchdog and restarted from its checkpoint: the sweep equals the uninterrupted one."""
-    from gsa_jax.supervise import supervise
+    from hang_worker import supervise_stalling_worker
 
     spec_file, ref = c_sweep
-    out, lines = tmp_path / "stalled", []
+    out = tmp_path / "stalled"
     out.mkdir()
-    hang = os.path.join(os.path.dirname(__file__), "hang_worker.py")
-    cmd = [sys.executable, hang, "1", str(tmp_path / "hung_once"), str(spec_file), "--out", str(out), "--quiet",
-           "--local-processes", "1", "--worker"]
-    assert supervise([cmd], [str(out)], watchdog_min_s=8, max_restarts=2, log=lines.append) == 0
+    code, lines = supervise_stalling_worker(1, tmp_path / "hung_once", spec_file, out)
+    assert code == 0
     assert any("watchdog: worker 0 made no progress" in line for line in lines), lines
     assert (tmp_path / "hung_once").exists()
     compare_rows(read_rows(ref / "metrics.csv"), read_rows(out / "metrics.csv"))

@@ -275,16 +275,14 @@ def test_kill9_then_resume_equals_uninterrupted(tiny_spec_file, inprocess, tmp_p
 def test_watchdog_restarts_a_stalled_worker(tiny_spec_file, inprocess, tmp_path, monkeypatch):
     """A worker that stalls after its 2nd chunk (tests/hang_worker.py) is killed and restarted from its
     checkpoint; the results equal an uninterrupted sweep's."""
-    from gsa_jax.supervise import supervise
+    from hang_worker import supervise_stalling_worker
 
     for k, v in subprocess_env().items():
         monkeypatch.setenv(k, v)
-    out, lines = tmp_path / "stalled", []
+    out = tmp_path / "stalled"
     out.mkdir()
-    hang = os.path.join(os.path.dirname(__file__), "hang_worker.py")
-    cmd = [sys.executable, hang, "2", str(tmp_path / "hung_once"), tiny_spec_file, "--out", str(out), "--quiet",
-           "--local-processes", "1", "--worker"]
-    assert supervise([cmd], [str(out)], watchdog_min_s=8, max_restarts=2, log=lines.append) == 0
+    code, lines = supervise_stalling_worker(2, tmp_path / "hung_once", tiny_spec_file, out)
+    assert code == 0
     assert any("watchdog: worker 0 made no progress" in line for line in lines), lines
     assert (tmp_path / "hung_once").exists()
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=1e-6)
