@@ -13,7 +13,7 @@ sweep.GroupStore).
 A store has three methods: `load(state)` -> (state, metrics, done) of the last intact checkpoint or
 None; `save(state, metrics, done)` after every chunk; `finish(state, metrics, done, timing)` once
 all iterations are done. Metrics live on the host as {name: float64 [R, iterations]}: the
-compiled program's ITERATION_METRICS and failed_at, plus eval_return and wall_s.
+compiled program's ITERATION_METRICS and failed_at, plus eval_return, eval_failures and wall_s.
 """
 
 import math
@@ -22,15 +22,15 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from gsa_jax.metrics import ITERATION_METRICS
+from gsa_jax.metrics import EVAL_METRICS, ITERATION_METRICS
 
-HOST_METRICS = ITERATION_METRICS + ("failed_at", "eval_return", "wall_s")
+HOST_METRICS = ITERATION_METRICS + ("failed_at",) + EVAL_METRICS + ("wall_s",)
 
 
 class Program(NamedTuple):
     """A compiled training program of `runs` runs. run(state, hps) -> (state, metrics {name: [R, chunk]}
-    or [chunk] when not batched); evaluate(state, hps, iteration) -> [R] (or a scalar) deterministic
-    returns, or None; place(host tree) -> the tree on the program's devices; how: how it was obtained."""
+    or [chunk] when not batched); evaluate(state, hps, iteration) -> ([R], [R]) (or scalars): the
+    deterministic controllers' mean returns and failed episodes (gsa_jax.episodes), or None; place(host tree) -> the tree on the program's devices; how: how it was obtained."""
 
     runs: int
     state: object
@@ -165,8 +165,9 @@ def record_chunk(program, plan, metrics, loop, m):
     failed = failed_mask(metrics, it)
     if eval_due(plan, it) and not failed[: plan.real_runs].all():
         te = time.perf_counter()
-        returns = np.reshape(np.asarray(jax.device_get(program.evaluate(loop["state"], program.hps, it)), np.float64), (runs,))
-        metrics["eval_return"][:, it - 1] = np.where(failed, np.nan, returns)
+        evaluation = jax.device_get(program.evaluate(loop["state"], program.hps, it))
+        for name, values in zip(EVAL_METRICS, evaluation):
+            metrics[name][:, it - 1] = np.where(failed, np.nan, np.reshape(np.asarray(values, np.float64), (runs,)))
         loop["eval_s"] += time.perf_counter() - te
     metrics["wall_s"][:, done:it] = round(time.perf_counter() - loop["t0"], 3)
     good = [rows_before_failure(metrics, i, it) - done for i in range(plan.real_runs)]

@@ -58,6 +58,7 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
     import jax
     import jax.numpy as jnp
 
+    from gsa_jax.episodes import step_episodes
     from gsa_jax.normalize import normalize
     from gsa_jax.policies import draw_noise
     from gsa_jax.ppo import make_env, schedule
@@ -74,9 +75,9 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
             a, c = jax.vmap(pol.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
         else:
             a, c, _ = jax.vmap(pol.sample, in_axes=(None, 0, 0, None))(params["policy"], z, noise, sched)
-        nxt = jax.vmap(env.step)(s, jnp.clip(a, -1.0, 1.0))
-        out = {"obs": s.obs, "qpos": s.pipeline_state.qpos, "z": z, "cluster": c, "action": a, "reward": nxt.reward * alive, "alive": alive}
-        return (nxt, alive * (1.0 - nxt.done)), out
+        nxt, reward, still, _ = step_episodes(env, s, jnp.clip(a, -1.0, 1.0), alive)
+        out = {"obs": s.obs, "qpos": s.pipeline_state.qpos, "z": z, "cluster": c, "action": a, "reward": reward, "alive": alive}
+        return (nxt, still), out
 
     k_reset, k_run = jax.random.split(key)
     s0 = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))

@@ -4,8 +4,10 @@ of a single run (plot_curve, written by gsa_jax.train as curve.png).
 Merges every tidy metrics.csv under the directories (one per worker process, host, or separately run
 sweep: a task's sweep may run on another day or machine; sweeps that hold the same group with other
 steps, hyperparameters or settings are refused with the difference). Statistics with rliable
-(gsa_jax/stats.py): a run's final score is the mean deterministic return of its last 3 evaluations
-(the training return over the last 10% of iterations for sweeps without evaluations). Writes to OUT
+(gsa_jax/stats.py): a run's final score is the mean deterministic return of its last 3 scheduled
+evaluations (the training return over the last 10% of iterations for sweeps without evaluations); a
+failed evaluation episode (non-finite physics) counts up to its last finite step and is counted in
+eval_failures. Writes to OUT
 (default: the first DIR):
   figure.png               per task, IQM learning curves of the deterministic controllers (95% bootstrap bands)
   figure_training.png      the same for the training return (the stochastic policy)
@@ -16,7 +18,9 @@ steps, hyperparameters or settings are refused with the difference). Statistics 
                            sweeps that list value_targets P(Retrace better than GAE) (CI)
   aggregate.csv            per configuration over tasks: IQM of normalized scores (0 = random policy, 1 = flat
                            PPO's final IQM on that task) and P(better than flat PPO), with CIs
-Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every statistic and listed apart.
+Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every statistic and listed apart
+(failed_runs), as are runs with no return at one of their last 3 scheduled evaluations (unscored_runs:
+only in tables written before failed evaluation episodes were counted).
 """
 
 import argparse
@@ -36,7 +40,7 @@ from gsa_jax.metrics import TIDY_METRICS
 
 _ID_COLS = ("env", "policy", "K", "seed", "run")
 _METRIC_COLS = set(TIDY_METRICS)
-_SERIES = ("env_steps", "episode_return", "eval_return")
+_SERIES = ("env_steps", "episode_return", "eval_return", "eval_failures")
 
 
 class PlotError(ValueError):
@@ -61,7 +65,8 @@ def read_tidy(path, series):
 
 def load_sweep(sweep_dir):
     """All tidy rows under sweep_dir (metrics*.csv, or gzipped as experiments/ keep them) ->
-    {cell: {seed: {env_steps, episode_return, eval_return: [T]}}}, cell = (env, policy, K, (column, value)...)."""
+    {cell: {seed: {env_steps, episode_return, eval_return, eval_failures: [T]}}}, cell = (env, policy, K,
+    (column, value)...). eval_failures is NaN throughout in tables written before it was recorded."""
     plain = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv"), recursive=True)
     zipped = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv.gz"), recursive=True)
     paths = sorted(plain + [p for p in zipped if p[:-3] not in plain])
@@ -231,12 +236,41 @@ def cell_order(cell):
     return cell[0], cell[1] != "mlp", cell[2], cell[3:]
 
 
-def final_scores(data):
-    """{cell: (scores [n], kind)}: each run's final score (stats.final_score), seeds in order; kind is
-    'deterministic' when every run has evaluations, else 'training'."""
+def cell_schedule(seeds):
+    """[T] bool: the iterations a cell's runs were evaluated at. A group evaluates all its runs at once,
+    so an evaluation that left one run without a return is still scheduled for that run."""
+    mask = np.zeros(max(len(s["eval_return"]) for s in seeds.values()), bool)
+    for s in seeds.values():
+        for column in ("eval_return", "eval_failures"):
+            mask[: len(s[column])] |= np.isfinite(s[column])
+    return mask
+
+
+def unscored_runs(data):
+    """{cell: [(seed, [iterations])]}: runs whose final score is NaN because one of their last scheduled
+    evaluations has no return (tables written before failed evaluation episodes were counted)."""
     out = {}
     for cell, seeds in data.items():
-        got = [stats.final_score(s["eval_return"], s["episode_return"]) for _, s in sorted(seeds.items())]
+        sched = cell_schedule(seeds)
+        got = [(seed, stats.unscored_evaluations(s["eval_return"], sched)) for seed, s in sorted(seeds.items())]
+        if any(its for _, its in got):
+            out[cell] = [(seed, its) for seed, its in got if its]
+    return out
+
+
+def eval_failures(seeds):
+    """Failed evaluation episodes over a cell's runs and evaluations (gsa_jax.episodes)."""
+    return int(sum(np.nansum(s["eval_failures"]) for s in seeds.values()))
+
+
+def final_scores(data):
+    """{cell: (scores [n], kind)}: each run's final score (stats.final_score over the cell's schedule),
+    seeds in order, without the runs unscored_runs lists; kind is 'deterministic' when every run has
+    evaluations, else 'training'."""
+    out = {}
+    for cell, seeds in data.items():
+        sched = cell_schedule(seeds)
+        got = [stats.final_score(s["eval_return"], s["episode_return"], sched) for _, s in sorted(seeds.items())]
         kind = "deterministic" if all(k == "deterministic" for _, k in got) else "training"
         if kind == "training":
             got = [stats.final_score([], s["episode_return"]) for _, s in sorted(seeds.items())]
@@ -296,6 +330,7 @@ def final_table(data, action_dims, failed=None, reps=stats.REPS):
              for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
     versus = stats.improvement_probability(pairs, reps=reps) if pairs else {}
     critics = critic_comparisons(scores, reps)
+    unscored = unscored_runs(data)
     rows = []
     for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
         rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
@@ -306,7 +341,9 @@ def final_table(data, action_dims, failed=None, reps=stats.REPS):
             p = critics.get(cell, (math.nan,) * 3)
             row.update({k: "" if not np.isfinite(v) else round(float(v), 3)
                         for k, v in zip(("p_better_than_gae", "p_gae_ci_low", "p_gae_ci_high"), p)})
-        rows.append(dict(row, failed_runs=" ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, [])))))
+        rows.append(dict(row, failed_runs=" ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, []))),
+                         eval_failures=eval_failures(data[cell]),
+                         unscored_runs=" ".join(f"{s}@{'+'.join(map(str, its))}" for s, its in unscored.get(cell, []))))
     return rows
 
 
@@ -559,6 +596,8 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     plot_curves(data, action_dims, failed, "episode_return", os.path.join(out_dir, "figure_training.png"),
                 "Training return (stochastic policy)\n(IQM over seeds, 95% bootstrap band)", curve_reps)
     rows = final_table(data, action_dims, failed, reps)
+    for line in unscored_lines(rows):
+        log(line)
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
     plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
@@ -569,6 +608,17 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
         write_csv(os.path.join(out_dir, "aggregate.csv"), aggregate_table(normalized, reps))
         plot_profiles(normalized, os.path.join(out_dir, "performance_profile.png"), reps)
     return png, table, rows
+
+
+def unscored_lines(rows):
+    """Lines naming the cells with unscored runs (final_returns.csv 'unscored_runs'); [] if none."""
+    cells = [r for r in rows if r.get("unscored_runs")]
+    if not cells:
+        return []
+    return [f"{sum(len(r['unscored_runs'].split()) for r in cells)} run(s) have no return at one of their last "
+            f"{stats.FINAL_EVALUATIONS} scheduled evaluations (metrics written before failed evaluation episodes were "
+            "counted): left out of the statistics, listed as seed@iterations:"] + [
+        f"  {r['env']} {r['policy']}{' K=' + str(r['K']) if r['K'] != '' else ''}: {r['unscored_runs']}" for r in cells]
 
 
 def main(argv=None):

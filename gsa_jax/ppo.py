@@ -27,6 +27,7 @@ import jax.numpy as jnp
 
 import envs
 from envs.physics import Physics
+from gsa_jax.episodes import step_episodes
 from gsa_jax.nn import apply_mlp, init_mlp
 from gsa_jax.normalize import init_stats, normalize, update_stats
 from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
@@ -501,27 +502,28 @@ def run_chunk(p, state, hp, num_iterations):
 
 
 def evaluate(p, params, obs_stats, hp, key):
-    """Mean return of the deterministic controller (most probable cluster, mean action) over
-    p.cfg.eval_envs full episodes from random starts."""
+    """(mean return, failed episodes) of the deterministic controller (most probable cluster, mean action)
+    over p.cfg.eval_envs full episodes from random starts. A failed episode (non-finite reward or
+    observation while alive: gsa_jax.episodes) ends at its last finite step; the count says how many."""
     sched = schedule(hp, jnp.zeros((), jnp.int32))
     s0 = jax.vmap(p.eval_env.reset)(jax.random.split(key, p.cfg.eval_envs))
 
     def cond(carry):
-        _, _, alive, t = carry
+        _, _, alive, _, t = carry
         return (t < p.cfg.episode_length) & jnp.any(alive > 0)
 
     def body(carry):
-        s, ret, alive, t = carry
+        s, ret, alive, failed, t = carry
         action, _ = p.v_mode(params["policy"], norm_obs(p.cfg, obs_stats, s.obs), sched)
-        s = jax.vmap(p.eval_env.step)(s, jnp.clip(action, -1.0, 1.0))
-        ret = ret + alive * s.reward
-        return s, ret, alive * (1.0 - s.done), t + 1
+        s, reward, alive, failed_now = step_episodes(p.eval_env, s, jnp.clip(action, -1.0, 1.0), alive)
+        return s, ret + reward, alive, failed | failed_now, t + 1
 
     # stop once every episode has ended: stepping finished envs is wasted work (and fallen
     # bodies pressed against limits make MJX's solver loop run long)
     zeros = jnp.zeros((p.cfg.eval_envs,), jnp.float32)
-    _, ret, _, _ = jax.lax.while_loop(cond, body, (s0, zeros, zeros + 1.0, jnp.zeros((), jnp.int32)))
-    return jnp.mean(ret)
+    init = (s0, zeros, zeros + 1.0, jnp.zeros((p.cfg.eval_envs,), bool), jnp.zeros((), jnp.int32))
+    _, ret, _, failed, _ = jax.lax.while_loop(cond, body, init)
+    return jnp.mean(ret), jnp.sum(failed).astype(jnp.int32)
 
 
 def make_parts(cfg, env, eval_env):

@@ -73,7 +73,8 @@ def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
 
 
 def make_group_evaluate(cfg, run_batch=RUN_BATCH):
-    """jit of evaluate(params, obs_stats, hps, keys) -> [R] deterministic returns, vmapped over runs in
+    """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed
+    episodes), vmapped over runs in
     sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one)."""
     import jax
 
@@ -159,8 +160,8 @@ _EVALUATORS = {}  # (cfg, devices, run_batch, runs) -> compiled group evaluation
 
 
 def compile_group_evaluate(cfg, devices, states, hps, place, run_batch=RUN_BATCH, share=None, log=print):
-    """The compiled evaluation of a group's runs: (states, hps, key) -> [R] mean deterministic returns,
-    every run from the same eval_envs start states (drawn from `key`)."""
+    """The compiled evaluation of a group's runs: (states, hps, key) -> ([R] mean deterministic returns,
+    [R] failed episodes), every run from the same eval_envs start states (drawn from `key`)."""
     import jax
 
     from gsa_jax import xla_cache

@@ -34,6 +34,7 @@ def make_eval(cfg, policy_obj, episodes, physics):
     import jax.numpy as jnp
 
     import envs
+    from gsa_jax.episodes import step_episodes
     from gsa_jax.normalize import normalize
     from gsa_jax.ppo import schedule
 
@@ -46,8 +47,8 @@ def make_eval(cfg, policy_obj, episodes, physics):
             s, alive, ret = carry
             z = normalize(obs_stats, s.obs) if cfg.normalize_obs else s.obs
             a, _ = jax.vmap(policy_obj.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
-            nxt = jax.vmap(env.step)(s, jnp.clip(a, -1.0, 1.0))
-            return (nxt, alive * (1.0 - nxt.done), ret + nxt.reward * alive), None
+            nxt, reward, alive, _ = step_episodes(env, s, jnp.clip(a, -1.0, 1.0), alive)
+            return (nxt, alive, ret + reward), None
 
         s0 = jax.vmap(env.reset)(jax.random.split(key, episodes))
         (_, _, ret), _ = jax.lax.scan(step, (s0, jnp.ones((episodes,)), jnp.zeros((episodes,))), None,
@@ -138,6 +139,7 @@ def random_policy_return(env_name, episodes=16, seed=0, episode_length=None):
     import jax.numpy as jnp
 
     import envs
+    from gsa_jax.episodes import step_episodes
 
     env = envs.make(env_name, episode_length, auto_reset=False)
     length = episode_length or envs.default_episode_length(env_name)
@@ -149,8 +151,8 @@ def random_policy_return(env_name, episodes=16, seed=0, episode_length=None):
         def step(carry, k):
             s, ret, alive = carry
             a = jax.random.uniform(k, (episodes, env.action_size), minval=-1.0, maxval=1.0)
-            s = jax.vmap(env.step)(s, a)
-            return (s, ret + alive * s.reward, alive * (1.0 - s.done)), None
+            s, reward, alive, _ = step_episodes(env, s, a, alive)
+            return (s, ret + reward, alive), None
 
         zeros = jnp.zeros((episodes,))
         (_, ret, _), _ = jax.lax.scan(step, (s0, zeros, zeros + 1.0), jax.random.split(k_act, length))

@@ -2,9 +2,10 @@
 IQM with stratified bootstrap confidence intervals, probability of improvement, performance profiles.
 Plain NumPy in, plain NumPy out; gsa_jax.plot draws and tabulates them.
 
-A run's final score is the mean deterministic return of its last FINAL_EVALUATIONS evaluations
-(gsa_jax.metrics); runs of a sweep without evaluations fall back to the mean training return over the
-last 10% of iterations (final_score says which).
+A run's final score is the mean deterministic return of its last FINAL_EVALUATIONS scheduled evaluations
+(gsa_jax.metrics; an evaluation's failed episodes count up to their last finite step, gsa_jax.episodes);
+runs of a sweep without evaluations fall back to the mean training return over the last 10% of
+iterations (final_score says which).
 """
 
 import math
@@ -25,16 +26,26 @@ def t95(n):
     return _T95[n - 2] if 2 <= n <= 31 else 1.96
 
 
-def final_score(eval_returns, train_returns):
-    """(score, kind) of one run: the mean of its last FINAL_EVALUATIONS finite deterministic returns
-    ('deterministic'), else the mean training return over the last 10% of iterations ('training')."""
+def final_score(eval_returns, train_returns, scheduled=None):
+    """(score, kind) of one run: the mean deterministic return of its last FINAL_EVALUATIONS scheduled
+    evaluations ('deterministic'; NaN when one of those has no finite return, which evaluations that
+    count their failed episodes never give), else the mean training return over the last 10% of
+    iterations ('training'). scheduled [T] bool: the iterations evaluated (default: finite returns)."""
     ev = np.asarray(eval_returns, float)
-    ev = ev[np.isfinite(ev)]
-    if len(ev):
-        return float(np.mean(ev[-FINAL_EVALUATIONS:])), "deterministic"
+    scheduled = np.isfinite(ev) if scheduled is None else np.asarray(scheduled, bool)[: len(ev)]
+    if scheduled.any():
+        return float(np.mean(ev[scheduled][-FINAL_EVALUATIONS:])), "deterministic"
     tr = np.asarray(train_returns, float)
     tail = tr[-max(1, len(tr) // 10):]
     return (float(np.nanmean(tail)) if np.any(np.isfinite(tail)) else math.nan), "training"
+
+
+def unscored_evaluations(eval_returns, scheduled):
+    """The 1-based iterations among a run's last FINAL_EVALUATIONS scheduled evaluations that have no
+    finite return (what makes final_score NaN)."""
+    ev = np.asarray(eval_returns, float)
+    its = np.flatnonzero(np.asarray(scheduled, bool)[: len(ev)])[-FINAL_EVALUATIONS:]
+    return [int(i) + 1 for i in its if not np.isfinite(ev[i])]
 
 
 def curve_score(eval_returns):

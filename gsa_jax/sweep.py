@@ -547,7 +547,26 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     for f in failed:
         log(f"run failed (NaN/inf in loss or parameters) at iteration {f['failed_at']}: "
             + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "K", "seed") if k in f) + "; its metrics end there")
+    for line in eval_failure_lines(results):
+        log(line)
     return complete
+
+
+def eval_failure_lines(results):
+    """Summary lines of the evaluation episodes that failed (non-finite reward or observation; each ended
+    at its last finite step, gsa_jax.episodes), per run, from [(runs, metrics, done)]; [] if none."""
+    lines = []
+    for runs, metrics, done in results:
+        counts = metrics["eval_failures"][:, :done]
+        for r, row in zip(runs, counts):
+            if np.nansum(row) > 0:
+                its = [i + 1 for i in np.flatnonzero(row > 0)]
+                lines.append("  " + ", ".join(f"{k}={r[k]}" for k in ("env", "policy", "K", "seed") if k in r)
+                             + f": {int(np.nansum(row))} episode(s) at iteration(s) {', '.join(map(str, its))}")
+    if lines:
+        lines.insert(0, f"evaluation episodes failed (non-finite reward or observation; scored up to their last finite "
+                        f"step, counted in eval_failures) in {len(lines)} run(s):")
+    return lines
 
 
 def report_failures(root, dirs, log=print):

@@ -295,8 +295,8 @@ def read_rows_checked(path):
     rows = read_rows(path) if os.path.exists(path) else None
     if rows is None:
         raise OSError("missing")
-    if rows and set(METRIC_COLUMNS) - set(rows[0]):
-        raise ValueError("not a metrics table")
+    if rows and set(METRIC_COLUMNS) - set(rows[0]) - {"eval_failures"}:  # tables written before failed
+        raise ValueError("not a metrics table")                           # evaluation episodes were counted lack it
     return rows
 
 

@@ -133,7 +133,7 @@ def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
     p1, _ = single_program(cfg, chunk, 1, hp)
     p2, _ = single_program(cfg, chunk, 0, hp, eval_seed=7)
     state = jax.device_get(p0.state)
-    returns = [float(p.evaluate(state, p.hps, 3)) for p in (p0, p1, p2)]
+    returns = [float(p.evaluate(state, p.hps, 3)[0]) for p in (p0, p1, p2)]
     assert returns[0] == returns[1] and returns[2] != returns[0], returns
 
 

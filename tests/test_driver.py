@@ -29,7 +29,7 @@ def toy_program(runs=3, fail=None, interrupt_at=None):
         return {"iteration": it + chunk}, m
 
     def evaluate(state, hps, it):
-        return 100.0 + np.arange(runs) + it
+        return 100.0 + np.arange(runs) + it, np.arange(runs) * (it == 8)  # run r loses r episodes at 8
 
     state = {"iteration": np.zeros(runs, np.int64)}
     return Program(runs, state, {"chunk": 2}, run, evaluate, lambda t: {k: np.array(v) for k, v in t.items()}, True)
@@ -63,6 +63,9 @@ def test_uninterrupted_run_records_every_metric():
     evaluated = np.where(np.isfinite(res.metrics["eval_return"][0]))[0] + 1
     assert evaluated.tolist() == [4, 8] and [eval_due(PLAN, i) for i in (2, 4, 6, 8)] == [False, True, False, True]
     assert res.metrics["eval_return"][2, 3] == 100 + 2 + 4
+    # failed evaluation episodes are recorded where evaluated (0 is a count), NaN elsewhere
+    np.testing.assert_array_equal(res.metrics["eval_failures"][:, [3, 7]], [[0, 0], [0, 1], [0, 2]])
+    assert np.isnan(res.metrics["eval_failures"][:, [0, 1, 2, 4, 5, 6]]).all()
     assert res.timing["env_steps_run"] == 3 * 8 * 5
 
 

@@ -4,6 +4,7 @@ nothing to compile)."""
 import csv
 import gzip
 import json
+import math
 
 import numpy as np
 import pytest
@@ -157,3 +158,55 @@ def test_a_critic_sweep_merges_with_a_sweep_that_lists_none(tmp_path):
     other = write_sweep(tmp_path / "other", "hopper", steps=200, final={"mixture": 1.0})
     with pytest.raises(PlotError, match=r"hopper/mixture runs \(gae critic\), with different settings"):
         load_sweeps([str(gae), str(other)])
+
+
+def test_final_score_takes_the_last_scheduled_evaluations_never_skipping_one():
+    ev = [1.0, math.nan, 3.0, math.nan, 5.0, 7.0]
+    assert stats.final_score(ev, [])[0] == 5.0  # scheduled where finite: 3, 5, 7
+    scheduled = [True, False, True, True, True, True]  # iteration 4 was evaluated but has no return
+    assert math.isnan(stats.final_score(ev, [], scheduled)[0])
+    assert stats.unscored_evaluations(ev, scheduled) == [4]
+    assert stats.unscored_evaluations([1.0, 2.0, 3.0, 4.0], [True] * 4) == []
+
+
+def test_failed_evaluation_episodes_are_counted_and_unreturned_evaluations_reported(tmp_path):
+    """A table with eval_failures: the cell's count in final_returns.csv, every run scored. A table written
+    before failures were counted, with a scheduled final evaluation left blank in one run: that run is
+    listed in unscored_runs and a printed line, and left out of the statistics -- not scored from an
+    earlier evaluation."""
+    from gsa_jax.plot import final_table, load_sweep, unscored_lines
+
+    counted, legacy = tmp_path / "counted", tmp_path / "legacy"
+    for d, with_count in ((counted, True), (legacy, False)):
+        d.mkdir()
+        with open(d / "metrics.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["env", "policy", "K", "seed", "run", "iteration", "env_steps", "episode_return", "eval_return"]
+                       + (["eval_failures"] if with_count else []))
+            for seed in range(4):
+                for it in range(1, 11):
+                    evaluated = it % 2 == 0
+                    ev = 100.0 + seed if evaluated and not (not with_count and seed == 2 and it == 10) else ""
+                    fails = (2 if seed == 1 and it == 10 else 0) if evaluated else ""
+                    w.writerow(["hopper", "mlp", 1, seed, 0, it, it * 10, 50.0, ev] + ([fails] if with_count else []))
+    rows = final_table(load_sweep(str(counted)), {"hopper": 3}, reps=20)
+    assert rows[0]["eval_failures"] == 2 and rows[0]["seeds"] == 4 and rows[0]["unscored_runs"] == ""
+    assert rows[0]["final_return_mean"] == pytest.approx(101.5)
+    assert unscored_lines(rows) == []
+    rows = final_table(load_sweep(str(legacy)), {"hopper": 3}, reps=20)
+    assert rows[0]["unscored_runs"] == "2@10" and rows[0]["seeds"] == 3 and rows[0]["eval_failures"] == 0
+    assert rows[0]["final_return_mean"] == round((100 + 101 + 103) / 3, 3)
+    lines = unscored_lines(rows)
+    assert "1 run(s) have no return" in lines[0] and lines[1].strip() == "hopper mlp: 2@10"
+
+
+def test_sweep_summary_names_the_runs_with_failed_evaluation_episodes():
+    from gsa_jax.sweep import eval_failure_lines
+
+    counts = np.full((2, 6), np.nan)
+    counts[:, [2, 5]] = [[0, 0], [1, 3]]
+    runs = [{"env": "hopper", "policy": "mixture", "K": 2, "seed": s} for s in (0, 1)]
+    lines = eval_failure_lines([(runs, {"eval_failures": counts}, 6)])
+    assert len(lines) == 2 and "in 1 run(s)" in lines[0]
+    assert lines[1].strip() == "env=hopper, policy=mixture, K=2, seed=1: 4 episode(s) at iteration(s) 3, 6"
+    assert eval_failure_lines([(runs, {"eval_failures": np.where(np.isnan(counts), np.nan, 0)}, 6)]) == []

@@ -89,9 +89,9 @@ def test_evaluate_deterministic_controller(mixture4, mixture_runs):
     tr, _, _ = mixture4
     hp, (state, _) = mixture_runs
     ev = jax.jit(tr.evaluate)
-    r1 = float(ev(state.params, state.obs_stats, hp, jax.random.PRNGKey(3)))
-    r2 = float(ev(state.params, state.obs_stats, hp, jax.random.PRNGKey(3)))
-    assert r1 == r2 and r1 > 0
+    r1, f1 = ev(state.params, state.obs_stats, hp, jax.random.PRNGKey(3))
+    r2, f2 = ev(state.params, state.obs_stats, hp, jax.random.PRNGKey(3))
+    assert float(r1) == float(r2) and float(r1) > 0 and int(f1) == int(f2) == 0
 
 
 def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
@@ -107,10 +107,11 @@ def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
     params = dict(states[1].params, policy=dict(states[1].params["policy"], b=states[1].params["policy"]["b"] + 0.3))
     states[1] = states[1]._replace(params=params)  # another controller (at init every seed has the same one)
     key = jax.random.fold_in(jax.random.PRNGKey(0), 5)
-    alone = [float(jax.jit(tr.evaluate)(s.params, s.obs_stats, h, key)) for s, h in zip(states, hps)]
+    alone = [float(jax.jit(tr.evaluate)(s.params, s.obs_stats, h, key)[0]) for s, h in zip(states, hps)]
     stack = lambda *xs: jnp.stack(xs)  # noqa: E731
     group = make_group_evaluate(tr.cfg, run_batch=0)(
         jax.tree.map(stack, *[s.params for s in states]), jax.tree.map(stack, *[s.obs_stats for s in states]),
         jax.tree.map(stack, *hps), jnp.stack([key, key]))
-    np.testing.assert_allclose(np.asarray(group), alone, rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(group[0]), alone, rtol=1e-5)
+    assert np.asarray(group[1]).tolist() == [0, 0]
     assert alone[0] != alone[1]
