@@ -259,7 +259,10 @@ def unscored_runs(data):
 
 
 def eval_failures(seeds):
-    """Failed evaluation episodes over a cell's runs and evaluations (gsa_jax.episodes)."""
+    """Failed evaluation episodes over a cell's runs and evaluations (gsa_jax.episodes); '' (unknown) for
+    tables written before they were counted."""
+    if not any(np.isfinite(s["eval_failures"]).any() for s in seeds.values()):
+        return ""
     return int(sum(np.nansum(s["eval_failures"]) for s in seeds.values()))
 
 

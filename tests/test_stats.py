@@ -194,7 +194,7 @@ def test_failed_evaluation_episodes_are_counted_and_unreturned_evaluations_repor
     assert rows[0]["final_return_mean"] == pytest.approx(101.5)
     assert unscored_lines(rows) == []
     rows = final_table(load_sweep(str(legacy)), {"hopper": 3}, reps=20)
-    assert rows[0]["unscored_runs"] == "2@10" and rows[0]["seeds"] == 3 and rows[0]["eval_failures"] == 0
+    assert rows[0]["unscored_runs"] == "2@10" and rows[0]["seeds"] == 3 and rows[0]["eval_failures"] == ""  # unknown
     assert rows[0]["final_return_mean"] == round((100 + 101 + 103) / 3, 3)
     lines = unscored_lines(rows)
     assert "1 run(s) have no return" in lines[0] and lines[1].strip() == "hopper mlp: 2@10"

@@ -4,6 +4,7 @@ Programs are compiled once per module (chunks of CHUNK iterations) and reused ac
 """
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -115,3 +116,54 @@ def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
     np.testing.assert_allclose(np.asarray(group[0]), alone, rtol=1e-5)
     assert np.asarray(group[1]).tolist() == [0, 0]
     assert alone[0] != alone[1]
+
+
+class NaNRewardAtStep5:
+    """The evaluation task with the reward of step 5 made NaN in episodes that start with the cart right
+    of centre (obs[0] > 0): a physics failure forced on chosen, still-alive episodes."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def reset(self, rng):
+        state = self.env.reset(rng)
+        state.info["right"] = state.obs[0] > 0
+        return state
+
+    def step(self, state, action):
+        nxt = self.env.step(state, action)
+        bad = state.info["right"] & (nxt.info["steps"] == 5)
+        return nxt.replace(reward=jnp.where(bad, jnp.nan, nxt.reward))
+
+
+def test_evaluation_with_a_forced_non_finite_episode_counts_it_and_scores_it_to_its_last_finite_step(mixture4, mixture_runs):
+    """Against a NumPy reference from the unmodified task's per-step rewards: the failed episodes count
+    their first 4 rewards, the others their whole episode; the failures are counted."""
+    from gsa_jax.ppo import evaluate, make_env, make_parts, norm_obs, schedule
+
+    tr, _, _ = mixture4
+    hp, (state, _) = mixture_runs
+    eval_env = make_env(tr.cfg, auto_reset=False)
+    parts = make_parts(tr.cfg, make_env(tr.cfg), NaNRewardAtStep5(eval_env))
+    key = jax.random.PRNGKey(11)
+    mean, failures = jax.jit(lambda p, o, h, k: evaluate(parts, p, o, h, k))(state.params, state.obs_stats, hp, key)
+
+    def roll(params, obs_stats, h, k):  # the reference's raw per-step rewards and dones [T, E]
+        sched = schedule(h, jnp.zeros((), jnp.int32))
+        s0 = jax.vmap(eval_env.reset)(jax.random.split(k, tr.cfg.eval_envs))
+
+        def step(s, _):
+            a, _ = parts.v_mode(params["policy"], norm_obs(tr.cfg, obs_stats, s.obs), sched)
+            s = jax.vmap(eval_env.step)(s, jnp.clip(a, -1.0, 1.0))
+            return s, (s.reward, s.done)
+
+        return s0.obs, jax.lax.scan(step, s0, None, length=tr.cfg.episode_length)[1]
+
+    obs0, (r, d) = jax.device_get(jax.jit(roll)(state.params, state.obs_stats, hp, key))
+    end = np.argmax(d > 0, axis=0) + 1  # steps in each episode
+    right = obs0[:, 0] > 0
+    fails = right & (end >= 5)
+    expect = [r[: (4 if f else e), i].astype(np.float64).sum() for i, (e, f) in enumerate(zip(end, fails))]
+    assert 0 < fails.sum() < tr.cfg.eval_envs, fails  # some episodes fail, some do not
+    assert int(failures) == int(fails.sum())
+    np.testing.assert_allclose(float(mean), np.mean(expect), rtol=1e-5)
