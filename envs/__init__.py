@@ -1,8 +1,9 @@
 """Environment registry: `envs.make(name)` returns a single-env Brax environment (reset(key), step(state, action))
 with a time limit and auto-reset; batch it with jax.vmap.
 
-Tasks: Brax's MJX ports of the gym MuJoCo benchmarks used in the paper's Figure 1, and
-`allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py).
+Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
+`allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and
+gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids; physics backend 'c': envs/gym_v5.py).
 """
 
 import contextlib
@@ -16,10 +17,11 @@ import warnings
 GL_FROM_USER = "MUJOCO_GL" in os.environ
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")
-NAMES = BRAX_TASKS + ("allegro_cylinder",)
+BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")  # Brax's MJX variants
+GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "InvertedDoublePendulum-v5")  # gymnasium's own (envs/gym_v5.py)
+NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS
 DEFAULT_EPISODE_LENGTH = 1000
-C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")  # physics backend 'c' (envs/c_backend.py)
+C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder") + GYM_V5_TASKS  # physics backend 'c'
 
 
 def check_name(name):
@@ -33,6 +35,9 @@ def check_backend(name, physics):
     physics.validate()
     if physics.backend == "c" and name not in C_BACKEND_TASKS:
         raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)}; {name!r} runs on backend 'mjx'")
+    if physics.backend != "c" and name in GYM_V5_TASKS:
+        raise ValueError(f"{name} is stepped by MuJoCo C only: choose physics 'c' (gymnasium's v5 tasks are not "
+                         "built on MJX yet)")
 
 
 def default_episode_length(name):
@@ -52,6 +57,10 @@ def task_model(name):
     from envs import mujoco_c
 
     check_name(name)
+    if name in GYM_V5_TASKS:
+        from envs import gym_v5
+
+        return gym_v5.make_task(name).model
     if name in mujoco_c.C_TASKS:
         return mujoco_c.make_c(name).model
     return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(name + ".xml"))

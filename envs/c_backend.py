@@ -8,7 +8,9 @@ float32). A step is one host call (envs/host_call.py) into mujoco.batch.Batch, w
 batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjData per env. The state
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
 
-Tasks (C_TASKS): the Brax locomotion tasks, whose observations, rewards and terminations are
+Tasks: gymnasium's v5 tasks (envs/gym_v5.py), whose observations, rewards and terminations are
+computed on the host in float64 by the same functions that are checked against gymnasium; the Brax
+locomotion tasks (C_TASKS), whose observations, rewards and terminations are
 envs/mujoco_c.py's definitions (written once for NumPy and jax.numpy), evaluated here with jax.numpy on
 the float32 qpos, qvel and torso position the callback returns; and allegro_cylinder, whose PD-target
 update, reward and tactile values (MuJoCo contact sensors on the fingertips, envs/allegro_task.py) are
@@ -27,7 +29,7 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import batch as mj_batch
 
-from envs import allegro_task, mujoco_c
+from envs import allegro_task, gym_v5, mujoco_c
 from envs.host_call import host_call
 from envs.physics import resolve_threads
 
@@ -197,6 +199,49 @@ class AllegroHost(HostBatches):
         return self.step_rows(rows, action, move_targets)
 
 
+class GymV5Host(HostBatches):
+    """A gymnasium v5 task (envs/gym_v5.py): resets add noise to qpos0, actions are the controls; extra =
+    [observation, reward, terminated], computed in float64 by the task's own functions on the batch's
+    arrays (the derived fields as mj_step leaves them, as gymnasium reads them) before the float32 cast."""
+
+    def __init__(self, task, threads):
+        self.task = task
+        self.bound = task.derived
+        self.n_obs = int(task.observation_size)
+        self.n_extra = self.n_obs + 2
+        super().__init__(task.model, task.frame_skip, threads)
+
+    def _derived(self, b):
+        return {f: getattr(b, f) for f in self.task.derived}
+
+    def extra(self, b, before):
+        """before: (the task's values from before the step [n, k], action [n, nu] float64); None after a reset."""
+        if before is None:
+            obs = self.task.observe(b.qpos, b.qvel, self._derived(b))
+            return np.concatenate([obs, np.zeros((len(obs), 2))], axis=1)
+        obs, reward, terminated = self.task.outcome(before[0], b.qpos, b.qvel, self._derived(b), before[1])
+        return np.concatenate([obs, reward[:, None], terminated[:, None].astype(np.float64)], axis=1)
+
+    def reset(self, dq, dv):
+        """Rows at qpos0 + dq [..., nq], qvel dv [..., nv] after mj_forward -> SimState fields."""
+        m = self.model
+
+        def write(b):
+            b.state[:] = self.template
+            b.qpos[:] = m.qpos0 + np.asarray(dq, np.float64).reshape(-1, m.nq)
+            b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, m.nv)
+
+        return self._run(dq.shape[:-1], write, lambda b: b.forward())
+
+    def step(self, rows, ctrl):
+        def set_ctrl(b, u):
+            before = self.task.before(b.qpos, self._derived(b))
+            b.ctrl[:] = u
+            return before, u
+
+        return self.step_rows(rows, ctrl, set_ctrl)
+
+
 class CTask(Env):
     """A task as a single-env Brax environment stepped by MuJoCo C (subclasses: the task's JAX side)."""
 
@@ -291,13 +336,42 @@ class AllegroCTask(CTask):
         return state.replace(pipeline_state=sim, obs=self._observe(sim), reward=reward, done=jnp.zeros_like(state.done))
 
 
+class GymV5CTask(CTask):
+    """A gymnasium v5 task (envs/gym_v5.py) stepped by MuJoCo C: gymnasium's reset noise law drawn from
+    rng; observation, reward and termination as gymnasium computes them (float64, then float32)."""
+
+    def __init__(self, name, physics):
+        task = gym_v5.make_task(name)
+        super().__init__(name, physics, task, GymV5Host(task, physics.threads))
+        self.n_frames, self.dt = task.frame_skip, task.dt
+        self._n_obs = self.host.n_obs
+
+    def reset(self, rng):
+        m, task = self.mj_model, self.port
+        k_q, k_v = jax.random.split(rng)
+        dq = jax.random.uniform(k_q, (m.nq,), minval=-task.noise, maxval=task.noise)
+        if task.qvel_law == "uniform":
+            dv = jax.random.uniform(k_v, (m.nv,), minval=-task.noise, maxval=task.noise)
+        else:
+            dv = task.noise * jax.random.normal(k_v, (m.nv,))
+        sim = self._call(self.host.reset, dq, dv)
+        zero = jnp.zeros((), jnp.float32)
+        return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
+
+    def step(self, state, action):
+        self._check_action(action)
+        sim = self._call(self.host.step, state.pipeline_state.rows, action.astype(jnp.float32))
+        n = self._n_obs
+        return state.replace(pipeline_state=sim, obs=sim.extra[:n], reward=sim.extra[n], done=sim.extra[n + 1])
+
+
 TASKS = {"hopper": BraxCTask, "walker2d": BraxCTask, "halfcheetah": BraxCTask, "ant": BraxCTask,
          "allegro_cylinder": AllegroCTask}
 
 
 def make_task(name, physics):
     """Task `name` stepped by MuJoCo C (envs.make_base with backend 'c')."""
-    return TASKS[name](name, physics)
+    return (GymV5CTask if name in gym_v5.V5_TASKS else TASKS[name])(name, physics)
 
 
 def float64_rows(rows):

@@ -17,6 +17,8 @@ import os
 import mujoco
 import numpy as np
 
+from envs import gym_v5
+
 C_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")
 
 
@@ -210,11 +212,15 @@ BRAX_PORTS = {"hopper": HopperC, "walker2d": Walker2dC, "halfcheetah": HalfCheet
 
 
 def make_c(name):
+    """The task in MuJoCo C: reset(seed) -> obs, step(action) -> (obs, reward, done). gymnasium's v5 tasks
+    are envs.gym_v5.V5C (gymnasium's own definitions, not ports)."""
     if name in BRAX_PORTS:
         return BRAX_PORTS[name]()
     if name == "allegro_cylinder":
         return AllegroC()
-    raise ValueError(f"no MuJoCo C port of {name!r}; ported: {', '.join(C_TASKS)}")
+    if name in gym_v5.V5_TASKS:
+        return gym_v5.V5C(name)
+    raise ValueError(f"no MuJoCo C port of {name!r}; ported: {', '.join(C_TASKS + tuple(gym_v5.V5_TASKS))}")
 
 
 def coordinate_names(m):
@@ -242,6 +248,8 @@ def observation_layout(name):
     """One short description per observation entry of task `name` (for exported controllers' docs)."""
     if name == "inverted_double_pendulum":
         return list(IDP_LAYOUT)
+    if name in gym_v5.V5_TASKS:
+        return gym_v5.observation_layout(name)
     task = make_c(name)
     qpos, qvel = coordinate_names(task.model)
     if name == "allegro_cylinder":

@@ -50,11 +50,11 @@ def load_controller(controller_path):
 
 def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
-    from envs import default_episode_length
-    from envs.mujoco_c import C_TASKS, make_c, run_episodes
+    from envs import C_BACKEND_TASKS, default_episode_length
+    from envs.mujoco_c import make_c, run_episodes
 
-    if env_name not in C_TASKS:
-        raise DeployError(f"the controller is for {env_name!r}; MuJoCo C ports exist for {', '.join(C_TASKS)}")
+    if env_name not in C_BACKEND_TASKS:
+        raise DeployError(f"the controller is for {env_name!r}; MuJoCo C versions exist for {', '.join(C_BACKEND_TASKS)}")
     length = episode_length or config.get("episode_length") or default_episode_length(env_name)
     returns, lengths = run_episodes(make_c(env_name), ctrl, episodes, int(length), seed)
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
@@ -103,13 +103,13 @@ def compare_mjx(run_dir, env_name, episodes, seed):
 
 def deploy(args):
     """Every requested simulator's summary, printed as it completes."""
-    from envs.mujoco_c import C_TASKS
+    from envs import C_BACKEND_TASKS
 
     if args.episodes < 1:
         raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
     ctrl, env_name, config = load_controller(args.controller)
     result = {"env": env_name, "controller": args.controller}
-    if env_name in C_TASKS or not args.gymnasium:
+    if env_name in C_BACKEND_TASKS or not args.gymnasium:
         result["mujoco_c"] = run_mujoco_c(ctrl, env_name, config, args.episodes, args.episode_length, args.seed)
         print(report_line(env_name, "MuJoCo C (our port),", result["mujoco_c"]))
     if args.gymnasium:

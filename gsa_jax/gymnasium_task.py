@@ -41,25 +41,34 @@ def make_gym(task, env_id, check_steps=50, seed=0):
     """gymnasium's env `env_id` for a controller of `task`, with GYM_OPTIONS[task]; raises GymnasiumError
     with a one-line reason if it is another task or its observation layout differs from ours."""
     name, _ = parse_id(env_id)
+    if "-v" in task:  # trained on gymnasium's own task (envs.GYM_V5_TASKS): the same id, nothing to check
+        if env_id != task:
+            raise GymnasiumError(f"the controller is for {task!r}, not {env_id!r}")
+        return _make(env_id, {}), {}
     if task in NO_MATCH:
         raise GymnasiumError(f"the controller is for {task!r}: {NO_MATCH[task]}")
     if task not in GYM_NAMES:
         raise GymnasiumError(f"no gymnasium counterpart of {task!r}")
     if name != GYM_NAMES[task]:
         raise GymnasiumError(f"the controller is for {task!r} (gymnasium: {GYM_NAMES[task]}-v5), not {env_id!r}")
+    options = GYM_OPTIONS.get(task, {})
+    env = _make(env_id, options)
+    check_layout(task, env, env_id, check_steps, seed)
+    return env, options
+
+
+def _make(env_id, options):
+    """gymnasium.make(env_id, **options), or GymnasiumError with the first line of gymnasium's reason."""
     try:
         import gymnasium
     except ImportError as e:
         raise GymnasiumError(f"gymnasium is not installed: pip install 'gsa_jax[deploy]' ({e})") from None
-    options = GYM_OPTIONS.get(task, {})
     try:
-        env = gymnasium.make(env_id, **options)
+        return gymnasium.make(env_id, **options)
     except (gymnasium.error.Error, TypeError, ValueError) as e:
         with_options = f" with options {options}" if options else ""
         first = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise GymnasiumError(f"gymnasium cannot make {env_id!r}{with_options}: {first}") from None
-    check_layout(task, env, env_id, check_steps, seed)
-    return env, options
 
 
 def _structure(m):

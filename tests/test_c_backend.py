@@ -33,10 +33,11 @@ def mj_row(m, d):
 
 
 def test_backend_runs_every_ported_task():
-    assert set(envs.C_BACKEND_TASKS) == set(C_TASKS)
+    """The Brax variants' and Allegro's MuJoCo C ports (here), gymnasium's v5 tasks (tests/test_gym_v5.py)."""
+    assert set(envs.C_BACKEND_TASKS) == set(C_TASKS) | set(envs.GYM_V5_TASKS)
 
 
-@pytest.mark.parametrize("name", envs.C_BACKEND_TASKS)
+@pytest.mark.parametrize("name", C_TASKS)
 def test_steps_equal_mj_step_bit_for_bit(name):
     """From the backend's reset state, 60 random actions (some outside [-1, 1]): every env step's
     mjSTATE_INTEGRATION row (qpos, qvel, solver warmstart, ctrl, time) equals mj_step's in float64, bit
@@ -120,7 +121,7 @@ def test_cli_physics_flag_errors_in_one_line():
 SMALL = {"num_envs": 8, "unroll_length": 32, "num_minibatches": 4, "num_epochs": 2, "episode_length": 100, "eval_envs": 4}
 SPEC = f"""
 name = "c_tiny"
-envs = ["hopper"]
+envs = ["{{env}}"]
 policies = ["mixture"]
 clusters = [1, 2]
 seeds = [0, 1]
@@ -138,24 +139,35 @@ def read_rows(path):
         return sorted(csv.DictReader(f), key=lambda r: (int(r["K"]), int(r["seed"]), int(r["iteration"])))
 
 
-@pytest.fixture(scope="module")
-def c_sweep(tmp_path_factory):
-    """The tiny backend-'c' sweep, uninterrupted, in this process."""
+def tiny_sweep(tmp_path_factory, env):
+    """The tiny backend-'c' sweep of `env`, uninterrupted, in this process: (spec file, out)."""
     spec_file = tmp_path_factory.mktemp("spec") / "c_tiny.toml"
-    spec_file.write_text(SPEC)
+    spec_file.write_text(SPEC.format(env=env))
     out = tmp_path_factory.mktemp("sweep") / "ref"
     assert run_sweep(load_spec(str(spec_file)), str(out), devices=jax.local_devices()[:1], quiet=True)
     return spec_file, out
 
 
-def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(c_sweep):
+@pytest.fixture(scope="module")
+def c_sweep(tmp_path_factory):
+    return tiny_sweep(tmp_path_factory, "hopper")
+
+
+@pytest.fixture(scope="module")
+def v5_sweep(tmp_path_factory):
+    """gymnasium's Hopper-v5 (envs/gym_v5.py) in the same sweep."""
+    return tiny_sweep(tmp_path_factory, "Hopper-v5")
+
+
+@pytest.mark.parametrize("sweep, env", [("c_sweep", "hopper"), ("v5_sweep", "Hopper-v5")])
+def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(sweep, env, request):
     import json
 
-    _, out = c_sweep
-    physics = json.loads((out / "sweep.json").read_text())["physics"]["hopper-mixture"]
+    _, out = request.getfixturevalue(sweep)
+    physics = json.loads((out / "sweep.json").read_text())["physics"][f"{env}-mixture"]
     assert physics["backend"] == "c" and physics["linesearch_in_force"] == "mujoco_c"
     rows = [r for r in read_rows(out / "metrics.csv") if r["K"] == "2" and r["seed"] == "1"]
-    tr = make_train(Config(env="hopper", policy="mixture", k_max=2, backend="c", **SMALL))
+    tr = make_train(Config(env=env, policy="mixture", k_max=2, backend="c", **SMALL))
     hp = make_hparams(K=2, total_iterations=4)
     _, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, 2)
     for col in ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl"):
@@ -170,8 +182,9 @@ def compare_rows(a, b):
         assert [r[col] for r in a] == [r[col] for r in b], col
 
 
-def test_stopped_and_resumed_sweep_equals_uninterrupted(c_sweep, tmp_path):
-    spec_file, ref = c_sweep
+@pytest.mark.parametrize("sweep", ["c_sweep", "v5_sweep"])
+def test_stopped_and_resumed_sweep_equals_uninterrupted(sweep, tmp_path, request):
+    spec_file, ref = request.getfixturevalue(sweep)
     out = tmp_path / "resumed"
     spec = load_spec(str(spec_file))
     assert not run_sweep(spec, str(out), devices=jax.local_devices()[:1], quiet=True, stop_after_chunks=1)

@@ -1,0 +1,216 @@
+"""gymnasium's MuJoCo v5 tasks (gymnasium 1.4's defaults for those ids) on MuJoCo C, with no JAX.
+
+    task = make_v5("Hopper-v5")
+    obs = task.reset(seed)                    # or task.set_start(qpos, qvel)
+    obs, reward, terminated = task.step(action)
+
+The paper's Figure 1 and every published score table (CleanRL, SB3, EnvPool) are on gym's tasks, which
+Brax's ports (envs.BRAX_TASKS) only resemble: another integrator, fewer solver iterations, other
+frictions and observations. These are gymnasium's own: the MJCF read from the installed gymnasium
+package, its frame skip, reset noise law, observation layout, every reward term and its termination.
+
+Each task's observation, reward and termination are written once, over batches of simulations
+(`outcome`, float64 arrays with a leading batch axis), from the state and the derived MjData fields
+`derived` names *as mj_step leaves them* (one substep behind the state, as gymnasium reads them).
+The C physics backend (envs/c_backend.py) evaluates the same functions on mujoco.batch's arrays inside
+the trainer; V5C here steps one MjData exactly as gymnasium's MujocoEnv does. tests/test_gym_v5.py
+checks both against gymnasium.make(id) step for step.
+
+Ant-v5 is not here yet: its observation holds the contact forces mj_rnePostConstraint computes after
+the step from the last Runge-Kutta stage, which mujoco.batch does not expose.
+"""
+
+import os
+
+import mujoco
+import numpy as np
+
+EPISODE_LENGTH = 1000  # gymnasium's max_episode_steps for the five ids (a truncation, not a termination)
+
+
+def gym_asset(name):
+    """Path of an MJCF shipped with the installed gymnasium package (found without importing it)."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("gymnasium")
+    if spec is None or not spec.submodule_search_locations:
+        raise FileNotFoundError("gymnasium is not installed (pip install 'gymnasium[mujoco]')")
+    return os.path.join(spec.submodule_search_locations[0], "envs", "mujoco", "assets", name)
+
+
+class V5Task:
+    """A v5 task's constants and its observation, reward and termination over batches.
+
+    noise: reset_noise_scale; qvel_law 'uniform': qvel ~ U(-noise, noise), 'normal': noise * N(0, 1);
+    qpos ~ qpos0 + U(-noise, noise) for every task (gymnasium draws qpos first, then qvel)."""
+
+    env_id = ""
+    xml = ""
+    frame_skip = 1
+    noise = 0.0
+    qvel_law = "uniform"
+    derived = ()  # MjData fields read after a call (mujoco.batch binds them)
+
+    def __init__(self):
+        self.model = mujoco.MjModel.from_xml_path(gym_asset(self.xml))
+        self.dt = self.model.opt.timestep * self.frame_skip
+
+    @property
+    def observation_size(self):
+        zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
+        return self.observe(np.zeros((1, self.model.nq)), np.zeros((1, self.model.nv)), zeros).shape[-1]
+
+    def before(self, qpos, derived):
+        """[n, k] what the reward needs from before a step: the x position of the root (qpos[:, 0])."""
+        return qpos[:, :1].copy()
+
+    def observe(self, qpos, qvel, derived):
+        raise NotImplementedError
+
+    def outcome(self, before, qpos, qvel, derived, action):
+        """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
+        raise NotImplementedError
+
+
+class HopperV5(V5Task):
+    """Hopper-v5: reward = x velocity + 1 (while healthy) - 1e-3 |a|^2; healthy while every element of
+    qpos[2:], qvel lies in (-100, 100), 0.7 < z and -0.2 < angle < 0.2; obs [qpos[1:], clip(qvel, +-10)]."""
+
+    env_id, xml, frame_skip, noise = "Hopper-v5", "hopper.xml", 4, 5e-3
+    ctrl_cost = 1e-3
+
+    def observe(self, qpos, qvel, derived):
+        return np.concatenate([qpos[:, 1:], np.clip(qvel, -10.0, 10.0)], axis=1)
+
+    def healthy(self, qpos, qvel):
+        state = np.concatenate([qpos[:, 2:], qvel], axis=1)
+        z, angle = qpos[:, 1], qpos[:, 2]
+        return np.all((-100.0 < state) & (state < 100.0), axis=1) & (0.7 < z) & (-0.2 < angle) & (angle < 0.2)
+
+    def outcome(self, before, qpos, qvel, derived, action):
+        healthy = self.healthy(qpos, qvel)
+        x_velocity = (qpos[:, 0] - before[:, 0]) / self.dt
+        reward = x_velocity + healthy * 1.0 - self.ctrl_cost * np.sum(np.square(action), axis=1)
+        return self.observe(qpos, qvel, derived), reward, ~healthy
+
+
+class Walker2dV5(HopperV5):
+    """Walker2d-v5 (its own walker2d_v5.xml: both feet with friction 0.9): as Hopper-v5, healthy while
+    0.8 < z < 2 and -1 < angle < 1."""
+
+    env_id, xml = "Walker2d-v5", "walker2d_v5.xml"
+
+    def healthy(self, qpos, qvel):
+        z, angle = qpos[:, 1], qpos[:, 2]
+        return (0.8 < z) & (z < 2.0) & (-1.0 < angle) & (angle < 1.0)
+
+
+class HalfCheetahV5(V5Task):
+    """HalfCheetah-v5: reward = x velocity - 0.1 |a|^2, never terminates; obs [qpos[1:], qvel];
+    reset noise U(-0.1, 0.1) on qpos, 0.1 N(0, 1) on qvel."""
+
+    env_id, xml, frame_skip, noise, qvel_law = "HalfCheetah-v5", "half_cheetah.xml", 5, 0.1, "normal"
+
+    def observe(self, qpos, qvel, derived):
+        return np.concatenate([qpos[:, 1:], qvel], axis=1)
+
+    def outcome(self, before, qpos, qvel, derived, action):
+        x_velocity = (qpos[:, 0] - before[:, 0]) / self.dt
+        reward = x_velocity - 0.1 * np.sum(np.square(action), axis=1)
+        return self.observe(qpos, qvel, derived), reward, np.zeros(len(qpos), bool)
+
+
+class InvertedDoublePendulumV5(V5Task):
+    """InvertedDoublePendulum-v5: obs [cart x, sin, cos of the two hinges, clip(qvel, +-10),
+    clip(qfrc_constraint[0], +-10)] (9); the tip site at (x, _, y) ends the episode when y <= 1;
+    reward = 10 (unless terminated) - 0.01 x^2 - (y - 2)^2 - 1e-3 v1^2 - 5e-3 v2^2."""
+
+    env_id, xml, frame_skip, noise, qvel_law = "InvertedDoublePendulum-v5", "inverted_double_pendulum.xml", 5, 0.1, "normal"
+    derived = ("site_xpos", "qfrc_constraint")
+
+    def observe(self, qpos, qvel, derived):
+        force = np.clip(derived["qfrc_constraint"], -10.0, 10.0)[:, :1]
+        return np.concatenate([qpos[:, :1], np.sin(qpos[:, 1:]), np.cos(qpos[:, 1:]), np.clip(qvel, -10.0, 10.0), force],
+                              axis=1)
+
+    def outcome(self, before, qpos, qvel, derived, action):
+        x, y = derived["site_xpos"][:, 0, 0], derived["site_xpos"][:, 0, 2]
+        terminated = y <= 1.0
+        v1, v2 = qvel[:, 1], qvel[:, 2]
+        reward = (10.0 * (~terminated) - (0.01 * x**2 + (y - 2.0) ** 2)) - (1e-3 * v1**2 + 5e-3 * v2**2)
+        return self.observe(qpos, qvel, derived), reward, terminated
+
+
+V5_TASKS = {t.env_id: t for t in (HopperV5, Walker2dV5, HalfCheetahV5, InvertedDoublePendulumV5)}
+
+
+def make_task(env_id):
+    """The V5Task of a gymnasium id (ValueError naming the ids otherwise)."""
+    if env_id not in V5_TASKS:
+        raise ValueError(f"no gymnasium v5 task {env_id!r}; built: {', '.join(V5_TASKS)}")
+    return V5_TASKS[env_id]()
+
+
+def observation_layout(env_id):
+    """One short description per observation entry (for exported controllers' docs)."""
+    from envs.mujoco_c import coordinate_names
+
+    task = make_task(env_id)
+    qpos, qvel = coordinate_names(task.model)
+    if env_id == "InvertedDoublePendulum-v5":
+        hinges = qpos[1:]
+        return (["cart x"] + [f"sin({h})" for h in hinges] + [f"cos({h})" for h in hinges]
+                + [f"{v} velocity (clipped to +-10)" for v in qvel] + ["cart constraint force (clipped to +-10)"])
+    clipped = " (clipped to +-10)" if env_id != "HalfCheetah-v5" else ""
+    return [f"{p} position" for p in qpos[1:]] + [f"{v} velocity{clipped}" for v in qvel]
+
+
+def start_noise(task, rng):
+    """(dq [nq], dv [nv]) of a reset, drawn as gymnasium draws them from a NumPy Generator."""
+    m = task.model
+    dq = rng.uniform(low=-task.noise, high=task.noise, size=m.nq)
+    dv = rng.uniform(low=-task.noise, high=task.noise, size=m.nv) if task.qvel_law == "uniform" \
+        else task.noise * rng.standard_normal(m.nv)
+    return dq, dv
+
+
+class V5C:
+    """One v5 task on one MjData, stepped as gymnasium's MujocoEnv steps it (ctrl = action, mj_step
+    frame_skip times, mj_rnePostConstraint), reading obs, reward and termination from V5Task."""
+
+    def __init__(self, env_id):
+        self.task = make_task(env_id)
+        self.model = self.task.model
+        self.data = mujoco.MjData(self.model)
+
+    @property
+    def action_size(self):
+        return self.model.nu
+
+    def _derived(self):
+        return {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
+
+    def set_start(self, qpos, qvel):
+        """The state gymnasium's reset_model sets (mj_resetData, qpos, qvel, mj_forward) -> obs."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = qpos, qvel
+        mujoco.mj_forward(m, d)
+        return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
+
+    def reset(self, seed):
+        dq, dv = start_noise(self.task, np.random.default_rng(seed))
+        return self.set_start(self.model.qpos0 + dq, dv)
+
+    def step(self, action):
+        """One env step -> (obs, reward, terminated)."""
+        a = np.asarray(action, np.float64)
+        if a.shape != (self.model.nu,):
+            raise ValueError(f"action has shape {a.shape}; {self.task.env_id} takes ({self.model.nu},)")
+        m, d = self.model, self.data
+        before = self.task.before(d.qpos[None], self._derived())
+        d.ctrl[:] = a
+        mujoco.mj_step(m, d, nstep=self.task.frame_skip)
+        mujoco.mj_rnePostConstraint(m, d)
+        obs, reward, terminated = self.task.outcome(before, d.qpos[None], d.qvel[None], self._derived(), a[None])
+        return obs[0], float(reward[0]), bool(terminated[0])
