@@ -128,15 +128,8 @@ class HostBatches:
         return self._run(lead, write, lambda b: b.step(nstep=self.n_frames))
 
 
-class BraxHost(HostBatches):
-    """A Brax locomotion task: resets add noise to qpos0, actions are the controls; extra = the torso's
-    position [3] (body 1's xpos, as mj_step leaves it: before its last substep)."""
-
-    n_extra = 3
-    bound = ("xpos",)
-
-    def extra(self, b, before):
-        return b.xpos[:, 1]
+class NoisyStartHost(HostBatches):
+    """A locomotion task whose resets add noise to qpos0 and set qvel."""
 
     def reset(self, dq, dv):
         """Rows at qpos0 + dq [..., nq], qvel dv [..., nv] after mj_forward -> SimState fields."""
@@ -148,6 +141,17 @@ class BraxHost(HostBatches):
             b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, m.nv)
 
         return self._run(dq.shape[:-1], write, lambda b: b.forward())
+
+
+class BraxHost(NoisyStartHost):
+    """A Brax locomotion task: actions are the controls; extra = the torso's position [3] (body 1's xpos,
+    as mj_step leaves it: before its last substep)."""
+
+    n_extra = 3
+    bound = ("xpos",)
+
+    def extra(self, b, before):
+        return b.xpos[:, 1]
 
     def step(self, rows, ctrl):
         def set_ctrl(b, u):
@@ -199,8 +203,8 @@ class AllegroHost(HostBatches):
         return self.step_rows(rows, action, move_targets)
 
 
-class GymV5Host(HostBatches):
-    """A gymnasium v5 task (envs/gym_v5.py): resets add noise to qpos0, actions are the controls; extra =
+class GymV5Host(NoisyStartHost):
+    """A gymnasium v5 task (envs/gym_v5.py): actions are the controls; extra =
     [observation, reward, terminated], computed in float64 by the task's own functions on the batch's
     arrays (the derived fields as mj_step leaves them, as gymnasium reads them) before the float32 cast."""
 
@@ -222,17 +226,6 @@ class GymV5Host(HostBatches):
         obs, reward, terminated = self.task.outcome(before[0], b.qpos, b.qvel, self._derived(b), before[1])
         return np.concatenate([obs, reward[:, None], terminated[:, None].astype(np.float64)], axis=1)
 
-    def reset(self, dq, dv):
-        """Rows at qpos0 + dq [..., nq], qvel dv [..., nv] after mj_forward -> SimState fields."""
-        m = self.model
-
-        def write(b):
-            b.state[:] = self.template
-            b.qpos[:] = m.qpos0 + np.asarray(dq, np.float64).reshape(-1, m.nq)
-            b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, m.nv)
-
-        return self._run(dq.shape[:-1], write, lambda b: b.forward())
-
     def step(self, rows, ctrl):
         def set_ctrl(b, u):
             before = self.task.before(b.qpos, self._derived(b))
@@ -240,6 +233,16 @@ class GymV5Host(HostBatches):
             return before, u
 
         return self.step_rows(rows, ctrl, set_ctrl)
+
+
+def start_noise(rng, m, noise, law):
+    """(dq [nq], dv [nv]) of a reset drawn from rng: dq ~ U(-noise, noise); dv ~ U(-noise, noise) ('uniform')
+    or noise * N(0, 1) ('normal')."""
+    k_q, k_v = jax.random.split(rng)
+    dq = jax.random.uniform(k_q, (m.nq,), minval=-noise, maxval=noise)
+    if law == "uniform":
+        return dq, jax.random.uniform(k_v, (m.nv,), minval=-noise, maxval=noise)
+    return dq, noise * jax.random.normal(k_v, (m.nv,))
 
 
 class CTask(Env):
@@ -286,14 +289,7 @@ class BraxCTask(CTask):
 
     def reset(self, rng):
         """Brax's reset noise for the task (port.noise, port.qvel_noise), drawn here from rng."""
-        m, port = self.mj_model, self.port
-        k_q, k_v = jax.random.split(rng)
-        dq = jax.random.uniform(k_q, (m.nq,), minval=-port.noise, maxval=port.noise)
-        if port.qvel_noise == "uniform":
-            dv = jax.random.uniform(k_v, (m.nv,), minval=-port.noise, maxval=port.noise)
-        else:
-            dv = port.noise * jax.random.normal(k_v, (m.nv,))
-        sim = self._call(self.host.reset, dq, dv)
+        sim = self._call(self.host.reset, *start_noise(rng, self.mj_model, self.port.noise, self.port.qvel_noise))
         zero = jnp.zeros((), jnp.float32)
         return State(sim, self._observe(sim), zero, zero, {}, {})
 
@@ -347,14 +343,7 @@ class GymV5CTask(CTask):
         self._n_obs = self.host.n_obs
 
     def reset(self, rng):
-        m, task = self.mj_model, self.port
-        k_q, k_v = jax.random.split(rng)
-        dq = jax.random.uniform(k_q, (m.nq,), minval=-task.noise, maxval=task.noise)
-        if task.qvel_law == "uniform":
-            dv = jax.random.uniform(k_v, (m.nv,), minval=-task.noise, maxval=task.noise)
-        else:
-            dv = task.noise * jax.random.normal(k_v, (m.nv,))
-        sim = self._call(self.host.reset, dq, dv)
+        sim = self._call(self.host.reset, *start_noise(rng, self.mj_model, self.port.noise, self.port.qvel_noise))
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
 

@@ -41,14 +41,14 @@ def gym_asset(name):
 class V5Task:
     """A v5 task's constants and its observation, reward and termination over batches.
 
-    noise: reset_noise_scale; qvel_law 'uniform': qvel ~ U(-noise, noise), 'normal': noise * N(0, 1);
+    noise: reset_noise_scale; qvel_noise 'uniform': qvel ~ U(-noise, noise), 'normal': noise * N(0, 1);
     qpos ~ qpos0 + U(-noise, noise) for every task (gymnasium draws qpos first, then qvel)."""
 
     env_id = ""
     xml = ""
     frame_skip = 1
     noise = 0.0
-    qvel_law = "uniform"
+    qvel_noise = "uniform"
     derived = ()  # MjData fields read after a call (mujoco.batch binds them)
 
     def __init__(self):
@@ -109,7 +109,7 @@ class HalfCheetahV5(V5Task):
     """HalfCheetah-v5: reward = x velocity - 0.1 |a|^2, never terminates; obs [qpos[1:], qvel];
     reset noise U(-0.1, 0.1) on qpos, 0.1 N(0, 1) on qvel."""
 
-    env_id, xml, frame_skip, noise, qvel_law = "HalfCheetah-v5", "half_cheetah.xml", 5, 0.1, "normal"
+    env_id, xml, frame_skip, noise, qvel_noise = "HalfCheetah-v5", "half_cheetah.xml", 5, 0.1, "normal"
 
     def observe(self, qpos, qvel, derived):
         return np.concatenate([qpos[:, 1:], qvel], axis=1)
@@ -125,7 +125,7 @@ class InvertedDoublePendulumV5(V5Task):
     clip(qfrc_constraint[0], +-10)] (9); the tip site at (x, _, y) ends the episode when y <= 1;
     reward = 10 (unless terminated) - 0.01 x^2 - (y - 2)^2 - 1e-3 v1^2 - 5e-3 v2^2."""
 
-    env_id, xml, frame_skip, noise, qvel_law = "InvertedDoublePendulum-v5", "inverted_double_pendulum.xml", 5, 0.1, "normal"
+    env_id, xml, frame_skip, noise, qvel_noise = "InvertedDoublePendulum-v5", "inverted_double_pendulum.xml", 5, 0.1, "normal"
     derived = ("site_xpos", "qfrc_constraint")
 
     def observe(self, qpos, qvel, derived):
@@ -169,7 +169,7 @@ def start_noise(task, rng):
     """(dq [nq], dv [nv]) of a reset, drawn as gymnasium draws them from a NumPy Generator."""
     m = task.model
     dq = rng.uniform(low=-task.noise, high=task.noise, size=m.nq)
-    dv = rng.uniform(low=-task.noise, high=task.noise, size=m.nv) if task.qvel_law == "uniform" \
+    dv = rng.uniform(low=-task.noise, high=task.noise, size=m.nv) if task.qvel_noise == "uniform" \
         else task.noise * rng.standard_normal(m.nv)
     return dq, dv
 

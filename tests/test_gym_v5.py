@@ -121,7 +121,7 @@ def test_resets_draw_from_gymnasiums_noise_law(env_id):
     theirs = np.array(theirs)
     task = env.env.env.port
     q0 = np.concatenate([task.model.qpos0, np.zeros(task.model.nv)])
-    bounded = task.model.nq + (task.model.nv if task.qvel_law == "uniform" else 0)  # U(-noise, noise) coordinates
+    bounded = task.model.nq + (task.model.nv if task.qvel_noise == "uniform" else 0)  # U(-noise, noise) coordinates
     for j in range(ours.shape[1]):
         p = sps.ks_2samp(ours[:, j], theirs[:, j]).pvalue
         assert p > 1e-3, (env_id, j, p)
