@@ -40,6 +40,14 @@ def check_backend(name, physics):
                          "built on MJX yet)")
 
 
+def own_physics(name):
+    """The physics a task is stepped with by default: MJX, or MuJoCo C (backend 'c') for the tasks built
+    on it only (gymnasium's v5 tasks). For tools that read a task's model and substeps."""
+    from envs.physics import Physics
+
+    return Physics(backend="c") if name in GYM_V5_TASKS else Physics()
+
+
 def default_episode_length(name):
     check_name(name)
     if name == "allegro_cylinder":

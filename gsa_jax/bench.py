@@ -29,6 +29,7 @@ bench.png.
 """
 
 import argparse
+import itertools
 import json
 import os
 import resource
@@ -100,7 +101,8 @@ def worker(args):
     from gsa_jax.sweep import build_grid, check_spec, group_config
 
     spec = check_spec({"envs": [args.env], "policies": [args.policy], "clusters": [args.clusters],
-                       "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9})
+                       "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9,
+                       "config": {"backend": args.physics}})
     _, _, runs = build_grid(spec)[0]
     cfg = group_config(spec, args.env, args.policy, runs)
     if args.epochs:
@@ -366,7 +368,7 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, so
 
     import envs
 
-    base = envs.make_base(env_name)
+    base = envs.make_base(env_name, envs.own_physics(env_name))
     model = envs.mj_model(base)
     if solver:
         model = copy.deepcopy(model)
@@ -595,9 +597,9 @@ def make_plan(args):
     profile_procs = positive_ints("--profile-processes", args.profile_processes, [1])
     if args.profile_runs and max(profile_procs) > args.profile_runs:
         raise ValueError(f"--profile-processes {max(profile_procs)} is more than --profile-runs {args.profile_runs}")
-    for pol in policies:  # the sweeps' own validation, before anything compiles
+    for pol, be in itertools.product(policies, backends):  # the sweeps' own validation, before anything compiles
         check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1,
-                    "config": {"value_target": args.value_target}}, source="bench")
+                    "config": {"value_target": args.value_target, "backend": be}}, source="bench")
     plan = [(pol, n, k, None, be) for be in backends for pol in policies for n in sizes for k in procs if k <= n]
     raw_plan = [(b, k, None, be) for be in backends for b in batches for k in procs if k <= b]
     if args.quick and not args.processes:  # under 3 min: each size on as many processes as it can use
