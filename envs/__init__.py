@@ -3,7 +3,7 @@ with a time limit and auto-reset; batch it with jax.vmap.
 
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
 `allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and
-gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids; physics backend 'c': envs/gym_v5.py).
+gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/gym_v5.py; MJX: envs/gym_v5_mjx.py).
 """
 
 import contextlib
@@ -18,7 +18,7 @@ GL_FROM_USER = "MUJOCO_GL" in os.environ
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")  # Brax's MJX variants
-GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "InvertedDoublePendulum-v5")  # gymnasium's own (envs/gym_v5.py)
+GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "InvertedDoublePendulum-v5")  # gymnasium's own: envs/gym_v5.py
 NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS
 DEFAULT_EPISODE_LENGTH = 1000
 C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder") + GYM_V5_TASKS  # physics backend 'c'
@@ -35,17 +35,6 @@ def check_backend(name, physics):
     physics.validate()
     if physics.backend == "c" and name not in C_BACKEND_TASKS:
         raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)}; {name!r} runs on backend 'mjx'")
-    if physics.backend != "c" and name in GYM_V5_TASKS:
-        raise ValueError(f"{name} is stepped by MuJoCo C only: choose physics 'c' (gymnasium's v5 tasks are not "
-                         "built on MJX yet)")
-
-
-def own_physics(name):
-    """The physics a task is stepped with by default: MJX, or MuJoCo C (backend 'c') for the tasks built
-    on it only (gymnasium's v5 tasks). For tools that read a task's model and substeps."""
-    from envs.physics import Physics
-
-    return Physics(backend="c") if name in GYM_V5_TASKS else Physics()
 
 
 def default_episode_length(name):
@@ -101,7 +90,14 @@ def make_base(name, physics=None):
         from envs import allegro
     with warnings.catch_warnings(), _process_local_devices():
         warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
-        env = allegro.AllegroCylinder() if name == "allegro_cylinder" else brax_envs.get_environment(name, backend="mjx")
+        if name == "allegro_cylinder":
+            env = allegro.AllegroCylinder()
+        elif name in GYM_V5_TASKS:
+            from envs.gym_v5_mjx import GymV5Mjx
+
+            env = GymV5Mjx(name)
+        else:
+            env = brax_envs.get_environment(name, backend="mjx")
     override = {k: v for k, v in (("opt.iterations", physics.solver_iterations),
                                   ("opt.ls_iterations", physics.ls_iterations)) if v is not None}
     if override:

@@ -30,6 +30,7 @@ from brax.envs.base import Env, State
 from mujoco import batch as mj_batch
 
 from envs import allegro_task, gym_v5, mujoco_c
+from envs.gym_v5_mjx import start_noise
 from envs.host_call import host_call
 from envs.physics import resolve_threads
 
@@ -233,16 +234,6 @@ class GymV5Host(NoisyStartHost):
             return before, u
 
         return self.step_rows(rows, ctrl, set_ctrl)
-
-
-def start_noise(rng, m, noise, law):
-    """(dq [nq], dv [nv]) of a reset drawn from rng: dq ~ U(-noise, noise); dv ~ U(-noise, noise) ('uniform')
-    or noise * N(0, 1) ('normal')."""
-    k_q, k_v = jax.random.split(rng)
-    dq = jax.random.uniform(k_q, (m.nq,), minval=-noise, maxval=noise)
-    if law == "uniform":
-        return dq, jax.random.uniform(k_v, (m.nv,), minval=-noise, maxval=noise)
-    return dq, noise * jax.random.normal(k_v, (m.nv,))
 
 
 class CTask(Env):

@@ -10,11 +10,12 @@ frictions and observations. These are gymnasium's own: the MJCF read from the in
 package, its frame skip, reset noise law, observation layout, every reward term and its termination.
 
 Each task's observation, reward and termination are written once, over batches of simulations
-(`outcome`, float64 arrays with a leading batch axis), from the state and the derived MjData fields
-`derived` names *as mj_step leaves them* (one substep behind the state, as gymnasium reads them).
-The C physics backend (envs/c_backend.py) evaluates the same functions on mujoco.batch's arrays inside
-the trainer; V5C here steps one MjData exactly as gymnasium's MujocoEnv does. tests/test_gym_v5.py
-checks both against gymnasium.make(id) step for step.
+(`outcome`, arrays with a leading batch axis, NumPy or jax.numpy), from the state and the derived MjData
+fields `derived` names *as mj_step leaves them* (one substep behind the state, as gymnasium reads them).
+The C physics backend (envs/c_backend.py) evaluates them in float64 on mujoco.batch's arrays inside the
+trainer; V5C here steps one MjData exactly as gymnasium's MujocoEnv does; envs/gym_v5_mjx.py evaluates
+them with jax.numpy on MJX's data. tests/test_gym_v5.py checks the first two against gymnasium.make(id)
+step for step, and MJX against MuJoCo C within a tolerance.
 
 Ant-v5 is not here yet: its observation holds the contact forces mj_rnePostConstraint computes after
 the step from the last Runge-Kutta stage, which mujoco.batch does not expose.
@@ -39,7 +40,8 @@ def gym_asset(name):
 
 
 class V5Task:
-    """A v5 task's constants and its observation, reward and termination over batches.
+    """A v5 task's constants and its observation, reward and termination over batches, written once for
+    NumPy (float64: MuJoCo C, the C backend's host) and jax.numpy (xp=jnp: the MJX version).
 
     noise: reset_noise_scale; qvel_noise 'uniform': qvel ~ U(-noise, noise), 'normal': noise * N(0, 1);
     qpos ~ qpos0 + U(-noise, noise) for every task (gymnasium draws qpos first, then qvel)."""
@@ -60,14 +62,14 @@ class V5Task:
         zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
         return self.observe(np.zeros((1, self.model.nq)), np.zeros((1, self.model.nv)), zeros).shape[-1]
 
-    def before(self, qpos, derived):
+    def before(self, qpos, derived, xp=np):
         """[n, k] what the reward needs from before a step: the x position of the root (qpos[:, 0])."""
-        return qpos[:, :1].copy()
+        return qpos[:, :1] + 0.0
 
-    def observe(self, qpos, qvel, derived):
+    def observe(self, qpos, qvel, derived, xp=np):
         raise NotImplementedError
 
-    def outcome(self, before, qpos, qvel, derived, action):
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
         """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
         raise NotImplementedError
 
@@ -79,19 +81,19 @@ class HopperV5(V5Task):
     env_id, xml, frame_skip, noise = "Hopper-v5", "hopper.xml", 4, 5e-3
     ctrl_cost = 1e-3
 
-    def observe(self, qpos, qvel, derived):
-        return np.concatenate([qpos[:, 1:], np.clip(qvel, -10.0, 10.0)], axis=1)
+    def observe(self, qpos, qvel, derived, xp=np):
+        return xp.concatenate([qpos[:, 1:], xp.clip(qvel, -10.0, 10.0)], axis=1)
 
-    def healthy(self, qpos, qvel):
-        state = np.concatenate([qpos[:, 2:], qvel], axis=1)
+    def healthy(self, qpos, qvel, xp=np):
+        state = xp.concatenate([qpos[:, 2:], qvel], axis=1)
         z, angle = qpos[:, 1], qpos[:, 2]
-        return np.all((-100.0 < state) & (state < 100.0), axis=1) & (0.7 < z) & (-0.2 < angle) & (angle < 0.2)
+        return xp.all((-100.0 < state) & (state < 100.0), axis=1) & (0.7 < z) & (-0.2 < angle) & (angle < 0.2)
 
-    def outcome(self, before, qpos, qvel, derived, action):
-        healthy = self.healthy(qpos, qvel)
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        healthy = self.healthy(qpos, qvel, xp)
         x_velocity = (qpos[:, 0] - before[:, 0]) / self.dt
-        reward = x_velocity + healthy * 1.0 - self.ctrl_cost * np.sum(np.square(action), axis=1)
-        return self.observe(qpos, qvel, derived), reward, ~healthy
+        reward = x_velocity + xp.where(healthy, 1.0, 0.0) - self.ctrl_cost * xp.sum(xp.square(action), axis=1)
+        return self.observe(qpos, qvel, derived, xp), reward, ~healthy
 
 
 class Walker2dV5(HopperV5):
@@ -100,7 +102,7 @@ class Walker2dV5(HopperV5):
 
     env_id, xml = "Walker2d-v5", "walker2d_v5.xml"
 
-    def healthy(self, qpos, qvel):
+    def healthy(self, qpos, qvel, xp=np):
         z, angle = qpos[:, 1], qpos[:, 2]
         return (0.8 < z) & (z < 2.0) & (-1.0 < angle) & (angle < 1.0)
 
@@ -111,13 +113,13 @@ class HalfCheetahV5(V5Task):
 
     env_id, xml, frame_skip, noise, qvel_noise = "HalfCheetah-v5", "half_cheetah.xml", 5, 0.1, "normal"
 
-    def observe(self, qpos, qvel, derived):
-        return np.concatenate([qpos[:, 1:], qvel], axis=1)
+    def observe(self, qpos, qvel, derived, xp=np):
+        return xp.concatenate([qpos[:, 1:], qvel], axis=1)
 
-    def outcome(self, before, qpos, qvel, derived, action):
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
         x_velocity = (qpos[:, 0] - before[:, 0]) / self.dt
-        reward = x_velocity - 0.1 * np.sum(np.square(action), axis=1)
-        return self.observe(qpos, qvel, derived), reward, np.zeros(len(qpos), bool)
+        reward = x_velocity - 0.1 * xp.sum(xp.square(action), axis=1)
+        return self.observe(qpos, qvel, derived, xp), reward, xp.zeros(qpos.shape[:1], bool)
 
 
 class InvertedDoublePendulumV5(V5Task):
@@ -128,17 +130,17 @@ class InvertedDoublePendulumV5(V5Task):
     env_id, xml, frame_skip, noise, qvel_noise = "InvertedDoublePendulum-v5", "inverted_double_pendulum.xml", 5, 0.1, "normal"
     derived = ("site_xpos", "qfrc_constraint")
 
-    def observe(self, qpos, qvel, derived):
-        force = np.clip(derived["qfrc_constraint"], -10.0, 10.0)[:, :1]
-        return np.concatenate([qpos[:, :1], np.sin(qpos[:, 1:]), np.cos(qpos[:, 1:]), np.clip(qvel, -10.0, 10.0), force],
+    def observe(self, qpos, qvel, derived, xp=np):
+        force = xp.clip(derived["qfrc_constraint"], -10.0, 10.0)[:, :1]
+        return xp.concatenate([qpos[:, :1], xp.sin(qpos[:, 1:]), xp.cos(qpos[:, 1:]), xp.clip(qvel, -10.0, 10.0), force],
                               axis=1)
 
-    def outcome(self, before, qpos, qvel, derived, action):
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
         x, y = derived["site_xpos"][:, 0, 0], derived["site_xpos"][:, 0, 2]
         terminated = y <= 1.0
         v1, v2 = qvel[:, 1], qvel[:, 2]
-        reward = (10.0 * (~terminated) - (0.01 * x**2 + (y - 2.0) ** 2)) - (1e-3 * v1**2 + 5e-3 * v2**2)
-        return self.observe(qpos, qvel, derived), reward, terminated
+        reward = (xp.where(terminated, 0.0, 10.0) - (0.01 * x**2 + (y - 2.0) ** 2)) - (1e-3 * v1**2 + 5e-3 * v2**2)
+        return self.observe(qpos, qvel, derived, xp), reward, terminated
 
 
 V5_TASKS = {t.env_id: t for t in (HopperV5, Walker2dV5, HalfCheetahV5, InvertedDoublePendulumV5)}

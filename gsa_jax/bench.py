@@ -368,7 +368,7 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, so
 
     import envs
 
-    base = envs.make_base(env_name, envs.own_physics(env_name))
+    base = envs.make_base(env_name)
     model = envs.mj_model(base)
     if solver:
         model = copy.deepcopy(model)
