@@ -236,6 +236,117 @@ class GymV5Host(NoisyStartHost):
         return self.step_rows(rows, ctrl, set_ctrl)
 
 
+class PostConstraintHost:
+    """A v5 task whose observation needs mj_rnePostConstraint after the step (Ant-v5's contact forces),
+    which mujoco.batch does not run: each call loads every simulation's row into one MjData per thread,
+    steps it as gymnasium does (ctrl, mj_step frame_skip times, mj_rnePostConstraint) and saves it back.
+    A row is the float64 mjSTATE_INTEGRATION row followed by the task's `before` values after the call
+    (the main body's xy that the next step's velocity starts from, as gymnasium reads it then); extra as
+    GymV5Host's. The same interface as HostBatches (nstate, n_extra, clock, reset, step)."""
+
+    def __init__(self, task, threads):
+        self.task, self.model, self.threads = task, task.model, resolve_threads(threads)
+        self.n_state = mujoco.mj_stateSize(self.model, STATE_SPEC)
+        self.n_before = task.before(np.zeros((1, self.model.nq)), self._derived(mujoco.MjData(self.model))).shape[1]
+        self.nstate = self.n_state + self.n_before
+        self.n_obs = int(task.observation_size)
+        self.n_extra = self.n_obs + 2
+        self._local, self._lock, self._pool = threading.local(), threading.Lock(), None
+        self.clock = dict.fromkeys(CLOCK_FIELDS, 0)
+        _HOSTS.add(self)
+
+    def _derived(self, d):
+        return {f: getattr(d, f)[None].copy() for f in self.task.derived}
+
+    def _data(self):
+        if not hasattr(self._local, "data"):
+            self._local.data = mujoco.MjData(self.model)
+        return self._local.data
+
+    def _each(self, n, fn):
+        """fn(data, i) for i < n on the threads, each with its own MjData -> list of results in order."""
+        if self.threads <= 1 or n < 2:
+            return [fn(self._data(), i) for i in range(n)]
+        with self._lock:
+            if self._pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="mujoco_c")
+        parts = np.array_split(np.arange(n), self.threads)
+        chunks = self._pool.map(lambda idx: [fn(self._data(), int(i)) for i in idx], parts)
+        return [r for chunk in chunks for r in chunk]
+
+    def _read(self, d, row_out):
+        mujoco.mj_getState(self.model, d, row_out[: self.n_state], STATE_SPEC)
+        return d.qpos.copy(), d.qvel.copy(), self._derived(d)
+
+    def _finish(self, lead, results, obs, reward, terminated):
+        rows = np.stack([r[0] for r in results])
+        qpos, qvel = np.stack([r[1] for r in results]), np.stack([r[2] for r in results])
+        extra = np.concatenate([obs, reward[:, None], terminated[:, None].astype(np.float64)], axis=1)
+        return (rows.view(np.uint32).reshape(*lead, 2 * self.nstate), qpos.astype(np.float32).reshape(*lead, -1),
+                qvel.astype(np.float32).reshape(*lead, -1), extra.astype(np.float32).reshape(*lead, self.n_extra))
+
+    def _gather(self, results):
+        derived = {f: np.concatenate([r[3][f] for r in results]) for f in self.task.derived}
+        qpos, qvel = np.stack([r[1] for r in results]), np.stack([r[2] for r in results])
+        return qpos, qvel, derived
+
+    def reset(self, dq, dv):
+        """Rows at qpos0 + dq [..., nq], qvel dv [..., nv] after mj_resetData and mj_forward -> SimState fields."""
+        t0 = time.perf_counter()
+        m, lead = self.model, dq.shape[:-1]
+        dq, dv = np.asarray(dq, np.float64).reshape(-1, m.nq), np.asarray(dv, np.float64).reshape(-1, m.nv)
+
+        def one(d, i):
+            mujoco.mj_resetData(m, d)
+            d.qpos[:], d.qvel[:] = m.qpos0 + dq[i], dv[i]
+            mujoco.mj_forward(m, d)
+            row = np.zeros(self.nstate)
+            qpos, qvel, derived = self._read(d, row)
+            row[self.n_state:] = self.task.before(qpos[None], derived)[0]
+            return row, qpos, qvel, derived
+
+        results = self._each(len(dq), one)
+        qpos, qvel, derived = self._gather(results)
+        obs = self.task.observe(qpos, qvel, derived)
+        out = self._finish(lead, results, obs, np.zeros(len(dq)), np.zeros(len(dq), bool))
+        self._count(time.perf_counter() - t0, 0.0)
+        return out
+
+    def step(self, rows, ctrl):
+        """n_frames mj_steps and mj_rnePostConstraint of every row [..., 2 nstate] with controls ctrl [..., nu]."""
+        t0 = time.perf_counter()
+        m, lead = self.model, rows.shape[:-1]
+        rows = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
+        u = np.asarray(ctrl, np.float64).reshape(-1, m.nu)
+
+        def one(d, i):
+            mujoco.mj_setState(m, d, rows[i, : self.n_state], STATE_SPEC)
+            d.ctrl[:] = u[i]
+            mujoco.mj_step(m, d, nstep=self.task.frame_skip)
+            mujoco.mj_rnePostConstraint(m, d)
+            row = np.zeros(self.nstate)
+            qpos, qvel, derived = self._read(d, row)
+            row[self.n_state:] = self.task.before(qpos[None], derived)[0]
+            return row, qpos, qvel, derived
+
+        t1 = time.perf_counter()
+        results = self._each(len(rows), one)
+        t2 = time.perf_counter()
+        qpos, qvel, derived = self._gather(results)
+        obs, reward, terminated = self.task.outcome(rows[:, self.n_state:], qpos, qvel, derived, u)
+        out = self._finish(lead, results, obs, reward, terminated)
+        self._count(time.perf_counter() - t0, t2 - t1)
+        return out
+
+    def _count(self, host_s, mujoco_s):
+        with self._lock:
+            self.clock["calls"] += 1
+            self.clock["host_s"] += host_s
+            self.clock["mujoco_c_s"] += mujoco_s
+
+
 class CTask(Env):
     """A task as a single-env Brax environment stepped by MuJoCo C (subclasses: the task's JAX side)."""
 
@@ -329,7 +440,8 @@ class GymV5CTask(CTask):
 
     def __init__(self, name, physics):
         task = gym_v5.make_task(name)
-        super().__init__(name, physics, task, GymV5Host(task, physics.threads))
+        host = (PostConstraintHost if task.post_constraint else GymV5Host)(task, physics.threads)
+        super().__init__(name, physics, task, host)
         self.n_frames, self.dt = task.frame_skip, task.dt
         self._n_obs = self.host.n_obs
 

@@ -17,8 +17,9 @@ trainer; V5C here steps one MjData exactly as gymnasium's MujocoEnv does; envs/g
 them with jax.numpy on MJX's data. tests/test_gym_v5.py checks the first two against gymnasium.make(id)
 step for step, and MJX against MuJoCo C within a tolerance.
 
-Ant-v5 is not here yet: its observation holds the contact forces mj_rnePostConstraint computes after
-the step from the last Runge-Kutta stage, which mujoco.batch does not expose.
+Ant-v5's observation holds the contact forces mj_rnePostConstraint computes after the step (from the
+last Runge-Kutta stage's quantities), which mujoco.batch does not run: the C backend steps it one MjData
+per thread instead (envs/c_backend.py), and it has no MJX version yet.
 """
 
 import os
@@ -52,6 +53,7 @@ class V5Task:
     noise = 0.0
     qvel_noise = "uniform"
     derived = ()  # MjData fields read after a call (mujoco.batch binds them)
+    post_constraint = False  # whether a derived field needs mj_rnePostConstraint after the step
 
     def __init__(self):
         self.model = mujoco.MjModel.from_xml_path(gym_asset(self.xml))
@@ -143,7 +145,36 @@ class InvertedDoublePendulumV5(V5Task):
         return self.observe(qpos, qvel, derived, xp), reward, terminated
 
 
-V5_TASKS = {t.env_id: t for t in (HopperV5, Walker2dV5, HalfCheetahV5, InvertedDoublePendulumV5)}
+class AntV5(V5Task):
+    """Ant-v5: obs [qpos[2:], qvel, clip(cfrc_ext[1:], +-1)] (105: the contact forces mj_rnePostConstraint
+    computes after the step); reward = x velocity of the torso (body 1's xpos over the step) + 1 (while
+    healthy) - 0.5 |a|^2 - 5e-4 |clip(cfrc_ext, +-1)|^2; healthy while qpos, qvel are finite and
+    0.2 <= z <= 1; reset noise U(-0.1, 0.1) on qpos, 0.1 N(0, 1) on qvel."""
+
+    env_id, xml, frame_skip, noise, qvel_noise = "Ant-v5", "ant.xml", 5, 0.1, "normal"
+    derived = ("xpos", "cfrc_ext")
+    post_constraint = True  # cfrc_ext needs mj_rnePostConstraint after mj_step
+
+    def before(self, qpos, derived, xp=np):
+        return derived["xpos"][:, 1, :2] + 0.0
+
+    def _forces(self, derived, xp):
+        f = xp.clip(derived["cfrc_ext"], -1.0, 1.0)
+        return f.reshape(f.shape[0], -1)
+
+    def observe(self, qpos, qvel, derived, xp=np):
+        return xp.concatenate([qpos[:, 2:], qvel, self._forces(derived, xp)[:, 6:]], axis=1)
+
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        x_velocity = (derived["xpos"][:, 1, 0] - before[:, 0]) / self.dt
+        state = xp.concatenate([qpos, qvel], axis=1)
+        healthy = xp.all(xp.isfinite(state), axis=1) & (0.2 <= qpos[:, 2]) & (qpos[:, 2] <= 1.0)
+        contact_cost = 5e-4 * xp.sum(xp.square(self._forces(derived, xp)), axis=1)
+        reward = (x_velocity + xp.where(healthy, 1.0, 0.0)) - (0.5 * xp.sum(xp.square(action), axis=1) + contact_cost)
+        return self.observe(qpos, qvel, derived, xp), reward, ~healthy
+
+
+V5_TASKS = {t.env_id: t for t in (HopperV5, Walker2dV5, HalfCheetahV5, AntV5, InvertedDoublePendulumV5)}
 
 
 def make_task(env_id):
