@@ -251,30 +251,26 @@ class PostConstraintHost:
         self.nstate = self.n_state + self.n_before
         self.n_obs = int(task.observation_size)
         self.n_extra = self.n_obs + 2
-        self._local, self._lock, self._pool = threading.local(), threading.Lock(), None
+        self._datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
+        self._lock, self._clock_lock, self._pool = threading.Lock(), threading.Lock(), None
         self.clock = dict.fromkeys(CLOCK_FIELDS, 0)
         _HOSTS.add(self)
 
     def _derived(self, d):
         return {f: getattr(d, f)[None].copy() for f in self.task.derived}
 
-    def _data(self):
-        if not hasattr(self._local, "data"):
-            self._local.data = mujoco.MjData(self.model)
-        return self._local.data
-
     def _each(self, n, fn):
-        """fn(data, i) for i < n on the threads, each with its own MjData -> list of results in order."""
-        if self.threads <= 1 or n < 2:
-            return [fn(self._data(), i) for i in range(n)]
-        with self._lock:
+        """fn(data, i) for i < n, split over the threads, part k on MjData k -> list of results in order."""
+        with self._lock:  # one call at a time on the MjData
+            if self.threads <= 1 or n < 2:
+                return [fn(self._datas[0], i) for i in range(n)]
             if self._pool is None:
                 from concurrent.futures import ThreadPoolExecutor
 
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="mujoco_c")
-        parts = np.array_split(np.arange(n), self.threads)
-        chunks = self._pool.map(lambda idx: [fn(self._data(), int(i)) for i in idx], parts)
-        return [r for chunk in chunks for r in chunk]
+            parts = np.array_split(np.arange(n), self.threads)
+            chunks = self._pool.map(lambda k: [fn(self._datas[k], int(i)) for i in parts[k]], range(self.threads))
+            return [r for chunk in chunks for r in chunk]
 
     def _read(self, d, row_out):
         mujoco.mj_getState(self.model, d, row_out[: self.n_state], STATE_SPEC)
@@ -318,7 +314,8 @@ class PostConstraintHost:
         """n_frames mj_steps and mj_rnePostConstraint of every row [..., 2 nstate] with controls ctrl [..., nu]."""
         t0 = time.perf_counter()
         m, lead = self.model, rows.shape[:-1]
-        rows = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
+        # a copy: XLA's buffer need not be 8-byte aligned, and MuJoCo C reads the rows as doubles
+        rows = np.array(rows, np.uint32).reshape(-1, 2 * self.nstate).view(np.float64)
         u = np.asarray(ctrl, np.float64).reshape(-1, m.nu)
 
         def one(d, i):
@@ -341,7 +338,7 @@ class PostConstraintHost:
         return out
 
     def _count(self, host_s, mujoco_s):
-        with self._lock:
+        with self._clock_lock:
             self.clock["calls"] += 1
             self.clock["host_s"] += host_s
             self.clock["mujoco_c_s"] += mujoco_s

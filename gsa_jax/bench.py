@@ -368,7 +368,9 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, so
 
     import envs
 
-    base = envs.make_base(env_name)
+    from envs.physics import Physics
+
+    base = envs.make_base(env_name, Physics(backend="c") if env_name in envs.C_ONLY_TASKS else None)
     model = envs.mj_model(base)
     if solver:
         model = copy.deepcopy(model)
