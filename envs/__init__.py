@@ -21,7 +21,6 @@ BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "
 GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "InvertedDoublePendulum-v5")  # gymnasium's own: envs/gym_v5.py
 NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS
 DEFAULT_EPISODE_LENGTH = 1000
-C_ONLY_TASKS = ("Ant-v5",)  # no MJX version (mj_rnePostConstraint's contact forces)
 C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder") + GYM_V5_TASKS  # physics backend 'c'
 
 
@@ -34,9 +33,6 @@ def check_backend(name, physics):
     """ValueError if `physics` (envs.physics.Physics) cannot step task `name`."""
     check_name(name)
     physics.validate()
-    if physics.backend != "c" and name in C_ONLY_TASKS:
-        raise ValueError(f"{name} is stepped by MuJoCo C only: choose physics 'c' (its contact-force observation "
-                         "is not built on MJX yet)")
     if physics.backend == "c" and name not in C_BACKEND_TASKS:
         raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)}; {name!r} runs on backend 'mjx'")
 

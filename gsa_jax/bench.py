@@ -368,9 +368,7 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, so
 
     import envs
 
-    from envs.physics import Physics
-
-    base = envs.make_base(env_name, Physics(backend="c") if env_name in envs.C_ONLY_TASKS else None)
+    base = envs.make_base(env_name)
     model = envs.mj_model(base)
     if solver:
         model = copy.deepcopy(model)

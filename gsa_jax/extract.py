@@ -3,6 +3,8 @@ single-run tools work on it (inspect, export, deploy, gsa_jax.render --run):
 
     python -m gsa_jax.extract runs/sweeps/fig1_idp_hopper --env hopper --policy mixture --clusters 6 --seed 0 --out runs/hopper-K6-s0
     python -m gsa_jax.extract SWEEP_DIR --list      # the finished runs it holds
+    python -m gsa_jax.extract SWEEP_DIR --controllers DIR   # every finished run's deterministic controller,
+                                                            # DIR/<env>-<policy>[-K<k>]-s<seed>.npz (gsa_jax.export's npz)
 
 Swept hyperparameters, sub-policy classes and critics select with --hparam NAME=VALUE, --subpolicy and
 --value-target.
@@ -15,6 +17,7 @@ import glob
 import json
 import os
 import sys
+import tempfile
 
 import numpy as np
 
@@ -89,6 +92,32 @@ def extract(sweep_dir, gdir, index, row, out):
     return out
 
 
+def run_label(row):
+    """A run's file name stem: env-policy[-K<k>][-<group axes>][-<hparam>=<value>...]-s<seed>."""
+    fixed = ("env", "policy", "K", "seed", "run")
+    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
+    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else v for c, v in row.items() if c not in fixed and v]
+    return "-".join(parts + [f"s{row['seed']}"])
+
+
+def export_controllers(sweep_dir, out_dir):
+    """Write every finished run's deterministic controller to out_dir/<run_label>.npz -> [paths]."""
+    from gsa_jax.export import controller_arrays
+    from gsa_jax.checkpoint import save_npz_atomic
+
+    runs = finished_runs(sweep_dir)
+    if not runs:
+        raise ExtractError(f"{sweep_dir!r} holds no finished run")
+    os.makedirs(out_dir, exist_ok=True)
+    paths = []
+    for gdir, i, row in runs:
+        with tempfile.TemporaryDirectory() as tmp:
+            arrays = controller_arrays(extract(sweep_dir, gdir, i, row, tmp))
+        paths.append(os.path.join(out_dir, run_label(row) + ".npz"))
+        save_npz_atomic(paths[-1], **arrays)
+    return paths
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.extract", description=__doc__.split("\n")[0])
     p.add_argument("sweep_dir")
@@ -101,8 +130,14 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--hparam", action="append", default=[], metavar="NAME=VALUE", help="a swept hyperparameter's value")
     p.add_argument("--out", default=None)
+    p.add_argument("--controllers", metavar="DIR", default=None,
+                   help="write every finished run's deterministic controller (exported npz) to DIR")
     args = p.parse_args(argv)
     try:
+        if args.controllers:
+            paths = export_controllers(args.sweep_dir, args.controllers)
+            print(f"wrote {len(paths)} controllers to {args.controllers}")
+            return 0
         runs = finished_runs(args.sweep_dir)
         if args.list:
             for gdir, i, row in runs:

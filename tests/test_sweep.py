@@ -2,8 +2,8 @@
 kill -9 + resume; the watchdog restarting a stalled worker; jax.distributed with 2 processes."""
 
 import csv
-import json
 import glob
+import json
 import os
 import signal
 import socket
@@ -189,6 +189,26 @@ def test_tidy_table(inprocess):
     assert meta["physics"]["inverted_double_pendulum-mixture"]["linesearch_in_force"] == "exact"
     assert meta["run_batch"] == 8  # the default runs per sub-batch, as the program used
     assert os.path.exists(inprocess / "groups" / "inverted_double_pendulum-mixture" / "params.npz")
+
+
+def test_every_finished_runs_controller_exported(inprocess, tmp_path):
+    """extract --controllers: one exported controller per run, named by env, policy, K and seed, holding that
+    run's own parameters (its row of the group's params.npz, K's clusters only), loadable without JAX."""
+    from gsa_jax import numpy_policy
+    from gsa_jax.extract import main as extract_main
+
+    out = tmp_path / "controllers"
+    assert extract_main([str(inprocess), "--controllers", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [f"inverted_double_pendulum-mixture-K{k}-s{s}.npz" for k in (1, 3) for s in (0, 1)]
+    with np.load(inprocess / "groups" / "inverted_double_pendulum-mixture" / "params.npz") as p:
+        L = p["['params']['policy']['L']"]
+    with open(inprocess / "groups" / "inverted_double_pendulum-mixture" / "runs.csv") as f:
+        row = next(i for i, r in enumerate(csv.DictReader(f)) if r["K"] == "3" and r["seed"] == "1")
+    ctrl = numpy_policy.load(str(out / "inverted_double_pendulum-mixture-K3-s1.npz"))
+    np.testing.assert_array_equal(ctrl.L, L[row][:3])
+    assert ctrl.num_clusters == 3 and np.isfinite(ctrl.act(np.zeros(L.shape[-1], np.float32))).all()
+    assert extract_main([str(tmp_path), "--controllers", str(out)]) == 2  # not a sweep: one line, exit 2
 
 
 ALONE_COLUMNS = ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl", "partition_entropy")
