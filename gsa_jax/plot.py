@@ -18,6 +18,8 @@ eval_failures. Writes to OUT
                            sweeps that list value_targets P(Retrace better than GAE) (CI)
   aggregate.csv            per configuration over tasks: IQM of normalized scores (0 = random policy, 1 = flat
                            PPO's final IQM on that task) and P(better than flat PPO), with CIs
+  sufficient_k.csv         per task (and sub-policy class / swept setting): the smallest K whose P(better than
+                           flat PPO) interval reaches 0.5 ("on par or better"), or none; marked in return_vs_k.png
 Runs that stopped at a NaN/inf (sweep.json 'failed_runs') are left out of every statistic and listed apart
 (failed_runs), as are runs with no return at one of their last 3 scheduled evaluations (unscored_runs:
 only in tables written before failed evaluation episodes were counted).
@@ -491,6 +493,48 @@ def k_curves(rows, env_name, settings):
     return {k: sorted(pts, key=lambda r: r["K"]) for k, pts in curves.items()}
 
 
+def sufficient_k_table(rows, settings=()):
+    """sufficient_k.csv rows: per task and setting, the smallest K whose P(better than flat PPO) 95% interval
+    reaches 0.5 (its upper end >= 0.5: not shown worse than flat PPO), with that cell's IQM and P; K ''
+    where no K does. The product's answer to "how many linear controllers does this task need?"."""
+    out = []
+    for env_name in dict.fromkeys(r["env"] for r in rows):
+        for extra, pts in k_curves(rows, env_name, settings).items():
+            ok = [r for r in pts if r.get("p_ci_high") != "" and r["p_ci_high"] >= 0.5]
+            r = ok[0] if ok else {}
+            out.append({"env": env_name, **dict(extra), "smallest_sufficient_K": r.get("K", ""),
+                        "K_over_action_dim": r.get("K_over_action_dim", ""), "iqm": r.get("iqm", ""),
+                        "p_better_than_flat_ppo": r.get("p_better_than_flat_ppo", ""),
+                        "p_ci_low": r.get("p_ci_low", ""), "p_ci_high": r.get("p_ci_high", ""),
+                        "ks_tried": " ".join(str(q["K"]) for q in pts)})
+    return out
+
+
+def sufficient_k_lines(table):
+    """One printed line per row of sufficient_k_table."""
+    lines = []
+    for r in table:
+        extra = "".join(f" {c}={v}" for c, v in r.items() if c not in SUFFICIENT_COLS and v != "")
+        if r["smallest_sufficient_K"] == "":
+            lines.append(f"  {r['env']}{extra}: no K of {r['ks_tried']} reaches P(> flat PPO) 0.5 within its 95% CI")
+        else:
+            lines.append(f"  {r['env']}{extra}: smallest sufficient K = {r['smallest_sufficient_K']} "
+                         f"(IQM {r['iqm']}, P(> flat PPO) {r['p_better_than_flat_ppo']} [{r['p_ci_low']}, {r['p_ci_high']}])")
+    return lines
+
+
+SUFFICIENT_COLS = ("env", "smallest_sufficient_K", "K_over_action_dim", "iqm", "p_better_than_flat_ppo", "p_ci_low",
+                   "p_ci_high", "ks_tried")
+
+
+def mark_sufficient_k(ax, table, env_name):
+    """A dotted vertical line at each of the task's smallest sufficient K (sufficient_k_table)."""
+    for r in table:
+        if r["env"] == env_name and r["smallest_sufficient_K"] != "":
+            ax.axvline(r["smallest_sufficient_K"], color="tab:green", ls=":", lw=1.5,
+                       label=f"smallest K on par with flat PPO: {r['smallest_sufficient_K']}")
+
+
 def plot_return_vs_k(rows, path, settings=()):
     """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band. One
     curve per value of the `settings` columns (the cells' sub-policy class, critic, swept hyperparameters)."""
@@ -500,8 +544,10 @@ def plot_return_vs_k(rows, path, settings=()):
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
+    table = sufficient_k_table(rows, settings)
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
+        mark_sufficient_k(ax, table, env_name)
         curves = k_curves(rows, env_name, settings)
         all_ks = sorted({r["K"] for pts in curves.values() for r in pts})
         for extra, pts in curves.items():
@@ -603,7 +649,14 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
         log(line)
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
-    plot_return_vs_k([r for r in rows if r["seeds"]], os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
+    scored = [r for r in rows if r["seeds"]]
+    plot_return_vs_k(scored, os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
+    sufficient = sufficient_k_table(scored, setting_columns(data))
+    if sufficient:
+        write_csv(os.path.join(out_dir, "sufficient_k.csv"), sufficient)
+        log("How many linear controllers does each task need (smallest K on par with flat PPO or better)?")
+        for line in sufficient_k_lines(sufficient):
+            log(line)
     if random_returns is None:
         random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
     normalized = normalized_scores(data, action_dims, random_returns, spec_multipliers(dirs))

@@ -114,6 +114,28 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
     assert float(agg["K = 0.667 d_a"]["normalized_iqm"]) > 1.0 and agg["K = 0.333 d_a"]["tasks"] == "walker2d"
     for name in ("figure.png", "figure_training.png", "return_vs_k.png", "performance_profile.png"):
         assert (out / name).stat().st_size > 10_000, name
+    with open(out / "sufficient_k.csv") as f:
+        sufficient = {r["env"]: r for r in csv.DictReader(f)}
+    assert sufficient["hopper"]["smallest_sufficient_K"] == "2" and sufficient["walker2d"]["smallest_sufficient_K"] == ""
+
+
+def test_smallest_sufficient_k_is_the_first_whose_interval_reaches_one_half():
+    """The product's answer per task: the smallest K whose P(> flat PPO) interval's upper end is >= 0.5; per
+    sub-policy class; none where no K reaches it (a printed line says so)."""
+    from gsa_jax.plot import sufficient_k_lines, sufficient_k_table
+
+    def row(env, k, hi, sub="linear"):
+        return {"env": env, "policy": "mixture", "K": k, "subpolicy": sub, "seeds": 10, "iqm": 100.0 * k,
+                "p_better_than_flat_ppo": round(hi - 0.2, 3), "p_ci_low": round(hi - 0.4, 3), "p_ci_high": hi, "K_over_action_dim": k / 2}
+
+    rows = [row("a", 8, 0.9), row("a", 2, 0.4), row("a", 4, 0.5), row("a", 1, 0.6, "constant"), row("b", 2, 0.49),
+            {"env": "a", "policy": "mlp", "K": "", "subpolicy": "", "seeds": 10, "p_ci_high": ""}]
+    table = sufficient_k_table(rows, ["subpolicy"])
+    got = {(r["env"], r["subpolicy"]): (r["smallest_sufficient_K"], r["ks_tried"]) for r in table}
+    assert got == {("a", "linear"): (4, "2 4 8"), ("a", "constant"): (1, "1"), ("b", "linear"): ("", "2")}
+    lines = sufficient_k_lines(table)
+    assert "a subpolicy=linear: smallest sufficient K = 4 (IQM 400.0, P(> flat PPO) 0.3 [0.1, 0.5])" in lines[0]
+    assert lines[2] == "  b subpolicy=linear: no K of 2 reaches P(> flat PPO) 0.5 within its 95% CI"
 
 
 def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):
