@@ -92,18 +92,11 @@ def extract(sweep_dir, gdir, index, row, out):
     return out
 
 
-def run_label(row):
-    """A run's file name stem: env-policy[-K<k>][-<group axes>][-<hparam>=<value>...]-s<seed>."""
-    fixed = ("env", "policy", "K", "seed", "run")
-    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
-    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else v for c, v in row.items() if c not in fixed and v]
-    return "-".join(parts + [f"s{row['seed']}"])
-
-
 def export_controllers(sweep_dir, out_dir):
     """Write every finished run's deterministic controller to out_dir/<run_label>.npz -> [paths]."""
-    from gsa_jax.export import controller_arrays
     from gsa_jax.checkpoint import save_npz_atomic
+    from gsa_jax.export import controller_arrays
+    from gsa_jax.sweep import run_label
 
     runs = finished_runs(sweep_dir)
     if not runs:

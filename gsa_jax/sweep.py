@@ -20,6 +20,7 @@ Output (DIR, default runs/sweeps/<name>):
                         eval_return, the deterministic controller's mean return where evaluated; a swept
                         hparam named like a metric is hparam_<name>, e.g. hparam_lr next to the annealed lr)
   groups/<env>-<policy>/{state.npz, metrics.npz (+ their .prev.npz), params.npz, runs.csv, failed.json, DONE}
+  tensorboard/<run>/    TensorBoard event files of every run (tensorboard --logdir DIR; --no-tensorboard: none)
   LOCK                  pid and host of the sweep writing DIR (a second one is refused)
   xla_cache/            compiled programs (JAX's persistent cache): worker 0 compiles each group's
                         program once, the other workers and any resumed run load it (seconds)
@@ -275,6 +276,14 @@ def build_grid(spec):
     return groups
 
 
+def run_label(row):
+    """A run's name in file and TensorBoard names: env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...]-s<seed>."""
+    fixed = ("env", "policy", "K", "seed", "run")
+    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
+    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v) for c, v in row.items() if c not in fixed and v]
+    return "-".join(parts + [f"s{row['seed']}"])
+
+
 def group_name(env_name, policy, runs):
     first = runs[0] if runs else {}
     return f"{env_name}-{policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
@@ -390,10 +399,18 @@ class GroupStore:
     (each keeping its previous version); at the end params.npz, failed.json and DONE. on_chunk(runs,
     metrics [len(runs), iterations], done) runs after every save (the tidy table)."""
 
-    def __init__(self, gdir, runs, iterations, on_chunk=None):
+    def __init__(self, gdir, runs, iterations, on_chunk=None, board_dir=None):
+        from gsa_jax.tensorboard import Board
+
         self.gdir, self.runs, self.iterations, self.on_chunk = gdir, runs, iterations, on_chunk
+        self.board = Board(board_dir, [run_label(r) for r in runs]) if board_dir else None
 
     def load(self, template):
+        from gsa_jax.tensorboard import follow
+
+        return follow(self.board, self.load_checkpoint(template))
+
+    def load_checkpoint(self, template):
         if not any(os.path.exists(os.path.join(self.gdir, n)) for n in ("state.npz", "state.prev.npz")):
             return None
         try:
@@ -403,6 +420,8 @@ class GroupStore:
 
     def save(self, states, metrics, done):
         save_group_checkpoint(self.gdir, states, {k: metrics[k] for k in TRACKED}, done)
+        if self.board:
+            self.board.append(metrics, done)
         if self.on_chunk:
             self.on_chunk(self.runs, {k: v[: len(self.runs)] for k, v in metrics.items()}, done)
 
@@ -422,9 +441,10 @@ def finished_group(gdir, iterations):
 
 
 def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None,
-              run_batch=RUN_BATCH, pad_to=0, share=None):
+              run_batch=RUN_BATCH, pad_to=0, share=None, board_dir=None):
     """Train (or resume) one group with the run driver. Returns its driver Result. pad_to: pad the runs to
-    at least this many (every worker process builds the same program); share: see programs.compile_group."""
+    at least this many (every worker process builds the same program); share: see programs.compile_group;
+    board_dir: the sweep's TensorBoard directory (None: no event files)."""
     from gsa_jax.driver import Plan, drive
     from gsa_jax.programs import group_program
 
@@ -446,7 +466,7 @@ def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks
     log(f"[{tag}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
         f"{len(devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
     plan = Plan(iterations, chunk, cfg.batch_size, len(runs), eval_every, stop_after_chunks=stop_after_chunks, tag=tag)
-    result = drive(program, GroupStore(gdir, runs, iterations, on_chunk), plan, log, heartbeat, clock_start=t0)
+    result = drive(program, GroupStore(gdir, runs, iterations, on_chunk, board_dir), plan, log, heartbeat, clock_start=t0)
     t = result.timing
     if t.get("eval_s"):
         log(f"[{tag}] deterministic evaluation: {t['eval_s']:.1f}s = {t['eval_s'] / max(t['train_s'] + t['eval_s'], 1e-9):.1%} "
@@ -476,7 +496,7 @@ def check_same_spec(meta_path, spec, force):
                         "--out, or --force to continue it with the new spec")
 
 
-def write_sweep_meta(root, spec, groups, num_processes, force, run_batch=RUN_BATCH):
+def write_sweep_meta(root, spec, groups, num_processes, force, run_batch=RUN_BATCH, tensorboard=True):
     """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
     spec, unless force)."""
     from gsa_jax.runinfo import physics_record, run_metadata
@@ -486,14 +506,15 @@ def write_sweep_meta(root, spec, groups, num_processes, force, run_batch=RUN_BAT
         check_same_spec(meta_path, spec, force)
     physics = {group_name(e, p, runs): physics_record(group_config(spec, e, p, runs)) for e, p, runs in groups}
     meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes,
-            "run_batch": run_batch, "physics": physics, **run_metadata()}
+            "run_batch": run_batch, "tensorboard": tensorboard, "physics": physics, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 
 def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
-              run_batch=RUN_BATCH, local_workers=True, force=False):
+              run_batch=RUN_BATCH, local_workers=True, force=False, tensorboard=True):
     """Train every group of the spec (this process's share of each). Returns True when all groups are done;
-    the runs that failed (NaN/inf) are written to failed_runs.json in this process's directory.
+    the runs that failed (NaN/inf) are written to failed_runs.json in this process's directory; tensorboard:
+    event files of every run in out/tensorboard/<run label>/.
     run_batch: see programs.make_group_program. local_workers: the processes share this machine and `out`
     (False for multi-host sweeps: each process compiles for itself). force: resume a changed spec."""
     import jax
@@ -513,7 +534,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     os.makedirs(out, exist_ok=True)
     groups = build_grid(spec)
     if process_id == 0:
-        write_sweep_meta(root, spec, groups, num_processes, force, run_batch)
+        write_sweep_meta(root, spec, groups, num_processes, force, run_batch, tensorboard)
     total_runs = sum(len(r) for _, _, r in groups)
     log(f"sweep {spec['name']}: {total_runs} runs in {len(groups)} group(s) on {len(devices)} device(s)"
         + (f", process {process_id}/{num_processes}" if num_processes > 1 else "") + f" -> {out}")
@@ -530,7 +551,8 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
                     continue
                 res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
                                 on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
-                                pad_to=math.ceil(len(runs) / num_processes), share=share)
+                                pad_to=math.ceil(len(runs) / num_processes), share=share,
+                                board_dir=os.path.join(root, "tensorboard") if tensorboard else None)
                 results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))
                 write_tidy(out, spec, results)
                 if not res.finished:
@@ -610,6 +632,8 @@ def build_parser():
                    help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
                         "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
     p.add_argument("--force", action="store_true", help="resume even if the experiment file changed (continues with the new spec)")
+    p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                   help="no TensorBoard event files (default: OUT/tensorboard/<run>/, open with tensorboard --logdir OUT)")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     return p
@@ -718,7 +742,8 @@ def run_worker(args, spec, out, after_chunk=None):
 
     try:
         complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,
-                             heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force)
+                             heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
+                             tensorboard=args.tensorboard)
     except SpecError as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2

@@ -93,6 +93,8 @@ def build_parser():
     p.add_argument("--stop-after", type=int, default=None,
                    help="stop (resumably) after this many iterations in this invocation; continue with --resume")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                   help="no TensorBoard event files (default: OUT/tensorboard/, open with tensorboard --logdir OUT)")
     return p
 
 
@@ -214,7 +216,7 @@ def main(argv=None):
     try:
         with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)):
             return run(cfg, hp, iterations, chunk, (eval_every, args.eval_seed), args.seed, out, args.resume, args.quiet, argv,
-                       args.stop_after, args.force)
+                       args.stop_after, args.force, args.tensorboard)
     except LockError as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
@@ -243,12 +245,22 @@ class RunStore:
     checkpoint files keep their previous version) in `out`."""
 
     def __init__(self, out, config, resume):
+        from gsa_jax.tensorboard import Board
+
         self.out, self.config, self.resume = out, config, resume
+        self.board = Board(self.path("tensorboard"), [""]) if config.get("tensorboard") else None
 
     def path(self, name):
         return os.path.join(self.out, name)
 
     def load(self, template):
+        """(state, metrics [1, done], done) of the run saved in out, or None if there is nothing to resume;
+        the TensorBoard event files restart from it."""
+        from gsa_jax.tensorboard import follow
+
+        return follow(self.board, self.load_checkpoint(template))
+
+    def load_checkpoint(self, template):
         """(state, metrics [1, done], done) of the run saved in out: state.npz, or state.prev.npz if that
         is unreadable; metrics.csv (or its previous version) cut to the state's iteration. None if
         there is nothing to resume."""
@@ -274,6 +286,8 @@ class RunStore:
         write_atomic(self.path("metrics.csv"), rows_to_csv(metrics_to_rows(metrics, done)), keep_previous=True)
         self.save_params(state)
         save_pytree(self.path("state.npz"), state, keep_previous=True)
+        if self.board:
+            self.board.append(metrics, done)
 
     def save_params(self, state):
         import numpy as np
@@ -325,7 +339,8 @@ def rows_to_metrics(rows):
     return metrics
 
 
-def run(cfg, hp_py, iterations, chunk, evaluation, seed, out, resume, quiet=False, argv=None, stop_after=None, force=False):
+def run(cfg, hp_py, iterations, chunk, evaluation, seed, out, resume, quiet=False, argv=None, stop_after=None, force=False,
+        tensorboard=True):
     """Train (or resume) one run into `out`; evaluation: (eval_every, eval_seed). Returns the exit status:
     0, 1 (NaN/inf), 2 (bad resume), 4 (disk full), 130 (interrupted)."""
     from gsa_jax.checkpoint import CheckpointError, DiskFullError
@@ -334,7 +349,7 @@ def run(cfg, hp_py, iterations, chunk, evaluation, seed, out, resume, quiet=Fals
     config = {
         "config": dataclasses.asdict(cfg), "hparams": hp_py, "seed": seed, "iterations": iterations,
         "chunk": chunk, "eval_every": evaluation[0], "eval_seed": evaluation[1], "env_steps": iterations * cfg.batch_size,
-        "argv": list(sys.argv[1:] if argv is None else argv),
+        "argv": list(sys.argv[1:] if argv is None else argv), "tensorboard": tensorboard,
     }
     try:
         config_path = os.path.join(out, "config.json")

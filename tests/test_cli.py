@@ -7,6 +7,7 @@ import os
 import numpy as np
 import pytest
 
+from gsa_jax.tensorboard import FILE_NAME, read_scalars
 from gsa_jax.train import METRIC_COLUMNS, main
 
 SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--minibatches", "8", "--epochs", "2",
@@ -58,7 +59,7 @@ def full_run(tmp_path_factory):
 
 def test_outputs(full_run):
     names = set(os.listdir(full_run))
-    assert {"config.json", "metrics.csv", "params.npz", "state.npz", "curve.png"} <= names
+    assert {"config.json", "metrics.csv", "params.npz", "state.npz", "curve.png", "tensorboard"} <= names
     rows = read_csv(full_run / "metrics.csv")
     assert list(rows[0]) == list(METRIC_COLUMNS) and len(rows) == 4
     assert [int(r["env_steps"]) for r in rows] == [512, 1024, 1536, 2048]
@@ -82,12 +83,24 @@ def test_interrupt_then_resume_equals_uninterrupted(full_run, tmp_path):
     assert main(SMALL + ["--out", str(out), "--stop-after", "2"]) == 0
     assert len(read_csv(out / "metrics.csv")) == 2
     assert json.loads((out / "config.json").read_text())["result"]["status"] == "interrupted"
+    board = out / "tensorboard" / FILE_NAME
+    board.write_bytes((full_run / "tensorboard" / FILE_NAME).read_bytes())  # as if written past the checkpoint
     assert main(SMALL + ["--out", str(out), "--resume"]) == 0
     assert strip_wall(read_csv(out / "metrics.csv")) == strip_wall(read_csv(full_run / "metrics.csv"))
+    # TensorBoard: the resumed run's events restart from the checkpoint: each iteration once, as uninterrupted
+    got, ref = read_scalars(str(board)), read_scalars(str(full_run / "tensorboard" / FILE_NAME))
+    assert got == ref and [s for s, _ in got["returns/episode_return"]] == [512, 1024, 1536, 2048]
+    assert [v for _, v in got["ppo/policy_loss"]] == pytest.approx([float(r["policy_loss"]) for r in read_csv(out / "metrics.csv")])
     with np.load(out / "params.npz") as a, np.load(full_run / "params.npz") as b:
         for k in a.files:
             if not k.startswith("meta/"):
                 np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_no_tensorboard_writes_no_event_files(tmp_path):
+    out = tmp_path / "quiet"
+    assert main(SMALL + ["--out", str(out), "--stop-after", "1", "--no-tensorboard"]) == 0
+    assert not (out / "tensorboard").exists() and json.loads((out / "config.json").read_text())["tensorboard"] is False
 
 
 def test_resume_with_other_config_refused(full_run, capsys):

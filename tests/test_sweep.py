@@ -290,6 +290,26 @@ def test_kill9_then_resume_equals_uninterrupted(tiny_spec_file, inprocess, tmp_p
         assert int(m["__done__"]) < ITERS
     subprocess.run(sweep_cmd(tiny_spec_file, out, "--no-watchdog"), env=subprocess_env(), check=True, timeout=600)
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=1e-6)
+    assert_same_event_files(out, inprocess)
+
+
+def assert_same_event_files(out, reference):
+    """TensorBoard: one event file per run, each iteration once (a killed chunk is not repeated after the resume),
+    every tidy metric as in metrics.csv and the same as the reference sweep's."""
+    from gsa_jax.tensorboard import FILE_NAME, read_scalars
+
+    rows = read_rows(str(out / "metrics.csv"))
+    for k, seed in ((1, 0), (1, 1), (3, 0), (3, 1)):
+        label = f"inverted_double_pendulum-mixture-K{k}-s{seed}"
+        got, ref = (read_scalars(str(d / "tensorboard" / label / FILE_NAME)) for d in (out, reference))
+        mine = [r for r in rows if r["K"] == str(k) and r["seed"] == str(seed)]
+        steps = [int(r["env_steps"]) for r in mine]
+        assert [s for s, _ in got["returns/episode_return"]] == steps  # each iteration once, in order
+        np.testing.assert_allclose([v for _, v in got["ppo/value_loss"]], as_array(mine, "value_loss"), rtol=1e-5)  # CSV: 6 digits
+        assert [s for s, _ in got["returns/eval_return"]] == [int(r["env_steps"]) for r in mine if r["eval_return"] != ""]
+        assert set(got) == set(ref)
+        for t in got:
+            np.testing.assert_allclose(np.array(got[t]), np.array(ref[t]), rtol=1e-5, atol=1e-5, err_msg=t)
 
 
 def test_watchdog_restarts_a_stalled_worker(tiny_spec_file, inprocess, tmp_path, monkeypatch):
