@@ -1,0 +1,35 @@
+"""The README and docs/ pages: every relative link and image resolves to a file in the repository."""
+
+import glob
+import os
+import re
+
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def relative_links(path):
+    """[(target as written, resolved path)] of a Markdown file's links that are not URLs or anchors."""
+    with open(path) as f:
+        text = f.read()
+    out = []
+    for target in LINK.findall(text):
+        if re.match(r"[a-z]+:", target) or target.startswith("#"):
+            continue
+        out.append((target, os.path.normpath(os.path.join(os.path.dirname(path), target.split("#")[0]))))
+    return out
+
+
+def test_every_relative_link_in_readme_and_docs_resolves():
+    pages = [os.path.join(ROOT, "README.md")] + sorted(glob.glob(os.path.join(ROOT, "docs", "*.md")))
+    assert len(pages) >= 8
+    broken = [(os.path.relpath(p, ROOT), t) for p in pages for t, r in relative_links(p) if not os.path.exists(r)]
+    assert not broken, broken
+    readme_links = {t for t, _ in relative_links(pages[0])}
+    assert all(f"docs/{os.path.basename(p)}" in readme_links for p in pages[1:])  # every page reachable
+
+
+def test_link_check_sees_a_broken_link(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("![a](missing.png) [b](https://example.org) [c](#top) [d](page.md)")
+    assert [(t, os.path.exists(r)) for t, r in relative_links(str(page))] == [("missing.png", False), ("page.md", True)]
