@@ -513,8 +513,7 @@ def write_sweep_meta(root, spec, groups, num_processes, force, run_batch=RUN_BAT
 def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
               run_batch=RUN_BATCH, local_workers=True, force=False, tensorboard=True):
     """Train every group of the spec (this process's share of each). Returns True when all groups are done;
-    the runs that failed (NaN/inf) are written to failed_runs.json in this process's directory; tensorboard:
-    event files of every run in out/tensorboard/<run label>/.
+    failed runs (NaN/inf) go to failed_runs.json in this process's directory; tensorboard: out/tensorboard/<run>/.
     run_batch: see programs.make_group_program. local_workers: the processes share this machine and `out`
     (False for multi-host sweeps: each process compiles for itself). force: resume a changed spec."""
     import jax
@@ -540,7 +539,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
         + (f", process {process_id}/{num_processes}" if num_processes > 1 else "") + f" -> {out}")
     # compiled programs are kept in a cache: a resumed or restarted worker loads them; local worker
     # processes share one compile (worker 0 compiles, the others load -- gsa_jax.xla_cache)
-    cache_dir = os.path.join(root if local_workers else out, "xla_cache")
+    cache_dir, board_dir = os.path.join(root if local_workers else out, "xla_cache"), os.path.join(root, "tensorboard") if tensorboard else None
     share = (cache_dir, process_id == 0 or not local_workers)
     results, complete = [], True
     try:
@@ -551,8 +550,7 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
                     continue
                 res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
                                 on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
-                                pad_to=math.ceil(len(runs) / num_processes), share=share,
-                                board_dir=os.path.join(root, "tensorboard") if tensorboard else None)
+                                pad_to=math.ceil(len(runs) / num_processes), share=share, board_dir=board_dir)
                 results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))
                 write_tidy(out, spec, results)
                 if not res.finished:
