@@ -5,6 +5,9 @@ single-run tools work on it (inspect, export, deploy, gsa_jax.render --run):
     python -m gsa_jax.extract SWEEP_DIR --list      # the finished runs it holds
     python -m gsa_jax.extract SWEEP_DIR --controllers DIR   # every finished run's deterministic controller,
                                                             # DIR/<env>-<policy>[-K<k>]-s<seed>.npz (gsa_jax.export's npz)
+    python -m gsa_jax.extract SWEEP_DIR --results DIR       # what a finished sweep's results commit holds: sweep.json,
+                                                            # tidy metrics gzipped, failed runs, every controller
+                                                            # (no training state); gsa_jax.plot DIR reads it
 
 Swept hyperparameters, sub-policy classes and critics select with --hparam NAME=VALUE, --subpolicy and
 --value-target.
@@ -14,6 +17,7 @@ import argparse
 import csv
 import dataclasses
 import glob
+import gzip
 import json
 import os
 import sys
@@ -111,6 +115,36 @@ def export_controllers(sweep_dir, out_dir):
     return paths
 
 
+def collect_results(sweep_dir, out_dir):
+    """Copy a sweep's results into out_dir -- sweep.json, each worker's tidy metrics.csv gzipped
+    (metrics[-process-<i>].csv.gz), failed_runs.json, controllers/ (export_controllers) -- and no training
+    state. Returns the paths written."""
+    from gsa_jax.checkpoint import write_atomic
+
+    if not os.path.exists(os.path.join(sweep_dir, "sweep.json")):
+        raise ExtractError(f"{sweep_dir!r} is not a sweep directory (no sweep.json)")
+    os.makedirs(out_dir, exist_ok=True)
+    with open(os.path.join(sweep_dir, "sweep.json")) as f:
+        meta = f.read()
+    written = [os.path.join(out_dir, "sweep.json")]
+    write_atomic(written[0], meta)
+    failed = []
+    for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "metrics.csv"), recursive=True)):
+        rel = os.path.relpath(os.path.dirname(path), sweep_dir)
+        if "groups" in rel.split(os.sep):
+            continue
+        name = "metrics.csv.gz" if rel == "." else f"metrics-{rel.replace(os.sep, '-')}.csv.gz"
+        with open(path, "rb") as f:
+            write_atomic(os.path.join(out_dir, name), gzip.compress(f.read(), mtime=0), "wb")
+        written.append(os.path.join(out_dir, name))
+        runs_json = os.path.join(os.path.dirname(path), "failed_runs.json")
+        if os.path.exists(runs_json):
+            with open(runs_json) as f:
+                failed += json.load(f)
+    write_atomic(os.path.join(out_dir, "failed_runs.json"), json.dumps(failed))
+    return written + export_controllers(sweep_dir, os.path.join(out_dir, "controllers"))
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.extract", description=__doc__.split("\n")[0])
     p.add_argument("sweep_dir")
@@ -125,8 +159,14 @@ def main(argv=None):
     p.add_argument("--out", default=None)
     p.add_argument("--controllers", metavar="DIR", default=None,
                    help="write every finished run's deterministic controller (exported npz) to DIR")
+    p.add_argument("--results", metavar="DIR", default=None,
+                   help="copy the sweep's results (sweep.json, tidy metrics gzipped, failed runs, controllers) to DIR")
     args = p.parse_args(argv)
     try:
+        if args.results:
+            paths = collect_results(args.sweep_dir, args.results)
+            print(f"wrote {len(paths)} files to {args.results} (gsa_jax.plot {args.results} draws its figures)")
+            return 0
         if args.controllers:
             paths = export_controllers(args.sweep_dir, args.controllers)
             print(f"wrote {len(paths)} controllers to {args.controllers}")

@@ -209,6 +209,18 @@ def test_every_finished_runs_controller_exported(inprocess, tmp_path):
     np.testing.assert_array_equal(ctrl.L, L[row][:3])
     assert ctrl.num_clusters == 3 and np.isfinite(ctrl.act(np.zeros(L.shape[-1], np.float32))).all()
     assert extract_main([str(tmp_path), "--controllers", str(out)]) == 2  # not a sweep: one line, exit 2
+    # --results: what a results commit holds, and gsa_jax.plot reads it as it reads the sweep
+    res = tmp_path / "results"
+    assert extract_main([str(inprocess), "--results", str(res)]) == 0
+    assert {p.name for p in res.iterdir()} == {"sweep.json", "metrics.csv.gz", "failed_runs.json", "controllers"}
+    assert len(list((res / "controllers").iterdir())) == 4 and not list(res.glob("**/state.npz"))
+    from gsa_jax.plot import load_sweep
+
+    ours, theirs = load_sweep(str(res)), load_sweep(str(inprocess))
+    assert ours.keys() == theirs.keys()
+    for cell in ours:
+        for seed in ours[cell]:
+            np.testing.assert_array_equal(ours[cell][seed]["eval_return"], theirs[cell][seed]["eval_return"])
 
 
 ALONE_COLUMNS = ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl", "partition_entropy")
