@@ -572,8 +572,12 @@ def plot_return_vs_k(rows, path, settings=()):
     plt.close(fig)
 
 
-def plot_profiles(normalized, path, reps=stats.REPS):
-    """Performance profiles: the fraction of runs (averaged over tasks) whose normalized score exceeds tau."""
+PROFILE_XLABEL = "normalized score tau (0 = random policy, 1 = flat PPO's final IQM)"
+
+
+def plot_profiles(normalized, path, reps=stats.REPS, xlabel=PROFILE_XLABEL):
+    """Performance profiles: the fraction of runs (averaged over tasks) whose normalized score exceeds tau.
+    normalized: {(configuration, (column, value)...): (tasks, scores [runs, tasks])}."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -588,7 +592,7 @@ def plot_profiles(normalized, path, reps=stats.REPS):
         color = "black" if k[0] == "flat PPO" else plt.cm.viridis(i / max(1, len(normalized) - 1) * 0.9)
         ax.plot(taus, frac, color=color, label=" ".join([k[0]] + [f"{c}={v}" for c, v in k[1:] if v != ""]) + f" ({len(tasks)} tasks)")
         ax.fill_between(taus, lo, hi, color=color, alpha=0.15, lw=0)
-    ax.set(xlabel="normalized score tau (0 = random policy, 1 = flat PPO's final IQM)", ylabel="fraction of runs with score > tau")
+    ax.set(xlabel=xlabel, ylabel="fraction of runs with score > tau")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()

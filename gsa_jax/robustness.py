@@ -266,7 +266,7 @@ def plot_robustness(agg, path):
 
 
 def profile_scores(rows, action_dims):
-    """{configuration name: [runs, tasks] retained fractions}: each run's mean over its shifts, per task
+    """{(configuration name,): (tasks, [runs, tasks] retained fractions)}: each run's mean over its shifts
     (tasks with every configuration only; runs beyond the fewest of a task dropped to align the matrix)."""
     per = {}
     for r in rows:
@@ -278,29 +278,7 @@ def profile_scores(rows, action_dims):
     if not tasks:
         return {}
     n = min(len(per[c][t]) for c in per for t in tasks)
-    return {c: np.array([[np.mean(v) for v in list(per[c][t].values())[:n]] for t in tasks]).T for c in per}
-
-
-def plot_profile(scores, path, reps=stats.REPS):
-    """The merged robustness profile: fraction of runs whose mean retained fraction exceeds tau."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    taus = np.linspace(0.0, 1.2, 61)
-    prof = stats.performance_profiles(scores, taus, reps=reps)
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    for name, (frac, lo, hi) in prof.items():
-        ax.plot(taus, frac, color="k" if name == "flat PPO" else None, label=name)
-        ax.fill_between(taus, lo, hi, alpha=0.15, color="k" if name == "flat PPO" else None)
-    ax.set(xlabel="tau (mean retained fraction over shifts)", ylabel="fraction of runs > tau",
-           title=f"Robustness profile over {scores[next(iter(scores))].shape[1]} task(s)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return {(c,): (tasks, np.array([[np.mean(v) for v in list(per[c][t].values())[:n]] for t in tasks]).T) for c in per}
 
 
 def parse_shifts(text):
@@ -344,7 +322,10 @@ def analyse(rows, sens, out, reps=stats.REPS, log=print):
     plot_robustness(agg, os.path.join(out, "robustness.png"))
     scores = profile_scores(rows, {e: envs.action_size(e) for e in {r["env"] for r in rows}})
     if scores:
-        plot_profile(scores, os.path.join(out, "profile.png"), reps)
+        from gsa_jax.plot import plot_profiles
+
+        plot_profiles(scores, os.path.join(out, "profile.png"), reps,
+                      xlabel="tau: a run's mean retained fraction over the shifts (1 = its nominal score, 0 = random)")
     for c in corr:
         log(f"sensitivity vs retained fraction, {c['env']}: Spearman rho {c['spearman_rho']} (p {c['p_value']}, "
             f"{c['controllers']} controllers)")
