@@ -15,9 +15,16 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-## demo: a short real training run (mixture of 4 linear controllers on inverted_double_pendulum, ~1-2 min)
+## demo: a short real training run (mixture of 4 linear controllers on inverted_double_pendulum, ~2 min)
 demo: $(STAMP)
-	$(BIN)/python -m gsa_jax.train --env inverted_double_pendulum --policy mixture --clusters 4 --steps 150000 --out runs/demo
+	rm -rf runs/demo
+	$(BIN)/python -m gsa_jax.train --env inverted_double_pendulum --policy mixture --clusters 4 --steps 400000 --out runs/demo
+	@echo
+	@echo "'eval' is the deterministic controller (4 linear pieces: most probable cluster, mean action) over 16 episodes;"
+	@echo "the task's maximum is ~9,360 (1000 steps holding both poles up), a random policy scores ~176."
+	@echo "Next: .venv/bin/python -m gsa_jax.inspect runs/demo    (clusters, each piece's L and b -> runs/demo/inspect/)"
+	@echo "      .venv/bin/python -m gsa_jax.export runs/demo --out controller.h    (the controller as one C header)"
+	@echo "      .venv/bin/tensorboard --logdir runs    (after .venv/bin/pip install tensorboard)"
 
 ## test: the pytest suite, one worker per core (at most 4), each test file on one worker (~15 min on 2 cores;
 ## the 15 slowest tests are listed at the end). One worker: $(BIN)/python -m pytest tests -m "not benchmark"
