@@ -201,6 +201,7 @@ def test_ant_host_gives_the_same_steps_on_one_or_two_threads():
     assert len({r.tobytes() for r in rows[0]}) == 64
 
 
+@pytest.mark.benchmark  # MJX compiles Ant-v5's step for ~1-2 min here: run with -m benchmark, as the other MJX tasks
 def test_ant_on_mjx_steps_like_mujoco_c_from_shared_states():
     """Ant-v5 on MJX (contact forces from MJX's rne_postconstraint) against MuJoCo C, one env step from each of
     20 states of a MuJoCo C episode under random actions (contacts on and off). A contact that MuJoCo C makes or

@@ -359,7 +359,8 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
     for p in procs:
         _, err = p.communicate(timeout=600)
         assert p.returncode == 0, err[-2000:]
-    assert sorted(os.listdir(out)) == ["process-0", "process-1", "sweep.json"]
+    assert sorted(os.listdir(out)) == ["process-0", "process-1", "sweep.json", "tensorboard"]
+    assert len(os.listdir(out / "tensorboard")) == 8  # both processes' runs side by side, one TensorBoard run each
     merged = read_rows(str(out / "process-*" / "metrics.csv"))
     assert len(merged) == 8 * ITERS and {r["seed"] for r in merged} == {"0", "1", "2", "3"}
     # other runs beside them in each vmapped batch: float tolerance
