@@ -143,7 +143,7 @@ def controller_key(meta):
     return (meta["env"], meta["policy"], str(meta["K"]), str(meta["seed"]))
 
 
-def evaluate_all(controllers, shifts, episodes, out, log=print):
+def evaluate_all(controllers, shifts, episodes, out, log=lambda m: print(m, flush=True)):
     """Evaluate every controller not yet in OUT/robustness.csv; returns (tidy rows, sensitivity rows)."""
     tidy_path, sens_path = os.path.join(out, "robustness.csv"), os.path.join(out, "sensitivity.csv")
     rows, sens = read_csv(tidy_path), read_csv(sens_path)
