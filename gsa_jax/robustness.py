@@ -168,12 +168,13 @@ def evaluate_all(controllers, shifts, episodes, out, log=lambda m: print(m, flus
     return rows, sens
 
 
-def config_name(policy, k, action_dim):
-    """'flat PPO' or 'K = m d_a' with the smallest Figure-1 multiplier m whose ceil(m d_a) is K."""
+def config_names(policy, k, action_dim):
+    """['flat PPO'] or ['K = m d_a', ...] for every Figure-1 multiplier m whose ceil(m d_a) is K (on a
+    one-action task K = 1 is both 0.5 and 1 d_a), else ['K = k']."""
     if policy == "mlp":
-        return "flat PPO"
-    m = next((m for m in MULTIPLIERS if max(1, math.ceil(m * action_dim - 1e-9)) == int(k)), None)
-    return f"K = {m:g} d_a" if m is not None else f"K = {k}"
+        return ["flat PPO"]
+    ms = [m for m in MULTIPLIERS if max(1, math.ceil(m * action_dim - 1e-9)) == int(k)]
+    return [f"K = {m:g} d_a" for m in ms] or [f"K = {k}"]
 
 
 def cells(rows):
@@ -272,8 +273,8 @@ def profile_scores(rows, action_dims):
     for r in rows:
         if r["shift"] == "nominal" or r["retained_fraction"] in ("", None) or not np.isfinite(float(r["retained_fraction"])):
             continue
-        name = config_name(r["policy"], r["K"], action_dims[r["env"]])
-        per.setdefault(name, {}).setdefault(r["env"], {}).setdefault(str(r["seed"]), []).append(float(r["retained_fraction"]))
+        for name in config_names(r["policy"], r["K"], action_dims[r["env"]]):
+            per.setdefault(name, {}).setdefault(r["env"], {}).setdefault(str(r["seed"]), []).append(float(r["retained_fraction"]))
     tasks = sorted(set.intersection(*(set(v) for v in per.values()))) if per else []
     if not tasks:
         return {}
