@@ -619,12 +619,17 @@ def random_returns_of(dirs, env_names, out_dir, log=print):
     return {e: found[e] for e in env_names}
 
 
-def write_csv(path, rows):
-    cols = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=cols)
-        w.writeheader()
-        w.writerows(rows)
+def write_csv(path, rows, columns=None):
+    """rows (dicts) as a CSV file, written atomically; columns: their order (default: as first seen)."""
+    import io
+
+    from gsa_jax.checkpoint import write_atomic
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns or list(dict.fromkeys(k for r in rows for k in r)))
+    w.writeheader()
+    w.writerows(rows)
+    write_atomic(path, buf.getvalue())
 
 
 def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, log=print, reps=stats.REPS,

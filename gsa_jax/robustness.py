@@ -30,6 +30,7 @@ import sys
 import numpy as np
 
 from gsa_jax import stats
+from gsa_jax.plot import plot_profiles, write_csv
 from gsa_jax.shifts import DEFAULT_SHIFTS, KINDS, Shift, applies, run_shifted
 
 START_SEED = 10_000
@@ -73,7 +74,7 @@ class RandomController:
 
     def __init__(self, action_size, seed=0):
         self.rng, self.action_size = np.random.default_rng(seed), action_size
-        self.obs_std = None
+        self.obs_std = np.ones(1)  # unused: a random policy's shifts never read it (same law under noise)
 
     def act(self, obs):
         return self.rng.uniform(-1.0, 1.0, obs.shape[:-1] + (self.action_size,))
@@ -84,7 +85,6 @@ def random_score(env_name, shift, seeds):
     from envs import action_size
 
     ctrl = RandomController(action_size(env_name))
-    ctrl.obs_std = np.ones(1)
     same_law = shift.kind in ("obs_noise", "action_delay")  # a random policy ignores what it sees and when
     returns, _, _ = run_shifted(ctrl, env_name, Shift("nominal") if same_law else shift, seeds)
     return float(returns.mean())
@@ -129,14 +129,6 @@ def read_csv(path):
         return []
     with open(path) as f:
         return list(csv.DictReader(f))
-
-
-def write_csv(path, rows, columns=None):
-    from gsa_jax.checkpoint import write_atomic
-
-    columns = columns or list(dict.fromkeys(k for r in rows for k in r))
-    lines = [",".join(columns)] + [",".join("" if r.get(c) is None else str(r.get(c)) for c in columns) for r in rows]
-    write_atomic(path, "\n".join(lines) + "\n")
 
 
 def controller_key(meta):
@@ -323,8 +315,6 @@ def analyse(rows, sens, out, reps=stats.REPS, log=print):
     plot_robustness(agg, os.path.join(out, "robustness.png"))
     scores = profile_scores(rows, {e: envs.action_size(e) for e in {r["env"] for r in rows}})
     if scores:
-        from gsa_jax.plot import plot_profiles
-
         plot_profiles(scores, os.path.join(out, "profile.png"), reps,
                       xlabel="tau: a run's mean retained fraction over the shifts (1 = its nominal score, 0 = random)")
     for c in corr:
