@@ -97,8 +97,9 @@ class Board:
 def read_scalars(path):
     """{tag: [(step, value)]} of an event file, in file order (to check what was written; TensorBoard's own
     reader needs the tensorboard package)."""
-    out, data = defaultdict(list), open(path, "rb").read()
-    pos = 0
+    with open(path, "rb") as f:
+        data = f.read()
+    out, pos = defaultdict(list), 0
     while pos < len(data):
         (n,) = struct.unpack("Q", data[pos:pos + 8])
         event = Event.FromString(data[pos + 12:pos + 12 + n])
