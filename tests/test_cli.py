@@ -7,6 +7,7 @@ import os
 import numpy as np
 import pytest
 
+from golden_runs import arrays_digest, check_fingerprint, table_digest
 from gsa_jax.tensorboard import FILE_NAME, read_scalars
 from gsa_jax.train import METRIC_COLUMNS, main
 
@@ -71,6 +72,12 @@ def test_outputs(full_run):
     with np.load(full_run / "params.npz") as p:
         keys = set(p.files)
     assert "['params']['policy']['L']" in keys and "['obs_stats']['mean']" in keys
+
+
+def test_fixed_run_computes_what_it_computed(full_run):
+    """The fixed run's metrics, parameters and state are bit for bit the recorded ones (tests/golden_runs.py)."""
+    check_fingerprint("train_cli_small", {"metrics": table_digest(full_run / "metrics.csv"),
+                                          **{n: arrays_digest(full_run / f"{n}.npz") for n in ("params", "state")}})
 
 
 def test_existing_out_needs_resume(full_run, capsys):

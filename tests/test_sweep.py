@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from golden_runs import arrays_digest, check_fingerprint, table_digest
 from gsa_jax.ppo import Config, make_hparams, make_train
 from gsa_jax.sweep import SpecError, build_grid, check_spec, group_config, group_name, id_columns, load_spec, run_sweep
 
@@ -176,6 +177,14 @@ def test_every_experiment_file_is_valid():
     assert len(files) >= 10
     for f in files:
         assert load_spec(f)["name"] == os.path.splitext(os.path.basename(f))[0], f
+
+
+def test_fixed_sweep_computes_what_it_computed(inprocess):
+    """The tiny sweep's tidy metrics and its group's parameters and metrics arrays are bit for bit the recorded ones
+    (tests/golden_runs.py)."""
+    group = inprocess / "groups" / "inverted_double_pendulum-mixture"
+    check_fingerprint("sweep_tiny", {"metrics": table_digest(inprocess / "metrics.csv"),
+                                     **{n: arrays_digest(group / f"{n}.npz") for n in ("params", "metrics")}})
 
 
 def test_tidy_table(inprocess):
