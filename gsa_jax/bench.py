@@ -39,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -97,22 +98,23 @@ def worker(args):
 
     import jax
 
-    from gsa_jax.programs import compile_group, pad_runs
-    from gsa_jax.sweep import build_grid, check_spec, group_config
+    from gsa_jax.programs import GroupRuns, GroupShape, compile_group, pad_runs
+    from gsa_jax.spec import build_grid, check_spec, group_config
 
     spec = check_spec({"envs": [args.env], "policies": [args.policy], "clusters": [args.clusters],
                        "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9,
                        "config": {"backend": args.physics}})
-    _, _, runs = build_grid(spec)[0]
-    cfg = group_config(spec, args.env, args.policy, runs)
+    group = build_grid(spec)[0]
+    cfg = group_config(spec, group)
     if args.epochs:
         cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
     cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
                               value_target=args.value_target, backend=args.physics, physics_threads=args.physics_threads)
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
-    runs = pad_runs(runs, len(devices))
-    states, run, hps, _, how = compile_group(cfg, 1, devices, runs, [], 1000, args.run_batch, _share(args))
+    runs = pad_runs(group.runs, len(devices))
+    shape = GroupShape(cfg, 1, tuple(devices), args.run_batch)
+    states, run, hps, _, how = compile_group(shape, GroupRuns(runs, [], 1000), _share(args))
     compile_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     states, _ = run(states, hps)  # first execution (allocations, page faults) is not timed
@@ -248,23 +250,45 @@ def _compile_fields(results):
             "xla_flags": results[0]["xla_flags"]}
 
 
-def measure_sweep(env, policy, runs, processes, repeats, clusters=6, epochs=None, solver=None, run_batch=RUN_BATCH, log=print,
-                  compile_each=False, value_target="gae", backend="mjx", physics_threads=0):
-    """Throughput of `runs` runs split over `processes` workers, measured together. solver: None (the
-    task's own) or (iterations, ls_iterations); compile_each: see run_workers; value_target: the critic;
+class SweepCell(NamedTuple):
+    """One measured sweep configuration: `runs` runs of (env, policy) split over `processes` workers.
+    clusters: K of a mixture; epochs: PPO epochs (None: Config's); solver: None (the task's own) or
+    (iterations, ls_iterations); run_batch: see programs.make_group_program; value_target: the critic;
     backend, physics_threads: the physics backend and its threads per process."""
+
+    env: str
+    policy: str
+    runs: int
+    processes: int
+    clusters: int = 6
+    epochs: int | None = None
+    solver: tuple | None = None
+    run_batch: int = RUN_BATCH
+    value_target: str = "gae"
+    backend: str = "mjx"
+    physics_threads: int = 0
+
+
+def worker_command(cell, runs, seed0, repeats):
+    """The command line of one bench worker training `runs` runs of the cell from seed seed0."""
+    return ([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", cell.env, "--policy", cell.policy,
+             "--clusters", str(cell.clusters), "--runs", str(runs), "--seed0", str(seed0), "--repeats", str(repeats)]
+            + (["--epochs", str(cell.epochs)] if cell.epochs else []) + _solver_args(cell.solver)
+            + ["--run-batch", str(cell.run_batch)]
+            + ["--value-target", cell.value_target, "--physics", cell.backend, "--physics-threads", str(cell.physics_threads)])
+
+
+def measure_sweep(cell, repeats, log=print, compile_each=False):
+    """Throughput of a SweepCell, its workers measured together; compile_each: see run_workers."""
     cmds, seed0 = [], 0
-    for n in _split(runs, processes):
-        cmds.append([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", env, "--policy", policy,
-                     "--clusters", str(clusters), "--runs", str(n), "--seed0", str(seed0), "--repeats", str(repeats)]
-                    + (["--epochs", str(epochs)] if epochs else []) + _solver_args(solver)
-                    + ["--run-batch", str(run_batch)]
-                    + ["--value-target", value_target, "--physics", backend, "--physics-threads", str(physics_threads)])
+    for n in _split(cell.runs, cell.processes):
+        cmds.append(worker_command(cell, n, seed0, repeats))
         seed0 += n
     results = run_workers(cmds, log=log, compile_each=compile_each)
     return {
-        "env": env, "policy": policy, "runs": runs, "processes": processes, **({"num_epochs": epochs} if epochs else {}),
-        **_solver_field(solver), "value_target": value_target, "backend": backend, "physics_threads": physics_threads,
+        "env": cell.env, "policy": cell.policy, "runs": cell.runs, "processes": cell.processes,
+        **({"num_epochs": cell.epochs} if cell.epochs else {}), **_solver_field(cell.solver), "value_target": cell.value_target,
+        "backend": cell.backend, "physics_threads": cell.physics_threads,
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
         "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),
@@ -336,8 +360,9 @@ def time_profile(env, policy, runs, repeats, run_batch=RUN_BATCH, log=print, bac
     from gsa_jax.ppo import Config
 
     epochs = Config.num_epochs
-    full = measure_sweep(env, policy, runs, processes, repeats, run_batch=run_batch, log=log, backend=backend)
-    one = measure_sweep(env, policy, runs, processes, repeats, epochs=1, run_batch=run_batch, log=log, backend=backend)
+    cell = SweepCell(env, policy, runs, processes, run_batch=run_batch, backend=backend)
+    full = measure_sweep(cell, repeats, log=log)
+    one = measure_sweep(cell._replace(epochs=1), repeats, log=log)
     steps = full["env_steps_per_iteration"]
     t_full, t_one = steps / full["env_steps_per_s"], steps / one["env_steps_per_s"]
     t_epoch = max(0.0, (t_full - t_one) / (epochs - 1))
@@ -584,7 +609,7 @@ def make_plan(args):
     ValueError on bad input."""
     import envs
 
-    from gsa_jax.sweep import check_spec
+    from gsa_jax.spec import check_spec
 
     envs.check_name(args.env)
     backends = parse_backends(args.physics, args.env)
@@ -659,9 +684,9 @@ def measure_sweep_plan(args, info, report, c_ref, save):
           f"{'peak_MiB':>9}", flush=True)
     for pol, n, k, sol, be in info["plan"]:
         try:
-            r = measure_sweep(args.env, pol, n, k, reps(info["repeats"], n, args.repeats is not None), solver=sol,
-                              run_batch=args.run_batch, value_target=args.value_target, backend=be,
-                              physics_threads=args.physics_threads)
+            cell = SweepCell(args.env, pol, n, k, solver=sol, run_batch=args.run_batch, value_target=args.value_target,
+                             backend=be, physics_threads=args.physics_threads)
+            r = measure_sweep(cell, reps(info["repeats"], n, args.repeats is not None))
             add_ratios(r, c_ref, sol)
             print(f"{pol:8} {be:>7} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
                   f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)

@@ -70,19 +70,19 @@ def extract(sweep_dir, gdir, index, row, out):
     """Write out/config.json and out/params.npz for run `index` of group `gdir`."""
     from gsa_jax.checkpoint import save_npz_atomic, write_atomic
     from gsa_jax.ppo import HPARAM_DEFAULTS
-    from gsa_jax.sweep import check_spec, default_chunk, group_config, group_iterations
+    from gsa_jax.spec import Group, check_spec, default_chunk, group_config, group_iterations
 
     with open(os.path.join(sweep_dir, "sweep.json")) as f:
         meta = json.load(f)
     spec = check_spec(meta["spec"], source=os.path.join(sweep_dir, "sweep.json"))
     with open(os.path.join(gdir, "runs.csv")) as f:
         group_runs = [dict(r, K=int(r["K"])) for r in csv.DictReader(f)]
-    cfg = group_config(spec, row["env"], row["policy"], group_runs)
+    cfg = group_config(spec, Group(row["env"], row["policy"], group_runs))
     chunk = default_chunk(spec, cfg)
     iterations = group_iterations(spec, cfg, chunk)
     hp = dict(HPARAM_DEFAULTS)
-    hp.update({n: v[0] for n, v in spec["hparams"].items()})
-    hp.update({n: float(row[n]) for n in spec["hparams"] if n in row})
+    hp.update({n: v[0] for n, v in spec.hparams.items()})
+    hp.update({n: float(row[n]) for n in spec.hparams if n in row})
     hp.update(K=int(row["K"]) if row["policy"] == "mixture" else 1, total_iterations=iterations)
     with np.load(os.path.join(gdir, "params.npz")) as p:
         arrays = {k: p[k][index] for k in p.files}
@@ -100,7 +100,7 @@ def export_controllers(sweep_dir, out_dir):
     """Write every finished run's deterministic controller to out_dir/<run_label>.npz -> [paths]."""
     from gsa_jax.checkpoint import save_npz_atomic
     from gsa_jax.export import controller_arrays
-    from gsa_jax.sweep import run_label
+    from gsa_jax.spec import run_label
 
     runs = finished_runs(sweep_dir)
     if not runs:

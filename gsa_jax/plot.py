@@ -1,5 +1,5 @@
-"""Figures and tables of sweeps: `python -m gsa_jax.plot DIR [DIR ...] [--out OUT]`, and the learning curve
-of a single run (plot_curve, written by gsa_jax.train as curve.png).
+"""Figures and tables of sweeps: `python -m gsa_jax.plot DIR [DIR ...] [--out OUT]` (a single run's learning
+curve: gsa_jax.curve).
 
 Merges every tidy metrics.csv under the directories (one per worker process, host, or separately run
 sweep: a task's sweep may run on another day or machine; sweeps that hold the same group with other
@@ -201,39 +201,6 @@ def cell_label(cell, action_dims):
     return f"K={k}{mult}" + extra
 
 
-
-def plot_curve(rows, path, title=""):
-    """A single run's learning curve: rows are metrics.csv rows as dicts. Training return per iteration
-    (with a trailing mean), deterministic evaluation returns as markers."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    def col(name):
-        pts = [(float(r["env_steps"]), float(r[name])) for r in rows if r.get(name, "") not in ("", None)]
-        pts = [p for p in pts if not math.isnan(p[1])]
-        return zip(*pts) if pts else ((), ())
-
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    xs, ys = col("episode_return")
-    ax.plot(xs, ys, lw=0.8, alpha=0.35, color="C0", label="training episodes (stochastic policy)")
-    if len(ys) >= 10:  # few episodes end per iteration late in training: show a trailing mean too
-        w = max(5, len(ys) // 30)
-        trailing = [sum(ys[max(0, i - w + 1):i + 1]) / len(ys[max(0, i - w + 1):i + 1]) for i in range(len(ys))]
-        ax.plot(xs, trailing, lw=1.8, color="C0", label=f"  trailing mean over {w} iterations")
-    xs, ys = col("eval_return")
-    ax.plot(xs, ys, "o-", ms=4, lw=1, color="C1", label="evaluation (deterministic controller)")
-    ax.set(xlabel="environment steps", ylabel="episode return", title=title)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-
-
 def cell_order(cell):
     return cell[0], cell[1] != "mlp", cell[2], cell[3:]
 
@@ -366,7 +333,7 @@ def config_keys(cell, action_dims, multipliers):
     """The configurations across tasks a cell belongs to: flat PPO, or "K = m d_a" for every multiplier m
     of its sweep that gives its K (K = ceil(m d_a), as Figure 1 sets K: on a task with one action, K = 1
     is both 0.5 d_a and 1 d_a), or K / d_a when K was set directly; with the swept settings."""
-    from gsa_jax.sweep import cluster_count
+    from gsa_jax.spec import cluster_count  # here, not at the top: reading results does not import jax
 
     env, policy, k = cell[:3]
     if policy == "mlp":

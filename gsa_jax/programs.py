@@ -4,21 +4,26 @@ A group of runs (same Config, any hyperparameters and seeds) becomes one program
 the runs, optionally in sequential sub-batches (sub_batched), and with several devices the run axis
 sharded over them (shard_map). Used by gsa_jax.sweep and gsa_jax.bench.
 
-    states, run, hps, place, how = compile_group(cfg, chunk, devices, pad_runs(runs, len(devices)), names, iterations)
+    shape = GroupShape(cfg, chunk, tuple(devices))
+    states, run, hps, place, how = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))
     states, metrics = run(states, hps)          # metrics [R, chunk]
 """
 
-import functools
+from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from jax.sharding import NamedSharding
+from jax.sharding import PartitionSpec as P
+
+from gsa_jax import xla_cache
+from gsa_jax.driver import Program
+from gsa_jax.ppo import Config, make_hparams, make_train
 
 
 def stack_hparams(runs, names, iterations):
     """The runs' hyperparameters stacked along the run axis: Hparams of [R] arrays (make_hparams per run)."""
-    import jax
-    import jax.numpy as jnp
-
-    from gsa_jax.ppo import make_hparams
 
     per_run = [make_hparams(K=r["K"], total_iterations=iterations, **{n: r[n] for n in names}) for r in runs]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *per_run)
@@ -31,8 +36,6 @@ def sub_batched(fn, size):
     """fn (vmapped over a leading run axis R) applied to sequential slices of `size` runs in a lax.scan,
     when size divides R and is smaller; else fn itself. (Explicit shapes: jax.lax.map(batch_size=) fails
     on MJX's zero-size arrays.)"""
-    import jax
-
     def run(*xs):
         n = jax.tree.leaves(xs)[0].shape[0]
         if not size or size >= n or n % size:
@@ -50,11 +53,6 @@ def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
     run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
     all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
     slowest env instead of the whole device's."""
-    import jax
-    from jax.sharding import NamedSharding
-    from jax.sharding import PartitionSpec as P
-
-    from gsa_jax.ppo import make_train
 
     trainer = make_train(cfg)
     init = jax.vmap(trainer.init)
@@ -76,10 +74,6 @@ def make_group_evaluate(cfg, run_batch=RUN_BATCH):
     """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed
     episodes), vmapped over runs in
     sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one)."""
-    import jax
-
-    from gsa_jax.ppo import make_train
-
     trainer = make_train(cfg)
     return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch))
 
@@ -92,59 +86,85 @@ def pad_runs(runs, multiple, at_least=0):
     return runs + [dict(runs[-1], run=-1)] * pad
 
 
-_PROGRAMS = {}  # (cfg, chunk, devices, run_batch, runs) -> compiled (init, run, place): reused within a process
+class GroupShape(NamedTuple):
+    """What fixes a group program's compiled code (with the run count): the Config, iterations per chunk,
+    the devices the run axis is sharded over and the sub-batch size (make_group_program)."""
+
+    cfg: Config
+    chunk: int
+    devices: tuple
+    run_batch: int = RUN_BATCH
 
 
-def compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print):
-    """The group program for `runs` (already padded), compiled, and its initial state.
+class GroupRuns(NamedTuple):
+    """The runs a group program trains: run rows (already padded: pad_runs), the hyperparameter names they
+    set beyond K, and the run length in iterations (the learning-rate schedule's)."""
+
+    runs: list
+    hparam_names: list
+    iterations: int
+
+
+_COMPILED = {}  # kind -> {key: compiled}, most recent last: reused within a process
+_KEEP = {"single": 8}  # programs kept per kind (default 1: a group program holds its runs' device buffers)
+
+
+def cached(kind, key, build):
+    """The one compile cache: build() once per process for `key`; the last _KEEP[kind] keys of each kind
+    are kept (a resumed group, a second run of the same shapes and the tests reuse them)."""
+    programs = _COMPILED.setdefault(kind, {})
+    if key not in programs:
+        while len(programs) >= _KEEP.get(kind, 1):
+            programs.pop(next(iter(programs)))
+        programs[key] = build()
+    programs[key] = programs.pop(key)  # most recent last
+    return programs[key]
+
+
+def stacked_inputs(group, place):
+    """(keys [R], hps [R]) of a group's runs, placed on its devices."""
+    hps = place(stack_hparams(group.runs, group.hparam_names, group.iterations))
+    keys = place(jnp.stack([jax.random.PRNGKey(r["seed"]) for r in group.runs]))
+    return keys, hps
+
+
+def compile_group(shape, group, share=None, log=print):
+    """The group program for `group`, compiled, and its initial state.
     share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
     inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
-    A program this process compiled before (same shapes) is reused.
     Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
-    import jax
+    how = ["reused (compiled earlier in this process)"]
 
-    from gsa_jax import xla_cache
-
-    key = (cfg, chunk, tuple(devices), run_batch, len(runs))
-    how = "reused (compiled earlier in this process)"
-    if key not in _PROGRAMS:
-        _, init, run, place = make_group_program(cfg, chunk, devices, run_batch)
-        hps = place(stack_hparams(runs, hparam_names, iterations))
-        keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
+    def build():
+        _, init, run, place = make_group_program(shape.cfg, shape.chunk, list(shape.devices), shape.run_batch)
+        keys, hps = stacked_inputs(group, place)
         init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
-        run, how = xla_cache.compile_with(run.lower(init(keys, hps), hps), share, log)
-        _PROGRAMS.clear()  # keep the last program only: resumed groups and tests reuse it
-        _PROGRAMS[key] = (init, run, place)
-    init, run, place = _PROGRAMS[key]
-    hps = place(stack_hparams(runs, hparam_names, iterations))
-    keys = place(jax.numpy.stack([jax.random.PRNGKey(r["seed"]) for r in runs]))
-    return init(keys, hps), run, hps, place, how
+        run, how[0] = xla_cache.compile_with(run.lower(init(keys, hps), hps), share, log)
+        return init, run, place
+
+    init, run, place = cached("group", (shape, len(group.runs)), build)
+    keys, hps = stacked_inputs(group, place)
+    return init(keys, hps), run, hps, place, how[0]
 
 
-@functools.lru_cache(maxsize=8)
 def compile_single(cfg, chunk):
     """(trainer, jitted init, compiled run_chunk of `chunk` iterations, jitted evaluate) of one run of a
-    Config, built once per process (a second run of the same shapes in this process reuses it)."""
-    import jax
+    Config (not vmapped: train.py's program), compiled once per process for these shapes."""
 
-    from gsa_jax.ppo import make_hparams, make_train
+    def build():
+        trainer = make_train(cfg)
+        init = jax.jit(trainer.init)
+        hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
+        state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
+        run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
+        return trainer, init, run_chunk, jax.jit(trainer.evaluate)
 
-    trainer = make_train(cfg)
-    init = jax.jit(trainer.init)
-    hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
-    state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
-    run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
-    return trainer, init, run_chunk, jax.jit(trainer.evaluate)
+    return cached("single", (cfg, chunk), build)
 
 
 def single_program(cfg, chunk, seed, hp_py, eval_seed=0):
     """(Program of one run, not vmapped, its trainer). The deterministic evaluation after iteration `it`
     starts its episodes from fold_in(PRNGKey(eval_seed), it): the same starts for every seed."""
-    import jax
-
-    from gsa_jax.driver import Program
-    from gsa_jax.ppo import make_hparams
-
     trainer, init, run_chunk, evaluate = compile_single(cfg, chunk)
     hp = make_hparams(**hp_py)
     eval_key = jax.random.PRNGKey(eval_seed)
@@ -156,43 +176,31 @@ def single_program(cfg, chunk, seed, hp_py, eval_seed=0):
     return program, trainer
 
 
-_EVALUATORS = {}  # (cfg, devices, run_batch, runs) -> compiled group evaluation: reused within a process
-
-
-def compile_group_evaluate(cfg, devices, states, hps, place, run_batch=RUN_BATCH, share=None, log=print):
+def compile_group_evaluate(shape, states, hps, place, share=None, log=print):
     """The compiled evaluation of a group's runs: (states, hps, key) -> ([R] mean deterministic returns,
     [R] failed episodes), every run from the same eval_envs start states (drawn from `key`)."""
-    import jax
-
-    from gsa_jax import xla_cache
-
     runs = jax.tree.leaves(hps)[0].shape[0]
-    cache_key = (cfg, tuple(devices), run_batch, runs)
-    if cache_key not in _EVALUATORS:
-        keys = place(jax.numpy.stack([jax.random.PRNGKey(0)] * runs))
-        lowered = make_group_evaluate(cfg, run_batch).lower(states.params, states.obs_stats, hps, keys)
-        _EVALUATORS.clear()
-        _EVALUATORS[cache_key], _ = xla_cache.compile_with(lowered, share, log)
-    compiled = _EVALUATORS[cache_key]
+
+    def build():
+        keys = place(jnp.stack([jax.random.PRNGKey(0)] * runs))
+        lowered = make_group_evaluate(shape.cfg, shape.run_batch).lower(states.params, states.obs_stats, hps, keys)
+        return xla_cache.compile_with(lowered, share, log)[0]
+
+    compiled = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs), build)
 
     def evaluate(st, h, key):
-        return compiled(st.params, st.obs_stats, h, place(jax.numpy.stack([key] * runs)))
+        return compiled(st.params, st.obs_stats, h, place(jnp.stack([key] * runs)))
 
     return evaluate
 
 
-def group_program(cfg, chunk, devices, runs, hparam_names, iterations, run_batch=RUN_BATCH, share=None, log=print,
-                  eval_seed=None):
-    """compile_group as a driver Program of len(runs) (padded) runs; with an eval_seed, its deterministic
+def group_program(shape, group, eval_seed=None, share=None, log=print):
+    """compile_group as a driver Program of len(group.runs) (padded) runs; with an eval_seed, its deterministic
     evaluation after iteration `it` starts every run's episodes from fold_in(PRNGKey(eval_seed), it)."""
-    import jax
-
-    from gsa_jax.driver import Program
-
-    states, run, hps, place, how = compile_group(cfg, chunk, devices, runs, hparam_names, iterations, run_batch, share, log)
+    states, run, hps, place, how = compile_group(shape, group, share, log)
     evaluate = None
     if eval_seed is not None:
-        group_eval = compile_group_evaluate(cfg, devices, states, hps, place, run_batch, share, log)
+        group_eval = compile_group_evaluate(shape, states, hps, place, share, log)
         base = jax.random.PRNGKey(eval_seed)
         evaluate = lambda st, h, it: group_eval(st, h, jax.random.fold_in(base, it))  # noqa: E731
-    return Program(len(runs), states, hps, run, evaluate, place, batched=True, how=how)
+    return Program(len(group.runs), states, hps, run, evaluate, place, batched=True, how=how)

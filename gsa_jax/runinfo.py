@@ -72,3 +72,15 @@ def describe_changes(old, new, prefix=""):
         elif a != b:
             changes.append(f"{prefix}{k}: {json.dumps(a)} -> {json.dumps(b)}")
     return "; ".join(changes)
+
+
+class ResumeRefused(ValueError):
+    """A saved run or sweep differs from the one asked to continue it."""
+
+
+def check_unchanged(old, new, force, what, remedy):
+    """The one resume check of runs and sweeps: raise ResumeRefused('<what> (<one-line diff>); <remedy>')
+    if the saved record `old` differs from `new` (JSON-like dicts), unless force."""
+    diff = describe_changes(old, json.loads(json.dumps(new)))
+    if diff and not force:
+        raise ResumeRefused(f"{what} ({diff}); {remedy}")

@@ -54,259 +54,30 @@ Experiment file (TOML):
 
 import argparse
 import dataclasses
-import itertools
 import json
 import math
 import os
-import re
 import sys
 import time
-import tomllib
+from collections.abc import Callable
+from typing import NamedTuple
 
+import jax
 import numpy as np
 
-from gsa_jax.checkpoint import CheckpointError, DiskFullError, read_with_fallback, write_atomic
-from gsa_jax.driver import failed_mask, rows_before_failure
-from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS, TIDY_METRICS
-from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
-from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
-from gsa_jax.programs import RUN_BATCH, pad_runs
-from gsa_jax.retrace import VALUE_TARGETS
+from gsa_jax import xla_cache
+from gsa_jax.checkpoint import CheckpointError, DiskFullError, load_pytree, read_with_fallback, save_npz_atomic, save_pytree, write_atomic
+from gsa_jax.driver import Plan, Result, drive, failed_mask, rows_before_failure
+from gsa_jax.metrics import INTEGER_METRICS, TIDY_METRICS
+from gsa_jax.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
+from gsa_jax.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
+from gsa_jax.runlock import LockError, hold
+from gsa_jax.spec import Group, SpecError, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name, load_spec, run_label
+from gsa_jax.supervise import heartbeat_writer, supervise
+from gsa_jax.tensorboard import Board, follow
 
-SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
-               "eval_every", "eval_seed",
-               "hparams", "config")
 TRACKED = TIDY_METRICS + ("failed_at",)  # per run and iteration in metrics.npz; failed_at is not a CSV column
-_STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
-# Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
-# the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
-GROUP_AXES = (("subpolicies", "subpolicy", "mixture", SUBPOLICY_KINDS), ("value_targets", "value_target", None, VALUE_TARGETS))
-NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
-
-
-class SpecError(ValueError):
-    pass
-
-
-# ----------------------------------------------------------------------------------------------- spec and grid
-def load_spec(path):
-    """Read and check an experiment file; errors name the file and the bad field."""
-    if os.path.isdir(path):
-        candidates = [os.path.join(path, n) for n in ("sweep.toml", os.path.basename(path.rstrip("/")) + ".toml")]
-        path = next((c for c in candidates if os.path.exists(c)), path)
-    if not os.path.exists(path):
-        raise SpecError(f"{path}: no such experiment file")
-    try:
-        with open(path, "rb") as f:
-            raw = tomllib.load(f)
-    except tomllib.TOMLDecodeError as e:
-        raise SpecError(f"{path}: not valid TOML: {e}") from None
-    return check_spec(raw, source=path)
-
-
-def check_spec(raw, source="spec"):
-    def bad(field, msg):
-        raise SpecError(f"{source}: field '{field}': {msg}")
-
-    unknown = set(raw) - set(SPEC_FIELDS)
-    if unknown:
-        bad(sorted(unknown)[0], f"unknown field; allowed: {', '.join(SPEC_FIELDS)}")
-    import envs
-
-    spec = dict(raw)
-    spec.setdefault("name", os.path.splitext(os.path.basename(source))[0])
-    if not isinstance(spec["name"], str) or not NAME_PATTERN.fullmatch(spec["name"]):
-        bad("name", f"must be a plain name (letters, digits, '-', '_', '.'; not starting with '.' or '-'), got {spec['name']!r}")
-    for field in ("envs", "policies"):
-        if field not in spec:
-            bad(field, "missing")
-        if isinstance(spec[field], str):
-            spec[field] = [spec[field]]
-        if not isinstance(spec[field], list) or not spec[field]:
-            bad(field, "must be a non-empty list")
-    for e in spec["envs"]:
-        if e not in envs.NAMES:
-            bad("envs", f"unknown env {e!r}; choose from {', '.join(envs.NAMES)}")
-    for p in spec["policies"]:
-        if p not in POLICY_KINDS:
-            bad("policies", f"unknown policy {p!r}; choose from {', '.join(POLICY_KINDS)}")
-    check_cluster_fields(spec, bad)
-    seeds = spec.get("seeds", 1)
-    if isinstance(seeds, int):
-        if seeds < 1:
-            bad("seeds", f"must be >= 1 or a list of seeds, got {seeds}")
-        seeds = list(range(seeds))
-    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
-        bad("seeds", "must be a count >= 1 or a list of non-negative integers")
-    if len(set(seeds)) != len(seeds):
-        bad("seeds", "repeats a seed")
-    spec["seeds"] = seeds
-    if not isinstance(spec.get("steps"), int) or spec["steps"] < 1:
-        bad("steps", f"must be a positive integer, got {spec.get('steps')!r}")
-    if "chunk" in spec and (not isinstance(spec["chunk"], int) or spec["chunk"] < 1):
-        bad("chunk", f"must be a positive integer, got {spec['chunk']!r}")
-    for field in ("eval_every", "eval_seed"):
-        if field in spec and (not isinstance(spec[field], int) or isinstance(spec[field], bool) or spec[field] < 0):
-            bad(field, f"must be an integer >= 0, got {spec[field]!r}")
-    spec["hparams"] = check_hparams_table(spec.get("hparams", {}), bad)
-    cfg = spec.get("config", {})
-    if not isinstance(cfg, dict):
-        bad("config", "must be a table")
-    for k in cfg:
-        if k not in _STATIC_FIELDS:
-            bad(f"config.{k}", f"unknown; allowed: {', '.join(sorted(_STATIC_FIELDS))}")
-    spec["config"] = cfg
-    try:
-        for e in spec["envs"]:  # every env: the physics backend must run it
-            Config(env=e, **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
-    except (ValueError, TypeError) as e:
-        bad("config", str(e))
-    check_group_axes(spec, bad)
-    return spec
-
-
-def check_cluster_fields(spec, bad):
-    """clusters / cluster_multipliers of a spec, normalized to lists in place."""
-    if "mixture" in spec["policies"]:
-        if ("clusters" in spec) == ("cluster_multipliers" in spec):
-            bad("clusters", "a mixture sweep needs exactly one of 'clusters' (absolute K) or 'cluster_multipliers' (K / action_dim)")
-        if "clusters" in spec:
-            ks = spec["clusters"] if isinstance(spec["clusters"], list) else [spec["clusters"]]
-            if not ks or not all(isinstance(k, int) and k >= 1 for k in ks):
-                bad("clusters", f"must be integers >= 1, got {spec['clusters']!r}")
-            spec["clusters"] = ks
-        else:
-            ms = spec["cluster_multipliers"] if isinstance(spec["cluster_multipliers"], list) else [spec["cluster_multipliers"]]
-            if not ms or not all(isinstance(m, (int, float)) and m > 0 for m in ms):
-                bad("cluster_multipliers", f"must be positive numbers, got {spec['cluster_multipliers']!r}")
-            spec["cluster_multipliers"] = ms
-
-
-def check_group_axes(spec, bad):
-    """subpolicies / value_targets (GROUP_AXES) of a spec, normalized to lists in place; absent stays absent
-    (a spec's identity, sweep.json, must not change)."""
-    for field, column, policy, allowed in GROUP_AXES:
-        if field not in spec:
-            continue
-        values = spec[field] if isinstance(spec[field], list) else [spec[field]]
-        if policy is not None and policy not in spec["policies"]:
-            bad(field, f"applies to {policy} policies; add '{policy}' to policies")
-        if not values or any(x not in allowed for x in values) or len(set(values)) != len(values):
-            bad(field, f"must be distinct names from {', '.join(allowed)}, got {spec[field]!r}")
-        if column in spec.get("config", {}):
-            bad(field, f"set {column} either here or in [config], not both")
-        spec[field] = values
-
-
-def check_hparams_table(hps, bad):
-    """The [hparams] table: known names, numbers (or lists of numbers) in their ranges -> {name: [values]}."""
-    if not isinstance(hps, dict):
-        bad("hparams", "must be a table")
-    out = {}
-    for k, v in hps.items():
-        if k in ("K", "total_iterations"):
-            bad(f"hparams.{k}", "is set by the sweep (use 'clusters'/'cluster_multipliers' and 'steps')")
-        if k not in HPARAM_DEFAULTS:
-            bad(f"hparams.{k}", f"unknown hyperparameter; known: {', '.join(h for h in HPARAM_DEFAULTS if h not in ('K', 'total_iterations'))}")
-        values = v if isinstance(v, list) else [v]
-        if not values or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
-            bad(f"hparams.{k}", f"must be a number or a list of numbers, got {v!r}")
-        for x in values:
-            try:
-                check_hparam(k, x)
-            except ValueError as e:
-                bad(f"hparams.{k}", str(e))
-        out[k] = values
-    return out
-
-
-def cluster_counts(spec, env_name):
-    """K values of a mixture group: absolute, or ceil(m * action_dim) for each multiplier (deduplicated, sorted)."""
-    if "clusters" in spec:
-        return sorted(set(spec["clusters"]))
-    import envs
-
-    d_a = envs.action_size(env_name)
-    return sorted({cluster_count(m, d_a) for m in spec["cluster_multipliers"]})
-
-
-def cluster_count(multiplier, action_dim):
-    """K of a cluster multiplier m on a task with action_dim actions: ceil(m * action_dim), at least 1."""
-    return max(1, math.ceil(multiplier * action_dim - 1e-9))
-
-
-def swept_names(spec):
-    return [k for k, v in spec["hparams"].items() if len(v) > 1]
-
-
-def id_columns(spec):
-    """Columns that identify a run in runs.csv and the tidy metrics.csv."""
-    axes = [column for field, column, _, _ in GROUP_AXES if field in spec]
-    return ["env", "policy", *axes, "K", "seed", "run", *swept_names(spec)]
-
-
-def axis_values(spec, axis, policy):
-    """A group axis's values for one policy: [None] (not in the spec: no column), the listed values,
-    or [""] (listed, but it does not apply to this policy)."""
-    field, _, applies_to, _ = axis
-    if field not in spec:
-        return [None]
-    return spec[field] if applies_to in (None, policy) else [""]
-
-
-def build_grid(spec):
-    """[(env, policy, [run dicts])]: every combination of K x swept hparams x seed exactly once, per group.
-    A group is one compiled program: (env, policy), and one per value of each listed GROUP_AXES field."""
-    names = list(spec["hparams"])
-    combos = list(itertools.product(*(spec["hparams"][n] for n in names))) or [()]
-    groups = []
-    for env_name in spec["envs"]:
-        for policy in spec["policies"]:
-            ks = cluster_counts(spec, env_name) if policy == "mixture" else [1]
-            for values in itertools.product(*(axis_values(spec, axis, policy) for axis in GROUP_AXES)):
-                axes = {axis[1]: v for axis, v in zip(GROUP_AXES, values) if v is not None}
-                runs = []
-                for k in ks:
-                    for combo in combos:
-                        for seed in spec["seeds"]:
-                            runs.append({"run": len(runs), "env": env_name, "policy": policy, **axes,
-                                         "K": k, "seed": seed, **dict(zip(names, combo))})
-                groups.append((env_name, policy, runs))
-    return groups
-
-
-def run_label(row):
-    """A run's name in file and TensorBoard names: env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...]-s<seed>."""
-    fixed = ("env", "policy", "K", "seed", "run")
-    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
-    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v) for c, v in row.items() if c not in fixed and v]
-    return "-".join(parts + [f"s{row['seed']}"])
-
-
-def group_name(env_name, policy, runs):
-    first = runs[0] if runs else {}
-    return f"{env_name}-{policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
-
-
-def group_config(spec, env_name, policy, runs):
-    static = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["config"].items()}
-    static.update({c: runs[0][c] for _, c, _, _ in GROUP_AXES if runs[0].get(c)})
-    return Config(env=env_name, policy=policy, k_max=max(r["K"] for r in runs), **static)
-
-
-def group_iterations(spec, cfg, chunk):
-    iters = math.ceil(spec["steps"] / cfg.batch_size)
-    return math.ceil(iters / chunk) * chunk
-
-
-def group_eval_every(spec, iterations):
-    """Iterations between deterministic evaluations of a group's runs (0: none); default ~25 per run."""
-    return spec["eval_every"] if "eval_every" in spec else max(1, iterations // EVALUATIONS_PER_RUN)
-
-
-def default_chunk(spec, cfg):
-    return spec.get("chunk") or max(1, min(10, math.ceil(spec["steps"] / cfg.batch_size) // 20))
 
 
 # ----------------------------------------------------------------------------------------------- files
@@ -345,8 +116,6 @@ def warn(msg):
 def load_group_checkpoint(gdir, states, iterations, log):
     """(states, metrics arrays [R, iterations], done) of a group's last intact checkpoint: state.npz
     (or state.prev.npz) and the metrics covering its iteration (metrics.npz or metrics.prev.npz)."""
-    from gsa_jax.checkpoint import load_pytree
-
     def read_state(p):
         with np.load(p) as f:
             done = int(f["__done__"])
@@ -371,8 +140,6 @@ def load_group_checkpoint(gdir, states, iterations, log):
 
 def save_group_checkpoint(gdir, states, metrics, done):
     """Metrics, then state (both keeping their previous version); the state records `done`."""
-    from gsa_jax.checkpoint import save_npz_atomic, save_pytree
-
     save_npz_atomic(os.path.join(gdir, "metrics.npz"), True, __done__=np.array(done),
                     **{k: v[:, :done] for k, v in metrics.items()})
     save_pytree(os.path.join(gdir, "state.npz"), states, True, __done__=np.array(done))
@@ -380,10 +147,6 @@ def save_group_checkpoint(gdir, states, metrics, done):
 
 def finish_group(gdir, states, runs, metrics, done, timing):
     """Final parameters (a failed run's last finite ones), failed.json and DONE; drop the resume state."""
-    import jax
-
-    from gsa_jax.checkpoint import save_pytree
-
     params = jax.device_get({"params": states.params, "obs_stats": states.obs_stats})
     save_pytree(os.path.join(gdir, "params.npz"), jax.tree.map(lambda x: x[: len(runs)], params))
     write_atomic(os.path.join(gdir, "failed.json"), json.dumps(failed_runs(runs, metrics, done)))
@@ -400,14 +163,10 @@ class GroupStore:
     metrics [len(runs), iterations], done) runs after every save (the tidy table)."""
 
     def __init__(self, gdir, runs, iterations, on_chunk=None, board_dir=None):
-        from gsa_jax.tensorboard import Board
-
         self.gdir, self.runs, self.iterations, self.on_chunk = gdir, runs, iterations, on_chunk
         self.board = Board(board_dir, [run_label(r) for r in runs]) if board_dir else None
 
     def load(self, template):
-        from gsa_jax.tensorboard import follow
-
         return follow(self.board, self.load_checkpoint(template))
 
     def load_checkpoint(self, template):
@@ -431,8 +190,6 @@ class GroupStore:
 
 def finished_group(gdir, iterations):
     """The driver Result of a group whose DONE marker exists, from its metrics.npz."""
-    from gsa_jax.driver import Result
-
     with np.load(os.path.join(gdir, "metrics.npz")) as m:
         saved = {k: m[k] for k in m.files if k != "__done__"}
     saved.setdefault("failed_at", np.full_like(saved["iteration"], -1.0))
@@ -440,37 +197,70 @@ def finished_group(gdir, iterations):
     return Result(done, iterations, saved, "finished" if done >= iterations else "failed", {}, done)
 
 
-def run_group(spec, out, env_name, policy, runs, devices, log, stop_after_chunks=None, heartbeat=None, on_chunk=None,
-              run_batch=RUN_BATCH, pad_to=0, share=None, board_dir=None):
-    """Train (or resume) one group with the run driver. Returns its driver Result. pad_to: pad the runs to
-    at least this many (every worker process builds the same program); share: see programs.compile_group;
-    board_dir: the sweep's TensorBoard directory (None: no event files)."""
-    from gsa_jax.driver import Plan, drive
-    from gsa_jax.programs import group_program
+@dataclasses.dataclass(frozen=True)
+class SweepOptions:
+    """How this process runs a sweep -- not what it computes (the spec; sweep.json records both).
+    devices: () = every local device; process_id / num_processes: this process's share of each group's runs;
+    heartbeat(seconds) after every chunk (the supervisor's watchdog); run_batch: see
+    programs.make_group_program; local_workers: the processes share this machine and `out` (False for
+    multi-host sweeps: each process compiles for itself); force: resume a changed spec."""
 
-    gdir = os.path.join(out, "groups", group_name(env_name, policy, runs))
+    devices: tuple = ()
+    quiet: bool = False
+    stop_after_chunks: int | None = None
+    process_id: int = 0
+    num_processes: int = 1
+    heartbeat: Callable | None = None
+    run_batch: int = RUN_BATCH
+    local_workers: bool = True
+    force: bool = False
+    tensorboard: bool = True
+
+
+class GroupContext(NamedTuple):
+    """What this process brings to training one group: devices, log, options; pad_to: pad the runs to at
+    least this many (every worker process builds the same program); share: see programs.compile_group;
+    board_dir: the sweep's TensorBoard directory (None: no event files); on_chunk: see GroupStore."""
+
+    devices: list
+    log: Callable
+    options: SweepOptions
+    pad_to: int = 0
+    share: tuple | None = None
+    board_dir: str | None = None
+    on_chunk: Callable | None = None
+
+
+def run_group(spec, out, group, ctx):
+    """Train (or resume) one Group (this process's runs of it) with the run driver. Returns its driver Result."""
+    name = group_name(group)
+    gdir = os.path.join(out, "groups", name)
     os.makedirs(gdir, exist_ok=True)
-    cfg = group_config(spec, env_name, policy, runs)
+    cfg = group_config(spec, group)
     chunk = default_chunk(spec, cfg)
     iterations = group_iterations(spec, cfg, chunk)
     if os.path.exists(os.path.join(gdir, "DONE")):
         return finished_group(gdir, iterations)
-    cols = id_columns(spec)
+    cols = spec.id_columns()
     write_atomic(os.path.join(gdir, "runs.csv"), "\n".join(
-        [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in runs]) + "\n")
+        [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in group.runs]) + "\n")
     t0 = time.perf_counter()
     eval_every = group_eval_every(spec, iterations)
-    program = group_program(cfg, chunk, devices, pad_runs(runs, len(devices), at_least=pad_to), list(spec["hparams"]),
-                            iterations, run_batch, share, log, spec.get("eval_seed", 0) if eval_every else None)
-    tag = group_name(env_name, policy, runs).replace(f"{env_name}-", f"{env_name}/", 1)
-    log(f"[{tag}] {len(runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
-        f"{len(devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
-    plan = Plan(iterations, chunk, cfg.batch_size, len(runs), eval_every, stop_after_chunks=stop_after_chunks, tag=tag)
-    result = drive(program, GroupStore(gdir, runs, iterations, on_chunk, board_dir), plan, log, heartbeat, clock_start=t0)
+    shape = GroupShape(cfg, chunk, tuple(ctx.devices), ctx.options.run_batch)
+    runs = pad_runs(group.runs, len(ctx.devices), at_least=ctx.pad_to)
+    program = group_program(shape, GroupRuns(runs, list(spec.hparams), iterations),
+                            (spec.eval_seed or 0) if eval_every else None, ctx.share, ctx.log)
+    tag = name.replace(f"{group.env}-", f"{group.env}/", 1)
+    ctx.log(f"[{tag}] {len(group.runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
+            f"{len(ctx.devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
+    plan = Plan(iterations, chunk, cfg.batch_size, len(group.runs), eval_every,
+                stop_after_chunks=ctx.options.stop_after_chunks, tag=tag)
+    store = GroupStore(gdir, group.runs, iterations, ctx.on_chunk, ctx.board_dir)
+    result = drive(program, store, plan, ctx.log, ctx.options.heartbeat, clock_start=t0)
     t = result.timing
     if t.get("eval_s"):
-        log(f"[{tag}] deterministic evaluation: {t['eval_s']:.1f}s = {t['eval_s'] / max(t['train_s'] + t['eval_s'], 1e-9):.1%} "
-            f"of this invocation's training and evaluation time")
+        ctx.log(f"[{tag}] deterministic evaluation: {t['eval_s']:.1f}s = {t['eval_s'] / max(t['train_s'] + t['eval_s'], 1e-9):.1%} "
+                f"of this invocation's training and evaluation time")
     return result
 
 
@@ -478,90 +268,60 @@ def write_tidy(out, spec, results):
     """The tidy metrics.csv of out from [(runs, metrics [len(runs), iterations], done)] of its groups."""
     header, lines = None, []
     for runs, metrics, done in results:
-        header, ls = group_csv(runs, id_columns(spec), metrics, done)
+        header, ls = group_csv(runs, spec.id_columns(), metrics, done)
         lines.extend(ls)
     if header:
         write_atomic(os.path.join(out, "metrics.csv"), header + "\n" + "\n".join(lines) + ("\n" if lines else ""))
 
 
-def check_same_spec(meta_path, spec, force):
-    """Refuse (SpecError with a one-line diff) to resume a sweep whose spec changed, unless force."""
-    from gsa_jax.runinfo import describe_changes
-
-    with open(meta_path) as f:
-        old = json.load(f)
-    diff = describe_changes(old.get("spec", {}), json.loads(json.dumps(spec)))
-    if diff and not force:
-        raise SpecError(f"{os.path.dirname(meta_path) or '.'} holds a sweep with a different spec ({diff}); use another "
-                        "--out, or --force to continue it with the new spec")
-
-
-def write_sweep_meta(root, spec, groups, num_processes, force, run_batch=RUN_BATCH, tensorboard=True):
+def write_sweep_meta(root, spec, groups, options):
     """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
-    spec, unless force)."""
-    from gsa_jax.runinfo import physics_record, run_metadata
-
+    spec, unless options.force)."""
     meta_path = os.path.join(root, "sweep.json")
     if os.path.exists(meta_path):
-        check_same_spec(meta_path, spec, force)
-    physics = {group_name(e, p, runs): physics_record(group_config(spec, e, p, runs)) for e, p, runs in groups}
-    meta = {"spec": spec, "runs": [r for _, _, runs in groups for r in runs], "num_processes": num_processes,
-            "run_batch": run_batch, "tensorboard": tensorboard, "physics": physics, **run_metadata()}
+        with open(meta_path) as f:
+            old = json.load(f).get("spec", {})
+        check_unchanged(old, spec.to_json(), options.force,
+                        f"{root} holds a sweep with a different spec", "use another --out, or --force to continue it with the new spec")
+    physics = {group_name(g): physics_record(group_config(spec, g)) for g in groups}
+    meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
+            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "physics": physics, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 
-def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, process_id=0, num_processes=1, heartbeat=None,
-              run_batch=RUN_BATCH, local_workers=True, force=False, tensorboard=True):
+def run_sweep(spec, out, options=SweepOptions()):
     """Train every group of the spec (this process's share of each). Returns True when all groups are done;
-    failed runs (NaN/inf) go to failed_runs.json in this process's directory; tensorboard: out/tensorboard/<run>/.
-    run_batch: see programs.make_group_program. local_workers: the processes share this machine and `out`
-    (False for multi-host sweeps: each process compiles for itself). force: resume a changed spec."""
-    import jax
-
-    from gsa_jax import xla_cache
-
-    prefix = f"[process {process_id}] " if num_processes > 1 else ""
+    failed runs (NaN/inf) go to failed_runs.json in this process's directory; TensorBoard: out/tensorboard/<run>/."""
+    pid, nproc = options.process_id, options.num_processes
+    prefix = f"[process {pid}] " if nproc > 1 else ""
 
     def log(msg):
-        if not quiet:
+        if not options.quiet:
             print(prefix + msg, flush=True)
 
-    devices = list(devices or jax.local_devices())
-    root = out
-    if num_processes > 1:
-        out = os.path.join(out, f"process-{process_id}")
+    devices = list(options.devices or jax.local_devices())
+    root, out = out, os.path.join(out, f"process-{pid}") if nproc > 1 else out
     os.makedirs(out, exist_ok=True)
     groups = build_grid(spec)
-    if process_id == 0:
-        write_sweep_meta(root, spec, groups, num_processes, force, run_batch, tensorboard)
-    total_runs = sum(len(r) for _, _, r in groups)
-    log(f"sweep {spec['name']}: {total_runs} runs in {len(groups)} group(s) on {len(devices)} device(s)"
-        + (f", process {process_id}/{num_processes}" if num_processes > 1 else "") + f" -> {out}")
+    if pid == 0:
+        write_sweep_meta(root, spec, groups, options)
+    log(f"sweep {spec.name}: {sum(len(g.runs) for g in groups)} runs in {len(groups)} group(s) on {len(devices)} device(s)"
+        + (f", process {pid}/{nproc}" if nproc > 1 else "") + f" -> {out}")
     # compiled programs are kept in a cache: a resumed or restarted worker loads them; local worker
     # processes share one compile (worker 0 compiles, the others load -- gsa_jax.xla_cache)
-    cache_dir, board_dir = os.path.join(root if local_workers else out, "xla_cache"), os.path.join(root, "tensorboard") if tensorboard else None
-    share = (cache_dir, process_id == 0 or not local_workers)
-    results, complete = [], True
+    cache_dir = os.path.join(root if options.local_workers else out, "xla_cache")
+    ctx = GroupContext(devices, log, options, share=(cache_dir, pid == 0 or not options.local_workers),
+                       board_dir=os.path.join(root, "tensorboard") if options.tensorboard else None)
+    results = []
     try:
         with xla_cache.enabled(cache_dir):
-            for env_name, policy, runs in groups:
-                mine = runs[process_id::num_processes]
-                if not mine:
-                    continue
-                res = run_group(spec, out, env_name, policy, mine, devices, log, stop_after_chunks, heartbeat,
-                                on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]), run_batch=run_batch,
-                                pad_to=math.ceil(len(runs) / num_processes), share=share, board_dir=board_dir)
-                results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))
-                write_tidy(out, spec, results)
-                if not res.finished:
-                    complete = False
-                    break
+            complete = train_groups(spec, out, groups, ctx, results)
         failed = [f for runs, metrics, done in results for f in failed_runs(runs, metrics, done)]
         write_atomic(os.path.join(out, "failed_runs.json"), json.dumps(failed))
     except DiskFullError as e:
         if not hasattr(e, "last_intact"):
             runs, _, done = results[-1] if results else (None, None, None)
-            e.last_intact = (f"iteration {done} of group {group_name(runs[0]['env'], runs[0]['policy'], runs)}"
+            e.last_intact = (f"iteration {done} of group {group_name(Group(runs[0]['env'], runs[0]['policy'], runs))}"
                              if results else "none (nothing trained yet)")
         raise
     for f in failed:
@@ -570,6 +330,24 @@ def run_sweep(spec, out, devices=None, quiet=False, stop_after_chunks=None, proc
     for line in eval_failure_lines(results):
         log(line)
     return complete
+
+
+def train_groups(spec, out, groups, ctx, results):
+    """Train this process's share of every group in turn, appending (runs, metrics, done) to results and
+    rewriting the tidy table after every chunk. Returns False if a group stopped before its end."""
+    pid, nproc = ctx.options.process_id, ctx.options.num_processes
+    for group in groups:
+        mine = group.runs[pid::nproc]
+        if not mine:
+            continue
+        group_ctx = ctx._replace(pad_to=math.ceil(len(group.runs) / nproc),
+                                 on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]))
+        res = run_group(spec, out, group._replace(runs=mine), group_ctx)
+        results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))
+        write_tidy(out, spec, results)
+        if not res.finished:
+            return False
+    return True
 
 
 def eval_failure_lines(results):
@@ -670,12 +448,10 @@ def main(argv=None, after_chunk=None):
         return 2
     if args.worker:
         return run_worker(args, spec, out, after_chunk)
-    from gsa_jax.runlock import LockError, hold
-
     lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
     os.makedirs(lock_dir, exist_ok=True)
     try:
-        with hold(lock_dir, f"gsa_jax.sweep {spec['name']}", log=lambda m: print(m, file=sys.stderr)):
+        with hold(lock_dir, f"gsa_jax.sweep {spec.name}", log=lambda m: print(m, file=sys.stderr)):
             if local > 1 or not args.no_watchdog:
                 return supervise_workers(args, argv, out, local)
             return run_worker(args, spec, out, after_chunk)
@@ -696,8 +472,6 @@ def supervise_workers(args, argv, out, local):
         dirs = [out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")]
     for d in dirs:
         os.makedirs(d, exist_ok=True)
-    from gsa_jax.supervise import supervise
-
     cmds = [[sys.executable, "-m", "gsa_jax.sweep", *a, "--worker"] for a in argvs]
     status = supervise(cmds, dirs, args.watchdog_min, args.max_restarts)
     if status == 0:
@@ -714,10 +488,6 @@ def supervise_workers(args, argv, out, local):
 def run_worker(args, spec, out, after_chunk=None):
     """Train this process's share in this process (a supervised worker, or --no-watchdog). after_chunk:
     called after every chunk's heartbeat (tests inject faults with it)."""
-    import jax
-
-    from gsa_jax.supervise import heartbeat_writer
-
     if args.num_processes > 1 and args.coordinator:
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
         # eager arrays (the MJX model Brax builds) would otherwise land on global device 0, which
@@ -739,10 +509,11 @@ def run_worker(args, spec, out, after_chunk=None):
             after_chunk()
 
     try:
-        complete = run_sweep(spec, out, devices, args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,
-                             heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
-                             tensorboard=args.tensorboard)
-    except SpecError as e:
+        options = SweepOptions(tuple(devices), args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,
+                               heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
+                               tensorboard=args.tensorboard)
+        complete = run_sweep(spec, out, options)
+    except (SpecError, ResumeRefused) as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2
     except DiskFullError as e:

@@ -18,15 +18,25 @@ import math
 import os
 import sys
 import time
+from typing import NamedTuple
 
+import numpy as np
+
+import envs
+from envs import solver_settings
 from envs.physics import resolve_threads
-from gsa_jax.checkpoint import write_atomic
-from gsa_jax.driver import duration, fmt
+from gsa_jax.checkpoint import CheckpointError, DiskFullError, load_pytree, read_with_fallback, save_pytree, write_atomic
+from gsa_jax.curve import plot_curve
+from gsa_jax.driver import Plan, drive, duration, fmt, rows_before_failure
 from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS
 from gsa_jax.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.policies import SUBPOLICY_KINDS
-from gsa_jax.ppo import HPARAM_DEFAULTS, Config
-from gsa_jax.retrace import VALUE_TARGETS
+from gsa_jax.ppo import HPARAM_DEFAULTS, Config, make_hparams, validate_hparams
+from gsa_jax.programs import single_program
+from gsa_jax.retrace import VALUE_TARGETS, buffer_bytes
+from gsa_jax.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
+from gsa_jax.runlock import LockError, hold
+from gsa_jax.tensorboard import Board, follow
 
 _HP_FLAGS = {  # CLI flag -> hparam name
     "lr": "lr", "clip": "clip_eps", "gamma": "gamma", "gae_lambda": "gae_lambda", "vf_coef": "vf_coef",
@@ -40,8 +50,6 @@ class UsageError(Exception):
 
 
 def build_parser():
-    import envs
-
     p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=__doc__.split("\n")[0])
     p.add_argument("--env", default="inverted_double_pendulum", help=f"one of: {', '.join(envs.NAMES)}")
     p.add_argument("--policy", default="mixture", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
@@ -121,8 +129,35 @@ def make_config(args, k_max):
         raise UsageError(msg) from None
 
 
+class RunPlan(NamedTuple):
+    """What a single run computes: its Config, hyperparameters (python numbers, K and total_iterations
+    included), iterations, PPO iterations per compiled chunk, iterations between deterministic evaluations
+    (0: none), the evaluation's start-state seed and the training seed."""
+
+    cfg: Config
+    hp: dict
+    iterations: int
+    chunk: int
+    eval_every: int
+    eval_seed: int
+    seed: int
+
+
+class RunOptions(NamedTuple):
+    """How this invocation runs it: the output directory, whether to resume it (force: with changed settings),
+    stop (resumably) after stop_after iterations, the command line recorded, progress lines, TensorBoard files."""
+
+    out: str
+    resume: bool = False
+    force: bool = False
+    stop_after: int | None = None
+    argv: list | None = None
+    quiet: bool = False
+    tensorboard: bool = True
+
+
 def resolve(args):
-    """Check every argument and return (Config, hparam dict of python numbers, iterations, chunk). No compiling."""
+    """Check every argument and return the RunPlan. No compiling."""
     if args.policy not in ("mixture", "mlp"):
         raise UsageError(f"unknown --policy {args.policy!r}; choose mixture or mlp")
     if args.steps <= 0:
@@ -145,8 +180,6 @@ def resolve(args):
     iterations = math.ceil(iterations / chunk) * chunk
     hp = {name: getattr(args, flag) for flag, name in _HP_FLAGS.items()}
     hp.update(K=k, total_iterations=iterations, anneal_lr=0.0 if args.no_anneal_lr else 1.0)
-    from gsa_jax.ppo import make_hparams, validate_hparams
-
     try:
         validate_hparams(cfg, make_hparams(**hp))
     except ValueError as e:
@@ -158,7 +191,7 @@ def resolve(args):
         raise UsageError(f"--eval-seed must be >= 0, got {args.eval_seed}")
     if args.stop_after is not None and args.stop_after < 1:
         raise UsageError(f"--stop-after must be >= 1, got {args.stop_after}")
-    return cfg, hp, iterations, chunk, eval_every
+    return RunPlan(cfg, hp, iterations, chunk, eval_every, args.eval_seed, args.seed)
 
 
 def default_out(cfg, hp, seed):
@@ -202,21 +235,16 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        import envs
-
         envs.check_name(args.env)
-        cfg, hp, iterations, chunk, eval_every = resolve(args)
-        out = args.out or default_out(cfg, hp, args.seed)
+        plan = resolve(args)
+        out = args.out or default_out(plan.cfg, plan.hp, plan.seed)
         prepare_out(out, args.resume)
     except (UsageError, ValueError) as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
-    from gsa_jax.runlock import LockError, hold
-
     try:
         with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)):
-            return run(cfg, hp, iterations, chunk, (eval_every, args.eval_seed), args.seed, out, args.resume, args.quiet, argv,
-                       args.stop_after, args.force, args.tensorboard)
+            return run(plan, RunOptions(out, args.resume, args.force, args.stop_after, argv, args.quiet, args.tensorboard))
     except LockError as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
@@ -226,18 +254,14 @@ RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk")
 
 
 def check_resume_config(old, config, force):
-    """Raise UsageError with a one-line diff if the saved run's config differs (unless force)."""
-    mine = {k: json.loads(json.dumps(config[k])) for k in RESUME_KEYS}
+    """Refuse (ResumeRefused, one line) to resume a saved run whose settings differ, unless force. A config
+    field the saved run's config.json lacks (it was written before the field existed) ran at its default."""
+    mine = {k: config[k] for k in RESUME_KEYS}
     theirs = {k: old.get(k) for k in RESUME_KEYS}
-    # a run saved before a config field existed ran with that field's default
     defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(Config)}))
     theirs["config"] = {**{k: defaults[k] for k in mine["config"] if k in defaults}, **(theirs["config"] or {})}
-    from gsa_jax.runinfo import describe_changes
-
-    diff = describe_changes(theirs, mine)
-    if diff and not force:
-        raise UsageError(f"--resume with a different run than the one in the output directory ({diff}); "
-                         "pass --force to continue it with the new settings")
+    check_unchanged(theirs, mine, force, "--resume with a different run than the one in the output directory",
+                    "pass --force to continue it with the new settings")
 
 
 class RunStore:
@@ -245,8 +269,6 @@ class RunStore:
     checkpoint files keep their previous version) in `out`."""
 
     def __init__(self, out, config, resume):
-        from gsa_jax.tensorboard import Board
-
         self.out, self.config, self.resume = out, config, resume
         self.board = Board(self.path("tensorboard"), [""]) if config.get("tensorboard") else None
 
@@ -256,16 +278,12 @@ class RunStore:
     def load(self, template):
         """(state, metrics [1, done], done) of the run saved in out, or None if there is nothing to resume;
         the TensorBoard event files restart from it."""
-        from gsa_jax.tensorboard import follow
-
         return follow(self.board, self.load_checkpoint(template))
 
     def load_checkpoint(self, template):
         """(state, metrics [1, done], done) of the run saved in out: state.npz, or state.prev.npz if that
         is unreadable; metrics.csv (or its previous version) cut to the state's iteration. None if
         there is nothing to resume."""
-        from gsa_jax.checkpoint import load_pytree, read_with_fallback
-
         if not self.resume or not any(os.path.exists(self.path(n)) for n in ("state.npz", "state.prev.npz")):
             return None
         state, path = read_with_fallback(self.path("state.npz"), lambda p: load_pytree(p, template), _warn)
@@ -281,8 +299,6 @@ class RunStore:
 
     def save(self, state, metrics, done):
         """Metrics, parameters and state after a chunk."""
-        from gsa_jax.checkpoint import save_pytree
-
         write_atomic(self.path("metrics.csv"), rows_to_csv(metrics_to_rows(metrics, done)), keep_previous=True)
         self.save_params(state)
         save_pytree(self.path("state.npz"), state, keep_previous=True)
@@ -290,10 +306,6 @@ class RunStore:
             self.board.append(metrics, done)
 
     def save_params(self, state):
-        import numpy as np
-
-        from gsa_jax.checkpoint import save_pytree
-
         save_pytree(self.path("params.npz"), {"params": state.params, "obs_stats": state.obs_stats},
                     **{"meta/config_json": np.array(json.dumps(self.config))})
 
@@ -317,8 +329,6 @@ def read_rows_checked(path):
 def metrics_to_rows(metrics, done):
     """metrics.csv rows (dicts) of the single run in the driver's metrics {name: [1, iterations]}: the
     first `done` iterations, ending before a failing iteration; NaN as an empty cell."""
-    from gsa_jax.driver import rows_before_failure
-
     rows = []
     for j in range(rows_before_failure(metrics, 0, done)):
         row = {}
@@ -331,37 +341,32 @@ def metrics_to_rows(metrics, done):
 
 def rows_to_metrics(rows):
     """The inverse of metrics_to_rows: {name: float64 [1, len(rows)]} (a written row never failed)."""
-    import numpy as np
-
     metrics = {k: np.array([[float(r[k]) if r.get(k, "") != "" else math.nan for r in rows]], np.float64)
                for k in METRIC_COLUMNS}
     metrics["failed_at"] = np.full((1, len(rows)), -1.0)
     return metrics
 
 
-def run(cfg, hp_py, iterations, chunk, evaluation, seed, out, resume, quiet=False, argv=None, stop_after=None, force=False,
-        tensorboard=True):
-    """Train (or resume) one run into `out`; evaluation: (eval_every, eval_seed). Returns the exit status:
-    0, 1 (NaN/inf), 2 (bad resume), 4 (disk full), 130 (interrupted)."""
-    from gsa_jax.checkpoint import CheckpointError, DiskFullError
-
-    log = (lambda msg: None) if quiet else (lambda msg: print(msg, flush=True))
+def run(plan, options):
+    """Train (or resume) one run into options.out. Returns the exit status: 0, 1 (NaN/inf), 2 (bad resume),
+    4 (disk full), 130 (interrupted)."""
+    cfg, out = plan.cfg, options.out
+    log = (lambda msg: None) if options.quiet else (lambda msg: print(msg, flush=True))
     config = {
-        "config": dataclasses.asdict(cfg), "hparams": hp_py, "seed": seed, "iterations": iterations,
-        "chunk": chunk, "eval_every": evaluation[0], "eval_seed": evaluation[1], "env_steps": iterations * cfg.batch_size,
-        "argv": list(sys.argv[1:] if argv is None else argv), "tensorboard": tensorboard,
+        "config": dataclasses.asdict(cfg), "hparams": plan.hp, "seed": plan.seed, "iterations": plan.iterations,
+        "chunk": plan.chunk, "eval_every": plan.eval_every, "eval_seed": plan.eval_seed,
+        "env_steps": plan.iterations * cfg.batch_size, "argv": list(sys.argv[1:] if options.argv is None else options.argv),
+        "tensorboard": options.tensorboard,
     }
     try:
         config_path = os.path.join(out, "config.json")
-        if resume and os.path.exists(config_path):
+        if options.resume and os.path.exists(config_path):
             with open(config_path) as f:
-                check_resume_config(json.load(f), config, force)
-        from gsa_jax.runinfo import physics_record, run_metadata
-
+                check_resume_config(json.load(f), config, options.force)
         config.update(physics=physics_record(cfg), **run_metadata())
         write_atomic(config_path, json.dumps(config, indent=2))
-        return train_run(cfg, hp_py, iterations, chunk, seed, out, resume, config, log, stop_after)
-    except (UsageError, CheckpointError) as e:
+        return train_run(plan, options, config, log)
+    except (UsageError, CheckpointError, ResumeRefused) as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
     except DiskFullError as e:
@@ -372,8 +377,6 @@ def run(cfg, hp_py, iterations, chunk, evaluation, seed, out, resume, quiet=Fals
 
 def saved_iteration(out):
     """The iteration of the newest readable checkpoint in out (0 if none)."""
-    import numpy as np
-
     for name in ("state.npz", "state.prev.npz"):
         try:
             with np.load(os.path.join(out, name)) as f:
@@ -383,27 +386,24 @@ def saved_iteration(out):
     return 0
 
 
-def train_run(cfg, hp_py, iterations, chunk, seed, out, resume, config, log, stop_after):
+def train_run(plan, options, config, log):
     """Compile (or reuse) the run's program and drive it with a RunStore; then finish. Returns the exit status."""
-    from gsa_jax.driver import Plan, drive
-    from gsa_jax.programs import single_program
-
+    cfg, out = plan.cfg, options.out
     t0 = time.perf_counter()
-    program, trainer = single_program(cfg, chunk, seed, hp_py, config["eval_seed"])
-    log_start(cfg, trainer, hp_py, iterations, out, log)
+    program, trainer = single_program(cfg, plan.chunk, plan.seed, plan.hp, plan.eval_seed)
+    log_start(plan, trainer, out, log)
     if cfg.value_target == "retrace":
-        from gsa_jax.retrace import buffer_bytes
-
         config["retrace_buffer_bytes"] = buffer_bytes(program.state.buffer)
         log(f"value targets: Retrace over the samples of the last {cfg.retrace_iterations} iterations "
             f"(buffer {config['retrace_buffer_bytes'] / 2**20:.2f} MiB)")
     log(f"compiled in {time.perf_counter() - t0:.1f}s")
-    store = RunStore(out, config, resume)
+    store = RunStore(out, config, options.resume)
     if not os.path.exists(store.path("params.npz")):  # the initial parameters: "last good" even if chunk 1 diverges
         store.save_params(program.state)
-    plan = Plan(iterations, chunk, cfg.batch_size, 1, config["eval_every"], mixture=cfg.policy == "mixture",
-                stop_after_chunks=None if stop_after is None else math.ceil(stop_after / chunk))
-    result = drive(program, store, plan, log, clock_start=t0)
+    stop = None if options.stop_after is None else math.ceil(options.stop_after / plan.chunk)
+    drive_plan = Plan(plan.iterations, plan.chunk, cfg.batch_size, 1, plan.eval_every, mixture=cfg.policy == "mixture",
+                      stop_after_chunks=stop)
+    result = drive(program, store, drive_plan, log, clock_start=t0)
     status = {"failed": 1, "interrupted": 130}.get(result.status, 0)
     if result.status == "failed":
         failed_at = int(result.metrics["failed_at"][0, result.done - 1])
@@ -412,17 +412,17 @@ def train_run(cfg, hp_py, iterations, chunk, seed, out, resume, config, log, sto
     elif result.status == "interrupted":
         print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
               f"(continue with --resume --out {out})", file=sys.stderr)
-    finish(cfg, hp_py, seed, out, config, metrics_to_rows(result.metrics, result.done), status, result, log)
+    finish(plan, out, config, (metrics_to_rows(result.metrics, result.done), status, result), log)
     return status
 
 
-def log_start(cfg, trainer, hp_py, iterations, out, log):
+def log_start(plan, trainer, out, log):
+    """The run's first lines: task, policy, length; a changed MJX solver; the physics backend."""
+    cfg, hp_py, iterations = plan.cfg, plan.hp, plan.iterations
     log(f"gsa_jax: {cfg.env} ({trainer.env.observation_size} obs, {trainer.env.action_size} actions), "
         f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies)" if cfg.policy == "mixture" else "")
         + f", {iterations} iterations x {cfg.batch_size} steps = {iterations * cfg.batch_size:,} env steps -> {out}")
     if cfg.solver_iterations is not None or cfg.ls_iterations is not None:
-        from envs import solver_settings
-
         sol = solver_settings(trainer.env.unwrapped)
         ls = "exact line search" if sol["linesearch_in_force"] == "exact" else f"{sol['ls_iterations'] or sol['task_ls_iterations']} line-search iterations"
         log(f"MJX solver: {sol['iterations_in_force']} iterations, {ls} (the task's own: "
@@ -431,10 +431,11 @@ def log_start(cfg, trainer, hp_py, iterations, out, log):
         log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics_threads)} thread(s))")
 
 
-def finish(cfg, hp_py, seed, out, config, rows, status, result, log):
-    """Curve, timings and result into config.json; the closing line."""
-    from gsa_jax.plot import plot_curve
-
+def finish(plan, out, config, outcome, log):
+    """Curve, timings and result into config.json; the closing line. outcome: (metrics.csv rows, exit status,
+    driver Result)."""
+    rows, status, result = outcome
+    cfg, hp_py, seed = plan.cfg, plan.hp, plan.seed
     if rows:
         title = f"{cfg.env} - {cfg.policy}" + (f" K={hp_py['K']}" if cfg.policy == "mixture" else "") + f" - seed {seed}"
         try:

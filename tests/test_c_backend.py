@@ -21,7 +21,8 @@ from envs.c_backend import STATE_SPEC, float64_rows
 from envs.mujoco_c import C_TASKS, make_c
 from envs.physics import Physics
 from gsa_jax.ppo import Config, make_hparams, make_train
-from gsa_jax.sweep import load_spec, run_sweep
+from gsa_jax.spec import load_spec
+from gsa_jax.sweep import SweepOptions, run_sweep
 
 C = Physics(backend="c")
 
@@ -144,7 +145,7 @@ def tiny_sweep(tmp_path_factory, env):
     spec_file = tmp_path_factory.mktemp("spec") / "c_tiny.toml"
     spec_file.write_text(SPEC.format(env=env))
     out = tmp_path_factory.mktemp("sweep") / "ref"
-    assert run_sweep(load_spec(str(spec_file)), str(out), devices=jax.local_devices()[:1], quiet=True)
+    assert run_sweep(load_spec(str(spec_file)), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), quiet=True))
     return spec_file, out
 
 
@@ -187,8 +188,8 @@ def test_stopped_and_resumed_sweep_equals_uninterrupted(sweep, tmp_path, request
     spec_file, ref = request.getfixturevalue(sweep)
     out = tmp_path / "resumed"
     spec = load_spec(str(spec_file))
-    assert not run_sweep(spec, str(out), devices=jax.local_devices()[:1], quiet=True, stop_after_chunks=1)
-    assert run_sweep(spec, str(out), devices=jax.local_devices()[:1], quiet=True)
+    assert not run_sweep(spec, str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), quiet=True, stop_after_chunks=1))
+    assert run_sweep(spec, str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), quiet=True))
     compare_rows(read_rows(ref / "metrics.csv"), read_rows(out / "metrics.csv"))
     assert len(glob.glob(str(out / "groups" / "*" / "DONE"))) == 1
 

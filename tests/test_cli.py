@@ -148,7 +148,8 @@ def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
     from gsa_jax.programs import single_program
     from gsa_jax.train import build_parser, resolve
 
-    cfg, hp, _, chunk, _ = resolve(build_parser().parse_args(SMALL))
+    plan = resolve(build_parser().parse_args(SMALL))
+    cfg, hp, chunk = plan.cfg, plan.hp, plan.chunk
     p0, _ = single_program(cfg, chunk, 0, hp)
     p1, _ = single_program(cfg, chunk, 1, hp)
     p2, _ = single_program(cfg, chunk, 0, hp, eval_seed=7)

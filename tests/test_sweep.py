@@ -18,7 +18,8 @@ import pytest
 
 from golden_runs import arrays_digest, check_fingerprint, table_digest
 from gsa_jax.ppo import Config, make_hparams, make_train
-from gsa_jax.sweep import SpecError, build_grid, check_spec, group_config, group_name, id_columns, load_spec, run_sweep
+from gsa_jax.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
+from gsa_jax.sweep import SweepOptions, run_sweep
 
 FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples of gsa_jax.plot: enough for the checks, cheap
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
@@ -60,14 +61,14 @@ def test_grid_with_subpolicy_classes():
     spec = check_spec({"envs": ["hopper"], "policies": ["mlp", "mixture"], "subpolicies": ["constant", "quadratic"],
                        "clusters": [1, 4], "seeds": 2, "steps": 1000})
     groups = build_grid(spec)
-    assert [group_name(e, p, runs) for e, p, runs in groups] == ["hopper-mlp", "hopper-mixture-constant", "hopper-mixture-quadratic"]
-    assert [group_config(spec, e, p, runs).subpolicy for e, p, runs in groups] == ["linear", "constant", "quadratic"]
+    assert [group_name(g) for g in groups] == ["hopper-mlp", "hopper-mixture-constant", "hopper-mixture-quadratic"]
+    assert [group_config(spec, g).subpolicy for g in groups] == ["linear", "constant", "quadratic"]
     assert [len(runs) for _, _, runs in groups] == [2, 4, 4]
-    assert id_columns(spec) == ["env", "policy", "subpolicy", "K", "seed", "run"]
+    assert spec.id_columns() == ["env", "policy", "subpolicy", "K", "seed", "run"]
     # without the field nothing changes: same groups, columns and spec as before the field existed
     plain = check_spec({"envs": ["hopper"], "policies": ["mixture"], "clusters": [2], "steps": 10})
-    assert "subpolicies" not in plain and id_columns(plain) == ["env", "policy", "K", "seed", "run"]
-    assert [group_name(e, p, runs) for e, p, runs in build_grid(plain)] == ["hopper-mixture"]
+    assert plain.subpolicies is None and "subpolicies" not in plain.to_json() and plain.id_columns() == ["env", "policy", "K", "seed", "run"]
+    assert [group_name(g) for g in build_grid(plain)] == ["hopper-mixture"]
 
 
 def test_grid_with_value_targets():
@@ -76,13 +77,13 @@ def test_grid_with_value_targets():
                        "value_targets": ["gae", "retrace"], "clusters": [2], "seeds": 2, "steps": 1000,
                        "config": {"retrace_iterations": 3}})
     groups = build_grid(spec)
-    assert [group_name(e, p, runs) for e, p, runs in groups] == [
+    assert [group_name(g) for g in groups] == [
         "hopper-mlp-gae", "hopper-mlp-retrace", "hopper-mixture-constant-gae", "hopper-mixture-constant-retrace",
         "hopper-mixture-linear-gae", "hopper-mixture-linear-retrace"]
-    cfgs = [group_config(spec, e, p, runs) for e, p, runs in groups]
+    cfgs = [group_config(spec, g) for g in groups]
     assert [c.value_target for c in cfgs] == ["gae", "retrace"] * 3
     assert {c.retrace_iterations for c in cfgs} == {3} and [c.subpolicy for c in cfgs][2:4] == ["constant"] * 2
-    assert id_columns(spec) == ["env", "policy", "subpolicy", "value_target", "K", "seed", "run"]
+    assert spec.id_columns() == ["env", "policy", "subpolicy", "value_target", "K", "seed", "run"]
 
 
 def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
@@ -167,7 +168,7 @@ def tiny_spec_file(tmp_path_factory):
 def inprocess(tiny_spec_file, tmp_path_factory):
     """The tiny sweep in this process (no supervisor), uninterrupted: the reference."""
     out = tmp_path_factory.mktemp("sweep") / "ref"
-    assert run_sweep(load_spec(tiny_spec_file), str(out), devices=jax.local_devices()[:1], quiet=True)
+    assert run_sweep(load_spec(tiny_spec_file), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), quiet=True))
     return out
 
 
@@ -176,7 +177,7 @@ def test_every_experiment_file_is_valid():
     files = sorted(glob.glob(os.path.join(root, "*", "*.toml")))
     assert len(files) >= 10
     for f in files:
-        assert load_spec(f)["name"] == os.path.splitext(os.path.basename(f))[0], f
+        assert load_spec(f).name == os.path.splitext(os.path.basename(f))[0], f
 
 
 def test_fixed_sweep_computes_what_it_computed(inprocess):
@@ -529,6 +530,6 @@ def test_changed_spec_and_second_writer_refused(tiny_spec_file, tmp_path, capsys
 def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp_path):
     """--run-batch 2: the group's 4 runs trained as 2 sequential sub-batches give the same runs."""
     out = tmp_path / "sub"
-    assert run_sweep(load_spec(tiny_spec_file), str(out), devices=jax.local_devices()[:1], quiet=True, run_batch=2)
+    assert run_sweep(load_spec(tiny_spec_file), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), quiet=True, run_batch=2))
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
     assert json.loads((out / "sweep.json").read_text())["run_batch"] == 2

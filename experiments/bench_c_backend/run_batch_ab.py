@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from gsa_jax.programs import make_group_program, stack_hparams
 from gsa_jax.runinfo import run_metadata
-from gsa_jax.sweep import build_grid, check_spec, group_config
+from gsa_jax.spec import build_grid, check_spec, group_config
 
 
 def compile_size(cfg, runs, size):
@@ -45,8 +45,9 @@ def main():
     args = p.parse_args()
     spec = check_spec({"envs": [args.env], "policies": ["mixture"], "clusters": [6], "seeds": list(range(args.runs)),
                        "steps": 10**9})
-    runs = build_grid(spec)[0][2]
-    cfg = dataclasses.replace(group_config(spec, args.env, "mixture", runs), backend="c", physics_threads=1)
+    group = build_grid(spec)[0]
+    runs = group.runs
+    cfg = dataclasses.replace(group_config(spec, group), backend="c", physics_threads=1)
     sizes = [int(s) for s in args.sizes.split(",")]
     progs = {s: list(compile_size(cfg, runs, s)) + [[]] for s in sizes}
     for _ in range(args.repeats):

@@ -5,7 +5,7 @@ out = sys.argv[1]; res = []
 for rnd in range(2):
     for mode in ("shared", "each"):
         t = time.time()
-        r = bench.measure_sweep("hopper", "mixture", 256, 2, 2, run_batch=8, compile_each=mode == "each")
+        r = bench.measure_sweep(bench.SweepCell("hopper", "mixture", 256, 2, run_batch=8), 2, compile_each=mode == "each")
         r.update(mode=mode, round=rnd, wall_s=time.time() - t); r.pop("chunk_s")
         print(json.dumps(r), flush=True); res.append(r)
         json.dump({"results": res, **run_metadata()}, open(out, "w"), indent=1)

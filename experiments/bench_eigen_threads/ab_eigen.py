@@ -9,7 +9,7 @@ for rnd in range(2):
         os.environ["XLA_FLAGS"] = "--xla_cpu_multi_thread_eigen=true" if mode == "default" else FLAG
         for kind in ("raw", "mixture"):
             t = time.time()
-            r = bench.measure_raw("hopper", 256, 2, 3) if kind == "raw" else bench.measure_sweep("hopper", "mixture", 256, 2, 2, run_batch=8)
+            r = bench.measure_raw("hopper", 256, 2, 3) if kind == "raw" else bench.measure_sweep(bench.SweepCell("hopper", "mixture", 256, 2, run_batch=8), 2)
             r.update(mode=mode, xla_flags=os.environ.get("XLA_FLAGS", ""), round=rnd, wall_s=time.time() - t); r.pop("chunk_s")
             print(json.dumps(r), flush=True); res.append(r)
             json.dump({"results": res, **run_metadata()}, open(out, "w"), indent=1)

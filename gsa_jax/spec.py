@@ -1,0 +1,313 @@
+"""An experiment: the TOML file checked once into a frozen SweepSpec, and its grid of run groups.
+
+A SweepSpec is validated at the edge (load_spec / check_spec) and passed whole; sweep.json stores
+`spec.to_json()`, which is exactly the checked file (a field left out stays out, so a sweep's identity does
+not change when a field is added to the format). The grid: one Group per compiled program, (env, policy) and
+one per value of each listed GROUP_AXES field; its runs are table rows (dicts: env, policy, axes, K, seed,
+run and the swept hyperparameters, whose names vary by experiment).
+"""
+
+import dataclasses
+import itertools
+import math
+import os
+import re
+import tomllib
+from typing import NamedTuple
+
+import envs
+from gsa_jax.metrics import EVALUATIONS_PER_RUN
+from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
+from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
+from gsa_jax.retrace import VALUE_TARGETS
+
+SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
+               "eval_every", "eval_seed", "hparams", "config")
+_STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
+# Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
+# the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
+GROUP_AXES = (("subpolicies", "subpolicy", "mixture", SUBPOLICY_KINDS), ("value_targets", "value_target", None, VALUE_TARGETS))
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+
+
+class SpecError(ValueError):
+    pass
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    """A checked experiment. Lists are tuples; hparams {name: tuple of values}; config the static
+    gsa_jax.ppo.Config fields as written. None: the field is absent from the file (its default applies)."""
+
+    name: str
+    envs: tuple
+    policies: tuple
+    seeds: tuple
+    steps: int
+    hparams: dict
+    config: dict
+    clusters: tuple | None = None
+    cluster_multipliers: tuple | None = None
+    subpolicies: tuple | None = None
+    value_targets: tuple | None = None
+    chunk: int | None = None
+    eval_every: int | None = None
+    eval_seed: int | None = None
+
+    def to_json(self):
+        """The spec as sweep.json stores it: the file's fields (lists), absent ones left out."""
+        out = {}
+        for field in SPEC_FIELDS:
+            v = getattr(self, field)
+            if v is not None:
+                out[field] = list(v) if isinstance(v, tuple) else v
+        out["hparams"] = {k: list(v) for k, v in self.hparams.items()}
+        return out
+
+    def swept_names(self):
+        """The hyperparameters with more than one value (a column each)."""
+        return [k for k, v in self.hparams.items() if len(v) > 1]
+
+    def id_columns(self):
+        """Columns that identify a run in runs.csv and the tidy metrics.csv."""
+        axes = [column for field, column, _, _ in GROUP_AXES if getattr(self, field) is not None]
+        return ["env", "policy", *axes, "K", "seed", "run", *self.swept_names()]
+
+    def cluster_counts(self, env_name):
+        """K values of a mixture group: absolute, or ceil(m * action_dim) per multiplier (deduplicated, sorted)."""
+        if self.clusters is not None:
+            return sorted(set(self.clusters))
+        d_a = envs.action_size(env_name)
+        return sorted({cluster_count(m, d_a) for m in self.cluster_multipliers})
+
+
+class Group(NamedTuple):
+    """The runs one compiled program trains: rows of the grid with the same env, policy and axis values."""
+
+    env: str
+    policy: str
+    runs: list
+
+
+# ----------------------------------------------------------------------------------------------- checking
+def load_spec(path):
+    """Read and check an experiment file (or a directory holding sweep.toml / <dir>.toml); errors name the
+    file and the bad field."""
+    if os.path.isdir(path):
+        candidates = [os.path.join(path, n) for n in ("sweep.toml", os.path.basename(path.rstrip("/")) + ".toml")]
+        path = next((c for c in candidates if os.path.exists(c)), path)
+    if not os.path.exists(path):
+        raise SpecError(f"{path}: no such experiment file")
+    try:
+        with open(path, "rb") as f:
+            raw = tomllib.load(f)
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"{path}: not valid TOML: {e}") from None
+    return check_spec(raw, source=path)
+
+
+def check_spec(raw, source="spec"):
+    """A SweepSpec from a parsed experiment file (or sweep.json's 'spec'); SpecError names the bad field."""
+
+    def bad(field, msg):
+        raise SpecError(f"{source}: field '{field}': {msg}")
+
+    unknown = set(raw) - set(SPEC_FIELDS)
+    if unknown:
+        bad(sorted(unknown)[0], f"unknown field; allowed: {', '.join(SPEC_FIELDS)}")
+    spec = dict(raw)
+    spec.setdefault("name", os.path.splitext(os.path.basename(source))[0])
+    if not isinstance(spec["name"], str) or not NAME_PATTERN.fullmatch(spec["name"]):
+        bad("name", f"must be a plain name (letters, digits, '-', '_', '.'; not starting with '.' or '-'), got {spec['name']!r}")
+    check_names(spec, bad)
+    check_cluster_fields(spec, bad)
+    spec["seeds"] = check_seeds(spec.get("seeds", 1), bad)
+    check_counts(spec, bad)
+    spec["hparams"] = check_hparams_table(spec.get("hparams", {}), bad)
+    spec["config"] = check_config_table(spec.get("config", {}), spec["envs"], bad)
+    check_group_axes(spec, bad)
+    return SweepSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
+
+
+def check_names(spec, bad):
+    """envs and policies: non-empty lists of known names (a single name becomes a list), in place."""
+    for field in ("envs", "policies"):
+        if field not in spec:
+            bad(field, "missing")
+        if isinstance(spec[field], str):
+            spec[field] = [spec[field]]
+        if not isinstance(spec[field], list) or not spec[field]:
+            bad(field, "must be a non-empty list")
+    for e in spec["envs"]:
+        if e not in envs.NAMES:
+            bad("envs", f"unknown env {e!r}; choose from {', '.join(envs.NAMES)}")
+    for p in spec["policies"]:
+        if p not in POLICY_KINDS:
+            bad("policies", f"unknown policy {p!r}; choose from {', '.join(POLICY_KINDS)}")
+
+
+def check_seeds(seeds, bad):
+    """seeds: a count (0..n-1) or a list of distinct non-negative integers -> list."""
+    if isinstance(seeds, int):
+        if seeds < 1:
+            bad("seeds", f"must be >= 1 or a list of seeds, got {seeds}")
+        seeds = list(range(seeds))
+    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+        bad("seeds", "must be a count >= 1 or a list of non-negative integers")
+    if len(set(seeds)) != len(seeds):
+        bad("seeds", "repeats a seed")
+    return seeds
+
+
+def check_counts(spec, bad):
+    """steps, chunk, eval_every, eval_seed: integers in range."""
+    if not isinstance(spec.get("steps"), int) or spec["steps"] < 1:
+        bad("steps", f"must be a positive integer, got {spec.get('steps')!r}")
+    if "chunk" in spec and (not isinstance(spec["chunk"], int) or spec["chunk"] < 1):
+        bad("chunk", f"must be a positive integer, got {spec['chunk']!r}")
+    for field in ("eval_every", "eval_seed"):
+        if field in spec and (not isinstance(spec[field], int) or isinstance(spec[field], bool) or spec[field] < 0):
+            bad(field, f"must be an integer >= 0, got {spec[field]!r}")
+
+
+def check_config_table(cfg, env_names, bad):
+    """The [config] table: known static Config fields that every env's physics backend runs."""
+    if not isinstance(cfg, dict):
+        bad("config", "must be a table")
+    for k in cfg:
+        if k not in _STATIC_FIELDS:
+            bad(f"config.{k}", f"unknown; allowed: {', '.join(sorted(_STATIC_FIELDS))}")
+    try:
+        for e in env_names:
+            Config(env=e, **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
+    except (ValueError, TypeError) as e:
+        bad("config", str(e))
+    return cfg
+
+
+def check_cluster_fields(spec, bad):
+    """clusters / cluster_multipliers of a spec, normalized to lists in place."""
+    if "mixture" in spec["policies"]:
+        if ("clusters" in spec) == ("cluster_multipliers" in spec):
+            bad("clusters", "a mixture sweep needs exactly one of 'clusters' (absolute K) or 'cluster_multipliers' (K / action_dim)")
+        if "clusters" in spec:
+            ks = spec["clusters"] if isinstance(spec["clusters"], list) else [spec["clusters"]]
+            if not ks or not all(isinstance(k, int) and k >= 1 for k in ks):
+                bad("clusters", f"must be integers >= 1, got {spec['clusters']!r}")
+            spec["clusters"] = ks
+        else:
+            ms = spec["cluster_multipliers"] if isinstance(spec["cluster_multipliers"], list) else [spec["cluster_multipliers"]]
+            if not ms or not all(isinstance(m, (int, float)) and m > 0 for m in ms):
+                bad("cluster_multipliers", f"must be positive numbers, got {spec['cluster_multipliers']!r}")
+            spec["cluster_multipliers"] = ms
+
+
+def check_group_axes(spec, bad):
+    """subpolicies / value_targets (GROUP_AXES) of a spec, normalized to lists in place; absent stays absent
+    (a spec's identity, sweep.json, must not change)."""
+    for field, column, policy, allowed in GROUP_AXES:
+        if field not in spec:
+            continue
+        values = spec[field] if isinstance(spec[field], list) else [spec[field]]
+        if policy is not None and policy not in spec["policies"]:
+            bad(field, f"applies to {policy} policies; add '{policy}' to policies")
+        if not values or any(x not in allowed for x in values) or len(set(values)) != len(values):
+            bad(field, f"must be distinct names from {', '.join(allowed)}, got {spec[field]!r}")
+        if column in spec.get("config", {}):
+            bad(field, f"set {column} either here or in [config], not both")
+        spec[field] = values
+
+
+def check_hparams_table(hps, bad):
+    """The [hparams] table: known names, numbers (or lists of numbers) in their ranges -> {name: (values)}."""
+    if not isinstance(hps, dict):
+        bad("hparams", "must be a table")
+    out = {}
+    for k, v in hps.items():
+        if k in ("K", "total_iterations"):
+            bad(f"hparams.{k}", "is set by the sweep (use 'clusters'/'cluster_multipliers' and 'steps')")
+        if k not in HPARAM_DEFAULTS:
+            bad(f"hparams.{k}", f"unknown hyperparameter; known: {', '.join(h for h in HPARAM_DEFAULTS if h not in ('K', 'total_iterations'))}")
+        values = v if isinstance(v, (list, tuple)) else [v]
+        if not values or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
+            bad(f"hparams.{k}", f"must be a number or a list of numbers, got {v!r}")
+        for x in values:
+            try:
+                check_hparam(k, x)
+            except ValueError as e:
+                bad(f"hparams.{k}", str(e))
+        out[k] = tuple(values)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- the grid
+def cluster_count(multiplier, action_dim):
+    """K of a cluster multiplier m on a task with action_dim actions: ceil(m * action_dim), at least 1."""
+    return max(1, math.ceil(multiplier * action_dim - 1e-9))
+
+
+def axis_values(spec, axis, policy):
+    """A group axis's values for one policy: [None] (not in the spec: no column), the listed values,
+    or [""] (listed, but it does not apply to this policy)."""
+    field, _, applies_to, _ = axis
+    values = getattr(spec, field)
+    if values is None:
+        return [None]
+    return list(values) if applies_to in (None, policy) else [""]
+
+
+def build_grid(spec):
+    """[Group]: every combination of K x swept hparams x seed exactly once, per group."""
+    names = list(spec.hparams)
+    combos = list(itertools.product(*(spec.hparams[n] for n in names))) or [()]
+    groups = []
+    for env_name in spec.envs:
+        for policy in spec.policies:
+            ks = spec.cluster_counts(env_name) if policy == "mixture" else [1]
+            for values in itertools.product(*(axis_values(spec, axis, policy) for axis in GROUP_AXES)):
+                axes = {axis[1]: v for axis, v in zip(GROUP_AXES, values) if v is not None}
+                runs = []
+                for k in ks:
+                    for combo in combos:
+                        for seed in spec.seeds:
+                            runs.append({"run": len(runs), "env": env_name, "policy": policy, **axes,
+                                         "K": k, "seed": seed, **dict(zip(names, combo))})
+                groups.append(Group(env_name, policy, runs))
+    return groups
+
+
+def run_label(row):
+    """A run's name in file and TensorBoard names: env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...]-s<seed>."""
+    fixed = ("env", "policy", "K", "seed", "run")
+    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
+    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v) for c, v in row.items() if c not in fixed and v]
+    return "-".join(parts + [f"s{row['seed']}"])
+
+
+def group_name(group):
+    """The group's directory name: env-policy[-<axis value>...]."""
+    first = group.runs[0] if group.runs else {}
+    return f"{group.env}-{group.policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
+
+
+def group_config(spec, group):
+    """The group's static Config (k_max: its largest K)."""
+    static = {k: tuple(v) if isinstance(v, list) else v for k, v in spec.config.items()}
+    static.update({c: group.runs[0][c] for _, c, _, _ in GROUP_AXES if group.runs[0].get(c)})
+    return Config(env=group.env, policy=group.policy, k_max=max(r["K"] for r in group.runs), **static)
+
+
+def default_chunk(spec, cfg):
+    """PPO iterations per compiled chunk: the spec's, or ~1/20 of the run (at most 10)."""
+    return spec.chunk or max(1, min(10, math.ceil(spec.steps / cfg.batch_size) // 20))
+
+
+def group_iterations(spec, cfg, chunk):
+    """PPO iterations of every run of a group: the spec's steps rounded up to whole chunks."""
+    iters = math.ceil(spec.steps / cfg.batch_size)
+    return math.ceil(iters / chunk) * chunk
+
+
+def group_eval_every(spec, iterations):
+    """Iterations between deterministic evaluations of a group's runs (0: none); default ~25 per run."""
+    return spec.eval_every if spec.eval_every is not None else max(1, iterations // EVALUATIONS_PER_RUN)
