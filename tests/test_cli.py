@@ -76,8 +76,8 @@ def test_outputs(full_run):
 
 def test_fixed_run_computes_what_it_computed(full_run):
     """The fixed run's metrics, parameters and state are bit for bit the recorded ones (tests/golden_runs.py)."""
-    check_fingerprint("train_cli_small", {"metrics": table_digest(full_run / "metrics.csv"),
-                                          **{n: arrays_digest(full_run / f"{n}.npz") for n in ("params", "state")}})
+    check_fingerprint("train_cli_small", {"table": table_digest(full_run / "metrics.csv"),
+                                          **{f"{n}.npz": arrays_digest(full_run / f"{n}.npz") for n in ("params", "state")}})
 
 
 def test_existing_out_needs_resume(full_run, capsys):

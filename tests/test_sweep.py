@@ -184,8 +184,8 @@ def test_fixed_sweep_computes_what_it_computed(inprocess):
     """The tiny sweep's tidy metrics and its group's parameters and metrics arrays are bit for bit the recorded ones
     (tests/golden_runs.py)."""
     group = inprocess / "groups" / "inverted_double_pendulum-mixture"
-    check_fingerprint("sweep_tiny", {"metrics": table_digest(inprocess / "metrics.csv"),
-                                     **{n: arrays_digest(group / f"{n}.npz") for n in ("params", "metrics")}})
+    check_fingerprint("sweep_tiny", {"table": table_digest(inprocess / "metrics.csv"),
+                                     **{f"{n}.npz": arrays_digest(group / f"{n}.npz") for n in ("params", "metrics")}})
 
 
 def test_tidy_table(inprocess):
