@@ -29,6 +29,8 @@ bench.png.
 """
 
 import argparse
+import copy
+import dataclasses
 import itertools
 import json
 import os
@@ -41,11 +43,19 @@ import tempfile
 import time
 from typing import NamedTuple
 
+import jax
+import mujoco
 import numpy as np
+from mujoco import rollout
 
+import envs
+from envs.physics import Physics
 from gsa_jax import xla_cache
-from gsa_jax.programs import RUN_BATCH
 from gsa_jax.checkpoint import write_atomic
+from gsa_jax.ppo import Config
+from gsa_jax.programs import RUN_BATCH, GroupRuns, GroupShape, compile_group, pad_runs
+from gsa_jax.runinfo import run_metadata
+from gsa_jax.spec import build_grid, check_spec, group_config
 from gsa_jax.supervise import worker_env
 
 SIZES = (1, 16, 64, 256)
@@ -94,12 +104,6 @@ def _share(args):
 def worker(args):
     """One process: compile the group program for args.runs runs, wait at the barrier, time chunks of
     one PPO iteration."""
-    import dataclasses
-
-    import jax
-
-    from gsa_jax.programs import GroupRuns, GroupShape, compile_group, pad_runs
-    from gsa_jax.spec import build_grid, check_spec, group_config
 
     spec = check_spec({"envs": [args.env], "policies": [args.policy], "clusters": [args.clusters],
                        "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9,
@@ -138,12 +142,6 @@ def raw_worker(args):
     """One process: the task alone (no policy, no learning) -- args.batch envs stepped by a vmapped
     env.step with uniform random actions, with the training loop's time limit and auto-reset,
     in scans of RAW_UNROLL steps."""
-    import jax
-
-    import envs
-
-    from envs.physics import Physics
-
     env = envs.make(args.env, physics=Physics(args.solver_iterations, args.ls_iterations, backend=args.physics,
                                               threads=args.physics_threads))
     b = args.batch
@@ -357,8 +355,6 @@ def time_profile(env, policy, runs, repeats, run_batch=RUN_BATCH, log=print, bac
     sub-batch steps at a time. Returns wall seconds per iteration of all the runs (the workers together)
     for physics, the rest of the rollout (policy sampling, normalization, GAE, host), and the PPO update
     (all epochs)."""
-    from gsa_jax.ppo import Config
-
     epochs = Config.num_epochs
     cell = SweepCell(env, policy, runs, processes, run_batch=run_batch, backend=backend)
     full = measure_sweep(cell, repeats, log=log)
@@ -386,12 +382,6 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, so
     substeps (n_frames) per env step, one MjData per thread. Models with a start keyframe (allegro)
     start there and random-walk their PD targets as the env's actions do (contacts stay active).
     solver: None (the MJCF's settings) or (iterations, ls_iterations) set on a copy of the model."""
-    import copy
-
-    import mujoco
-    from mujoco import rollout
-
-    import envs
 
     base = envs.make_base(env_name)
     model = envs.mj_model(base)
@@ -591,8 +581,6 @@ def build_parser():
 
 def parse_backends(text, env):
     """--physics: the backends to measure, each checked against the task; ValueError naming the flag."""
-    import envs
-    from envs.physics import Physics
 
     backends = [b.strip() for b in text.split(",")]
     for b in backends:
@@ -607,10 +595,6 @@ def make_plan(args):
     """What to measure: {sizes, procs, batches, policies, variant, repeats, backends, plan, raw_plan}: plan
     entries (policy, runs, processes, solver variant, backend), raw_plan (batch, processes, variant, backend);
     ValueError on bad input."""
-    import envs
-
-    from gsa_jax.spec import check_spec
-
     envs.check_name(args.env)
     backends = parse_backends(args.physics, args.env)
     cores = os.cpu_count() or 1
@@ -749,8 +733,6 @@ def main(argv=None):
           + (f", the largest sizes again with {variant[0]} solver / {variant[1]} line-search iterations" if variant else "")
           + f"; {repeats} timed chunks each (median); about {estimate_s(plan, raw_plan, args.profile_runs, repeats, n_profiles) / 60:.0f} min",
           flush=True)
-    from gsa_jax.runinfo import run_metadata
-
     os.makedirs(args.out, exist_ok=True)
     t_start = time.perf_counter()
     c_ref = measure_references(args.env, variant)

@@ -18,6 +18,9 @@ import zipfile
 
 import numpy as np
 
+from envs import C_BACKEND_TASKS, default_episode_length
+from gsa_jax import numpy_policy
+
 
 class DeployError(Exception):
     pass
@@ -33,8 +36,6 @@ def summarize(returns, lengths):
 
 def load_controller(controller_path):
     """(NumPy controller, its task name, its config) of an exported controller file."""
-    from gsa_jax import numpy_policy
-
     if not os.path.exists(controller_path):
         raise DeployError(f"{controller_path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
     if not zipfile.is_zipfile(controller_path):
@@ -50,7 +51,6 @@ def load_controller(controller_path):
 
 def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
-    from envs import C_BACKEND_TASKS, default_episode_length
     from envs.mujoco_c import make_c, run_episodes
 
     if env_name not in C_BACKEND_TASKS:
@@ -103,8 +103,6 @@ def compare_mjx(run_dir, env_name, episodes, seed):
 
 def deploy(args):
     """Every requested simulator's summary, printed as it completes."""
-    from envs import C_BACKEND_TASKS
-
     if args.episodes < 1:
         raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
     ctrl, env_name, config = load_controller(args.controller)

@@ -20,6 +20,7 @@ import math
 import time
 from typing import Callable, NamedTuple
 
+import jax
 import numpy as np
 
 from gsa_jax.metrics import EVAL_METRICS, ITERATION_METRICS
@@ -155,8 +156,6 @@ def chunk_loop(program, store, plan, metrics, loop, log, heartbeat):
 
 def record_chunk(program, plan, metrics, loop, m):
     """A chunk's metrics into the host arrays, its evaluation when due, steps and clocks. Returns done."""
-    import jax
-
     m = jax.device_get(m)
     done, chunk, runs = loop["done"], plan.chunk, program.runs
     for k in ITERATION_METRICS + ("failed_at",):

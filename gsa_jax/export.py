@@ -16,6 +16,7 @@ import zipfile
 import numpy as np
 
 from gsa_jax.checkpoint import save_npz_atomic
+from gsa_jax.export_c import cost, to_source
 
 
 class ExportError(Exception):
@@ -116,8 +117,6 @@ def write(arrays, fmt, out):
             raise ExportError(f"ONNX export needs the deploy extra: pip install 'gsa_jax[deploy]' ({e})") from None
         write_atomic(out, to_bytes(arrays, layout), "wb")
         return []
-    from gsa_jax.export_c import cost, to_source
-
     write_atomic(out, to_source(arrays, layout))
     c = cost(arrays)
     return [f"C controller: {c['constants']} float constants ({c['bytes'] / 1024:.1f} KiB); per call "

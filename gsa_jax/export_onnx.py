@@ -11,6 +11,8 @@ import json
 
 import numpy as np
 
+from gsa_jax.numpy_policy import Controller
+
 OPSET = 17
 IR_VERSION = 8  # the IR of opset 17: readable by every onnxruntime that runs opset 17
 
@@ -86,8 +88,6 @@ def build_model(arrays, layout=None):
     """onnx.ModelProto of the controller in `arrays` (the export's arrays, see numpy_policy)."""
     import onnx
     from onnx import TensorProto, helper
-
-    from gsa_jax.numpy_policy import Controller
 
     ctrl = Controller(arrays)
     d_s = ctrl.obs_mean.shape[0]

@@ -11,7 +11,10 @@ refused with the reason. Needs the optional `deploy` extra (gymnasium[mujoco]); 
 
 import re
 
+import mujoco
 import numpy as np
+
+from envs.mujoco_c import BRAX_PORTS, observation_layout
 
 GYM_NAMES = {"hopper": "Hopper", "walker2d": "Walker2d", "halfcheetah": "HalfCheetah", "ant": "Ant",
              "inverted_double_pendulum": "InvertedDoublePendulum"}
@@ -79,10 +82,6 @@ def _structure(m):
 
 def check_layout(task, env, env_id, steps=50, seed=0):
     """Raise GymnasiumError unless gymnasium's observation and action layout are our task's."""
-    import mujoco
-
-    from envs.mujoco_c import BRAX_PORTS, observation_layout
-
     port = BRAX_PORTS[task]()
     u = env.unwrapped
     ours, theirs = _structure(port.model), _structure(u.model)

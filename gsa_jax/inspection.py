@@ -15,7 +15,15 @@ import json
 import os
 import sys
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+
+from gsa_jax.checkpoint import load_pytree
+from gsa_jax.episodes import step_episodes
+from gsa_jax.normalize import normalize
+from gsa_jax.policies import draw_noise
+from gsa_jax.ppo import Config, make_env, make_hparams, make_train, schedule
 
 
 class InspectError(Exception):
@@ -24,10 +32,6 @@ class InspectError(Exception):
 
 def load_run(run_dir, require_mixture=True):
     """(trainer, params, obs_stats, hparams, meta) of a finished or interrupted (mixture) run."""
-    import jax
-
-    from gsa_jax.checkpoint import load_pytree
-    from gsa_jax.ppo import Config, make_hparams, make_train
 
     for name in ("config.json", "params.npz"):
         if not os.path.exists(os.path.join(run_dir, name)):
@@ -55,13 +59,7 @@ def last_iteration(meta):
 
 def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iteration):
     """Full episodes (no auto-reset) -> dict of arrays [T, episodes, ...] and alive mask."""
-    import jax
-    import jax.numpy as jnp
 
-    from gsa_jax.episodes import step_episodes
-    from gsa_jax.normalize import normalize
-    from gsa_jax.policies import draw_noise
-    from gsa_jax.ppo import make_env, schedule
 
     cfg = trainer.cfg
     env = make_env(cfg, auto_reset=False)
@@ -195,8 +193,6 @@ def plot_pca(data, k, path):
 
 
 def inspect_run(run_dir, out=None, episodes=8, seed=0):
-    import jax
-
     trainer, params, obs_stats, hp, meta = load_run(run_dir)
     k = int(meta["hparams"]["K"])
     out = out or os.path.join(run_dir, "inspect")

@@ -27,8 +27,9 @@ only in tables written before failed evaluation episodes were counted).
 
 import argparse
 import csv
-import gzip
 import glob
+import gzip
+import io
 import json
 import math
 import os
@@ -39,6 +40,7 @@ import numpy as np
 
 from gsa_jax import stats
 from gsa_jax.metrics import TIDY_METRICS
+from gsa_jax.runinfo import describe_changes
 
 _ID_COLS = ("env", "policy", "K", "seed", "run")
 _METRIC_COLS = set(TIDY_METRICS)
@@ -124,8 +126,6 @@ def load_sweeps(dirs):
     """load_sweep of every directory, merged; PlotError naming the difference when two hold the same
     group with other settings, or the same run twice. When one sweep lists critics (value_targets), the
     cells of those that do not get the GAE critic's column, so the two critics' cells meet."""
-    from gsa_jax.runinfo import describe_changes
-
     seen = {}
     for d in dirs:
         for group, settings in group_settings(d).items():
@@ -588,8 +588,6 @@ def random_returns_of(dirs, env_names, out_dir, log=print):
 
 def write_csv(path, rows, columns=None):
     """rows (dicts) as a CSV file, written atomically; columns: their order (default: as first seen)."""
-    import io
-
     from gsa_jax.checkpoint import write_atomic
 
     buf = io.StringIO()

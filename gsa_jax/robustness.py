@@ -29,9 +29,13 @@ import sys
 
 import numpy as np
 
+import envs
+from envs import action_size
 from gsa_jax import stats
+from gsa_jax.deploy import DeployError, load_controller
 from gsa_jax.plot import plot_profiles, write_csv
-from gsa_jax.shifts import DEFAULT_SHIFTS, KINDS, Shift, applies, run_shifted
+from gsa_jax.runinfo import run_metadata
+from gsa_jax.shifts import DEFAULT_SHIFTS, KINDS, PUSH_RATE, Shift, applies, run_shifted
 
 START_SEED = 10_000
 TIDY = ("env", "policy", "K", "seed", "shift", "level", "score", "nominal_score", "random_score", "retained_fraction")
@@ -44,8 +48,6 @@ class RobustnessError(ValueError):
 
 def load_controllers(paths):
     """[(path, meta {env, policy, K, seed}, controller)] of exported controllers in files or directories."""
-    from gsa_jax.deploy import DeployError, load_controller
-
     files = []
     for p in paths:
         if os.path.isdir(p):
@@ -82,8 +84,6 @@ class RandomController:
 
 def random_score(env_name, shift, seeds):
     """Mean return of the random policy under the shift from the same starts."""
-    from envs import action_size
-
     ctrl = RandomController(action_size(env_name))
     same_law = shift.kind in ("obs_noise", "action_delay")  # a random policy ignores what it sees and when
     returns, _, _ = run_shifted(ctrl, env_name, Shift("nominal") if same_law else shift, seeds)
@@ -289,8 +289,6 @@ def write_settings(out, shifts, episodes):
     """robustness.json: the shifts, episodes, start seeds and push rate, versions and commit; a re-run into
     the same OUT with other settings is refused (its rows would not be comparable)."""
     from gsa_jax.checkpoint import write_atomic
-    from gsa_jax.runinfo import run_metadata
-    from gsa_jax.shifts import PUSH_RATE
 
     settings = {"shifts": [list(s) for s in shifts], "episodes": episodes, "start_seeds": [START_SEED, START_SEED + episodes],
                 "push_rate": PUSH_RATE}
@@ -305,8 +303,6 @@ def write_settings(out, shifts, episodes):
 
 def analyse(rows, sens, out, reps=stats.REPS, log=print):
     """aggregate.csv, correlation.csv, robustness.png, profile.png from the tidy rows."""
-    import envs
-
     agg = aggregate(rows, reps)
     write_csv(os.path.join(out, "aggregate.csv"), agg)
     corr = correlations(sens)

@@ -8,6 +8,9 @@ import subprocess
 import sys
 from importlib import metadata
 
+import envs
+from envs.physics import record
+
 
 def _version(dist):
     try:
@@ -33,8 +36,6 @@ def git_commit():
 
 def physics_record(cfg):
     """Every physics option in force for a Config's task (envs.physics.record; no MJX env is built)."""
-    import envs
-    from envs.physics import record
 
     return record(cfg.physics, envs.task_model(cfg.env))
 

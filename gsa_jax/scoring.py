@@ -6,13 +6,23 @@ Used by the experiments that compare simulators (experiments/solver_hopper/, exp
 import csv
 import os
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+
+import envs
+from gsa_jax.checkpoint import save_npz_atomic
+from gsa_jax.deploy import load_controller, run_mujoco_c
+from gsa_jax.episodes import step_episodes
+from gsa_jax.export import controller_arrays
+from gsa_jax.extract import extract, finished_runs, select
+from gsa_jax.inspection import last_iteration, load_run
+from gsa_jax.normalize import normalize
+from gsa_jax.ppo import schedule
 
 
 def load_cell(sweep_dir, env_name, policy, k, tmp):
     """Per seed (sorted): (trainer, params, obs_stats, hp, iteration, run_dir) of one sweep cell."""
-    from gsa_jax.extract import extract, finished_runs, select
-    from gsa_jax.inspection import last_iteration, load_run
 
     runs = finished_runs(sweep_dir)
     seeds = sorted({int(r["seed"]) for _, _, r in runs if r["env"] == env_name and r["policy"] == policy
@@ -30,13 +40,7 @@ def make_eval(cfg, policy_obj, episodes, physics):
     """jit(vmap over runs) of the returns [runs, episodes] of deterministic episodes in cfg's task with
     `physics` (envs.physics.Physics; None: the defaults); params are arguments, so one compile serves a
     whole cell."""
-    import jax
-    import jax.numpy as jnp
 
-    import envs
-    from gsa_jax.episodes import step_episodes
-    from gsa_jax.normalize import normalize
-    from gsa_jax.ppo import schedule
 
     env = envs.make(cfg.env, cfg.episode_length, auto_reset=False, physics=physics)
 
@@ -60,8 +64,6 @@ def make_eval(cfg, policy_obj, episodes, physics):
 
 def evaluate_cell(cell, episodes, variants):
     """{variant name: returns [seeds, episodes]} of a cell's deterministic controllers under each physics variant."""
-    import jax
-    import jax.numpy as jnp
 
     stack = lambda xs: jax.tree.map(lambda *a: jnp.stack(a), *xs)
     params, obs_stats, hps = stack([c[2] for c in cell]), stack([c[3] for c in cell]), stack([c[4] for c in cell])
@@ -75,8 +77,6 @@ def qpos_drift(env_a, env_b, episodes=64, steps=(1, 10, 100), hopper=False):
     """Max/mean |qpos difference| between two versions of one task from the same starts under the same
     random actions, after 1, 10, 100 env steps (no time limit, no reset); with hopper=True also of the torso
     height (qpos[1])."""
-    import jax
-
     s0 = jax.vmap(env_a.reset)(jax.random.split(jax.random.PRNGKey(7), episodes))
     acts = jax.random.uniform(jax.random.PRNGKey(8), (max(steps), episodes, env_a.action_size), minval=-1, maxval=1)
     q = []
@@ -95,9 +95,6 @@ def qpos_drift(env_a, env_b, episodes=64, steps=(1, 10, 100), hopper=False):
 def score_sweep(sweep, env_name, clusters, episodes, variants, tmp, **tags):
     """Rows (tags, policy, K, seed, one mean return per physics variant {name: Physics or None}, and
     mujoco_c for the exported mixtures) for the flat PPO and K=`clusters` controllers of a sweep's task."""
-    from gsa_jax.checkpoint import save_npz_atomic
-    from gsa_jax.deploy import load_controller, run_mujoco_c
-    from gsa_jax.export import controller_arrays
 
     rows = []
     for policy in ("mlp", "mixture"):
@@ -135,11 +132,7 @@ def mean_ci(rows, cols):
 def random_policy_return(env_name, episodes=16, seed=0, episode_length=None):
     """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
     score that normalizes to 0), from the start states of PRNGKey(seed)."""
-    import jax
-    import jax.numpy as jnp
 
-    import envs
-    from gsa_jax.episodes import step_episodes
 
     env = envs.make(env_name, episode_length, auto_reset=False)
     length = episode_length or envs.default_episode_length(env_name)

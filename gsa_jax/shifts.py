@@ -22,6 +22,8 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from envs.mujoco_c import make_c
+
 PUSH_RATE = 0.01  # probability of a push at each env step (one every 100 steps on average)
 OTHER_SIMULATOR = {"Hopper-v5": "hopper", "Walker2d-v5": "walker2d", "HalfCheetah-v5": "halfcheetah",
                    "hopper": "Hopper-v5", "walker2d": "Walker2d-v5", "halfcheetah": "HalfCheetah-v5"}
@@ -54,8 +56,6 @@ def applies(env_name, shift):
 def shifted_task(env_name, shift):
     """A fresh MuJoCo C task (envs.mujoco_c.make_c: reset(seed), step(action), .model, .data) of env_name
     with the shift's model change; derived constants recomputed (mj_setConst)."""
-    from envs.mujoco_c import make_c
-
     task = make_c(OTHER_SIMULATOR[env_name] if shift.kind == "simulator" else env_name)
     m = task.model
     if shift.kind == "mass":

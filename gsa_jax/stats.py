@@ -9,6 +9,7 @@ iterations (final_score says which).
 """
 
 import math
+import warnings
 
 import numpy as np
 
@@ -84,8 +85,6 @@ def bootstrap(score_dict, func, seed, reps=REPS):
     """rliable.library.get_interval_estimates (stratified bootstrap, 95% percentile intervals). rliable draws
     its resamples from NumPy's global RNG: it is seeded with `seed` for the call (reproducible tables) and
     restored afterwards."""
-    import warnings
-
     from rliable import library as rly
 
     saved = np.random.get_state()

@@ -13,6 +13,9 @@ import statistics
 import subprocess
 import time
 
+from envs.physics import LOCAL_WORKERS_ENV
+from gsa_jax.checkpoint import write_atomic
+
 SINGLE_THREAD_EIGEN = "--xla_cpu_multi_thread_eigen=false"
 
 
@@ -21,8 +24,6 @@ def worker_env(processes):
     run single-threaded in each (their thread pools would only compete with the other workers; 256
     hopper runs on 2 cores: 1.05-1.12x, experiments/bench_eigen_threads/), unless XLA_FLAGS already sets it;
     and each worker's MuJoCo C threads (physics backend 'c', threads 0) take its share of the cores."""
-    from envs.physics import LOCAL_WORKERS_ENV
-
     env = dict(os.environ, **{LOCAL_WORKERS_ENV: str(processes)})  # physics backend 'c' threads: envs.physics
     if 1 < (os.cpu_count() or 1) <= processes and "xla_cpu_multi_thread_eigen" not in env.get("XLA_FLAGS", ""):
         env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_EIGEN).strip()
@@ -32,8 +33,6 @@ def worker_env(processes):
 def heartbeat_writer(directory):
     """A function a worker calls after every chunk with the chunk's duration: rewrites
     directory/heartbeat.json atomically."""
-    from gsa_jax.checkpoint import write_atomic
-
     beats = {"count": 0, "durations": []}
 
     def beat(duration):

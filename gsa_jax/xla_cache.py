@@ -20,6 +20,9 @@ import sys
 import tempfile
 import time
 
+import jax
+from jax.experimental.compilation_cache import compilation_cache
+
 # XLA:CPU logs these at ERROR level on every load of a cached executable: LLVM's tuning flags
 # +prefer-no-gather/+prefer-no-scatter are recorded with the executable but never reported as host
 # features (openxla/xla#44565, jax-ml/jax#38445). The executable is used; the lines are noise.
@@ -31,8 +34,6 @@ _OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_
 
 
 def _set(values):
-    import jax
-    from jax.experimental.compilation_cache import compilation_cache
 
     for name, value in zip(_OPTIONS, values):
         jax.config.update(name, value)
@@ -50,8 +51,6 @@ def enable(cache_dir, min_compile_s=1.0):
 def enabled(default_dir):
     """A persistent compilation cache for every program inside the block: the one the user configured
     (JAX_COMPILATION_CACHE_DIR), else `default_dir`. JAX's previous cache settings after it."""
-    import jax
-
     before = tuple(getattr(jax.config, name) for name in _OPTIONS)
     enable(before[0] or default_dir, min_compile_s=max(before[1], 1.0))
     try:

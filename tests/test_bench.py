@@ -51,12 +51,12 @@ def test_solver_variant_lines(tmp_path, monkeypatch):
     solver option itself is tested in test_solver.py)."""
     calls = []
 
-    def sweep(env, policy, runs, processes, repeats, solver=None, run_batch=None, log=print, value_target=None, backend=None,
-              physics_threads=0):
-        assert value_target == "gae" and backend == "mjx"  # the default critic and physics
-        calls.append(("sweep", policy, runs, processes, solver))
-        return {"env": env, "policy": policy, "runs": runs, "processes": processes, "env_steps_per_s": 1000.0 * (2 if solver else 1),
-                "compile_s": 1.0, "peak_rss_mib": 500.0, **bench._solver_field(solver)}
+    def sweep(cell, repeats, log=print):
+        assert cell.value_target == "gae" and cell.backend == "mjx"  # the default critic and physics
+        calls.append(("sweep", cell.policy, cell.runs, cell.processes, cell.solver))
+        return {"env": cell.env, "policy": cell.policy, "runs": cell.runs, "processes": cell.processes,
+                "env_steps_per_s": 1000.0 * (2 if cell.solver else 1), "compile_s": 1.0, "peak_rss_mib": 500.0,
+                **bench._solver_field(cell.solver)}
 
     def raw(env, batch, processes, repeats, solver=None, log=print, backend=None, physics_threads=0):
         assert backend == "mjx"
@@ -119,9 +119,9 @@ def test_time_profile_decomposition(monkeypatch, processes):
     steps = 64 * 2048
     fake = {10: steps / 2.0, 1: steps / 0.65}
 
-    def sweep(env, policy, runs, procs, repeats, epochs=None, run_batch=None, log=print, value_target=None, backend=None):
-        assert run_batch == 8 and backend == "c" and procs == processes
-        return {"env_steps_per_iteration": steps, "env_steps_per_s": fake[epochs or 10]}
+    def sweep(cell, repeats, log=print):
+        assert cell.run_batch == 8 and cell.backend == "c" and cell.processes == processes
+        return {"env_steps_per_iteration": steps, "env_steps_per_s": fake[cell.epochs or 10]}
 
     def raw(env, batch, procs, repeats, log=print, backend=None):
         # physics as the rollout steps it: in each worker one sub-batch of 8 runs x 32 envs at a time
