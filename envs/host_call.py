@@ -3,9 +3,8 @@
     outs = host_call(fn, (jax.ShapeDtypeStruct(...), ...), *args)    # like jax.pure_callback(..., vmap_method="broadcast_all")
 
 jax.pure_callback hands its function JAX arrays: every call device_puts each argument and converts every
-result: 553 us per call of a function that does nothing with a 256-env SimState on this project's 2-core
-CPU machine, against 113 us this way (experiments/bench_c_backend/host_call_overhead.py). Backend 'c' makes one such call
-per env step of a whole sub-batch, so the difference is a share of the physics time. host_call is the same XLA custom call (jax's
+result, several times this module's cost per call (measured in experiments/bench_c_backend/host_call_overhead.py).
+Backend 'c' makes one such call per env step of a whole sub-batch, so the difference is a share of the physics time. host_call is the same XLA custom call (jax's
 emit_python_callback, with pure_callback's sharding rule and its broadcast_all batching rule) with fn
 called on the NumPy views XLA passes. fn must not keep its arguments (they are XLA's buffers) and must
 return arrays of exactly the declared shapes and dtypes (checked on every call, as pure_callback does).

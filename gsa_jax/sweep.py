@@ -66,7 +66,7 @@ import jax
 import numpy as np
 
 from gsa_jax import xla_cache
-from gsa_jax.checkpoint import CheckpointError, DiskFullError, load_pytree, read_with_fallback, save_npz_atomic, save_pytree, write_atomic
+from gsa_jax.checkpoint import CheckpointError, DiskFullError, FormatError, load_pytree, read_with_fallback, save_npz_atomic, save_pytree, write_atomic
 from gsa_jax.driver import Plan, Result, drive, failed_mask, rows_before_failure
 from gsa_jax.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
@@ -127,9 +127,8 @@ def load_group_checkpoint(gdir, states, iterations, log):
         with np.load(p) as m:
             if int(m["__done__"]) < done:
                 raise ValueError(f"holds {int(m['__done__'])} iterations, the state {done}")
-            rows = m["iteration"].shape[0]
-            missing = {"failed_at": -1.0}  # a checkpoint older than a tracked metric: never failed, not evaluated
-            return {k: m[k][:, :done] if k in m.files else np.full((rows, done), missing.get(k, np.nan)) for k in TRACKED}
+            check_format(p, m.files)
+            return {k: m[k][:, :done] for k in TRACKED}
 
     saved, _ = read_with_fallback(os.path.join(gdir, "metrics.npz"), read_metrics, log)
     metrics = {m: np.full((saved["iteration"].shape[0], iterations), np.nan, np.float64) for m in TRACKED}
@@ -188,11 +187,19 @@ class GroupStore:
         finish_group(self.gdir, states, self.runs, metrics, done, timing)
 
 
+def check_format(path, names):
+    """Refuse (one line) a group file written by a gsa_jax that tracked fewer metrics."""
+    missing = [k for k in TRACKED if k not in names]
+    if missing:
+        raise FormatError(f"{path} was written by an older gsa_jax (no {', '.join(missing)}); finish that sweep with the "
+                        "commit in its sweep.json (git_commit), or start over in another --out")
+
+
 def finished_group(gdir, iterations):
     """The driver Result of a group whose DONE marker exists, from its metrics.npz."""
     with np.load(os.path.join(gdir, "metrics.npz")) as m:
+        check_format(os.path.join(gdir, "metrics.npz"), m.files)
         saved = {k: m[k] for k in m.files if k != "__done__"}
-    saved.setdefault("failed_at", np.full_like(saved["iteration"], -1.0))
     done = saved["iteration"].shape[1]
     return Result(done, iterations, saved, "finished" if done >= iterations else "failed", {}, done)
 
@@ -513,7 +520,7 @@ def run_worker(args, spec, out, after_chunk=None):
                                heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
                                tensorboard=args.tensorboard)
         complete = run_sweep(spec, out, options)
-    except (SpecError, ResumeRefused) as e:
+    except (SpecError, ResumeRefused, FormatError) as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
         return 2
     except DiskFullError as e:

@@ -25,7 +25,7 @@ import numpy as np
 import envs
 from envs import solver_settings
 from envs.physics import resolve_threads
-from gsa_jax.checkpoint import CheckpointError, DiskFullError, load_pytree, read_with_fallback, save_pytree, write_atomic
+from gsa_jax.checkpoint import CheckpointError, DiskFullError, FormatError, load_pytree, read_with_fallback, save_pytree, write_atomic
 from gsa_jax.curve import plot_curve
 from gsa_jax.driver import Plan, drive, duration, fmt, rows_before_failure
 from gsa_jax.metrics import EVALUATIONS_PER_RUN, INTEGER_METRICS
@@ -321,8 +321,12 @@ def read_rows_checked(path):
     rows = read_rows(path) if os.path.exists(path) else None
     if rows is None:
         raise OSError("missing")
-    if rows and set(METRIC_COLUMNS) - set(rows[0]) - {"eval_failures"}:  # tables written before failed
-        raise ValueError("not a metrics table")                           # evaluation episodes were counted lack it
+    if rows and set(METRIC_COLUMNS) - set(rows[0]):
+        missing = sorted(set(METRIC_COLUMNS) - set(rows[0]))
+        if set(rows[0]) & set(METRIC_COLUMNS):
+            raise FormatError(f"{path} was written by an older gsa_jax (no {', '.join(missing)}); continue that run with "
+                              "the commit in its config.json (git_commit), or start over in another --out")
+        raise ValueError("not a metrics table")
     return rows
 
 
@@ -366,7 +370,7 @@ def run(plan, options):
         config.update(physics=physics_record(cfg), **run_metadata())
         write_atomic(config_path, json.dumps(config, indent=2))
         return train_run(plan, options, config, log)
-    except (UsageError, CheckpointError, ResumeRefused) as e:
+    except (UsageError, CheckpointError, ResumeRefused, FormatError) as e:
         print(f"gsa_jax.train: error: {e}", file=sys.stderr)
         return 2
     except DiskFullError as e:
@@ -380,7 +384,7 @@ def saved_iteration(out):
     for name in ("state.npz", "state.prev.npz"):
         try:
             with np.load(os.path.join(out, name)) as f:
-                return int(f[".iteration"] if ".iteration" in f.files else f["['iteration']"])
+                return int(f[".iteration"])
         except (OSError, KeyError, ValueError):
             continue
     return 0

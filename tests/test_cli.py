@@ -130,6 +130,24 @@ def test_resume_run_saved_before_solver_fields(full_run, tmp_path):
     assert main(SMALL + ["--out", str(old), "--resume"]) == 0
 
 
+def test_resume_run_of_an_older_file_format_refused_in_one_line(full_run, tmp_path, capsys):
+    """A run whose metrics.csv lacks a column of today's table (an older gsa_jax wrote it) is refused with one
+    line that says how to go on; nothing is filled in silently."""
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(full_run, old)
+    for name in ("metrics.csv", "metrics.prev.csv"):
+        if (old / name).exists():
+            rows = read_csv(old / name)
+            cols = [c for c in rows[0] if c != "eval_failures"]
+            (old / name).write_text("\n".join([",".join(cols)] + [",".join(r[c] for c in cols) for r in rows]) + "\n")
+    capsys.readouterr()
+    assert main(SMALL + ["--out", str(old), "--resume"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "older gsa_jax (no eval_failures)" in err and "git_commit" in err
+
+
 def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):
     out = tmp_path / "nan"
     assert main(SMALL + ["--out", str(out), "--lr", "1e30", "--no-anneal-lr"]) == 1

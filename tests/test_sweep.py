@@ -533,3 +533,20 @@ def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp
     assert run_sweep(load_spec(tiny_spec_file), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), quiet=True, run_batch=2))
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
     assert json.loads((out / "sweep.json").read_text())["run_batch"] == 2
+
+
+def test_group_of_an_older_file_format_refused_in_one_line(tiny_spec_file, inprocess, tmp_path, capsys):
+    """A finished group whose metrics.npz lacks a tracked metric (an older gsa_jax wrote it) is refused with
+    one line that says how to go on; nothing is filled in silently."""
+    import shutil
+
+    out = tmp_path / "old"
+    shutil.copytree(inprocess, out)
+    path = out / "groups" / "inverted_double_pendulum-mixture" / "metrics.npz"
+    with np.load(path) as m:
+        arrays = {k: m[k] for k in m.files if k != "failed_at"}
+    np.savez(path, **arrays)
+    capsys.readouterr()
+    assert sweep_main(tiny_spec_file, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "older gsa_jax (no failed_at)" in err and "git_commit" in err
