@@ -74,7 +74,7 @@ from gsa_jax.runinfo import ResumeRefused, check_unchanged, physics_record, run_
 from gsa_jax.runlock import LockError, hold
 from gsa_jax.spec import Group, SpecError, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name, load_spec, run_label
 from gsa_jax.supervise import heartbeat_writer, supervise
-from gsa_jax.tensorboard import Board, follow
+from gsa_jax.store import Store, warn
 
 TRACKED = TIDY_METRICS + ("failed_at",)  # per run and iteration in metrics.npz; failed_at is not a CSV column
 EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
@@ -106,11 +106,6 @@ def failed_runs(runs, metrics, upto):
     """[run dict + failed_at] of the runs that stopped at a NaN/inf."""
     failed = failed_mask(metrics, upto)
     return [{**r, "failed_at": int(metrics["failed_at"][i, upto - 1])} for i, r in enumerate(runs) if failed[i]]
-
-
-def warn(msg):
-    """A line the user must see even with --quiet (stderr)."""
-    print(msg, file=sys.stderr, flush=True)
 
 
 def load_group_checkpoint(gdir, states, iterations, log):
@@ -156,21 +151,16 @@ def finish_group(gdir, states, runs, metrics, done, timing):
 
 
 # ----------------------------------------------------------------------------------------------- the worker
-class GroupStore:
+class GroupStore(Store):
     """The files of one group (the driver's store) in gdir: state.npz and metrics.npz after every chunk
     (each keeping its previous version); at the end params.npz, failed.json and DONE. on_chunk(runs,
     metrics [len(runs), iterations], done) runs after every save (the tidy table)."""
 
     def __init__(self, gdir, runs, iterations, on_chunk=None, board_dir=None):
+        super().__init__(gdir, board_dir, [run_label(r) for r in runs])
         self.gdir, self.runs, self.iterations, self.on_chunk = gdir, runs, iterations, on_chunk
-        self.board = Board(board_dir, [run_label(r) for r in runs]) if board_dir else None
-
-    def load(self, template):
-        return follow(self.board, self.load_checkpoint(template))
 
     def load_checkpoint(self, template):
-        if not any(os.path.exists(os.path.join(self.gdir, n)) for n in ("state.npz", "state.prev.npz")):
-            return None
         try:
             return load_group_checkpoint(self.gdir, template, self.iterations, warn)
         except CheckpointError as e:
@@ -178,8 +168,7 @@ class GroupStore:
 
     def save(self, states, metrics, done):
         save_group_checkpoint(self.gdir, states, {k: metrics[k] for k in TRACKED}, done)
-        if self.board:
-            self.board.append(metrics, done)
+        self.follow_save(metrics, done)
         if self.on_chunk:
             self.on_chunk(self.runs, {k: v[: len(self.runs)] for k, v in metrics.items()}, done)
 

@@ -36,7 +36,7 @@ from gsa_jax.programs import single_program
 from gsa_jax.retrace import VALUE_TARGETS, buffer_bytes
 from gsa_jax.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
 from gsa_jax.runlock import LockError, hold
-from gsa_jax.tensorboard import Board, follow
+from gsa_jax.store import Store, warn
 
 _HP_FLAGS = {  # CLI flag -> hparam name
     "lr": "lr", "clip": "clip_eps", "gamma": "gamma", "gae_lambda": "gae_lambda", "vf_coef": "vf_coef",
@@ -264,31 +264,23 @@ def check_resume_config(old, config, force):
                     "pass --force to continue it with the new settings")
 
 
-class RunStore:
+class RunStore(Store):
     """The files of a single run (the driver's store): metrics.csv, params.npz and state.npz (the
     checkpoint files keep their previous version) in `out`."""
 
     def __init__(self, out, config, resume):
+        super().__init__(out, os.path.join(out, "tensorboard") if config.get("tensorboard") else None, [""])
         self.out, self.config, self.resume = out, config, resume
-        self.board = Board(self.path("tensorboard"), [""]) if config.get("tensorboard") else None
 
-    def path(self, name):
-        return os.path.join(self.out, name)
-
-    def load(self, template):
-        """(state, metrics [1, done], done) of the run saved in out, or None if there is nothing to resume;
-        the TensorBoard event files restart from it."""
-        return follow(self.board, self.load_checkpoint(template))
+    def has_checkpoint(self):
+        return self.resume and super().has_checkpoint()
 
     def load_checkpoint(self, template):
         """(state, metrics [1, done], done) of the run saved in out: state.npz, or state.prev.npz if that
-        is unreadable; metrics.csv (or its previous version) cut to the state's iteration. None if
-        there is nothing to resume."""
-        if not self.resume or not any(os.path.exists(self.path(n)) for n in ("state.npz", "state.prev.npz")):
-            return None
-        state, path = read_with_fallback(self.path("state.npz"), lambda p: load_pytree(p, template), _warn)
+        is unreadable; metrics.csv (or its previous version) cut to the state's iteration."""
+        state, path = read_with_fallback(self.path("state.npz"), lambda p: load_pytree(p, template), warn)
         done = int(state.iteration)
-        rows, _ = read_with_fallback(self.path("metrics.csv"), read_rows_checked, _warn)
+        rows, _ = read_with_fallback(self.path("metrics.csv"), read_rows_checked, warn)
         if int(state.failed_at) >= 0:
             raise UsageError(f"the run in {self.out} stopped at a NaN/inf at iteration {int(state.failed_at)}; nothing to resume")
         rows = [r for r in rows if int(r["iteration"]) <= done]
@@ -302,8 +294,7 @@ class RunStore:
         write_atomic(self.path("metrics.csv"), rows_to_csv(metrics_to_rows(metrics, done)), keep_previous=True)
         self.save_params(state)
         save_pytree(self.path("state.npz"), state, keep_previous=True)
-        if self.board:
-            self.board.append(metrics, done)
+        self.follow_save(metrics, done)
 
     def save_params(self, state):
         save_pytree(self.path("params.npz"), {"params": state.params, "obs_stats": state.obs_stats},
@@ -311,10 +302,6 @@ class RunStore:
 
     def finish(self, state, metrics, done, timing):
         """Nothing beyond the last chunk's files: train.finish writes the result into config.json."""
-
-
-def _warn(msg):  # seen even with --quiet
-    print(msg, file=sys.stderr, flush=True)
 
 
 def read_rows_checked(path):

@@ -13,7 +13,7 @@ LAYERS = (  # lowest first
     ("foundation", {"metrics", "checkpoint", "runinfo", "runlock", "xla_cache", "nn", "optim", "normalize", "numpy_policy",
                     "curve", "tensorboard", "stats", "shifts"}),
     ("algorithm", {"episodes", "policies", "retrace", "ppo"}),
-    ("running", {"driver", "programs", "spec", "supervise"}),
+    ("running", {"driver", "programs", "spec", "supervise", "store"}),
     ("runs and deployment", {"inspection", "export_c", "export_onnx", "export", "gymnasium_task", "deploy", "render", "extract"}),
     ("tools", {"train", "sweep", "bench", "scoring", "plot", "robustness"}),
 )
