@@ -158,22 +158,22 @@ class GroupStore(Store):
 
     def __init__(self, gdir, runs, iterations, on_chunk=None, board_dir=None):
         super().__init__(gdir, board_dir, [run_label(r) for r in runs])
-        self.gdir, self.runs, self.iterations, self.on_chunk = gdir, runs, iterations, on_chunk
+        self.runs, self.iterations, self.on_chunk = runs, iterations, on_chunk
 
     def load_checkpoint(self, template):
         try:
-            return load_group_checkpoint(self.gdir, template, self.iterations, warn)
+            return load_group_checkpoint(self.root, template, self.iterations, warn)
         except CheckpointError as e:
             raise SpecError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
 
     def save(self, states, metrics, done):
-        save_group_checkpoint(self.gdir, states, {k: metrics[k] for k in TRACKED}, done)
+        save_group_checkpoint(self.root, states, {k: metrics[k] for k in TRACKED}, done)
         self.follow_save(metrics, done)
         if self.on_chunk:
             self.on_chunk(self.runs, {k: v[: len(self.runs)] for k, v in metrics.items()}, done)
 
     def finish(self, states, metrics, done, timing):
-        finish_group(self.gdir, states, self.runs, metrics, done, timing)
+        finish_group(self.root, states, self.runs, metrics, done, timing)
 
 
 def check_format(path, names):

@@ -270,7 +270,7 @@ class RunStore(Store):
 
     def __init__(self, out, config, resume):
         super().__init__(out, os.path.join(out, "tensorboard") if config.get("tensorboard") else None, [""])
-        self.out, self.config, self.resume = out, config, resume
+        self.config, self.resume = config, resume
 
     def has_checkpoint(self):
         return self.resume and super().has_checkpoint()
@@ -282,10 +282,10 @@ class RunStore(Store):
         done = int(state.iteration)
         rows, _ = read_with_fallback(self.path("metrics.csv"), read_rows_checked, warn)
         if int(state.failed_at) >= 0:
-            raise UsageError(f"the run in {self.out} stopped at a NaN/inf at iteration {int(state.failed_at)}; nothing to resume")
+            raise UsageError(f"the run in {self.root} stopped at a NaN/inf at iteration {int(state.failed_at)}; nothing to resume")
         rows = [r for r in rows if int(r["iteration"]) <= done]
         if len(rows) < done:
-            raise UsageError(f"{self.out}: metrics.csv holds {len(rows)} iterations but {os.path.basename(path)} is at "
+            raise UsageError(f"{self.root}: metrics.csv holds {len(rows)} iterations but {os.path.basename(path)} is at "
                              f"iteration {done}; delete the directory to start over")
         return state, rows_to_metrics(rows), done
 
