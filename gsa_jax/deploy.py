@@ -6,99 +6,16 @@ The controller file comes from `python -m gsa_jax.export RUN --out controller.np
 from the file. Prints the mean return (95% CI over episodes) and episode length of the deterministic
 controller in our MuJoCo C port of the task (the MJCF it was trained on; ported: envs.mujoco_c.C_TASKS);
 with --gymnasium ENV_ID also in gymnasium's own task (its MJCF, reward, termination and time limit;
-refused with the reason where its observation layout is not ours, gsa_jax.gymnasium_task); with
+refused with the reason where its observation layout is not ours, gsa_jax.deployment.gymnasium_task); with
 --compare-mjx RUN_DIR also in the MJX environment it was trained in (this part uses JAX).
 """
 
 import argparse
 import json
-import os
 import sys
-import zipfile
 
-import numpy as np
-
-from envs import C_BACKEND_TASKS, default_episode_length
-from gsa_jax import numpy_policy
-
-
-class DeployError(Exception):
-    pass
-
-
-def summarize(returns, lengths):
-    r = np.asarray(returns, np.float64)
-    half = 1.96 * r.std(ddof=1) / np.sqrt(len(r)) if len(r) > 1 else float("nan")
-    return {"episodes": int(len(r)), "return_mean": float(r.mean()), "return_ci95": float(half),
-            "return_min": float(r.min()), "return_max": float(r.max()), "length_mean": float(np.mean(lengths)),
-            "returns": [round(float(x), 3) for x in r]}
-
-
-def load_controller(controller_path):
-    """(NumPy controller, its task name, its config) of an exported controller file."""
-    if not os.path.exists(controller_path):
-        raise DeployError(f"{controller_path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
-    if not zipfile.is_zipfile(controller_path):
-        raise DeployError(f"{controller_path!r} is not an exported controller (not an .npz archive)")
-    try:
-        ctrl = numpy_policy.load(controller_path)
-        with np.load(controller_path, allow_pickle=False) as f:
-            meta = json.loads(str(f["config_json"]))
-    except (OSError, KeyError, ValueError) as e:
-        raise DeployError(f"{controller_path!r} is not an exported controller ({e})") from None
-    return ctrl, meta["config"]["env"], meta["config"]
-
-
-def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
-    """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
-    from envs.mujoco_c import make_c, run_episodes
-
-    if env_name not in C_BACKEND_TASKS:
-        raise DeployError(f"the controller is for {env_name!r}; MuJoCo C versions exist for {', '.join(C_BACKEND_TASKS)}")
-    length = episode_length or config.get("episode_length") or default_episode_length(env_name)
-    returns, lengths = run_episodes(make_c(env_name), ctrl, episodes, int(length), seed)
-    return {**summarize(returns, lengths), "episode_length_limit": int(length)}
-
-
-def run_gymnasium(ctrl, env_name, env_id, episodes, seed=0):
-    """Summary of the controller in gymnasium's own task `env_id` (its MJCF, reward, termination, time limit)."""
-    from gsa_jax.gymnasium_task import GymnasiumError, make_gym, run_episodes
-
-    try:
-        env, options = make_gym(env_name, env_id, seed=seed)
-    except GymnasiumError as e:
-        raise DeployError(str(e)) from None
-    returns, lengths = run_episodes(env, ctrl, episodes, seed)
-    return {**summarize(returns, lengths), "env_id": env_id, "options": options,
-            "episode_length_limit": int(env.spec.max_episode_steps or 0)}
-
-
-def run_mjx(run_dir, episodes, seed=0):
-    """Summary of the same deterministic controller in the run's MJX environment (JAX)."""
-    import jax
-
-    from gsa_jax.inspection import last_iteration, load_run, rollout
-
-    trainer, params, obs_stats, hp, meta = load_run(run_dir, require_mixture=False)
-    roll = rollout(trainer, params, obs_stats, hp, jax.random.PRNGKey(seed), episodes, True, last_iteration(meta))
-    return trainer.cfg.env, summarize(roll["reward"].sum(0), roll["alive"].sum(0))
-
-
-def report_line(env_name, where, s):
-    return (f"{env_name}: {where:<22} deterministic controller, {s['episodes']} episodes: return "
-            f"{s['return_mean']:.1f} +- {s['return_ci95']:.1f} (95% CI), episode length {s['length_mean']:.0f}")
-
-
-def compare_mjx(run_dir, env_name, episodes, seed):
-    from gsa_jax.inspection import InspectError
-
-    try:
-        mjx_env, summary = run_mjx(run_dir, episodes, seed)
-    except InspectError as e:
-        raise DeployError(str(e)) from None
-    if mjx_env != env_name:
-        raise DeployError(f"{run_dir!r} is a {mjx_env!r} run, the controller is for {env_name!r}")
-    return summary
+from envs import C_BACKEND_TASKS
+from gsa_jax.deployment.evaluation import DeployError, compare_mjx, load_controller, report_line, run_gymnasium, run_mujoco_c
 
 
 def deploy(args):

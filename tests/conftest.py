@@ -36,7 +36,7 @@ def random_controller(tmp_path):
 
     import numpy as np
 
-    from gsa_jax.checkpoint import save_npz_atomic
+    from gsa_jax.running.checkpoint import save_npz_atomic
 
     def make(env="hopper", **config):
         obs, act = {"hopper": (11, 3), "allegro_cylinder": (10, 8)}[env]

@@ -13,9 +13,9 @@ from gsa_jax import sweep
 
 
 def supervise_stalling_worker(hang_after, marker, spec_file, out):
-    """One such worker training spec_file into out (an existing folder), under gsa_jax.supervise's watchdog
+    """One such worker training spec_file into out (an existing folder), under gsa_jax.running.supervise's watchdog
     (8 s without progress, at most 2 restarts) -> (supervise's exit code, the watchdog's log lines)."""
-    from gsa_jax.supervise import supervise
+    from gsa_jax.running.supervise import supervise
 
     lines = []
     cmd = [sys.executable, os.path.abspath(__file__), str(hang_after), str(marker), str(spec_file), "--out", str(out),

@@ -162,7 +162,7 @@ def test_wrong_action_shape_is_a_clear_error(task):
 
 
 def test_render_scene_png(tmp_path):
-    from gsa_jax.render import pick_gl
+    from gsa_jax.deployment.rendering import pick_gl
 
     if pick_gl() is None:
         pytest.skip("no libOSMesa or libEGL on this machine (`make scene` installs libosmesa6)")

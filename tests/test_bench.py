@@ -2,12 +2,15 @@
 arithmetic, and hang detection + retry of its workers."""
 
 import json
+import os
 import sys
 
 import pytest
 
 from gsa_jax import bench
-from gsa_jax.bench import BenchError, main, measure_mujoco_c, run_workers
+from gsa_jax.bench import main
+from gsa_jax.benchmark import measure, workers
+from gsa_jax.benchmark.measure import BenchError, measure_mujoco_c, run_workers
 
 
 def test_mujoco_c_reference():
@@ -16,15 +19,15 @@ def test_mujoco_c_reference():
 
 
 def test_worker_env_single_threads_eigen_with_a_worker_per_core(monkeypatch):
-    from gsa_jax.supervise import SINGLE_THREAD_EIGEN, worker_env
+    from gsa_jax.running.supervise import SINGLE_THREAD_EIGEN, worker_env
 
-    monkeypatch.setattr(bench.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
     assert worker_env(2)["XLA_FLAGS"] == "--xla_dump_to=/tmp/x " + SINGLE_THREAD_EIGEN
     assert worker_env(1)["XLA_FLAGS"] == "--xla_dump_to=/tmp/x"
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")  # the user's choice stands
     assert worker_env(2)["XLA_FLAGS"] == "--xla_cpu_multi_thread_eigen=true"
-    monkeypatch.setattr(bench.os, "cpu_count", lambda: 16)  # 2 workers on 16 cores: Eigen keeps its threads
+    monkeypatch.setattr(os, "cpu_count", lambda: 16)  # 2 workers on 16 cores: Eigen keeps its threads
     monkeypatch.setenv("XLA_FLAGS", "")
     assert worker_env(2)["XLA_FLAGS"] == ""
 
@@ -56,24 +59,24 @@ def test_solver_variant_lines(tmp_path, monkeypatch):
         calls.append(("sweep", cell.policy, cell.runs, cell.processes, cell.solver))
         return {"env": cell.env, "policy": cell.policy, "runs": cell.runs, "processes": cell.processes,
                 "env_steps_per_s": 1000.0 * (2 if cell.solver else 1), "compile_s": 1.0, "peak_rss_mib": 500.0,
-                **bench._solver_field(cell.solver)}
+                **measure.solver_field(cell.solver)}
 
     def raw(env, batch, processes, repeats, solver=None, log=print, backend=None, physics_threads=0):
         assert backend == "mjx"
         calls.append(("raw", batch, processes, solver))
         return {"env": env, "batch": batch, "processes": processes, "env_steps_per_s": 3000.0, "compile_s": 1.0,
-                **bench._solver_field(solver)}
+                **measure.solver_field(solver)}
 
     def c(env, solver=None, **kw):
         return {"env": env, "threads": 2, "batch": 256, "substeps_per_env_step": 4, "env_steps_per_s": 10000.0 * (4 if solver else 1),
-                **bench._solver_field(solver)}
+                **measure.solver_field(solver)}
 
     monkeypatch.setattr(bench, "measure_sweep", sweep)
     monkeypatch.setattr(bench, "measure_raw", raw)
     monkeypatch.setattr(bench, "measure_mujoco_c", c)
     out = tmp_path / "b"
     assert main(["--sizes", "1,4", "--raw-batches", "8,64", "--processes", "1,2", "--out", str(out)]) == 0
-    v = bench.SOLVER_VARIANT
+    v = measure.SOLVER_VARIANT
     assert calls == [("raw", 8, 1, None), ("raw", 8, 2, None), ("raw", 64, 1, None), ("raw", 64, 2, None), ("raw", 64, 2, v),
                      ("sweep", "mixture", 1, 1, None), ("sweep", "mixture", 4, 1, None), ("sweep", "mixture", 4, 2, None),
                      ("sweep", "mlp", 4, 2, None), ("sweep", "mixture", 4, 2, v)]
@@ -100,7 +103,7 @@ def test_physics_backends_plan():
         bench.make_plan(args)
 
 
-@pytest.mark.parametrize("text, quick, expected", [(None, False, bench.SOLVER_VARIANT), (None, True, None), ("none", False, None),
+@pytest.mark.parametrize("text, quick, expected", [(None, False, measure.SOLVER_VARIANT), (None, True, None), ("none", False, None),
                                                    ("2,8", True, (2, 8))])
 def test_solver_variant_parsing(text, quick, expected):
     assert bench.parse_solver_variant(text, quick) == expected
@@ -128,16 +131,16 @@ def test_time_profile_decomposition(monkeypatch, processes):
         assert batch == 8 * 32 * processes and procs == processes and backend == "c"
         return {"env_steps_per_s": steps / 0.3}
 
-    monkeypatch.setattr(bench, "measure_sweep", sweep)
-    monkeypatch.setattr(bench, "measure_raw", raw)
-    p = bench.time_profile("hopper", "mixture", 64, 3, run_batch=8, backend="c", processes=processes)
+    monkeypatch.setattr(measure, "measure_sweep", sweep)
+    monkeypatch.setattr(measure, "measure_raw", raw)
+    p = measure.time_profile("hopper", "mixture", 64, 3, run_batch=8, backend="c", processes=processes)
     assert p["iteration_s"] == pytest.approx(2.0) and p["processes"] == processes
     assert p["update_s"] == pytest.approx(1.5) and p["physics_s"] == pytest.approx(0.3)
     assert p["rollout_other_s"] == pytest.approx(0.2)
     assert sum(p["fractions"].values()) == pytest.approx(1.0)
     # outside physics 1.7 s per 131,072 env steps of P processes, P x that per process; MuJoCo C 2 threads x
     # 50,000 env-steps/s: per core and env step 20 us of physics + P x 12.97 us of the rest
-    c = bench.ratio_ceiling(p, {"env_steps_per_s": 100_000.0, "threads": 2})
+    c = measure.ratio_ceiling(p, {"env_steps_per_s": 100_000.0, "threads": 2})
     assert c["ratio_ceiling_with_mujoco_c_physics"] == pytest.approx(20e-6 / (20e-6 + processes * 1.7 / steps))
 
 
@@ -172,16 +175,16 @@ def test_in_run_split_and_ceiling():
     for chunks in ([chunk(0.30, 0.20, 0.18), chunk(0.32, 0.21, 0.19), chunk(0.40, 0.20, 0.18)],
                    [chunk(0.20, 0.10, 0.09), chunk(0.20, 0.10, 0.09), chunk(0.20, 0.10, 0.09)]):
         workers.append({"env_steps_per_chunk": 1000, "chunk_s": [t for _, t in chunks], "host_chunks": [h for h, _ in chunks]})
-    split = bench.in_run_split(workers)
+    split = measure.in_run_split(workers)
     w0, w1 = split["per_process"]
     assert (w0["mujoco_c_s"], w0["host_other_s"], w0["program_s"]) == pytest.approx((0.18, 0.02, 0.11))
     assert (w1["mujoco_c_s"], w1["host_other_s"], w1["program_s"]) == pytest.approx((0.09, 0.01, 0.10))
     assert split["fractions"]["mujoco_c"] == pytest.approx(0.27 / 0.51) and sum(split["fractions"].values()) == pytest.approx(1)
-    c = bench.in_run_ceiling(split, {"env_steps_per_s": 20_000.0, "threads": 2})
+    c = measure.in_run_ceiling(split, {"env_steps_per_s": 20_000.0, "threads": 2})
     assert c["ratio_ceiling_in_run"] == pytest.approx((1000 / (0.1 + 0.11) + 1000 / (0.1 + 0.10)) / 20_000)
     assert c["mujoco_c_us_per_env_step"] == pytest.approx(1e6 * 0.27 / 2000) and c["rollout_us_per_env_step"] == pytest.approx(100)
     assert c["sweep_of_ceiling_at_own_mujoco_c"] == pytest.approx((1000 / 0.31 + 1000 / 0.20) / (1000 / 0.29 + 1000 / 0.19))
-    assert bench.in_run_split([{"chunk_s": [1.0], "env_steps_per_chunk": 10}]) is None  # MJX: no host calls, no split
+    assert measure.in_run_split([{"chunk_s": [1.0], "env_steps_per_chunk": 10}]) is None  # MJX: no host calls, no split
 
 
 def test_timed_chunks_record_each_chunks_clock_change(tmp_path):
@@ -190,6 +193,6 @@ def test_timed_chunks_record_each_chunks_clock_change(tmp_path):
 
     counts = iter([{"calls": 0}, {"calls": 3}, {"calls": 3}, {"calls": 10}])
     args = argparse.Namespace(repeats=2, barrier=str(tmp_path), worker_id=0)
-    times, changes = bench._time_chunks(args, lambda s: s + 1, 0, clock=lambda: next(counts))
+    times, changes = workers._time_chunks(args, lambda s: s + 1, 0, clock=lambda: next(counts))
     assert len(times) == 2 and min(times) >= 0 and changes == [{"calls": 3}, {"calls": 7}]
-    assert bench._time_chunks(args, lambda s: s, 0)[1] == [{}, {}]
+    assert workers._time_chunks(args, lambda s: s, 0)[1] == [{}, {}]

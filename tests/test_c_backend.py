@@ -20,9 +20,9 @@ import envs
 from envs.c_backend import STATE_SPEC, float64_rows
 from envs.mujoco_c import C_TASKS, make_c
 from envs.physics import Physics
-from gsa_jax.ppo import Config, make_hparams, make_train
-from gsa_jax.spec import load_spec
-from gsa_jax.sweep import SweepOptions, run_sweep
+from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+from gsa_jax.running.spec import load_spec
+from gsa_jax.running.sweeps import SweepOptions, run_sweep
 
 C = Physics(backend="c")
 
@@ -213,7 +213,7 @@ def test_threads_zero_takes_this_process_share_of_the_cores(monkeypatch):
     """Backend 'c' threads 0: the cores this process may run on, divided among the local workers a sweep
     started (supervise.worker_env says how many); an explicit count is kept."""
     from envs.physics import LOCAL_WORKERS_ENV, resolve_threads
-    from gsa_jax.supervise import worker_env
+    from gsa_jax.running.supervise import worker_env
 
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: set(range(8)), raising=False)
     monkeypatch.delenv(LOCAL_WORKERS_ENV, raising=False)

@@ -6,10 +6,11 @@ import os
 
 import numpy as np
 import pytest
-
 from golden_runs import arrays_digest, check_fingerprint, table_digest
-from gsa_jax.tensorboard import FILE_NAME, read_scalars
-from gsa_jax.train import METRIC_COLUMNS, main
+
+from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
+from gsa_jax.running.tensorboard import FILE_NAME, read_scalars
+from gsa_jax.train import main
 
 SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--minibatches", "8", "--epochs", "2",
          "--episode-length", "200", "--chunk", "1", "--eval-every", "2", "--eval-envs", "4", "--quiet"]
@@ -163,7 +164,7 @@ def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
     another eval seed draws other starts. (The program is the one full_run compiled.)"""
     import jax
 
-    from gsa_jax.programs import single_program
+    from gsa_jax.running.programs import single_program
     from gsa_jax.train import build_parser, resolve
 
     plan = resolve(build_parser().parse_args(SMALL))
@@ -177,7 +178,7 @@ def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
 
 
 def test_inspect_mixture_run(full_run, tmp_path, capsys):
-    from gsa_jax.inspection import main as inspect_main
+    from gsa_jax.deployment.inspection import main as inspect_main
 
     out = tmp_path / "inspect"
     assert inspect_main([str(full_run), "--episodes", "3", "--out", str(out)]) == 0
@@ -193,7 +194,7 @@ def test_inspect_mixture_run(full_run, tmp_path, capsys):
 
 
 def test_inspect_bad_run_dirs(tmp_path, capsys):
-    from gsa_jax.inspection import main as inspect_main
+    from gsa_jax.deployment.inspection import main as inspect_main
 
     assert inspect_main([str(tmp_path / "nope")]) == 2
     assert "is not a directory" in capsys.readouterr().err
@@ -210,10 +211,10 @@ def test_export_real_run_matches_jax(full_run, tmp_path):
     class, on fabricated run directories: tests/test_export.py)."""
     import jax
 
-    from gsa_jax import numpy_policy
+    from gsa_jax.algorithm.normalize import normalize
+    from gsa_jax.deployment import numpy_policy
+    from gsa_jax.deployment.inspection import load_run
     from gsa_jax.export import main as export_main
-    from gsa_jax.inspection import load_run
-    from gsa_jax.normalize import normalize
 
     assert export_main([str(full_run), "--out", str(tmp_path / "c.npz")]) == 0
     ctrl = numpy_policy.load(str(tmp_path / "c.npz"))

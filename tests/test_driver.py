@@ -1,4 +1,4 @@
-"""gsa_jax.driver on a toy program (NumPy, nothing to compile): resume equals an uninterrupted run, the
+"""gsa_jax.running.driver on a toy program (NumPy, nothing to compile): resume equals an uninterrupted run, the
 evaluation schedule, a group stops once every run failed, interrupts and full disks keep what is saved."""
 
 import errno
@@ -6,8 +6,8 @@ import errno
 import numpy as np
 import pytest
 
-from gsa_jax.driver import HOST_METRICS, Plan, Program, drive, eval_due, rows_before_failure
-from gsa_jax.metrics import ITERATION_METRICS
+from gsa_jax.running.driver import HOST_METRICS, Plan, Program, drive, eval_due, rows_before_failure
+from gsa_jax.running.metrics import ITERATION_METRICS
 
 
 def toy_program(runs=3, fail=None, interrupt_at=None):

@@ -1,4 +1,4 @@
-"""gsa_jax.episodes: what an ended or failed episode adds to a deterministic evaluation, against a NumPy
+"""gsa_jax.algorithm.episodes: what an ended or failed episode adds to a deterministic evaluation, against a NumPy
 reference, on a toy task whose physics turns NaN after its episodes end (as Brax's inverted double
 pendulum does) or, for chosen episodes, while they are alive."""
 
@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.episodes import step_episodes
+from gsa_jax.algorithm.episodes import step_episodes
 
 
 class ToyState(NamedTuple):

@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax import numpy_policy
-from gsa_jax.checkpoint import save_pytree
+from gsa_jax.algorithm.normalize import normalize
+from gsa_jax.algorithm.policies import make_policy
+from gsa_jax.algorithm.ppo import make_hparams
+from gsa_jax.deployment import numpy_policy
 from gsa_jax.export import main as export_main
-from gsa_jax.normalize import normalize
-from gsa_jax.policies import make_policy
-from gsa_jax.ppo import make_hparams
+from gsa_jax.running.checkpoint import save_pytree
 
 D_S, D_A = 6, 2
 
@@ -64,7 +64,7 @@ def test_numpy_policy_imports_without_jax():
     import subprocess
     import sys
 
-    code = "import sys; import gsa_jax.numpy_policy; assert 'jax' not in sys.modules, 'jax was imported'"
+    code = "import sys; import gsa_jax.deployment.numpy_policy; assert 'jax' not in sys.modules, 'jax was imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -72,7 +72,7 @@ def test_numpy_policy_imports_without_jax():
 def test_controller_table_every_class(subpolicy, d_phi):
     """inspect's controllers.md: one row per actuator, the linear terms as columns, strongest inputs
     ranked over every feature (e.g. the quadratic term x*z)."""
-    from gsa_jax.inspection import controller_table, feature_names
+    from gsa_jax.deployment.inspection import controller_table, feature_names
 
     names = feature_names(subpolicy, ["x", "y", "z"])
     assert len(names) == d_phi and (subpolicy != "quadratic" or names[3:] == ["x*x", "x*y", "x*z", "y*y", "y*z", "z*z"])

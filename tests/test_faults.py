@@ -7,11 +7,10 @@ import os
 
 import numpy as np
 import pytest
-
-from gsa_jax import checkpoint
-from gsa_jax.train import main
-
 from test_cli import SMALL, read_csv, strip_wall
+
+from gsa_jax.running import checkpoint
+from gsa_jax.train import main
 
 
 class DiskFull:
@@ -137,7 +136,7 @@ def test_second_writer_is_refused(tmp_path, capsys):
     import subprocess
     import sys
 
-    from gsa_jax.runlock import LockError, acquire, hold, release
+    from gsa_jax.running.runlock import LockError, acquire, hold, release
 
     out = tmp_path / "locked"
     out.mkdir()

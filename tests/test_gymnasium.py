@@ -1,4 +1,4 @@
-"""gymnasium's own MuJoCo tasks for exported controllers (gsa_jax.gymnasium_task, deploy --gymnasium):
+"""gymnasium's own MuJoCo tasks for exported controllers (gsa_jax.deployment.gymnasium_task, deploy --gymnasium):
 layouts checked, not assumed; mismatches refused with a reason."""
 
 import json
@@ -11,7 +11,7 @@ import pytest
 gymnasium = pytest.importorskip("gymnasium")
 
 from envs.mujoco_c import BRAX_PORTS  # noqa: E402
-from gsa_jax.gymnasium_task import GymnasiumError, check_layout, make_gym  # noqa: E402
+from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_layout, make_gym
 
 
 @pytest.mark.parametrize("task, env_id", [("hopper", "Hopper-v5"), ("walker2d", "Walker2d-v5"),

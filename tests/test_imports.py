@@ -1,6 +1,7 @@
-"""The package's layers: every gsa_jax module imports only from its own layer or lower ones, and the
-result-reading and deployment modules load without JAX (reading results and running a controller must not
-pay JAX's import or need it installed as it trains)."""
+"""The package's layers, as folders: every gsa_jax module imports only from its own layer or lower ones (the
+commands at the top level sit above all of them), and the result-reading and deployment modules load
+without JAX (reading results and running a controller must not pay JAX's import or need it installed as it
+trains)."""
 
 import ast
 import glob
@@ -9,38 +10,51 @@ import subprocess
 import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
-LAYERS = (  # lowest first
-    ("foundation", {"metrics", "checkpoint", "runinfo", "runlock", "xla_cache", "nn", "optim", "normalize", "numpy_policy",
-                    "curve", "tensorboard", "stats", "shifts"}),
-    ("algorithm", {"episodes", "policies", "retrace", "ppo"}),
-    ("running", {"driver", "programs", "spec", "supervise", "store"}),
-    ("runs and deployment", {"inspection", "export_c", "export_onnx", "export", "gymnasium_task", "deploy", "render", "extract"}),
-    ("tools", {"train", "sweep", "bench", "scoring", "plot", "robustness"}),
-)
-JAX_FREE = ("numpy_policy", "plot", "stats", "robustness", "deploy", "runinfo", "extract", "metrics", "curve", "export_onnx",
-            "export_c", "gymnasium_task", "shifts", "tensorboard")
+LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
+JAX_FREE = ("deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
+            "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
+            "running.tensorboard", "analysis.stats", "analysis.results", "analysis.tables", "analysis.figures",
+            "analysis.retention", "analysis.extraction", "plot", "robustness", "deploy", "extract")
+
+
+def modules():
+    """{dotted name below gsa_jax: path} of every module, commands (top level and inspect/) included."""
+    paths = glob.glob(os.path.join(ROOT, "*.py")) + glob.glob(os.path.join(ROOT, "*", "*.py"))
+    found = {}
+    for p in paths:
+        rel = os.path.relpath(p, ROOT)[:-3].replace(os.sep, ".")
+        if not rel.endswith("__init__") and rel != "__main__":
+            found[rel] = p
+    return found
+
+
+def layer(name):
+    """A module's layer: its folder, or 'commands' for the top level (inspect/__main__ included)."""
+    head = name.split(".")[0]
+    return head if "." in name and head in LAYERS else "commands"
 
 
 def gsa_imports(path):
-    """The gsa_jax modules a file imports, anywhere in it."""
+    """The gsa_jax modules (dotted below gsa_jax) a file imports, anywhere in it."""
     deps = set()
     for n in ast.walk(ast.parse(open(path).read())):
-        if isinstance(n, ast.ImportFrom) and n.module == "gsa_jax":
-            deps.update(a.name for a in n.names)
-        elif isinstance(n, ast.ImportFrom) and n.module and n.module.startswith("gsa_jax."):
-            deps.add(n.module.split(".")[1])
+        if isinstance(n, ast.ImportFrom) and n.module and (n.module + ".").startswith("gsa_jax."):
+            base = n.module[len("gsa_jax."):] if n.module != "gsa_jax" else ""
+            deps.update(f"{base}.{a.name}".strip(".") if base in LAYERS or not base else base for a in n.names)
         elif isinstance(n, ast.Import):
-            deps.update(a.name.split(".")[1] for a in n.names if a.name.startswith("gsa_jax."))
+            deps.update(a.name[len("gsa_jax."):] for a in n.names if a.name.startswith("gsa_jax."))
     return deps
 
 
-def test_every_module_imports_only_downward():
-    level = {m: i for i, (_, mods) in enumerate(LAYERS) for m in mods}
-    modules = {os.path.basename(p)[:-3] for p in glob.glob(os.path.join(ROOT, "*.py"))} - {"__init__", "__main__"}
-    assert modules == set(level), f"place every module in a layer: missing {sorted(modules - set(level))}, gone {sorted(set(level) - modules)}"
-    upward = [f"{m} ({LAYERS[level[m]][0]}) imports {d} ({LAYERS[level[d]][0]})"
-              for m in sorted(modules) for d in sorted(gsa_imports(os.path.join(ROOT, m + ".py")) - {m}) if level[d] > level[m]]
+def test_every_module_lives_in_a_layer_folder_and_imports_only_downward():
+    mods = modules()
+    assert {layer(m) for m in mods} == set(LAYERS), sorted({layer(m) for m in mods})
+    rank = {name: i for i, name in enumerate(LAYERS)}
+    upward = [f"{m} ({layer(m)}) imports {d} ({layer(d)})" for m, p in sorted(mods.items())
+              for d in sorted(gsa_imports(p)) if rank[layer(d)] > rank[layer(m)]]
     assert not upward, "; ".join(upward)
+    unknown = sorted(d for p in mods.values() for d in gsa_imports(p) if d not in mods and d not in LAYERS)
+    assert not unknown, f"imports of modules that do not exist: {unknown}"
 
 
 def test_reading_and_deployment_modules_import_without_jax():

@@ -4,10 +4,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.checkpoint import load_pytree, save_pytree
-from gsa_jax.normalize import init_stats, normalize, update_stats
-from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.ppo import compute_gae
+from gsa_jax.algorithm.normalize import init_stats, normalize, update_stats
+from gsa_jax.algorithm.optim import adam_step, clip_by_global_norm, init_adam
+from gsa_jax.algorithm.ppo import compute_gae
+from gsa_jax.running.checkpoint import load_pytree, save_pytree
 
 
 def test_gae_hand_computed_truncation_vs_termination():
@@ -104,7 +104,7 @@ def test_checkpoint_round_trip(tmp_path):
 
 def test_checkpoint_of_a_dict_state_loads_into_the_named_tuple(tmp_path):
     """A state.npz written when the training state was a dict of the same fields resumes as TrainState."""
-    from gsa_jax.ppo import TrainState
+    from gsa_jax.algorithm.ppo import TrainState
 
     fields = {f: {"a": np.arange(3.0) + i} if f == "params" else np.float32(i) for i, f in enumerate(TrainState._fields)}
     save_pytree(str(tmp_path / "old.npz"), fields)
@@ -116,7 +116,7 @@ def test_checkpoint_of_a_dict_state_loads_into_the_named_tuple(tmp_path):
 def test_orthogonal_init_without_lapack():
     """Semi-orthogonal for every MLP shape, scaled; and no LAPACK call in a vmapped init (batched QR
     deadlocks XLA:CPU's thread pool on 2 cores)."""
-    from gsa_jax.nn import orthogonal
+    from gsa_jax.algorithm.nn import orthogonal
 
     for shape in [(11, 64), (64, 64), (64, 1), (1, 64), (64, 24)]:
         w = np.asarray(orthogonal(jax.random.PRNGKey(3), shape, scale=2.0)) / 2.0

@@ -8,10 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax.metrics import ITERATION_METRICS
-from gsa_jax.nn import init_mlp
-from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.ppo import Config, Parts, TrainState, make_hparams, ppo_loss, rollout, schedule, sgd_update, shuffle, shuffle_by_sorts
+from gsa_jax.algorithm.nn import init_mlp
+from gsa_jax.algorithm.optim import adam_step, clip_by_global_norm, init_adam
+from gsa_jax.algorithm.ppo import (
+    Config, Parts, TrainState, make_hparams, ppo_loss, rollout, schedule, sgd_update, shuffle, shuffle_by_sorts,
+)
+from gsa_jax.running.metrics import ITERATION_METRICS
 
 HP = make_hparams(K=1, clip_eps=0.2, vf_coef=0.5, gamma=0.9, max_grad_norm=0.5)
 
@@ -170,7 +172,7 @@ def test_rollout_draws_fresh_noise_for_every_step_and_env():
 
 
 def test_iteration_returns_exactly_the_listed_metrics():
-    from gsa_jax.ppo import make_train
+    from gsa_jax.algorithm.ppo import make_train
 
     tr = make_train(Config(num_envs=2, unroll_length=4, num_minibatches=2, num_epochs=1))
     hp = make_hparams(K=2)

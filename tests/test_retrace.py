@@ -1,4 +1,4 @@
-"""Retrace value targets (gsa_jax/retrace.py): a NumPy reference with off-policy ratios, episode ends and
+"""Retrace value targets (gsa_jax/algorithm/retrace.py): a NumPy reference with off-policy ratios, episode ends and
 a truncation; GAE's targets on-policy; the buffer's ring of iterations; a Retrace run equal to a GAE run
 when it keeps one iteration; a run with a full buffer killed and resumed equal to the uninterrupted run."""
 
@@ -15,15 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.ppo import (
-    Config,
-    compute_gae,
-    init_state,
-    make_hparams,
-    make_parts,
-    run_chunk,
-)
-from gsa_jax.retrace import buffer_targets, init_buffer, retrace_targets, store
+from gsa_jax.algorithm.ppo import Config, compute_gae, init_state, make_hparams, make_parts, run_chunk
+from gsa_jax.algorithm.retrace import buffer_targets, init_buffer, retrace_targets, store
 
 G, LAM = 0.9, 0.8
 # one env, 6 steps: an episode terminated at t=2, one cut by the time limit at t=4 (done, not terminated)

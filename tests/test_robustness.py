@@ -1,4 +1,4 @@
-"""gsa_jax.shifts and gsa_jax.robustness: shifted tasks change what they say and nothing else, the nominal
+"""gsa_jax.deployment.shifts and gsa_jax.robustness: shifted tasks change what they say and nothing else, the nominal
 evaluation equals the deployment runner's, the sensitivity equals finite differences, the CLI resumes."""
 
 import csv
@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from envs.mujoco_c import make_c, run_episodes
-from gsa_jax import numpy_policy
-from gsa_jax.robustness import action_jacobian_norms, main
-from gsa_jax.shifts import Shift, run_shifted, shifted_task
+from gsa_jax.analysis.retention import action_jacobian_norms
+from gsa_jax.deployment import numpy_policy
+from gsa_jax.deployment.shifts import Shift, run_shifted, shifted_task
+from gsa_jax.robustness import main
 
 
 def controller_arrays(kind, k=3, d_s=11, d_a=3, seed=0):

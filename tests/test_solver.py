@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from mujoco.mjx._src import solver
 
 import envs
 from envs import linesearch
 from envs.physics import Physics
-from mujoco.mjx._src import solver
 
 
 def test_while_loop_has_the_scan_contract_under_vmap():
@@ -181,7 +181,7 @@ def test_solver_option_rejects_bad_values(bad):
         Physics(solver_iterations=bad).validate()
     with pytest.raises(ValueError, match="ls_iterations must be an integer >= 1"):
         Physics(ls_iterations=bad).validate()
-    from gsa_jax.ppo import Config
+    from gsa_jax.algorithm.ppo import Config
 
     with pytest.raises(ValueError, match="ls_iterations"):
         Config(env="hopper", ls_iterations=bad).validate()

@@ -1,4 +1,4 @@
-"""gsa_jax.stats against NumPy / SciPy references, and gsa_jax.plot merging sweeps (fabricated tables:
+"""gsa_jax.analysis.stats against NumPy / SciPy references, and gsa_jax.plot merging sweeps (fabricated tables:
 nothing to compile)."""
 
 import csv
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from gsa_jax import stats
-from gsa_jax.plot import PlotError, plot_sweep
+from gsa_jax.analysis import stats
+from gsa_jax.analysis.figures import plot_sweep
+from gsa_jax.analysis.results import PlotError
 from gsa_jax.plot import main as plot_main
 
 FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples: enough for the checks, cheap
@@ -49,7 +50,7 @@ def test_probability_of_improvement_is_mann_whitney():
 
 def test_critics_compared_cell_by_cell():
     """A sweep listing value_targets: P(Retrace's run beats GAE's) for each retrace cell, nothing for others."""
-    from gsa_jax.plot import critic_comparisons
+    from gsa_jax.analysis.tables import critic_comparisons
 
     gae, rt = np.array([1.0, 4.0, 6.0, 8.0]), np.array([3.0, 5.0, 7.0])
     cell = lambda env, target: (env, "mixture", 6, ("value_target", target))  # noqa: E731
@@ -122,7 +123,7 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
 def test_smallest_sufficient_k_is_the_first_whose_interval_reaches_one_half():
     """The product's answer per task: the smallest K whose P(> flat PPO) interval's upper end is >= 0.5; per
     sub-policy class; none where no K reaches it (a printed line says so)."""
-    from gsa_jax.plot import sufficient_k_lines, sufficient_k_table
+    from gsa_jax.analysis.tables import sufficient_k_lines, sufficient_k_table
 
     def row(env, k, hi, sub="linear"):
         return {"env": env, "policy": "mixture", "K": k, "subpolicy": sub, "seeds": 10, "iqm": 100.0 * k,
@@ -141,7 +142,8 @@ def test_smallest_sufficient_k_is_the_first_whose_interval_reaches_one_half():
 def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):
     """Figure 1 sets K = ceil(m d_a): hopper's K = 2 is the 0.5 d_a configuration (not 0.667 d_a), and on a
     one-action task K = 1 is both 0.5 d_a and 1 d_a; K set directly is named K / d_a."""
-    from gsa_jax.plot import config_keys, spec_multipliers
+    from gsa_jax.analysis.results import spec_multipliers
+    from gsa_jax.analysis.tables import config_keys
 
     d = tmp_path / "fig1"
     d.mkdir()
@@ -169,7 +171,8 @@ def test_sweeps_with_other_settings_are_not_merged(tmp_path):
 def test_a_critic_sweep_merges_with_a_sweep_that_lists_none(tmp_path):
     """A sweep of Retrace runs alone, merged with a sweep that lists no critics (GAE): the latter's cells
     become the GAE cells the Retrace ones are compared with; the same runs with other settings are refused."""
-    from gsa_jax.plot import critic_comparisons, final_scores, load_sweeps
+    from gsa_jax.analysis.results import final_scores, load_sweeps
+    from gsa_jax.analysis.tables import critic_comparisons
 
     gae = write_sweep(tmp_path / "fig1", "hopper")
     rt = write_sweep(tmp_path / "retrace", "hopper", final={"mixture": 130.0}, critic="retrace")
@@ -196,7 +199,8 @@ def test_failed_evaluation_episodes_are_counted_and_unreturned_evaluations_repor
     before failures were counted, with a scheduled final evaluation left blank in one run: that run is
     listed in unscored_runs and a printed line, and left out of the statistics -- not scored from an
     earlier evaluation."""
-    from gsa_jax.plot import final_table, load_sweep, unscored_lines
+    from gsa_jax.analysis.results import load_sweep, unscored_lines
+    from gsa_jax.analysis.tables import final_table
 
     counted, legacy = tmp_path / "counted", tmp_path / "legacy"
     for d, with_count in ((counted, True), (legacy, False)):
@@ -223,7 +227,7 @@ def test_failed_evaluation_episodes_are_counted_and_unreturned_evaluations_repor
 
 
 def test_sweep_summary_names_the_runs_with_failed_evaluation_episodes():
-    from gsa_jax.sweep import eval_failure_lines
+    from gsa_jax.running.sweeps import eval_failure_lines
 
     counts = np.full((2, 6), np.nan)
     counts[:, [2, 5]] = [[0, 0], [1, 3]]

@@ -15,11 +15,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from golden_runs import arrays_digest, check_fingerprint, table_digest
-from gsa_jax.ppo import Config, make_hparams, make_train
-from gsa_jax.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
-from gsa_jax.sweep import SweepOptions, run_sweep
+
+from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+from gsa_jax.running.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
+from gsa_jax.running.sweeps import SweepOptions, run_sweep
 
 FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples of gsa_jax.plot: enough for the checks, cheap
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
@@ -89,7 +89,9 @@ def test_grid_with_value_targets():
 def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
     """plot_sweep on an evaluated tidy table with a subpolicy column: final scores per (class, K), flat PPO
     separate; return-vs-K draws one curve per class, its points in K order."""
-    from gsa_jax.plot import k_curves, load_sweeps, plot_sweep, setting_columns
+    from gsa_jax.analysis.figures import plot_sweep
+    from gsa_jax.analysis.results import load_sweeps, setting_columns
+    from gsa_jax.analysis.tables import k_curves
 
     lines = ["env,policy,subpolicy,K,seed,run,iteration,env_steps,episode_return,eval_return"]
     final = {("mlp", "", 1): 50.0, ("mixture", "constant", 2): 10.0, ("mixture", "constant", 4): 20.0,
@@ -204,7 +206,7 @@ def test_tidy_table(inprocess):
 def test_every_finished_runs_controller_exported(inprocess, tmp_path):
     """extract --controllers: one exported controller per run, named by env, policy, K and seed, holding that
     run's own parameters (its row of the group's params.npz, K's clusters only), loadable without JAX."""
-    from gsa_jax import numpy_policy
+    from gsa_jax.deployment import numpy_policy
     from gsa_jax.extract import main as extract_main
 
     out = tmp_path / "controllers"
@@ -224,7 +226,7 @@ def test_every_finished_runs_controller_exported(inprocess, tmp_path):
     assert extract_main([str(inprocess), "--results", str(res)]) == 0
     assert {p.name for p in res.iterdir()} == {"sweep.json", "metrics.csv.gz", "failed_runs.json", "controllers"}
     assert len(list((res / "controllers").iterdir())) == 4 and not list(res.glob("**/state.npz"))
-    from gsa_jax.plot import load_sweep
+    from gsa_jax.analysis.results import load_sweep
 
     ours, theirs = load_sweep(str(res)), load_sweep(str(inprocess))
     assert ours.keys() == theirs.keys()
@@ -318,7 +320,7 @@ def test_kill9_then_resume_equals_uninterrupted(tiny_spec_file, inprocess, tmp_p
 def assert_same_event_files(out, reference):
     """TensorBoard: one event file per run, each iteration once (a killed chunk is not repeated after the resume),
     every tidy metric as in metrics.csv and the same as the reference sweep's."""
-    from gsa_jax.tensorboard import FILE_NAME, read_scalars
+    from gsa_jax.running.tensorboard import FILE_NAME, read_scalars
 
     rows = read_rows(str(out / "metrics.csv"))
     for k, seed in ((1, 0), (1, 1), (3, 0), (3, 1)):
@@ -375,7 +377,7 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
     assert len(merged) == 8 * ITERS and {r["seed"] for r in merged} == {"0", "1", "2", "3"}
     # other runs beside them in each vmapped batch: float tolerance
     assert_same_results([r for r in merged if r["seed"] in ("0", "1")], read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
-    from gsa_jax.plot import plot_sweep
+    from gsa_jax.analysis.figures import plot_sweep
 
     png, table, rows = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     assert os.path.getsize(png) > 10_000 and [r["K"] for r in rows] == [1, 3] and all(r["seeds"] == 4 for r in rows)
@@ -385,7 +387,7 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
 def test_sub_batched_equals_vmap_with_empty_leaves():
     """sub_batched runs slices of the run axis in a scan: same outputs as one vmap, also for
     zero-size leaves (MJX data has some) and for sizes that do not divide the runs (plain vmap)."""
-    from gsa_jax.programs import sub_batched
+    from gsa_jax.running.programs import sub_batched
 
     f = jax.vmap(lambda x, h: ({"y": jnp.sin(x) * h, "e": jnp.zeros((0, 2))}, x.sum() + h))
     x, h = jnp.arange(24.0).reshape(6, 4), jnp.arange(6.0)
@@ -460,7 +462,7 @@ def test_nan_run_is_frozen_listed_and_the_others_train_on(tiny_spec_file, inproc
     assert healthy == ref  # the same strings: bit for bit
     with np.load(out / "groups" / "inverted_double_pendulum-mixture" / "params.npz") as p:
         assert all(np.all(np.isfinite(p[k])) for k in p.files)
-    from gsa_jax.plot import plot_sweep
+    from gsa_jax.analysis.figures import plot_sweep
 
     _, _, table = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     by_cell = {(r["K"], float(r["hparam_lr"])): r for r in table}
@@ -506,7 +508,7 @@ def test_unreadable_group_state_falls_back(tiny_spec_file, inprocess, tmp_path, 
 
 
 def test_changed_spec_and_second_writer_refused(tiny_spec_file, tmp_path, capsys):
-    from gsa_jax.runlock import acquire, release
+    from gsa_jax.running.runlock import acquire, release
 
     out = tmp_path / "changed"
     assert sweep_main(tiny_spec_file, out, "--stop-after-chunks", "1") == 0
@@ -526,7 +528,7 @@ def test_changed_spec_and_second_writer_refused(tiny_spec_file, tmp_path, capsys
 
 
 # Last in this file: it compiles the group with 2 runs per sub-batch, which replaces the 4-run program the
-# tests above reuse in this process (gsa_jax.programs keeps one).
+# tests above reuse in this process (gsa_jax.running.programs keeps one).
 def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp_path):
     """--run-batch 2: the group's 4 runs trained as 2 sequential sub-batches give the same runs."""
     out = tmp_path / "sub"

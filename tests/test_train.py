@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax.ppo import Config, make_hparams, make_train
+from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
 
 CHUNK = 10
 LEARN_ITERS = 30  # 30 x 2048 = 61,440 env steps
@@ -100,7 +100,7 @@ def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
     equal each run evaluated alone."""
     import jax.numpy as jnp
 
-    from gsa_jax.programs import make_group_evaluate
+    from gsa_jax.running.programs import make_group_evaluate
 
     tr, init, _ = mixture4
     hps = [make_hparams(K=k) for k in (2, 4)]
@@ -139,7 +139,7 @@ class NaNRewardAtStep5:
 def test_evaluation_with_a_forced_non_finite_episode_counts_it_and_scores_it_to_its_last_finite_step(mixture4, mixture_runs):
     """Against a NumPy reference from the unmodified task's per-step rewards: the failed episodes count
     their first 4 rewards, the others their whole episode; the failures are counted."""
-    from gsa_jax.ppo import evaluate, make_env, make_parts, norm_obs, schedule
+    from gsa_jax.algorithm.ppo import evaluate, make_env, make_parts, norm_obs, schedule
 
     tr, _, _ = mixture4
     hp, (state, _) = mixture_runs

@@ -1,4 +1,4 @@
-"""One compile for all worker processes (gsa_jax.xla_cache): a follower process waits for the leader's
+"""One compile for all worker processes (gsa_jax.running.xla_cache): a follower process waits for the leader's
 program and loads it from the cache (a cache hit, same results); without a leader it compiles by
 itself; XLA:CPU's spurious cache-load errors are dropped from stderr and nothing else is."""
 
@@ -12,14 +12,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax import xla_cache
+from gsa_jax.running import xla_cache
 
 # a process that compiles one small program through compile_shared, runs it and reports
 PROGRAM = textwrap.dedent("""
     import json, sys
     import jax, jax.numpy as jnp, numpy as np
     from jax._src import monitoring
-    from gsa_jax import xla_cache
+    from gsa_jax.running import xla_cache
 
     cache, marks, leader, grace = sys.argv[1], sys.argv[2], sys.argv[3] == "1", float(sys.argv[4])
     events = []

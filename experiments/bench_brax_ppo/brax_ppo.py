@@ -17,7 +17,8 @@ from brax import envs
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import train as ppo
 
-from gsa_jax.runinfo import run_metadata
+from gsa_jax.running.runinfo import run_metadata
+
 
 def replicate(tree, devices):
     """What jax.device_put_replicated did (removed in jax 0.10; brax 0.14.2's PPO trainer still calls it): every

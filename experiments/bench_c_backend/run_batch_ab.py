@@ -17,9 +17,9 @@ import time
 import jax
 import jax.numpy as jnp
 
-from gsa_jax.programs import make_group_program, stack_hparams
-from gsa_jax.runinfo import run_metadata
-from gsa_jax.spec import build_grid, check_spec, group_config
+from gsa_jax.running.programs import make_group_program, stack_hparams
+from gsa_jax.running.runinfo import run_metadata
+from gsa_jax.running.spec import build_grid, check_spec, group_config
 
 
 def compile_size(cfg, runs, size):

@@ -22,10 +22,10 @@ from unittest import mock
 import jax
 import jax.numpy as jnp
 
-from gsa_jax import ppo
-from gsa_jax.nn import init_mlp
-from gsa_jax.optim import init_adam
-from gsa_jax.runinfo import run_metadata
+from gsa_jax.algorithm import ppo
+from gsa_jax.algorithm.nn import init_mlp
+from gsa_jax.algorithm.optim import init_adam
+from gsa_jax.running.runinfo import run_metadata
 
 
 def update_inputs(p, hp, runs, key):

@@ -90,7 +90,7 @@ def model_differences(env_name):
     import gymnasium
 
     from envs.mujoco_c import make_c
-    from gsa_jax.gymnasium_task import GYM_OPTIONS
+    from gsa_jax.deployment.gymnasium_task import GYM_OPTIONS
 
     ours = make_c(env_name)
     gym_env = gymnasium.make(GYM_IDS[env_name], **GYM_OPTIONS.get(env_name, {})).unwrapped
@@ -119,9 +119,9 @@ def model_differences(env_name):
 
 
 def score(run_dir, out, episodes):
-    from gsa_jax import numpy_policy
-    from gsa_jax.deploy import load_controller, run_gymnasium, run_mjx, run_mujoco_c
-    from gsa_jax.export import load_arrays, write
+    from gsa_jax.deployment import numpy_policy
+    from gsa_jax.deployment.evaluation import load_controller, run_gymnasium, run_mjx, run_mujoco_c
+    from gsa_jax.deployment.exporting import load_arrays, write
 
     arrays = load_arrays(run_dir)
     env_name = json.loads(str(arrays["config_json"]))["config"]["env"]
@@ -141,7 +141,7 @@ def score(run_dir, out, episodes):
         row[f"{name}_length"] = round(summary["length_mean"], 1)
         print(f"{row['run']}: {name}: {summary['return_mean']:.1f} +- {summary['return_ci95']:.1f}", flush=True)
     obs = visited_observations(numpy_policy.load(paths["npz"]), env_name)
-    from gsa_jax.export_c import cost
+    from gsa_jax.deployment.export_c import cost
 
     details = {"onnx": check_onnx(ctrl, paths["onnx"], obs), "c": {**check_c(ctrl, paths["c"], obs), **cost(arrays)},
                "onnx_file_bytes": os.path.getsize(paths["onnx"]), "header_file_bytes": os.path.getsize(paths["c"]),
@@ -158,7 +158,7 @@ def main(argv=None):
 
     import gymnasium
 
-    from gsa_jax.runinfo import run_metadata
+    from gsa_jax.running.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     rows, details = [], {}

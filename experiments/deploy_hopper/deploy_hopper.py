@@ -24,11 +24,11 @@ def main(argv=None):
     p.add_argument("--out", default="experiments/deploy_hopper/results")
     args = p.parse_args(argv)
 
-    from gsa_jax.deploy import load_controller, run_mjx, run_mujoco_c
-    from gsa_jax.export import controller_arrays
-    from gsa_jax.checkpoint import save_npz_atomic
-    from gsa_jax.extract import extract, finished_runs, select
-    from gsa_jax.runinfo import run_metadata
+    from gsa_jax.analysis.extraction import extract, finished_runs, select
+    from gsa_jax.deployment.evaluation import load_controller, run_mjx, run_mujoco_c
+    from gsa_jax.deployment.exporting import controller_arrays
+    from gsa_jax.running.checkpoint import save_npz_atomic
+    from gsa_jax.running.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     runs = finished_runs(args.sweep_dir)

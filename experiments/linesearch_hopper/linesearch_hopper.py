@@ -22,8 +22,6 @@ import tempfile
 import numpy as np
 
 
-
-
 def one_step(states=4096, seed=0):
     """MJX (each line search) vs MuJoCo C over one physics step from states MuJoCo C visits."""
     import jax
@@ -75,9 +73,8 @@ def drift(env_name="hopper"):
     """|qpos| between the two line searches (solver_hopper.qpos_drift; the task's own solver settings,
     given explicitly for the iterative one)."""
     import envs
-    from gsa_jax.scoring import qpos_drift
-
     from envs.physics import Physics
+    from gsa_jax.analysis.scoring import qpos_drift
 
     exact, iterative = envs.make_base(env_name), envs.make_base(env_name, Physics(linesearch="iterative"))
     assert [envs.solver_settings(e)["linesearch_in_force"] for e in (exact, iterative)] == ["exact", "iterative"]
@@ -93,8 +90,8 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     from envs.physics import Physics
-    from gsa_jax.runinfo import run_metadata
-    from gsa_jax.scoring import mean_ci, score_sweep, write_rows
+    from gsa_jax.analysis.scoring import mean_ci, score_sweep, write_rows
+    from gsa_jax.running.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     step = one_step()

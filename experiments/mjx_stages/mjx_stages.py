@@ -16,10 +16,10 @@ import numpy as np
 
 def stage_times(mode, batch=256, n=40, repeats=7):
     import jax
+    from mujoco.mjx._src import collision_driver, constraint, forward, smooth, solver
 
     import envs
     from envs.physics import Physics, applied
-    from mujoco.mjx._src import collision_driver, constraint, forward, smooth, solver
 
     env = envs.make_base("hopper")
     m = env.sys
@@ -72,7 +72,7 @@ def main(argv=None):
     p = argparse.ArgumentParser()
     p.add_argument("--out", default="experiments/mjx_stages/results")
     args = p.parse_args(argv)
-    from gsa_jax.runinfo import run_metadata
+    from gsa_jax.running.runinfo import run_metadata
 
     res = {"unit": "us per env per physics step, batch 256, 1 process", **run_metadata()}
     for mode in ("exact", "iterative"):

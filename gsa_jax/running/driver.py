@@ -7,8 +7,8 @@ loop, atomic checkpoints after every chunk (through the store), the heartbeat, t
 outcome (a run whose loss or parameters turned NaN/inf is frozen inside the compiled program; the
 group stops once every run has failed), the deterministic-evaluation schedule, progress lines with
 steps/s and ETA, and the timings. What differs between a single run and a sweep group is
-outside it: the compiled program (gsa_jax.programs) and the files (a store: train.RunStore,
-sweep.GroupStore).
+outside it: the compiled program (gsa_jax.running.programs) and the files (a store: single.RunStore,
+sweeps.GroupStore).
 
 A store has three methods: `load(state)` -> (state, metrics, done) of the last intact checkpoint or
 None; `save(state, metrics, done)` after every chunk; `finish(state, metrics, done, timing)` once
@@ -23,7 +23,7 @@ from typing import Callable, NamedTuple
 import jax
 import numpy as np
 
-from gsa_jax.metrics import EVAL_METRICS, ITERATION_METRICS
+from gsa_jax.running.metrics import EVAL_METRICS, ITERATION_METRICS
 
 HOST_METRICS = ITERATION_METRICS + ("failed_at",) + EVAL_METRICS + ("wall_s",)
 
@@ -31,7 +31,7 @@ HOST_METRICS = ITERATION_METRICS + ("failed_at",) + EVAL_METRICS + ("wall_s",)
 class Program(NamedTuple):
     """A compiled training program of `runs` runs. run(state, hps) -> (state, metrics {name: [R, chunk]}
     or [chunk] when not batched); evaluate(state, hps, iteration) -> ([R], [R]) (or scalars): the
-    deterministic controllers' mean returns and failed episodes (gsa_jax.episodes), or None; place(host tree) -> the tree on the program's devices; how: how it was obtained."""
+    deterministic controllers' mean returns and failed episodes (gsa_jax.algorithm.episodes), or None; place(host tree) -> the tree on the program's devices; how: how it was obtained."""
 
     runs: int
     state: object

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.nn import apply_mlp, init_mlp
+from gsa_jax.algorithm.nn import apply_mlp, init_mlp
 
 POLICY_KINDS = ("mixture", "mlp")
 SUBPOLICY_KINDS = ("constant", "linear", "quadratic")

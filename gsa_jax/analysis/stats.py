@@ -3,7 +3,7 @@ IQM with stratified bootstrap confidence intervals, probability of improvement, 
 Plain NumPy in, plain NumPy out; gsa_jax.plot draws and tabulates them.
 
 A run's final score is the mean deterministic return of its last FINAL_EVALUATIONS scheduled evaluations
-(gsa_jax.metrics; an evaluation's failed episodes count up to their last finite step, gsa_jax.episodes);
+(gsa_jax.running.metrics; an evaluation's failed episodes count up to their last finite step, gsa_jax.algorithm.episodes);
 runs of a sweep without evaluations fall back to the mean training return over the last 10% of
 iterations (final_score says which).
 """
@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 
-from gsa_jax.metrics import FINAL_EVALUATIONS
+from gsa_jax.running.metrics import FINAL_EVALUATIONS
 
 REPS = 2000  # bootstrap resamples of the tables' intervals
 CURVE_REPS = 300  # ... of learning-curve bands (one interval per plotted point: rliable takes ~0.5 ms a resample)

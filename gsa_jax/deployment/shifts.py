@@ -94,7 +94,7 @@ def task_step_seconds(task):
 
 
 def run_shifted(ctrl, env_name, shift, seeds, length=1000, record=False):
-    """Deterministic episodes of the controller (gsa_jax.numpy_policy) under the shift, one per start seed,
+    """Deterministic episodes of the controller (gsa_jax.deployment.numpy_policy) under the shift, one per start seed,
     stepped together -> (returns [E], lengths [E], observations the controller saw [N, d_s] if record)."""
     tasks = [shifted_task(env_name, shift) for _ in seeds]
     obs = np.stack([t.reset(int(s)) for t, s in zip(tasks, seeds)]).astype(np.float64)

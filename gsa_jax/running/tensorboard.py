@@ -22,7 +22,7 @@ from tensorboardX.proto.event_pb2 import Event
 from tensorboardX.proto.summary_pb2 import Summary
 from tensorboardX.record_writer import RecordWriter
 
-from gsa_jax.metrics import TIDY_METRICS
+from gsa_jax.running.metrics import TIDY_METRICS
 
 FILE_NAME = "events.out.tfevents.gsa_jax"
 SECTIONS = {"episode_return": "returns", "eval_return": "returns", "eval_failures": "returns",

@@ -16,10 +16,10 @@ import tomllib
 from typing import NamedTuple
 
 import envs
-from gsa_jax.metrics import EVALUATIONS_PER_RUN
-from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS
-from gsa_jax.ppo import HPARAM_DEFAULTS, Config, check_hparam
-from gsa_jax.retrace import VALUE_TARGETS
+from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS
+from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, check_hparam
+from gsa_jax.algorithm.retrace import VALUE_TARGETS
+from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
                "eval_every", "eval_seed", "hparams", "config")
@@ -37,7 +37,7 @@ class SpecError(ValueError):
 @dataclasses.dataclass(frozen=True)
 class SweepSpec:
     """A checked experiment. Lists are tuples; hparams {name: tuple of values}; config the static
-    gsa_jax.ppo.Config fields as written. None: the field is absent from the file (its default applies)."""
+    gsa_jax.algorithm.ppo.Config fields as written. None: the field is absent from the file (its default applies)."""
 
     name: str
     envs: tuple

@@ -14,7 +14,7 @@ import subprocess
 import time
 
 from envs.physics import LOCAL_WORKERS_ENV
-from gsa_jax.checkpoint import write_atomic
+from gsa_jax.running.checkpoint import write_atomic
 
 SINGLE_THREAD_EIGEN = "--xla_cpu_multi_thread_eigen=false"
 

@@ -11,7 +11,7 @@ import json
 
 import numpy as np
 
-from gsa_jax.numpy_policy import Controller
+from gsa_jax.deployment.numpy_policy import Controller
 
 OPSET = 17
 IR_VERSION = 8  # the IR of opset 17: readable by every onnxruntime that runs opset 17

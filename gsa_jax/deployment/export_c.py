@@ -12,7 +12,7 @@ import json
 
 import numpy as np
 
-from gsa_jax.numpy_policy import Controller
+from gsa_jax.deployment.numpy_policy import Controller
 
 
 def _floats(a):

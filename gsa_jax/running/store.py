@@ -1,13 +1,13 @@
-"""What the stores of a single run (gsa_jax.train.RunStore) and of a sweep group (gsa_jax.sweep.GroupStore)
+"""What the stores of a single run (gsa_jax.running.single.RunStore) and of a sweep group (gsa_jax.running.sweeps.GroupStore)
 share: their directory, the resume check (a checkpoint exists), TensorBoard event files that restart from the
 checkpoint and follow every save, and the one warning path for what a user must see even with --quiet.
 Each store keeps its own file layout (the run's metrics.csv is its table; a group's metrics.npz holds every
-run's arrays); both are driver stores (gsa_jax.driver: load, save, finish)."""
+run's arrays); both are driver stores (gsa_jax.running.driver: load, save, finish)."""
 
 import os
 import sys
 
-from gsa_jax.tensorboard import Board, follow
+from gsa_jax.running.tensorboard import Board, follow
 
 STATE_FILES = ("state.npz", "state.prev.npz")
 

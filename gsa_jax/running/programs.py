@@ -17,9 +17,9 @@ import numpy as np
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from gsa_jax import xla_cache
-from gsa_jax.driver import Program
-from gsa_jax.ppo import Config, make_hparams, make_train
+from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+from gsa_jax.running import xla_cache
+from gsa_jax.running.driver import Program
 
 
 def stack_hparams(runs, names, iterations):

@@ -1,6 +1,6 @@
 """The names of what a training run measures, defined once (no JAX import: the plotting tools read them).
 
-ITERATION_METRICS: what the compiled program returns for every PPO iteration (gsa_jax.ppo), in the
+ITERATION_METRICS: what the compiled program returns for every PPO iteration (gsa_jax.algorithm.ppo), in the
 column order of the tidy tables. A single run's metrics.csv adds the deterministic evaluation and
 the wall clock (RUN_COLUMNS); a sweep's tidy metrics.csv has TIDY_METRICS after its run columns.
 """
@@ -10,7 +10,7 @@ ITERATION_METRICS = (
     "value_loss", "approx_kl", "clip_fraction", "grad_norm", "partition_entropy", "clusters_used",
 )
 # eval_return: the deterministic controller's mean return over its evaluation episodes, where evaluated;
-# eval_failures: how many of those episodes failed (non-finite reward or observation: gsa_jax.episodes).
+# eval_failures: how many of those episodes failed (non-finite reward or observation: gsa_jax.algorithm.episodes).
 EVAL_METRICS = ("eval_return", "eval_failures")
 TIDY_METRICS = ITERATION_METRICS[:3] + EVAL_METRICS + ITERATION_METRICS[3:]  # a sweep's tidy metrics.csv
 RUN_COLUMNS = TIDY_METRICS + ("wall_s",)  # a single run's metrics.csv

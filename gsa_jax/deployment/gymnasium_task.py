@@ -115,7 +115,7 @@ def check_layout(task, env, env_id, steps=50, seed=0):
 
 
 def run_episodes(env, controller, episodes, seed=0):
-    """Deterministic controller (gsa_jax.numpy_policy) in gymnasium's env, episodes ended by its own
+    """Deterministic controller (gsa_jax.deployment.numpy_policy) in gymnasium's env, episodes ended by its own
     termination and time limit. Actions clipped to the action space. -> returns, lengths [episodes]."""
     lo, hi = env.action_space.low, env.action_space.high
     returns, lengths = [], []

@@ -11,14 +11,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from gsa_jax.checkpoint import save_npz_atomic
-from gsa_jax.deploy import load_controller, run_mujoco_c
-from gsa_jax.episodes import step_episodes
-from gsa_jax.export import controller_arrays
-from gsa_jax.extract import extract, finished_runs, select
-from gsa_jax.inspection import last_iteration, load_run
-from gsa_jax.normalize import normalize
-from gsa_jax.ppo import schedule
+from gsa_jax.algorithm.episodes import step_episodes
+from gsa_jax.algorithm.normalize import normalize
+from gsa_jax.algorithm.ppo import schedule
+from gsa_jax.analysis.extraction import extract, finished_runs, select
+from gsa_jax.deployment.evaluation import load_controller, run_mujoco_c
+from gsa_jax.deployment.exporting import controller_arrays
+from gsa_jax.deployment.inspection import last_iteration, load_run
+from gsa_jax.running.checkpoint import save_npz_atomic
 
 
 def load_cell(sweep_dir, env_name, policy, k, tmp):
@@ -40,8 +40,6 @@ def make_eval(cfg, policy_obj, episodes, physics):
     """jit(vmap over runs) of the returns [runs, episodes] of deterministic episodes in cfg's task with
     `physics` (envs.physics.Physics; None: the defaults); params are arguments, so one compile serves a
     whole cell."""
-
-
     env = envs.make(cfg.env, cfg.episode_length, auto_reset=False, physics=physics)
 
     def one(params, obs_stats, hp, iteration, key):
@@ -132,8 +130,6 @@ def mean_ci(rows, cols):
 def random_policy_return(env_name, episodes=16, seed=0, episode_length=None):
     """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
     score that normalizes to 0), from the start states of PRNGKey(seed)."""
-
-
     env = envs.make(env_name, episode_length, auto_reset=False)
     length = episode_length or envs.default_episode_length(env_name)
 

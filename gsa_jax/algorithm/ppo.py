@@ -27,12 +27,12 @@ import jax.numpy as jnp
 
 import envs
 from envs.physics import Physics
-from gsa_jax.episodes import step_episodes
-from gsa_jax.nn import apply_mlp, init_mlp
-from gsa_jax.normalize import init_stats, normalize, update_stats
-from gsa_jax.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.policies import POLICY_KINDS, SUBPOLICY_KINDS, draw_noise, make_policy, partition_entropy
-from gsa_jax.retrace import VALUE_TARGETS, buffer_targets, init_buffer, store
+from gsa_jax.algorithm.episodes import step_episodes
+from gsa_jax.algorithm.nn import apply_mlp, init_mlp
+from gsa_jax.algorithm.normalize import init_stats, normalize, update_stats
+from gsa_jax.algorithm.optim import adam_step, clip_by_global_norm, init_adam
+from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS, draw_noise, make_policy, partition_entropy
+from gsa_jax.algorithm.retrace import VALUE_TARGETS, buffer_targets, init_buffer, store
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +55,7 @@ class Config:
     b_init_scale: float = 1.0
     eval_envs: int = 16
     # the value function's targets: "gae" (GAE(lambda) on the iteration's own samples) or "retrace"
-    # (the paper's critic: Retrace over the samples of the last retrace_iterations iterations, gsa_jax/retrace.py)
+    # (the paper's critic: Retrace over the samples of the last retrace_iterations iterations, gsa_jax/algorithm/retrace.py)
     value_target: str = "gae"
     retrace_iterations: int = 4
     # physics options (envs/physics.py): MJX solver iterations (None = the task's own MJCF settings; an int
@@ -274,7 +274,7 @@ class TrainState(NamedTuple):
     key: jax.Array
     iteration: jax.Array  # int32 scalar: iterations done
     failed_at: jax.Array  # int32 scalar: the iteration whose loss or parameters were non-finite; -1 while healthy
-    buffer: dict | None = None  # value_target "retrace": the last iterations' samples (gsa_jax/retrace.py); else None
+    buffer: dict | None = None  # value_target "retrace": the last iterations' samples (gsa_jax/algorithm/retrace.py); else None
 
 
 def init_state(p, key, hp):
@@ -504,7 +504,7 @@ def run_chunk(p, state, hp, num_iterations):
 def evaluate(p, params, obs_stats, hp, key):
     """(mean return, failed episodes) of the deterministic controller (most probable cluster, mean action)
     over p.cfg.eval_envs full episodes from random starts. A failed episode (non-finite reward or
-    observation while alive: gsa_jax.episodes) ends at its last finite step; the count says how many."""
+    observation while alive: gsa_jax.algorithm.episodes) ends at its last finite step; the count says how many."""
     sched = schedule(hp, jnp.zeros((), jnp.int32))
     s0 = jax.vmap(p.eval_env.reset)(jax.random.split(key, p.cfg.eval_envs))
 

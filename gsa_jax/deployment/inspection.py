@@ -19,11 +19,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.checkpoint import load_pytree
-from gsa_jax.episodes import step_episodes
-from gsa_jax.normalize import normalize
-from gsa_jax.policies import draw_noise
-from gsa_jax.ppo import Config, make_env, make_hparams, make_train, schedule
+from gsa_jax.algorithm.episodes import step_episodes
+from gsa_jax.algorithm.normalize import normalize
+from gsa_jax.algorithm.policies import draw_noise
+from gsa_jax.algorithm.ppo import Config, make_env, make_hparams, make_train, schedule
+from gsa_jax.running.checkpoint import load_pytree
 
 
 class InspectError(Exception):
@@ -59,8 +59,6 @@ def last_iteration(meta):
 
 def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iteration):
     """Full episodes (no auto-reset) -> dict of arrays [T, episodes, ...] and alive mask."""
-
-
     cfg = trainer.cfg
     env = make_env(cfg, auto_reset=False)
     pol = trainer.policy
@@ -106,7 +104,7 @@ def cluster_stats(cluster, alive, k):
 
 
 def feature_names(subpolicy, obs_names):
-    """Names of the sub-policy features phi(z) (see gsa_jax.policies.subpolicy_features)."""
+    """Names of the sub-policy features phi(z) (see gsa_jax.algorithm.policies.subpolicy_features)."""
     if subpolicy == "constant":
         return []
     if subpolicy == "linear":

@@ -1,0 +1,165 @@
+"""A sweep's figures and tables written to disk: learning curves, return vs K, performance profiles
+(`plot_sweep`, which `python -m gsa_jax.plot` runs)."""
+
+import math
+import os
+
+import numpy as np
+
+from gsa_jax.analysis import stats
+from gsa_jax.analysis.results import (
+    drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, unscored_lines,
+    write_csv,
+)
+from gsa_jax.analysis.tables import (
+    aggregate_table, cell_curves, cell_label, cell_order, final_table, k_curves, normalized_scores, sufficient_k_lines,
+    sufficient_k_table,
+)
+
+
+def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE_REPS):
+    """Per task, the IQM learning curve of every cell with its 95% bootstrap band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    window = max(1, min(len(s["episode_return"]) for seeds in data.values() for s in seeds.values()) // 50)
+    curves = cell_curves(data, column, window, reps)
+    env_names = list(dict.fromkeys(c[0] for c in sorted(data)))
+    ncols = min(3, len(env_names))
+    fig, axes = plt.subplots(math.ceil(len(env_names) / ncols), ncols, figsize=(max(7.0, 5.2 * ncols), 3.9 * math.ceil(len(env_names) / ncols) + 0.3), squeeze=False)
+    for ax, env_name in zip(axes.flat, env_names):
+        cells = sorted((c for c in data if c[0] == env_name), key=cell_order)
+        for i, cell in enumerate(c for c in cells if c in curves):
+            xs, iqm, lo, hi = curves[cell]
+            style = dict(color="black", lw=2.0) if cell[1] == "mlp" else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
+            n_failed = f", {len(failed[cell])} failed (NaN/inf), not shown" if cell in failed else ""
+            ax.plot(xs, iqm, marker="o" if column == "eval_return" else None, ms=3,
+                    label=f"{cell_label(cell, action_dims)} (n={len(data[cell])}{n_failed})", **style)
+            ax.fill_between(xs, lo, hi, alpha=0.18, color=style["color"], lw=0)
+        ax.set(title=env_name, xlabel="environment steps", ylabel="episode return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    for ax in list(axes.flat)[len(env_names):]:
+        ax.axis("off")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def mark_sufficient_k(ax, table, env_name):
+    """A dotted vertical line at each of the task's smallest sufficient K (sufficient_k_table)."""
+    for r in table:
+        if r["env"] == env_name and r["smallest_sufficient_K"] != "":
+            ax.axvline(r["smallest_sufficient_K"], color="tab:green", ls=":", lw=1.5,
+                       label=f"smallest K on par with flat PPO: {r['smallest_sufficient_K']}")
+
+
+def plot_return_vs_k(rows, path, settings=()):
+    """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band. One
+    curve per value of the `settings` columns (the cells' sub-policy class, critic, swept hyperparameters)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    env_names = list(dict.fromkeys(r["env"] for r in rows))
+    table = sufficient_k_table(rows, settings)
+    fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
+    for ax, env_name in zip(axes.flat, env_names):
+        mark_sufficient_k(ax, table, env_name)
+        curves = k_curves(rows, env_name, settings)
+        all_ks = sorted({r["K"] for pts in curves.values() for r in pts})
+        for extra, pts in curves.items():
+            iqm = np.array([r["iqm"] for r in pts], float)
+            err = np.array([[r["iqm"] - r["iqm_ci_low"], r["iqm_ci_high"] - r["iqm"]] for r in pts], float).T
+            sub = dict(extra).get("subpolicy") or "linear"
+            rest = "".join(f", {c}={v}" for c, v in extra if c != "subpolicy")
+            ax.errorbar([r["K"] for r in pts], iqm, yerr=err, fmt="o-", capsize=3, label=f"mixture of K {sub} controllers{rest}")
+        if all_ks:
+            ax.set_xscale("log", base=2)
+            ax.set_xticks(all_ks, [f"{int(k)}" for k in all_ks])
+        for r in rows:
+            if r["env"] == env_name and r["policy"] == "mlp" and r["seeds"]:
+                ax.axhspan(r["iqm_ci_low"], r["iqm_ci_high"], color="k", alpha=0.15, lw=0)
+                ax.axhline(r["iqm"], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
+        ax.set(title=env_name, xlabel="K (number of clusters / sub-policies)", ylabel=f"final score ({rows[0].get('score', '')})")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("How many (and how complex) controllers does the task need?\n(final score: IQM, 95% bootstrap CI)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+PROFILE_XLABEL = "normalized score tau (0 = random policy, 1 = flat PPO's final IQM)"
+
+
+def plot_profiles(normalized, path, reps=stats.REPS, xlabel=PROFILE_XLABEL):
+    """Performance profiles: the fraction of runs (averaged over tasks) whose normalized score exceeds tau.
+    normalized: {(configuration, (column, value)...): (tasks, scores [runs, tasks])}."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    top = max(1.5, max(float(np.max(m)) for _, m in normalized.values()))
+    taus = np.linspace(0.0, top, 60)
+    prof = stats.performance_profiles({str(k): m for k, (_, m) in normalized.items()}, taus, reps)
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for i, (k, (tasks, _)) in enumerate(normalized.items()):
+        frac, lo, hi = prof[str(k)]
+        color = "black" if k[0] == "flat PPO" else plt.cm.viridis(i / max(1, len(normalized) - 1) * 0.9)
+        ax.plot(taus, frac, color=color, label=" ".join([k[0]] + [f"{c}={v}" for c, v in k[1:] if v != ""]) + f" ({len(tasks)} tasks)")
+        ax.fill_between(taus, lo, hi, color=color, alpha=0.15, lw=0)
+    ax.set(xlabel=xlabel, ylabel="fraction of runs with score > tau")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, log=print, reps=stats.REPS,
+               curve_reps=stats.CURVE_REPS):
+    """Every figure and table of the merged sweeps into out_dir (default: the first directory); reps /
+    curve_reps: bootstrap resamples of the tables' intervals / of each learning-curve point's band.
+    Returns (figure.png path, final_returns.csv path, final_returns rows)."""
+    dirs = [sweep_dirs] if isinstance(sweep_dirs, str) else list(sweep_dirs)
+    out_dir = out_dir or dirs[0]
+    os.makedirs(out_dir, exist_ok=True)
+    failed_runs = [f for d in dirs for f in load_failed(d)]
+    data, failed = drop_failed(load_sweeps(dirs), failed_runs)
+    if action_dims is None:
+        import envs
+
+        action_dims = {e: envs.action_size(e) for e in {c[0] for c in data}}
+    evaluated = any(np.isfinite(s["eval_return"]).any() for seeds in data.values() for s in seeds.values())
+    png = os.path.join(out_dir, "figure.png")
+    plot_curves(data, action_dims, failed, "eval_return" if evaluated else "episode_return", png,
+                "Flat PPO vs mixtures of K linear controllers: " + ("deterministic controllers" if evaluated else "training return")
+                + "\n(IQM over seeds, 95% bootstrap band)", curve_reps)
+    plot_curves(data, action_dims, failed, "episode_return", os.path.join(out_dir, "figure_training.png"),
+                "Training return (stochastic policy)\n(IQM over seeds, 95% bootstrap band)", curve_reps)
+    rows = final_table(data, action_dims, failed, reps)
+    for line in unscored_lines(rows):
+        log(line)
+    table = os.path.join(out_dir, "final_returns.csv")
+    write_csv(table, rows)
+    scored = [r for r in rows if r["seeds"]]
+    plot_return_vs_k(scored, os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
+    sufficient = sufficient_k_table(scored, setting_columns(data))
+    if sufficient:
+        write_csv(os.path.join(out_dir, "sufficient_k.csv"), sufficient)
+        log("How many linear controllers does each task need (smallest K on par with flat PPO or better)?")
+        for line in sufficient_k_lines(sufficient):
+            log(line)
+    if random_returns is None:
+        random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
+    normalized = normalized_scores(data, action_dims, random_returns, spec_multipliers(dirs))
+    if normalized:
+        write_csv(os.path.join(out_dir, "aggregate.csv"), aggregate_table(normalized, reps))
+        plot_profiles(normalized, os.path.join(out_dir, "performance_profile.png"), reps)
+    return png, table, rows

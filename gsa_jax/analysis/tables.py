@@ -1,0 +1,234 @@
+"""The statistics tables of a sweep's results (rliable via gsa_jax.analysis.stats): final scores per cell,
+normalized aggregates, smallest sufficient K, learning-curve bands."""
+
+import math
+from collections import defaultdict
+
+import numpy as np
+
+from gsa_jax.analysis import stats
+from gsa_jax.analysis.results import eval_failures, final_scores, unscored_runs
+
+
+def smooth(y, window):
+    """Trailing mean over `window` iterations, ignoring NaN (iterations where no episode ended)."""
+    if window <= 1:
+        return y
+    ok = np.isfinite(y)
+    c = np.concatenate([[0.0], np.cumsum(np.where(ok, y, 0.0))])
+    n = np.concatenate([[0], np.cumsum(ok)])
+    idx = np.arange(1, len(y) + 1)
+    lo = np.maximum(0, idx - window)
+    cnt = n[idx] - n[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, (c[idx] - c[lo]) / np.maximum(cnt, 1), np.nan)
+
+
+def cell_label(cell, action_dims):
+    env, policy, k = cell[:3]
+    extra = "".join(f", {v}" if c == "subpolicy" else f", {c}={v}" for c, v in cell[3:] if v != "")
+    if policy == "mlp":
+        return "flat PPO (MLP 64x64)" + extra
+    d_a = action_dims.get(env)
+    mult = f" ({k / d_a:.3g} d_a)" if d_a else ""
+    return f"K={k}{mult}" + extra
+
+
+def cell_order(cell):
+    return cell[0], cell[1] != "mlp", cell[2], cell[3:]
+
+
+def flat_cell(cell, cells):
+    """The flat PPO cell a mixture cell is compared with: same env and swept settings (sub-policy aside)."""
+    rest = tuple((c, v) for c, v in cell[3:] if c != "subpolicy")
+    flats = [c for c in cells if c[0] == cell[0] and c[1] == "mlp"]
+    same = [c for c in flats if tuple((k, v) for k, v in c[3:] if k != "subpolicy") == rest]
+    return (same or (flats if len(flats) == 1 else [None]))[0]
+
+
+def cell_row(cell, scores, kind, data, action_dims, versus, reps=stats.REPS):
+    """One row of final_returns.csv (statistics of a cell's final scores)."""
+    env, policy, k = cell[:3]
+    n = len(scores)
+    mean, half = stats.mean_ci(scores) if n else (math.nan, math.nan)
+    iqm = stats.iqm_ci({"c": scores[:, None]}, reps=reps)["c"] if n else (math.nan,) * 3
+    train = np.array([stats.final_score([], s["episode_return"])[0] for s in data[cell].values()])
+    t_mean, t_half = stats.mean_ci(train[np.isfinite(train)]) if np.isfinite(train).any() else (math.nan, math.nan)
+    area = np.array([stats.curve_score(s["eval_return"]) for s in data[cell].values()])
+    area = area[np.isfinite(area)]
+    auc = stats.iqm_ci({"c": area[:, None]}, reps=reps)["c"] if len(area) else (math.nan,) * 3
+    p = versus or (math.nan,) * 3
+    r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
+    return {"env": env, "policy": policy, "K": k if policy == "mixture" else "",
+            "K_over_action_dim": round(k / action_dims[env], 3) if policy == "mixture" and env in action_dims else "",
+            **dict(cell[3:]), "seeds": n, "score": kind, "final_return_mean": r(mean), "ci95_halfwidth": r(half),
+            "iqm": r(iqm[0]), "iqm_ci_low": r(iqm[1]), "iqm_ci_high": r(iqm[2]),
+            "p_better_than_flat_ppo": r(p[0]), "p_ci_low": r(p[1]), "p_ci_high": r(p[2]),
+            "training_return_mean": r(t_mean), "training_ci95_halfwidth": r(t_half),
+            "curve_iqm": r(auc[0]), "curve_ci_low": r(auc[1]), "curve_ci_high": r(auc[2]),
+            "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
+
+
+def critic_comparisons(scores, reps=stats.REPS):
+    """{retrace cell: P(better than the same cell with GAE's critic) with its CI} for sweeps that list
+    value_targets; {} otherwise."""
+    pairs = {}
+    for cell, (sc, _) in scores.items():
+        if ("value_target", "retrace") in cell[3:]:
+            gae = cell[:3] + tuple((c, "gae" if c == "value_target" else v) for c, v in cell[3:])
+            if gae in scores and len(sc) and len(scores[gae][0]):
+                pairs[cell] = (sc[:, None], scores[gae][0][:, None])
+    return stats.improvement_probability(pairs, reps=reps) if pairs else {}
+
+
+def final_table(data, action_dims, failed=None, reps=stats.REPS):
+    """final_returns.csv rows: per cell, statistics of its final scores and P(better than flat PPO)."""
+    failed = failed or {}
+    scores = final_scores(data)
+    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == "mixture"
+             for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
+    versus = stats.improvement_probability(pairs, reps=reps) if pairs else {}
+    critics = critic_comparisons(scores, reps)
+    unscored = unscored_runs(data)
+    rows = []
+    for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
+        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
+                     "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
+    for cell in sorted(data, key=cell_order):
+        row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell), reps)
+        if critics:
+            p = critics.get(cell, (math.nan,) * 3)
+            row.update({k: "" if not np.isfinite(v) else round(float(v), 3)
+                        for k, v in zip(("p_better_than_gae", "p_gae_ci_low", "p_gae_ci_high"), p)})
+        rows.append(dict(row, failed_runs=" ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, []))),
+                         eval_failures=eval_failures(data[cell]),
+                         unscored_runs=" ".join(f"{s}@{'+'.join(map(str, its))}" for s, its in unscored.get(cell, []))))
+    return rows
+
+
+def config_keys(cell, action_dims, multipliers):
+    """The configurations across tasks a cell belongs to: flat PPO, or "K = m d_a" for every multiplier m
+    of its sweep that gives its K (K = ceil(m d_a), as Figure 1 sets K: on a task with one action, K = 1
+    is both 0.5 d_a and 1 d_a), or K / d_a when K was set directly; with the swept settings."""
+    from gsa_jax.running.spec import cluster_count
+
+    env, policy, k = cell[:3]
+    if policy == "mlp":
+        return [("flat PPO",) + tuple(cell[3:])]
+    if env not in action_dims:
+        return [(f"K = {k}",) + tuple(cell[3:])]
+    ms = [m for m in multipliers.get(env, []) if cluster_count(m, action_dims[env]) == k]
+    labels = [f"K = {m:g} d_a" for m in ms] or [f"K = {k / action_dims[env]:.3g} d_a"]
+    return [(label,) + tuple(cell[3:]) for label in labels]
+
+
+def config_order(key):
+    """Sort key of a configuration: flat PPO first, then by K (or K / d_a), then the settings."""
+    words = key[0].split()
+    return (key[0] != "flat PPO", float(words[2]) if len(words) > 2 else 0.0, str(key[1:]))
+
+
+def normalized_scores(data, action_dims, random_returns, multipliers=None):
+    """{config: [runs, tasks] normalized final scores} (0 = random policy, 1 = flat PPO's final IQM on the
+    task); tasks without a flat PPO cell or a random-policy return are left out; runs cut to the fewest.
+    multipliers: spec_multipliers of the sweeps (configs named by them, see config_keys)."""
+    scores = final_scores(data)
+    by_config = defaultdict(dict)
+    for cell in data:
+        flat = flat_cell(cell, data) if cell[1] == "mixture" else cell
+        if flat is None or cell[0] not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
+            continue
+        ref = stats.iqm(scores[flat][0][:, None])  # the point only: no bootstrap per mixture cell
+        for key in config_keys(cell, action_dims, multipliers or {}):
+            by_config[key][cell[0]] = stats.normalize(scores[cell][0], random_returns[cell[0]], ref)
+    out = {}
+    for config, tasks in sorted(by_config.items(), key=lambda kv: config_order(kv[0])):
+        n = min(len(v) for v in tasks.values())
+        out[config] = (sorted(tasks), np.stack([tasks[t][:n] for t in sorted(tasks)], axis=1))
+    return out
+
+
+def aggregate_table(normalized, reps=stats.REPS):
+    """aggregate.csv rows: per configuration, IQM of normalized scores over tasks and P(better than flat PPO)."""
+    if not normalized:
+        return []
+    iqm = stats.iqm_ci({str(k): m for k, (_, m) in normalized.items()}, reps=reps)
+    flats = {tuple(c for c in k[1:] if c[0] != "subpolicy"): k for k in normalized if k[0] == "flat PPO"}
+    pairs = {}
+    for k, (tasks, m) in normalized.items():
+        f = flats.get(tuple(c for c in k[1:] if c[0] != "subpolicy"))
+        if k[0] != "flat PPO" and f is not None and normalized[f][0] == tasks:
+            n = min(len(m), len(normalized[f][1]))
+            pairs[str(k)] = (m[:n], normalized[f][1][:n])
+    better = stats.improvement_probability(pairs, reps=reps) if pairs else {}
+    rows = []
+    for k, (tasks, m) in normalized.items():
+        p = better.get(str(k), ("",) * 3)
+        rows.append({"config": k[0], **dict(k[1:]), "tasks": " ".join(tasks), "runs_per_task": m.shape[0],
+                     "normalized_iqm": round(iqm[str(k)][0], 3), "iqm_ci_low": round(iqm[str(k)][1], 3),
+                     "iqm_ci_high": round(iqm[str(k)][2], 3), "p_better_than_flat_ppo": p[0] if p[0] == "" else round(p[0], 3),
+                     "p_ci_low": p[1] if p[1] == "" else round(p[1], 3), "p_ci_high": p[2] if p[2] == "" else round(p[2], 3)})
+    return rows
+
+
+def cell_curves(data, column, window, reps=stats.CURVE_REPS):
+    """{cell: (env_steps [P], IQM [P], low [P], high [P])}: IQM over seeds with bootstrap bands of the
+    training return (smoothed over `window` iterations) or of the evaluations (where evaluated)."""
+    curves, steps = {}, {}
+    for cell, seeds in data.items():
+        n = min(len(s[column]) for s in seeds.values())
+        m = np.stack([s[column][:n] for s in seeds.values()])
+        if column == "episode_return":
+            m = np.stack([smooth(y, window) for y in m])
+        if column == "eval_return":
+            keep = np.where(np.all(np.isfinite(m), axis=0))[0]
+            m = m[:, keep]
+        else:
+            keep = np.arange(n)
+        curves[cell], steps[cell] = m, next(iter(seeds.values()))["env_steps"][:n][keep]
+    est = stats.iqm_curves({c: m for c, m in curves.items() if m.size}, reps=reps)
+    return {c: (steps[c][idx], iqm, lo, hi) for c, (idx, iqm, lo, hi) in est.items()}
+
+
+def k_curves(rows, env_name, settings):
+    """{((column, value) of `settings`...): the task's mixture rows of final_returns.csv sorted by K}: one
+    return-vs-K curve per sub-policy class, critic and other swept setting."""
+    curves = defaultdict(list)
+    for r in rows:
+        if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]:
+            curves[tuple((c, r.get(c, "")) for c in settings)].append(r)
+    return {k: sorted(pts, key=lambda r: r["K"]) for k, pts in curves.items()}
+
+
+def sufficient_k_table(rows, settings=()):
+    """sufficient_k.csv rows: per task and setting, the smallest K whose P(better than flat PPO) 95% interval
+    reaches 0.5 (its upper end >= 0.5: not shown worse than flat PPO), with that cell's IQM and P; K ''
+    where no K does. The product's answer to "how many linear controllers does this task need?"."""
+    out = []
+    for env_name in dict.fromkeys(r["env"] for r in rows):
+        for extra, pts in k_curves(rows, env_name, settings).items():
+            ok = [r for r in pts if r.get("p_ci_high") != "" and r["p_ci_high"] >= 0.5]
+            r = ok[0] if ok else {}
+            out.append({"env": env_name, **dict(extra), "smallest_sufficient_K": r.get("K", ""),
+                        "K_over_action_dim": r.get("K_over_action_dim", ""), "iqm": r.get("iqm", ""),
+                        "p_better_than_flat_ppo": r.get("p_better_than_flat_ppo", ""),
+                        "p_ci_low": r.get("p_ci_low", ""), "p_ci_high": r.get("p_ci_high", ""),
+                        "ks_tried": " ".join(str(q["K"]) for q in pts)})
+    return out
+
+
+def sufficient_k_lines(table):
+    """One printed line per row of sufficient_k_table."""
+    lines = []
+    for r in table:
+        extra = "".join(f" {c}={v}" for c, v in r.items() if c not in SUFFICIENT_COLS and v != "")
+        if r["smallest_sufficient_K"] == "":
+            lines.append(f"  {r['env']}{extra}: no K of {r['ks_tried']} reaches P(> flat PPO) 0.5 within its 95% CI")
+        else:
+            lines.append(f"  {r['env']}{extra}: smallest sufficient K = {r['smallest_sufficient_K']} "
+                         f"(IQM {r['iqm']}, P(> flat PPO) {r['p_better_than_flat_ppo']} [{r['p_ci_low']}, {r['p_ci_high']}])")
+    return lines
+
+
+SUFFICIENT_COLS = ("env", "smallest_sufficient_K", "K_over_action_dim", "iqm", "p_better_than_flat_ppo", "p_ci_low",
+                   "p_ci_high", "ks_tried")

@@ -1,0 +1,108 @@
+"""A run's deterministic controller as arrays (npz), one ONNX graph or a C99 header; `python -m
+gsa_jax.export` is its command."""
+
+import json
+import os
+import zipfile
+
+import numpy as np
+
+from gsa_jax.deployment.export_c import cost, to_source
+from gsa_jax.running.checkpoint import save_npz_atomic
+
+
+class ExportError(Exception):
+    pass
+
+
+def controller_arrays(run_dir):
+    """Read config.json + params.npz of a run and return the controller arrays (see numpy_policy)."""
+    cfg_path, params_path = os.path.join(run_dir, "config.json"), os.path.join(run_dir, "params.npz")
+    if not os.path.isdir(run_dir):
+        raise ExportError(f"{run_dir!r} is not a directory")
+    for p in (cfg_path, params_path):
+        if not os.path.exists(p):
+            raise ExportError(f"{run_dir!r} is not a gsa_jax run: {os.path.basename(p)} is missing")
+    with open(cfg_path) as f:
+        meta = json.load(f)
+    kind = meta["config"]["policy"]
+    with np.load(params_path) as p:
+        arrays = {k: p[k] for k in p.files}
+    prefix = "['params']['policy']"
+    net = "partition" if kind == "mixture" else "mlp"
+    n_layers = 0
+    while f"{prefix}['{net}'][{n_layers}]['w']" in arrays:
+        n_layers += 1
+    out = {
+        "kind": np.array(kind),
+        "obs_mean": arrays["['obs_stats']['mean']"],
+        "obs_var": arrays["['obs_stats']['var']"],
+        "obs_clip": np.array(10.0, np.float32),
+        "n_layers": np.array(n_layers),
+        "config_json": np.array(json.dumps({k: meta[k] for k in ("config", "hparams", "seed", "git_commit") if k in meta})),
+    }
+    if not meta["config"].get("normalize_obs", True):
+        out["obs_mean"] = np.zeros_like(out["obs_mean"])
+        out["obs_var"] = np.ones_like(out["obs_var"]) - 1e-8
+        out["obs_clip"] = np.array(np.inf, np.float32)
+    for i in range(n_layers):
+        out[f"w{i}"] = arrays[f"{prefix}['{net}'][{i}]['w']"]
+        out[f"b{i}"] = arrays[f"{prefix}['{net}'][{i}]['b']"]
+    if kind == "mixture":
+        out["subpolicy"] = np.array(meta["config"].get("subpolicy", "linear"))
+        k = int(meta["hparams"]["K"])
+        out["L"] = arrays[f"{prefix}['L']"][:k]
+        out["b"] = arrays[f"{prefix}['b']"][:k]
+    return out
+
+
+SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
+
+
+def load_arrays(source):
+    """Controller arrays of a run directory or of an exported controller .npz."""
+    if os.path.isfile(source) and source.endswith(".npz"):
+        if not zipfile.is_zipfile(source):
+            raise ExportError(f"{source!r} is not an exported controller (not an .npz archive)")
+        try:
+            with np.load(source, allow_pickle=False) as f:
+                arrays = {k: f[k] for k in f.files}
+        except (OSError, ValueError) as e:
+            raise ExportError(f"{source!r} is not an exported controller ({e})") from None
+        if "kind" not in arrays or "obs_mean" not in arrays:
+            raise ExportError(f"{source!r} is not an exported controller (no 'kind' / 'obs_mean' arrays)")
+        return arrays
+    return controller_arrays(source)
+
+
+def task_layout(arrays):
+    """The task's observation layout (names), or None for an unknown task."""
+    try:
+        env = json.loads(str(arrays["config_json"]))["config"]["env"]
+        from envs.mujoco_c import observation_layout
+
+        layout = observation_layout(env)
+    except (KeyError, ValueError, json.JSONDecodeError):
+        return None
+    return layout if len(layout) == np.asarray(arrays["obs_mean"]).shape[0] else None
+
+
+def write(arrays, fmt, out):
+    """Write the controller in `fmt`; returns the lines to print."""
+    from gsa_jax.running.checkpoint import write_atomic
+
+    if fmt == "npz":
+        save_npz_atomic(out, **arrays)
+        return []
+    layout = task_layout(arrays)
+    if fmt == "onnx":
+        try:
+            from gsa_jax.deployment.export_onnx import to_bytes
+        except ImportError as e:  # pragma: no cover - depends on the install
+            raise ExportError(f"ONNX export needs the deploy extra: pip install 'gsa_jax[deploy]' ({e})") from None
+        write_atomic(out, to_bytes(arrays, layout), "wb")
+        return []
+    write_atomic(out, to_source(arrays, layout))
+    c = cost(arrays)
+    return [f"C controller: {c['constants']} float constants ({c['bytes'] / 1024:.1f} KiB); per call "
+            f"{c['multiply_adds']} multiply-adds, {c['tanh']} tanhf, {c['compares']} compares"]

@@ -1,0 +1,337 @@
+"""A sweep's groups trained one after the other: group checkpoints (GroupStore), the tidy metrics table,
+sweep.json and the failed-runs report; `python -m gsa_jax.sweep` is its command (workers, watchdog)."""
+
+import dataclasses
+import json
+import math
+import os
+import time
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from gsa_jax.running import xla_cache
+from gsa_jax.running.checkpoint import (
+    CheckpointError, DiskFullError, FormatError, load_pytree, read_with_fallback, save_npz_atomic, save_pytree,
+    write_atomic,
+)
+from gsa_jax.running.driver import Plan, Result, drive, failed_mask, rows_before_failure
+from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
+from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
+from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
+from gsa_jax.running.spec import (
+    Group, SpecError, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name,
+    run_label,
+)
+from gsa_jax.running.store import Store, warn
+
+TRACKED = TIDY_METRICS + ("failed_at",)  # per run and iteration in metrics.npz; failed_at is not a CSV column
+EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
+
+
+# ----------------------------------------------------------------------------------------------- files
+def group_csv(runs, id_cols, metrics, upto):
+    """Tidy rows (run-major) of one group's metrics [R, iters] for the first `upto` iterations (a failed
+    run's rows end before its failing iteration)."""
+    lines = []
+    for i, r in enumerate(runs):
+        ids = ",".join(str(r[c]) for c in id_cols)
+        cols = [metrics[m][i] for m in TIDY_METRICS]
+        for j in range(rows_before_failure(metrics, i, upto)):
+            vals = []
+            for m, c in zip(TIDY_METRICS, cols):
+                v = c[j]
+                vals.append("" if isinstance(v, float) and math.isnan(v) else (str(int(v)) if m in INTEGER_METRICS else f"{float(v):.6g}"))
+            lines.append(ids + "," + ",".join(vals))
+    return ",".join([tidy_name(c) for c in id_cols] + list(TIDY_METRICS)), lines
+
+
+def tidy_name(column):
+    """A swept hyperparameter's column in the tidy table: 'hparam_<name>' where a metric has its name (lr)."""
+    return f"hparam_{column}" if column in TIDY_METRICS else column
+
+
+def failed_runs(runs, metrics, upto):
+    """[run dict + failed_at] of the runs that stopped at a NaN/inf."""
+    failed = failed_mask(metrics, upto)
+    return [{**r, "failed_at": int(metrics["failed_at"][i, upto - 1])} for i, r in enumerate(runs) if failed[i]]
+
+
+def load_group_checkpoint(gdir, states, iterations, log):
+    """(states, metrics arrays [R, iterations], done) of a group's last intact checkpoint: state.npz
+    (or state.prev.npz) and the metrics covering its iteration (metrics.npz or metrics.prev.npz)."""
+    def read_state(p):
+        with np.load(p) as f:
+            done = int(f["__done__"])
+        return load_pytree(p, states), done
+
+    (states, done), _ = read_with_fallback(os.path.join(gdir, "state.npz"), read_state, log)
+
+    def read_metrics(p):
+        with np.load(p) as m:
+            if int(m["__done__"]) < done:
+                raise ValueError(f"holds {int(m['__done__'])} iterations, the state {done}")
+            check_format(p, m.files)
+            return {k: m[k][:, :done] for k in TRACKED}
+
+    saved, _ = read_with_fallback(os.path.join(gdir, "metrics.npz"), read_metrics, log)
+    metrics = {m: np.full((saved["iteration"].shape[0], iterations), np.nan, np.float64) for m in TRACKED}
+    for k in TRACKED:
+        metrics[k][:, :done] = saved[k]
+    return states, metrics, done
+
+
+def save_group_checkpoint(gdir, states, metrics, done):
+    """Metrics, then state (both keeping their previous version); the state records `done`."""
+    save_npz_atomic(os.path.join(gdir, "metrics.npz"), True, __done__=np.array(done),
+                    **{k: v[:, :done] for k, v in metrics.items()})
+    save_pytree(os.path.join(gdir, "state.npz"), states, True, __done__=np.array(done))
+
+
+def finish_group(gdir, states, runs, metrics, done, timing):
+    """Final parameters (a failed run's last finite ones), failed.json and DONE; drop the resume state."""
+    params = jax.device_get({"params": states.params, "obs_stats": states.obs_stats})
+    save_pytree(os.path.join(gdir, "params.npz"), jax.tree.map(lambda x: x[: len(runs)], params))
+    write_atomic(os.path.join(gdir, "failed.json"), json.dumps(failed_runs(runs, metrics, done)))
+    write_atomic(os.path.join(gdir, "DONE"), json.dumps(timing))
+    for name in ("state.npz", "state.prev.npz", "metrics.prev.npz"):  # the full state is only needed to resume
+        if os.path.exists(os.path.join(gdir, name)):
+            os.unlink(os.path.join(gdir, name))
+
+
+# ----------------------------------------------------------------------------------------------- groups
+class GroupStore(Store):
+    """The files of one group (the driver's store) in gdir: state.npz and metrics.npz after every chunk
+    (each keeping its previous version); at the end params.npz, failed.json and DONE. on_chunk(runs,
+    metrics [len(runs), iterations], done) runs after every save (the tidy table)."""
+
+    def __init__(self, gdir, runs, iterations, on_chunk=None, board_dir=None):
+        super().__init__(gdir, board_dir, [run_label(r) for r in runs])
+        self.runs, self.iterations, self.on_chunk = runs, iterations, on_chunk
+
+    def load_checkpoint(self, template):
+        try:
+            return load_group_checkpoint(self.root, template, self.iterations, warn)
+        except CheckpointError as e:
+            raise SpecError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
+
+    def save(self, states, metrics, done):
+        save_group_checkpoint(self.root, states, {k: metrics[k] for k in TRACKED}, done)
+        self.follow_save(metrics, done)
+        if self.on_chunk:
+            self.on_chunk(self.runs, {k: v[: len(self.runs)] for k, v in metrics.items()}, done)
+
+    def finish(self, states, metrics, done, timing):
+        finish_group(self.root, states, self.runs, metrics, done, timing)
+
+
+def check_format(path, names):
+    """Refuse (one line) a group file written by a gsa_jax that tracked fewer metrics."""
+    missing = [k for k in TRACKED if k not in names]
+    if missing:
+        raise FormatError(f"{path} was written by an older gsa_jax (no {', '.join(missing)}); finish that sweep with the "
+                        "commit in its sweep.json (git_commit), or start over in another --out")
+
+
+def finished_group(gdir, iterations):
+    """The driver Result of a group whose DONE marker exists, from its metrics.npz."""
+    with np.load(os.path.join(gdir, "metrics.npz")) as m:
+        check_format(os.path.join(gdir, "metrics.npz"), m.files)
+        saved = {k: m[k] for k in m.files if k != "__done__"}
+    done = saved["iteration"].shape[1]
+    return Result(done, iterations, saved, "finished" if done >= iterations else "failed", {}, done)
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepOptions:
+    """How this process runs a sweep -- not what it computes (the spec; sweep.json records both).
+    devices: () = every local device; process_id / num_processes: this process's share of each group's runs;
+    heartbeat(seconds) after every chunk (the supervisor's watchdog); run_batch: see
+    programs.make_group_program; local_workers: the processes share this machine and `out` (False for
+    multi-host sweeps: each process compiles for itself); force: resume a changed spec."""
+
+    devices: tuple = ()
+    quiet: bool = False
+    stop_after_chunks: int | None = None
+    process_id: int = 0
+    num_processes: int = 1
+    heartbeat: Callable | None = None
+    run_batch: int = RUN_BATCH
+    local_workers: bool = True
+    force: bool = False
+    tensorboard: bool = True
+
+
+class GroupContext(NamedTuple):
+    """What this process brings to training one group: devices, log, options; pad_to: pad the runs to at
+    least this many (every worker process builds the same program); share: see programs.compile_group;
+    board_dir: the sweep's TensorBoard directory (None: no event files); on_chunk: see GroupStore."""
+
+    devices: list
+    log: Callable
+    options: SweepOptions
+    pad_to: int = 0
+    share: tuple | None = None
+    board_dir: str | None = None
+    on_chunk: Callable | None = None
+
+
+def run_group(spec, out, group, ctx):
+    """Train (or resume) one Group (this process's runs of it) with the run driver. Returns its driver Result."""
+    name = group_name(group)
+    gdir = os.path.join(out, "groups", name)
+    os.makedirs(gdir, exist_ok=True)
+    cfg = group_config(spec, group)
+    chunk = default_chunk(spec, cfg)
+    iterations = group_iterations(spec, cfg, chunk)
+    if os.path.exists(os.path.join(gdir, "DONE")):
+        return finished_group(gdir, iterations)
+    cols = spec.id_columns()
+    write_atomic(os.path.join(gdir, "runs.csv"), "\n".join(
+        [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in group.runs]) + "\n")
+    t0 = time.perf_counter()
+    eval_every = group_eval_every(spec, iterations)
+    shape = GroupShape(cfg, chunk, tuple(ctx.devices), ctx.options.run_batch)
+    runs = pad_runs(group.runs, len(ctx.devices), at_least=ctx.pad_to)
+    program = group_program(shape, GroupRuns(runs, list(spec.hparams), iterations),
+                            (spec.eval_seed or 0) if eval_every else None, ctx.share, ctx.log)
+    tag = name.replace(f"{group.env}-", f"{group.env}/", 1)
+    ctx.log(f"[{tag}] {len(group.runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
+            f"{len(ctx.devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
+    plan = Plan(iterations, chunk, cfg.batch_size, len(group.runs), eval_every,
+                stop_after_chunks=ctx.options.stop_after_chunks, tag=tag)
+    store = GroupStore(gdir, group.runs, iterations, ctx.on_chunk, ctx.board_dir)
+    result = drive(program, store, plan, ctx.log, ctx.options.heartbeat, clock_start=t0)
+    t = result.timing
+    if t.get("eval_s"):
+        ctx.log(f"[{tag}] deterministic evaluation: {t['eval_s']:.1f}s = {t['eval_s'] / max(t['train_s'] + t['eval_s'], 1e-9):.1%} "
+                f"of this invocation's training and evaluation time")
+    return result
+
+
+def write_tidy(out, spec, results):
+    """The tidy metrics.csv of out from [(runs, metrics [len(runs), iterations], done)] of its groups."""
+    header, lines = None, []
+    for runs, metrics, done in results:
+        header, ls = group_csv(runs, spec.id_columns(), metrics, done)
+        lines.extend(ls)
+    if header:
+        write_atomic(os.path.join(out, "metrics.csv"), header + "\n" + "\n".join(lines) + ("\n" if lines else ""))
+
+
+def write_sweep_meta(root, spec, groups, options):
+    """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
+    spec, unless options.force)."""
+    meta_path = os.path.join(root, "sweep.json")
+    if os.path.exists(meta_path):
+        with open(meta_path) as f:
+            old = json.load(f).get("spec", {})
+        check_unchanged(old, spec.to_json(), options.force,
+                        f"{root} holds a sweep with a different spec", "use another --out, or --force to continue it with the new spec")
+    physics = {group_name(g): physics_record(group_config(spec, g)) for g in groups}
+    meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
+            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "physics": physics, **run_metadata()}
+    write_atomic(meta_path, json.dumps(meta, indent=1))
+
+
+def run_sweep(spec, out, options=SweepOptions()):
+    """Train every group of the spec (this process's share of each). Returns True when all groups are done;
+    failed runs (NaN/inf) go to failed_runs.json in this process's directory; TensorBoard: out/tensorboard/<run>/."""
+    pid, nproc = options.process_id, options.num_processes
+    prefix = f"[process {pid}] " if nproc > 1 else ""
+
+    def log(msg):
+        if not options.quiet:
+            print(prefix + msg, flush=True)
+
+    devices = list(options.devices or jax.local_devices())
+    root, out = out, os.path.join(out, f"process-{pid}") if nproc > 1 else out
+    os.makedirs(out, exist_ok=True)
+    groups = build_grid(spec)
+    if pid == 0:
+        write_sweep_meta(root, spec, groups, options)
+    log(f"sweep {spec.name}: {sum(len(g.runs) for g in groups)} runs in {len(groups)} group(s) on {len(devices)} device(s)"
+        + (f", process {pid}/{nproc}" if nproc > 1 else "") + f" -> {out}")
+    # compiled programs are kept in a cache: a resumed or restarted worker loads them; local worker
+    # processes share one compile (worker 0 compiles, the others load -- gsa_jax.running.xla_cache)
+    cache_dir = os.path.join(root if options.local_workers else out, "xla_cache")
+    ctx = GroupContext(devices, log, options, share=(cache_dir, pid == 0 or not options.local_workers),
+                       board_dir=os.path.join(root, "tensorboard") if options.tensorboard else None)
+    results = []
+    try:
+        with xla_cache.enabled(cache_dir):
+            complete = train_groups(spec, out, groups, ctx, results)
+        failed = [f for runs, metrics, done in results for f in failed_runs(runs, metrics, done)]
+        write_atomic(os.path.join(out, "failed_runs.json"), json.dumps(failed))
+    except DiskFullError as e:
+        if not hasattr(e, "last_intact"):
+            runs, _, done = results[-1] if results else (None, None, None)
+            e.last_intact = (f"iteration {done} of group {group_name(Group(runs[0]['env'], runs[0]['policy'], runs))}"
+                             if results else "none (nothing trained yet)")
+        raise
+    for f in failed:
+        log(f"run failed (NaN/inf in loss or parameters) at iteration {f['failed_at']}: "
+            + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "K", "seed") if k in f) + "; its metrics end there")
+    for line in eval_failure_lines(results):
+        log(line)
+    return complete
+
+
+def train_groups(spec, out, groups, ctx, results):
+    """Train this process's share of every group in turn, appending (runs, metrics, done) to results and
+    rewriting the tidy table after every chunk. Returns False if a group stopped before its end."""
+    pid, nproc = ctx.options.process_id, ctx.options.num_processes
+    for group in groups:
+        mine = group.runs[pid::nproc]
+        if not mine:
+            continue
+        group_ctx = ctx._replace(pad_to=math.ceil(len(group.runs) / nproc),
+                                 on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]))
+        res = run_group(spec, out, group._replace(runs=mine), group_ctx)
+        results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))
+        write_tidy(out, spec, results)
+        if not res.finished:
+            return False
+    return True
+
+
+def eval_failure_lines(results):
+    """Summary lines of the evaluation episodes that failed (non-finite reward or observation; each ended
+    at its last finite step, gsa_jax.algorithm.episodes), per run, from [(runs, metrics, done)]; [] if none."""
+    lines = []
+    for runs, metrics, done in results:
+        counts = metrics["eval_failures"][:, :done]
+        for r, row in zip(runs, counts):
+            if np.nansum(row) > 0:
+                its = [i + 1 for i in np.flatnonzero(row > 0)]
+                lines.append("  " + ", ".join(f"{k}={r[k]}" for k in ("env", "policy", "K", "seed") if k in r)
+                             + f": {int(np.nansum(row))} episode(s) at iteration(s) {', '.join(map(str, its))}")
+    if lines:
+        lines.insert(0, f"evaluation episodes failed (non-finite reward or observation; scored up to their last finite "
+                        f"step, counted in eval_failures) in {len(lines)} run(s):")
+    return lines
+
+
+def report_failures(root, dirs, log=print):
+    """Collect the workers' failed_runs.json into sweep.json ('failed_runs') and print the summary.
+    Returns the failed runs."""
+    failed = []
+    for d in dirs:
+        path = os.path.join(d, "failed_runs.json")
+        if os.path.exists(path):
+            with open(path) as f:
+                failed.extend(json.load(f))
+    meta_path = os.path.join(root, "sweep.json")
+    if os.path.exists(meta_path):
+        with open(meta_path) as f:
+            meta = json.load(f)
+        meta["failed_runs"] = failed
+        write_atomic(meta_path, json.dumps(meta, indent=1))
+    if failed:
+        log(f"{len(failed)} run(s) failed (NaN/inf in the loss or parameters; listed in sweep.json 'failed_runs'):")
+        for f in failed:
+            log("  " + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "subpolicy", "value_target", "K", "seed", "run") if k in f)
+                + f": failed at iteration {f['failed_at']}")
+    return failed
