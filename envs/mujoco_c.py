@@ -36,7 +36,7 @@ class BraxTaskC:
     and `observe_state` / `healthy_state`, written once over (qpos, qvel, torso position) for NumPy and
     jax.numpy alike: MuJoCo C here, the C physics backend inside the compiled trainer
     (envs/c_backend.py). `observation(m, d)` / `healthy(m, d)` read them from an MjData, so they also
-    apply to another simulator's model of the same robot (gsa_jax.gymnasium_task checks layouts with them).
+    apply to another simulator's model of the same robot (gsa_jax.deployment.gymnasium_task checks layouts with them).
 
     The torso is body 1 (Brax's x.pos[0]); the forward reward is its x velocity over the env step."""
 
@@ -265,7 +265,7 @@ def observation_layout(name):
 
 
 def run_episodes(task, controller, episodes, episode_length, seed=0):
-    """Deterministic controller (gsa_jax.numpy_policy) in the C task: returns [episodes], lengths [episodes].
+    """Deterministic controller (gsa_jax.deployment.numpy_policy) in the C task: returns [episodes], lengths [episodes].
     Actions are clipped to [-1, 1] as in training."""
     returns, lengths = [], []
     for e in range(episodes):

@@ -33,7 +33,7 @@ BACKENDS = ("mjx", "c")
 LINESEARCHES = ("exact", "iterative")
 SEARCH_LOOPS = ("while", "scan")
 CHOLESKYS = ("unrolled", "lapack")
-# set by gsa_jax.supervise for the worker processes it starts: how many of them share this host's cores
+# set by gsa_jax.running.supervise for the worker processes it starts: how many of them share this host's cores
 LOCAL_WORKERS_ENV = "GSA_LOCAL_WORKERS"
 
 
