@@ -97,7 +97,7 @@ def check_args(args, argv):
     spec = load_spec(args.experiment)
     if args.num_processes < 1 or not 0 <= args.process_id < args.num_processes:
         raise SpecError(f"--process-id must be in 0..{args.num_processes - 1}")
-    out = args.out or os.path.join("runs", "sweeps", spec["name"])
+    out = args.out or os.path.join("runs", "sweeps", spec.name)
     try:
         os.makedirs(out, exist_ok=True)
     except OSError as e:

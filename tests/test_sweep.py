@@ -409,6 +409,19 @@ def sweep_main(spec_file, out, *extra):
     return main([str(spec_file), "--out", str(out), "--no-watchdog", "--local-processes", "1", "--quiet", *extra])
 
 
+def test_default_out_is_runs_sweeps_name(tmp_path, monkeypatch):
+    """Without --out (make sweep) the output directory is runs/sweeps/<the experiment's name>."""
+    from gsa_jax.sweep import build_parser, check_args
+
+    spec = tmp_path / "exp.toml"
+    spec.write_text('name = "tiny_default_out"\nenvs = ["hopper"]\npolicies = ["mlp"]\nsteps = 100\n')
+    monkeypatch.chdir(tmp_path)
+    args = build_parser().parse_args([str(spec)])
+    _, out, _ = check_args(args, [str(spec)])
+    assert out == os.path.join("runs", "sweeps", "tiny_default_out")
+    assert (tmp_path / "runs" / "sweeps" / "tiny_default_out").is_dir()
+
+
 def canonical_rows(path):
     with open(path) as f:
         return sorted(f.read().splitlines())
