@@ -1,5 +1,6 @@
 """Pictures of a task: `python -m gsa_jax.render ENV --out scene.png`, or a video of a trained run's
-deterministic controller: `python -m gsa_jax.render ENV --run RUN_DIR --out video.gif`.
+deterministic controller: `python -m gsa_jax.render ENV --run RUN --out video.gif` (RUN: a run directory
+or SWEEP_DIR/<run label>).
 
 Uses MuJoCo's offscreen renderer. MUJOCO_GL picks the OpenGL backend; when it is not set, this
 module uses OSMesa (Debian's libosmesa6, software rendering, no display or GPU needed; `make scene`
@@ -12,13 +13,14 @@ import sys
 
 import envs
 from gsa_jax.deployment.rendering import RenderError, render_run, render_scene
+from gsa_jax.running.trained import FormatError, read_run
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.render", description=__doc__.split("\n")[0])
     p.add_argument("env", help=f"one of: {', '.join(envs.NAMES)}")
     p.add_argument("--out", required=True, help="scene.png, or with --run: video.gif / video.mp4")
-    p.add_argument("--run", default=None, help="a training run dir: render its deterministic controller")
+    p.add_argument("--run", default=None, help="a run directory or SWEEP_DIR/<run label>: render its deterministic controller")
     p.add_argument("--episodes", type=int, default=1)
     p.add_argument("--camera", default=None, help="camera name (default: all cameras side by side / 'front')")
     p.add_argument("--width", type=int, default=None)
@@ -40,17 +42,12 @@ def main(argv=None):
         else:
             if not args.out.endswith((".gif", ".mp4")):
                 raise RenderError("--out must end in .gif or .mp4 for a video")
-            import json
-
-            cfg_path = os.path.join(args.run, "config.json")
-            if os.path.exists(cfg_path):
-                with open(cfg_path) as f:
-                    run_env = json.load(f)["config"]["env"]
-                if run_env != args.env:
-                    raise RenderError(f"{args.run!r} was trained on {run_env!r}, not {args.env!r}")
+            run_env = read_run(args.run).meta["config"]["env"]
+            if run_env != args.env:
+                raise RenderError(f"{args.run!r} was trained on {run_env!r}, not {args.env!r}")
             out, returns = render_run(args.run, args.out, args.episodes, args.width or 480, args.height or 360, args.camera, seed=args.seed)
             print(f"wrote {out} (deterministic controller, episode returns {', '.join(f'{r:.1f}' for r in returns)})")
-    except (RenderError, InspectError, ValueError) as e:
+    except (RenderError, InspectError, FormatError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0

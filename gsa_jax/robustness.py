@@ -2,10 +2,12 @@
 (gsa_jax.deployment.shifts), in MuJoCo C, with rliable statistics:
 
     python -m gsa_jax.robustness CONTROLLERS [CONTROLLERS ...] --out OUT [--episodes 20] [--shifts mass,push]
+                                 [--level push=0.5,1]
 
 CONTROLLERS: exported controller files (gsa_jax.export, gsa_jax.extract --controllers) or directories of
 them. Every controller plays `--episodes` deterministic episodes under every shift that applies to its
-task, from the same fixed start states (seeds 10,000 + i). Writes to OUT:
+task, from the same fixed start states (seeds 10,000 + i); --level replaces a kind's default levels (pushes
+of other sizes keep their times and directions: a dose-response). Writes to OUT:
   robustness.csv    tidy: env, policy, K, seed, shift, level, score, nominal_score, random_score,
                     retained_fraction = (score - random) / (nominal - random), the random policy's return
                     from the same starts as 0; written after every controller, and a re-run skips what it holds
@@ -28,15 +30,37 @@ from gsa_jax.analysis.retention import RobustnessError, analyse, evaluate_all, l
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
 
 
-def parse_shifts(text):
-    """--shifts: 'all' or comma-separated kinds (every default level of each) -> [Shift] with nominal first."""
-    if text == "all":
-        return list(DEFAULT_SHIFTS)
-    kinds = [k.strip() for k in text.split(",") if k.strip()]
+def parse_levels(items):
+    """--level KIND=V1,V2 (repeatable) -> {kind: (levels,)}: the levels that replace a kind's defaults."""
+    levels = {}
+    for item in items:
+        kind, _, values = item.partition("=")
+        if kind not in KINDS or kind in ("nominal", "simulator"):
+            raise RobustnessError(f"--level {item!r}: KIND must be one of {', '.join(KINDS[2:])}")
+        try:
+            levels[kind] = tuple(float(v) for v in values.split(","))
+        except ValueError:
+            raise RobustnessError(f"--level {item!r}: levels must be numbers, e.g. push=0.5,1") from None
+        if not levels[kind] or min(levels[kind]) <= 0:
+            raise RobustnessError(f"--level {item!r}: levels must be > 0")
+    return levels
+
+
+def parse_shifts(text, levels=None):
+    """--shifts ('all' or comma-separated kinds, every default level of each) and --level overrides ->
+    [Shift] with nominal first."""
+    kinds = list(dict.fromkeys(s.kind for s in DEFAULT_SHIFTS)) if text == "all" else [k.strip() for k in text.split(",") if k.strip()]
     bad = [k for k in kinds if k not in KINDS]
     if bad:
         raise RobustnessError(f"unknown shift(s) {', '.join(bad)}; choose from {', '.join(KINDS)}")
-    return [Shift("nominal")] + [s for s in DEFAULT_SHIFTS if s.kind in kinds and s.kind != "nominal"]
+    levels = levels or {}
+    shifts = [Shift("nominal")]
+    for kind in kinds:
+        if kind in levels:
+            shifts += [Shift(kind, v) for v in levels[kind]]
+        else:
+            shifts += [s for s in DEFAULT_SHIFTS if s.kind == kind and kind != "nominal"]
+    return shifts
 
 
 def main(argv=None):
@@ -45,12 +69,14 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="output directory (a re-run continues what it holds)")
     p.add_argument("--episodes", type=int, default=20, help="deterministic episodes per controller and shift (default 20)")
     p.add_argument("--shifts", default="all", help=f"'all' or comma-separated kinds of {', '.join(KINDS[1:])}")
+    p.add_argument("--level", action="append", default=[], metavar="KIND=V1,V2",
+                   help="the levels of a kind instead of its defaults, e.g. push=0.5,1 (m/s); repeatable")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
     args = p.parse_args(argv)
     try:
         if args.episodes < 1 or args.reps < 1:
             raise RobustnessError(f"--episodes and --reps must be >= 1, got {args.episodes} and {args.reps}")
-        shifts = parse_shifts(args.shifts)
+        shifts = parse_shifts(args.shifts, parse_levels(args.level))
         controllers = load_controllers(args.controllers)
         os.makedirs(args.out, exist_ok=True)
         write_settings(args.out, shifts, args.episodes)

@@ -58,13 +58,14 @@ import sys
 
 import jax
 
-from gsa_jax.running.checkpoint import DiskFullError, FormatError
+from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import ResumeRefused
 from gsa_jax.running.runlock import LockError, hold
 from gsa_jax.running.spec import SpecError, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
 from gsa_jax.running.sweeps import EXIT_DISK_FULL, EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
+from gsa_jax.running.trained import FormatError
 
 
 def build_parser():
@@ -192,6 +193,9 @@ def run_worker(args, spec, out, after_chunk=None):
         complete = run_sweep(spec, out, options)
     except (SpecError, ResumeRefused, FormatError) as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
+        return 2
+    except CheckpointError as e:
+        print(f"gsa_jax.sweep: error: {e} (a sweep resumes with the same --devices as the interrupted one)", file=sys.stderr)
         return 2
     except DiskFullError as e:
         print(f"gsa_jax.sweep: error: {e.describe(getattr(e, 'last_intact', 'none (nothing trained yet)'))}", file=sys.stderr)

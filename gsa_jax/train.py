@@ -3,9 +3,10 @@
 Writes to --out (default runs/<env>-<policy>[-K<k>]-s<seed>-<time>/):
   config.json   resolved config, hyperparameters, versions, git commit (and timings once finished)
   metrics.csv   one row per PPO iteration (env_steps, episode_return, eval_return, epsilon, sigma_min, ...)
-  params.npz    final parameters (policy, value, observation-normalizer statistics), updated after every chunk
-  state.npz     full training state, for --resume after an interruption
+  params.npz    parameters (policy, value, observation-normalizer statistics), [1, ...]: updated after every chunk
   curve.png     the learning curve
+and what makes it resumable, the same files as a sweep's group of runs (gsa_jax.running.store; the run is a
+group of one): runs.csv, metrics.npz and state.npz (dropped once finished), failed.json and DONE at the end.
 Training runs as compiled chunks of iterations; between chunks the CLI logs, evaluates and saves.
 """
 
@@ -165,7 +166,7 @@ def prepare_out(out, resume):
         os.unlink(probe)
     except OSError as e:
         raise UsageError(f"--out {out!r} is not writable: {e.strerror or e}") from None
-    has_run = any(os.path.exists(os.path.join(out, n)) for n in ("state.npz", "state.prev.npz"))
+    has_run = any(os.path.exists(os.path.join(out, n)) for n in ("state.npz", "state.prev.npz", "DONE"))
     if has_run and not resume:
         raise UsageError(f"--out {out!r} already holds a run; pass --resume to continue it or choose another --out")
 

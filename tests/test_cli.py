@@ -61,7 +61,10 @@ def full_run(tmp_path_factory):
 
 def test_outputs(full_run):
     names = set(os.listdir(full_run))
-    assert {"config.json", "metrics.csv", "params.npz", "state.npz", "curve.png", "tensorboard"} <= names
+    assert {"config.json", "metrics.csv", "params.npz", "curve.png", "tensorboard"} <= names
+    # stored as a group of one (gsa_jax.running.store): the resume state is dropped once finished
+    assert {"runs.csv", "metrics.npz", "failed.json", "DONE"} <= names and "state.npz" not in names
+    assert read_csv(full_run / "runs.csv") == [{"env": "inverted_double_pendulum", "policy": "mixture", "K": "4", "seed": "0"}]
     rows = read_csv(full_run / "metrics.csv")
     assert list(rows[0]) == list(METRIC_COLUMNS) and len(rows) == 4
     assert [int(r["env_steps"]) for r in rows] == [512, 1024, 1536, 2048]
@@ -72,13 +75,15 @@ def test_outputs(full_run):
     assert cfg["result"]["status"] == "finished" and cfg["timing"]["compile_s"] >= 0 and cfg["timing"]["train_s"] > 0
     with np.load(full_run / "params.npz") as p:
         keys = set(p.files)
+        assert p["['obs_stats']['mean']"].shape[0] == 1  # the run axis of a group of one
     assert "['params']['policy']['L']" in keys and "['obs_stats']['mean']" in keys
 
 
 def test_fixed_run_computes_what_it_computed(full_run):
-    """The fixed run's metrics, parameters and state are bit for bit the recorded ones (tests/golden_runs.py)."""
+    """The fixed run's metrics and parameters are bit for bit the recorded ones (tests/golden_runs.py; the
+    parameters are the run's row of params.npz, recorded when a run directory had no run axis)."""
     check_fingerprint("train_cli_small", {"table": table_digest(full_run / "metrics.csv"),
-                                          **{f"{n}.npz": arrays_digest(full_run / f"{n}.npz") for n in ("params", "state")}})
+                                          "params.npz": arrays_digest(full_run / "params.npz", run=0)})
 
 
 def test_existing_out_needs_resume(full_run, capsys):
@@ -131,22 +136,40 @@ def test_resume_run_saved_before_solver_fields(full_run, tmp_path):
     assert main(SMALL + ["--out", str(old), "--resume"]) == 0
 
 
-def test_resume_run_of_an_older_file_format_refused_in_one_line(full_run, tmp_path, capsys):
-    """A run whose metrics.csv lacks a column of today's table (an older gsa_jax wrote it) is refused with one
-    line that says how to go on; nothing is filled in silently."""
+def test_run_directories_of_an_older_layout_refused_in_one_line(full_run, tmp_path, capsys):
+    """A run directory written before runs were stored as groups of one (no runs.csv; params.npz without a run
+    axis) is refused by --resume and by every reader in one line that says how to go on; nothing is filled in
+    silently. So is a metrics.npz that lacks a tracked metric."""
     import shutil
+
+    from gsa_jax.deployment.inspection import main as inspect_main
+    from gsa_jax.export import main as export_main
 
     old = tmp_path / "old"
     shutil.copytree(full_run, old)
-    for name in ("metrics.csv", "metrics.prev.csv"):
-        if (old / name).exists():
-            rows = read_csv(old / name)
-            cols = [c for c in rows[0] if c != "eval_failures"]
-            (old / name).write_text("\n".join([",".join(cols)] + [",".join(r[c] for c in cols) for r in rows]) + "\n")
+    (old / "runs.csv").unlink()
     capsys.readouterr()
-    assert main(SMALL + ["--out", str(old), "--resume"]) == 2
+    for command in (lambda: main(SMALL + ["--out", str(old), "--resume"]), lambda: export_main([str(old)]),
+                    lambda: inspect_main([str(old)])):
+        status, err = command(), capsys.readouterr().err.strip()
+        assert status == 2 and err.count("\n") == 0 and "older gsa_jax" in err and "git_commit" in err, err
+    stopped = tmp_path / "stopped"
+    assert main(SMALL + ["--out", str(stopped), "--stop-after", "1"]) == 0
+    with np.load(stopped / "metrics.npz") as m:
+        kept = {k: m[k] for k in m.files if k != "eval_failures"}
+    for name in ("metrics.npz", "metrics.prev.npz"):
+        if (stopped / name).exists():
+            np.savez(stopped / name, **kept)
+    capsys.readouterr()
+    assert main(SMALL + ["--out", str(stopped), "--resume"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "older gsa_jax (no eval_failures)" in err and "git_commit" in err
+
+
+def test_resume_of_an_ended_run(full_run, tmp_path, capsys):
+    """--resume of a finished run trains nothing and says so (a run stopped by NaN/inf: test_nan_stops...)."""
+    assert main(SMALL[:-1] + ["--out", str(full_run), "--resume"]) == 0  # not --quiet
+    assert "is finished; nothing to resume" in capsys.readouterr().out
 
 
 def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):
@@ -157,6 +180,10 @@ def test_nan_stops_and_keeps_last_good_params(tmp_path, capsys):
     with np.load(out / "params.npz") as p:
         assert all(np.all(np.isfinite(p[k])) for k in p.files if not k.startswith("meta/"))
     assert json.loads((out / "config.json").read_text())["result"]["status"] == "nan"
+    capsys.readouterr()
+    assert main(SMALL + ["--out", str(out), "--lr", "1e30", "--no-anneal-lr", "--resume"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "stopped at a NaN/inf at iteration" in err and "nothing to resume" in err
 
 
 def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
@@ -197,11 +224,12 @@ def test_inspect_bad_run_dirs(tmp_path, capsys):
     from gsa_jax.deployment.inspection import main as inspect_main
 
     assert inspect_main([str(tmp_path / "nope")]) == 2
-    assert "is not a directory" in capsys.readouterr().err
+    assert "is not a gsa_jax run: neither a run directory" in capsys.readouterr().err
     assert inspect_main([str(tmp_path)]) == 2
-    assert "is not a gsa_jax run: config.json is missing" in capsys.readouterr().err
+    assert "is not a gsa_jax run: neither a run directory" in capsys.readouterr().err
     (tmp_path / "config.json").write_text(json.dumps({"config": {"policy": "mlp"}}))
-    (tmp_path / "params.npz").write_bytes(b"")
+    (tmp_path / "runs.csv").write_text("env,policy,K,seed\nhopper,mlp,1,0\n")
+    np.savez(tmp_path / "params.npz", x=np.zeros((1, 2)))
     assert inspect_main([str(tmp_path)]) == 2
     assert "is a 'mlp' run; inspect reads mixture-of-linear runs" in capsys.readouterr().err
 

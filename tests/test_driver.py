@@ -32,7 +32,7 @@ def toy_program(runs=3, fail=None, interrupt_at=None):
         return 100.0 + np.arange(runs) + it, np.arange(runs) * (it == 8)  # run r loses r episodes at 8
 
     state = {"iteration": np.zeros(runs, np.int64)}
-    return Program(runs, state, {"chunk": 2}, run, evaluate, lambda t: {k: np.array(v) for k, v in t.items()}, True)
+    return Program(runs, state, {"chunk": 2}, run, evaluate, lambda t: {k: np.array(v) for k, v in t.items()})
 
 
 class MemoryStore:

@@ -27,7 +27,9 @@ def fake_run(tmp_path, kind, K, k_max, subpolicy="linear"):
     stats = {"count": jnp.float32(100.0), "mean": jnp.linspace(-1, 1, D_S), "var": jnp.linspace(0.5, 3, D_S)}
     run = tmp_path / f"{kind}-run"
     run.mkdir()
-    save_pytree(str(run / "params.npz"), {"params": {"policy": params}, "obs_stats": stats})
+    one = jax.tree.map(lambda x: np.asarray(x)[None], {"params": {"policy": params}, "obs_stats": stats})  # a group of one
+    save_pytree(str(run / "params.npz"), one)
+    (run / "runs.csv").write_text(f"env,policy,K,seed\ntoy,{kind},{K},0\n")
     config = {"policy": kind, "normalize_obs": True, "subpolicy": subpolicy}
     (run / "config.json").write_text(json.dumps({"config": config, "hparams": {"K": K}, "seed": 0}))
     return pol, params, stats, run
@@ -55,9 +57,9 @@ def test_numpy_controller_matches_jax(tmp_path, kind, K, k_max, subpolicy, capsy
 
 def test_export_bad_run_dir(tmp_path, capsys):
     assert export_main([str(tmp_path / "missing")]) == 2
-    assert "is not a directory" in capsys.readouterr().err
+    assert "is not a gsa_jax run: neither a run directory" in capsys.readouterr().err
     assert export_main([str(tmp_path)]) == 2
-    assert "is not a gsa_jax run: config.json is missing" in capsys.readouterr().err
+    assert "is not a gsa_jax run: neither a run directory" in capsys.readouterr().err
 
 
 def test_numpy_policy_imports_without_jax():

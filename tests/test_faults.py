@@ -51,12 +51,14 @@ def assert_same_run(out, ref):
 
 
 # (file, which of its writes in that invocation fails), in order, each invocation resuming the last
-# (SMALL: 4 chunks of 1 iteration). First writes: config.json at the start, params.npz's initial
-# parameters, metrics.csv and state.npz after chunk 1 (nothing saved yet: each starts afresh). Then
-# mid-run: metrics.csv at chunk 2, params.npz at chunk 3, state.npz at chunk 4, config.json at the end.
-DISK_FULL_CASES = [("config.json", 1), ("params.npz", 1), ("metrics.csv", 1), ("state.npz", 1),
-                   ("metrics.csv", 2), ("params.npz", 2), ("state.npz", 2), ("config.json", 2)]
-INTACT_AFTER = [0, 0, 0, 0, 1, 2, 3, 4]
+# (SMALL: 4 chunks of 1 iteration). First writes: runs.csv and config.json at the start, then after chunk 1
+# metrics.npz, params.npz, metrics.csv and state.npz (the checkpoint; nothing saved yet: each starts
+# afresh). Then mid-run: metrics.npz at chunk 2, params.npz at chunk 3, state.npz at chunk 4; at the end
+# failed.json, config.json (the result) and DONE, the state kept until DONE is written.
+DISK_FULL_CASES = [("runs.csv", 1), ("config.json", 1), ("metrics.npz", 1), ("params.npz", 1), ("metrics.csv", 1),
+                   ("state.npz", 1), ("metrics.npz", 2), ("params.npz", 2), ("state.npz", 2), ("failed.json", 1),
+                   ("config.json", 2), ("DONE", 1)]
+INTACT_AFTER = [0, 0, 0, 0, 0, 0, 1, 2, 3, 4, 4, 4]
 
 
 def test_disk_full_at_every_write_then_resume_equals_uninterrupted(reference, tmp_path, monkeypatch, capsys):
@@ -85,7 +87,7 @@ def test_unreadable_state_falls_back_to_previous(reference, tmp_path, capsys, da
     resumes from state.prev.npz and ends identical to an uninterrupted run."""
     out = tmp_path / damage
     assert main(SMALL + ["--out", str(out), "--stop-after", "3"]) == 0
-    assert (out / "state.prev.npz").exists() and (out / "metrics.prev.csv").exists()
+    assert (out / "state.prev.npz").exists() and (out / "metrics.prev.npz").exists()
     state = out / "state.npz"
     data = state.read_bytes()
     state.write_bytes(data[: len(data) // 2] if damage == "truncate" else b"not a zip file" * 100)

@@ -14,7 +14,7 @@ LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "comman
 JAX_FREE = ("deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.stats", "analysis.results", "analysis.tables", "analysis.figures",
-            "analysis.retention", "analysis.extraction", "plot", "robustness", "deploy", "extract")
+            "analysis.retention", "running.trained", "plot", "robustness", "deploy")
 
 
 def modules():

@@ -10,7 +10,7 @@ import pytest
 from envs.mujoco_c import make_c, run_episodes
 from gsa_jax.analysis.retention import action_jacobian_norms
 from gsa_jax.deployment import numpy_policy
-from gsa_jax.deployment.shifts import Shift, run_shifted, shifted_task
+from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, Shift, run_shifted, shifted_task
 from gsa_jax.robustness import main
 
 
@@ -101,3 +101,17 @@ def test_cli_writes_tables_resumes_and_refuses_other_settings(tmp_path, capsys):
     assert main(args[:-4] + ["--shifts", "push", "--reps", "20"]) == 2
     assert "holds an evaluation with other settings" in capsys.readouterr().err
     assert main([str(tmp_path / "none"), "--out", str(out)]) == 2
+
+
+def test_level_replaces_a_kinds_default_levels_and_bad_levels_are_one_line(tmp_path, capsys):
+    from gsa_jax.robustness import parse_levels, parse_shifts
+
+    shifts = parse_shifts("push,gear", parse_levels(["push=0.5,1"]))
+    assert [(s.kind, s.level) for s in shifts] == [("nominal", 0.0), ("push", 0.5), ("push", 1.0), ("gear", 0.8)]
+    assert [s.name for s in parse_shifts("all")] == [s.name for s in DEFAULT_SHIFTS]
+    np.savez(tmp_path / "c.npz", **controller_arrays("mlp", seed=0))
+    for bad, message in (("push=0,1", "levels must be > 0"), ("simulator=1", "KIND must be one of"),
+                         ("push=fast", "levels must be numbers")):
+        assert main([str(tmp_path / "c.npz"), "--out", str(tmp_path / "o"), "--level", bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and message in err, err

@@ -235,6 +235,42 @@ def test_every_finished_runs_controller_exported(inprocess, tmp_path):
             np.testing.assert_array_equal(ours[cell][seed]["eval_return"], theirs[cell][seed]["eval_return"])
 
 
+def test_a_sweeps_run_is_read_as_a_run_directory_is(inprocess, tmp_path, capsys):
+    """SWEEP_DIR/<run label> is a trained run's address: the same reader as a run directory's gives its settings
+    (the group's config.json, this run's seed and hyperparameters) and its row of the group's params.npz;
+    export takes it; extract --list prints the addresses; an unknown label is one line naming the runs."""
+    import shutil
+
+    from gsa_jax.export import main as export_main
+    from gsa_jax.extract import main as extract_main
+    from gsa_jax.running.trained import RunNotFound, read_run
+
+    address = str(inprocess / "inverted_double_pendulum-mixture-K3-s1")
+    run = read_run(address)
+    assert run.meta["seed"] == 1 and run.meta["hparams"]["K"] == 3 and run.meta["hparams"]["total_iterations"] == ITERS
+    assert run.meta["config"]["k_max"] == 3 and run.meta["result"] == {"iterations_done": ITERS, "status": "finished"}
+    group = inprocess / "groups" / "inverted_double_pendulum-mixture"
+    with open(group / "runs.csv") as f:
+        row = next(i for i, r in enumerate(csv.DictReader(f)) if r["K"] == "3" and r["seed"] == "1")
+    with np.load(group / "params.npz") as p:
+        for k in p.files:
+            np.testing.assert_array_equal(run.params[k], p[k][row], err_msg=k)
+    assert {"iterations", "chunk", "eval_every", "eval_seed", "physics", "versions", "git_commit"} <= set(run.meta)
+    assert export_main([address, "--out", str(tmp_path / "c.npz")]) == 0
+    capsys.readouterr()
+    assert extract_main([str(inprocess), "--list"]) == 0
+    assert address in capsys.readouterr().out
+    with pytest.raises(RunNotFound, match="holds no finished run 'hopper-mlp-s0'; its finished runs: inverted_double"):
+        read_run(str(inprocess / "hopper-mlp-s0"))
+    older = tmp_path / "older"  # a sweep written before groups recorded their config.json: one line, no shim
+    shutil.copytree(inprocess, older)
+    (older / "groups" / "inverted_double_pendulum-mixture" / "config.json").unlink()
+    capsys.readouterr()
+    assert extract_main([str(older), "--list"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "older gsa_jax" in err and "git_commit" in err
+
+
 ALONE_COLUMNS = ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl", "partition_entropy")
 
 

@@ -24,29 +24,27 @@ def main(argv=None):
     p.add_argument("--out", default="experiments/deploy_hopper/results")
     args = p.parse_args(argv)
 
-    from gsa_jax.analysis.extraction import extract, finished_runs, select
+    from gsa_jax.analysis.extraction import select, sweep_runs
     from gsa_jax.deployment.evaluation import load_controller, run_mjx, run_mujoco_c
     from gsa_jax.deployment.exporting import controller_arrays
     from gsa_jax.running.checkpoint import save_npz_atomic
     from gsa_jax.running.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
-    runs = finished_runs(args.sweep_dir)
-    seeds = sorted({int(r["seed"]) for _, _, r in runs if r["env"] == args.env and r["policy"] == "mixture"
-                    and int(r["K"]) == args.clusters})
+    seeds = sorted({int(r["seed"]) for _, _, _, r in sweep_runs(args.sweep_dir) if r["env"] == args.env
+                    and r["policy"] == "mixture" and int(r["K"]) == args.clusters})
     rows = []
     for seed in seeds:
-        run_dir = os.path.join(args.out, "runs", f"{args.env}-K{args.clusters}-s{seed}")
-        extract(args.sweep_dir, *select(runs, args.env, "mixture", args.clusters, seed), run_dir)
-        ctrl = os.path.join(run_dir, "controller.npz")
-        save_npz_atomic(ctrl, **controller_arrays(run_dir))
+        address = select(args.sweep_dir, args.env, "mixture", args.clusters, seed)
+        ctrl = os.path.join(args.out, "runs", f"{args.env}-K{args.clusters}-s{seed}", "controller.npz")
+        os.makedirs(os.path.dirname(ctrl), exist_ok=True)
+        save_npz_atomic(ctrl, **controller_arrays(address))
         c = run_mujoco_c(*load_controller(ctrl), args.episodes)
-        _, j = run_mjx(run_dir, args.episodes)
+        _, j = run_mjx(address, args.episodes)
         rows.append({"seed": seed, "mujoco_c_return": round(c["return_mean"], 1), "mujoco_c_ci95": round(c["return_ci95"], 1),
                      "mujoco_c_length": round(c["length_mean"], 1), "mjx_return": round(j["return_mean"], 1),
                      "mjx_ci95": round(j["return_ci95"], 1), "mjx_length": round(j["length_mean"], 1)})
         print(rows[-1], flush=True)
-        os.remove(os.path.join(run_dir, "params.npz"))  # the controller.npz is what is kept
     with open(os.path.join(args.out, "deploy.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()

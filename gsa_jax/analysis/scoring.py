@@ -14,25 +14,23 @@ import envs
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import schedule
-from gsa_jax.analysis.extraction import extract, finished_runs, select
+from gsa_jax.analysis.extraction import select, sweep_runs
 from gsa_jax.deployment.evaluation import load_controller, run_mujoco_c
 from gsa_jax.deployment.exporting import controller_arrays
 from gsa_jax.deployment.inspection import last_iteration, load_run
 from gsa_jax.running.checkpoint import save_npz_atomic
 
 
-def load_cell(sweep_dir, env_name, policy, k, tmp):
-    """Per seed (sorted): (trainer, params, obs_stats, hp, iteration, run_dir) of one sweep cell."""
+def load_cell(sweep_dir, env_name, policy, k):
+    """Per seed (sorted): (trainer, params, obs_stats, hp, iteration, address) of one sweep cell."""
 
-    runs = finished_runs(sweep_dir)
-    seeds = sorted({int(r["seed"]) for _, _, r in runs if r["env"] == env_name and r["policy"] == policy
-                    and (policy == "mlp" or int(r["K"]) == k)})
+    seeds = sorted({int(r["seed"]) for _, _, _, r in sweep_runs(sweep_dir) if r["env"] == env_name
+                    and r["policy"] == policy and (policy == "mlp" or int(r["K"]) == k)})
     out = []
     for seed in seeds:
-        run_dir = os.path.join(tmp, f"{os.path.basename(sweep_dir.rstrip('/'))}-{policy}-s{seed}")
-        extract(sweep_dir, *select(runs, env_name, policy, k if policy == "mixture" else 1, seed), run_dir)
-        trainer, params, obs_stats, hp, meta = load_run(run_dir, require_mixture=False)
-        out.append((seed, trainer, params, obs_stats, hp, last_iteration(meta), run_dir))
+        address = select(sweep_dir, env_name, policy, k if policy == "mixture" else 1, seed)
+        trainer, params, obs_stats, hp, meta = load_run(address, require_mixture=False)
+        out.append((seed, trainer, params, obs_stats, hp, last_iteration(meta), address))
     return out
 
 
@@ -92,18 +90,19 @@ def qpos_drift(env_a, env_b, episodes=64, steps=(1, 10, 100), hopper=False):
 
 def score_sweep(sweep, env_name, clusters, episodes, variants, tmp, **tags):
     """Rows (tags, policy, K, seed, one mean return per physics variant {name: Physics or None}, and
-    mujoco_c for the exported mixtures) for the flat PPO and K=`clusters` controllers of a sweep's task."""
+    mujoco_c for the exported mixtures) for the flat PPO and K=`clusters` controllers of a sweep's task.
+    tmp: a directory for the exported controllers."""
 
     rows = []
     for policy in ("mlp", "mixture"):
-        cell = load_cell(sweep, env_name, policy, clusters, tmp)
+        cell = load_cell(sweep, env_name, policy, clusters)
         res = evaluate_cell(cell, episodes, variants)
         for i, c in enumerate(cell):
             row = {**tags, "policy": policy, "K": clusters if policy == "mixture" else "", "seed": c[0]}
             for name in variants:
                 row[name] = round(float(res[name][i].mean()), 1)
             if policy == "mixture":
-                ctrl = os.path.join(c[6], "controller.npz")
+                ctrl = os.path.join(tmp, os.path.basename(c[6]) + ".npz")
                 save_npz_atomic(ctrl, **controller_arrays(c[6]))
                 row["mujoco_c"] = round(run_mujoco_c(*load_controller(ctrl), episodes)["return_mean"], 1)
             else:

@@ -9,25 +9,22 @@ import numpy as np
 
 from gsa_jax.deployment.export_c import cost, to_source
 from gsa_jax.running.checkpoint import save_npz_atomic
+from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
 
 class ExportError(Exception):
     pass
 
 
-def controller_arrays(run_dir):
-    """Read config.json + params.npz of a run and return the controller arrays (see numpy_policy)."""
-    cfg_path, params_path = os.path.join(run_dir, "config.json"), os.path.join(run_dir, "params.npz")
-    if not os.path.isdir(run_dir):
-        raise ExportError(f"{run_dir!r} is not a directory")
-    for p in (cfg_path, params_path):
-        if not os.path.exists(p):
-            raise ExportError(f"{run_dir!r} is not a gsa_jax run: {os.path.basename(p)} is missing")
-    with open(cfg_path) as f:
-        meta = json.load(f)
+def controller_arrays(address):
+    """The controller arrays (see numpy_policy) of a trained run: a run directory or SWEEP_DIR/<run label>
+    (gsa_jax.running.trained)."""
+    try:
+        run = read_run(address)
+    except (RunNotFound, FormatError) as e:
+        raise ExportError(str(e)) from None
+    meta, arrays = run.meta, run.params
     kind = meta["config"]["policy"]
-    with np.load(params_path) as p:
-        arrays = {k: p[k] for k in p.files}
     prefix = "['params']['policy']"
     net = "partition" if kind == "mixture" else "mlp"
     n_layers = 0
@@ -60,7 +57,8 @@ SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
 
 
 def load_arrays(source):
-    """Controller arrays of a run directory or of an exported controller .npz."""
+    """Controller arrays of a trained run (a run directory or SWEEP_DIR/<run label>) or of an exported
+    controller .npz."""
     if os.path.isfile(source) and source.endswith(".npz"):
         if not zipfile.is_zipfile(source):
             raise ExportError(f"{source!r} is not an exported controller (not an .npz archive)")

@@ -1,7 +1,8 @@
-"""Read a trained mixture controller: `python -m gsa_jax.inspect <run dir> [--episodes 8] [--out DIR]`.
+"""Read a trained mixture controller: `python -m gsa_jax.inspect RUN [--episodes 8] [--out DIR]`, RUN a run
+directory or SWEEP_DIR/<run label>.
 
 Rolls out the deterministic controller (most probable cluster, mean action) and the stochastic
-policy for a few episodes, then writes to DIR (default <run dir>/inspect/):
+policy for a few episodes, then writes to DIR (default <run dir>/inspect/, SWEEP_DIR/inspect/<run label>/):
   summary.json        returns (deterministic vs stochastic), cluster usage, clusters ever used,
                       mean dwell time and switches per episode
   clusters_time.png   the active cluster over one episode, above the main state variables
@@ -23,33 +24,42 @@ from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import Config, make_env, make_hparams, make_train, schedule
-from gsa_jax.running.checkpoint import load_pytree
+from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
 
 class InspectError(Exception):
     pass
 
 
-def load_run(run_dir, require_mixture=True):
-    """(trainer, params, obs_stats, hparams, meta) of a finished or interrupted (mixture) run."""
-
-    for name in ("config.json", "params.npz"):
-        if not os.path.exists(os.path.join(run_dir, name)):
-            raise InspectError(f"{run_dir!r} is not a gsa_jax run: {name} is missing")
-    with open(os.path.join(run_dir, "config.json")) as f:
-        meta = json.load(f)
+def load_run(address, require_mixture=True):
+    """(trainer, params, obs_stats, hparams, meta) of a finished or interrupted (mixture) run: a run directory
+    or SWEEP_DIR/<run label> (gsa_jax.running.trained)."""
+    try:
+        run = read_run(address)
+    except (RunNotFound, FormatError) as e:
+        raise InspectError(str(e)) from None
+    meta = run.meta
     if require_mixture and meta["config"]["policy"] != "mixture":
-        raise InspectError(f"{run_dir!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
+        raise InspectError(f"{address!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
     c = dict(meta["config"])
     c["hidden"] = tuple(c["hidden"])
-    cfg = Config(**c)
-    trainer = make_train(cfg)
+    trainer = make_train(Config(**c))
     hp = make_hparams(**meta["hparams"])
     like = jax.eval_shape(trainer.init, jax.random.PRNGKey(0), hp)
-    like = {"params": like.params, "obs_stats": like.obs_stats}
-    like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
-    loaded = jax.tree.map(jax.numpy.asarray, load_pytree(os.path.join(run_dir, "params.npz"), like))
+    loaded = unflatten_like({"params": like.params, "obs_stats": like.obs_stats}, run.params, address)
     return trainer, loaded["params"], loaded["obs_stats"], hp, meta
+
+
+def unflatten_like(like, arrays, source):
+    """The arrays {key path: array} (gsa_jax.running.checkpoint.save_pytree's names) in the structure of `like`."""
+    leaves, treedef = jax.tree_util.tree_flatten_with_path(like)
+    out = []
+    for path, ref in leaves:
+        key = jax.tree_util.keystr(path)
+        if key not in arrays or arrays[key].shape != ref.shape:
+            raise InspectError(f"{source!r}: params.npz has no {key} of shape {ref.shape}")
+        out.append(jnp.asarray(arrays[key], ref.dtype))
+    return jax.tree_util.tree_unflatten(treedef, out)
 
 
 def last_iteration(meta):
@@ -190,10 +200,17 @@ def plot_pca(data, k, path):
     plt.close(fig)
 
 
+def default_out(address):
+    """<run dir>/inspect/, or SWEEP_DIR/inspect/<run label>/ for a sweep's run."""
+    if os.path.exists(os.path.join(address, "config.json")):
+        return os.path.join(address, "inspect")
+    return os.path.join(os.path.dirname(os.path.normpath(address)), "inspect", os.path.basename(os.path.normpath(address)))
+
+
 def inspect_run(run_dir, out=None, episodes=8, seed=0):
     trainer, params, obs_stats, hp, meta = load_run(run_dir)
     k = int(meta["hparams"]["K"])
-    out = out or os.path.join(run_dir, "inspect")
+    out = out or default_out(run_dir)
     os.makedirs(out, exist_ok=True)
     last_it = last_iteration(meta)
     key = jax.random.PRNGKey(seed)
@@ -221,14 +238,11 @@ def inspect_run(run_dir, out=None, episodes=8, seed=0):
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.inspect", description=__doc__.split("\n")[0])
-    p.add_argument("run_dir")
+    p.add_argument("run_dir", metavar="RUN", help="a run directory (gsa_jax.train) or SWEEP_DIR/<run label>")
     p.add_argument("--out", default=None)
     p.add_argument("--episodes", type=int, default=8)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
-    if not os.path.isdir(args.run_dir):
-        print(f"gsa_jax.inspect: error: {args.run_dir!r} is not a directory", file=sys.stderr)
-        return 2
     if args.episodes < 1:
         print("gsa_jax.inspect: error: --episodes must be >= 1", file=sys.stderr)
         return 2

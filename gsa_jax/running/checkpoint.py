@@ -76,11 +76,6 @@ def write_atomic(path, data, mode="w", keep_previous=False):
 UNREADABLE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
 
 
-class FormatError(Exception):
-    """A run file written by a gsa_jax of another file format: intact, so no fallback to its previous version;
-    the message says how to go on."""
-
-
 def read_with_fallback(path, read, log=print):
     """read(p) of `path`, or of its previous version if `path` is missing or unreadable (one line says
     which and why). Returns (value, path read). Raises CheckpointError if neither can be read."""

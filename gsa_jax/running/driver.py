@@ -7,8 +7,7 @@ loop, atomic checkpoints after every chunk (through the store), the heartbeat, t
 outcome (a run whose loss or parameters turned NaN/inf is frozen inside the compiled program; the
 group stops once every run has failed), the deterministic-evaluation schedule, progress lines with
 steps/s and ETA, and the timings. What differs between a single run and a sweep group is
-outside it: the compiled program (gsa_jax.running.programs) and the files (a store: single.RunStore,
-sweeps.GroupStore).
+outside it: the compiled program (gsa_jax.running.programs); both are stored by gsa_jax.running.store.GroupStore.
 
 A store has three methods: `load(state)` -> (state, metrics, done) of the last intact checkpoint or
 None; `save(state, metrics, done)` after every chunk; `finish(state, metrics, done, timing)` once
@@ -29,9 +28,10 @@ HOST_METRICS = ITERATION_METRICS + ("failed_at",) + EVAL_METRICS + ("wall_s",)
 
 
 class Program(NamedTuple):
-    """A compiled training program of `runs` runs. run(state, hps) -> (state, metrics {name: [R, chunk]}
-    or [chunk] when not batched); evaluate(state, hps, iteration) -> ([R], [R]) (or scalars): the
-    deterministic controllers' mean returns and failed episodes (gsa_jax.algorithm.episodes), or None; place(host tree) -> the tree on the program's devices; how: how it was obtained."""
+    """A compiled training program of `runs` runs, its state with a leading run axis [R, ...]. run(state, hps)
+    -> (state, metrics {name: [R, chunk]}); evaluate(state, hps, iteration) -> ([R], [R]) (or scalars): the
+    deterministic controllers' mean returns and failed episodes (gsa_jax.algorithm.episodes), or None;
+    place(host tree) -> the tree on the program's devices; how: how it was obtained."""
 
     runs: int
     state: object
@@ -39,7 +39,6 @@ class Program(NamedTuple):
     run: Callable
     evaluate: Callable | None
     place: Callable
-    batched: bool
     how: str = "compiled"
 
 

@@ -162,18 +162,34 @@ def compile_single(cfg, chunk):
     return cached("single", (cfg, chunk), build)
 
 
+def with_run_axis(tree):
+    """A leading run axis of one on every leaf: one run as a group of one."""
+    return jax.tree.map(lambda x: x[None], tree)
+
+
+def first_run(tree):
+    return jax.tree.map(lambda x: x[0], tree)
+
+
 def single_program(cfg, chunk, seed, hp_py, eval_seed=0):
-    """(Program of one run, not vmapped, its trainer). The deterministic evaluation after iteration `it`
-    starts its episodes from fold_in(PRNGKey(eval_seed), it): the same starts for every seed."""
+    """(Program of one run, its trainer). The run is a group of one: its state and metrics carry a leading run
+    axis of 1 (what the group store saves), around the un-vmapped compiled run_chunk. The deterministic
+    evaluation after iteration `it` starts its episodes from fold_in(PRNGKey(eval_seed), it): the same starts
+    for every seed."""
     trainer, init, run_chunk, evaluate = compile_single(cfg, chunk)
     hp = make_hparams(**hp_py)
     eval_key = jax.random.PRNGKey(eval_seed)
 
-    def evaluate_state(state, hps, it):
+    def run(states, hps):
+        state, metrics = run_chunk(first_run(states), hps)
+        return with_run_axis(state), with_run_axis(metrics)
+
+    def evaluate_state(states, hps, it):
+        state = first_run(states)
         return evaluate(state.params, state.obs_stats, hps, jax.random.fold_in(eval_key, it))
 
-    program = Program(1, init(jax.random.PRNGKey(seed), hp), hp, run_chunk, evaluate_state, lambda tree: tree, batched=False)
-    return program, trainer
+    state = with_run_axis(init(jax.random.PRNGKey(seed), hp))
+    return Program(1, state, hp, run, evaluate_state, lambda tree: tree), trainer
 
 
 def compile_group_evaluate(shape, states, hps, place, share=None, log=print):
@@ -203,4 +219,4 @@ def group_program(shape, group, eval_seed=None, share=None, log=print):
         group_eval = compile_group_evaluate(shape, states, hps, place, share, log)
         base = jax.random.PRNGKey(eval_seed)
         evaluate = lambda st, h, it: group_eval(st, h, jax.random.fold_in(base, it))  # noqa: E731
-    return Program(len(group.runs), states, hps, run, evaluate, place, batched=True, how=how)
+    return Program(len(group.runs), states, hps, run, evaluate, place, how=how)

@@ -1,5 +1,7 @@
-"""One training run: its plan (RunPlan), this invocation's options (RunOptions), its store (metrics.csv,
-params.npz, state.npz, config.json) and the chunk loop around it; `python -m gsa_jax.train` is its command."""
+"""One training run: its plan (RunPlan), this invocation's options (RunOptions) and the chunk loop around it;
+`python -m gsa_jax.train` is its command. The run is stored as a group of one (gsa_jax.running.store: runs.csv,
+metrics.npz, state.npz, params.npz, DONE), with its own config.json, metrics.csv (one row per iteration, a view
+of metrics.npz rewritten after every chunk) and curve.png."""
 
 import csv
 import dataclasses
@@ -17,16 +19,15 @@ from envs import solver_settings
 from envs.physics import resolve_threads
 from gsa_jax.algorithm.ppo import Config
 from gsa_jax.algorithm.retrace import buffer_bytes
-from gsa_jax.running.checkpoint import (
-    CheckpointError, DiskFullError, FormatError, load_pytree, read_with_fallback, save_pytree, write_atomic,
-)
+from gsa_jax.running.checkpoint import CheckpointError, DiskFullError, write_atomic
 from gsa_jax.running.curve import plot_curve
-from gsa_jax.running.driver import Plan, drive, duration, fmt, rows_before_failure
+from gsa_jax.running.driver import Plan, drive, duration, failed_mask, fmt, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS
 from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.programs import single_program
 from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
-from gsa_jax.running.store import Store, warn
+from gsa_jax.running.store import GroupStore, write_runs_table
+from gsa_jax.running.trained import FormatError, check_layout
 
 
 class UsageError(Exception):
@@ -68,13 +69,6 @@ def rows_to_csv(rows):
     return buf.getvalue()
 
 
-def read_rows(path):
-    if not os.path.exists(path):
-        return []
-    with open(path) as f:
-        return list(csv.DictReader(f))
-
-
 RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk")
 
 
@@ -89,57 +83,28 @@ def check_resume_config(old, config, force):
                     "pass --force to continue it with the new settings")
 
 
-class RunStore(Store):
-    """The files of a single run (the driver's store): metrics.csv, params.npz and state.npz (the
-    checkpoint files keep their previous version) in `out`."""
-
-    def __init__(self, out, config, resume):
-        super().__init__(out, os.path.join(out, "tensorboard") if config.get("tensorboard") else None, [""])
-        self.config, self.resume = config, resume
-
-    def has_checkpoint(self):
-        return self.resume and super().has_checkpoint()
-
-    def load_checkpoint(self, template):
-        """(state, metrics [1, done], done) of the run saved in out: state.npz, or state.prev.npz if that
-        is unreadable; metrics.csv (or its previous version) cut to the state's iteration."""
-        state, path = read_with_fallback(self.path("state.npz"), lambda p: load_pytree(p, template), warn)
-        done = int(state.iteration)
-        rows, _ = read_with_fallback(self.path("metrics.csv"), read_rows_checked, warn)
-        if int(state.failed_at) >= 0:
-            raise UsageError(f"the run in {self.root} stopped at a NaN/inf at iteration {int(state.failed_at)}; nothing to resume")
-        rows = [r for r in rows if int(r["iteration"]) <= done]
-        if len(rows) < done:
-            raise UsageError(f"{self.root}: metrics.csv holds {len(rows)} iterations but {os.path.basename(path)} is at "
-                             f"iteration {done}; delete the directory to start over")
-        return state, rows_to_metrics(rows), done
-
-    def save(self, state, metrics, done):
-        """Metrics, parameters and state after a chunk."""
-        write_atomic(self.path("metrics.csv"), rows_to_csv(metrics_to_rows(metrics, done)), keep_previous=True)
-        self.save_params(state)
-        save_pytree(self.path("state.npz"), state, keep_previous=True)
-        self.follow_save(metrics, done)
-
-    def save_params(self, state):
-        save_pytree(self.path("params.npz"), {"params": state.params, "obs_stats": state.obs_stats},
-                    **{"meta/config_json": np.array(json.dumps(self.config))})
-
-    def finish(self, state, metrics, done, timing):
-        """Nothing beyond the last chunk's files: train.finish writes the result into config.json."""
+RUN_ID_COLUMNS = ("env", "policy", "K", "seed")  # a run directory's runs.csv
 
 
-def read_rows_checked(path):
-    rows = read_rows(path) if os.path.exists(path) else None
-    if rows is None:
-        raise OSError("missing")
-    if rows and set(METRIC_COLUMNS) - set(rows[0]):
-        missing = sorted(set(METRIC_COLUMNS) - set(rows[0]))
-        if set(rows[0]) & set(METRIC_COLUMNS):
-            raise FormatError(f"{path} was written by an older gsa_jax (no {', '.join(missing)}); continue that run with "
-                              "the commit in its config.json (git_commit), or start over in another --out")
-        raise ValueError("not a metrics table")
-    return rows
+def run_row(plan):
+    """The run's row in runs.csv."""
+    return {"env": plan.cfg.env, "policy": plan.cfg.policy, "K": plan.hp["K"], "seed": plan.seed}
+
+
+def run_store(plan, options, config):
+    """The run's GroupStore (a group of one) in options.out; after every chunk it rewrites metrics.csv from
+    the metrics, at the end it records the result in config.json."""
+    metrics_csv = os.path.join(options.out, "metrics.csv")
+
+    def write_table(runs, metrics, done):
+        write_atomic(metrics_csv, rows_to_csv(metrics_to_rows(metrics, done)))
+
+    def write_result(metrics, done, timing):
+        status = "nan" if failed_mask(metrics, done)[0] else "finished"
+        record_result(plan, options.out, config, (metrics, done, timing, status))
+
+    board = (os.path.join(options.out, "tensorboard"), [""]) if options.tensorboard else None
+    return GroupStore(options.out, [run_row(plan)], plan.iterations, write_table, board, write_result)
 
 
 def metrics_to_rows(metrics, done):
@@ -153,14 +118,6 @@ def metrics_to_rows(metrics, done):
             row[k] = "" if math.isnan(v) else (int(v) if k in INTEGER_METRICS else v)
         rows.append(row)
     return rows
-
-
-def rows_to_metrics(rows):
-    """The inverse of metrics_to_rows: {name: float64 [1, len(rows)]} (a written row never failed)."""
-    metrics = {k: np.array([[float(r[k]) if r.get(k, "") != "" else math.nan for r in rows]], np.float64)
-               for k in METRIC_COLUMNS}
-    metrics["failed_at"] = np.full((1, len(rows)), -1.0)
-    return metrics
 
 
 def run(plan, options):
@@ -177,9 +134,13 @@ def run(plan, options):
     try:
         config_path = os.path.join(out, "config.json")
         if options.resume and os.path.exists(config_path):
+            check_layout(out)
             with open(config_path) as f:
                 check_resume_config(json.load(f), config, options.force)
+            if os.path.exists(os.path.join(out, "DONE")):
+                return report_ended(out, log)
         config.update(physics=physics_record(cfg), **run_metadata())
+        write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
         write_atomic(config_path, json.dumps(config, indent=2))
         return train_run(plan, options, config, log)
     except (UsageError, CheckpointError, ResumeRefused, FormatError) as e:
@@ -191,19 +152,30 @@ def run(plan, options):
         return 4
 
 
+def report_ended(out, log):
+    """--resume of a run that has ended: nothing to train. Exit 0 for a finished run; a run stopped by a
+    NaN/inf is a UsageError."""
+    with open(os.path.join(out, "failed.json")) as f:
+        failed = json.load(f)
+    if failed:
+        raise UsageError(f"the run in {out} stopped at a NaN/inf at iteration {failed[0]['failed_at']}; nothing to resume")
+    log(f"the run in {out} is finished; nothing to resume")
+    return 0
+
+
 def saved_iteration(out):
     """The iteration of the newest readable checkpoint in out (0 if none)."""
     for name in ("state.npz", "state.prev.npz"):
         try:
             with np.load(os.path.join(out, name)) as f:
-                return int(f[".iteration"])
+                return int(f["__done__"])
         except (OSError, KeyError, ValueError):
             continue
     return 0
 
 
 def train_run(plan, options, config, log):
-    """Compile (or reuse) the run's program and drive it with a RunStore; then finish. Returns the exit status."""
+    """Compile (or reuse) the run's program and drive it with its store; then finish. Returns the exit status."""
     cfg, out = plan.cfg, options.out
     t0 = time.perf_counter()
     program, trainer = single_program(cfg, plan.chunk, plan.seed, plan.hp, plan.eval_seed)
@@ -213,23 +185,35 @@ def train_run(plan, options, config, log):
         log(f"value targets: Retrace over the samples of the last {cfg.retrace_iterations} iterations "
             f"(buffer {config['retrace_buffer_bytes'] / 2**20:.2f} MiB)")
     log(f"compiled in {time.perf_counter() - t0:.1f}s")
-    store = RunStore(out, config, options.resume)
-    if not os.path.exists(store.path("params.npz")):  # the initial parameters: "last good" even if chunk 1 diverges
-        store.save_params(program.state)
+    store = run_store(plan, options, config)
     stop = None if options.stop_after is None else math.ceil(options.stop_after / plan.chunk)
     drive_plan = Plan(plan.iterations, plan.chunk, cfg.batch_size, 1, plan.eval_every, mixture=cfg.policy == "mixture",
                       stop_after_chunks=stop)
     result = drive(program, store, drive_plan, log, clock_start=t0)
-    status = {"failed": 1, "interrupted": 130}.get(result.status, 0)
+    if not result.finished:  # stopped as asked or interrupted: the store recorded no result
+        record_result(plan, out, config, (result.metrics, result.done, result.timing, "interrupted"))
+    return report_end(result, config, out, log)
+
+
+def report_end(result, config, out, log):
+    """The closing lines of this invocation. Returns the exit status: 0, 1 (NaN/inf), 130 (interrupted)."""
+    timing, res = config["timing"], config["result"]
     if result.status == "failed":
         failed_at = int(result.metrics["failed_at"][0, result.done - 1])
         print(f"gsa_jax.train: error: NaN/inf in the loss or parameters at iteration {failed_at}; stopped. "
-              f"Last good parameters (iteration {failed_at - 1}) are in {store.path('params.npz')}", file=sys.stderr)
-    elif result.status == "interrupted":
+              f"Last good parameters (iteration {failed_at - 1}) are in {os.path.join(out, 'params.npz')}", file=sys.stderr)
+        return 1
+    if result.status == "interrupted":
         print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
               f"(continue with --resume --out {out})", file=sys.stderr)
-    finish(plan, out, config, (metrics_to_rows(result.metrics, result.done), status, result), log)
-    return status
+        return 130
+    if result.done < result.iterations:
+        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with --resume --out {out}")
+    else:
+        log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
+            f"{timing['env_steps_per_s']:,.0f} steps/s); final return {fmt(res['final_episode_return'], '.1f')}, "
+            f"eval {fmt(res['final_eval_return'], '.1f')}; results in {out}")
+    return 0
 
 
 def log_start(plan, trainer, out, log):
@@ -247,30 +231,24 @@ def log_start(plan, trainer, out, log):
         log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics_threads)} thread(s))")
 
 
-def finish(plan, out, config, outcome, log):
-    """Curve, timings and result into config.json; the closing line. outcome: (metrics.csv rows, exit status,
-    driver Result)."""
-    rows, status, result = outcome
-    cfg, hp_py, seed = plan.cfg, plan.hp, plan.seed
+def record_result(plan, out, config, ended):
+    """The learning curve, and the timings and result into config.json. ended: (metrics [1, iterations], done,
+    driver timing, status: 'finished', 'nan' or 'interrupted')."""
+    metrics, done, timing, status = ended
+    rows = metrics_to_rows(metrics, done)
+    cfg, hp_py = plan.cfg, plan.hp
     if rows:
-        title = f"{cfg.env} - {cfg.policy}" + (f" K={hp_py['K']}" if cfg.policy == "mixture" else "") + f" - seed {seed}"
+        title = f"{cfg.env} - {cfg.policy}" + (f" K={hp_py['K']}" if cfg.policy == "mixture" else "") + f" - seed {plan.seed}"
         try:
             plot_curve(rows, os.path.join(out, "curve.png"), title)
         except OSError as e:  # a figure is not worth failing a run for (e.g. a full disk)
             print(f"gsa_jax.train: warning: curve.png not written ({e.strerror or e})", file=sys.stderr)
-    config["timing"] = result.timing
     last = [r for r in rows if r["episode_return"] != ""]
+    config["timing"] = timing
     config["result"] = {
-        "iterations_done": result.done,
+        "iterations_done": done,
         "final_episode_return": float(last[-1]["episode_return"]) if last else None,
         "final_eval_return": next((float(r["eval_return"]) for r in reversed(rows) if r["eval_return"] != ""), None),
-        "status": "nan" if status == 1 else "interrupted" if status == 130 or result.done < result.iterations else "finished",
+        "status": status,
     }
     write_atomic(os.path.join(out, "config.json"), json.dumps(config, indent=2))
-    timing, res = config["timing"], config["result"]
-    if status == 0 and result.done < result.iterations:
-        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with --resume --out {out}")
-    elif status == 0:
-        log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
-            f"{timing['env_steps_per_s']:,.0f} steps/s); final return {fmt(res['final_episode_return'], '.1f')}, "
-            f"eval {fmt(res['final_eval_return'], '.1f')}; results in {out}")

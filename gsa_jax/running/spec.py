@@ -276,14 +276,6 @@ def build_grid(spec):
     return groups
 
 
-def run_label(row):
-    """A run's name in file and TensorBoard names: env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...]-s<seed>."""
-    fixed = ("env", "policy", "K", "seed", "run")
-    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
-    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v) for c, v in row.items() if c not in fixed and v]
-    return "-".join(parts + [f"s{row['seed']}"])
-
-
 def group_name(group):
     """The group's directory name: env-policy[-<axis value>...]."""
     first = group.runs[0] if group.runs else {}

@@ -12,22 +12,19 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
+from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS
 from gsa_jax.running import xla_cache
-from gsa_jax.running.checkpoint import (
-    CheckpointError, DiskFullError, FormatError, load_pytree, read_with_fallback, save_npz_atomic, save_pytree,
-    write_atomic,
-)
-from gsa_jax.running.driver import Plan, Result, drive, failed_mask, rows_before_failure
+from gsa_jax.running.checkpoint import DiskFullError, write_atomic
+from gsa_jax.running.driver import Plan, drive, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
 from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
 from gsa_jax.running.spec import (
-    Group, SpecError, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name,
-    run_label,
+    Group, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name,
 )
-from gsa_jax.running.store import Store, warn
+from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
+from gsa_jax.running.trained import run_label
 
-TRACKED = TIDY_METRICS + ("failed_at",)  # per run and iteration in metrics.npz; failed_at is not a CSV column
 EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
 
 
@@ -53,97 +50,7 @@ def tidy_name(column):
     return f"hparam_{column}" if column in TIDY_METRICS else column
 
 
-def failed_runs(runs, metrics, upto):
-    """[run dict + failed_at] of the runs that stopped at a NaN/inf."""
-    failed = failed_mask(metrics, upto)
-    return [{**r, "failed_at": int(metrics["failed_at"][i, upto - 1])} for i, r in enumerate(runs) if failed[i]]
-
-
-def load_group_checkpoint(gdir, states, iterations, log):
-    """(states, metrics arrays [R, iterations], done) of a group's last intact checkpoint: state.npz
-    (or state.prev.npz) and the metrics covering its iteration (metrics.npz or metrics.prev.npz)."""
-    def read_state(p):
-        with np.load(p) as f:
-            done = int(f["__done__"])
-        return load_pytree(p, states), done
-
-    (states, done), _ = read_with_fallback(os.path.join(gdir, "state.npz"), read_state, log)
-
-    def read_metrics(p):
-        with np.load(p) as m:
-            if int(m["__done__"]) < done:
-                raise ValueError(f"holds {int(m['__done__'])} iterations, the state {done}")
-            check_format(p, m.files)
-            return {k: m[k][:, :done] for k in TRACKED}
-
-    saved, _ = read_with_fallback(os.path.join(gdir, "metrics.npz"), read_metrics, log)
-    metrics = {m: np.full((saved["iteration"].shape[0], iterations), np.nan, np.float64) for m in TRACKED}
-    for k in TRACKED:
-        metrics[k][:, :done] = saved[k]
-    return states, metrics, done
-
-
-def save_group_checkpoint(gdir, states, metrics, done):
-    """Metrics, then state (both keeping their previous version); the state records `done`."""
-    save_npz_atomic(os.path.join(gdir, "metrics.npz"), True, __done__=np.array(done),
-                    **{k: v[:, :done] for k, v in metrics.items()})
-    save_pytree(os.path.join(gdir, "state.npz"), states, True, __done__=np.array(done))
-
-
-def finish_group(gdir, states, runs, metrics, done, timing):
-    """Final parameters (a failed run's last finite ones), failed.json and DONE; drop the resume state."""
-    params = jax.device_get({"params": states.params, "obs_stats": states.obs_stats})
-    save_pytree(os.path.join(gdir, "params.npz"), jax.tree.map(lambda x: x[: len(runs)], params))
-    write_atomic(os.path.join(gdir, "failed.json"), json.dumps(failed_runs(runs, metrics, done)))
-    write_atomic(os.path.join(gdir, "DONE"), json.dumps(timing))
-    for name in ("state.npz", "state.prev.npz", "metrics.prev.npz"):  # the full state is only needed to resume
-        if os.path.exists(os.path.join(gdir, name)):
-            os.unlink(os.path.join(gdir, name))
-
-
 # ----------------------------------------------------------------------------------------------- groups
-class GroupStore(Store):
-    """The files of one group (the driver's store) in gdir: state.npz and metrics.npz after every chunk
-    (each keeping its previous version); at the end params.npz, failed.json and DONE. on_chunk(runs,
-    metrics [len(runs), iterations], done) runs after every save (the tidy table)."""
-
-    def __init__(self, gdir, runs, iterations, on_chunk=None, board_dir=None):
-        super().__init__(gdir, board_dir, [run_label(r) for r in runs])
-        self.runs, self.iterations, self.on_chunk = runs, iterations, on_chunk
-
-    def load_checkpoint(self, template):
-        try:
-            return load_group_checkpoint(self.root, template, self.iterations, warn)
-        except CheckpointError as e:
-            raise SpecError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
-
-    def save(self, states, metrics, done):
-        save_group_checkpoint(self.root, states, {k: metrics[k] for k in TRACKED}, done)
-        self.follow_save(metrics, done)
-        if self.on_chunk:
-            self.on_chunk(self.runs, {k: v[: len(self.runs)] for k, v in metrics.items()}, done)
-
-    def finish(self, states, metrics, done, timing):
-        finish_group(self.root, states, self.runs, metrics, done, timing)
-
-
-def check_format(path, names):
-    """Refuse (one line) a group file written by a gsa_jax that tracked fewer metrics."""
-    missing = [k for k in TRACKED if k not in names]
-    if missing:
-        raise FormatError(f"{path} was written by an older gsa_jax (no {', '.join(missing)}); finish that sweep with the "
-                        "commit in its sweep.json (git_commit), or start over in another --out")
-
-
-def finished_group(gdir, iterations):
-    """The driver Result of a group whose DONE marker exists, from its metrics.npz."""
-    with np.load(os.path.join(gdir, "metrics.npz")) as m:
-        check_format(os.path.join(gdir, "metrics.npz"), m.files)
-        saved = {k: m[k] for k in m.files if k != "__done__"}
-    done = saved["iteration"].shape[1]
-    return Result(done, iterations, saved, "finished" if done >= iterations else "failed", {}, done)
-
-
 @dataclasses.dataclass(frozen=True)
 class SweepOptions:
     """How this process runs a sweep -- not what it computes (the spec; sweep.json records both).
@@ -188,11 +95,10 @@ def run_group(spec, out, group, ctx):
     iterations = group_iterations(spec, cfg, chunk)
     if os.path.exists(os.path.join(gdir, "DONE")):
         return finished_group(gdir, iterations)
-    cols = spec.id_columns()
-    write_atomic(os.path.join(gdir, "runs.csv"), "\n".join(
-        [",".join(cols)] + [",".join(str(r[c]) for c in cols) for r in group.runs]) + "\n")
-    t0 = time.perf_counter()
     eval_every = group_eval_every(spec, iterations)
+    write_runs_table(gdir, group.runs, spec.id_columns())
+    write_group_record(gdir, spec, cfg, group.runs, (iterations, chunk, eval_every))
+    t0 = time.perf_counter()
     shape = GroupShape(cfg, chunk, tuple(ctx.devices), ctx.options.run_batch)
     runs = pad_runs(group.runs, len(ctx.devices), at_least=ctx.pad_to)
     program = group_program(shape, GroupRuns(runs, list(spec.hparams), iterations),
@@ -202,13 +108,26 @@ def run_group(spec, out, group, ctx):
             f"{len(ctx.devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
     plan = Plan(iterations, chunk, cfg.batch_size, len(group.runs), eval_every,
                 stop_after_chunks=ctx.options.stop_after_chunks, tag=tag)
-    store = GroupStore(gdir, group.runs, iterations, ctx.on_chunk, ctx.board_dir)
+    store = GroupStore(gdir, group.runs, iterations, ctx.on_chunk, (ctx.board_dir, [run_label(r) for r in group.runs]))
     result = drive(program, store, plan, ctx.log, ctx.options.heartbeat, clock_start=t0)
     t = result.timing
     if t.get("eval_s"):
         ctx.log(f"[{tag}] deterministic evaluation: {t['eval_s']:.1f}s = {t['eval_s'] / max(t['train_s'] + t['eval_s'], 1e-9):.1%} "
                 f"of this invocation's training and evaluation time")
     return result
+
+
+def write_group_record(gdir, spec, cfg, runs, schedule):
+    """config.json of a group: what its runs compute -- the Config, iterations, chunk, evaluation schedule, each
+    run's seed and full hyperparameters (gsa_jax.running.trained reads a run's settings from it), physics,
+    versions and commit. schedule: (iterations, chunk, eval_every)."""
+    iterations, chunk, eval_every = schedule
+    per_run = [{"seed": r["seed"], "hparams": {**HPARAM_DEFAULTS, **{n: r[n] for n in spec.hparams}, "K": r["K"],
+                                               "total_iterations": iterations}} for r in runs]
+    record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, "eval_every": eval_every,
+              "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
+              "physics": physics_record(cfg), **run_metadata()}
+    write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
 
 
 def write_tidy(out, spec, results):

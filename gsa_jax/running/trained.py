@@ -1,0 +1,126 @@
+"""A trained run's settings and parameters, read by one function wherever the run is stored: a run
+directory (gsa_jax.train; a group of one) or one run of a sweep, addressed as SWEEP_DIR/<run label>, e.g.
+runs/sweeps/fig1_small/hopper-mixture-K2-s0 (`python -m gsa_jax.extract SWEEP_DIR --list` names them).
+
+Both are group directories (gsa_jax.running.store): runs.csv (the run axis), config.json (what the runs
+compute; a group's lists each run's seed and hyperparameters under "runs") and params.npz [R, ...]. Loads
+without JAX: reading and deploying a controller need only NumPy.
+"""
+
+import csv
+import glob
+import json
+import os
+from typing import NamedTuple
+
+import numpy as np
+
+LAYOUT_FILE = "runs.csv"  # what marks a group directory (a run directory of an older gsa_jax has none)
+
+
+class FormatError(Exception):
+    """A run file written by a gsa_jax of another file format: intact, so no fallback to its previous version;
+    the message says how to go on."""
+
+
+class RunNotFound(ValueError):
+    """An address that is neither a run directory nor a finished run of a sweep."""
+
+
+class TrainedRun(NamedTuple):
+    """address: as given; meta: the run's settings as a run directory's config.json holds them (config,
+    hparams, seed, iterations, chunk, eval_every, result, versions, git_commit, ...); params: params.npz's
+    entries of this run without the run axis ("['params']['policy']['L']", "['obs_stats']['mean']", ...)."""
+
+    address: str
+    meta: dict
+    params: dict
+
+
+def check_layout(root):
+    """Refuse (one line) a run directory written before runs were stored as groups of one."""
+    if os.path.exists(os.path.join(root, "config.json")) and not os.path.exists(os.path.join(root, LAYOUT_FILE)):
+        raise FormatError(f"{root} holds a run of an older gsa_jax (metrics.csv and params.npz without a run axis, "
+                          "no runs.csv); read or continue it with the commit in its config.json (git_commit), or train "
+                          "it again")
+
+
+def read_rows(root):
+    """The runs.csv rows of a group directory (dicts of strings), in run-axis order."""
+    with open(os.path.join(root, LAYOUT_FILE)) as f:
+        return list(csv.DictReader(f))
+
+
+def run_label(row):
+    """A run's name in file, TensorBoard and address names, from its grid row or runs.csv row (the same name):
+    env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...]-s<seed>."""
+    fixed = ("env", "policy", "K", "seed", "run")
+    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
+    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v)
+              for c, v in row.items() if c not in fixed and v not in ("", None)]
+    return "-".join(parts + [f"s{row['seed']}"])
+
+
+def finished_runs(sweep_dir):
+    """[(label, group dir, index on the run axis, runs.csv row)] of every run of a sweep whose group finished
+    (DONE), in group order."""
+    if not os.path.exists(os.path.join(sweep_dir, "sweep.json")):
+        raise RunNotFound(f"{sweep_dir!r} is not a sweep directory (no sweep.json)")
+    out = []
+    for runs_csv in sorted(glob.glob(os.path.join(sweep_dir, "**", "groups", "*", LAYOUT_FILE), recursive=True)):
+        root = os.path.dirname(runs_csv)
+        if os.path.exists(os.path.join(root, "DONE")):
+            if not os.path.exists(os.path.join(root, "config.json")):
+                raise FormatError(f"{sweep_dir} was written by an older gsa_jax (its groups have no config.json); read "
+                                  "its runs with the commit in its sweep.json (git_commit)")
+            out.extend((run_label(row), root, i, row) for i, row in enumerate(read_rows(root)))
+    return out
+
+
+def group_meta(root, index):
+    """The settings of run `index` of a group directory: its config.json with the run's own entry of
+    "runs" (seed, hparams) merged in, and its result (finished, or stopped at a NaN/inf: failed.json)."""
+    with open(os.path.join(root, "config.json")) as f:
+        meta = json.load(f)
+    per_run = meta.pop("runs", None)
+    if per_run is None:  # a run directory: config.json is the run's own
+        return meta
+    meta.update(per_run[index])
+    row = read_rows(root)[index]
+    with open(os.path.join(root, "failed.json")) as f:
+        failed = [r for r in json.load(f) if str(r.get("run")) == row.get("run")]
+    done = failed[0]["failed_at"] - 1 if failed else meta["iterations"]
+    meta["result"] = {"iterations_done": done, "status": "nan" if failed else "finished"}
+    meta["run"] = row
+    return meta
+
+
+def read_params(root, index):
+    """params.npz's entries of run `index`, without the run axis."""
+    with np.load(os.path.join(root, "params.npz")) as p:
+        return {k: p[k][index] for k in p.files}
+
+
+def locate(address):
+    """(group directory, index) of a run directory or of SWEEP_DIR/<run label>."""
+    address = os.path.normpath(address)
+    if os.path.isdir(address) and os.path.exists(os.path.join(address, "config.json")):
+        check_layout(address)
+        return address, 0
+    sweep_dir, label = os.path.split(address)
+    if os.path.exists(os.path.join(sweep_dir, "sweep.json")):
+        runs = finished_runs(sweep_dir)
+        hits = [(root, i) for name, root, i, _ in runs if name == label]
+        if hits:
+            return hits[0]
+        raise RunNotFound(f"{sweep_dir!r} holds no finished run {label!r}; its finished runs: "
+                          + (", ".join(name for name, *_ in runs[:6]) + (", ..." if len(runs) > 6 else "") or "none"))
+    raise RunNotFound(f"{address!r} is not a gsa_jax run: neither a run directory (config.json) nor SWEEP_DIR/<run label>")
+
+
+def read_run(address):
+    """The TrainedRun at `address`: a run directory, or SWEEP_DIR/<run label>."""
+    root, index = locate(address)
+    if not os.path.exists(os.path.join(root, "params.npz")):
+        raise RunNotFound(f"{address!r} is not a gsa_jax run: params.npz is missing")
+    return TrainedRun(address, group_meta(root, index), read_params(root, index))
