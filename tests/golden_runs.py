@@ -48,11 +48,11 @@ def table_digest(path):
 
 def arrays_digest(path, run=None):
     """sha256 of every array in an .npz (name, dtype, shape, bytes), in name order; 'meta/' entries (the run's
-    config record: paths, command line) are not what it computes and are left out. run: digest that run's row
-    of every array (a run axis first)."""
+    config record: paths, command line) and wall-clock arrays are not what it computes and are left out. run:
+    digest that run's row of every array (a run axis first)."""
     h = hashlib.sha256()
     with np.load(path) as f:
-        for name in sorted(n for n in f.files if not n.startswith("meta/")):
+        for name in sorted(n for n in f.files if not n.startswith("meta/") and n not in WALL_CLOCK):
             a = np.ascontiguousarray(f[name] if run is None else f[name][run])
             h.update(f"{name}|{a.dtype.str}|{a.shape}".encode())
             h.update(a.tobytes())

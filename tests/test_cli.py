@@ -100,6 +100,7 @@ def test_interrupt_then_resume_equals_uninterrupted(full_run, tmp_path):
     board.write_bytes((full_run / "tensorboard" / FILE_NAME).read_bytes())  # as if written past the checkpoint
     assert main(SMALL + ["--out", str(out), "--resume"]) == 0
     assert strip_wall(read_csv(out / "metrics.csv")) == strip_wall(read_csv(full_run / "metrics.csv"))
+    assert all(r["wall_s"] != "" for r in read_csv(out / "metrics.csv"))  # the wall clock before the resume kept
     # TensorBoard: the resumed run's events restart from the checkpoint: each iteration once, as uninterrupted
     got, ref = read_scalars(str(board)), read_scalars(str(full_run / "tensorboard" / FILE_NAME))
     assert got == ref and [s for s, _ in got["returns/episode_return"]] == [512, 1024, 1536, 2048]

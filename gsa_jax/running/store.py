@@ -25,7 +25,9 @@ from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.tensorboard import Board, follow
 from gsa_jax.running.trained import LAYOUT_FILE, FormatError, check_layout
 
-TRACKED = TIDY_METRICS + ("failed_at",)  # per run and iteration in metrics.npz; failed_at is not a CSV column
+# per run and iteration in metrics.npz: what resumes every view (failed_at is no CSV column; wall_s is a run's
+# metrics.csv's wall clock, kept so a resumed run's table loses none of it)
+TRACKED = TIDY_METRICS + ("failed_at", "wall_s")
 STATE_FILES = ("state.npz", "state.prev.npz")
 
 
