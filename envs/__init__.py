@@ -2,13 +2,20 @@
 with a time limit and auto-reset; batch it with jax.vmap.
 
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
-`allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and
-gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/gym_v5.py; MJX: envs/gym_v5_mjx.py).
+`allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and every task
+definition (envs/task.py): gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/gym_v5.py), the
+tasks registered with `register(name, factory)`, and a user's task named by where it is defined,
+'my_pkg.my_module:MyTask' or 'path/to/file.py:MyTask'. A task definition runs on both backends (MJX:
+envs/task_mjx.py; MuJoCo C in the program: envs/c_backend.py) and in plain MuJoCo C (envs.task.TaskC).
 """
 
 import contextlib
+import functools
+import importlib
+import importlib.util
 import io
 import os
+import sys
 import warnings
 
 # No renderer is needed for training. mujoco picks its GL backend when it is first imported, so
@@ -22,19 +29,176 @@ GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Inverte
 NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS
 DEFAULT_EPISODE_LENGTH = 1000
 C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder") + GYM_V5_TASKS  # physics backend 'c'
+# Every task's action bounds, per action: PPO clips its actions to them (training and evaluation,
+# gsa_jax/algorithm/ppo.py) and an exported controller's act() does (gsa_jax/deployment/numpy_policy.py). They are
+# the locomotion tasks' actuator ctrlrange and gymnasium's action_space (tests/test_export.py), and the range of
+# allegro_cylinder's PD-target steps (envs/allegro.py).
+ACTION_RANGE = (-1.0, 1.0)
+
+
+_REGISTERED = {}  # name -> factory (a Task subclass, or a callable returning a Task)
+
+
+def register(name, factory):
+    """Make a task definition (envs/task.py) known by `name`: factory is a Task subclass or a callable returning
+    a Task. The name then works wherever a task name does (Config(env=name), --env name, experiment files) in
+    this process; worker processes of a sweep do not run your registering code: name the task
+    'module:Class' there."""
+    if not isinstance(name, str) or not name or name in NAMES:
+        raise ValueError(f"cannot register {name!r}: a task name is a non-empty string other than a built-in task's")
+    if not callable(factory):
+        raise ValueError(f"register({name!r}, factory): factory must be a Task subclass or a callable returning a Task")
+    _REGISTERED[name] = factory
+    _factory.cache_clear()
+
+
+def is_defined(name):
+    """Whether `name` names a task definition (envs/task.py): a v5 task, a registered one, or 'module:Class'."""
+    return name in GYM_V5_TASKS or name in _REGISTERED or (isinstance(name, str) and ":" in name)
+
+
+def is_name(name):
+    """Whether `name` names a task that resolves (no exception)."""
+    try:
+        check_name(name)
+        return True
+    except ValueError:
+        return False
 
 
 def check_name(name):
-    if name not in NAMES:
-        raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES)}")
+    """ValueError (one line) unless `name` names a task; a task definition is loaded and checked once here."""
+    if name in NAMES and not is_defined(name):
+        return
+    if is_defined(name):
+        _factory(name)
+        return
+    raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, or name your "
+                     "own task definition 'module:Class' (docs/your_task.md)")
+
+
+@functools.lru_cache(maxsize=None)
+def check_task(name):
+    """check_name, and for a task definition its observation with jax.numpy equal to NumPy's (once per process;
+    the trainer's edge: JAX is imported here)."""
+    check_name(name)
+    if is_defined(name) and name not in GYM_V5_TASKS:
+        from envs.task import check_jax_agrees
+
+        check_jax_agrees(resolve_task(name), f"task {name!r}")
+
+
+def resolve_task(name):
+    """A new instance of the task definition `name` (envs/task.py), checked once per process (TaskError)."""
+    factory = _factory(name)
+    task = factory()
+    task.name = name
+    return task
+
+
+@functools.lru_cache(maxsize=None)
+def _factory(name):
+    """The checked factory of a task definition: built-in, registered, or imported from 'module:Class'."""
+    from envs.task import Task, TaskError, validate
+
+    if name in GYM_V5_TASKS:
+        from envs import gym_v5
+
+        return gym_v5.V5_TASKS[name]
+    factory = _REGISTERED.get(name) or _import_factory(name)
+    try:
+        task = factory()
+    except TaskError:
+        raise
+    except Exception as e:  # a user's constructor: its error in one line
+        raise TaskError(f"task {name!r}: making it failed: {type(e).__name__}: {' '.join(str(e).split())}") from None
+    if not isinstance(task, Task):
+        raise TaskError(f"task {name!r}: {factory!r} gave a {type(task).__name__}, not an envs.task.Task")
+    validate(task, f"task {name!r}")
+    return factory
+
+
+def _import_factory(name):
+    """The object 'module:attr' or 'path/file.py:attr' names (TaskError in one line if it cannot be had)."""
+    from envs.task import TaskError
+
+    module_name, _, attr = name.rpartition(":")
+    if not module_name or not attr:
+        raise TaskError(f"unknown env {name!r}; a task definition is named 'module:Class' or 'path/file.py:Class'")
+    module = _import_module(module_name, name)
+    if not hasattr(module, attr):
+        import difflib
+
+        from envs.task import Task
+
+        found = [k for k, v in vars(module).items() if isinstance(v, type) and issubclass(v, Task) and v is not Task]
+        close = difflib.get_close_matches(attr, found, n=3) or found
+        raise TaskError(f"task {name!r}: {module_name} has no {attr!r}" + (f"; did you mean {', '.join(close)}?" if close else ""))
+    return getattr(module, attr)
+
+
+def _import_module(module_name, name):
+    from envs.task import TaskError
+
+    try:
+        if module_name.endswith(".py"):
+            if not os.path.exists(module_name):
+                raise TaskError(f"task {name!r}: no file {module_name!r}")
+            key = "gsa_jax_task_" + os.path.splitext(os.path.basename(module_name))[0]
+            spec = importlib.util.spec_from_file_location(key, module_name)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[key] = module
+            spec.loader.exec_module(module)
+            return module
+        return _import_from_here(module_name)
+    except TaskError:
+        raise
+    except ModuleNotFoundError as e:
+        raise TaskError(f"task {name!r}: cannot import {module_name!r} ({e}); run from the directory that holds it, or "
+                        "name its file: 'path/to/file.py:Class'") from None
+    except Exception as e:
+        raise TaskError(f"task {name!r}: importing {module_name!r} failed: {type(e).__name__}: {' '.join(str(e).split())}") from None
+
+
+def _import_from_here(module_name):
+    """importlib.import_module, also finding modules under the working directory (as `python -m` does) when it is
+    not on sys.path, e.g. in a script run from elsewhere; sys.path is left as it was."""
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError:
+        here = os.getcwd()
+        if here in sys.path or "" in sys.path:
+            raise
+        sys.path.insert(0, here)
+        try:
+            return importlib.import_module(module_name)
+        finally:
+            sys.path.remove(here)
+
+
+def task_source(name):
+    """What says which code defines task `name` (recorded in config.json and sweep.json): for a task defined
+    outside this package, its module, file and the file's sha256."""
+    if not is_defined(name) or name in GYM_V5_TASKS:
+        return {"task": name, "builtin": True}
+    from envs.task import source_record
+
+    factory = _factory(name)
+    return {"task": name, "builtin": False, **source_record(factory if isinstance(factory, type) else type(factory()))}
 
 
 def check_backend(name, physics):
     """ValueError if `physics` (envs.physics.Physics) cannot step task `name`."""
     check_name(name)
     physics.validate()
-    if physics.backend == "c" and name not in C_BACKEND_TASKS:
-        raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)}; {name!r} runs on backend 'mjx'")
+    if physics.backend == "c" and not has_c_backend(name):
+        raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)} and every task definition; {name!r} "
+                         "runs on backend 'mjx'")
+
+
+def has_c_backend(name):
+    """Whether MuJoCo C steps task `name` (backend 'c', deployment, evaluation and robustness)."""
+    return name in C_BACKEND_TASKS or is_defined(name)
 
 
 def default_episode_length(name):
@@ -43,6 +207,9 @@ def default_episode_length(name):
         from envs.allegro_task import DEFAULT_EPISODE_LENGTH as allegro_length  # 2 s at 100 Hz; no JAX import
 
         return allegro_length
+    if is_defined(name):
+        factory = _factory(name)
+        return int(getattr(factory, "episode_length", None) or resolve_task(name).episode_length)
     return DEFAULT_EPISODE_LENGTH
 
 
@@ -54,10 +221,8 @@ def task_model(name):
     from envs import mujoco_c
 
     check_name(name)
-    if name in GYM_V5_TASKS:
-        from envs import gym_v5
-
-        return gym_v5.make_task(name).model
+    if is_defined(name):
+        return resolve_task(name).model
     if name in mujoco_c.C_TASKS:
         return mujoco_c.make_c(name).model
     return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(name + ".xml"))
@@ -66,6 +231,17 @@ def task_model(name):
 def action_size(name):
     """Actions of a task, read from its MJCF (no MJX environment is built)."""
     return int(task_model(name).nu)
+
+
+def action_bounds(name, size=None):
+    """(low [d_a], high [d_a]) float32: the bounds of task `name`'s d_a actions (ACTION_RANGE for each); size: d_a
+    (default: action_size(name), read from the MJCF)."""
+    import numpy as np
+
+    if name not in NAMES:
+        check_name(name)  # a task definition: loaded and checked (a built-in name needs neither)
+    size = action_size(name) if size is None else int(size)
+    return np.full(size, ACTION_RANGE[0], np.float32), np.full(size, ACTION_RANGE[1], np.float32)
 
 
 def make_base(name, physics=None):
@@ -92,10 +268,10 @@ def make_base(name, physics=None):
         warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
         if name == "allegro_cylinder":
             env = allegro.AllegroCylinder()
-        elif name in GYM_V5_TASKS:
-            from envs.gym_v5_mjx import GymV5Mjx
+        elif is_defined(name):
+            from envs.task_mjx import TaskMjx
 
-            env = GymV5Mjx(name)
+            env = TaskMjx(resolve_task(name))
         else:
             env = brax_envs.get_environment(name, backend="mjx")
     override = {k: v for k, v in (("opt.iterations", physics.solver_iterations),

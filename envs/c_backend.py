@@ -8,8 +8,9 @@ float32). A step is one host call (envs/host_call.py) into mujoco.batch.Batch, w
 batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjData per env. The state
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
 
-Tasks: gymnasium's v5 tasks (envs/gym_v5.py), whose observations, rewards and terminations are
-computed on the host in float64 by the same functions that are checked against gymnasium; the Brax
+Tasks: every task definition (envs/task.py: gymnasium's v5 tasks, envs/gym_v5.py, and a user's), whose
+observations, rewards and terminations are computed on the host in float64 by the task's own functions (for
+the v5 tasks, the ones checked against gymnasium); the Brax
 locomotion tasks (C_TASKS), whose observations, rewards and terminations are
 envs/mujoco_c.py's definitions (written once for NumPy and jax.numpy), evaluated here with jax.numpy on
 the float32 qpos, qvel and torso position the callback returns; and allegro_cylinder, whose PD-target
@@ -29,8 +30,9 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import batch as mj_batch
 
-from envs import allegro_task, gym_v5, mujoco_c
-from envs.gym_v5_mjx import start_noise
+import envs
+from envs import allegro_task, mujoco_c
+from envs.task_mjx import start_noise
 from envs.host_call import host_call
 from envs.physics import resolve_threads
 
@@ -130,15 +132,18 @@ class HostBatches:
 
 
 class NoisyStartHost(HostBatches):
-    """A locomotion task whose resets add noise to qpos0 and set qvel."""
+    """A locomotion task whose resets add noise to a start pose (start_qpos, default qpos0) and set qvel."""
+
+    start_qpos = None
 
     def reset(self, dq, dv):
-        """Rows at qpos0 + dq [..., nq], qvel dv [..., nv] after mj_forward -> SimState fields."""
+        """Rows at start_qpos + dq [..., nq], qvel dv [..., nv] after mj_forward -> SimState fields."""
         m = self.model
+        start = m.qpos0 if self.start_qpos is None else self.start_qpos
 
         def write(b):
             b.state[:] = self.template
-            b.qpos[:] = m.qpos0 + np.asarray(dq, np.float64).reshape(-1, m.nq)
+            b.qpos[:] = start + np.asarray(dq, np.float64).reshape(-1, m.nq)
             b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, m.nv)
 
         return self._run(dq.shape[:-1], write, lambda b: b.forward())
@@ -204,13 +209,13 @@ class AllegroHost(HostBatches):
         return self.step_rows(rows, action, move_targets)
 
 
-class GymV5Host(NoisyStartHost):
-    """A gymnasium v5 task (envs/gym_v5.py): actions are the controls; extra =
+class TaskHost(NoisyStartHost):
+    """A task definition (envs/task.py; gymnasium's v5 tasks, a user's): actions are the controls; extra =
     [observation, reward, terminated], computed in float64 by the task's own functions on the batch's
     arrays (the derived fields as mj_step leaves them, as gymnasium reads them) before the float32 cast."""
 
     def __init__(self, task, threads):
-        self.task = task
+        self.task, self.start_qpos = task, task.start_qpos
         self.bound = task.derived
         self.n_obs = int(task.observation_size)
         self.n_extra = self.n_obs + 2
@@ -237,12 +242,12 @@ class GymV5Host(NoisyStartHost):
 
 
 class PostConstraintHost:
-    """A v5 task whose observation needs mj_rnePostConstraint after the step (Ant-v5's contact forces),
+    """A task definition whose observation needs mj_rnePostConstraint after the step (Ant-v5's contact forces),
     which mujoco.batch does not run: each call loads every simulation's row into one MjData per thread,
     steps it as gymnasium does (ctrl, mj_step frame_skip times, mj_rnePostConstraint) and saves it back.
     A row is the float64 mjSTATE_INTEGRATION row followed by the task's `before` values after the call
     (the main body's xy that the next step's velocity starts from, as gymnasium reads it then); extra as
-    GymV5Host's. The same interface as HostBatches (nstate, n_extra, clock, reset, step)."""
+    TaskHost's. The same interface as HostBatches (nstate, n_extra, clock, reset, step)."""
 
     def __init__(self, task, threads):
         self.task, self.model, self.threads = task, task.model, resolve_threads(threads)
@@ -289,14 +294,14 @@ class PostConstraintHost:
         return qpos, qvel, derived
 
     def reset(self, dq, dv):
-        """Rows at qpos0 + dq [..., nq], qvel dv [..., nv] after mj_resetData and mj_forward -> SimState fields."""
+        """Rows at start_qpos + dq [..., nq], qvel dv [..., nv] after mj_resetData and mj_forward -> SimState fields."""
         t0 = time.perf_counter()
         m, lead = self.model, dq.shape[:-1]
         dq, dv = np.asarray(dq, np.float64).reshape(-1, m.nq), np.asarray(dv, np.float64).reshape(-1, m.nv)
 
         def one(d, i):
             mujoco.mj_resetData(m, d)
-            d.qpos[:], d.qvel[:] = m.qpos0 + dq[i], dv[i]
+            d.qpos[:], d.qvel[:] = self.task.start_qpos + dq[i], dv[i]
             mujoco.mj_forward(m, d)
             row = np.zeros(self.nstate)
             qpos, qvel, derived = self._read(d, row)
@@ -431,19 +436,20 @@ class AllegroCTask(CTask):
         return state.replace(pipeline_state=sim, obs=self._observe(sim), reward=reward, done=jnp.zeros_like(state.done))
 
 
-class GymV5CTask(CTask):
-    """A gymnasium v5 task (envs/gym_v5.py) stepped by MuJoCo C: gymnasium's reset noise law drawn from
-    rng; observation, reward and termination as gymnasium computes them (float64, then float32)."""
+class TaskCEnv(CTask):
+    """A task definition (envs/task.py) stepped by MuJoCo C: its start-state law drawn from rng; observation,
+    reward and termination computed by its own functions in float64 on the host, then cast to float32."""
 
     def __init__(self, name, physics):
-        task = gym_v5.make_task(name)
-        host = (PostConstraintHost if task.post_constraint else GymV5Host)(task, physics.threads)
+        task = envs.resolve_task(name)
+        host = (PostConstraintHost if task.post_constraint else TaskHost)(task, physics.threads)
         super().__init__(name, physics, task, host)
         self.n_frames, self.dt = task.frame_skip, task.dt
         self._n_obs = self.host.n_obs
 
     def reset(self, rng):
-        sim = self._call(self.host.reset, *start_noise(rng, self.mj_model, self.port.noise, self.port.qvel_noise))
+        task = self.port
+        sim = self._call(self.host.reset, *start_noise(rng, self.mj_model, task.noise, task.qvel_noise, task.vel_noise))
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
 
@@ -459,8 +465,9 @@ TASKS = {"hopper": BraxCTask, "walker2d": BraxCTask, "halfcheetah": BraxCTask, "
 
 
 def make_task(name, physics):
-    """Task `name` stepped by MuJoCo C (envs.make_base with backend 'c')."""
-    return (GymV5CTask if name in gym_v5.V5_TASKS else TASKS[name])(name, physics)
+    """Task `name` stepped by MuJoCo C (envs.make_base with backend 'c'): a task definition (envs/task.py), or a
+    Brax variant or allegro_cylinder (TASKS)."""
+    return (TaskCEnv if envs.is_defined(name) else TASKS[name])(name, physics)
 
 
 def float64_rows(rows):

@@ -1,6 +1,6 @@
 """gymnasium's MuJoCo v5 tasks (gymnasium 1.4's defaults for those ids) on MuJoCo C, with no JAX.
 
-    task = make_v5("Hopper-v5")
+    task = TaskC("Hopper-v5")                 # envs.task.TaskC: one MjData in MuJoCo C
     obs = task.reset(seed)                    # or task.set_start(qpos, qvel)
     obs, reward, terminated = task.step(action)
 
@@ -19,13 +19,15 @@ step for step, and MJX against MuJoCo C within a tolerance.
 
 Ant-v5's observation holds the contact forces mj_rnePostConstraint computes after the step (from the
 last Runge-Kutta stage's quantities), which mujoco.batch does not run: the C backend steps it one MjData
-per thread instead (envs/c_backend.py), and it has no MJX version yet.
+per thread instead (envs/c_backend.py).
 """
 
 import os
 
 import mujoco
 import numpy as np
+
+from envs.task import Task, coordinate_names
 
 EPISODE_LENGTH = 1000  # gymnasium's max_episode_steps for the five ids (a truncation, not a termination)
 
@@ -40,40 +42,30 @@ def gym_asset(name):
     return os.path.join(spec.submodule_search_locations[0], "envs", "mujoco", "assets", name)
 
 
-class V5Task:
-    """A v5 task's constants and its observation, reward and termination over batches, written once for
-    NumPy (float64: MuJoCo C, the C backend's host) and jax.numpy (xp=jnp: the MJX version).
-
-    noise: reset_noise_scale; qvel_noise 'uniform': qvel ~ U(-noise, noise), 'normal': noise * N(0, 1);
-    qpos ~ qpos0 + U(-noise, noise) for every task (gymnasium draws qpos first, then qvel)."""
+class V5Task(Task):
+    """A v5 task (envs/task.py's definition): gymnasium's MJCF, frame skip and reset noise law (noise;
+    qvel_noise 'uniform': qvel ~ U(-noise, noise), 'normal': noise * N(0, 1); qpos ~ qpos0 + U(-noise, noise)
+    for every task, gymnasium drawing qpos first, then qvel), and the reward's root x position before a step."""
 
     env_id = ""
-    xml = ""
-    frame_skip = 1
-    noise = 0.0
-    qvel_noise = "uniform"
-    derived = ()  # MjData fields read after a call (mujoco.batch binds them)
-    post_constraint = False  # whether a derived field needs mj_rnePostConstraint after the step
+    episode_length = EPISODE_LENGTH
 
-    def __init__(self):
-        self.model = mujoco.MjModel.from_xml_path(gym_asset(self.xml))
-        self.dt = self.model.opt.timestep * self.frame_skip
-
-    @property
-    def observation_size(self):
-        zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
-        return self.observe(np.zeros((1, self.model.nq)), np.zeros((1, self.model.nv)), zeros).shape[-1]
+    def load_model(self):
+        return mujoco.MjModel.from_xml_path(gym_asset(self.xml))
 
     def before(self, qpos, derived, xp=np):
-        """[n, k] what the reward needs from before a step: the x position of the root (qpos[:, 0])."""
+        """[n, 1] the x position of the root (qpos[:, 0]) before a step."""
         return qpos[:, :1] + 0.0
 
-    def observe(self, qpos, qvel, derived, xp=np):
-        raise NotImplementedError
-
-    def outcome(self, before, qpos, qvel, derived, action, xp=np):
-        """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
-        raise NotImplementedError
+    def observation_layout(self):
+        """One short description per observation entry (for exported controllers' docs)."""
+        qpos, qvel = coordinate_names(self.model)
+        if self.env_id == "InvertedDoublePendulum-v5":
+            hinges = qpos[1:]
+            return (["cart x"] + [f"sin({h})" for h in hinges] + [f"cos({h})" for h in hinges]
+                    + [f"{v} velocity (clipped to +-10)" for v in qvel] + ["cart constraint force (clipped to +-10)"])
+        clipped = " (clipped to +-10)" if self.env_id != "HalfCheetah-v5" else ""
+        return [f"{p} position" for p in qpos[1:]] + [f"{v} velocity{clipped}" for v in qvel]
 
 
 class HopperV5(V5Task):
@@ -158,6 +150,13 @@ class AntV5(V5Task):
     def before(self, qpos, derived, xp=np):
         return derived["xpos"][:, 1, :2] + 0.0
 
+    def observation_layout(self):
+        """qpos[2:], qvel, then each body's (but the world's) 6 clipped contact-force components."""
+        qpos, qvel = coordinate_names(self.model)
+        bodies = [self.model.body(i).name for i in range(1, self.model.nbody)]
+        forces = [f"{b} contact force {c} (clipped to +-1)" for b in bodies for c in ("tx", "ty", "tz", "fx", "fy", "fz")]
+        return [f"{p} position" for p in qpos[2:]] + [f"{v} velocity" for v in qvel] + forces
+
     def _forces(self, derived, xp):
         f = xp.clip(derived["cfrc_ext"], -1.0, 1.0)
         return f.reshape(f.shape[0], -1)
@@ -182,68 +181,3 @@ def make_task(env_id):
     if env_id not in V5_TASKS:
         raise ValueError(f"no gymnasium v5 task {env_id!r}; built: {', '.join(V5_TASKS)}")
     return V5_TASKS[env_id]()
-
-
-def observation_layout(env_id):
-    """One short description per observation entry (for exported controllers' docs)."""
-    from envs.mujoco_c import coordinate_names
-
-    task = make_task(env_id)
-    qpos, qvel = coordinate_names(task.model)
-    if env_id == "InvertedDoublePendulum-v5":
-        hinges = qpos[1:]
-        return (["cart x"] + [f"sin({h})" for h in hinges] + [f"cos({h})" for h in hinges]
-                + [f"{v} velocity (clipped to +-10)" for v in qvel] + ["cart constraint force (clipped to +-10)"])
-    clipped = " (clipped to +-10)" if env_id != "HalfCheetah-v5" else ""
-    return [f"{p} position" for p in qpos[1:]] + [f"{v} velocity{clipped}" for v in qvel]
-
-
-def start_noise(task, rng):
-    """(dq [nq], dv [nv]) of a reset, drawn as gymnasium draws them from a NumPy Generator."""
-    m = task.model
-    dq = rng.uniform(low=-task.noise, high=task.noise, size=m.nq)
-    dv = rng.uniform(low=-task.noise, high=task.noise, size=m.nv) if task.qvel_noise == "uniform" \
-        else task.noise * rng.standard_normal(m.nv)
-    return dq, dv
-
-
-class V5C:
-    """One v5 task on one MjData, stepped as gymnasium's MujocoEnv steps it (ctrl = action, mj_step
-    frame_skip times, mj_rnePostConstraint), reading obs, reward and termination from V5Task."""
-
-    def __init__(self, env_id):
-        self.task = make_task(env_id)
-        self.model = self.task.model
-        self.data = mujoco.MjData(self.model)
-
-    @property
-    def action_size(self):
-        return self.model.nu
-
-    def _derived(self):
-        return {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
-
-    def set_start(self, qpos, qvel):
-        """The state gymnasium's reset_model sets (mj_resetData, qpos, qvel, mj_forward) -> obs."""
-        m, d = self.model, self.data
-        mujoco.mj_resetData(m, d)
-        d.qpos[:], d.qvel[:] = qpos, qvel
-        mujoco.mj_forward(m, d)
-        return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
-
-    def reset(self, seed):
-        dq, dv = start_noise(self.task, np.random.default_rng(seed))
-        return self.set_start(self.model.qpos0 + dq, dv)
-
-    def step(self, action):
-        """One env step -> (obs, reward, terminated)."""
-        a = np.asarray(action, np.float64)
-        if a.shape != (self.model.nu,):
-            raise ValueError(f"action has shape {a.shape}; {self.task.env_id} takes ({self.model.nu},)")
-        m, d = self.model, self.data
-        before = self.task.before(d.qpos[None], self._derived())
-        d.ctrl[:] = a
-        mujoco.mj_step(m, d, nstep=self.task.frame_skip)
-        mujoco.mj_rnePostConstraint(m, d)
-        obs, reward, terminated = self.task.outcome(before, d.qpos[None], d.qvel[None], self._derived(), a[None])
-        return obs[0], float(reward[0]), bool(terminated[0])

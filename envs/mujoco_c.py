@@ -1,7 +1,7 @@
 """Tasks in plain MuJoCo C (the `mujoco` package: no MJX, no JAX) on the same MJCF as their MJX
 versions, for running an exported controller outside the simulator it was trained in.
 
-    task = make_c("hopper")          # any of C_TASKS
+    task = make_c("hopper")          # any of C_TASKS, or any task definition (envs/task.py)
     obs = task.reset(seed)
     obs, reward, done = task.step(action)
 
@@ -17,7 +17,7 @@ import os
 import mujoco
 import numpy as np
 
-from envs import gym_v5
+from envs.task import TaskC, coordinate_names
 
 C_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")
 
@@ -212,32 +212,18 @@ BRAX_PORTS = {"hopper": HopperC, "walker2d": Walker2dC, "halfcheetah": HalfCheet
 
 
 def make_c(name):
-    """The task in MuJoCo C: reset(seed) -> obs, step(action) -> (obs, reward, done). gymnasium's v5 tasks
-    are envs.gym_v5.V5C (gymnasium's own definitions, not ports)."""
+    """The task in MuJoCo C: reset(seed) -> obs, step(action) -> (obs, reward, done). A task definition
+    (envs/task.py: gymnasium's v5 tasks, a user's) is envs.task.TaskC over it."""
+    import envs
+
     if name in BRAX_PORTS:
         return BRAX_PORTS[name]()
     if name == "allegro_cylinder":
         return AllegroC()
-    if name in gym_v5.V5_TASKS:
-        return gym_v5.V5C(name)
-    raise ValueError(f"no MuJoCo C port of {name!r}; ported: {', '.join(C_TASKS + tuple(gym_v5.V5_TASKS))}")
-
-
-def coordinate_names(m):
-    """Names of the qpos [nq] and qvel [nv] coordinates of a model, from its joint names."""
-    qpos, qvel = [], []
-    for j in range(m.njnt):
-        name, kind = m.joint(j).name, m.jnt_type[j]
-        if kind == mujoco.mjtJoint.mjJNT_FREE:
-            qpos += [f"{name}.{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
-            qvel += [f"{name}.{c}" for c in ("vx", "vy", "vz", "wx", "wy", "wz")]
-        elif kind == mujoco.mjtJoint.mjJNT_BALL:
-            qpos += [f"{name}.{c}" for c in ("qw", "qx", "qy", "qz")]
-            qvel += [f"{name}.{c}" for c in ("wx", "wy", "wz")]
-        else:
-            qpos.append(name)
-            qvel.append(name)
-    return qpos, qvel
+    if envs.is_defined(name):
+        return TaskC(envs.resolve_task(name))
+    raise ValueError(f"no MuJoCo C port of {name!r}; MuJoCo C runs {', '.join(C_TASKS)} and every task definition "
+                     "(envs/task.py)")
 
 
 IDP_LAYOUT = ["cart x", "sin(hinge)", "sin(hinge2)", "cos(hinge)", "cos(hinge2)",
@@ -246,10 +232,12 @@ IDP_LAYOUT = ["cart x", "sin(hinge)", "sin(hinge2)", "cos(hinge)", "cos(hinge2)"
 
 def observation_layout(name):
     """One short description per observation entry of task `name` (for exported controllers' docs)."""
+    import envs
+
     if name == "inverted_double_pendulum":
         return list(IDP_LAYOUT)
-    if name in gym_v5.V5_TASKS:
-        return gym_v5.observation_layout(name)
+    if envs.is_defined(name):
+        return envs.resolve_task(name).observation_layout()
     task = make_c(name)
     qpos, qvel = coordinate_names(task.model)
     if name == "allegro_cylinder":
@@ -266,13 +254,13 @@ def observation_layout(name):
 
 def run_episodes(task, controller, episodes, episode_length, seed=0):
     """Deterministic controller (gsa_jax.deployment.numpy_policy) in the C task: returns [episodes], lengths [episodes].
-    Actions are clipped to [-1, 1] as in training."""
+    Its act() keeps actions inside the task's bounds, as training clips them (envs.ACTION_RANGE)."""
     returns, lengths = [], []
     for e in range(episodes):
         obs = task.reset(seed + e)
         total, t = 0.0, 0
         for t in range(1, episode_length + 1):
-            obs, r, done = task.step(np.clip(controller.act(obs), -1.0, 1.0))
+            obs, r, done = task.step(controller.act(obs))
             total += r
             if done:
                 break

@@ -1,3 +1,21 @@
 """gsa_jax: generalized state abstraction (mixtures of linear-Gaussian controllers) trained by PPO in pure JAX."""
 
+import importlib.util
+import os
+import sys
+
 __version__ = "0.1.0"
+
+
+def _check_envs_package():
+    """The task registry `envs` must be the one installed beside gsa_jax: a module or folder named `envs` in the
+    working directory (first on sys.path) would shadow it silently, so it is refused in one line."""
+    mod = sys.modules.get("envs")
+    origin = getattr(mod, "__file__", None) if mod is not None else getattr(importlib.util.find_spec("envs"), "origin", None)
+    ours = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "envs")
+    if not origin or os.path.dirname(os.path.abspath(origin)) != ours:
+        raise ImportError(f"gsa_jax: the module 'envs' found first on sys.path is {origin or 'a folder without __init__.py'}, "
+                          f"not gsa_jax's ({ours}); rename your own 'envs' module or run from another directory")
+
+
+_check_envs_package()

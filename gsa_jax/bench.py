@@ -97,7 +97,7 @@ def build_parser():
     p.add_argument("--quick", action="store_true",
                    help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
     p.add_argument("--out", default="runs/bench")
-    p.add_argument("--env", default="hopper", help="hopper or allegro_cylinder (any env of envs.NAMES)")
+    p.add_argument("--env", default="hopper", help="any task name: a built-in one, or a task definition 'module:Class' (docs/your_task.md)")
     p.add_argument("--sizes", default=None, help="comma-separated run counts (default 1,16,64,256)")
     p.add_argument("--policies", default=None,
                    help="comma-separated (default: mixture at every size, mlp at the largest size)")

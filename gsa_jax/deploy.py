@@ -14,7 +14,7 @@ import argparse
 import json
 import sys
 
-from envs import C_BACKEND_TASKS
+from envs import has_c_backend
 from gsa_jax.deployment.evaluation import DeployError, compare_mjx, load_controller, report_line, run_gymnasium, run_mujoco_c
 
 
@@ -24,7 +24,7 @@ def deploy(args):
         raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
     ctrl, env_name, config = load_controller(args.controller)
     result = {"env": env_name, "controller": args.controller}
-    if env_name in C_BACKEND_TASKS or not args.gymnasium:
+    if has_c_backend(env_name) or not args.gymnasium:
         result["mujoco_c"] = run_mujoco_c(ctrl, env_name, config, args.episodes, args.episode_length, args.seed)
         print(report_line(env_name, "MuJoCo C (our port),", result["mujoco_c"]))
     if args.gymnasium:

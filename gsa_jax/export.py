@@ -2,9 +2,10 @@
 `python -m gsa_jax.export RUN [--format npz|onnx|c] [--out PATH]`.
 
 npz: plain arrays (load with gsa_jax.deployment.numpy_policy.load, no JAX needed); onnx: one ONNX graph, obs in,
-action and cluster out (gsa_jax.deployment.export_onnx; needs the `deploy` extra); c: one C99 header declaring
-gsa_act(obs, action, cluster) (gsa_jax.deployment.export_c). RUN is a run directory (train, extract) or an
-exported controller .npz. The format defaults to the one --out's suffix names (.npz, .onnx, .h).
+action, cluster and raw_action out (gsa_jax.deployment.export_onnx; needs the `deploy` extra); c: one C99 header
+declaring gsa_act(obs, action, cluster) and gsa_act_raw (gsa_jax.deployment.export_c). Each carries the task's
+action bounds, and its action is inside them. RUN is a run directory (train, extract) or an exported controller
+.npz. The format defaults to the one --out's suffix names (.npz, .onnx, .h).
 """
 
 import argparse

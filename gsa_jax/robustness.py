@@ -22,6 +22,7 @@ of other sizes keep their times and directions: a dose-response). Writes to OUT:
 """
 
 import argparse
+import json
 import os
 import sys
 
@@ -63,27 +64,47 @@ def parse_shifts(text, levels=None):
     return shifts
 
 
+def resolve_settings(args):
+    """(shifts, episodes): as given, and where not given, what OUT's robustness.json recorded (a re-run
+    continues the evaluation it holds), else the defaults (every shift, 20 episodes). Raises RobustnessError."""
+    saved = {}
+    path = os.path.join(args.out, "robustness.json")
+    if os.path.exists(path):
+        try:
+            with open(path) as f:
+                saved = json.load(f)
+        except (OSError, ValueError) as e:
+            raise RobustnessError(f"{path} is unreadable ({e}); use another --out") from None
+    if args.shifts is None and not args.level and "shifts" in saved:
+        shifts = [Shift(kind, level) for kind, level in saved["shifts"]]
+    else:
+        shifts = parse_shifts(args.shifts or "all", parse_levels(args.level))
+    episodes = args.episodes if args.episodes is not None else saved.get("episodes", 20)
+    return shifts, episodes
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.robustness", description=__doc__.split("\n")[0])
     p.add_argument("controllers", nargs="+", help="exported controller files or directories of them")
-    p.add_argument("--out", required=True, help="output directory (a re-run continues what it holds)")
-    p.add_argument("--episodes", type=int, default=20, help="deterministic episodes per controller and shift (default 20)")
-    p.add_argument("--shifts", default="all", help=f"'all' or comma-separated kinds of {', '.join(KINDS[1:])}")
+    p.add_argument("--out", required=True, help="output directory (a re-run continues what it holds, with the shifts "
+                                                "and episodes it recorded unless given again)")
+    p.add_argument("--episodes", type=int, default=None, help="deterministic episodes per controller and shift (default 20)")
+    p.add_argument("--shifts", default=None, help=f"'all' (default) or comma-separated kinds of {', '.join(KINDS[1:])}")
     p.add_argument("--level", action="append", default=[], metavar="KIND=V1,V2",
                    help="the levels of a kind instead of its defaults, e.g. push=0.5,1 (m/s); repeatable")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
     args = p.parse_args(argv)
     try:
-        if args.episodes < 1 or args.reps < 1:
-            raise RobustnessError(f"--episodes and --reps must be >= 1, got {args.episodes} and {args.reps}")
-        shifts = parse_shifts(args.shifts, parse_levels(args.level))
+        shifts, episodes = resolve_settings(args)
+        if episodes < 1 or args.reps < 1:
+            raise RobustnessError(f"--episodes and --reps must be >= 1, got {episodes} and {args.reps}")
         controllers = load_controllers(args.controllers)
         os.makedirs(args.out, exist_ok=True)
-        write_settings(args.out, shifts, args.episodes)
+        write_settings(args.out, shifts, episodes)
     except (RobustnessError, OSError) as e:
         print(f"gsa_jax.robustness: error: {e}", file=sys.stderr)
         return 2
-    rows, sens = evaluate_all(controllers, shifts, args.episodes, args.out)
+    rows, sens = evaluate_all(controllers, shifts, episodes, args.out)
     analyse(rows, sens, args.out, args.reps)
     print(f"wrote {args.out}/robustness.csv, aggregate.csv, sensitivity.csv, robustness.png")
     return 0

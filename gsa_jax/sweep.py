@@ -2,6 +2,7 @@
 
     python -m gsa_jax.sweep experiments/fig1_small/fig1_small.toml [--out DIR] [--devices N]
     make sweep EXP=experiments/fig1_small/fig1_small.toml
+    python -m gsa_jax.sweep --resume DIR      # continue the sweep in DIR as its sweep.json recorded it
 
 Every run of an (env, policy) group trains at once: `jax.vmap` over the runs, the run axis
 sharded over the local devices (`shard_map`). On a CPU, use the cores with --local-processes N
@@ -10,7 +11,7 @@ on its own XLA CPU device (or set --xla_force_host_platform_device_count and --l
 compiles each group's program and the others load it from the sweep's compilation cache (gsa_jax.running.xla_cache).
 Training goes in chunks of iterations; after each chunk the group's state, its
 metrics and the tidy `metrics.csv` are written atomically, so a killed sweep resumes from its
-last chunk when the same command runs again and ends with the same results. A supervisor
+last chunk when the same command runs again (or `--resume DIR` alone) and ends with the same results. A supervisor
 process watches a heartbeat and restarts a worker whose chunk takes far longer than usual
 (XLA:CPU has been seen to hang in large vmapped MJX programs).
 
@@ -53,6 +54,7 @@ Experiment file (TOML):
 """
 
 import argparse
+import json
 import os
 import sys
 
@@ -60,9 +62,9 @@ import jax
 
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import ResumeRefused
+from gsa_jax.running.runinfo import ResumeRefused, resume_command
 from gsa_jax.running.runlock import LockError, hold
-from gsa_jax.running.spec import SpecError, load_spec
+from gsa_jax.running.spec import SpecError, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
 from gsa_jax.running.sweeps import EXIT_DISK_FULL, EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
 from gsa_jax.running.trained import FormatError
@@ -70,7 +72,11 @@ from gsa_jax.running.trained import FormatError
 
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m gsa_jax.sweep", description=__doc__.split("\n")[0])
-    p.add_argument("experiment", help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml")
+    p.add_argument("experiment", nargs="?", default=None,
+                   help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml (with --resume: optional)")
+    p.add_argument("--resume", metavar="DIR", default=None,
+                   help="continue the sweep in DIR with the experiment, sub-batch size and TensorBoard setting its "
+                        "sweep.json recorded (an experiment file given too must match it, or --force)")
     p.add_argument("--out", default=None, help="output directory (default runs/sweeps/<name>)")
     p.add_argument("--devices", type=int, default=None, help="shard each worker's runs over its first N local devices (default: all)")
     p.add_argument("--local-processes", type=int, default=None,
@@ -93,9 +99,45 @@ def build_parser():
     return p
 
 
+def saved_sweep(out):
+    """The record (sweep.json) of the sweep in `out`; SpecError if there is none."""
+    path = os.path.join(out, "sweep.json")
+    if not os.path.exists(path):
+        raise SpecError(f"--resume {out}: no sweep there (no sweep.json); start one with python -m gsa_jax.sweep "
+                        f"EXPERIMENT --out {out}")
+    try:
+        with open(path) as f:
+            meta = json.load(f)
+        meta["spec"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SpecError(f"--resume {out}: {path} is not a gsa_jax sweep's record ({type(e).__name__}: {e})") from None
+    return meta
+
+
+def parse_args(argv):
+    """The command line; with --resume DIR, parsed again over the settings DIR/sweep.json recorded (options not
+    typed take them). Raises SpecError."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.resume is None:
+        if args.experiment is None:
+            raise SpecError("give an experiment file (TOML), or --resume DIR to continue a sweep")
+        return args
+    if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
+        raise SpecError(f"--resume {args.resume} and --out {args.out} name different directories")
+    meta = saved_sweep(args.resume)
+    parser.set_defaults(out=args.resume, **{k: meta[k] for k in ("run_batch", "tensorboard") if k in meta})
+    args = parser.parse_args(argv)
+    args.saved_spec = meta["spec"]
+    return args
+
+
 def check_args(args, argv):
     """(spec, out, local worker count) after checking every argument; raises SpecError. Nothing compiles."""
-    spec = load_spec(args.experiment)
+    if args.experiment is None:
+        spec = check_spec(args.saved_spec, source=os.path.join(args.resume, "sweep.json"))
+    else:
+        spec = load_spec(args.experiment)
     if args.num_processes < 1 or not 0 <= args.process_id < args.num_processes:
         raise SpecError(f"--process-id must be in 0..{args.num_processes - 1}")
     out = args.out or os.path.join("runs", "sweeps", spec.name)
@@ -118,8 +160,8 @@ def main(argv=None, after_chunk=None):
     changed / unreadable output directory, 3 a worker hung repeatedly, 4 disk full, 130 interrupted.
     after_chunk: see run_worker."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
     try:
+        args = parse_args(argv)
         spec, out, local = check_args(args, argv)
     except SpecError as e:
         print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
@@ -201,8 +243,9 @@ def run_worker(args, spec, out, after_chunk=None):
         print(f"gsa_jax.sweep: error: {e.describe(getattr(e, 'last_intact', 'none (nothing trained yet)'))}", file=sys.stderr)
         return EXIT_DISK_FULL
     if not args.quiet:
-        done_msg = "done" if complete else "stopped; run the same command again to resume"
-        print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg + f": {out}", flush=True)
+        done_msg = f"done: {out}" if complete else \
+            f"stopped: {out}; continue with the same command or: {resume_command('gsa_jax.sweep', out)}"
+        print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg, flush=True)
     if args.worker or args.num_processes > 1:
         return 0
     try:

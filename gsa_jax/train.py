@@ -11,6 +11,8 @@ Training runs as compiled chunks of iterations; between chunks the CLI logs, eva
 """
 
 import argparse
+import dataclasses
+import json
 import math
 import os
 import sys
@@ -23,6 +25,7 @@ from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.runlock import LockError, hold
 from gsa_jax.running.single import RunOptions, RunPlan, UsageError, run
+from gsa_jax.running.trained import path_part
 
 _HP_FLAGS = {  # CLI flag -> hparam name
     "lr": "lr", "clip": "clip_eps", "gamma": "gamma", "gae_lambda": "gae_lambda", "vf_coef": "vf_coef",
@@ -42,8 +45,10 @@ def build_parser():
     p.add_argument("--steps", type=int, default=1_000_000, help="environment steps (rounded up to whole chunks)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="output directory (default: runs/<env>-<policy>-...)")
-    p.add_argument("--resume", action="store_true", help="continue the run saved in --out")
-    p.add_argument("--force", action="store_true", help="with --resume: continue even if the settings differ from the saved run's")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run saved in --out with its saved settings; an option given with it must "
+                        "match the saved run's (or --force)")
+    p.add_argument("--force", action="store_true", help="with --resume: continue with the options given even where they differ from the saved run's")
     p.add_argument("--num-envs", type=int, default=Config.num_envs)
     p.add_argument("--unroll-length", type=int, default=Config.unroll_length)
     p.add_argument("--epochs", type=int, default=Config.num_epochs)
@@ -97,7 +102,7 @@ def make_config(args, k_max):
         b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
         solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
         cholesky=args.cholesky, value_target=args.value_target, retrace_iterations=args.retrace_iterations,
-        backend=args.physics, physics_threads=args.physics_threads,
+        backend=args.physics, physics_threads=args.physics_threads, **getattr(args, "unflagged_config", {}),
     )
     try:
         return cfg.validate()
@@ -149,8 +154,53 @@ def resolve(args):
     return RunPlan(cfg, hp, iterations, chunk, eval_every, args.eval_seed, args.seed)
 
 
+UNFLAGGED_CONFIG = ("hidden", "normalize_obs", "search_loop")  # Config fields without a command-line option
+
+
+def saved_options(saved):
+    """Option values (dest -> value) that give back a saved run's settings (its config.json): what
+    `--resume --out DIR` continues with. Config fields a config.json written before they existed lacks ran at
+    their defaults."""
+    c = {**{f.name: f.default for f in dataclasses.fields(Config)}, **saved["config"]}
+    hp = saved["hparams"]
+    opts = {"env": c["env"], "policy": c["policy"], "clusters": hp["K"], "subpolicy": c["subpolicy"], "k_max": c["k_max"],
+            "steps": saved["iterations"] * c["num_envs"] * c["unroll_length"], "seed": saved["seed"],
+            "num_envs": c["num_envs"], "unroll_length": c["unroll_length"], "epochs": c["num_epochs"],
+            "minibatches": c["num_minibatches"], "episode_length": c["episode_length"],
+            "solver_iterations": c["solver_iterations"], "ls_iterations": c["ls_iterations"],
+            "linesearch": c["linesearch"], "cholesky": c["cholesky"], "physics": c["backend"],
+            "physics_threads": c["physics_threads"], "value_target": c["value_target"],
+            "retrace_iterations": c["retrace_iterations"], "b_init_scale": c["b_init_scale"],
+            "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],
+            "eval_every": saved["eval_every"], "eval_seed": saved["eval_seed"], "eval_envs": c["eval_envs"],
+            "chunk": saved["chunk"], "tensorboard": saved.get("tensorboard", True)}
+    opts.update({flag: hp[name] for flag, name in _HP_FLAGS.items() if name in hp})
+    opts["unflagged_config"] = {k: tuple(c[k]) if isinstance(c[k], list) else c[k] for k in UNFLAGGED_CONFIG}
+    return opts
+
+
+def resume_args(parser, argv, out):
+    """With --resume: the command line parsed again over the run saved in `out` (its settings are the
+    defaults, so only the options typed differ from them; run() refuses a difference without --force).
+    A directory without a saved run keeps the command line's own settings (a first invocation of a
+    resumable command). Raises UsageError."""
+    if out is None:
+        raise UsageError("--resume needs --out DIR, the directory of the run to continue")
+    path = os.path.join(out, "config.json")
+    if not os.path.exists(path):
+        return parser.parse_args(argv)
+    try:
+        with open(path) as f:
+            saved = json.load(f)
+        defaults = saved_options(saved)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise UsageError(f"cannot resume: {path} is not a gsa_jax run's config ({type(e).__name__}: {e})") from None
+    parser.set_defaults(**defaults)
+    return parser.parse_args(argv)
+
+
 def default_out(cfg, hp, seed):
-    tag = f"{cfg.env}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == "mixture" else "")
+    tag = f"{path_part(cfg.env)}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == "mixture" else "")
     tag += f"-{cfg.subpolicy}" if cfg.policy == "mixture" and cfg.subpolicy != "linear" else ""
     tag += "-retrace" if cfg.value_target == "retrace" else ""
     return os.path.join("runs", f"{tag}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -175,7 +225,9 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        envs.check_name(args.env)
+        if args.resume:
+            args = resume_args(parser, argv, args.out)
+        envs.check_task(args.env)
         plan = resolve(args)
         out = args.out or default_out(plan.cfg, plan.hp, plan.seed)
         prepare_out(out, args.resume)

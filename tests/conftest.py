@@ -1,4 +1,9 @@
 import os
+import sys
+
+# examples/ (tasks a user defines, named 'examples.<module>:<Class>') imports from the repository root, as
+# `python -m gsa_jax.train` run there does
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # Keep test programs small and compiled once: a persistent XLA cache shared by the CLI runs in a session.
 os.environ.setdefault("MUJOCO_GL", "disable")

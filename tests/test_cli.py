@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 import pytest
-from golden_runs import arrays_digest, check_fingerprint, table_digest
+from golden_runs import arrays_digest, check_fingerprint, summarize, table_digest
 
 from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.tensorboard import FILE_NAME, read_scalars
@@ -80,10 +80,12 @@ def test_outputs(full_run):
 
 
 def test_fixed_run_computes_what_it_computed(full_run):
-    """The fixed run's metrics and parameters are bit for bit the recorded ones (tests/golden_runs.py; the
-    parameters are the run's row of params.npz, recorded when a run directory had no run axis)."""
+    """The fixed run's metrics and parameters are bit for bit the ones recorded for this host family, and its
+    summary is the recorded one within the tolerance that holds across hosts (tests/golden_runs.py; the
+    parameters' fingerprint is the run's row of params.npz, recorded when a run directory had no run axis)."""
     check_fingerprint("train_cli_small", {"table": table_digest(full_run / "metrics.csv"),
-                                          "params.npz": arrays_digest(full_run / "params.npz", run=0)})
+                                          "params.npz": arrays_digest(full_run / "params.npz", run=0)},
+                      summarize(full_run))
 
 
 def test_existing_out_needs_resume(full_run, capsys):
@@ -98,7 +100,7 @@ def test_interrupt_then_resume_equals_uninterrupted(full_run, tmp_path):
     assert json.loads((out / "config.json").read_text())["result"]["status"] == "interrupted"
     board = out / "tensorboard" / FILE_NAME
     board.write_bytes((full_run / "tensorboard" / FILE_NAME).read_bytes())  # as if written past the checkpoint
-    assert main(SMALL + ["--out", str(out), "--resume"]) == 0
+    assert main(["--resume", "--out", str(out), "--quiet"]) == 0  # the saved settings: none typed again
     assert strip_wall(read_csv(out / "metrics.csv")) == strip_wall(read_csv(full_run / "metrics.csv"))
     assert all(r["wall_s"] != "" for r in read_csv(out / "metrics.csv"))  # the wall clock before the resume kept
     # TensorBoard: the resumed run's events restart from the checkpoint: each iteration once, as uninterrupted
@@ -111,6 +113,27 @@ def test_interrupt_then_resume_equals_uninterrupted(full_run, tmp_path):
                 np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
+def test_the_printed_resume_command_resumes(full_run, tmp_path, capsys):
+    """The command a stopped run prints is run as printed (a shell command from the working directory) and
+    continues the run to the uninterrupted one's metrics; without --out, --resume is a one-line error."""
+    import shlex
+    import subprocess
+    import sys
+
+    out = tmp_path / "hinted"
+    assert main(SMALL[:-1] + ["--out", str(out), "--stop-after", "1", "--no-tensorboard"]) == 0
+    hint = capsys.readouterr().out.strip().splitlines()[-1].split("continue with: ", 1)[1]
+    command = shlex.split(hint)
+    assert command[1:] == ["-m", "gsa_jax.train", "--resume", "--out", str(out)] and os.path.exists(command[0]), hint
+    done = subprocess.run(hint, shell=True, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert strip_wall(read_csv(out / "metrics.csv")) == strip_wall(read_csv(full_run / "metrics.csv"))
+    assert json.loads((out / "config.json").read_text())["tensorboard"] is False  # a saved setting kept
+    assert main(["--resume"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--resume needs --out DIR" in err
+
+
 def test_no_tensorboard_writes_no_event_files(tmp_path):
     out = tmp_path / "quiet"
     assert main(SMALL + ["--out", str(out), "--stop-after", "1", "--no-tensorboard"]) == 0
@@ -118,8 +141,12 @@ def test_no_tensorboard_writes_no_event_files(tmp_path):
 
 
 def test_resume_with_other_config_refused(full_run, capsys):
-    assert main(SMALL[:-1] + ["--seed", "5", "--out", str(full_run), "--resume"]) == 2
-    assert "seed: 0 -> 5" in capsys.readouterr().err
+    """Only typed options are compared with the saved run: one that differs is refused with its diff."""
+    assert main(["--seed", "5", "--out", str(full_run), "--resume"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "(seed: 0 -> 5);" in err and "--force" in err, err
+    assert main(["--eval-every", "1", "--out", str(full_run), "--resume"]) == 2
+    assert "eval_every: 2 -> 1" in capsys.readouterr().err
     assert main(SMALL[:-1] + ["--solver-iterations", "1", "--out", str(full_run), "--resume"]) == 2
     assert "config.solver_iterations: null -> 1" in capsys.readouterr().err
 
@@ -251,7 +278,8 @@ def test_export_real_run_matches_jax(full_run, tmp_path):
     obs = np.random.default_rng(0).normal(size=(200, trainer.env.observation_size)).astype(np.float32)
     sched = {"K": hp.K, "epsilon": hp.eps_init, "sigma_min": hp.sigma_min_init}
     a, c = jax.vmap(trainer.policy.mode, in_axes=(None, 0, None))(params["policy"], normalize(stats, obs), sched)
-    np.testing.assert_allclose(ctrl.act(obs), np.asarray(a), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(ctrl.act(obs, clip=False), np.asarray(a), rtol=1e-5, atol=1e-5)  # the raw action
+    np.testing.assert_array_equal(ctrl.act(obs), np.clip(ctrl.act(obs, clip=False), -1.0, 1.0))  # the task's bounds
     np.testing.assert_array_equal(ctrl.cluster(obs), np.asarray(c))
     assert ctrl.subpolicy == trainer.cfg.subpolicy == "linear"
     assert np.abs(ctrl.L).sum() > 0  # trained: not the L = 0 init

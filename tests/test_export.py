@@ -1,6 +1,12 @@
-"""Export round trip: the NumPy controller acts like the JAX deterministic policy."""
+"""Export round trip: the NumPy controller acts like the JAX deterministic policy; the NumPy, ONNX and C controllers
+keep actions inside the task's bounds (raw actions on request); the README's snippet scores a committed controller."""
 
+import csv
+import glob
+import gzip
 import json
+import os
+import re
 
 import jax
 import jax.numpy as jnp
@@ -14,11 +20,12 @@ from gsa_jax.deployment import numpy_policy
 from gsa_jax.export import main as export_main
 from gsa_jax.running.checkpoint import save_pytree
 
-D_S, D_A = 6, 2
+D_S, D_A = 6, 2  # the fake runs' sizes; their task (Hopper-v5) only names their action bounds, [-1, 1]
+ROOT = os.path.join(os.path.dirname(__file__), "..")
 
 
-def fake_run(tmp_path, kind, K, k_max, subpolicy="linear"):
-    """A run directory as train.py writes it, with trained-looking (random) parameters."""
+def fake_run(tmp_path, kind, K, k_max, subpolicy="linear", env="Hopper-v5"):
+    """A run directory of task `env` as train.py writes it, with trained-looking (random) parameters."""
     pol = make_policy(kind, D_S, D_A, k_max, subpolicy=subpolicy)
     params = pol.init(jax.random.PRNGKey(0), make_hparams(K=K, sigma_init_scale=1.0))
     leaves, tdef = jax.tree.flatten(params)
@@ -29,8 +36,8 @@ def fake_run(tmp_path, kind, K, k_max, subpolicy="linear"):
     run.mkdir()
     one = jax.tree.map(lambda x: np.asarray(x)[None], {"params": {"policy": params}, "obs_stats": stats})  # a group of one
     save_pytree(str(run / "params.npz"), one)
-    (run / "runs.csv").write_text(f"env,policy,K,seed\ntoy,{kind},{K},0\n")
-    config = {"policy": kind, "normalize_obs": True, "subpolicy": subpolicy}
+    (run / "runs.csv").write_text(f"env,policy,K,seed\n{env},{kind},{K},0\n")
+    config = {"env": env, "policy": kind, "normalize_obs": True, "subpolicy": subpolicy}
     (run / "config.json").write_text(json.dumps({"config": config, "hparams": {"K": K}, "seed": 0}))
     return pol, params, stats, run
 
@@ -47,7 +54,8 @@ def test_numpy_controller_matches_jax(tmp_path, kind, K, k_max, subpolicy, capsy
     obs = np.random.default_rng(0).normal(scale=3.0, size=(500, D_S)).astype(np.float32)
     sched = {"K": jnp.int32(K), "epsilon": jnp.float32(0.1), "sigma_min": jnp.float32(0.0)}
     a_jax, c_jax = jax.vmap(pol.mode, in_axes=(None, 0, None))(params, normalize(stats, jnp.asarray(obs)), sched)
-    np.testing.assert_allclose(ctrl.act(obs), np.asarray(a_jax), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(ctrl.act(obs, clip=False), np.asarray(a_jax), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(ctrl.act(obs), np.clip(np.asarray(a_jax), -1.0, 1.0), rtol=1e-5, atol=1e-5)
     np.testing.assert_array_equal(ctrl.cluster(obs), np.asarray(c_jax))
     assert ctrl.act(obs[0]).shape == (D_A,)  # single observation
     if kind == "mixture":
@@ -68,6 +76,11 @@ def test_numpy_policy_imports_without_jax():
 
     code = "import sys; import gsa_jax.deployment.numpy_policy; assert 'jax' not in sys.modules, 'jax was imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
+    # a committed file without bounds: they come from its task's name, with no JAX and no MuJoCo
+    legacy = ("import sys; from gsa_jax.deployment import numpy_policy; "
+              f"assert numpy_policy.load({os.path.join(ROOT, COMMITTED['Ant-v5'])!r}).action_low is not None; "
+              "assert not {'jax', 'mujoco'} & set(sys.modules), 'jax or mujoco was imported'")
+    subprocess.run([sys.executable, "-c", legacy], check=True)
 
 
 @pytest.mark.parametrize("subpolicy, d_phi", [("constant", 0), ("linear", 3), ("quadratic", 9)])
@@ -113,10 +126,10 @@ def test_observations(ctrl, n=4000):
 test_observations.__test__ = False  # a helper, not a test
 
 
-def assert_same_controller(ctrl, obs, action, cluster):
-    """Clusters equal except at float32 near-ties of the two best logits; where clusters agree, actions to 1e-5
-    of the magnitude of the terms they sum (1e-5 absolute for small terms)."""
-    ref_c, ref_a = ctrl.cluster(obs), ctrl.act(obs)
+def assert_same_controller(ctrl, obs, action, cluster, clip=True):
+    """Clusters equal except at float32 near-ties of the two best logits; where clusters agree, actions (ctrl.act's,
+    clip as given) to 1e-5 of the magnitude of the terms they sum (1e-5 absolute for small terms)."""
+    ref_c, ref_a = ctrl.cluster(obs), ctrl.act(obs, clip=clip)
     if ctrl.kind == "mixture" and ctrl.num_clusters > 1:
         logits = np.sort(ctrl._mlp(ctrl.normalize(obs))[:, : ctrl.num_clusters].astype(np.float64), axis=1)
         tie = logits[:, -1] - logits[:, -2] < 1e-4
@@ -153,12 +166,13 @@ def test_onnx_export_matches_numpy(tmp_path, kind, K, k_max, subpolicy):
     assert export_main([str(run), "--out", str(path)]) == 0  # the format from the suffix
     model = onnx.load(str(path))
     onnx.checker.check_model(model, full_check=True)
-    assert [o.name for o in model.graph.output] == ["action", "cluster"]
+    assert [o.name for o in model.graph.output] == ["action", "cluster", "raw_action"]
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     obs = test_observations(ctrl)
-    action, cluster = sess.run(None, {"obs": obs})
+    action, cluster, raw = sess.run(None, {"obs": obs})
     assert action.dtype == np.float32 and cluster.dtype == np.int64 and cluster.shape == (len(obs),)
     assert_same_controller(ctrl, obs, action, cluster)
+    assert_same_controller(ctrl, obs, raw, cluster, clip=False)
 
 
 HARNESS = r"""
@@ -167,12 +181,14 @@ HARNESS = r"""
 #include <stdio.h>
 int other_unit(const float *obs);
 int main(void) {
-    float obs[GSA_OBS_DIM], action[GSA_ACT_DIM];
-    int cluster;
+    float obs[GSA_OBS_DIM], action[GSA_ACT_DIM], raw[GSA_ACT_DIM];
+    int cluster, raw_cluster;
     while (fread(obs, sizeof(float), GSA_OBS_DIM, stdin) == GSA_OBS_DIM) {
         gsa_act(obs, action, &cluster);
-        if (cluster != other_unit(obs)) return 3;
+        gsa_act_raw(obs, raw, &raw_cluster);
+        if (cluster != other_unit(obs) || cluster != raw_cluster) return 3;
         fwrite(action, sizeof(float), GSA_ACT_DIM, stdout);
+        fwrite(raw, sizeof(float), GSA_ACT_DIM, stdout);
         fwrite(&cluster, sizeof(int), 1, stdout);
     }
     return 0;
@@ -190,29 +206,38 @@ def c_compiler():
     return next((shutil.which(c) for c in ("cc", "gcc", "clang") if shutil.which(c)), None)
 
 
-@pytest.mark.parametrize("kind, K, k_max, subpolicy", CASES)
-def test_c_export_compiles_and_matches_numpy(tmp_path, kind, K, k_max, subpolicy, capsys):
-    """The header compiles warning-free as C99 (-Wall -Wextra -pedantic -Werror), links from two files, and
-    gsa_act agrees with numpy_policy on thousands of observations."""
+def run_c_header(tmp_path, obs, d_a):
+    """Compile tmp_path/controller.h with HARNESS (C99, -Wall -Wextra -pedantic -Werror, two files) and run it on obs
+    [n, d_s] -> (gsa_act's actions [n, d_a], gsa_act_raw's [n, d_a], clusters [n])."""
     import subprocess
 
     cc = c_compiler()
     if cc is None:
         pytest.skip("no C compiler (cc, gcc or clang) on PATH")
-    ctrl, _, run = exported(tmp_path, kind, K, k_max, subpolicy)
-    capsys.readouterr()
-    assert export_main([str(run), "--format", "c", "--out", str(tmp_path / "controller.h")]) == 0
-    assert "multiply-adds" in capsys.readouterr().out
     (tmp_path / "main.c").write_text(HARNESS)
     (tmp_path / "other.c").write_text(OTHER_UNIT)
     subprocess.run([cc, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror", "-o", str(tmp_path / "ctrl"),
                     str(tmp_path / "main.c"), str(tmp_path / "other.c"), "-lm"], check=True, cwd=tmp_path)
-    obs = test_observations(ctrl)
     r = subprocess.run([str(tmp_path / "ctrl")], input=obs.tobytes(), capture_output=True, check=True)
-    d_a = ctrl.act(obs[:1]).shape[-1]
-    rec = np.frombuffer(r.stdout, dtype=np.dtype([("a", np.float32, (d_a,)), ("c", np.int32)]))
+    record = np.dtype([("a", np.float32, (d_a,)), ("raw", np.float32, (d_a,)), ("c", np.int32)])
+    rec = np.frombuffer(r.stdout, dtype=record)
     assert len(rec) == len(obs)
-    assert_same_controller(ctrl, obs, rec["a"], rec["c"].astype(np.int64))
+    return rec["a"], rec["raw"], rec["c"].astype(np.int64)
+
+
+@pytest.mark.parametrize("kind, K, k_max, subpolicy", CASES)
+def test_c_export_compiles_and_matches_numpy(tmp_path, kind, K, k_max, subpolicy, capsys):
+    """The header compiles warning-free as C99 (-Wall -Wextra -pedantic -Werror), links from two files, and
+    gsa_act (and gsa_act_raw) agree with numpy_policy's act(obs) (and act(obs, clip=False)) on thousands of
+    observations."""
+    ctrl, _, run = exported(tmp_path, kind, K, k_max, subpolicy)
+    capsys.readouterr()
+    assert export_main([str(run), "--format", "c", "--out", str(tmp_path / "controller.h")]) == 0
+    assert "multiply-adds" in capsys.readouterr().out
+    obs = test_observations(ctrl)
+    action, raw, cluster = run_c_header(tmp_path, obs, ctrl.action_size)
+    assert_same_controller(ctrl, obs, action, cluster)
+    assert_same_controller(ctrl, obs, raw, cluster, clip=False)
 
 
 def test_export_formats_and_errors(tmp_path, capsys):
@@ -230,3 +255,147 @@ def test_export_formats_and_errors(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         export_main([str(run), "--format", "tflite"])
+
+
+# --- action bounds: every format keeps actions inside the task's bounds; the README's use scores as committed -------
+
+COMMITTED = {  # one committed controller per task family, exported before the bounds were stored in the file
+    "Ant-v5": "experiments/fig1_v5/results/fig1_v5_Ant-v5_seeds_0_4/controllers/Ant-v5-mixture-K4-s0.npz",
+    "hopper": "experiments/robustness/results/brax_hopper_c/training_seeds_0_4/controllers/hopper-mlp-s0.npz",
+}
+
+
+def test_action_range_is_every_tasks_actuator_range():
+    """envs.ACTION_RANGE, what training clips to and act() clips to, is each locomotion task's actuator ctrlrange and
+    gymnasium's action space; allegro_cylinder clips its own actions (PD-target steps) to it."""
+    import gymnasium
+
+    import envs
+    from envs.mujoco_c import make_c
+
+    for name in envs.NAMES:
+        if name != "allegro_cylinder":
+            np.testing.assert_array_equal(envs.task_model(name).actuator_ctrlrange,
+                                          np.transpose(envs.action_bounds(name)), err_msg=name)
+    for env_id in envs.GYM_V5_TASKS:
+        space = gymnasium.make(env_id).action_space
+        np.testing.assert_array_equal([space.low, space.high], envs.action_bounds(env_id), err_msg=env_id)
+    hand = make_c("allegro_cylinder")
+    steps = [(hand.reset(0), hand.step(np.full(8, a))[0])[1] for a in (envs.ACTION_RANGE[1], 5.0)]
+    np.testing.assert_array_equal(steps[0], steps[1])
+
+
+def far_observations(ctrl, n=500):
+    """n observations about 1e3 times the training distribution's [n, d_s]."""
+    z = np.random.default_rng(2).normal(size=(n, ctrl.obs_mean.shape[0]))
+    return (1e3 * (ctrl.obs_mean + ctrl.obs_std * z)).astype(np.float32)
+
+
+def assert_bounded(action, raw, low, high):
+    """action inside [low, high] and equal to raw clipped to them, where raw leaves them (else nothing is tested)."""
+    assert np.any((raw < low) | (raw > high)), "the raw actions never leave the bounds"
+    assert np.all((action >= low) & (action <= high))
+    np.testing.assert_array_equal(action, np.clip(raw, low, high))
+
+
+@pytest.mark.parametrize("task", sorted(COMMITTED))
+def test_committed_controllers_act_inside_their_tasks_bounds(tmp_path, task, capsys):
+    """A committed controller (no bounds in its file: they come from the task it names) and its npz, ONNX and C
+    exports: actions inside the task's bounds for observations far outside training's, raw actions on request."""
+    import envs
+
+    path = os.path.join(ROOT, COMMITTED[task])
+    with np.load(path) as f:
+        assert "action_low" not in f.files and numpy_policy.task_name(f) == task
+    low, high = envs.action_bounds(task)  # sized by the task's MJCF
+    ctrl = numpy_policy.load(path)
+    np.testing.assert_array_equal([ctrl.action_low, ctrl.action_high], [low, high])
+    obs = far_observations(ctrl)
+    raw = ctrl.act(obs, clip=False)
+    assert_bounded(ctrl.act(obs), raw, low, high)
+    out = {fmt: str(tmp_path / f"controller.{fmt}") for fmt in ("npz", "onnx", "h")}
+    for fmt in out:
+        assert export_main([path, "--out", out[fmt]]) == 0
+    with np.load(out["npz"]) as f:
+        np.testing.assert_array_equal([f["action_low"], f["action_high"]], [low, high])
+    np.testing.assert_array_equal(numpy_policy.load(out["npz"]).act(obs), ctrl.act(obs))
+    assert_bounded(*run_c_header(tmp_path, obs, ctrl.action_size)[:2], low, high)
+    ort = pytest.importorskip("onnxruntime")
+    sess = ort.InferenceSession(out["onnx"], providers=["CPUExecutionProvider"])
+    action, cluster, raw_onnx = sess.run(None, {"obs": obs})
+    assert_bounded(action, raw_onnx, low, high)
+    assert_same_controller(ctrl, obs, raw_onnx, cluster, clip=False)
+
+
+def test_controller_without_bounds_or_known_task(tmp_path, capsys):
+    """A file without bounds takes its task's; naming no known task, act() returns the raw action after one warning
+    line, and export refuses in one line."""
+    _, arrays, _ = exported(tmp_path, "mixture", 3, 4, "linear")
+    old = {k: v for k, v in arrays.items() if k not in ("action_low", "action_high")}
+    np.testing.assert_array_equal(numpy_policy.Controller(old).action_high, np.ones(D_A, np.float32))
+    obs = far_observations(numpy_policy.Controller(arrays))
+    toy = {**old, "config_json": np.array(json.dumps({"config": {"env": "toy"}}))}
+    with pytest.warns(UserWarning, match="stores no action bounds and its task 'toy' is not a known task") as caught:
+        ctrl = numpy_policy.Controller(toy)
+    assert len(caught) == 1 and "\n" not in str(caught[0].message)
+    np.testing.assert_array_equal(ctrl.act(obs), ctrl.act(obs, clip=False))
+    with pytest.raises(ValueError, match="stores no action bounds"):
+        ctrl.bounds()
+    np.savez(tmp_path / "toy.npz", **toy)
+    capsys.readouterr()
+    assert export_main([str(tmp_path / "toy.npz"), "--out", str(tmp_path / "toy.h")]) == 2
+    err = capsys.readouterr().err
+    assert "names no known task ('toy'), so no action bounds to export" in err and err.count("\n") == 1
+
+
+def readme_snippet():
+    """The README's Python block that runs a controller in gymnasium."""
+    with open(os.path.join(ROOT, "README.md")) as f:
+        blocks = re.findall(r"```python\n(.*?)```", f.read(), re.S)
+    return next(b for b in blocks if "numpy_policy.load" in b and "env.step" in b)
+
+
+def committed_scores(path):
+    """(score over the robustness experiment's 20 nominal start states, MuJoCo C, gymnasium's start seeds; its
+    fig1_v5 score: the mean over 16 evaluation episodes at the end of training) of a committed Ant-v5 controller."""
+    name = os.path.basename(path)[:-4]
+    policy, k, seed = re.fullmatch(r"Ant-v5-(mixture|mlp)-K?(\d*)-?s(\d+)", name).groups()
+    res = os.path.join(ROOT, "experiments", "robustness", "results", "Ant-v5")
+    with open(os.path.join(res, "robustness.csv")) as f:
+        nominal = next(float(r["score"]) for r in csv.DictReader(f) if r["shift"] == "nominal"
+                       and (r["policy"], r["K"], r["seed"]) == (policy, k, seed))
+    rows = []
+    for metrics in glob.glob(os.path.join(os.path.dirname(os.path.dirname(path)), "metrics-process-*.csv.gz")):
+        with gzip.open(metrics, "rt") as f:
+            rows += [r for r in csv.DictReader(f) if (r["policy"], r["K"], r["seed"]) == (policy, k or "1", seed)
+                     and r["eval_return"]]
+    with open(os.path.join(res, "robustness.json")) as f:
+        seeds = range(*json.load(f)["start_seeds"])  # [first, last + 1]
+    return nominal, float(max(rows, key=lambda r: int(r["iteration"]))["eval_return"]), seeds
+
+
+def test_readme_snippet_scores_the_committed_ant_controller(monkeypatch):
+    """The README's snippet, as written (its controller: Ant-v5 K = 4 seed 0), run in gymnasium.make("Ant-v5") from
+    the robustness experiment's 20 start states, scores its committed nominal score there (to its CSV's rounding;
+    gymnasium and MuJoCo C step alike) and its committed fig1_v5 score (16 other episodes) within two standard errors;
+    with the raw action, which gymnasium charges control cost on, it scores less."""
+    code = readme_snippet()
+    path = re.search(r'numpy_policy\.load\("([^"]+)"\)', code).group(1)
+    nominal, final_eval, seeds = committed_scores(os.path.join(ROOT, path))
+    assert len(seeds) == 20 and code.count("seed=0)") == 1 and code.count("ctrl.act(obs)") == 1
+    monkeypatch.chdir(ROOT)
+
+    def scores(snippet):
+        out = []
+        for s in seeds:
+            ns = {}
+            exec(snippet.replace("seed=0)", f"seed={s})"), ns)
+            out.append(ns["score"])
+        return np.array(out)
+
+    clipped = scores(code)
+    assert abs(clipped.mean() - nominal) < 1e-2, (clipped.mean(), nominal)
+    noise = 2 * clipped.std(ddof=1) * np.sqrt(1 / len(seeds) + 1 / 16)
+    assert abs(clipped.mean() - final_eval) < noise, (clipped.mean(), final_eval, noise)
+    raw = scores(code.replace("ctrl.act(obs)", "ctrl.act(obs, clip=False)"))
+    assert raw.mean() < nominal - 10.0 and np.all(raw <= clipped + 1e-6), (raw.mean(), nominal)

@@ -1,6 +1,6 @@
 """gymnasium's v5 tasks (envs/gym_v5.py): MuJoCo C and the trainer's backend 'c' against gymnasium.make(id),
 step for step over whole episodes from gymnasium's reset states with the same random actions (out-of-range
-ones included); the reset noise law; MJX (envs/gym_v5_mjx.py) against MuJoCo C within a tolerance.
+ones included); the reset noise law; MJX (envs/task_mjx.py) against MuJoCo C within a tolerance.
 
 Whole episodes: until gymnasium's episode terminates or its 1000-step time limit truncates it.
 """
@@ -14,7 +14,8 @@ from scipy import stats as sps
 
 import envs
 from envs.c_backend import STATE_SPEC, SimState
-from envs.gym_v5 import V5_TASKS, V5C
+from envs.gym_v5 import V5_TASKS
+from envs.task import TaskC
 from envs.physics import Physics
 
 gym = pytest.importorskip("gymnasium")
@@ -23,7 +24,7 @@ SEEDS = 6
 
 def gym_episode(env_id, seed, ours=None):
     """gymnasium's episode from reset(seed) under U(-1.5, 1.5) actions (float32 values): (qpos0, qvel0,
-    obs0, actions [T, nu], obs [T, d], rewards [T], terminated [T], truncated [T]); with `ours` (V5C) also
+    obs0, actions [T, nu], obs [T, d], rewards [T], terminated [T], truncated [T]); with `ours` (TaskC) also
     its largest |difference| from gymnasium over the episode."""
     g = gym.make(env_id)
     obs0, _ = g.reset(seed=seed)
@@ -48,10 +49,10 @@ def gym_episode(env_id, seed, ours=None):
 
 @pytest.mark.parametrize("env_id", list(V5_TASKS))
 def test_mujoco_c_task_equals_gymnasium_exactly(env_id):
-    """V5C, stepping one MjData with the task's own observation, reward and termination functions, gives
+    """TaskC, stepping one MjData with the task's own observation, reward and termination functions, gives
     gymnasium's values bit for bit (largest difference 0.0)."""
     for seed in range(SEEDS):
-        _, worst = gym_episode(env_id, seed, V5C(env_id))
+        _, worst = gym_episode(env_id, seed, TaskC(env_id))
         assert worst == 0.0, (env_id, seed, worst)
 
 
@@ -150,7 +151,7 @@ def test_mjx_task_agrees_with_mujoco_c(env_id):
     InvertedDoublePendulum-v5 within 1e-5, Walker2d-v5 5e-5, HalfCheetah-v5 1e-4 at 10 steps; halfcheetah's
     contacts drift to 4e-2 by 25 steps)."""
     env = envs.make_base(env_id)
-    c = V5C(env_id)
+    c = TaskC(env_id)
     s = jax.jit(env.reset)(jax.random.PRNGKey(0))
     step = jax.jit(env.step)
     np.testing.assert_allclose(c.set_start(np.asarray(s.pipeline_state.qpos, np.float64),
@@ -213,12 +214,12 @@ def test_ant_on_mjx_steps_like_mujoco_c_from_shared_states():
 
     env = envs.make_base("Ant-v5")
     init, step = jax.jit(env.pipeline_init), jax.jit(env.step)
-    traj, rng, diffs = V5C("Ant-v5"), np.random.default_rng(0), []
+    traj, rng, diffs = TaskC("Ant-v5"), np.random.default_rng(0), []
     traj.reset(0)
     for t in range(200):
         a = rng.uniform(-1, 1, 8)
         if t % 10 == 5:
-            c = V5C("Ant-v5")
+            c = TaskC("Ant-v5")
             c.set_start(traj.data.qpos, traj.data.qvel)
             data = init(jnp.asarray(traj.data.qpos, jnp.float32), jnp.asarray(traj.data.qvel, jnp.float32))
             zero = jnp.zeros((), jnp.float32)

@@ -96,6 +96,8 @@ def test_cli_writes_tables_resumes_and_refuses_other_settings(tmp_path, capsys):
     assert (out / "robustness.png").stat().st_size > 10_000 and (out / "profile.png").exists()
     capsys.readouterr()
     assert main(args) == 0 and "[1/4]" not in capsys.readouterr().out  # nothing evaluated twice
+    # the re-run with only the controllers and OUT continues with the recorded shifts and episodes
+    assert main([str(tmp_path), "--out", str(out), "--reps", "20"]) == 0 and "[1/4]" not in capsys.readouterr().out
     with open(out / "robustness.csv") as f:
         assert len(list(csv.DictReader(f))) == 16
     assert main(args[:-4] + ["--shifts", "push", "--reps", "20"]) == 2

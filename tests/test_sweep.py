@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from golden_runs import arrays_digest, check_fingerprint, table_digest
+from golden_runs import arrays_digest, check_fingerprint, summarize, table_digest
 
 from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
 from gsa_jax.running.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
@@ -183,11 +183,13 @@ def test_every_experiment_file_is_valid():
 
 
 def test_fixed_sweep_computes_what_it_computed(inprocess):
-    """The tiny sweep's tidy metrics and its group's parameters and metrics arrays are bit for bit the recorded ones
+    """The tiny sweep's tidy metrics and its group's parameters and metrics arrays are bit for bit the ones recorded
+    for this host family, and its summary is the recorded one within the tolerance that holds across hosts
     (tests/golden_runs.py)."""
     group = inprocess / "groups" / "inverted_double_pendulum-mixture"
     check_fingerprint("sweep_tiny", {"table": table_digest(inprocess / "metrics.csv"),
-                                     **{f"{n}.npz": arrays_digest(group / f"{n}.npz") for n in ("params", "metrics")}})
+                                     **{f"{n}.npz": arrays_digest(group / f"{n}.npz") for n in ("params", "metrics")}},
+                      summarize(group))
 
 
 def test_tidy_table(inprocess):
@@ -545,12 +547,19 @@ def test_disk_full_at_every_sweep_write_then_resume(tiny_spec_file, inprocess, t
 
 
 def test_unreadable_group_state_falls_back(tiny_spec_file, inprocess, tmp_path, capsys):
+    """...and the printed `--resume DIR` alone continues the sweep as its sweep.json recorded it."""
+    import shlex
+
+    from gsa_jax.sweep import main
+
     out = tmp_path / "trunc"
-    assert sweep_main(tiny_spec_file, out, "--stop-after-chunks", "3") == 0
+    capsys.readouterr()
+    assert main([tiny_spec_file, "--out", str(out), "--no-watchdog", "--local-processes", "1", "--stop-after-chunks", "3"]) == 0
+    hint = shlex.split(capsys.readouterr().out.strip().splitlines()[-1].split("or: ", 1)[1])
+    assert hint[1:] == ["-m", "gsa_jax.sweep", "--resume", str(out)], hint
     state = out / "groups" / "inverted_double_pendulum-mixture" / "state.npz"
     state.write_bytes(state.read_bytes()[:1000])
-    capsys.readouterr()
-    assert sweep_main(tiny_spec_file, out) == 0
+    assert main(hint[3:] + ["--no-watchdog", "--local-processes", "1", "--quiet"]) == 0
     printed = capsys.readouterr()
     assert "state.npz is unreadable" in printed.out + printed.err and "state.prev.npz" in printed.out + printed.err
     assert canonical_rows(out / "metrics.csv") == canonical_rows(inprocess / "metrics.csv")
@@ -567,6 +576,16 @@ def test_changed_spec_and_second_writer_refused(tiny_spec_file, tmp_path, capsys
     assert sweep_main(changed, out) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "steps: 3072 -> 4096" in err and "--force" in err
+    assert sweep_main(changed, out, "--resume", str(out)) == 2  # an experiment given with --resume: compared too
+    assert "steps: 3072 -> 4096" in capsys.readouterr().err
+    from gsa_jax.sweep import main
+
+    for argv, message in (([], "give an experiment file (TOML), or --resume DIR"),
+                          (["--resume", str(tmp_path / "none")], "no sweep there (no sweep.json)"),
+                          (["--resume", str(out), "--out", str(tmp_path)], "name different directories")):
+        assert main(argv + ["--no-watchdog", "--quiet"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and message in err, err
     lock = acquire(str(out), "another sweep")
     try:
         assert sweep_main(tiny_spec_file, out) == 2

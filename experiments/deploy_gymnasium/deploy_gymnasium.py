@@ -64,7 +64,7 @@ def check_onnx(ctrl, path, obs):
     import onnxruntime as ort
 
     sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
-    action, cluster = sess.run(None, {"obs": obs})
+    action, cluster = sess.run(["action", "cluster"], {"obs": obs})
     return agreement(ctrl, obs, action, cluster)
 
 

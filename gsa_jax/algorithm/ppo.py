@@ -72,7 +72,7 @@ class Config:
     physics_threads: int = Physics.threads
 
     def __post_init__(self):
-        if self.episode_length is None and self.env in envs.NAMES:
+        if self.episode_length is None and envs.is_name(self.env):
             object.__setattr__(self, "episode_length", envs.default_episode_length(self.env))
 
     @property
@@ -91,7 +91,7 @@ class Config:
 
     def validate(self):
         """Raise ValueError naming the first bad field (before anything is compiled)."""
-        envs.check_name(self.env)
+        envs.check_task(self.env)
         if self.policy not in POLICY_KINDS:
             raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
         if self.subpolicy not in SUBPOLICY_KINDS:
@@ -309,7 +309,7 @@ def rollout(p, state, hp, sched, key):
         env_state, ep_ret, disc_ret, fin_sum, fin_cnt = carry
         obs = norm_obs(p.cfg, state.obs_stats, env_state.obs)
         action, cluster, logp = p.v_sample(params, obs, noise, sched)
-        nxt = jax.vmap(p.env.step)(env_state, jnp.clip(action, -1.0, 1.0))
+        nxt = jax.vmap(p.env.step)(env_state, jnp.clip(action, *envs.ACTION_RANGE))
         r, done = nxt.reward, nxt.done
         ep_ret = ep_ret + r
         fin_sum = fin_sum + jnp.sum(done * ep_ret)
@@ -515,7 +515,7 @@ def evaluate(p, params, obs_stats, hp, key):
     def body(carry):
         s, ret, alive, failed, t = carry
         action, _ = p.v_mode(params["policy"], norm_obs(p.cfg, obs_stats, s.obs), sched)
-        s, reward, alive, failed_now = step_episodes(p.eval_env, s, jnp.clip(action, -1.0, 1.0), alive)
+        s, reward, alive, failed_now = step_episodes(p.eval_env, s, jnp.clip(action, *envs.ACTION_RANGE), alive)
         return s, ret + reward, alive, failed | failed_now, t + 1
 
     # stop once every episode has ended: stepping finished envs is wasted work (and fallen

@@ -7,7 +7,7 @@ import zipfile
 
 import numpy as np
 
-from envs import C_BACKEND_TASKS, default_episode_length
+from envs import C_BACKEND_TASKS, default_episode_length, has_c_backend
 from gsa_jax.deployment import numpy_policy
 
 
@@ -42,8 +42,9 @@ def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
     from envs.mujoco_c import make_c, run_episodes
 
-    if env_name not in C_BACKEND_TASKS:
-        raise DeployError(f"the controller is for {env_name!r}; MuJoCo C versions exist for {', '.join(C_BACKEND_TASKS)}")
+    if not has_c_backend(env_name):
+        raise DeployError(f"the controller is for {env_name!r}; MuJoCo C versions exist for {', '.join(C_BACKEND_TASKS)} "
+                          "and every task definition (envs/task.py)")
     length = episode_length or config.get("episode_length") or default_episode_length(env_name)
     returns, lengths = run_episodes(make_c(env_name), ctrl, episodes, int(length), seed)
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
@@ -51,11 +52,12 @@ def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
 
 def run_gymnasium(ctrl, env_name, env_id, episodes, seed=0):
     """Summary of the controller in gymnasium's own task `env_id` (its MJCF, reward, termination, time limit)."""
-    from gsa_jax.deployment.gymnasium_task import GymnasiumError, make_gym, run_episodes
+    from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym, run_episodes
 
     try:
         env, options = make_gym(env_name, env_id, seed=seed)
-    except GymnasiumError as e:
+        check_bounds(ctrl, env, env_id)
+    except (GymnasiumError, ValueError) as e:
         raise DeployError(str(e)) from None
     returns, lengths = run_episodes(env, ctrl, episodes, seed)
     return {**summarize(returns, lengths), "env_id": env_id, "options": options,

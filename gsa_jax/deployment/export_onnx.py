@@ -1,10 +1,12 @@
 """The deterministic controller as one ONNX graph, built with the `onnx` package's own API.
 
-Input `obs` float32 [N, d_s]; outputs `action` float32 [N, d_a] (unclipped, as numpy_policy's act) and
-`cluster` int64 [N] (0 for an MLP controller). The graph: normalize (subtract the running mean, divide by
-the std, clip), then for a mixture: partition MLP -> logits of the K active clusters -> ArgMax (first
-maximum, as NumPy's) -> gather that cluster's L_c, b_c -> L_c phi(z) + b_c; for an MLP controller its
-tanh MLP. Needs the optional `deploy` extra (`pip install gsa_jax[deploy]`).
+Input `obs` float32 [N, d_s]; outputs `action` float32 [N, d_a] (inside the task's action bounds, as
+numpy_policy's act), `cluster` int64 [N] (0 for an MLP controller) and `raw_action` float32 [N, d_a] (before the
+bounds, as act(obs, clip=False)); the bounds are also in its metadata (action_low, action_high). The graph:
+normalize (subtract the running mean, divide by the std, clip), then for a mixture: partition MLP -> logits of the
+K active clusters -> ArgMax (first maximum, as NumPy's) -> gather that cluster's L_c, b_c -> L_c phi(z) + b_c; for
+an MLP controller its tanh MLP; then Max / Min with the bounds.
+Needs the optional `deploy` extra (`pip install gsa_jax[deploy]`).
 """
 
 import json
@@ -64,7 +66,7 @@ def _features(nodes, ctrl, z):
 
 
 def _mixture(nodes, ctrl, z):
-    """Nodes of the mixture's deterministic controller; writes 'action' and 'cluster'."""
+    """Nodes of the mixture's deterministic controller; writes 'raw_action' and 'cluster'."""
     from onnx import helper
 
     k = ctrl.num_clusters
@@ -73,7 +75,7 @@ def _mixture(nodes, ctrl, z):
     nodes.append(helper.make_node("ArgMax", [logits], ["cluster"], axis=1, keepdims=0, select_last_index=0))
     nodes.append(helper.make_node("Gather", [_const(nodes, "b", ctrl.b), "cluster"], ["b_c"], axis=0))
     if ctrl.L.shape[-1] == 0:  # constant sub-policies: the cluster's action
-        nodes.append(helper.make_node("Identity", ["b_c"], ["action"]))
+        nodes.append(helper.make_node("Identity", ["b_c"], ["raw_action"]))
         return
     phi = _features(nodes, ctrl, z)
     nodes.append(helper.make_node("Gather", [_const(nodes, "L", ctrl.L), "cluster"], ["L_c"], axis=0))
@@ -81,7 +83,16 @@ def _mixture(nodes, ctrl, z):
     nodes.append(helper.make_node("Unsqueeze", [phi, axes], ["phi_col"]))
     nodes.append(helper.make_node("MatMul", ["L_c", "phi_col"], ["Lphi_col"]))
     nodes.append(helper.make_node("Squeeze", ["Lphi_col", axes], ["Lphi"]))
-    nodes.append(helper.make_node("Add", ["Lphi", "b_c"], ["action"]))
+    nodes.append(helper.make_node("Add", ["Lphi", "b_c"], ["raw_action"]))
+
+
+def _bound(nodes, ctrl):
+    """action = min(max(raw_action, action_low), action_high), per action (ONNX's Clip takes scalar bounds only)."""
+    from onnx import helper
+
+    low, high = ctrl.bounds()
+    nodes.append(helper.make_node("Max", ["raw_action", _const(nodes, "action_low", low)], ["above_low"]))
+    nodes.append(helper.make_node("Min", ["above_low", _const(nodes, "action_high", high)], ["action"]))
 
 
 def build_model(arrays, layout=None):
@@ -90,28 +101,29 @@ def build_model(arrays, layout=None):
     from onnx import TensorProto, helper
 
     ctrl = Controller(arrays)
-    d_s = ctrl.obs_mean.shape[0]
+    d_s, d_a = ctrl.obs_mean.shape[0], ctrl.action_size
     nodes = []
     z = _normalize(nodes, ctrl)
     if ctrl.kind == "mixture":
         _mixture(nodes, ctrl, z)
-        d_a = ctrl.b.shape[-1]
     else:
         out = _mlp(nodes, z, ctrl.layers, "mlp")
-        nodes.append(helper.make_node("Identity", [out], ["action"]))
+        nodes.append(helper.make_node("Identity", [out], ["raw_action"]))
         nodes.append(helper.make_node("Shape", ["obs"], ["batch"], start=0, end=1))
         nodes.append(helper.make_node("ConstantOfShape", ["batch"], ["cluster"],
                                       value=helper.make_tensor("zero", TensorProto.INT64, [1], [0])))
-        d_a = ctrl.layers[-1][0].shape[1]
+    _bound(nodes, ctrl)
     graph = helper.make_graph(
         nodes, "gsa_jax_controller",
         [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["N", d_s])],
         [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["N", d_a]),
-         helper.make_tensor_value_info("cluster", TensorProto.INT64, ["N"])])
+         helper.make_tensor_value_info("cluster", TensorProto.INT64, ["N"]),
+         helper.make_tensor_value_info("raw_action", TensorProto.FLOAT, ["N", d_a])])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="gsa_jax")
     model.ir_version = IR_VERSION
     model.doc_string = describe(arrays)
     meta = {"config_json": str(arrays["config_json"]) if "config_json" in arrays else "{}"}
+    meta.update(action_low=json.dumps(ctrl.action_low.tolist()), action_high=json.dumps(ctrl.action_high.tolist()))
     if layout:
         meta["observation_layout"] = json.dumps(layout)
     helper.set_model_props(model, meta)

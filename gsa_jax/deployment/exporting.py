@@ -8,6 +8,7 @@ import zipfile
 import numpy as np
 
 from gsa_jax.deployment.export_c import cost, to_source
+from gsa_jax.deployment.numpy_policy import action_bounds, task_name
 from gsa_jax.running.checkpoint import save_npz_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
@@ -16,9 +17,18 @@ class ExportError(Exception):
     pass
 
 
+def with_bounds(arrays, source):
+    """The controller arrays with action_low / action_high [d_a] (numpy_policy.action_bounds: the stored ones, else
+    the named task's); ExportError where there are none."""
+    bounds = action_bounds(arrays)
+    if bounds is None:
+        raise ExportError(f"{source!r} names no known task ({task_name(arrays)!r}), so no action bounds to export")
+    return {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
+
+
 def controller_arrays(address):
     """The controller arrays (see numpy_policy) of a trained run: a run directory or SWEEP_DIR/<run label>
-    (gsa_jax.running.trained)."""
+    (gsa_jax.running.trained), with its task's action bounds."""
     try:
         run = read_run(address)
     except (RunNotFound, FormatError) as e:
@@ -50,7 +60,7 @@ def controller_arrays(address):
         k = int(meta["hparams"]["K"])
         out["L"] = arrays[f"{prefix}['L']"][:k]
         out["b"] = arrays[f"{prefix}['b']"][:k]
-    return out
+    return with_bounds(out, address)
 
 
 SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
@@ -58,7 +68,7 @@ SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
 
 def load_arrays(source):
     """Controller arrays of a trained run (a run directory or SWEEP_DIR/<run label>) or of an exported
-    controller .npz."""
+    controller .npz, with action bounds (a file exported before they were stored: its task's)."""
     if os.path.isfile(source) and source.endswith(".npz"):
         if not zipfile.is_zipfile(source):
             raise ExportError(f"{source!r} is not an exported controller (not an .npz archive)")
@@ -69,18 +79,17 @@ def load_arrays(source):
             raise ExportError(f"{source!r} is not an exported controller ({e})") from None
         if "kind" not in arrays or "obs_mean" not in arrays:
             raise ExportError(f"{source!r} is not an exported controller (no 'kind' / 'obs_mean' arrays)")
-        return arrays
+        return with_bounds(arrays, source)
     return controller_arrays(source)
 
 
 def task_layout(arrays):
     """The task's observation layout (names), or None for an unknown task."""
     try:
-        env = json.loads(str(arrays["config_json"]))["config"]["env"]
         from envs.mujoco_c import observation_layout
 
-        layout = observation_layout(env)
-    except (KeyError, ValueError, json.JSONDecodeError):
+        layout = observation_layout(task_name(arrays))
+    except (KeyError, ValueError):
         return None
     return layout if len(layout) == np.asarray(arrays["obs_mean"]).shape[0] else None
 

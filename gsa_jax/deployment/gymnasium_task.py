@@ -114,16 +114,24 @@ def check_layout(task, env, env_id, steps=50, seed=0):
             obs, _ = env.reset(seed=seed + t + 1)
 
 
+def check_bounds(controller, env, env_id):
+    """Raise GymnasiumError unless the controller's action bounds are gymnasium's action space."""
+    low, high = controller.bounds()
+    if not (np.array_equal(low, env.action_space.low) and np.array_equal(high, env.action_space.high)):
+        raise GymnasiumError(f"{env_id}'s action space [{env.action_space.low}, {env.action_space.high}] is not the "
+                             f"controller's bounds [{low}, {high}]")
+
+
 def run_episodes(env, controller, episodes, seed=0):
     """Deterministic controller (gsa_jax.deployment.numpy_policy) in gymnasium's env, episodes ended by its own
-    termination and time limit. Actions clipped to the action space. -> returns, lengths [episodes]."""
-    lo, hi = env.action_space.low, env.action_space.high
+    termination and time limit; its act() keeps actions inside the bounds (check_bounds). -> returns, lengths
+    [episodes]."""
     returns, lengths = [], []
     for e in range(episodes):
         obs, _ = env.reset(seed=seed + e)
         total, t, done = 0.0, 0, False
         while not done:
-            obs, r, terminated, truncated, _ = env.step(np.clip(controller.act(obs), lo, hi))
+            obs, r, terminated, truncated, _ = env.step(controller.act(obs))
             total += float(r)
             t += 1
             done = terminated or truncated

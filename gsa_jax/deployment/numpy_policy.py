@@ -4,18 +4,55 @@ A mixture controller is piecewise simple: normalize the observation, pick the mo
 cluster of the partition network (eps-uniform exploration does not change the argmax), apply
 that cluster's L_c phi(z) + b_c, where phi is the sub-policy class: [] (constant), z (linear),
 [z, z_i z_j for i <= j] (quadratic). An MLP controller applies its tanh MLP to the normalized observation.
-Actions are what the policy outputs; the environment clips them to its action range [-1, 1].
+`act` then clips that raw action to the task's action bounds (action_low, action_high: envs.action_bounds, what
+training clips to), so it can go straight into the task's step (gymnasium's v5 tasks charge their control cost on
+the action they are given); `act(obs, clip=False)` is the raw action, for analysis.
 
 File format (written by `python -m gsa_jax.export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
-obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), and for mixtures subpolicy
+obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), action_low, action_high [d_a],
+config_json (the run's config: its task is config.env), and for mixtures subpolicy
 ('constant'|'linear'|'quadratic'; absent = linear), L [K, d_a, d_phi], b [K, d_a] of the K active clusters.
+Files exported before the bounds were stored get their task's (`action_bounds`).
 """
+
+import json
+import warnings
 
 import numpy as np
 
 
+def task_name(arrays):
+    """The task an exported controller was trained on (config_json's config.env), or None."""
+    try:
+        return str(json.loads(str(arrays["config_json"]))["config"]["env"])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def action_size(arrays):
+    """d_a of an exported controller's arrays."""
+    if str(arrays["kind"]) == "mixture":
+        return int(np.shape(arrays["b"])[-1])
+    return int(np.shape(arrays[f"b{int(arrays['n_layers']) - 1}"])[-1])
+
+
+def action_bounds(arrays):
+    """(low [d_a], high [d_a]) float32 of an exported controller: its own action_low / action_high, else (files
+    exported before they were stored) those of the task it names (envs.action_bounds), else None."""
+    if "action_low" in arrays:
+        return np.asarray(arrays["action_low"], np.float32), np.asarray(arrays["action_high"], np.float32)
+    task = task_name(arrays)
+    if task is None:
+        return None
+    import envs  # no JAX: the task registry
+
+    if task not in envs.NAMES and not envs.is_name(task):  # a built-in name: known without loading its task
+        return None
+    return envs.action_bounds(task, action_size(arrays))
+
+
 class Controller:
-    def __init__(self, arrays):
+    def __init__(self, arrays, name="the controller"):
         self.kind = str(arrays["kind"])
         self.obs_mean = np.asarray(arrays["obs_mean"], np.float32)
         self.obs_std = np.sqrt(np.asarray(arrays["obs_var"], np.float32) + np.float32(1e-8))
@@ -30,10 +67,22 @@ class Controller:
             self.b = np.asarray(arrays["b"], np.float32)
         elif self.kind != "mlp":
             raise ValueError(f"unknown controller kind {self.kind!r}")
+        self.action_size = action_size(arrays)
+        self.action_low, self.action_high = action_bounds(arrays) or (None, None)
+        self.no_bounds = (f"{name} stores no action bounds and its task {task_name(arrays)!r} is not a known task: "
+                          "act() returns raw, unclipped actions")
+        if self.action_low is None:
+            warnings.warn(self.no_bounds, stacklevel=2)
 
     @property
     def num_clusters(self):
         return self.L.shape[0] if self.kind == "mixture" else 1
+
+    def bounds(self):
+        """(action_low [d_a], action_high [d_a]); ValueError where the controller has none."""
+        if self.action_low is None:
+            raise ValueError(self.no_bounds)
+        return self.action_low, self.action_high
 
     def normalize(self, obs):
         return np.clip((np.asarray(obs, np.float32) - self.obs_mean) / self.obs_std, -self.obs_clip, self.obs_clip)
@@ -61,8 +110,15 @@ class Controller:
             return np.zeros(z.shape[:-1], np.int64)
         return np.argmax(self._mlp(z)[..., : self.num_clusters], axis=-1)
 
-    def act(self, obs):
-        """Deterministic action for obs [..., d_s] -> [..., d_a]."""
+    def act(self, obs, clip=True):
+        """Deterministic action for obs [..., d_s] -> float32 [..., d_a], inside [action_low, action_high] (clip=False:
+        the raw action; a controller without bounds, see load, always returns it)."""
+        raw = self._raw_action(obs)
+        if not clip or self.action_low is None:
+            return raw
+        return np.clip(raw, self.action_low, self.action_high)
+
+    def _raw_action(self, obs):
         z = self.normalize(obs)
         if self.kind == "mlp":
             return self._mlp(z)
@@ -73,5 +129,6 @@ class Controller:
 
 
 def load(path):
+    """The controller of an exported .npz; one warning line where it has no action bounds and names no known task."""
     with np.load(path, allow_pickle=False) as f:
-        return Controller({k: f[k] for k in f.files})
+        return Controller({k: f[k] for k in f.files}, name=str(path))

@@ -108,7 +108,7 @@ def run_shifted(ctrl, env_name, shift, seeds, length=1000, record=False):
         seen_obs = obs + (shift.level * std * rng.standard_normal(obs.shape) if shift.kind == "obs_noise" else 0.0)
         if record:
             seen.append(seen_obs[alive])
-        action = np.clip(ctrl.act(seen_obs.astype(np.float32)), -1.0, 1.0).astype(np.float64)
+        action = ctrl.act(seen_obs.astype(np.float32)).astype(np.float64)  # inside the task's action bounds
         applied, prev = (prev, action) if shift.kind == "action_delay" else (action, action)
         for e in np.flatnonzero(alive):
             force = impulse * pushes[e, t] if pushes is not None else np.zeros(2)

@@ -4,6 +4,7 @@ import datetime
 import json
 import os
 import platform
+import shlex
 import subprocess
 import sys
 from importlib import metadata
@@ -85,3 +86,14 @@ def check_unchanged(old, new, force, what, remedy):
     diff = describe_changes(old, json.loads(json.dumps(new)))
     if diff and not force:
         raise ResumeRefused(f"{what} ({diff}); {remedy}")
+
+
+def resume_command(module, out):
+    """The shell command that continues the run or sweep in `out` with its saved settings: this interpreter
+    (relative to the working directory when it lies under it, e.g. .venv/bin/python) -m <module> --resume ..."""
+    python = sys.executable
+    rel = os.path.relpath(python)
+    if not rel.startswith(".."):
+        python = rel if os.sep in rel else os.path.join(".", rel)
+    flags = ["--resume", "--out", out] if module == "gsa_jax.train" else ["--resume", out]
+    return shlex.join([python, "-m", module, *flags])

@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+import envs
 from envs import solver_settings
 from envs.physics import resolve_threads
 from gsa_jax.algorithm.ppo import Config
@@ -25,7 +26,7 @@ from gsa_jax.running.driver import Plan, drive, duration, failed_mask, fmt, rows
 from gsa_jax.running.metrics import INTEGER_METRICS
 from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.programs import single_program
-from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
+from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, resume_command, run_metadata
 from gsa_jax.running.store import GroupStore, write_runs_table
 from gsa_jax.running.trained import FormatError, check_layout
 
@@ -69,7 +70,7 @@ def rows_to_csv(rows):
     return buf.getvalue()
 
 
-RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk")
+RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk", "eval_every", "eval_seed")
 
 
 def check_resume_config(old, config, force):
@@ -139,7 +140,7 @@ def run(plan, options):
                 check_resume_config(json.load(f), config, options.force)
             if os.path.exists(os.path.join(out, "DONE")):
                 return report_ended(out, log)
-        config.update(physics=physics_record(cfg), **run_metadata())
+        config.update(physics=physics_record(cfg), task=envs.task_source(cfg.env), **run_metadata())
         write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
         write_atomic(config_path, json.dumps(config, indent=2))
         return train_run(plan, options, config, log)
@@ -205,10 +206,10 @@ def report_end(result, config, out, log):
         return 1
     if result.status == "interrupted":
         print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
-              f"(continue with --resume --out {out})", file=sys.stderr)
+              f"(continue with: {resume_command('gsa_jax.train', out)})", file=sys.stderr)
         return 130
     if result.done < result.iterations:
-        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with --resume --out {out}")
+        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with: {resume_command('gsa_jax.train', out)}")
     else:
         log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
             f"{timing['env_steps_per_s']:,.0f} steps/s); final return {fmt(res['final_episode_return'], '.1f')}, "

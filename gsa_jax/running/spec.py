@@ -20,6 +20,7 @@ from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
+from gsa_jax.running.trained import path_part
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
                "eval_every", "eval_seed", "hparams", "config")
@@ -139,8 +140,10 @@ def check_names(spec, bad):
         if not isinstance(spec[field], list) or not spec[field]:
             bad(field, "must be a non-empty list")
     for e in spec["envs"]:
-        if e not in envs.NAMES:
-            bad("envs", f"unknown env {e!r}; choose from {', '.join(envs.NAMES)}")
+        try:
+            envs.check_name(e)
+        except ValueError as err:
+            bad("envs", str(err))
     for p in spec["policies"]:
         if p not in POLICY_KINDS:
             bad("policies", f"unknown policy {p!r}; choose from {', '.join(POLICY_KINDS)}")
@@ -279,7 +282,7 @@ def build_grid(spec):
 def group_name(group):
     """The group's directory name: env-policy[-<axis value>...]."""
     first = group.runs[0] if group.runs else {}
-    return f"{group.env}-{group.policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
+    return f"{path_part(group.env)}-{group.policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
 
 
 def group_config(spec, group):

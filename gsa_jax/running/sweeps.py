@@ -12,6 +12,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
+import envs
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
@@ -126,7 +127,7 @@ def write_group_record(gdir, spec, cfg, runs, schedule):
                                                "total_iterations": iterations}} for r in runs]
     record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, "eval_every": eval_every,
               "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
-              "physics": physics_record(cfg), **run_metadata()}
+              "physics": physics_record(cfg), "task": envs.task_source(cfg.env), **run_metadata()}
     write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
 
 
@@ -151,7 +152,8 @@ def write_sweep_meta(root, spec, groups, options):
                         f"{root} holds a sweep with a different spec", "use another --out, or --force to continue it with the new spec")
     physics = {group_name(g): physics_record(group_config(spec, g)) for g in groups}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
-            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "physics": physics, **run_metadata()}
+            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "physics": physics,
+            "tasks": {e: envs.task_source(e) for e in spec.envs}, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 

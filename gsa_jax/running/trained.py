@@ -51,11 +51,16 @@ def read_rows(root):
         return list(csv.DictReader(f))
 
 
+def path_part(name):
+    """A task name as one part of a file name: a task named by its file ('dir/file.py:Class') without separators."""
+    return str(name).replace("/", "_").replace("\\", "_")
+
+
 def run_label(row):
     """A run's name in file, TensorBoard and address names, from its grid row or runs.csv row (the same name):
     env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...]-s<seed>."""
     fixed = ("env", "policy", "K", "seed", "run")
-    parts = [row["env"], row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
+    parts = [path_part(row["env"]), row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
     parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v)
               for c, v in row.items() if c not in fixed and v not in ("", None)]
     return "-".join(parts + [f"s{row['seed']}"])

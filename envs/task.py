@@ -1,0 +1,248 @@
+"""The task definition: what a user writes to define a MuJoCo task for gsa_jax, in one file.
+
+    import numpy as np
+    from envs.task import Task
+
+    class Reach(Task):
+        xml = "<mujoco>...</mujoco>"          # an MJCF: a path, an XML string, or a mujoco.MjSpec
+        frame_skip, episode_length = 2, 200   # physics steps per env step; time limit (a truncation)
+        noise = 0.1                           # start: qpos ~ init_qpos + U(-noise, noise) (a scalar or [nq])
+        derived = ("site_xpos",)              # MjData fields observe/outcome read (as mj_step leaves them)
+
+        def observe(self, qpos, qvel, derived, xp=np):            # [n, nq], [n, nv], {field: [n, ...]} -> [n, d]
+            return xp.concatenate([qpos, qvel], axis=1)
+
+        def outcome(self, before, qpos, qvel, derived, action, xp=np):   # after a step -> (obs, reward, terminated)
+            reward = -xp.sum(xp.square(action), axis=1)
+            return self.observe(qpos, qvel, derived, xp), reward, xp.zeros(qpos.shape[:1], bool)
+
+    python -m gsa_jax.train --env my_module:Reach --physics c     # or envs.register("reach", Reach)
+
+Observation, reward and termination are written once over batches (a leading axis of simulations) for NumPy and
+jax.numpy (`xp`): backend 'c' (envs/c_backend.py) evaluates them in float64 on MuJoCo C's arrays inside the
+compiled trainer, MJX (envs/task_mjx.py) with jax.numpy on MJX's data, and TaskC here (plain MuJoCo C, no JAX)
+steps one MjData for deployment, evaluation and robustness. gymnasium's v5 tasks (envs/gym_v5.py) are
+instances. A step: `before` reads what the reward needs from the state before it, ctrl = action (already
+clipped to [-1, 1]), mj_step frame_skip times (and mj_rnePostConstraint if post_constraint), then
+`outcome`. validate() checks a definition in one line before anything compiles.
+"""
+
+import hashlib
+import os
+
+import mujoco
+import numpy as np
+
+
+class TaskError(ValueError):
+    """A task name or definition that cannot be used (one line)."""
+
+
+def load_model(xml, where="the task"):
+    """An MjModel from an MJCF path, an XML string or a mujoco.MjSpec; TaskError (one line) if it does not load."""
+    try:
+        if isinstance(xml, mujoco.MjSpec):
+            return xml.compile()
+        if isinstance(xml, str) and xml.lstrip().startswith("<"):
+            return mujoco.MjModel.from_xml_string(xml)
+        if isinstance(xml, (str, os.PathLike)):
+            if not os.path.exists(xml):
+                raise TaskError(f"{where}: MJCF file {os.fspath(xml)!r} does not exist")
+            return mujoco.MjModel.from_xml_path(os.fspath(xml))
+    except (ValueError, TypeError) as e:
+        if isinstance(e, TaskError):
+            raise
+        raise TaskError(f"{where}: the MJCF does not load: {' '.join(str(e).split())}") from None
+    raise TaskError(f"{where}: xml must be an MJCF path, an XML string or a mujoco.MjSpec, got {type(xml).__name__}")
+
+
+class Task:
+    """A MuJoCo task: its model, control frame skip, episode length, start-state law, and its observation,
+    reward and termination over batches for NumPy and jax.numpy (subclass it; see the module docstring).
+
+    Start state: qpos ~ init_qpos + U(-noise, noise); qvel ~ U(-vel_noise, vel_noise) (qvel_noise 'uniform')
+    or vel_noise * N(0, 1) ('normal'); noise and vel_noise are scalars or per-coordinate arrays [nq] / [nv]
+    (vel_noise None: noise). init_qpos None: the model's qpos0."""
+
+    name = ""  # set by the registry: the name the task was asked for
+    xml = None
+    frame_skip = 1
+    episode_length = 1000
+    init_qpos = None
+    noise = 0.0
+    vel_noise = None
+    qvel_noise = "uniform"
+    derived = ()  # MjData fields read after a call, as mj_step leaves them (one substep behind the state)
+    post_constraint = False  # whether a derived field needs mj_rnePostConstraint after the step
+
+    def __init__(self):
+        self.model = self.load_model()
+        self.dt = self.model.opt.timestep * self.frame_skip
+        self.start_qpos = np.array(self.model.qpos0 if self.init_qpos is None else self.init_qpos, np.float64)
+
+    def load_model(self):
+        """The task's MjModel (default: from `xml`). Override to build it otherwise."""
+        return load_model(self.xml, type(self).__name__)
+
+    @property
+    def vel_scale(self):
+        """The qvel start-noise scale (vel_noise, or noise when None)."""
+        return self.noise if self.vel_noise is None else self.vel_noise
+
+    @property
+    def observation_size(self):
+        zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
+        return self.observe(self.start_qpos[None], np.zeros((1, self.model.nv)), zeros).shape[-1]
+
+    def before(self, qpos, derived, xp=np):
+        """[n, k] what the reward needs from before a step (default: nothing, k = 0)."""
+        return qpos[:, :0] + 0.0
+
+    def observe(self, qpos, qvel, derived, xp=np):
+        """[n, d] observation of n simulations: qpos [n, nq], qvel [n, nv], derived {field: [n, ...]}."""
+        raise NotImplementedError(f"{type(self).__name__} defines no observe()")
+
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
+        raise NotImplementedError(f"{type(self).__name__} defines no outcome()")
+
+    def observation_layout(self):
+        """One short description per observation entry (exported controllers' docs)."""
+        return [f"obs[{i}]" for i in range(self.observation_size)]
+
+
+def start_noise(task, rng):
+    """(dq [nq], dv [nv]) of a reset, drawn from a NumPy Generator (qpos first, then qvel, as gymnasium draws)."""
+    m = task.model
+    dq = rng.uniform(low=-task.noise, high=task.noise, size=m.nq)
+    scale = task.vel_scale
+    dv = rng.uniform(low=-scale, high=scale, size=m.nv) if task.qvel_noise == "uniform" else scale * rng.standard_normal(m.nv)
+    return dq, dv
+
+
+class TaskC:
+    """One task on one MjData in plain MuJoCo C (no JAX), stepped as the trainer's backends step it
+    (ctrl = action, mj_step frame_skip times, mj_rnePostConstraint), reading obs, reward and termination
+    from the Task. task: a Task or a task name (envs.resolve_task)."""
+
+    def __init__(self, task):
+        if isinstance(task, str):
+            import envs
+
+            task = envs.resolve_task(task)
+        self.task = task
+        self.model = self.task.model
+        self.data = mujoco.MjData(self.model)
+
+    @property
+    def action_size(self):
+        return self.model.nu
+
+    def _derived(self):
+        return {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
+
+    def set_start(self, qpos, qvel):
+        """The start state (mj_resetData, qpos, qvel, mj_forward) -> obs."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = qpos, qvel
+        mujoco.mj_forward(m, d)
+        return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
+
+    def reset(self, seed):
+        dq, dv = start_noise(self.task, np.random.default_rng(seed))
+        return self.set_start(self.task.start_qpos + dq, dv)
+
+    def step(self, action):
+        """One env step -> (obs, reward, terminated)."""
+        a = np.asarray(action, np.float64)
+        if a.shape != (self.model.nu,):
+            raise ValueError(f"action has shape {a.shape}; {self.task.name or type(self.task).__name__} takes ({self.model.nu},)")
+        m, d = self.model, self.data
+        before = self.task.before(d.qpos[None], self._derived())
+        d.ctrl[:] = a
+        mujoco.mj_step(m, d, nstep=self.task.frame_skip)
+        mujoco.mj_rnePostConstraint(m, d)
+        obs, reward, terminated = self.task.outcome(before, d.qpos[None], d.qvel[None], self._derived(), a[None])
+        return obs[0], float(reward[0]), bool(terminated[0])
+
+
+def validate(task, where):
+    """TaskError (one line, naming `where`) unless the definition can be stepped: actions, start noise shapes,
+    the frame skip and episode length, a finite first observation [d], and a reward and termination of the right
+    shapes (NumPy only; check_jax_agrees adds jax.numpy)."""
+    m = task.model
+    if m.nu < 1:
+        raise TaskError(f"{where}: the model has no actuators (action size 0); a task needs at least one")
+    limited = np.flatnonzero(m.actuator_ctrllimited.astype(bool) & np.any(m.actuator_ctrlrange != [-1.0, 1.0], axis=1))
+    if len(limited):
+        raise TaskError(f"{where}: actuator {m.actuator(int(limited[0])).name or int(limited[0])} has ctrlrange "
+                        f"{m.actuator_ctrlrange[limited[0]].tolist()}; the policy's actions lie in [-1, 1]: give every "
+                        "actuator ctrlrange=\"-1 1\" and scale it with gear")
+    for field, size in (("noise", m.nq), ("vel_noise", m.nv), ("init_qpos", m.nq)):
+        v = getattr(task, field)
+        if v is not None and np.ndim(v) > 0 and np.shape(v) != (size,):
+            raise TaskError(f"{where}: {field} has shape {np.shape(v)}; use a scalar or [{size}]")
+    if task.qvel_noise not in ("uniform", "normal"):
+        raise TaskError(f"{where}: qvel_noise must be 'uniform' or 'normal', got {task.qvel_noise!r}")
+    if int(task.frame_skip) < 1 or int(task.episode_length) < 1:
+        raise TaskError(f"{where}: frame_skip and episode_length must be >= 1")
+    c = TaskC(task)
+    obs = np.asarray(c.reset(0))
+    if obs.ndim != 1 or not np.all(np.isfinite(obs)):
+        raise TaskError(f"{where}: the first observation must be a finite vector [d], got shape {obs.shape}"
+                        + ("" if obs.ndim != 1 else f" with non-finite entries at {np.flatnonzero(~np.isfinite(obs)).tolist()}"))
+    _, reward, terminated = task.outcome(task.before(c.data.qpos[None], c._derived()), c.data.qpos[None], c.data.qvel[None],
+                                         c._derived(), np.zeros((1, m.nu)))
+    if np.shape(reward) != (1,) or np.shape(terminated) != (1,):
+        raise TaskError(f"{where}: outcome() must return reward [n] and terminated [n]; got shapes "
+                        f"{np.shape(reward)} and {np.shape(terminated)} for n = 1")
+
+
+def check_jax_agrees(task, where):
+    """TaskError unless the first observation with jax.numpy equals NumPy's (shape; values to float32 rounding)."""
+    import jax.numpy as jnp
+
+    c = TaskC(task)
+    obs = np.asarray(c.reset(0))
+    d = c.data
+    derived = {f: jnp.asarray(getattr(d, f)[None], jnp.float32) for f in task.derived}
+    got = np.asarray(task.observe(jnp.asarray(d.qpos[None], jnp.float32), jnp.asarray(d.qvel[None], jnp.float32),
+                                  derived, jnp))
+    if got.shape != (1,) + obs.shape:
+        raise TaskError(f"{where}: observe() gives shape {got.shape[1:]} with jax.numpy but {obs.shape} with NumPy; "
+                        "write it with xp (the module passed in) only")
+    if not np.allclose(got[0], obs, rtol=1e-4, atol=1e-4):
+        worst = int(np.argmax(np.abs(got[0] - obs)))
+        raise TaskError(f"{where}: observe() differs between NumPy and jax.numpy at entry {worst} ({obs[worst]} vs "
+                        f"{got[0, worst]}); write it with xp (the module passed in) only")
+
+
+def coordinate_names(m):
+    """Names of the qpos [nq] and qvel [nv] coordinates of a model, from its joint names."""
+    qpos, qvel = [], []
+    for j in range(m.njnt):
+        name, kind = m.joint(j).name or f"joint{j}", m.jnt_type[j]
+        if kind == mujoco.mjtJoint.mjJNT_FREE:
+            qpos += [f"{name}.{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+            qvel += [f"{name}.{c}" for c in ("vx", "vy", "vz", "wx", "wy", "wz")]
+        elif kind == mujoco.mjtJoint.mjJNT_BALL:
+            qpos += [f"{name}.{c}" for c in ("qw", "qx", "qy", "qz")]
+            qvel += [f"{name}.{c}" for c in ("wx", "wy", "wz")]
+        else:
+            qpos.append(name)
+            qvel.append(name)
+    return qpos, qvel
+
+
+def source_record(cls):
+    """What says which code defined a task: its module, file and the file's sha256 (None where there is no file)."""
+    import inspect
+
+    path = inspect.getsourcefile(cls) or ""
+    digest = None
+    if path and os.path.exists(path):
+        with open(path, "rb") as f:
+            digest = hashlib.sha256(f.read()).hexdigest()
+    return {"module": cls.__module__, "class": cls.__qualname__, "file": os.path.abspath(path) if path else None,
+            "sha256": digest}

@@ -1,0 +1,152 @@
+"""A task a user defines outside the package (envs/task.py; examples/reacher.py, named 'module:Class'): it trains on
+backend 'c' and learns, exports and runs in MuJoCo C; MJX steps it like MuJoCo C; a bad definition is one line
+before anything compiles; envs.register names one. (Its sweep, resume and run-alone equality:
+tests/test_c_backend.py's user_sweep.)"""
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from envs.physics import Physics
+from envs.task import TaskC
+
+TASK = "examples.reacher:Reacher"
+ZERO_ACTION_RETURN = -49.5  # examples/reacher.py holding still, over its start distribution (measured; 200 steps)
+# measured over 5 episodes x 200 steps: observations within 1.8e-6, rewards within 3.0e-7
+MJX_HORIZON, MJX_OBS_TOL, MJX_REWARD_TOL = 200, 2e-5, 3e-6
+
+
+def test_the_example_learns_on_c_exports_and_runs_in_mujoco_c(tmp_path):
+    """80k steps of K = 2 on backend 'c' (random actions score about the zero-action return, -49.5): the training
+    return crosses -38 (measured: about -28); the exported controller runs in MuJoCo C above -40; config.json
+    records the file and sha256 of the code that defined the task."""
+    from gsa_jax.deploy import main as deploy_main
+    from gsa_jax.export import main as export_main
+    from gsa_jax.train import main as train_main
+
+    run = tmp_path / "run"
+    assert train_main(["--env", TASK, "--physics", "c", "--clusters", "2", "--steps", "81920", "--out", str(run),
+                       "--quiet", "--no-tensorboard"]) == 0
+    config = json.loads((run / "config.json").read_text())
+    assert config["result"]["final_episode_return"] > -38.0, config["result"]
+    source = os.path.join(os.path.dirname(__file__), "..", "examples", "reacher.py")
+    with open(source, "rb") as f:
+        assert config["task"]["sha256"] == hashlib.sha256(f.read()).hexdigest() and config["task"]["builtin"] is False
+    assert export_main([str(run), "--out", str(tmp_path / "ctrl.npz")]) == 0
+    assert deploy_main([str(tmp_path / "ctrl.npz"), "--episodes", "8", "--out", str(tmp_path / "deploy.json")]) == 0
+    deployed = json.loads((tmp_path / "deploy.json").read_text())["mujoco_c"]
+    assert deployed["return_mean"] > -40.0 and deployed["length_mean"] == 200, deployed
+
+
+def test_mjx_steps_the_example_like_mujoco_c():
+    """From MJX's own start state, under the same random actions, MuJoCo C's observations stay within MJX_OBS_TOL and
+    rewards within MJX_REWARD_TOL for a whole episode (MJX_HORIZON steps; no contacts in this model)."""
+    env = envs.make_base(TASK)
+    c = TaskC(TASK)
+    s = jax.jit(env.reset)(jax.random.PRNGKey(3))
+    step = jax.jit(env.step)
+    obs = c.set_start(np.asarray(s.pipeline_state.qpos, np.float64), np.asarray(s.pipeline_state.qvel, np.float64))
+    np.testing.assert_allclose(obs, np.asarray(s.obs), atol=1e-5)
+    rng = np.random.default_rng(0)
+    for t in range(MJX_HORIZON):
+        a = rng.uniform(-1, 1, env.action_size).astype(np.float32)
+        s = step(s, jnp.asarray(a))
+        obs, reward, _ = c.step(a)
+        np.testing.assert_allclose(np.asarray(s.obs), obs, atol=MJX_OBS_TOL, err_msg=f"step {t}")
+        assert abs(float(s.reward) - reward) <= MJX_REWARD_TOL, t
+
+
+def test_the_start_law_is_the_tasks_on_every_path():
+    """qpos ~ init_qpos + U(-noise, noise) and qvel ~ U(-vel_noise, vel_noise) per coordinate, on MuJoCo C (NumPy
+    draws) and on backend 'c' (JAX draws): the same bounds, and the still target stays still."""
+    task = envs.resolve_task(TASK)
+    c = TaskC(task)
+    starts = []
+    for seed in range(200):
+        c.reset(seed)
+        starts.append(np.concatenate([c.data.qpos, c.data.qvel]))
+    ce = envs.make_base(TASK, Physics(backend="c"))
+    s = jax.jit(jax.vmap(ce.reset))(jax.random.split(jax.random.PRNGKey(0), 200))
+    jax_starts = np.concatenate([np.asarray(s.pipeline_state.qpos), np.asarray(s.pipeline_state.qvel)], axis=1)
+    bound = np.concatenate([task.noise, task.vel_noise]) + 1e-6
+    for x in (np.array(starts), jax_starts):
+        assert np.all(np.abs(x - np.concatenate([task.start_qpos, np.zeros(4)])) <= bound)
+        assert np.all(np.abs(x[:, :4]).max(axis=0) > 0.9 * task.noise)  # the whole range is drawn
+        assert np.all(x[:, 6:] == 0.0)
+
+
+BAD = {
+    "no_module": ("no_such_module_xyz:Task", "cannot import 'no_such_module_xyz'"),
+    "no_class": ("examples.reacher:Reacherr", "has no 'Reacherr'; did you mean Reacher?"),
+    "bad_mjcf": ("FILE:BadMjcf", "the MJCF does not load"),
+    "no_actuator": ("FILE:NoActuator", "no actuators (action size 0)"),
+    "nan_obs": ("FILE:NanObservation", "non-finite entries at [0, 1"),
+    "xp_mismatch": ("FILE:NumpyOnly", "differs between NumPy and jax.numpy"),
+    "not_a_task": ("FILE:NotATask", "not an envs.task.Task"),
+    "ctrlrange": ("FILE:WideRange", "has ctrlrange [-2.0, 2.0]; the policy's actions lie in [-1, 1]"),
+}
+BAD_TASKS = '''
+import numpy as np
+from envs.task import Task
+from examples.reacher import Reacher
+
+class BadMjcf(Reacher):
+    xml = "<mujoco><worldbody><body><joint/></body></worldbody>"
+
+class NoActuator(Reacher):
+    xml = Reacher.xml.split("<actuator>")[0] + "</mujoco>"
+
+class NanObservation(Reacher):
+    def observe(self, qpos, qvel, derived, xp=np):
+        return super().observe(qpos, qvel, derived, xp) / 0.0
+
+class NumpyOnly(Reacher):
+    def observe(self, qpos, qvel, derived, xp=np):
+        return np.asarray(super().observe(qpos, qvel, derived, xp)) * (2.0 if xp is not np else 1.0)
+
+class WideRange(Reacher):
+    xml = Reacher.xml.replace('ctrlrange="-1 1"', 'ctrlrange="-2 2"', 1)
+
+class NotATask:
+    pass
+'''
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_a_bad_task_definition_is_one_line_before_anything_compiles(case, tmp_path, capsys):
+    from gsa_jax.train import main as train_main
+
+    (tmp_path / "bad_tasks.py").write_text(BAD_TASKS)
+    name, message = BAD[case]
+    name = name.replace("FILE", str(tmp_path / "bad_tasks.py"))
+    assert train_main(["--env", name, "--physics", "c", "--out", str(tmp_path / "run"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err, err
+    assert not (tmp_path / "run" / "config.json").exists()
+
+
+def test_register_names_a_task_for_library_users():
+    """envs.register(name, factory): the name resolves, its sizes are the task's; built-in names are refused."""
+    from examples.reacher import Reacher
+
+    envs.register("my_reacher", Reacher)
+    assert envs.action_size("my_reacher") == 2 and envs.default_episode_length("my_reacher") == 200
+    assert envs.has_c_backend("my_reacher") and envs.resolve_task("my_reacher").name == "my_reacher"
+    with pytest.raises(ValueError, match="built-in"):
+        envs.register("Hopper-v5", Reacher)
+
+
+def test_a_module_named_envs_that_shadows_ours_is_refused(tmp_path):
+    (tmp_path / "envs").mkdir()
+    (tmp_path / "envs" / "__init__.py").write_text("")
+    done = subprocess.run([sys.executable, "-c", "import gsa_jax"], cwd=tmp_path, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(tmp_path)}, timeout=120)
+    assert done.returncode != 0 and "rename your own 'envs' module" in done.stderr, done.stderr
