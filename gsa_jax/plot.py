@@ -16,6 +16,8 @@ eval_failures. Writes to OUT
   final_returns.csv        per cell: mean (t CI), IQM (bootstrap CI), P(better than flat PPO) (CI), training return,
                            learning speed (curve_*: IQM of each run's mean over all its evaluations), and in
                            sweeps that list value_targets P(Retrace better than GAE) (CI)
+  per_run_scores.csv       per run: its final score, last evaluation, failed evaluation episodes, training return
+                           (last 10% of iterations, and last 100 episodes: how CleanRL's tables score a run)
   aggregate.csv            per configuration over tasks: IQM of normalized scores (0 = random policy, 1 = flat
                            PPO's final IQM on that task) and P(better than flat PPO), with CIs
   sufficient_k.csv         per task (and sub-policy class / swept setting): the smallest K whose P(better than

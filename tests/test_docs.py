@@ -1,4 +1,5 @@
-"""The README and docs/ pages: every relative link and image resolves to a file in the repository."""
+"""The README and docs/ pages: every relative link and image resolves to a file in the repository; in those and
+the experiment pages, every number quoted from the committed tables is what they give."""
 
 import glob
 import os
@@ -33,3 +34,17 @@ def test_link_check_sees_a_broken_link(tmp_path):
     page = tmp_path / "page.md"
     page.write_text("![a](missing.png) [b](https://example.org) [c](#top) [d](page.md)")
     assert [(t, os.path.exists(r)) for t, r in relative_links(str(page))] == [("missing.png", False), ("page.md", True)]
+
+
+def test_every_quoted_number_is_what_the_committed_tables_give():
+    """Per-run and per-cell numbers in the pages are quoted from the committed tables (gsa_jax.analysis.quote):
+    none has drifted from them."""
+    from gsa_jax.analysis.quote import requote
+
+    pages = [os.path.join(ROOT, "README.md")] + sorted(glob.glob(os.path.join(ROOT, "docs", "*.md"))) + sorted(
+        glob.glob(os.path.join(ROOT, "experiments", "*", "README.md")))
+    stale = []
+    for page in pages:
+        with open(page) as f:
+            stale += [(os.path.relpath(page, ROOT), spec) for spec, _, _ in requote(f.read(), os.path.dirname(page))[1]]
+    assert not stale, stale

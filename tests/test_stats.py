@@ -118,6 +118,10 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
     with open(out / "sufficient_k.csv") as f:
         sufficient = {r["env"]: r for r in csv.DictReader(f)}
     assert sufficient["hopper"]["smallest_sufficient_K"] == "2" and sufficient["walker2d"]["smallest_sufficient_K"] == ""
+    with open(out / "per_run_scores.csv") as f:
+        runs = list(csv.DictReader(f))
+    assert len(runs) == 16 and {r["seed"] for r in runs} == {"0", "1", "2", "3"}
+    assert runs[0]["training_return_last_100_episodes"] == ""  # a table without episode counts
 
 
 def test_smallest_sufficient_k_is_the_first_whose_interval_reaches_one_half():
@@ -236,3 +240,54 @@ def test_sweep_summary_names_the_runs_with_failed_evaluation_episodes():
     assert len(lines) == 2 and "in 1 run(s)" in lines[0]
     assert lines[1].strip() == "env=hopper, policy=mixture, K=2, seed=1: 4 episode(s) at iteration(s) 3, 6"
     assert eval_failure_lines([(runs, {"eval_failures": np.where(np.isnan(counts), np.nan, 0)}, 6)]) == []
+
+
+def test_last_episodes_return_weights_iterations_by_their_episodes():
+    """CleanRL's score of a run, the mean of its last 100 episodes, from per-iteration means and counts: the
+    latest iterations in full, the one that reaches 100 for the episodes still needed."""
+    ret, cnt = [10.0, np.nan, 20.0, 30.0], [50, 0, 60, 70]
+    assert stats.last_episodes_return(ret, cnt) == pytest.approx(27.0)  # 70 x 30 + 30 x 20
+    assert stats.last_episodes_return(ret, cnt, n=70) == pytest.approx(30.0)
+    assert stats.last_episodes_return(ret, cnt, n=1000) == pytest.approx((50 * 10 + 60 * 20 + 70 * 30) / 180)
+    assert math.isnan(stats.last_episodes_return([np.nan, np.nan], [0, 0]))
+
+
+def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
+    """per_run_scores.csv: a run's final score (mean of its last 3 evaluations), not its last evaluation;
+    its training returns; the cell table's mean is the mean of these scores."""
+    from gsa_jax.analysis.results import load_sweep
+    from gsa_jax.analysis.tables import final_table, run_table
+
+    d = tmp_path / "sweep"
+    d.mkdir()
+    with open(d / "metrics.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["env", "policy", "K", "seed", "run", "iteration", "env_steps", "episode_return", "episodes",
+                    "eval_return", "eval_failures"])
+        for seed in range(2):
+            for it in range(1, 21):
+                ev = 100.0 * seed + it if it % 4 == 0 else ""
+                w.writerow(["hopper", "mixture", 2, seed, seed, it, it * 10, it + seed, 30, ev, 0 if ev != "" else ""])
+    data = load_sweep(str(d))
+    rows = run_table(data)
+    assert [(r["seed"], r["K"], r["score_kind"]) for r in rows] == [(0, 2, "deterministic"), (1, 2, "deterministic")]
+    assert rows[1]["final_score"] == pytest.approx(100 + (12 + 16 + 20) / 3) and rows[1]["last_eval_return"] == 120.0
+    assert rows[0]["training_return"] == pytest.approx(19.5)  # last 10% of 20 iterations: 19, 20
+    assert rows[0]["training_return_last_100_episodes"] == pytest.approx((30 * (20 + 19 + 18) + 10 * 17) / 100)
+    assert rows[0]["eval_failures"] == 0
+    cell = final_table(data, {"hopper": 3}, reps=20)[0]
+    assert cell["final_return_mean"] == pytest.approx(np.mean([r["final_score"] for r in rows]), abs=1e-3)
+
+
+def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_them(tmp_path):
+    """Tables redrawn from committed results normalize by the random-policy return an earlier invocation
+    measured and saved in OUT, not by a new measurement; a sweep's own value takes precedence."""
+    from gsa_jax.analysis.results import random_returns_of
+
+    a = write_sweep(tmp_path / "a", "hopper")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "random_returns.json").write_text(json.dumps({"hopper": 12.5, "walker2d": 3.0}))
+    assert random_returns_of([str(a)], ["hopper"], str(out)) == {"hopper": 12.5}
+    (a / "random_returns.json").write_text(json.dumps({"hopper": 7.0}))
+    assert random_returns_of([str(a)], ["hopper", "walker2d"], str(out)) == {"hopper": 7.0, "walker2d": 3.0}

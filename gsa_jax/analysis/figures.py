@@ -12,8 +12,8 @@ from gsa_jax.analysis.results import (
     write_csv,
 )
 from gsa_jax.analysis.tables import (
-    aggregate_table, cell_curves, cell_label, cell_order, final_table, k_curves, normalized_scores, sufficient_k_lines,
-    sufficient_k_table,
+    aggregate_table, cell_curves, cell_label, cell_order, final_table, k_curves, normalized_scores, run_table,
+    sufficient_k_lines, sufficient_k_table,
 )
 
 
@@ -148,6 +148,7 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
         log(line)
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
+    write_csv(os.path.join(out_dir, "per_run_scores.csv"), run_table(data))
     scored = [r for r in rows if r["seeds"]]
     plot_return_vs_k(scored, os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
     sufficient = sufficient_k_table(scored, setting_columns(data))

@@ -18,7 +18,7 @@ from gsa_jax.running.runinfo import describe_changes
 
 _ID_COLS = ("env", "policy", "K", "seed", "run")
 _METRIC_COLS = set(TIDY_METRICS)
-_SERIES = ("env_steps", "episode_return", "eval_return", "eval_failures")
+_SERIES = ("env_steps", "episode_return", "episodes", "eval_return", "eval_failures")
 
 
 class PlotError(ValueError):
@@ -43,8 +43,8 @@ def read_tidy(path, series):
 
 def load_sweep(sweep_dir):
     """All tidy rows under sweep_dir (metrics*.csv, or gzipped as experiments/ keep them) ->
-    {cell: {seed: {env_steps, episode_return, eval_return, eval_failures: [T]}}}, cell = (env, policy, K,
-    (column, value)...). eval_failures is NaN throughout in tables written before it was recorded."""
+    {cell: {seed: {env_steps, episode_return, episodes, eval_return, eval_failures: [T]}}}, cell = (env, policy,
+    K, (column, value)...). eval_failures is NaN throughout in tables written before it was recorded."""
     plain = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv"), recursive=True)
     zipped = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv.gz"), recursive=True)
     paths = sorted(plain + [p for p in zipped if p[:-3] not in plain])
@@ -213,12 +213,15 @@ def setting_columns(data):
 
 
 def random_returns_of(dirs, env_names, out_dir, log=print):
-    """{env: random-policy return}: from the sweeps' random_returns.json, measured (and saved in out_dir) where missing."""
+    """{env: random-policy return}: from the sweeps' random_returns.json, else from out_dir's (what an earlier
+    invocation measured: tables redrawn from committed results normalize as they did), else measured (and
+    saved in out_dir)."""
     found = {}
-    for d in dirs:
-        for path in glob.glob(os.path.join(d, "**", "random_returns.json"), recursive=True):
+    saved = os.path.join(out_dir, "random_returns.json")
+    for path in [saved] + [p for d in dirs for p in glob.glob(os.path.join(d, "**", "random_returns.json"), recursive=True)]:
+        if os.path.exists(path):
             with open(path) as f:
-                found.update(json.load(f))
+                found.update(json.load(f))  # the sweeps' own, read last, take precedence
     missing = [e for e in env_names if e not in found]
     if missing:
         from gsa_jax.analysis.scoring import random_policy_return
@@ -226,7 +229,7 @@ def random_returns_of(dirs, env_names, out_dir, log=print):
         for env_name in missing:
             log(f"measuring the random-policy return of {env_name} (for normalized scores)")
             found[env_name] = random_policy_return(env_name)
-        with open(os.path.join(out_dir, "random_returns.json"), "w") as f:
+        with open(saved, "w") as f:
             json.dump({e: found[e] for e in env_names}, f, indent=1)
     return {e: found[e] for e in env_names}
 

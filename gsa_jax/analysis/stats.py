@@ -16,6 +16,7 @@ import numpy as np
 from gsa_jax.running.metrics import FINAL_EVALUATIONS
 
 REPS = 2000  # bootstrap resamples of the tables' intervals
+LAST_EPISODES = 100  # a run's training score as published PPO tables give it: its last 100 episodes
 CURVE_REPS = 300  # ... of learning-curve bands (one interval per plotted point: rliable takes ~0.5 ms a resample)
 # two-sided 95% Student t quantiles by degrees of freedom (1..30); beyond, 1.96
 _T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
@@ -39,6 +40,21 @@ def final_score(eval_returns, train_returns, scheduled=None):
     tr = np.asarray(train_returns, float)
     tail = tr[-max(1, len(tr) // 10):]
     return (float(np.nanmean(tail)) if np.any(np.isfinite(tail)) else math.nan), "training"
+
+
+def last_episodes_return(episode_returns, episodes, n=LAST_EPISODES):
+    """The mean return of a run's last n finished training episodes (CleanRL's and openrlbenchmark's
+    score: the mean of the last 100 logged episodic returns), from per-iteration means (episode_returns
+    [T], NaN where none ended) and counts (episodes [T]): the latest iterations' episodes in full and, from
+    the iteration that reaches n, as many of its episodes as are still needed, each at that iteration's
+    mean (which of its episodes ended last is not recorded). Fewer than n episodes in all: their mean;
+    none: NaN."""
+    ret = np.asarray(episode_returns, float)
+    cnt = np.where(np.isfinite(ret), np.nan_to_num(np.asarray(episodes, float)), 0.0)
+    later = np.concatenate([np.cumsum(cnt[::-1])[::-1][1:], [0.0]])  # episodes ended after each iteration
+    weight = np.clip(n - later, 0.0, cnt)
+    total = weight.sum()
+    return float(np.sum(weight * np.nan_to_num(ret)) / total) if total > 0 else math.nan
 
 
 def unscored_evaluations(eval_returns, scheduled):

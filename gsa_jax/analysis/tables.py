@@ -7,7 +7,7 @@ from collections import defaultdict
 import numpy as np
 
 from gsa_jax.analysis import stats
-from gsa_jax.analysis.results import eval_failures, final_scores, unscored_runs
+from gsa_jax.analysis.results import cell_schedule, eval_failures, final_scores, unscored_runs
 
 
 def smooth(y, window):
@@ -103,6 +103,29 @@ def final_table(data, action_dims, failed=None, reps=stats.REPS):
         rows.append(dict(row, failed_runs=" ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, []))),
                          eval_failures=eval_failures(data[cell]),
                          unscored_runs=" ".join(f"{s}@{'+'.join(map(str, its))}" for s, its in unscored.get(cell, []))))
+    return rows
+
+
+def run_table(data):
+    """per_run_scores.csv rows: per run (cells in table order, seeds in order) its final score as
+    final_returns.csv scores it (score_kind says which; '' for a run unscored_runs lists), its last
+    scheduled evaluation, failed evaluation episodes, its training return over the last 10% of iterations
+    and over its last LAST_EPISODES (100) episodes (stats.last_episodes_return: how CleanRL's tables score
+    a run)."""
+    r = lambda x: "" if not np.isfinite(x) else round(float(x), 3)  # noqa: E731
+    rows = []
+    for cell in sorted(data, key=cell_order):
+        sched = cell_schedule(data[cell])
+        kind = final_scores({cell: data[cell]})[cell][1]
+        for seed, s in sorted(data[cell].items()):
+            score = stats.final_score(s["eval_return"] if kind == "deterministic" else [], s["episode_return"], sched)[0]
+            last = s["eval_return"][sched[: len(s["eval_return"])]][-1:]
+            last_100 = stats.last_episodes_return(s["episode_return"], s["episodes"])
+            rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
+                         "seed": seed, "score_kind": kind, "final_score": r(score),
+                         "last_eval_return": r(last[0]) if len(last) else "", "eval_failures": eval_failures({seed: s}),
+                         "training_return": r(stats.final_score([], s["episode_return"])[0]),
+                         f"training_return_last_{stats.LAST_EPISODES}_episodes": r(last_100)})
     return rows
 
 

@@ -1,0 +1,77 @@
+"""Flat PPO against published PPO scores, computed the way the published table computes them:
+`python -m gsa_jax.analysis.published REFERENCE.csv PER_RUN.csv [PER_RUN.csv ...] --out OUT.csv`.
+
+REFERENCE.csv: one published score per task (columns env, mean, std, source; e.g. CleanRL's PPO table,
+whose entries are the mean ± std (ddof 0) over seeds of each run's mean return over its last 100 training
+episodes: openrlbenchmark's rlops). PER_RUN.csv: gsa_jax.plot's per_run_scores.csv. Every flat PPO task
+whose name matches a reference task up to its version and case (Hopper-v5, or Brax's hopper, and Hopper-v4)
+gets one row: our mean ± std (ddof 0) over seeds of training_return_last_100_episodes and of the
+deterministic final score, next to the published entry.
+"""
+
+import argparse
+import csv
+import sys
+
+import numpy as np
+
+from gsa_jax.analysis.results import write_csv
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def task_name(env):
+    """A task's name without its version, lower case: Hopper-v5 -> hopper (and Brax's variant, hopper)."""
+    return env.rsplit("-v", 1)[0].lower()
+
+
+def spread(xs):
+    """(mean, std with ddof 0) of the finite values, rounded to 3 decimals."""
+    xs = np.asarray([x for x in xs if np.isfinite(x)], float)
+    return round(float(xs.mean()), 3), round(float(xs.std()), 3)
+
+
+def compare(reference, runs):
+    """Rows of the comparison: per reference task with flat PPO runs of the same name, ours and theirs."""
+    out = []
+    for ref in reference:
+        for env in dict.fromkeys(r["env"] for r in runs if r["policy"] == "mlp"):
+            if task_name(env) != task_name(ref["env"]):
+                continue
+            mine = [r for r in runs if r["env"] == env and r["policy"] == "mlp"]
+            num = lambda r, c: float(r[c]) if r[c] != "" else np.nan  # noqa: E731
+            last_mean, last_std = spread([num(r, "training_return_last_100_episodes") for r in mine])
+            det_mean, det_std = spread([num(r, "final_score") for r in mine])
+            out.append({"env": env, "seeds": len(mine), "last_100_episodes_mean": last_mean,
+                        "last_100_episodes_std": last_std, "deterministic_mean": det_mean, "deterministic_std": det_std,
+                        "published_env": ref["env"], "published_mean": ref["mean"], "published_std": ref["std"],
+                        "published_source": ref["source"]})
+    return out
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.published", description=__doc__.split("\n")[0])
+    p.add_argument("reference", help="CSV of published scores: env, mean, std, source")
+    p.add_argument("per_run", nargs="+", help="per_run_scores.csv files of gsa_jax.plot")
+    p.add_argument("--out", required=True, help="the comparison CSV to write")
+    args = p.parse_args(argv)
+    try:
+        rows = compare(read_csv(args.reference), [r for path in args.per_run for r in read_csv(path)])
+    except (OSError, KeyError) as e:
+        print(f"gsa_jax.analysis.published: error: {e}", file=sys.stderr)
+        return 2
+    if not rows:
+        print("gsa_jax.analysis.published: error: no flat PPO task matches a published one", file=sys.stderr)
+        return 2
+    write_csv(args.out, rows)
+    for r in rows:
+        print(f"{r['env']} ({r['seeds']} seeds): {r['last_100_episodes_mean']:.0f} ± {r['last_100_episodes_std']:.0f}"
+              f"  vs {r['published_env']}: {float(r['published_mean']):.0f} ± {float(r['published_std']):.0f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

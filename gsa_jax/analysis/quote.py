@@ -1,0 +1,228 @@
+"""Numbers in Markdown pages quoted from the committed tables, so that they cannot drift from them:
+`python -m gsa_jax.analysis.quote PAGE.md [PAGE.md ...] [--check]`.
+
+Each span `<!-- quote KIND FILE [column=value ...] [option=value ...] -->TEXT<!-- /quote -->` has its
+TEXT rewritten from FILE (a CSV path relative to the page: final_returns.csv, per_run_scores.csv,
+aggregate.csv, ... as gsa_jax.plot writes them), over the rows whose columns equal the given values (a
+value "a,b" matches either; quote a value with spaces: config="K = 0.5 d_a"). KIND:
+  value      one row's `col` (exactly one row must match); with pm=COLUMN "col ± pm", with ci=LOW,HIGH
+             "col [low, high]"
+  scores     every row's `col`, ascending (order=file: as the rows come), joined by " / "
+  range      "min-max" of the rows' `col`          min, max: one end
+  spread     "mean ± std" over the rows' `col` (std with ddof 0, as CleanRL's tables give it)
+  table      the rows of a final_returns.csv as Figure 1's Markdown table (a block: put the markers on
+             their own lines)
+  aggregate  the rows of an aggregate.csv as the normalized-score table (a block)
+  reach      from the tidy metrics under FILE (directories, comma-separated), per cell: how many runs'
+             deterministic controllers reached `threshold` and the median env step where they first did
+Options: col (default final_score), pm, ci, digits (default 0; thousands are separated by commas),
+threshold, order. Tables give half-widths under 10 with one decimal.
+--check rewrites nothing and exits 1 naming every span whose TEXT is not what the tables give.
+"""
+
+import argparse
+import csv
+import math
+import os
+import re
+import shlex
+import sys
+from decimal import ROUND_HALF_UP, Decimal
+
+import numpy as np
+
+SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
+OPTIONS = ("col", "pm", "ci", "digits", "threshold", "order")
+
+
+class QuoteError(ValueError):
+    pass
+
+
+def fmt(x, digits=0):
+    """A number as the pages write it: thousands separated by commas, `digits` decimals, halves rounded away
+    from zero as the table prints them (0.205 -> 0.21)."""
+    if x == "" or not math.isfinite(float(x)):
+        return "n/a"
+    exact = Decimal(repr(float(x))).quantize(Decimal(1).scaleb(-int(digits)), rounding=ROUND_HALF_UP)
+    return f"{exact:,.{int(digits)}f}"
+
+
+def parse_args(args):
+    """(kind, file, {column: [values]}, {option: value}) of a span's argument string."""
+    try:
+        words = shlex.split(args)
+    except ValueError as e:
+        raise QuoteError(f"'quote {args}': {e}") from None
+    if len(words) < 2:
+        raise QuoteError(f"'quote {args}': expected KIND FILE [column=value ...]")
+    filters, options = {}, {}
+    for w in words[2:]:
+        key, eq, value = w.partition("=")
+        if not eq:
+            raise QuoteError(f"'quote {args}': {w!r} is not column=value")
+        (options if key in OPTIONS else filters)[key] = value if key in OPTIONS else value.split(",")
+    return words[0], words[1], filters, options
+
+
+def read_rows(path, filters):
+    """The rows of a CSV file whose columns hold one of the given values."""
+    if not os.path.exists(path):
+        raise QuoteError(f"{path}: no such file")
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    missing = [c for c in filters if rows and c not in rows[0]]
+    if missing:
+        raise QuoteError(f"{path} has no column {missing[0]!r}")
+    return [r for r in rows if all(r[c] in values for c, values in filters.items())]
+
+
+def values(rows, col, path):
+    """The rows' `col` as floats (NaN where empty)."""
+    if not rows:
+        raise QuoteError(f"{path}: no row matches")
+    if col not in rows[0]:
+        raise QuoteError(f"{path} has no column {col!r}")
+    return [float(r[col]) if r[col] != "" else math.nan for r in rows]
+
+
+def interval(row, point, low, high, digits=0):
+    """'point [low, high]' of a row's columns ('' where the point is empty)."""
+    if row.get(point, "") == "":
+        return ""
+    return f"{fmt(row[point], digits)} [{fmt(row[low], digits)}, {fmt(row[high], digits)}]"
+
+
+def cell_name(row):
+    """A final_returns.csv row's configuration: flat PPO, or K with its ratio to the action dimension."""
+    if row["policy"] == "mlp":
+        return "flat PPO (MLP 64x64)"
+    ratio = float(row["K_over_action_dim"]) if row.get("K_over_action_dim", "") != "" else math.nan
+    return f"K = {row['K']}" + (f" ({round(ratio, 2):g} d_a)" if math.isfinite(ratio) else "")
+
+
+def halfwidth(x):
+    """A table's ± half-width: one decimal under 10 (cells at a task's ceiling), none above."""
+    return fmt(x, 1 if x != "" and abs(float(x)) < 10 else 0)
+
+
+def cell_table(rows):
+    """Figure 1's per-task table of final_returns.csv rows (one task)."""
+    mixture = [r for r in rows if r["policy"] == "mixture" and r.get("K_over_action_dim", "") != ""]
+    d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0]['K_over_action_dim']))})" if mixture else ""
+    lines = [f"| {rows[0]['env']}{d_a} | deterministic: mean ± 95% CI | IQM [95% CI] | P(> flat PPO) [95% CI] "
+             "| training return | learning speed IQM |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        p = interval(r, "p_better_than_flat_ppo", "p_ci_low", "p_ci_high", 2)
+        lines.append(f"| {cell_name(r)} | {fmt(r['final_return_mean'])} ± {halfwidth(r['ci95_halfwidth'])} "
+                     f"| {interval(r, 'iqm', 'iqm_ci_low', 'iqm_ci_high')} | {p} "
+                     f"| {fmt(r['training_return_mean'])} ± {halfwidth(r['training_ci95_halfwidth'])} | {fmt(r['curve_iqm'])} |")
+    return "\n".join(lines)
+
+
+def aggregate_table(rows):
+    """The normalized-score table of aggregate.csv rows."""
+    lines = ["| configuration | normalized IQM [95% CI] | P(> flat PPO) [95% CI] |", "|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['config']} | {interval(r, 'normalized_iqm', 'iqm_ci_low', 'iqm_ci_high', 2)} "
+                     f"| {interval(r, 'p_better_than_flat_ppo', 'p_ci_low', 'p_ci_high', 2)} |")
+    return "\n".join(lines)
+
+
+def reach(dirs, filters, threshold):
+    """'flat PPO 10/10 at 358k, K = 2 8/10 at 532k, ...': per cell of the sweeps' tidy metrics (cells whose
+    columns hold the filters' values), the runs whose deterministic return reached `threshold` at an
+    evaluation, and the median env step of their first such evaluation."""
+    from gsa_jax.analysis.results import drop_failed, load_failed, load_sweeps
+    from gsa_jax.analysis.tables import cell_order
+
+    data, _ = drop_failed(load_sweeps(dirs), [f for d in dirs for f in load_failed(d)])
+    names = {"env": 0, "policy": 1, "K": 2}
+    keep = [c for c in sorted(data, key=cell_order)
+            if all(str(c[names[k]] if k in names else dict(c[3:]).get(k, "")) in v for k, v in filters.items())]
+    if not keep:
+        raise QuoteError(f"{', '.join(dirs)}: no cell matches")
+    parts = []
+    for cell in keep:
+        firsts = [s["env_steps"][np.flatnonzero(s["eval_return"] >= threshold)[0]] for s in data[cell].values()
+                  if np.any(s["eval_return"] >= threshold)]
+        at = f" at {round(float(np.median(firsts)) / 1000)}k" if firsts else ""
+        parts.append(f"{'flat PPO' if cell[1] == 'mlp' else f'K = {cell[2]}'} {len(firsts)}/{len(data[cell])}{at}")
+    return ", ".join(parts)
+
+
+def render(args, page_dir):
+    """The text a span's arguments give."""
+    kind, name, filters, options = parse_args(args)
+    if kind == "reach":
+        if "threshold" not in options:
+            raise QuoteError(f"'quote {args}': reach needs threshold=")
+        return reach([os.path.join(page_dir, d) for d in name.split(",")], filters, float(options["threshold"]))
+    path = os.path.join(page_dir, name)
+    rows = read_rows(path, filters)
+    digits = options.get("digits", 0)
+    if kind in ("table", "aggregate"):
+        if not rows:
+            raise QuoteError(f"{path}: no row matches")
+        return "\n\n" + (cell_table(rows) if kind == "table" else aggregate_table(rows)) + "\n\n"
+    xs = values(rows, options.get("col", "final_score"), path)
+    if kind == "value":
+        if len(xs) != 1:
+            raise QuoteError(f"'quote {args}': {len(xs)} rows match, not one")
+        pm = f" ± {fmt(values(rows, options['pm'], path)[0], digits)}" if "pm" in options else ""
+        ends = [fmt(values(rows, c, path)[0], digits) for c in options["ci"].split(",")] if "ci" in options else []
+        return fmt(xs[0], digits) + pm + (f" [{', '.join(ends)}]" if ends else "")
+    finite = sorted(x for x in xs if math.isfinite(x))
+    if kind == "scores":  # ascending, unscored runs (NaN) last as n/a; order=file: in the file's (seed) order
+        ordered = xs if options.get("order") == "file" else finite + [x for x in xs if not math.isfinite(x)]
+        return " / ".join(fmt(x, digits) for x in ordered)
+    if not finite:
+        raise QuoteError(f"{path}: no finite value in the matching rows")
+    if kind in ("range", "min", "max"):
+        ends = {"range": f"{fmt(finite[0], digits)}-{fmt(finite[-1], digits)}", "min": fmt(finite[0], digits),
+                "max": fmt(finite[-1], digits)}
+        return ends[kind]
+    if kind == "spread":
+        mean = sum(finite) / len(finite)
+        std = math.sqrt(sum((x - mean) ** 2 for x in finite) / len(finite))
+        return f"{fmt(mean, digits)} ± {fmt(std, digits)}"
+    raise QuoteError(f"'quote {args}': unknown kind {kind!r}")
+
+
+def requote(text, page_dir):
+    """(the page with every span's TEXT rewritten, [(arguments, old TEXT, new TEXT)] of the spans that changed)."""
+    changed = []
+
+    def one(m):
+        new = render(m["args"], page_dir)
+        if new != m["text"]:
+            changed.append((" ".join(m["args"].split()), m["text"], new))
+        return f"<!-- quote {m['args']} -->{new}<!-- /quote -->"
+
+    return SPAN.sub(one, text), changed
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=__doc__.split("\n")[0])
+    p.add_argument("pages", nargs="+", metavar="PAGE", help="Markdown pages")
+    p.add_argument("--check", action="store_true", help="rewrite nothing; exit 1 if any quoted number is stale")
+    args = p.parse_args(argv)
+    stale = 0
+    for page in args.pages:
+        try:
+            with open(page) as f:
+                text, changed = requote(f.read(), os.path.dirname(page) or ".")
+        except (OSError, QuoteError) as e:
+            print(f"gsa_jax.analysis.quote: error: {page}: {e}", file=sys.stderr)
+            return 2
+        for spec, old, new in changed:
+            print(f"{page}: quote {spec}: {old.strip()[:80]!r} -> {new.strip()[:80]!r}")
+        stale += len(changed)
+        if changed and not args.check:
+            with open(page, "w") as f:
+                f.write(text)
+    return 1 if args.check and stale else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
