@@ -11,6 +11,7 @@ envs/task_mjx.py; MuJoCo C in the program: envs/c_backend.py) and in plain MuJoC
 
 import contextlib
 import functools
+import hashlib
 import importlib
 import importlib.util
 import io
@@ -50,6 +51,7 @@ def register(name, factory):
         raise ValueError(f"register({name!r}, factory): factory must be a Task subclass or a callable returning a Task")
     _REGISTERED[name] = factory
     _factory.cache_clear()
+    check_task.cache_clear()
 
 
 def is_defined(name):
@@ -144,8 +146,11 @@ def _import_module(module_name, name):
         if module_name.endswith(".py"):
             if not os.path.exists(module_name):
                 raise TaskError(f"task {name!r}: no file {module_name!r}")
-            key = "gsa_jax_task_" + os.path.splitext(os.path.basename(module_name))[0]
-            spec = importlib.util.spec_from_file_location(key, module_name)
+            path = os.path.abspath(module_name)
+            key = "gsa_jax_task_" + hashlib.sha256(path.encode()).hexdigest()[:16]  # one module per file
+            if key in sys.modules:
+                return sys.modules[key]
+            spec = importlib.util.spec_from_file_location(key, path)
             module = importlib.util.module_from_spec(spec)
             sys.modules[key] = module
             spec.loader.exec_module(module)
@@ -183,8 +188,9 @@ def task_source(name):
         return {"task": name, "builtin": True}
     from envs.task import source_record
 
-    factory = _factory(name)
-    return {"task": name, "builtin": False, **source_record(factory if isinstance(factory, type) else type(factory()))}
+    task = resolve_task(name)
+    return {"task": name, "builtin": False, **source_record(type(task)), "action_size": int(task.model.nu),
+            "observation_size": int(task.observation_size)}
 
 
 def check_backend(name, physics):
@@ -208,8 +214,7 @@ def default_episode_length(name):
 
         return allegro_length
     if is_defined(name):
-        factory = _factory(name)
-        return int(getattr(factory, "episode_length", None) or resolve_task(name).episode_length)
+        return int(resolve_task(name).episode_length)
     return DEFAULT_EPISODE_LENGTH
 
 

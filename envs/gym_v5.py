@@ -12,10 +12,11 @@ package, its frame skip, reset noise law, observation layout, every reward term 
 Each task's observation, reward and termination are written once, over batches of simulations
 (`outcome`, arrays with a leading batch axis, NumPy or jax.numpy), from the state and the derived MjData
 fields `derived` names *as mj_step leaves them* (one substep behind the state, as gymnasium reads them).
-The C physics backend (envs/c_backend.py) evaluates them in float64 on mujoco.batch's arrays inside the
-trainer; V5C here steps one MjData exactly as gymnasium's MujocoEnv does; envs/gym_v5_mjx.py evaluates
-them with jax.numpy on MJX's data. tests/test_gym_v5.py checks the first two against gymnasium.make(id)
-step for step, and MJX against MuJoCo C within a tolerance.
+Each is a task definition (envs/task.py), stepped with no code of its own: the C physics backend
+(envs/c_backend.py) evaluates them in float64 on mujoco.batch's arrays inside the trainer; envs.task.TaskC steps
+one MjData exactly as gymnasium's MujocoEnv does; envs/task_mjx.py evaluates them with jax.numpy on MJX's data.
+tests/test_gym_v5.py checks the first two against gymnasium.make(id) step for step, and MJX against MuJoCo C
+within a tolerance.
 
 Ant-v5's observation holds the contact forces mj_rnePostConstraint computes after the step (from the
 last Runge-Kutta stage's quantities), which mujoco.batch does not run: the C backend steps it one MjData
@@ -174,10 +175,3 @@ class AntV5(V5Task):
 
 
 V5_TASKS = {t.env_id: t for t in (HopperV5, Walker2dV5, HalfCheetahV5, AntV5, InvertedDoublePendulumV5)}
-
-
-def make_task(env_id):
-    """The V5Task of a gymnasium id (ValueError naming the ids otherwise)."""
-    if env_id not in V5_TASKS:
-        raise ValueError(f"no gymnasium v5 task {env_id!r}; built: {', '.join(V5_TASKS)}")
-    return V5_TASKS[env_id]()

@@ -76,6 +76,9 @@ class Task:
     post_constraint = False  # whether a derived field needs mj_rnePostConstraint after the step
 
     def __init__(self):
+        for field in ("noise", "vel_noise", "init_qpos"):  # lists as arrays (scalars stay scalars)
+            if isinstance(getattr(self, field), (list, tuple)):
+                setattr(self, field, np.asarray(getattr(self, field), np.float64))
         self.model = self.load_model()
         self.dt = self.model.opt.timestep * self.frame_skip
         self.start_qpos = np.array(self.model.qpos0 if self.init_qpos is None else self.init_qpos, np.float64)
@@ -162,16 +165,36 @@ class TaskC:
         before = self.task.before(d.qpos[None], self._derived())
         d.ctrl[:] = a
         mujoco.mj_step(m, d, nstep=self.task.frame_skip)
-        mujoco.mj_rnePostConstraint(m, d)
+        if self.task.post_constraint:
+            mujoco.mj_rnePostConstraint(m, d)
         obs, reward, terminated = self.task.outcome(before, d.qpos[None], d.qvel[None], self._derived(), a[None])
         return obs[0], float(reward[0]), bool(terminated[0])
 
 
+POST_CONSTRAINT_FIELDS = ("cacc", "cfrc_int", "cfrc_ext")  # MjData fields only mj_rnePostConstraint computes
+
+
 def validate(task, where):
     """TaskError (one line, naming `where`) unless the definition can be stepped: actions, start noise shapes,
-    the frame skip and episode length, a finite first observation [d], and a reward and termination of the right
-    shapes (NumPy only; check_jax_agrees adds jax.numpy)."""
+    the frame skip and episode length, derived fields, a finite first observation [d], and outcome's observation,
+    reward and termination of the right shapes (NumPy only; check_jax_agrees adds jax.numpy). An error raised by
+    the task's own functions is reported in one line too."""
+    try:
+        _validate(task, where)
+    except TaskError:
+        raise
+    except Exception as e:
+        raise TaskError(f"{where}: stepping it failed: {type(e).__name__}: {' '.join(str(e).split())}") from None
+
+
+def _validate(task, where):
     m = task.model
+    unknown = [f for f in task.derived if not hasattr(mujoco.MjData(m), f)]
+    if unknown:
+        raise TaskError(f"{where}: derived names {unknown}, which are not MjData fields")
+    needs = [f for f in task.derived if f in POST_CONSTRAINT_FIELDS]
+    if needs and not task.post_constraint:
+        raise TaskError(f"{where}: derived {needs} are computed by mj_rnePostConstraint: set post_constraint = True")
     if m.nu < 1:
         raise TaskError(f"{where}: the model has no actuators (action size 0); a task needs at least one")
     limited = np.flatnonzero(m.actuator_ctrllimited.astype(bool) & np.any(m.actuator_ctrlrange != [-1.0, 1.0], axis=1))
@@ -192,23 +215,31 @@ def validate(task, where):
     if obs.ndim != 1 or not np.all(np.isfinite(obs)):
         raise TaskError(f"{where}: the first observation must be a finite vector [d], got shape {obs.shape}"
                         + ("" if obs.ndim != 1 else f" with non-finite entries at {np.flatnonzero(~np.isfinite(obs)).tolist()}"))
-    _, reward, terminated = task.outcome(task.before(c.data.qpos[None], c._derived()), c.data.qpos[None], c.data.qvel[None],
-                                         c._derived(), np.zeros((1, m.nu)))
-    if np.shape(reward) != (1,) or np.shape(terminated) != (1,):
-        raise TaskError(f"{where}: outcome() must return reward [n] and terminated [n]; got shapes "
-                        f"{np.shape(reward)} and {np.shape(terminated)} for n = 1")
+    after, reward, terminated = task.outcome(task.before(c.data.qpos[None], c._derived()), c.data.qpos[None],
+                                             c.data.qvel[None], c._derived(), np.zeros((1, m.nu)))
+    if np.shape(after) != (1,) + obs.shape or np.shape(reward) != (1,) or np.shape(terminated) != (1,):
+        raise TaskError(f"{where}: outcome() must return obs [n, {obs.size}] (as observe()), reward [n] and terminated "
+                        f"[n]; got shapes {np.shape(after)}, {np.shape(reward)} and {np.shape(terminated)} for n = 1")
 
 
 def check_jax_agrees(task, where):
-    """TaskError unless the first observation with jax.numpy equals NumPy's (shape; values to float32 rounding)."""
+    """TaskError unless observe(), before() and outcome() trace with jax.numpy inside jax.jit (as both backends
+    call them) and the first observation equals NumPy's (shape; values to float32 rounding)."""
+    import jax
     import jax.numpy as jnp
 
     c = TaskC(task)
     obs = np.asarray(c.reset(0))
     d = c.data
+    qpos, qvel = jnp.asarray(d.qpos[None], jnp.float32), jnp.asarray(d.qvel[None], jnp.float32)
     derived = {f: jnp.asarray(getattr(d, f)[None], jnp.float32) for f in task.derived}
-    got = np.asarray(task.observe(jnp.asarray(d.qpos[None], jnp.float32), jnp.asarray(d.qvel[None], jnp.float32),
-                                  derived, jnp))
+    action = jnp.zeros((1, task.model.nu), jnp.float32)
+    try:
+        got = np.asarray(jax.jit(lambda q, v, x: task.observe(q, v, x, jnp))(qpos, qvel, derived))
+        jax.eval_shape(lambda q, v, x, a: task.outcome(task.before(q, x, jnp), q, v, x, a, jnp), qpos, qvel, derived, action)
+    except Exception as e:
+        raise TaskError(f"{where}: its functions do not run with jax.numpy under jax.jit ({type(e).__name__}: "
+                        f"{' '.join(str(e).split())[:200]}); write them with xp (the module passed in) only") from None
     if got.shape != (1,) + obs.shape:
         raise TaskError(f"{where}: observe() gives shape {got.shape[1:]} with jax.numpy but {obs.shape} with NumPy; "
                         "write it with xp (the module passed in) only")
@@ -244,5 +275,7 @@ def source_record(cls):
     if path and os.path.exists(path):
         with open(path, "rb") as f:
             digest = hashlib.sha256(f.read()).hexdigest()
-    return {"module": cls.__module__, "class": cls.__qualname__, "file": os.path.abspath(path) if path else None,
-            "sha256": digest}
+    if path:
+        rel = os.path.relpath(os.path.abspath(path))
+        path = rel if not rel.startswith("..") else os.path.abspath(path)  # relative to where it ran, when below it
+    return {"module": cls.__module__, "class": cls.__qualname__, "file": path or None, "sha256": digest}

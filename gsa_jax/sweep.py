@@ -75,8 +75,8 @@ def build_parser():
     p.add_argument("experiment", nargs="?", default=None,
                    help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml (with --resume: optional)")
     p.add_argument("--resume", metavar="DIR", default=None,
-                   help="continue the sweep in DIR with the experiment, sub-batch size and TensorBoard setting its "
-                        "sweep.json recorded (an experiment file given too must match it, or --force)")
+                   help="continue the sweep in DIR with the experiment, local worker count, sub-batch size and "
+                        "TensorBoard setting its sweep.json recorded (an experiment file given too must match it, or --force)")
     p.add_argument("--out", default=None, help="output directory (default runs/sweeps/<name>)")
     p.add_argument("--devices", type=int, default=None, help="shard each worker's runs over its first N local devices (default: all)")
     p.add_argument("--local-processes", type=int, default=None,
@@ -126,7 +126,10 @@ def parse_args(argv):
     if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
         raise SpecError(f"--resume {args.resume} and --out {args.out} name different directories")
     meta = saved_sweep(args.resume)
-    parser.set_defaults(out=args.resume, **{k: meta[k] for k in ("run_batch", "tensorboard") if k in meta})
+    saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
+    if args.coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
+        saved["local_processes"] = meta["num_processes"]
+    parser.set_defaults(out=args.resume, **saved)
     args = parser.parse_args(argv)
     args.saved_spec = meta["spec"]
     return args
@@ -243,8 +246,8 @@ def run_worker(args, spec, out, after_chunk=None):
         print(f"gsa_jax.sweep: error: {e.describe(getattr(e, 'last_intact', 'none (nothing trained yet)'))}", file=sys.stderr)
         return EXIT_DISK_FULL
     if not args.quiet:
-        done_msg = f"done: {out}" if complete else \
-            f"stopped: {out}; continue with the same command or: {resume_command('gsa_jax.sweep', out)}"
+        again = "" if args.coordinator else f" or: {resume_command('gsa_jax.sweep', out)}"
+        done_msg = f"done: {out}" if complete else f"stopped: {out}; continue with the same command{again}"
         print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg, flush=True)
     if args.worker or args.num_processes > 1:
         return 0

@@ -172,7 +172,7 @@ def saved_options(saved):
             "physics_threads": c["physics_threads"], "value_target": c["value_target"],
             "retrace_iterations": c["retrace_iterations"], "b_init_scale": c["b_init_scale"],
             "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],
-            "eval_every": saved["eval_every"], "eval_seed": saved["eval_seed"], "eval_envs": c["eval_envs"],
+            "eval_every": saved.get("eval_every"), "eval_seed": saved.get("eval_seed", 0), "eval_envs": c["eval_envs"],
             "chunk": saved["chunk"], "tensorboard": saved.get("tensorboard", True)}
     opts.update({flag: hp[name] for flag, name in _HP_FLAGS.items() if name in hp})
     opts["unflagged_config"] = {k: tuple(c[k]) if isinstance(c[k], list) else c[k] for k in UNFLAGGED_CONFIG}

@@ -554,12 +554,14 @@ def test_unreadable_group_state_falls_back(tiny_spec_file, inprocess, tmp_path, 
 
     out = tmp_path / "trunc"
     capsys.readouterr()
-    assert main([tiny_spec_file, "--out", str(out), "--no-watchdog", "--local-processes", "1", "--stop-after-chunks", "3"]) == 0
+    assert main([tiny_spec_file, "--out", str(out), "--no-watchdog", "--local-processes", "1", "--stop-after-chunks", "3",
+                 "--no-tensorboard"]) == 0
     hint = shlex.split(capsys.readouterr().out.strip().splitlines()[-1].split("or: ", 1)[1])
     assert hint[1:] == ["-m", "gsa_jax.sweep", "--resume", str(out)], hint
     state = out / "groups" / "inverted_double_pendulum-mixture" / "state.npz"
     state.write_bytes(state.read_bytes()[:1000])
-    assert main(hint[3:] + ["--no-watchdog", "--local-processes", "1", "--quiet"]) == 0
+    assert main(hint[3:] + ["--no-watchdog", "--quiet"]) == 0  # worker count and TensorBoard setting as recorded
+    assert not (out / "tensorboard").exists() and not (out / "process-0").exists()
     printed = capsys.readouterr()
     assert "state.npz is unreadable" in printed.out + printed.err and "state.prev.npz" in printed.out + printed.err
     assert canonical_rows(out / "metrics.csv") == canonical_rows(inprocess / "metrics.csv")

@@ -3,6 +3,7 @@ backend 'c' and learns, exports and runs in MuJoCo C; MJX steps it like MuJoCo C
 before anything compiles; envs.register names one. (Its sweep, resume and run-alone equality:
 tests/test_c_backend.py's user_sweep.)"""
 
+import glob
 import hashlib
 import json
 import os
@@ -18,6 +19,7 @@ import envs
 from envs.physics import Physics
 from envs.task import TaskC
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TASK = "examples.reacher:Reacher"
 ZERO_ACTION_RETURN = -49.5  # examples/reacher.py holding still, over its start distribution (measured; 200 steps)
 # measured over 5 episodes x 200 steps: observations within 1.8e-6, rewards within 3.0e-7
@@ -89,7 +91,13 @@ BAD = {
     "bad_mjcf": ("FILE:BadMjcf", "the MJCF does not load"),
     "no_actuator": ("FILE:NoActuator", "no actuators (action size 0)"),
     "nan_obs": ("FILE:NanObservation", "non-finite entries at [0, 1"),
-    "xp_mismatch": ("FILE:NumpyOnly", "differs between NumPy and jax.numpy"),
+    "xp_mismatch": ("FILE:OtherValues", "differs between NumPy and jax.numpy"),
+    "np_inside": ("FILE:NumpyInside", "do not run with jax.numpy under jax.jit"),
+    "noise_size": ("FILE:BadNoise", "noise has shape (3,); use a scalar or [4]"),
+    "outcome_obs": ("FILE:ShortOutcome", "outcome() must return obs [n, 10] (as observe())"),
+    "unknown_derived": ("FILE:UnknownField", "derived names ['not_a_field'], which are not MjData fields"),
+    "post_constraint": ("FILE:ForcesWithoutFlag", "set post_constraint = True"),
+    "raises": ("FILE:Raises", "stepping it failed: ZeroDivisionError"),
     "not_a_task": ("FILE:NotATask", "not an envs.task.Task"),
     "ctrlrange": ("FILE:WideRange", "has ctrlrange [-2.0, 2.0]; the policy's actions lie in [-1, 1]"),
 }
@@ -108,9 +116,31 @@ class NanObservation(Reacher):
     def observe(self, qpos, qvel, derived, xp=np):
         return super().observe(qpos, qvel, derived, xp) / 0.0
 
-class NumpyOnly(Reacher):
+class OtherValues(Reacher):
     def observe(self, qpos, qvel, derived, xp=np):
-        return np.asarray(super().observe(qpos, qvel, derived, xp)) * (2.0 if xp is not np else 1.0)
+        return super().observe(qpos, qvel, derived, xp) * (2.0 if xp is not np else 1.0)
+
+class NumpyInside(Reacher):
+    def observe(self, qpos, qvel, derived, xp=np):
+        return np.concatenate([qpos, qvel], axis=1)
+
+class BadNoise(Reacher):
+    noise = [0.1, 0.1, 0.1]
+
+class ShortOutcome(Reacher):
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        obs, reward, terminated = super().outcome(before, qpos, qvel, derived, action, xp)
+        return obs[:, :3], reward, terminated
+
+class UnknownField(Reacher):
+    derived = ("site_xpos", "not_a_field")
+
+class ForcesWithoutFlag(Reacher):
+    derived = ("site_xpos", "cfrc_ext")
+
+class Raises(Reacher):
+    def observe(self, qpos, qvel, derived, xp=np):
+        return 1 / 0
 
 class WideRange(Reacher):
     xml = Reacher.xml.replace('ctrlrange="-1 1"', 'ctrlrange="-2 2"', 1)
@@ -138,10 +168,24 @@ def test_register_names_a_task_for_library_users():
     from examples.reacher import Reacher
 
     envs.register("my_reacher", Reacher)
-    assert envs.action_size("my_reacher") == 2 and envs.default_episode_length("my_reacher") == 200
-    assert envs.has_c_backend("my_reacher") and envs.resolve_task("my_reacher").name == "my_reacher"
-    with pytest.raises(ValueError, match="built-in"):
-        envs.register("Hopper-v5", Reacher)
+    try:
+        assert envs.action_size("my_reacher") == 2 and envs.default_episode_length("my_reacher") == 200
+        assert envs.has_c_backend("my_reacher") and envs.resolve_task("my_reacher").name == "my_reacher"
+        with pytest.raises(ValueError, match="built-in"):
+            envs.register("Hopper-v5", Reacher)
+    finally:
+        del envs._REGISTERED["my_reacher"]
+        envs._factory.cache_clear()
+    assert not envs.is_name("my_reacher")
+
+
+def test_tools_reading_a_user_tasks_controller_elsewhere_say_so_in_one_line(tmp_path):
+    """deploy and robustness run where the task's module cannot be imported: one line naming it, exit 2."""
+    ctrl = sorted(glob.glob(os.path.join(ROOT, "experiments", "your_task_reacher", "results", "controllers", "*mlp*.npz")))[0]
+    for command in (["gsa_jax.deploy", ctrl], ["gsa_jax.robustness", ctrl, "--out", str(tmp_path / "rob")]):
+        done = subprocess.run([sys.executable, "-m", *command], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        err = done.stderr.strip()
+        assert done.returncode == 2 and err.count("\n") == 0 and "cannot import 'examples.reacher'" in err, err
 
 
 def test_a_module_named_envs_that_shadows_ours_is_refused(tmp_path):

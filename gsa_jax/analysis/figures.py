@@ -8,7 +8,7 @@ import numpy as np
 
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.results import (
-    drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, unscored_lines,
+    action_dims_of, drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, unscored_lines,
     write_csv,
 )
 from gsa_jax.analysis.tables import (
@@ -133,9 +133,7 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     failed_runs = [f for d in dirs for f in load_failed(d)]
     data, failed = drop_failed(load_sweeps(dirs), failed_runs)
     if action_dims is None:
-        import envs
-
-        action_dims = {e: envs.action_size(e) for e in {c[0] for c in data}}
+        action_dims = action_dims_of(dirs, sorted({c[0] for c in data}))
     evaluated = any(np.isfinite(s["eval_return"]).any() for seeds in data.values() for s in seeds.values())
     png = os.path.join(out_dir, "figure.png")
     plot_curves(data, action_dims, failed, "eval_return" if evaluated else "episode_return", png,

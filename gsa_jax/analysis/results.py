@@ -207,6 +207,19 @@ def spec_multipliers(dirs):
     return {e: sorted(ms) for e, ms in out.items()}
 
 
+def action_dims_of(dirs, env_names):
+    """{env: d_a}: as the sweeps' sweep.json recorded it for a task defined outside the package (`tasks`), so that
+    reading results never imports a user's task code; else from the task registry (built-in tasks)."""
+    recorded = {e: t["action_size"] for d in dirs for meta in sweep_metas(d)
+                for e, t in (meta.get("tasks") or {}).items() if "action_size" in t}
+    missing = [e for e in env_names if e not in recorded]
+    if missing:
+        import envs
+
+        recorded.update({e: envs.action_size(e) for e in missing})
+    return {e: recorded[e] for e in env_names}
+
+
 def setting_columns(data):
     """The columns that set cells apart beyond (env, policy, K): sub-policy class, critic, swept hyperparameters."""
     return list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))

@@ -11,7 +11,7 @@ import os
 import numpy as np
 
 import envs
-from envs import action_size
+from envs import action_size, check_name
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.figures import plot_profiles
 from gsa_jax.analysis.results import write_csv
@@ -46,8 +46,9 @@ def load_controllers(paths):
             ctrl, env_name, _ = load_controller(f)
             with np.load(f, allow_pickle=False) as z:
                 meta = json.loads(str(z["config_json"]))
-        except DeployError as e:
-            raise RobustnessError(str(e)) from None
+            check_name(env_name)  # a task defined outside the package: importable from here, in one line if not
+        except (DeployError, ValueError) as e:
+            raise RobustnessError(f"{f}: {e}") from None
         k = ctrl.num_clusters if ctrl.kind == "mixture" else ""
         out.append((f, {"env": env_name, "policy": ctrl.kind, "K": k, "seed": int(meta.get("seed", 0))}, ctrl))
     return out

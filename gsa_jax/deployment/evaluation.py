@@ -45,8 +45,12 @@ def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     if not has_c_backend(env_name):
         raise DeployError(f"the controller is for {env_name!r}; MuJoCo C versions exist for {', '.join(C_BACKEND_TASKS)} "
                           "and every task definition (envs/task.py)")
-    length = episode_length or config.get("episode_length") or default_episode_length(env_name)
-    returns, lengths = run_episodes(make_c(env_name), ctrl, episodes, int(length), seed)
+    try:  # a task defined outside the package is imported here: its errors in one line
+        length = episode_length or config.get("episode_length") or default_episode_length(env_name)
+        task = make_c(env_name)
+    except ValueError as e:
+        raise DeployError(str(e)) from None
+    returns, lengths = run_episodes(task, ctrl, episodes, int(length), seed)
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
 
 

@@ -14,6 +14,7 @@ import re
 import mujoco
 import numpy as np
 
+from envs import GYM_V5_TASKS
 from envs.mujoco_c import BRAX_PORTS, observation_layout
 
 GYM_NAMES = {"hopper": "Hopper", "walker2d": "Walker2d", "halfcheetah": "HalfCheetah", "ant": "Ant",
@@ -44,7 +45,7 @@ def make_gym(task, env_id, check_steps=50, seed=0):
     """gymnasium's env `env_id` for a controller of `task`, with GYM_OPTIONS[task]; raises GymnasiumError
     with a one-line reason if it is another task or its observation layout differs from ours."""
     name, _ = parse_id(env_id)
-    if "-v" in task:  # trained on gymnasium's own task (envs.GYM_V5_TASKS): the same id, nothing to check
+    if task in GYM_V5_TASKS:  # trained on gymnasium's own task: the same id, nothing to check
         if env_id != task:
             raise GymnasiumError(f"the controller is for {task!r}, not {env_id!r}")
         return _make(env_id, {}), {}

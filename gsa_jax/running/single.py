@@ -74,10 +74,13 @@ RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk", "eval_every",
 
 
 def check_resume_config(old, config, force):
-    """Refuse (ResumeRefused, one line) to resume a saved run whose settings differ, unless force. A config
-    field the saved run's config.json lacks (it was written before the field existed) ran at its default."""
-    mine = {k: config[k] for k in RESUME_KEYS}
-    theirs = {k: old.get(k) for k in RESUME_KEYS}
+    """Refuse (ResumeRefused, one line) to resume a saved run whose settings or task code (the sha256 of the file
+    that defines a task of the user's) differ, unless force. A config field the saved run's config.json lacks (it
+    was written before the field existed) ran at its default; a setting it lacks is not compared."""
+    mine = {k: config[k] for k in RESUME_KEYS if k in old}
+    theirs = {k: old.get(k) for k in RESUME_KEYS if k in old}
+    if "task" in old:
+        mine["task"], theirs["task"] = envs.task_source(config["config"]["env"]), old["task"]
     defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(Config)}))
     theirs["config"] = {**{k: defaults[k] for k in mine["config"] if k in defaults}, **(theirs["config"] or {})}
     check_unchanged(theirs, mine, force, "--resume with a different run than the one in the output directory",

@@ -145,15 +145,17 @@ def write_sweep_meta(root, spec, groups, options):
     """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
     spec, unless options.force)."""
     meta_path = os.path.join(root, "sweep.json")
+    tasks = {e: envs.task_source(e) for e in spec.envs}
     if os.path.exists(meta_path):
         with open(meta_path) as f:
-            old = json.load(f).get("spec", {})
-        check_unchanged(old, spec.to_json(), options.force,
-                        f"{root} holds a sweep with a different spec", "use another --out, or --force to continue it with the new spec")
+            old = json.load(f)
+        check_unchanged({"spec": old.get("spec", {}), "tasks": old.get("tasks", tasks)}, {"spec": spec.to_json(), "tasks": tasks},
+                        options.force, f"{root} holds a sweep with a different spec or task code",
+                        "use another --out, or --force to continue it with the new spec")
     physics = {group_name(g): physics_record(group_config(spec, g)) for g in groups}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
             "run_batch": options.run_batch, "tensorboard": options.tensorboard, "physics": physics,
-            "tasks": {e: envs.task_source(e) for e in spec.envs}, **run_metadata()}
+            "tasks": tasks, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 

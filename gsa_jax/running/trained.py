@@ -52,8 +52,9 @@ def read_rows(root):
 
 
 def path_part(name):
-    """A task name as one part of a file name: a task named by its file ('dir/file.py:Class') without separators."""
-    return str(name).replace("/", "_").replace("\\", "_")
+    """A task name as one part of a file name on any system: a task named 'module:Class' or 'dir/file.py:Class'
+    without ':' or separators ('module.Class', 'dir_file.py.Class')."""
+    return str(name).replace(":", ".").replace("/", "_").replace("\\", "_")
 
 
 def run_label(row):
