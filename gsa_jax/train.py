@@ -36,7 +36,9 @@ _HP_FLAGS = {  # CLI flag -> hparam name
 
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=__doc__.split("\n")[0])
-    p.add_argument("--env", default="inverted_double_pendulum", help=f"one of: {', '.join(envs.NAMES)}")
+    p.add_argument("--env", default="inverted_double_pendulum",
+                   help=f"one of: {', '.join(envs.NAMES)}; or a task definition of yours, 'module:Class' or "
+                        "'path/file.py:Class' (docs/your_task.md)")
     p.add_argument("--policy", default="mixture", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
     p.add_argument("--clusters", "-K", type=int, default=4, help="K, number of linear controllers (mixture)")
     p.add_argument("--subpolicy", default="linear",
@@ -65,7 +67,7 @@ def build_parser():
                    help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
     p.add_argument("--physics", default=Config.backend, choices=("mjx", "c"),
                    help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
-                        "compiled program (the CPU speed path; hopper, walker2d, halfcheetah, ant, allegro_cylinder)")
+                        "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
     p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
                    help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
     p.add_argument("--value-target", default=Config.value_target,

@@ -125,7 +125,10 @@ def test_the_printed_resume_command_resumes(full_run, tmp_path, capsys):
     hint = capsys.readouterr().out.strip().splitlines()[-1].split("continue with: ", 1)[1]
     command = shlex.split(hint)
     assert command[1:] == ["-m", "gsa_jax.train", "--resume", "--out", str(out)] and os.path.exists(command[0]), hint
-    done = subprocess.run(hint, shell=True, capture_output=True, text=True, timeout=600)
+    import jax
+
+    cache = {"JAX_COMPILATION_CACHE_DIR": jax.config.jax_compilation_cache_dir or ""}  # the suite's compiled programs
+    done = subprocess.run(hint, shell=True, capture_output=True, text=True, timeout=600, env={**os.environ, **cache})
     assert done.returncode == 0, done.stderr
     assert strip_wall(read_csv(out / "metrics.csv")) == strip_wall(read_csv(full_run / "metrics.csv"))
     assert json.loads((out / "config.json").read_text())["tensorboard"] is False  # a saved setting kept
