@@ -174,7 +174,9 @@ def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(sweep, env, 
     import json
 
     _, out = request.getfixturevalue(sweep)
-    physics = json.loads((out / "sweep.json").read_text())["physics"][f"{env}-mixture"]
+    from gsa_jax.running.trained import path_part
+
+    physics = json.loads((out / "sweep.json").read_text())["physics"][f"{path_part(env)}-mixture"]
     assert physics["backend"] == "c" and physics["linesearch_in_force"] == "mujoco_c"
     rows = [r for r in read_rows(out / "metrics.csv") if r["K"] == "2" and r["seed"] == "1"]
     tr = make_train(Config(env=env, policy="mixture", k_max=2, backend="c", **SMALL))
