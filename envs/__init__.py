@@ -54,9 +54,17 @@ def register(name, factory):
     check_task.cache_clear()
 
 
+ADAPTERS = ("brax:",)  # environments of other libraries, named '<library>:<their name>' (MJX backend)
+
+
+def is_adapted(name):
+    """Whether `name` names another library's environment: 'brax:<name>' (Brax's registry, on MJX)."""
+    return isinstance(name, str) and name.startswith(ADAPTERS)
+
+
 def is_defined(name):
     """Whether `name` names a task definition (envs/task.py): a v5 task, a registered one, or 'module:Class'."""
-    return name in GYM_V5_TASKS or name in _REGISTERED or (isinstance(name, str) and ":" in name)
+    return name in GYM_V5_TASKS or name in _REGISTERED or (isinstance(name, str) and ":" in name and not is_adapted(name))
 
 
 def is_name(name):
@@ -72,11 +80,29 @@ def check_name(name):
     """ValueError (one line) unless `name` names a task; a task definition is loaded and checked once here."""
     if name in NAMES and not is_defined(name):
         return
+    if is_adapted(name):
+        _check_brax_name(name)
+        return
     if is_defined(name):
         _factory(name)
         return
     raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, or name your "
                      "own task definition 'module:Class' (docs/your_task.md)")
+
+
+@functools.lru_cache(maxsize=None)
+def _check_brax_name(name):
+    """ValueError (one line, with close matches) unless 'brax:<name>' is in Brax's environment registry."""
+    import difflib
+
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        from brax import envs as brax_envs
+    known = sorted(brax_envs._envs)
+    sub = name[len("brax:"):]
+    if sub not in known:
+        close = difflib.get_close_matches(sub, known, n=3)
+        raise ValueError(f"unknown env {name!r}: Brax registers {', '.join(known)}"
+                         + (f"; did you mean {', '.join('brax:' + c for c in close)}?" if close else ""))
 
 
 @functools.lru_cache(maxsize=None)
@@ -184,6 +210,8 @@ def _import_from_here(module_name):
 def task_source(name):
     """What says which code defines task `name` (recorded in config.json and sweep.json): for a task defined
     outside this package, its module, file and the file's sha256."""
+    if is_adapted(name):
+        return {"task": name, "builtin": False, "library": "brax", "brax_name": name[len("brax:"):]}
     if not is_defined(name) or name in GYM_V5_TASKS:
         return {"task": name, "builtin": True}
     from envs.task import source_record
@@ -199,7 +227,7 @@ def check_backend(name, physics):
     physics.validate()
     if physics.backend == "c" and not has_c_backend(name):
         raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)} and every task definition; {name!r} "
-                         "runs on backend 'mjx'")
+                         "runs on backend 'mjx'" + (" (Brax's environments step in JAX only)" if is_adapted(name) else ""))
 
 
 def has_c_backend(name):
@@ -228,6 +256,8 @@ def task_model(name):
     check_name(name)
     if is_defined(name):
         return resolve_task(name).model
+    if is_adapted(name):
+        return mj_model(make_base(name))
     if name in mujoco_c.C_TASKS:
         return mujoco_c.make_c(name).model
     return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(name + ".xml"))
@@ -243,7 +273,7 @@ def action_bounds(name, size=None):
     (default: action_size(name), read from the MJCF)."""
     import numpy as np
 
-    if name not in NAMES:
+    if name not in NAMES and not (is_adapted(name) and size is not None):
         check_name(name)  # a task definition: loaded and checked (a built-in name needs neither)
     size = action_size(name) if size is None else int(size)
     return np.full(size, ACTION_RANGE[0], np.float32), np.full(size, ACTION_RANGE[1], np.float32)
@@ -277,6 +307,8 @@ def make_base(name, physics=None):
             from envs.task_mjx import TaskMjx
 
             env = TaskMjx(resolve_task(name))
+        elif is_adapted(name):
+            env = brax_envs.get_environment(name[len("brax:"):], backend="mjx")
         else:
             env = brax_envs.get_environment(name, backend="mjx")
     override = {k: v for k, v in (("opt.iterations", physics.solver_iterations),

@@ -37,8 +37,8 @@ _HP_FLAGS = {  # CLI flag -> hparam name
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=__doc__.split("\n")[0])
     p.add_argument("--env", default="inverted_double_pendulum",
-                   help=f"one of: {', '.join(envs.NAMES)}; or a task definition of yours, 'module:Class' or "
-                        "'path/file.py:Class' (docs/your_task.md)")
+                   help=f"one of: {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' or "
+                        "'path/file.py:Class'; or 'brax:<name>', an environment of Brax's registry (docs/your_task.md)")
     p.add_argument("--policy", default="mixture", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
     p.add_argument("--clusters", "-K", type=int, default=4, help="K, number of linear controllers (mixture)")
     p.add_argument("--subpolicy", default="linear",
