@@ -15,6 +15,12 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# the tests also train a MuJoCo Playground environment: its optional extra (warp-lang: ~390 MB installed)
+TEST_STAMP := $(VENV)/.installed-test
+$(TEST_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q -e ".[test,deploy,playground]"
+	touch $(TEST_STAMP)
+
 ## demo: a short real training run (mixture of 4 linear controllers on inverted_double_pendulum, ~2 min)
 demo: $(STAMP)
 	rm -rf runs/demo
@@ -28,7 +34,7 @@ demo: $(STAMP)
 
 ## test: the pytest suite, one worker per core (at most 4), each test file on one worker (~15 min on 2 cores;
 ## the 15 slowest tests are listed at the end). One worker: $(BIN)/python -m pytest tests -m "not benchmark"
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q tests -m "not benchmark" -n auto --maxprocesses 4 --dist loadfile --durations=15
 
 ## sweep: train an experiment's whole grid as vmapped programs (make sweep EXP=experiments/fig1/fig1.toml)

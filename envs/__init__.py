@@ -54,11 +54,12 @@ def register(name, factory):
     check_task.cache_clear()
 
 
-ADAPTERS = ("brax:",)  # environments of other libraries, named '<library>:<their name>' (MJX backend)
+ADAPTERS = ("brax:", "playground:")  # environments of other libraries, '<library>:<their name>' (MJX backend)
 
 
 def is_adapted(name):
-    """Whether `name` names another library's environment: 'brax:<name>' (Brax's registry, on MJX)."""
+    """Whether `name` names another library's environment: 'brax:<name>' (Brax's registry) or 'playground:<Name>'
+    (MuJoCo Playground's, envs/playground_adapter.py), both on MJX."""
     return isinstance(name, str) and name.startswith(ADAPTERS)
 
 
@@ -81,7 +82,7 @@ def check_name(name):
     if name in NAMES and not is_defined(name):
         return
     if is_adapted(name):
-        _check_brax_name(name)
+        _check_adapted_name(name)
         return
     if is_defined(name):
         _factory(name)
@@ -91,9 +92,16 @@ def check_name(name):
 
 
 @functools.lru_cache(maxsize=None)
-def _check_brax_name(name):
-    """ValueError (one line, with close matches) unless 'brax:<name>' is in Brax's environment registry."""
+def _check_adapted_name(name):
+    """ValueError (one line, with close matches) unless 'brax:<name>' is in Brax's environment registry or
+    'playground:<Name>' in MuJoCo Playground's."""
     import difflib
+
+    if name.startswith("playground:"):
+        from envs import playground_adapter
+
+        playground_adapter.check_name(name)
+        return
 
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         from brax import envs as brax_envs
@@ -211,7 +219,9 @@ def task_source(name):
     """What says which code defines task `name` (recorded in config.json and sweep.json): for a task defined
     outside this package, its module, file and the file's sha256."""
     if is_adapted(name):
-        return {"task": name, "builtin": False, "library": "brax", "brax_name": name[len("brax:"):]}
+        library, _, theirs = name.partition(":")
+        return {"task": name, "builtin": False, "library": library, "name": theirs,
+                "version": _installed_version("playground" if library == "playground" else "brax")}
     if not is_defined(name) or name in GYM_V5_TASKS:
         return {"task": name, "builtin": True}
     from envs.task import source_record
@@ -221,13 +231,25 @@ def task_source(name):
             "observation_size": int(task.observation_size)}
 
 
+def _installed_version(dist):
+    from importlib import metadata
+
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return None
+
+
 def check_backend(name, physics):
     """ValueError if `physics` (envs.physics.Physics) cannot step task `name`."""
     check_name(name)
     physics.validate()
     if physics.backend == "c" and not has_c_backend(name):
         raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)} and every task definition; {name!r} "
-                         "runs on backend 'mjx'" + (" (Brax's environments step in JAX only)" if is_adapted(name) else ""))
+                         "runs on backend 'mjx'" + (" (another library's environments step in JAX only)" if is_adapted(name) else ""))
+    if name.startswith("playground:") and (physics.solver_iterations is not None or physics.ls_iterations is not None):
+        raise ValueError(f"{name!r} runs with Playground's own solver settings; solver_iterations and ls_iterations "
+                         "do not apply")
 
 
 def has_c_backend(name):
@@ -243,6 +265,10 @@ def default_episode_length(name):
         return allegro_length
     if is_defined(name):
         return int(resolve_task(name).episode_length)
+    if name.startswith("playground:"):
+        from envs.playground_adapter import registry
+
+        return int(registry().get_default_config(name[len("playground:"):]).get("episode_length", DEFAULT_EPISODE_LENGTH))
     return DEFAULT_EPISODE_LENGTH
 
 
@@ -307,6 +333,10 @@ def make_base(name, physics=None):
             from envs.task_mjx import TaskMjx
 
             env = TaskMjx(resolve_task(name))
+        elif name.startswith("playground:"):
+            from envs.playground_adapter import PlaygroundEnv
+
+            env = PlaygroundEnv(name)
         elif is_adapted(name):
             env = brax_envs.get_environment(name[len("brax:"):], backend="mjx")
         else:

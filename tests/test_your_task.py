@@ -213,9 +213,24 @@ def test_a_brax_environment_trains_on_mjx_and_what_it_cannot_do_is_one_line(tmp_
     capsys.readouterr()
     for command, message in ((lambda: deploy_main([str(tmp_path / "ctrl.npz")]), "MuJoCo C versions exist for"),
                              (lambda: train_main(["--env", "brax:reacher", "--physics", "c", "--out", str(tmp_path / "c")]),
-                              "Brax's environments step in JAX only"),
+                              "another library's environments step in JAX only"),
                              (lambda: train_main(["--env", "brax:reachr", "--out", str(tmp_path / "x")]),
                               "did you mean brax:reacher?")):
         assert command() == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and message in err, err
+
+
+def test_a_playground_environment_trains_on_mjx(tmp_path):
+    """'playground:CartpoleBalance' (MuJoCo Playground's registry, impl 'jax'): 123k steps of one linear controller
+    with 200-step episodes lift the training return from about 100 to above 120 (measured: 132.6; the maximum is
+    200); a misspelled name lists close matches."""
+    from gsa_jax.train import main as train_main
+
+    run = tmp_path / "run"
+    assert train_main(["--env", "playground:CartpoleBalance", "--clusters", "1", "--steps", "122880", "--episode-length",
+                       "200", "--out", str(run), "--quiet", "--no-tensorboard"]) == 0
+    config = json.loads((run / "config.json").read_text())
+    assert config["result"]["final_episode_return"] > 120.0 and config["task"]["library"] == "playground", config["result"]
+    with pytest.raises(ValueError, match="did you mean playground:CartpoleBalance"):
+        envs.check_name("playground:CartpoleBalanse")
