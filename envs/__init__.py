@@ -87,8 +87,9 @@ def check_name(name):
     if is_defined(name):
         _factory(name)
         return
-    raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, or name your "
-                     "own task definition 'module:Class' (docs/your_task.md)")
+    raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, name your "
+                     "own task definition 'module:Class', or another library's environment 'brax:<name>' or "
+                     "'playground:<Name>' (docs/your_task.md)")
 
 
 @functools.lru_cache(maxsize=None)
