@@ -221,7 +221,7 @@ def task_source(name):
     outside this package, its module, file and the file's sha256."""
     if is_adapted(name):
         library, _, theirs = name.partition(":")
-        return {"task": name, "builtin": False, "library": library, "name": theirs,
+        return {"task": name, "builtin": False, "library": library, "name": theirs, "action_size": action_size(name),
                 "version": _installed_version("playground" if library == "playground" else "brax")}
     if not is_defined(name) or name in GYM_V5_TASKS:
         return {"task": name, "builtin": True}
@@ -284,14 +284,21 @@ def task_model(name):
     if is_defined(name):
         return resolve_task(name).model
     if is_adapted(name):
-        return mj_model(make_base(name))
+        return _adapted_model(name)
     if name in mujoco_c.C_TASKS:
         return mujoco_c.make_c(name).model
     return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(name + ".xml"))
 
 
+@functools.lru_cache(maxsize=None)
+def _adapted_model(name):
+    """The MjModel of another library's environment: building it builds the environment (seconds), so once per
+    process (callers read sizes and records from it)."""
+    return mj_model(make_base(name))
+
+
 def action_size(name):
-    """Actions of a task, read from its MJCF (no MJX environment is built)."""
+    """Actions of a task, read from its MJCF (no MJX environment is built, but for another library's environment)."""
     return int(task_model(name).nu)
 
 

@@ -246,7 +246,7 @@ def run_worker(args, spec, out, after_chunk=None):
         print(f"gsa_jax.sweep: error: {e.describe(getattr(e, 'last_intact', 'none (nothing trained yet)'))}", file=sys.stderr)
         return EXIT_DISK_FULL
     if not args.quiet:
-        again = "" if args.coordinator else f" or: {resume_command('gsa_jax.sweep', out)}"
+        again = "" if args.coordinator else f" or: {resume_command('gsa_jax.sweep', '--resume', out)}"
         done_msg = f"done: {out}" if complete else f"stopped: {out}; continue with the same command{again}"
         print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg, flush=True)
     if args.worker or args.num_processes > 1:

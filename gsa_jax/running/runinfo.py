@@ -88,12 +88,11 @@ def check_unchanged(old, new, force, what, remedy):
         raise ResumeRefused(f"{what} ({diff}); {remedy}")
 
 
-def resume_command(module, out):
-    """The shell command that continues the run or sweep in `out` with its saved settings: this interpreter
-    (relative to the working directory when it lies under it, e.g. .venv/bin/python) -m <module> --resume ..."""
+def resume_command(module, *flags):
+    """The shell command `<this interpreter> -m <module> <flags>` that continues a run or sweep with its saved
+    settings; the interpreter relative to the working directory when it lies under it (e.g. .venv/bin/python)."""
     python = sys.executable
     rel = os.path.relpath(python)
     if not rel.startswith(".."):
         python = rel if os.sep in rel else os.path.join(".", rel)
-    flags = ["--resume", "--out", out] if module == "gsa_jax.train" else ["--resume", out]
     return shlex.join([python, "-m", module, *flags])

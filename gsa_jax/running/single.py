@@ -209,10 +209,11 @@ def report_end(result, config, out, log):
         return 1
     if result.status == "interrupted":
         print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
-              f"(continue with: {resume_command('gsa_jax.train', out)})", file=sys.stderr)
+              f"(continue with: {resume_command('gsa_jax.train', '--resume', '--out', out)})", file=sys.stderr)
         return 130
     if result.done < result.iterations:
-        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with: {resume_command('gsa_jax.train', out)}")
+        again = resume_command("gsa_jax.train", "--resume", "--out", out)
+        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with: {again}")
     else:
         log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
             f"{timing['env_steps_per_s']:,.0f} steps/s); final return {fmt(res['final_episode_return'], '.1f')}, "
