@@ -2,7 +2,8 @@
 (gsa_jax.deployment.shifts), in MuJoCo C, with rliable statistics:
 
     python -m gsa_jax.robustness CONTROLLERS [CONTROLLERS ...] --out OUT [--episodes 20] [--shifts mass,push]
-                                 [--level push=0.5,1]
+                                 [--level push=0.5,1] [--push-sizes 0.25,0.5,1] [--windows 20,50,100]
+                                 [--pushes-per-episode 10]
 
 CONTROLLERS: exported controller files (gsa_jax.export, gsa_jax.extract --controllers) or directories of
 them. Every controller plays `--episodes` deterministic episodes under every shift that applies to its
@@ -19,6 +20,19 @@ of other sizes keep their times and directions: a dose-response). Writes to OUT:
   correlation.csv   per task and pooled: Spearman's rho between sensitivity and mean retained fraction
   robustness.png    per task, retained fraction (IQM, 95% CI) under each shift for flat PPO and each K
   profile.png       over all tasks: the fraction of (controller, shift) pairs retaining more than tau
+Paired pushes (gsa_jax.deployment.pushes; --pushes-per-episode 0 skips them): each push an event against
+the same episode without it, counted only where that episode survives the window:
+  pushes.csv.gz     tidy, one row per controller x start x push event x size: whether it counted and made
+                    the robot fall within each window W, the return it cost
+  nominal.csv       per controller: its control episodes' score, mean length, share reaching the time limit
+  paired_pushes.csv per task x configuration x size x W: IQM [CI] of the fall probability per counted push
+                    and of the return lost, P(the mixture falls / loses less than flat PPO) [CI]
+  pushes.png        the fall probability (or return lost) against push size, per task and window
+  fair.csv          per task x configuration x shift: the shifted score above the line the other
+                    configurations' controllers set (shifted on nominal score), the retained fraction among
+                    controllers whose nominal episodes all reach the time limit, and each one's verdict next
+                    to the retained fraction's (gsa_jax.analysis.fairness)
+correlation.csv also gives the partial rank correlation controlling for nominal score.
 """
 
 import argparse
@@ -26,8 +40,13 @@ import json
 import os
 import sys
 
+import numpy as np
+
 from gsa_jax.analysis import stats
-from gsa_jax.analysis.retention import RobustnessError, analyse, evaluate_all, load_controllers, write_settings
+from gsa_jax.analysis.retention import (START_SEED, RobustnessError, analyse, evaluate_all, load_controllers,
+                                        write_settings)
+from gsa_jax.analysis.paired import evaluate_all_pushes
+from gsa_jax.deployment.pushes import PER_EPISODE, PUSH_SIZES, WINDOWS
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
 
 
@@ -64,9 +83,37 @@ def parse_shifts(text, levels=None):
     return shifts
 
 
+def parse_numbers(flag, text, kind=float):
+    """'0.25,0.5' -> (0.25, 0.5): positive numbers, sorted, RobustnessError in one line otherwise."""
+    try:
+        values = tuple(sorted(kind(v) for v in text.split(",")))
+    except ValueError:
+        raise RobustnessError(f"{flag} {text!r}: comma-separated {kind.__name__} values, e.g. {flag} 1,2") from None
+    if not values or min(values) <= 0:
+        raise RobustnessError(f"{flag} {text!r}: values must be > 0")
+    return values
+
+
+def resolve_pushes(args, saved):
+    """{sizes, windows, per_episode} of the paired pushes (None with --pushes-per-episode 0): as given, else
+    as OUT's robustness.json recorded, else the defaults."""
+    old = saved.get("paired_pushes") or {}
+    per = args.pushes_per_episode if args.pushes_per_episode is not None else old.get("per_episode", PER_EPISODE)
+    if per < 0:
+        raise RobustnessError(f"--pushes-per-episode must be >= 0, got {per}")
+    if per == 0:
+        return None
+    sizes = parse_numbers("--push-sizes", args.push_sizes) if args.push_sizes else tuple(old.get("sizes", PUSH_SIZES))
+    windows = parse_numbers("--windows", args.windows, int) if args.windows else tuple(old.get("windows", WINDOWS))
+    if max(windows) >= 1000:
+        raise RobustnessError(f"--windows {args.windows}: windows must be shorter than the 1000-step episodes")
+    return {"sizes": sizes, "windows": windows, "per_episode": per}
+
+
 def resolve_settings(args):
-    """(shifts, episodes): as given, and where not given, what OUT's robustness.json recorded (a re-run
-    continues the evaluation it holds), else the defaults (every shift, 20 episodes). Raises RobustnessError."""
+    """(shifts, episodes, paired pushes): as given, and where not given, what OUT's robustness.json recorded
+    (a re-run continues the evaluation it holds), else the defaults (every shift, 20 episodes, paired pushes
+    of PUSH_SIZES in WINDOWS). Raises RobustnessError."""
     saved = {}
     path = os.path.join(args.out, "robustness.json")
     if os.path.exists(path):
@@ -80,7 +127,7 @@ def resolve_settings(args):
     else:
         shifts = parse_shifts(args.shifts or "all", parse_levels(args.level))
     episodes = args.episodes if args.episodes is not None else saved.get("episodes", 20)
-    return shifts, episodes
+    return shifts, episodes, resolve_pushes(args, saved)
 
 
 def main(argv=None):
@@ -92,21 +139,30 @@ def main(argv=None):
     p.add_argument("--shifts", default=None, help=f"'all' (default) or comma-separated kinds of {', '.join(KINDS[1:])}")
     p.add_argument("--level", action="append", default=[], metavar="KIND=V1,V2",
                    help="the levels of a kind instead of its defaults, e.g. push=0.5,1 (m/s); repeatable")
+    p.add_argument("--push-sizes", default=None, help="paired pushes' sizes in m/s (default 0.25,0.5,1)")
+    p.add_argument("--windows", default=None, help="paired pushes' windows in env steps (default 20,50,100)")
+    p.add_argument("--pushes-per-episode", type=int, default=None,
+                   help=f"paired push events per start state (default {PER_EPISODE}; 0: no paired pushes)")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
     args = p.parse_args(argv)
     try:
-        shifts, episodes = resolve_settings(args)
+        shifts, episodes, pushes = resolve_settings(args)
         if episodes < 1 or args.reps < 1:
             raise RobustnessError(f"--episodes and --reps must be >= 1, got {episodes} and {args.reps}")
         controllers = load_controllers(args.controllers)
         os.makedirs(args.out, exist_ok=True)
-        write_settings(args.out, shifts, episodes)
+        write_settings(args.out, shifts, episodes, pushes)
     except (RobustnessError, OSError) as e:
         print(f"gsa_jax.robustness: error: {e}", file=sys.stderr)
         return 2
     rows, sens = evaluate_all(controllers, shifts, episodes, args.out)
-    analyse(rows, sens, args.out, args.reps)
-    print(f"wrote {args.out}/robustness.csv, aggregate.csv, sensitivity.csv, robustness.png")
+    events, nominal = [], []
+    if pushes:
+        seeds = np.arange(START_SEED, START_SEED + episodes)
+        events, nominal = evaluate_all_pushes(controllers, pushes, seeds, args.out)
+    analyse(rows, sens, args.out, args.reps, events=events, nominal=nominal, windows=pushes["windows"] if pushes else ())
+    print(f"wrote {args.out}/robustness.csv, aggregate.csv, sensitivity.csv, robustness.png"
+          + (", pushes.csv.gz, nominal.csv, paired_pushes.csv, pushes.png, fair.csv" if pushes else ""))
     return 0
 
 

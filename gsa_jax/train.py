@@ -31,6 +31,8 @@ _HP_FLAGS = {  # CLI flag -> hparam name
     "lr": "lr", "clip": "clip_eps", "gamma": "gamma", "gae_lambda": "gae_lambda", "vf_coef": "vf_coef",
     "max_grad_norm": "max_grad_norm", "eps_init": "eps_init", "eps_decay": "eps_decay",
     "sigma_min_init": "sigma_min_init", "sigma_min_decay": "sigma_min_decay", "sigma_init_scale": "sigma_init_scale",
+    **{n: n for n in ("lr_scale_partition", "lr_scale_L", "lr_scale_b", "lr_scale_log_sigma", "lr_scale_log_std",
+                      "lr_scale_critic", "init_log_std")},
 }
 
 

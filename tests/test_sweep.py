@@ -20,6 +20,7 @@ from golden_runs import arrays_digest, check_fingerprint, summarize, table_diges
 from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
 from gsa_jax.running.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
 from gsa_jax.running.sweeps import SweepOptions, run_sweep
+from gsa_jax.running.tuning import load_tuning
 
 FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples of gsa_jax.plot: enough for the checks, cheap
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
@@ -178,8 +179,9 @@ def test_every_experiment_file_is_valid():
     root = os.path.join(os.path.dirname(__file__), "..", "experiments")
     files = sorted(glob.glob(os.path.join(root, "*", "*.toml")))
     assert len(files) >= 10
-    for f in files:
-        assert load_spec(f).name == os.path.splitext(os.path.basename(f))[0], f
+    for f in files:  # experiments/tuning/ holds tuning files (gsa_jax.tune), every other folder experiment files
+        load = load_tuning if os.path.basename(os.path.dirname(f)) == "tuning" else load_spec
+        assert load(f).name == os.path.splitext(os.path.basename(f))[0], f
 
 
 def test_fixed_sweep_computes_what_it_computed(inprocess):

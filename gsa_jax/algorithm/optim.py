@@ -22,14 +22,16 @@ def clip_by_global_norm(grads, max_norm):
 
 
 def adam_step(params, grads, state, lr, b1=0.9, b2=0.999, eps=1e-8):
-    """One bias-corrected Adam step (Kingma & Ba, Alg. 1). lr may be a traced scalar."""
+    """One bias-corrected Adam step (Kingma & Ba, Alg. 1). lr: a (traced) scalar, or a pytree like params
+    of one per leaf (per-group learning rates)."""
     count = state["count"] + 1
     m = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state["m"], grads)
     v = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * jnp.square(g), state["v"], grads)
     t = count.astype(jnp.float32)
     c1 = 1.0 - b1 ** t
     c2 = 1.0 - b2 ** t
+    lrs = lr if isinstance(lr, dict) else jax.tree.map(lambda _: lr, params)
     new_params = jax.tree.map(
-        lambda p, m, v: p - lr * (m / c1) / (jnp.sqrt(v / c2) + eps), params, m, v
+        lambda p, m, v, lr: p - lr * (m / c1) / (jnp.sqrt(v / c2) + eps), params, m, v, lrs
     )
     return new_params, {"m": m, "v": v, "count": count}

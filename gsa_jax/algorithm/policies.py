@@ -175,7 +175,7 @@ def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
     def init(key, hp):
         return {
             "mlp": init_mlp(key, (obs_size, *hidden, action_size), out_scale=0.01),
-            "log_std": jnp.zeros((action_size,), jnp.float32),
+            "log_std": jnp.full((action_size,), 1.0, jnp.float32) * hp.init_log_std,
         }
 
     def sample(params, obs, noise, sched):

@@ -128,6 +128,14 @@ class Hparams(NamedTuple):
     sigma_min_init: float = 0.1  # floor of every sub-policy std ...
     sigma_min_decay: float = 0.995  # ... times this every iteration
     sigma_init_scale: float = 1.0  # initial sub-policy std = sigma_init_scale / K
+    # per-group learning rates, each lr x its scale (1: the one lr of the PPO paper's settings):
+    lr_scale_partition: float = 1.0  # mixture: the partition network
+    lr_scale_L: float = 1.0  # mixture: the linear pieces' gains L
+    lr_scale_b: float = 1.0  # mixture: their offsets b
+    lr_scale_log_sigma: float = 1.0  # mixture: their log std
+    lr_scale_log_std: float = 1.0  # flat PPO: its state-independent log std (its MLP takes lr itself)
+    lr_scale_critic: float = 1.0  # both: the value network
+    init_log_std: float = 0.0  # flat PPO: the initial log std of its actions
 
 
 HPARAM_DEFAULTS = Hparams()._asdict()
@@ -159,7 +167,12 @@ HPARAM_RANGES = {
     "sigma_min_init": (0.0, None, True, True),
     "sigma_min_decay": (0.0, 1.0, True, True),
     "sigma_init_scale": (0.0, None, False, True),
+    **{f"lr_scale_{g}": (0.0, None, False, True) for g in ("partition", "L", "b", "log_sigma", "log_std", "critic")},
+    "init_log_std": (-5.0, 2.0, True, True),
 }
+# which lr_scale_* sets each parameter group's learning rate (a group absent here takes lr itself)
+LR_GROUPS = {"partition": "lr_scale_partition", "L": "lr_scale_L", "b": "lr_scale_b", "log_sigma": "lr_scale_log_sigma",
+             "log_std": "lr_scale_log_std"}
 
 
 def allowed_range(name):
@@ -393,14 +406,24 @@ def shuffle_by_sorts(key, n, random_bits, rounds):
     return perm.astype(jnp.int32)
 
 
+def group_learning_rates(params, hp, lr):
+    """A pytree like params of each leaf's learning rate: lr x the lr_scale_* of its group (LR_GROUPS; the
+    critic lr_scale_critic; flat PPO's MLP lr itself). A scale of 1 gives lr bit for bit."""
+    policy = {name: jax.tree.map(lambda _, n=name: lr * getattr(hp, LR_GROUPS[n]) if n in LR_GROUPS else lr, sub)
+              for name, sub in params["policy"].items()}
+    return {"policy": policy, "value": jax.tree.map(lambda _: lr * hp.lr_scale_critic, params["value"])}
+
+
 def sgd_update(p, params, opt, batch, hp, sched, lr, key):
-    """cfg.num_epochs epochs of shuffled minibatch Adam steps -> (params, opt, mean stats)."""
+    """cfg.num_epochs epochs of shuffled minibatch Adam steps (each parameter group at its own rate,
+    group_learning_rates) -> (params, opt, mean stats)."""
+    lrs = group_learning_rates(params, hp, lr)
 
     def minibatch(carry, mb):
         params, opt = carry
         grads, aux = jax.grad(lambda prm: ppo_loss(p, prm, mb, hp, sched), has_aux=True)(params)
         grads, gnorm = clip_by_global_norm(grads, hp.max_grad_norm)
-        params, opt = adam_step(params, grads, opt, lr)
+        params, opt = adam_step(params, grads, opt, lrs)
         return (params, opt), dict(aux, grad_norm=gnorm)
 
     def epoch(carry, k):

@@ -22,6 +22,7 @@ from gsa_jax.running.runinfo import run_metadata
 START_SEED = 10_000
 TIDY = ("env", "policy", "K", "seed", "shift", "level", "score", "nominal_score", "random_score", "retained_fraction")
 MULTIPLIERS = (0.5, 1, 2, 4)
+EARLY_PUSHES = 300  # env steps: paired_pushes_early.csv's pushes
 
 
 class RobustnessError(ValueError):
@@ -184,28 +185,41 @@ def aggregate(rows, reps=stats.REPS):
     return out
 
 
-def correlations(sens):
+def correlations(sens, rows=()):
     """correlation.csv rows: Spearman's rho (and its p-value) between sensitivity and mean retained
-    fraction across controllers, per task and pooled (ranks within each task)."""
+    fraction across controllers, per task and pooled (ranks within each task); with the tidy rows, also
+    the partial rank correlation controlling for the controller's nominal score (fairness.partial_spearman)."""
+    from scipy.stats import rankdata
+
+    nominal = {controller_key(r): float(r["nominal_score"]) for r in rows if r["shift"] == "nominal"}
+    out, pooled = [], []
+    for env_name in sorted({r["env"] for r in sens}):
+        mine = [r for r in sens if r["env"] == env_name]
+        xyz = np.array([[float(r["sensitivity"]), float(r["mean_retained_fraction"]), nominal.get(controller_key(r), math.nan)]
+                        for r in mine]).reshape(-1, 3)
+        xyz = xyz[np.isfinite(xyz[:, :2]).all(1)]
+        if len(xyz) < 3:
+            continue
+        out.append(correlation_row(env_name, xyz))
+        pooled.append(np.stack([(rankdata(c) - 1) / (len(c) - 1) for c in xyz.T], axis=1))
+    if len(out) > 1:
+        out.append(correlation_row("all (ranks within task)", np.concatenate(pooled)))
+    return out
+
+
+def correlation_row(name, xyz):
+    """One correlation.csv row of [n, 3] (sensitivity, mean retained fraction, nominal score)."""
     from scipy.stats import spearmanr
 
-    envs_ = sorted({r["env"] for r in sens})
-    out, pooled_x, pooled_y = [], [], []
-    for env_name in envs_:
-        x = np.array([float(r["sensitivity"]) for r in sens if r["env"] == env_name])
-        y = np.array([float(r["mean_retained_fraction"]) for r in sens if r["env"] == env_name])
-        ok = np.isfinite(x) & np.isfinite(y)
-        if ok.sum() < 3:
-            continue
-        rho, p = spearmanr(x[ok], y[ok])
-        out.append({"env": env_name, "controllers": int(ok.sum()), "spearman_rho": round(float(rho), 3), "p_value": float(f"{p:.3g}")})
-        pooled_x += list(np.argsort(np.argsort(x[ok])) / (ok.sum() - 1))
-        pooled_y += list(np.argsort(np.argsort(y[ok])) / (ok.sum() - 1))
-    if len(out) > 1:
-        rho, p = spearmanr(pooled_x, pooled_y)
-        out.append({"env": "all (ranks within task)", "controllers": len(pooled_x), "spearman_rho": round(float(rho), 3),
-                    "p_value": float(f"{p:.3g}")})
-    return out
+    from gsa_jax.analysis.fairness import partial_spearman
+
+    rho, p = spearmanr(xyz[:, 0], xyz[:, 1])
+    row = {"env": name, "controllers": len(xyz), "spearman_rho": round(float(rho), 3), "p_value": float(f"{p:.3g}"),
+           "partial_rho_given_nominal": "", "partial_p_value": ""}
+    if np.isfinite(xyz[:, 2]).all() and len(xyz) > 3:
+        prho, pp = partial_spearman(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+        row.update(partial_rho_given_nominal=round(prho, 3), partial_p_value=float(f"{pp:.3g}"))
+    return row
 
 
 def plot_robustness(agg, path):
@@ -257,27 +271,37 @@ def profile_scores(rows, action_dims):
     return {(c,): (tasks, np.array([[np.mean(v) for v in list(per[c][t].values())[:n]] for t in tasks]).T) for c in per}
 
 
-def write_settings(out, shifts, episodes):
-    """robustness.json: the shifts, episodes, start seeds and push rate, versions and commit; a re-run into
-    the same OUT with other settings is refused (its rows would not be comparable)."""
+def write_settings(out, shifts, episodes, pushes=None):
+    """robustness.json: the shifts, episodes, start seeds, push rate and paired pushes ({sizes, windows,
+    per_episode}), versions and commit; a re-run into the same OUT with other settings is refused (its rows
+    would not be comparable). A setting the file lacks (an evaluation made before it existed) is added, with
+    the versions and commit that add it under 'added'."""
     from gsa_jax.running.checkpoint import write_atomic
 
     settings = {"shifts": [list(s) for s in shifts], "episodes": episodes, "start_seeds": [START_SEED, START_SEED + episodes],
                 "push_rate": PUSH_RATE}
+    if pushes:
+        settings["paired_pushes"] = {k: list(v) if isinstance(v, tuple) else v for k, v in pushes.items()}
     path = os.path.join(out, "robustness.json")
-    if os.path.exists(path):
-        with open(path) as f:
-            old = json.load(f)
-        if {k: old.get(k) for k in settings} != settings:
-            raise RobustnessError(f"{out} holds an evaluation with other settings ({ {k: old.get(k) for k in settings} }); use another --out")
-    write_atomic(path, json.dumps({**settings, **run_metadata()}, indent=1))
+    if not os.path.exists(path):
+        return write_atomic(path, json.dumps({**settings, **run_metadata()}, indent=1))
+    with open(path) as f:
+        old = json.load(f)
+    held = {k: old[k] for k in settings if k in old}
+    if any(held[k] != settings[k] for k in held):
+        raise RobustnessError(f"{out} holds an evaluation with other settings ({held}); use another --out")
+    new = [k for k in settings if k not in old]
+    if new:
+        added = {**old.get("added", {}), **{k: run_metadata() for k in new}}
+        write_atomic(path, json.dumps({**old, **{k: settings[k] for k in new}, "added": added}, indent=1))
 
 
-def analyse(rows, sens, out, reps=stats.REPS, log=print):
-    """aggregate.csv, correlation.csv, robustness.png, profile.png from the tidy rows."""
+def analyse(rows, sens, out, reps=stats.REPS, log=print, events=(), nominal=(), windows=()):
+    """aggregate.csv, correlation.csv, robustness.png, profile.png from the tidy rows; with the paired
+    pushes' events and nominal rows also paired_pushes.csv, pushes.png and fair.csv."""
     agg = aggregate(rows, reps)
     write_csv(os.path.join(out, "aggregate.csv"), agg)
-    corr = correlations(sens)
+    corr = correlations(sens, rows)
     if corr:
         write_csv(os.path.join(out, "correlation.csv"), corr)
     plot_robustness(agg, os.path.join(out, "robustness.png"))
@@ -286,6 +310,29 @@ def analyse(rows, sens, out, reps=stats.REPS, log=print):
         plot_profiles(scores, os.path.join(out, "profile.png"), reps,
                       xlabel="tau: a run's mean retained fraction over the shifts (1 = its nominal score, 0 = random)")
     for c in corr:
-        log(f"sensitivity vs retained fraction, {c['env']}: Spearman rho {c['spearman_rho']} (p {c['p_value']}, "
-            f"{c['controllers']} controllers)")
+        log(f"sensitivity vs retained fraction, {c['env']}: Spearman rho {c['spearman_rho']} (p {c['p_value']}; "
+            f"given nominal score {c['partial_rho_given_nominal']}, p {c['partial_p_value']}; {c['controllers']} controllers)")
+    if events:
+        analyse_pairs(rows, out, reps, events, nominal, windows, log)
     return agg, corr
+
+
+def analyse_pairs(rows, out, reps, events, nominal, windows, log):
+    """paired_pushes.csv (and paired_pushes_early.csv: pushes before step EARLY_PUSHES only, where the counted
+    pushes of controllers that fall early and of those that do not come from the same part of the episode),
+    pushes.png, fair.csv (gsa_jax.analysis.paired, .fairness), and how far the paired pushes' control
+    episodes' scores are from the nominal scores of the shifts' evaluation."""
+    from gsa_jax.analysis.fairness import fair_rows
+    from gsa_jax.analysis.paired import aggregate_pushes, plot_pushes
+
+    pushes = aggregate_pushes(events, windows, reps)
+    write_csv(os.path.join(out, "paired_pushes.csv"), pushes)
+    early = [r for r in events if int(r["time"]) < EARLY_PUSHES]  # the same pushes where every controller still stands
+    write_csv(os.path.join(out, "paired_pushes_early.csv"), aggregate_pushes(early, windows, reps))
+    plot_pushes(pushes, os.path.join(out, "pushes.png"))
+    write_csv(os.path.join(out, "fair.csv"), fair_rows(rows, nominal, reps))
+    held = {controller_key(r): float(r["nominal_score"]) for r in rows if r["shift"] == "nominal"}
+    diffs = [abs(float(r["nominal_score"]) - held[controller_key(r)]) for r in nominal if controller_key(r) in held]
+    if diffs:
+        log(f"paired pushes' control episodes vs the shifts' nominal scores: largest difference {max(diffs):.3g} "
+            f"over {len(diffs)} controllers")

@@ -23,7 +23,7 @@ from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.trained import path_part
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
-               "eval_every", "eval_seed", "hparams", "config")
+               "eval_every", "eval_seed", "hparams", "hparam_sets", "config")
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
 # Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
 # the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
@@ -54,6 +54,7 @@ class SweepSpec:
     chunk: int | None = None
     eval_every: int | None = None
     eval_seed: int | None = None
+    hparam_sets: tuple | None = None  # ({name: value}, ...): configurations, each run with every hparams combination
 
     def to_json(self):
         """The spec as sweep.json stores it: the file's fields (lists), absent ones left out."""
@@ -63,11 +64,23 @@ class SweepSpec:
             if v is not None:
                 out[field] = list(v) if isinstance(v, tuple) else v
         out["hparams"] = {k: list(v) for k, v in self.hparams.items()}
+        if self.hparam_sets is not None:
+            out["hparam_sets"] = [dict(c) for c in self.hparam_sets]
         return out
 
+    def set_names(self):
+        """The hyperparameters the hparam_sets give (each set gives all of them)."""
+        return list(self.hparam_sets[0]) if self.hparam_sets else []
+
+    def run_hparam_names(self):
+        """Every hyperparameter a run row carries: the hparams table's and the sets'."""
+        return list(self.hparams) + self.set_names()
+
     def swept_names(self):
-        """The hyperparameters with more than one value (a column each)."""
-        return [k for k, v in self.hparams.items() if len(v) > 1]
+        """The hyperparameters with more than one value (a column each); with hparam_sets, 'hparam_set' (the
+        set's index) and every name the sets give."""
+        sets = ["hparam_set", *self.set_names()] if self.hparam_sets else []
+        return [k for k, v in self.hparams.items() if len(v) > 1] + sets
 
     def id_columns(self):
         """Columns that identify a run in runs.csv and the tidy metrics.csv."""
@@ -125,6 +138,8 @@ def check_spec(raw, source="spec"):
     spec["seeds"] = check_seeds(spec.get("seeds", 1), bad)
     check_counts(spec, bad)
     spec["hparams"] = check_hparams_table(spec.get("hparams", {}), bad)
+    if "hparam_sets" in spec:
+        spec["hparam_sets"] = check_hparam_sets(spec["hparam_sets"], spec["hparams"], bad)
     spec["config"] = check_config_table(spec.get("config", {}), spec["envs"], bad)
     check_group_axes(spec, bad)
     return SweepSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
@@ -243,6 +258,25 @@ def check_hparams_table(hps, bad):
     return out
 
 
+def check_hparam_sets(sets, hparams, bad):
+    """hparam_sets: a non-empty list of tables, each giving the same hyperparameters (none of the hparams
+    table's), numbers in range -> tuple of dicts."""
+    if not isinstance(sets, list) or not sets or not all(isinstance(c, dict) and c for c in sets):
+        bad("hparam_sets", "must be a non-empty list of non-empty tables ([[hparam_sets]] name = value)")
+    names = list(sets[0])
+    for i, c in enumerate(sets):
+        if sorted(c) != sorted(names):
+            bad(f"hparam_sets[{i}]", f"gives {sorted(c)}; every set must give the same hyperparameters as the first, {sorted(names)}")
+        for k, v in c.items():
+            if k in hparams:
+                bad(f"hparam_sets[{i}].{k}", "is also in the hparams table; give it in one place")
+            if not isinstance(v, (int, float)) or isinstance(v, bool):
+                bad(f"hparam_sets[{i}].{k}", f"must be a number, got {v!r}")
+            checked = check_hparams_table({k: v}, lambda field, msg, i=i: bad(f"hparam_sets[{i}].{field[8:]}", msg))
+            c[k] = checked[k][0]
+    return tuple(dict((k, c[k]) for k in names) for c in sets)
+
+
 # ----------------------------------------------------------------------------------------------- the grid
 def cluster_count(multiplier, action_dim):
     """K of a cluster multiplier m on a task with action_dim actions: ceil(m * action_dim), at least 1."""
@@ -262,7 +296,8 @@ def axis_values(spec, axis, policy):
 def build_grid(spec):
     """[Group]: every combination of K x swept hparams x seed exactly once, per group."""
     names = list(spec.hparams)
-    combos = list(itertools.product(*(spec.hparams[n] for n in names))) or [()]
+    sets = [{"hparam_set": i, **c} for i, c in enumerate(spec.hparam_sets)] if spec.hparam_sets else [{}]
+    combos = [(combo, c) for combo in itertools.product(*(spec.hparams[n] for n in names)) for c in sets]
     groups = []
     for env_name in spec.envs:
         for policy in spec.policies:
@@ -271,10 +306,10 @@ def build_grid(spec):
                 axes = {axis[1]: v for axis, v in zip(GROUP_AXES, values) if v is not None}
                 runs = []
                 for k in ks:
-                    for combo in combos:
+                    for combo, chosen in combos:
                         for seed in spec.seeds:
                             runs.append({"run": len(runs), "env": env_name, "policy": policy, **axes,
-                                         "K": k, "seed": seed, **dict(zip(names, combo))})
+                                         "K": k, "seed": seed, **dict(zip(names, combo)), **chosen})
                 groups.append(Group(env_name, policy, runs))
     return groups
 

@@ -102,7 +102,7 @@ def run_group(spec, out, group, ctx):
     t0 = time.perf_counter()
     shape = GroupShape(cfg, chunk, tuple(ctx.devices), ctx.options.run_batch)
     runs = pad_runs(group.runs, len(ctx.devices), at_least=ctx.pad_to)
-    program = group_program(shape, GroupRuns(runs, list(spec.hparams), iterations),
+    program = group_program(shape, GroupRuns(runs, spec.run_hparam_names(), iterations),
                             (spec.eval_seed or 0) if eval_every else None, ctx.share, ctx.log)
     tag = name.replace(f"{group.env}-", f"{group.env}/", 1)
     ctx.log(f"[{tag}] {len(group.runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
@@ -123,7 +123,7 @@ def write_group_record(gdir, spec, cfg, runs, schedule):
     run's seed and full hyperparameters (gsa_jax.running.trained reads a run's settings from it), physics,
     versions and commit. schedule: (iterations, chunk, eval_every)."""
     iterations, chunk, eval_every = schedule
-    per_run = [{"seed": r["seed"], "hparams": {**HPARAM_DEFAULTS, **{n: r[n] for n in spec.hparams}, "K": r["K"],
+    per_run = [{"seed": r["seed"], "hparams": {**HPARAM_DEFAULTS, **{n: r[n] for n in spec.run_hparam_names()}, "K": r["K"],
                                                "total_iterations": iterations}} for r in runs]
     record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, "eval_every": eval_every,
               "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,

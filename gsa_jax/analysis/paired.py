@@ -1,0 +1,160 @@
+"""Paired pushes (gsa_jax.deployment.pushes) over many controllers: the evaluation driver (resumable, one
+controller at a time), each controller's fall probability per push and return lost, and per configuration
+their IQM and P(a mixture falls less than flat PPO) with rliable's intervals; `python -m gsa_jax.robustness`
+runs it beside the shifts."""
+
+import csv
+import gzip
+import io
+import math
+import os
+
+import numpy as np
+
+from gsa_jax.analysis import stats
+from gsa_jax.deployment.pushes import evaluate_pushes
+
+KEY = ("env", "policy", "K", "seed")
+NOMINAL = KEY + ("nominal_score", "mean_length", "full_length_fraction", "episodes")
+
+
+def event_columns(windows):
+    """The column order of pushes.csv.gz."""
+    per = [f"{c}_W{w}" for w in windows for c in ("counted", "fell", "lost")]
+    return KEY + ("start_seed", "event", "time", "size", "control_fall", "branch_fall", *per)
+
+
+def read_rows(path):
+    """Rows (dicts of strings) of a CSV file, gzipped if its name ends in .gz; [] if it does not exist."""
+    if not os.path.exists(path):
+        return []
+    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
+        return list(csv.DictReader(f))
+
+
+def write_gz(path, rows, columns):
+    """rows as a gzipped CSV, written atomically (a fixed mtime: the same rows give the same bytes)."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns)
+    w.writeheader()
+    w.writerows(rows)
+    tmp = path + ".tmp"
+    with open(tmp, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as f:
+        f.write(buf.getvalue().encode())
+    os.replace(tmp, path)
+
+
+def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m, flush=True)):
+    """Paired pushes of every controller not yet in OUT/nominal.csv -> (event rows, nominal rows); both
+    files are rewritten after every controller. settings: {sizes, windows, per_episode}."""
+    from gsa_jax.analysis.results import write_csv
+    from gsa_jax.analysis.retention import controller_key
+
+    ev_path, nom_path = os.path.join(out, "pushes.csv.gz"), os.path.join(out, "nominal.csv")
+    events, nominal = read_rows(ev_path), read_rows(nom_path)
+    done = {controller_key(r) for r in nominal}
+    for i, (path, meta, ctrl) in enumerate(controllers):
+        if controller_key(meta) in done:
+            continue
+        rows, nom = evaluate_pushes(ctrl, meta["env"], seeds, settings["sizes"], settings["windows"], settings["per_episode"])
+        events += [{**meta, **r} for r in rows]
+        nominal.append({**meta, **nom})
+        write_gz(ev_path, events, event_columns(settings["windows"]))
+        write_csv(nom_path, nominal, NOMINAL)
+        falls = sum(int(r[f"fell_W{max(settings['windows'])}"]) for r in rows)
+        counted = sum(int(r[f"counted_W{max(settings['windows'])}"]) for r in rows)
+        log(f"[{i + 1}/{len(controllers)}] {os.path.basename(path)}: paired pushes, nominal {nom['nominal_score']:.1f} "
+            f"(mean length {nom['mean_length']:.0f}), {falls} falls in {counted} counted pushes")
+    return events, nominal
+
+
+def per_controller(events, windows):
+    """{(env, policy, K, seed, size, W): (counted pushes, fall probability, mean return lost)}: a controller's
+    falls per counted push (NaN where none counted) and the mean return a counted push cost it."""
+    acc = {}
+    for r in events:
+        for w in windows:
+            if not int(r[f"counted_W{w}"]):
+                continue
+            key = tuple(str(r[k]) for k in KEY) + (float(r["size"]), int(w))
+            a = acc.setdefault(key, [0, 0, 0.0])
+            a[0] += 1
+            a[1] += int(r[f"fell_W{w}"])
+            a[2] += float(r[f"lost_W{w}"])
+    return {k: (n, f / n, lost / n) for k, (n, f, lost) in acc.items()}
+
+
+def group(per, events, windows):
+    """{(env, policy, K, size, W): {seed: (counted, fall prob, lost)}}, every controller of the events
+    included (one with no counted push as (0, NaN, NaN))."""
+    out = {}
+    ctrls = {tuple(str(r[k]) for k in KEY) for r in events}
+    sizes = sorted({float(r["size"]) for r in events})
+    for c in ctrls:
+        for size in sizes:
+            for w in windows:
+                cell = out.setdefault((c[0], c[1], c[2], size, int(w)), {})
+                cell[c[3]] = per.get(c + (size, int(w)), (0, math.nan, math.nan))
+    return out
+
+
+def aggregate_pushes(events, windows, reps=stats.REPS):
+    """paired_pushes.csv rows: per task x configuration x push size x window, the controllers with a counted
+    push, counted pushes per controller, IQM [CI] of the fall probability and of the return lost per push,
+    P(a mixture falls less / loses less than flat PPO) [CI] (ties count half: two that never fall tie)."""
+    cells = group(per_controller(events, windows), events, windows)
+    col = lambda c, j: np.array([v[j] for v in cells[c].values()], float)  # noqa: E731
+    fin = lambda x: x[np.isfinite(x)][:, None]  # noqa: E731
+    fall = stats.iqm_ci({str(c): fin(col(c, 1)) for c in cells if np.isfinite(col(c, 1)).any()}, reps=reps)
+    lost = stats.iqm_ci({str(c): fin(col(c, 2)) for c in cells if np.isfinite(col(c, 2)).any()}, reps=reps)
+    flat = lambda c: (c[0], "mlp", "", c[3], c[4])  # noqa: E731
+    ok = [c for c in cells if c[1] == "mixture" and flat(c) in cells and len(fin(col(c, 1))) and len(fin(col(flat(c), 1)))]
+    p_fall = stats.improvement_probability({str(c): (-fin(col(c, 1)), -fin(col(flat(c), 1))) for c in ok}, reps=reps) if ok else {}
+    p_lost = stats.improvement_probability({str(c): (-fin(col(c, 2)), -fin(col(flat(c), 2))) for c in ok}, reps=reps) if ok else {}
+    r3 = lambda v: round(float(v), 4) if np.isfinite(v) else ""  # noqa: E731
+    rows = []
+    for c in sorted(cells, key=lambda c: (c[0], c[3], c[4], c[1] != "mlp", int(c[2] or 0))):
+        n = col(c, 0)
+        f, lo, pf, pl = (fall.get(str(c), (math.nan,) * 3), lost.get(str(c), (math.nan,) * 3),
+                         p_fall.get(str(c), (math.nan,) * 3), p_lost.get(str(c), (math.nan,) * 3))
+        rows.append({"env": c[0], "policy": c[1], "K": c[2], "size": c[3], "window": c[4], "controllers": len(n),
+                     "controllers_counted": int((n > 0).sum()), "counted_per_controller": r3(n.mean()),
+                     "fall_iqm": r3(f[0]), "fall_ci_low": r3(f[1]), "fall_ci_high": r3(f[2]),
+                     "lost_iqm": r3(lo[0]), "lost_ci_low": r3(lo[1]), "lost_ci_high": r3(lo[2]),
+                     "p_falls_less_than_flat_ppo": r3(pf[0]), "p_fall_ci_low": r3(pf[1]), "p_fall_ci_high": r3(pf[2]),
+                     "p_loses_less_than_flat_ppo": r3(pl[0]), "p_lost_ci_low": r3(pl[1]), "p_lost_ci_high": r3(pl[2])})
+    return rows
+
+
+def plot_pushes(agg, path):
+    """Per task (rows) and window (columns): fall probability per counted push (IQM, 95% CI) against push
+    size, flat PPO and each K; tasks where no controller ever falls show the return lost per push."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    env_names = list(dict.fromkeys(r["env"] for r in agg))
+    windows = sorted({int(r["window"]) for r in agg})
+    fig, axes = plt.subplots(len(env_names), len(windows), figsize=(3.6 * len(windows), 2.9 * len(env_names)), squeeze=False)
+    for i, env_name in enumerate(env_names):
+        rows = [r for r in agg if r["env"] == env_name]
+        falls = any(r["fall_iqm"] not in ("", 0, 0.0) for r in rows)
+        what, label = ("fall", "P(fall) per counted push") if falls else ("lost", "return lost per push")
+        for j, w in enumerate(windows):
+            ax = axes[i, j]
+            for policy, k in dict.fromkeys((r["policy"], r["K"]) for r in rows):
+                pts = [r for r in rows if (r["policy"], r["K"], int(r["window"])) == (policy, k, w) and r[f"{what}_iqm"] != ""]
+                x = np.array([float(r["size"]) for r in pts])
+                y = np.array([r[f"{what}_iqm"] for r in pts], float)
+                err = np.array([[r[f"{what}_iqm"] - r[f"{what}_ci_low"], r[f"{what}_ci_high"] - r[f"{what}_iqm"]] for r in pts], float).T
+                ax.errorbar(x, y, yerr=err if len(pts) else None, marker="o", ms=3, capsize=2, color="k" if policy == "mlp" else None,
+                            label="flat PPO" if policy == "mlp" else f"K = {k}")
+            ax.set(title=f"{env_name}, W = {w} steps", xlabel="push (m/s)", ylabel=label)
+            ax.grid(alpha=0.3)
+        axes[i, 0].legend(fontsize=7)
+    fig.suptitle("Paired pushes: each push against the same episode without it, counted where that episode survives W steps",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,148 @@
+"""An equal tuning budget for flat PPO and the mixtures: every policy class of a tuning file gets the same
+number of configurations drawn from its stated ranges (the first the defaults), trained on the tuning seeds;
+the best by IQM of the final deterministic score is trained on the evaluation seeds:
+
+    python -m gsa_jax.tune TUNING.toml --out DIR [--phase tune|evaluate|all] [--baseline SWEEP_DIR ...]
+
+(gsa_jax.running.tuning says what a tuning file holds.) Per class under DIR/<class>/: tuning.toml and the
+tuning sweep (tuning/), selection.csv (every configuration's tuning scores, best first), evaluation.toml and
+its sweep (evaluation/). DIR/tuning.csv: per class the chosen configuration, its evaluation IQM [95% CI] and
+P(beats the flat PPO class) [CI]; with --baseline (sweep directories holding the same env, policy and K at
+the defaults on the evaluation seeds, e.g. Figure 1's) the defaults' IQM and P next to them. Each sweep is
+gsa_jax.sweep's (resumable: run the same command again); a phase already done is not run twice.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+from gsa_jax.analysis import stats
+from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, write_csv
+from gsa_jax.running.spec import SpecError
+from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, select, to_toml
+
+
+def run_phase(spec, cls, phase, sets, out, sweep_args):
+    """Write DIR/<class>/<phase>.toml and run its sweep into DIR/<class>/<phase>/ -> gsa_jax.sweep's status."""
+    from gsa_jax import sweep
+
+    cdir = os.path.join(out, cls)
+    os.makedirs(cdir, exist_ok=True)
+    path = os.path.join(cdir, f"{phase}.toml")
+    what = "every configuration on the tuning seeds" if phase == "tuning" else "the chosen configuration on the evaluation seeds"
+    with open(path, "w") as f:
+        f.write(to_toml(class_experiment(spec, cls, phase, sets), f"{spec.name}, class {cls}: {what} (written by gsa_jax.tune)"))
+    return sweep.main([path, "--out", os.path.join(cdir, phase), *sweep_args])
+
+
+def cell_scores(sweep_dir):
+    """{hparam_set (int, or None without sets): [final scores in seed order]} of a one-cell-per-set sweep."""
+    out = {}
+    for cell, (scores, _) in final_scores(load_sweep(sweep_dir)).items():
+        cols = dict(cell[3:])
+        out[int(cols["hparam_set"]) if "hparam_set" in cols else None] = list(scores)
+    return out
+
+
+def choose(spec, cls, out):
+    """selection.csv of a class's finished tuning sweep -> the chosen configuration {knob: value}."""
+    sets = draw_configurations(spec, cls)
+    rows = select(cell_scores(os.path.join(out, cls, "tuning")), sets, spec.tuning_seeds)
+    write_csv(os.path.join(out, cls, "selection.csv"), rows)
+    if rows[0]["tuning_iqm"] == "":
+        raise SpecError(f"class {cls}: no configuration finished every tuning run with a finite score")
+    return {k: rows[0][k] for k in sets[0]}, rows[0]["hparam_set"]
+
+
+def baseline_scores(dirs, env_name, classes):
+    """{class: [scores]} of the default configuration of each class in Figure-1 style sweeps (cells without
+    swept columns), {} without dirs."""
+    if not dirs:
+        return {}
+    scores = final_scores(load_sweeps(dirs))
+    return {cls: list(scores[(env_name, c["policy"], c["K"])][0]) for cls, c in classes.items()
+            if (env_name, c["policy"], c["K"]) in scores}
+
+
+def report(spec, out, chosen, baseline, reps=stats.REPS):
+    """DIR/tuning.csv rows: per class the chosen set, evaluation IQM [CI], P(> the flat class) [CI], and the
+    defaults' (baseline) IQM [CI] and P where given."""
+    evaluated = {cls: np.asarray(cell_scores(os.path.join(out, cls, "evaluation"))[None], float) for cls in chosen}
+    flat = next((c for c in spec.classes if spec.classes[c]["policy"] == "mlp"), None)
+    iqm = stats.iqm_ci({c: v[:, None] for c, v in evaluated.items()}, reps=reps)
+    base = stats.iqm_ci({c: np.asarray(v, float)[:, None] for c, v in baseline.items()}, reps=reps) if baseline else {}
+    pairs = lambda d: {c: (np.asarray(d[c], float)[:, None], np.asarray(d[flat], float)[:, None])  # noqa: E731
+                       for c in d if c != flat and flat in d}
+    p_tuned = stats.improvement_probability(pairs(evaluated), reps=reps) if flat in evaluated else {}
+    p_base = stats.improvement_probability(pairs(baseline), reps=reps) if flat in baseline else {}
+    r1 = lambda t, i: round(t[i], 3) if t else ""  # noqa: E731
+    rows = []
+    for cls, (knobs, index) in chosen.items():
+        c = spec.classes[cls]
+        rows.append({"env": spec.env, "class": cls, "policy": c["policy"], "K": c["K"] if c["policy"] == "mixture" else "",
+                     "chosen_set": index, "chosen": json.dumps(knobs), "runs": len(evaluated[cls]),
+                     "tuned_iqm": r1(iqm[cls], 0), "tuned_ci_low": r1(iqm[cls], 1), "tuned_ci_high": r1(iqm[cls], 2),
+                     "p_tuned_above_flat": r1(p_tuned.get(cls), 0), "p_tuned_ci_low": r1(p_tuned.get(cls), 1),
+                     "p_tuned_ci_high": r1(p_tuned.get(cls), 2), "default_iqm": r1(base.get(cls), 0),
+                     "default_ci_low": r1(base.get(cls), 1), "default_ci_high": r1(base.get(cls), 2),
+                     "p_default_above_flat": r1(p_base.get(cls), 0), "p_default_ci_low": r1(p_base.get(cls), 1),
+                     "p_default_ci_high": r1(p_base.get(cls), 2)})
+    write_csv(os.path.join(out, "tuning.csv"), rows)
+    return rows
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.tune", description=__doc__.split("\n")[0])
+    p.add_argument("tuning", help="tuning file (TOML; gsa_jax.running.tuning)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--phase", choices=("tune", "evaluate", "all"), default="all",
+                   help="tune: the tuning sweeps and selection only; evaluate: the chosen configurations (after tune)")
+    p.add_argument("--baseline", nargs="*", default=[], help="sweep directories with the defaults on the evaluation seeds")
+    p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
+    p.add_argument("--sweep-args", default="--no-tensorboard", help="flags passed to each gsa_jax.sweep (default %(default)s)")
+    args = p.parse_args(argv)
+    try:
+        spec = load_tuning(args.tuning)
+        for d in args.baseline:
+            if not os.path.isdir(d):
+                raise SpecError(f"--baseline {d!r} is not a directory")
+    except SpecError as e:
+        print(f"gsa_jax.tune: error: {e}", file=sys.stderr)
+        return 2
+    return run_tuning(spec, args)
+
+
+def run_tuning(spec, args):
+    """The phases in order, stopping at the first sweep that does not finish (its status)."""
+    sweep_args = args.sweep_args.split()
+    chosen = {}
+    try:
+        for cls in spec.classes:
+            if args.phase in ("tune", "all"):
+                status = run_phase(spec, cls, "tuning", draw_configurations(spec, cls), args.out, sweep_args)
+                if status:
+                    return status
+            chosen[cls] = choose(spec, cls, args.out)
+            print(f"{spec.name}, class {cls}: chose configuration {chosen[cls][1]}: {chosen[cls][0]}", flush=True)
+        if args.phase == "tune":
+            return 0
+        for cls, (knobs, _) in chosen.items():
+            status = run_phase(spec, cls, "evaluation", [knobs], args.out, sweep_args)
+            if status:
+                return status
+        rows = report(spec, args.out, chosen, baseline_scores(args.baseline, spec.env, spec.classes), args.reps)
+    except (SpecError, FileNotFoundError, KeyError) as e:
+        print(f"gsa_jax.tune: error: {e}", file=sys.stderr)
+        return 2
+    for r in rows:
+        print(f"{r['env']} {r['class']}: tuned IQM {r['tuned_iqm']} [{r['tuned_ci_low']}, {r['tuned_ci_high']}]"
+              + (f", defaults {r['default_iqm']}" if r["default_iqm"] != "" else ""))
+    print(f"wrote {os.path.join(args.out, 'tuning.csv')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
