@@ -88,7 +88,7 @@ def group(per, events, windows):
     """{(env, policy, K, size, W): {seed: (counted, fall prob, lost)}}, every controller of the events
     included (one with no counted push as (0, NaN, NaN))."""
     out = {}
-    ctrls = {tuple(str(r[k]) for k in KEY) for r in events}
+    ctrls = sorted({tuple(str(r[k]) for k in KEY) for r in events})  # sorted: rliable's resamples follow the cells' order
     sizes = sorted({float(r["size"]) for r in events})
     for c in ctrls:
         for size in sizes:
