@@ -110,14 +110,18 @@ def load_spec(path):
     if os.path.isdir(path):
         candidates = [os.path.join(path, n) for n in ("sweep.toml", os.path.basename(path.rstrip("/")) + ".toml")]
         path = next((c for c in candidates if os.path.exists(c)), path)
+    return check_spec(read_toml(path, "experiment file"), source=path)
+
+
+def read_toml(path, what):
+    """A TOML file's contents; SpecError in one line if it does not exist or does not parse."""
     if not os.path.exists(path):
-        raise SpecError(f"{path}: no such experiment file")
+        raise SpecError(f"{path}: no such {what}")
     try:
         with open(path, "rb") as f:
-            raw = tomllib.load(f)
+            return tomllib.load(f)
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{path}: not valid TOML: {e}") from None
-    return check_spec(raw, source=path)
 
 
 def check_spec(raw, source="spec"):

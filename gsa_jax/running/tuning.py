@@ -24,14 +24,12 @@ A tuning file (TOML):
 
 import dataclasses
 import math
-import os
-import tomllib
 
 import numpy as np
 
 import envs
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, check_hparam
-from gsa_jax.running.spec import NAME_PATTERN, SpecError, check_config_table, cluster_count
+from gsa_jax.running.spec import NAME_PATTERN, SpecError, check_config_table, cluster_count, read_toml
 
 FIELDS = ("name", "env", "configurations", "draw_seed", "tuning_seeds", "tuning_steps", "evaluation_seeds",
           "evaluation_steps", "config", "classes")
@@ -59,14 +57,7 @@ class TuningSpec:
 
 def load_tuning(path):
     """Read and check a tuning file; TuningSpec, or SpecError naming the file and the bad field."""
-    if not os.path.exists(path):
-        raise SpecError(f"{path}: no such tuning file")
-    try:
-        with open(path, "rb") as f:
-            raw = tomllib.load(f)
-    except tomllib.TOMLDecodeError as e:
-        raise SpecError(f"{path}: not valid TOML: {e}") from None
-    return check_tuning(raw, path)
+    return check_tuning(read_toml(path, "tuning file"), path)
 
 
 def check_tuning(raw, source="tuning"):
