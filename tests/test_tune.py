@@ -110,3 +110,11 @@ def test_tuning_selects_evaluates_and_a_vmapped_configuration_equals_it_alone(tm
         np.testing.assert_allclose([float(r[col]) for r in rows], np.asarray(m[col], np.float64), rtol=2e-3, atol=1e-5, err_msg=col)
     capsys.readouterr()
     assert main(args) == 0 and "chose configuration" in capsys.readouterr().out  # a re-run trains nothing again
+
+
+def test_a_configuration_of_a_set_is_named_by_its_index():
+    from gsa_jax.running.trained import run_label
+
+    row = {"env": "Walker2d-v5", "policy": "mixture", "K": 6, "seed": 1000, "run": 0, "gamma": 0.99, "hparam_set": 3,
+           **{f"lr_scale_{g}": 2.0 for g in ("partition", "L", "b", "log_sigma", "critic")}}
+    assert run_label(row) == "Walker2d-v5-mixture-K6-gamma=0.99-hparam_set=3-s1000"

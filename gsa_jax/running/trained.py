@@ -59,11 +59,15 @@ def path_part(name):
 
 def run_label(row):
     """A run's name in file, TensorBoard and address names, from its grid row or runs.csv row (the same name):
-    env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...]-s<seed>."""
+    env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...][-hparam_set=<i>]-s<seed>. The hyperparameters
+    of a set (the columns after 'hparam_set') are named by the set's index alone: a file name stays short."""
     fixed = ("env", "policy", "K", "seed", "run")
     parts = [path_part(row["env"]), row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
-    parts += [f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v)
-              for c, v in row.items() if c not in fixed and v not in ("", None)]
+    for c, v in row.items():
+        if c not in fixed and v not in ("", None):
+            parts.append(f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v))
+            if c == "hparam_set":
+                break
     return "-".join(parts + [f"s{row['seed']}"])
 
 
