@@ -22,7 +22,22 @@ import numpy as np
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, write_csv
 from gsa_jax.running.spec import SpecError
-from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, select, to_toml
+from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, to_toml
+
+
+def select(scores, sets, seeds):
+    """selection.csv rows, best first: per configuration its knobs, its runs' final scores on the tuning seeds
+    and their IQM; a configuration with a failed (non-finite) run ranks last. scores: {set index: [scores]}."""
+    rows = []
+    for i, s in enumerate(sets):
+        got = np.asarray(scores.get(i, []), float)
+        ok = len(got) == len(seeds) and np.isfinite(got).all()
+        rows.append({"hparam_set": i, **s, "tuning_runs": len(got), "tuning_iqm": round(stats.iqm(got[:, None]), 3) if ok else "",
+                     "tuning_scores": " ".join(f"{v:.1f}" for v in got)})
+    rows.sort(key=lambda r: (r["tuning_iqm"] == "", -(r["tuning_iqm"] or 0.0), r["hparam_set"]))
+    for rank, r in enumerate(rows, 1):
+        r["rank"] = rank
+    return rows
 
 
 def run_phase(spec, cls, phase, sets, out, sweep_args):

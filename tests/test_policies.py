@@ -239,7 +239,7 @@ def test_init_properties(mix16):
 
 def test_mlp_policy_log_prob_matches_numpy():
     pol = make_policy("mlp", D_S, D_A)
-    params = pol.init(jax.random.PRNGKey(0), {})
+    params = pol.init(jax.random.PRNGKey(0), make_hparams(init_log_std=0.0))
     params["log_std"] = jnp.asarray([-0.5, 0.0, 0.3])
     rng = np.random.default_rng(3)
     obs, act = rng.normal(size=D_S), rng.normal(size=D_A)

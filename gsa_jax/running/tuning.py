@@ -1,6 +1,6 @@
 """An equal tuning budget for every policy class: the tuning file checked once into a TuningSpec, each
 class's configurations drawn from its stated ranges, the experiment files of the tuning and evaluation
-sweeps, and the selection by IQM over the tuning seeds; `python -m gsa_jax.tune` is its command.
+sweeps; `python -m gsa_jax.tune` (which selects by IQM over the tuning seeds) is its command.
 
 A tuning file (TOML):
 
@@ -214,20 +214,3 @@ def class_experiment(spec, class_name, phase, sets):
     else:
         out["hparams"] = dict(sets[0])
     return out
-
-
-def select(scores, sets, seeds):
-    """selection.csv rows, best first: per configuration its knobs, its runs' final scores on the tuning seeds
-    and their IQM; a configuration with a failed (non-finite) run ranks last. scores: {set index: [scores]}."""
-    from gsa_jax.analysis import stats
-
-    rows = []
-    for i, s in enumerate(sets):
-        got = np.asarray(scores.get(i, []), float)
-        ok = len(got) == len(seeds) and np.isfinite(got).all()
-        rows.append({"hparam_set": i, **s, "tuning_runs": len(got), "tuning_iqm": round(stats.iqm(got[:, None]), 3) if ok else "",
-                     "tuning_scores": " ".join(f"{v:.1f}" for v in got)})
-    rows.sort(key=lambda r: (r["tuning_iqm"] == "", -(r["tuning_iqm"] or 0.0), r["hparam_set"]))
-    for rank, r in enumerate(rows, 1):
-        r["rank"] = rank
-    return rows
