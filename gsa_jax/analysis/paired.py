@@ -24,14 +24,6 @@ def event_columns(windows):
     return KEY + ("start_seed", "event", "time", "size", "control_fall", "branch_fall", *per)
 
 
-def read_rows(path):
-    """Rows (dicts of strings) of a CSV file, gzipped if its name ends in .gz; [] if it does not exist."""
-    if not os.path.exists(path):
-        return []
-    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
-        return list(csv.DictReader(f))
-
-
 def write_gz(path, rows, columns):
     """rows as a gzipped CSV, written atomically (a fixed mtime: the same rows give the same bytes)."""
     buf = io.StringIO()
@@ -48,10 +40,10 @@ def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m
     """Paired pushes of every controller not yet in OUT/nominal.csv -> (event rows, nominal rows); both
     files are rewritten after every controller. settings: {sizes, windows, per_episode}."""
     from gsa_jax.analysis.results import write_csv
-    from gsa_jax.analysis.retention import controller_key
+    from gsa_jax.analysis.retention import controller_key, read_csv
 
     ev_path, nom_path = os.path.join(out, "pushes.csv.gz"), os.path.join(out, "nominal.csv")
-    events, nominal = read_rows(ev_path), read_rows(nom_path)
+    events, nominal = read_csv(ev_path), read_csv(nom_path)
     done = {controller_key(r) for r in nominal}
     for i, (path, meta, ctrl) in enumerate(controllers):
         if controller_key(meta) in done:

@@ -4,6 +4,7 @@ gsa_jax.robustness` is its command."""
 
 import csv
 import glob
+import gzip
 import json
 import math
 import os
@@ -109,9 +110,10 @@ def evaluate_controller(meta, ctrl, shifts, seeds, randoms):
 
 
 def read_csv(path):
+    """Rows (dicts of strings) of a CSV file, gzipped if its name ends in .gz; [] if it does not exist."""
     if not os.path.exists(path):
         return []
-    with open(path) as f:
+    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
         return list(csv.DictReader(f))
 
 
