@@ -1,5 +1,6 @@
-"""Environment registry: `envs.make(name)` returns a single-env Brax environment (reset(key), step(state, action))
-with a time limit and auto-reset; batch it with jax.vmap.
+"""Tasks by name: `envs.make(name)` returns a single-env Brax environment (reset(key), step(state, action))
+with a time limit and auto-reset; batch it with jax.vmap. A name is resolved once per process into its record
+(`task_record(name)`, envs/registry.py), which holds everything about the task; the functions here read it.
 
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
 `allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and every task
@@ -29,7 +30,6 @@ BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "
 GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "InvertedDoublePendulum-v5")  # gymnasium's own: envs/gym_v5.py
 NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS
 DEFAULT_EPISODE_LENGTH = 1000
-C_BACKEND_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder") + GYM_V5_TASKS  # physics backend 'c'
 # Every task's action bounds, per action: PPO clips its actions to them (training and evaluation,
 # gsa_jax/algorithm/ppo.py) and an exported controller's act() does (gsa_jax/deployment/numpy_policy.py). They are
 # the locomotion tasks' actuator ctrlrange and gymnasium's action_space (tests/test_export.py), and the range of
@@ -40,35 +40,59 @@ ACTION_RANGE = (-1.0, 1.0)
 _REGISTERED = {}  # name -> factory (a Task subclass, or a callable returning a Task)
 
 
-def register(name, factory):
-    """Make a task definition (envs/task.py) known by `name`: factory is a Task subclass or a callable returning
-    a Task. The name then works wherever a task name does (Config(env=name), --env name, experiment files) in
-    this process; worker processes of a sweep do not run your registering code: name the task
+def register(name: str, factory) -> None:
+    """Make a task known by `name`: factory is a Task subclass (envs/task.py) or a callable returning a Task, or a
+    brax.envs.Env or MuJoCo Playground MjxEnv subclass (MJX only). The name then works wherever a task name does
+    (Config(env=name), --env name, experiment files) in this process; worker processes of a sweep do not run your registering code: name the task
     'module:Class' there."""
-    if not isinstance(name, str) or not name or name in NAMES:
-        raise ValueError(f"cannot register {name!r}: a task name is a non-empty string other than a built-in task's")
+    if not isinstance(name, str) or not name or name in NAMES or ":" in name:
+        raise ValueError(f"cannot register {name!r}: a task name is a non-empty string without ':' other than a "
+                         "built-in task's")
     if not callable(factory):
         raise ValueError(f"register({name!r}, factory): factory must be a Task subclass or a callable returning a Task")
     _REGISTERED[name] = factory
-    _factory.cache_clear()
-    check_task.cache_clear()
+    _record.cache_clear()
 
 
-ADAPTERS = ("brax:", "playground:")  # environments of other libraries, '<library>:<their name>' (MJX backend)
+def unregister(name: str) -> None:
+    """Forget a task registered with register(name, ...) (KeyError if there is none)."""
+    del _REGISTERED[name]
+    _record.cache_clear()
 
 
-def is_adapted(name):
-    """Whether `name` names another library's environment: 'brax:<name>' (Brax's registry) or 'playground:<Name>'
-    (MuJoCo Playground's, envs/playground_adapter.py), both on MJX."""
-    return isinstance(name, str) and name.startswith(ADAPTERS)
+def task_record(name):
+    """The record of task `name` (envs/registry.py): resolved and checked once per process; ValueError (one line)
+    for a name that does not resolve. A TaskRecord is returned as it is; a Task instance or subclass
+    (envs/task.py) becomes a record named for its class."""
+    from envs import registry  # no JAX, no MuJoCo: a name's record imports what it needs when asked
+
+    if isinstance(name, str):
+        return _record(name)
+    if isinstance(name, registry.TaskRecord):
+        return name
+    return registry.definition_record(name)
 
 
-def is_defined(name):
-    """Whether `name` names a task definition (envs/task.py): a v5 task, a registered one, or 'module:Class'."""
-    return name in GYM_V5_TASKS or name in _REGISTERED or (isinstance(name, str) and ":" in name and not is_adapted(name))
+@functools.lru_cache(maxsize=None)
+def _record(name):
+    from envs import registry
+
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"a task name is a non-empty string, got {name!r}")
+    builtin = registry.builtin_records().get(name)
+    if builtin is not None:
+        return builtin(name)
+    record = registry.adapted_record(name)
+    if record is not None:
+        return record
+    if name in _REGISTERED or ":" in name:
+        return registry.user_record(name, _REGISTERED.get(name) or _import_factory(name))
+    raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, name your "
+                     "own task definition 'module:Class', or another library's environment 'brax:<name>' or "
+                     "'playground:<Name>' (docs/your_task.md)")
 
 
-def is_name(name):
+def is_name(name) -> bool:
     """Whether `name` names a task that resolves (no exception)."""
     try:
         check_name(name)
@@ -77,82 +101,32 @@ def is_name(name):
         return False
 
 
-def check_name(name):
+def check_name(name) -> None:
     """ValueError (one line) unless `name` names a task; a task definition is loaded and checked once here."""
-    if name in NAMES and not is_defined(name):
-        return
-    if is_adapted(name):
-        _check_adapted_name(name)
-        return
-    if is_defined(name):
-        _factory(name)
-        return
-    raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, name your "
-                     "own task definition 'module:Class', or another library's environment 'brax:<name>' or "
-                     "'playground:<Name>' (docs/your_task.md)")
+    task_record(name)
 
 
-@functools.lru_cache(maxsize=None)
-def _check_adapted_name(name):
-    """ValueError (one line, with close matches) unless 'brax:<name>' is in Brax's environment registry or
-    'playground:<Name>' in MuJoCo Playground's."""
-    import difflib
-
-    if name.startswith("playground:"):
-        from envs import playground_adapter
-
-        playground_adapter.check_name(name)
-        return
-
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        from brax import envs as brax_envs
-    known = sorted(brax_envs._envs)
-    sub = name[len("brax:"):]
-    if sub not in known:
-        close = difflib.get_close_matches(sub, known, n=3)
-        raise ValueError(f"unknown env {name!r}: Brax registers {', '.join(known)}"
-                         + (f"; did you mean {', '.join('brax:' + c for c in close)}?" if close else ""))
+def check_task(name) -> None:
+    """check_name, and for a user's task definition its observation with jax.numpy equal to NumPy's (once per
+    process; the trainer's edge: JAX is imported here)."""
+    record = task_record(name)
+    if record not in _TRACED:
+        record.check_traced()
+        _TRACED.add(record)
 
 
-@functools.lru_cache(maxsize=None)
-def check_task(name):
-    """check_name, and for a task definition its observation with jax.numpy equal to NumPy's (once per process;
-    the trainer's edge: JAX is imported here)."""
-    check_name(name)
-    if is_defined(name) and name not in GYM_V5_TASKS:
-        from envs.task import check_jax_agrees
-
-        check_jax_agrees(resolve_task(name), f"task {name!r}")
+_TRACED = set()  # records whose check_traced passed in this process
 
 
 def resolve_task(name):
-    """A new instance of the task definition `name` (envs/task.py), checked once per process (TaskError)."""
-    factory = _factory(name)
-    task = factory()
-    task.name = name
-    return task
+    """A new instance of the task definition (envs/task.py's Task) behind `name`, checked once per process
+    (TaskError)."""
+    from envs.registry import Definition
 
-
-@functools.lru_cache(maxsize=None)
-def _factory(name):
-    """The checked factory of a task definition: built-in, registered, or imported from 'module:Class'."""
-    from envs.task import Task, TaskError, validate
-
-    if name in GYM_V5_TASKS:
-        from envs import gym_v5
-
-        return gym_v5.V5_TASKS[name]
-    factory = _REGISTERED.get(name) or _import_factory(name)
-    try:
-        task = factory()
-    except TaskError:
-        raise
-    except Exception as e:  # a user's constructor: its error in one line
-        raise TaskError(f"task {name!r}: making it failed: {type(e).__name__}: {' '.join(str(e).split())}") from None
-    if not isinstance(task, Task):
-        raise TaskError(f"task {name!r}: {factory!r} gave a {type(task).__name__}, not an envs.task.Task")
-    validate(task, f"task {name!r}")
-    return factory
+    record = task_record(name)
+    if not isinstance(record, Definition):
+        raise ValueError(f"{record.name!r} is not a task definition (envs/task.py) but a {record.family} task")
+    return record.new()
 
 
 def _import_factory(name):
@@ -216,88 +190,37 @@ def _import_from_here(module_name):
             sys.path.remove(here)
 
 
-def task_source(name):
+def task_source(name) -> dict:
     """What says which code defines task `name` (recorded in config.json and sweep.json): for a task defined
-    outside this package, its module, file and the file's sha256."""
-    if is_adapted(name):
-        library, _, theirs = name.partition(":")
-        return {"task": name, "builtin": False, "library": library, "name": theirs, "action_size": action_size(name),
-                "version": _installed_version("playground" if library == "playground" else "brax")}
-    if not is_defined(name) or name in GYM_V5_TASKS:
-        return {"task": name, "builtin": True}
-    from envs.task import source_record
-
-    task = resolve_task(name)
-    return {"task": name, "builtin": False, **source_record(type(task)), "action_size": int(task.model.nu),
-            "observation_size": int(task.observation_size)}
+    outside this package, its module, file and the file's sha256; for another library's, its version."""
+    return task_record(name).source()
 
 
-def _installed_version(dist):
-    from importlib import metadata
-
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:
-        return None
-
-
-def check_backend(name, physics):
+def check_backend(name, physics) -> None:
     """ValueError if `physics` (envs.physics.Physics) cannot step task `name`."""
-    check_name(name)
+    record = task_record(name)
     physics.validate()
-    if physics.backend == "c" and not has_c_backend(name):
-        raise ValueError(f"physics backend 'c' runs {', '.join(C_BACKEND_TASKS)} and every task definition; {name!r} "
-                         "runs on backend 'mjx'" + (" (another library's environments step in JAX only)" if is_adapted(name) else ""))
-    if name.startswith("playground:") and (physics.solver_iterations is not None or physics.ls_iterations is not None):
-        raise ValueError(f"{name!r} runs with Playground's own solver settings; solver_iterations and ls_iterations "
-                         "do not apply")
+    record.check_physics(physics)
 
 
-def has_c_backend(name):
+def has_c_backend(name) -> bool:
     """Whether MuJoCo C steps task `name` (backend 'c', deployment, evaluation and robustness)."""
-    return name in C_BACKEND_TASKS or is_defined(name)
+    return task_record(name).has_c
 
 
-def default_episode_length(name):
-    check_name(name)
-    if name == "allegro_cylinder":
-        from envs.allegro_task import DEFAULT_EPISODE_LENGTH as allegro_length  # 2 s at 100 Hz; no JAX import
-
-        return allegro_length
-    if is_defined(name):
-        return int(resolve_task(name).episode_length)
-    if name.startswith("playground:"):
-        from envs.playground_adapter import registry
-
-        return int(registry().get_default_config(name[len("playground:"):]).get("episode_length", DEFAULT_EPISODE_LENGTH))
-    return DEFAULT_EPISODE_LENGTH
+def default_episode_length(name) -> int:
+    """The task's own time limit (env steps)."""
+    return int(task_record(name).episode_length())
 
 
 def task_model(name):
     """The MuJoCo C model (MjModel) of a task's MJCF with the solver options its MJX version steps with
-    (Brax's for the gym tasks), loaded without JAX or MJX: for sizes and physics records."""
-    import mujoco
-
-    from envs import mujoco_c
-
-    check_name(name)
-    if is_defined(name):
-        return resolve_task(name).model
-    if is_adapted(name):
-        return _adapted_model(name)
-    if name in mujoco_c.C_TASKS:
-        return mujoco_c.make_c(name).model
-    return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(name + ".xml"))
+    (Brax's for the gym tasks), loaded without JAX or MJX (but for another library's environment, built once):
+    for sizes and physics records."""
+    return task_record(name).model()
 
 
-@functools.lru_cache(maxsize=None)
-def _adapted_model(name):
-    """The MjModel of another library's environment: building it builds the environment (seconds), so once per
-    process (callers read sizes and records from it)."""
-    return mj_model(make_base(name))
-
-
-def action_size(name):
+def action_size(name) -> int:
     """Actions of a task, read from its MJCF (no MJX environment is built, but for another library's environment)."""
     return int(task_model(name).nu)
 
@@ -307,17 +230,16 @@ def action_bounds(name, size=None):
     (default: action_size(name), read from the MJCF)."""
     import numpy as np
 
-    if name not in NAMES and not (is_adapted(name) and size is not None):
-        check_name(name)  # a task definition: loaded and checked (a built-in name needs neither)
+    task_record(name)
     size = action_size(name) if size is None else int(size)
     return np.full(size, ACTION_RANGE[0], np.float32), np.full(size, ACTION_RANGE[1], np.float32)
 
 
 def make_base(name, physics=None):
-    """The unwrapped task (no time limit, no auto-reset), stepped as `physics` says (envs.physics.Physics;
-    None: the defaults, MJX; backend 'c': MuJoCo C, envs/c_backend.py). An MJX task's reset and step run
-    inside physics.applied, so the solver routing holds while they are traced and nothing else in the
-    process changes.
+    """The unwrapped task (no time limit, no auto-reset) `name` (a name or a TaskRecord), stepped as `physics`
+    says (envs.physics.Physics; None: the defaults, MJX; backend 'c': MuJoCo C, envs/c_backend.py). An MJX
+    task's reset and step run inside physics.applied, so the solver routing holds while they are traced and
+    nothing else in the process changes.
 
     physics.solver_iterations / ls_iterations override opt.iterations / opt.ls_iterations in the MJX
     model only -- a cheaper but *different* simulator; the MuJoCo C model (mj_model(env), used by
@@ -326,29 +248,13 @@ def make_base(name, physics=None):
     from envs.physics import Physics
 
     physics = physics or Physics()
-    check_backend(name, physics)
+    record = task_record(name)
+    check_backend(record, physics)
     if physics.backend == "c":
-        return _make_c_backend(name, physics)
-    with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" (a GPU-only backend)
-        from brax import envs as brax_envs
-
-        from envs import allegro
+        return record.make_c_backend(physics)
     with warnings.catch_warnings(), _process_local_devices():
         warnings.simplefilter("ignore", UserWarning)  # brax's "not actively maintained" notice, once per env
-        if name == "allegro_cylinder":
-            env = allegro.AllegroCylinder()
-        elif is_defined(name):
-            from envs.task_mjx import TaskMjx
-
-            env = TaskMjx(resolve_task(name))
-        elif name.startswith("playground:"):
-            from envs.playground_adapter import PlaygroundEnv
-
-            env = PlaygroundEnv(name)
-        elif is_adapted(name):
-            env = brax_envs.get_environment(name[len("brax:"):], backend="mjx")
-        else:
-            env = brax_envs.get_environment(name, backend="mjx")
+        env = record.make_mjx()
     override = {k: v for k, v in (("opt.iterations", physics.solver_iterations),
                                   ("opt.ls_iterations", physics.ls_iterations)) if v is not None}
     if override:
@@ -357,13 +263,6 @@ def make_base(name, physics=None):
     for fn in ("reset", "step"):  # the solver is traced inside these
         setattr(env, fn, _applying(getattr(env, fn), physics, mj_model(env)))
     return env
-
-
-def _make_c_backend(name, physics):
-    """The task stepped by MuJoCo C inside the program (envs/c_backend.py)."""
-    with contextlib.redirect_stdout(io.StringIO()):
-        from envs.c_backend import make_task
-    return make_task(name, physics)
 
 
 def _applying(fn, physics, model):
@@ -411,7 +310,7 @@ def substeps(env):
 
 
 def make(name, episode_length=None, auto_reset=True, physics=None):
-    """Task `name` with a time limit of `episode_length` steps (default: the task's own,
+    """Task `name` (a name or a TaskRecord) with a time limit of `episode_length` steps (default: the task's own,
     `default_episode_length(name)`) and (by default) Brax-style auto-reset. physics: see make_base.
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the

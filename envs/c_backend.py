@@ -2,6 +2,8 @@
 
     env = envs.make("hopper", physics=Physics(backend="c"))     # a Brax-style env, like the MJX one
 
+The classes are built by the tasks' records (envs/registry.py): BraxCTask, AllegroCTask, TaskCEnv.
+
 Each env's simulation state is its float64 mjSTATE_INTEGRATION row (time, qpos, qvel, act, solver
 warmstart, ctrl, ...), carried through the JAX program bit for bit as uint32 pairs (the program runs
 float32). A step is one host call (envs/host_call.py) into mujoco.batch.Batch, which steps every env of the vmapped
@@ -11,7 +13,7 @@ never leaves the program, so runs stay pure, vmappable, checkpointable and resum
 Tasks: every task definition (envs/task.py: gymnasium's v5 tasks, envs/gym_v5.py, and a user's), whose
 observations, rewards and terminations are computed on the host in float64 by the task's own functions (for
 the v5 tasks, the ones checked against gymnasium); the Brax
-locomotion tasks (C_TASKS), whose observations, rewards and terminations are
+locomotion tasks (envs.mujoco_c.BRAX_PORTS), whose observations, rewards and terminations are
 envs/mujoco_c.py's definitions (written once for NumPy and jax.numpy), evaluated here with jax.numpy on
 the float32 qpos, qvel and torso position the callback returns; and allegro_cylinder, whose PD-target
 update, reward and tactile values (MuJoCo contact sensors on the fingertips, envs/allegro_task.py) are
@@ -440,8 +442,8 @@ class TaskCEnv(CTask):
     """A task definition (envs/task.py) stepped by MuJoCo C: its start-state law drawn from rng; observation,
     reward and termination computed by its own functions in float64 on the host, then cast to float32."""
 
-    def __init__(self, name, physics):
-        task = envs.resolve_task(name)
+    def __init__(self, name, physics, task=None):
+        task = task or envs.resolve_task(name)  # the Task instance (envs/task.py), or the one `name` resolves to
         host = (PostConstraintHost if task.post_constraint else TaskHost)(task, physics.threads)
         super().__init__(name, physics, task, host)
         self.n_frames, self.dt = task.frame_skip, task.dt
@@ -458,16 +460,6 @@ class TaskCEnv(CTask):
         sim = self._call(self.host.step, state.pipeline_state.rows, action.astype(jnp.float32))
         n = self._n_obs
         return state.replace(pipeline_state=sim, obs=sim.extra[:n], reward=sim.extra[n], done=sim.extra[n + 1])
-
-
-TASKS = {"hopper": BraxCTask, "walker2d": BraxCTask, "halfcheetah": BraxCTask, "ant": BraxCTask,
-         "allegro_cylinder": AllegroCTask}
-
-
-def make_task(name, physics):
-    """Task `name` stepped by MuJoCo C (envs.make_base with backend 'c'): a task definition (envs/task.py), or a
-    Brax variant or allegro_cylinder (TASKS)."""
-    return (TaskCEnv if envs.is_defined(name) else TASKS[name])(name, physics)
 
 
 def float64_rows(rows):

@@ -1,7 +1,7 @@
 """Tasks in plain MuJoCo C (the `mujoco` package: no MJX, no JAX) on the same MJCF as their MJX
 versions, for running an exported controller outside the simulator it was trained in.
 
-    task = make_c("hopper")          # any of C_TASKS, or any task definition (envs/task.py)
+    task = make_c("hopper")          # any task whose record has a MuJoCo C version (envs/registry.py)
     obs = task.reset(seed)
     obs, reward, done = task.step(action)
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from envs.task import TaskC, coordinate_names
 
-C_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")
+C_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")  # the MuJoCo C ports here
 
 
 def brax_asset(name):
@@ -212,18 +212,11 @@ BRAX_PORTS = {"hopper": HopperC, "walker2d": Walker2dC, "halfcheetah": HalfCheet
 
 
 def make_c(name):
-    """The task in MuJoCo C: reset(seed) -> obs, step(action) -> (obs, reward, done). A task definition
-    (envs/task.py: gymnasium's v5 tasks, a user's) is envs.task.TaskC over it."""
+    """The task in plain MuJoCo C: reset(seed) -> obs, step(action) -> (obs, reward, done) (the task's record,
+    envs/registry.py: a Brax port here, AllegroC, or envs.task.TaskC over a task definition)."""
     import envs
 
-    if name in BRAX_PORTS:
-        return BRAX_PORTS[name]()
-    if name == "allegro_cylinder":
-        return AllegroC()
-    if envs.is_defined(name):
-        return TaskC(envs.resolve_task(name))
-    raise ValueError(f"no MuJoCo C port of {name!r}; MuJoCo C runs {', '.join(C_TASKS)} and every task definition "
-                     "(envs/task.py)")
+    return envs.task_record(name).make_c()
 
 
 IDP_LAYOUT = ["cart x", "sin(hinge)", "sin(hinge2)", "cos(hinge)", "cos(hinge2)",
@@ -234,15 +227,14 @@ def observation_layout(name):
     """One short description per observation entry of task `name` (for exported controllers' docs)."""
     import envs
 
+    return envs.task_record(name).observation_layout()
+
+
+def brax_layout(name):
+    """The observation layout of Brax's variant `name` (BRAX_PORTS' observe_state, or IDP_LAYOUT)."""
     if name == "inverted_double_pendulum":
         return list(IDP_LAYOUT)
-    if envs.is_defined(name):
-        return envs.resolve_task(name).observation_layout()
-    task = make_c(name)
-    qpos, qvel = coordinate_names(task.model)
-    if name == "allegro_cylinder":
-        joints = [task.model.joint(task.model.actuator_trnid[i, 0]).name for i in range(task.model.nu)]
-        return [f"{j} position" for j in joints] + ["index tactile (mean taxel force)", "thumb tactile (mean taxel force)"]
+    qpos, qvel = coordinate_names(BRAX_PORTS[name]().model)
     if name in ("hopper", "walker2d"):
         pos = ["torso height"] + qpos[2:]
         vel = [f"{v} velocity (clipped to +-10)" for v in qvel]
@@ -250,6 +242,12 @@ def observation_layout(name):
         pos = qpos[1:] if name == "halfcheetah" else qpos[2:]
         vel = [f"{v} velocity" for v in qvel]
     return [f"{p} position" if p != "torso height" else p for p in pos] + vel
+
+
+def allegro_layout(model):
+    """allegro_cylinder's observation layout: the finger joints' positions, then the two tactile means."""
+    joints = [model.joint(model.actuator_trnid[i, 0]).name for i in range(model.nu)]
+    return [f"{j} position" for j in joints] + ["index tactile (mean taxel force)", "thumb tactile (mean taxel force)"]
 
 
 def run_episodes(task, controller, episodes, episode_length, seed=0):

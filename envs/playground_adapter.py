@@ -58,8 +58,9 @@ def load(name):
 class PlaygroundEnv(Env):
     """A Playground MjxEnv as a Brax Env: pipeline_state is Playground's State."""
 
-    def __init__(self, name):
-        self.name, self.env = name, load(name)
+    def __init__(self, name, env=None):
+        """name: 'playground:<Name>' (built from Playground's registry) or a user's task name with its MjxEnv `env`."""
+        self.name, self.env = name, (load(name) if env is None else env)
         self.mj_model, self.n_frames = self.env.mj_model, int(getattr(self.env, "n_substeps", 1))
         self.episode_length = int(self.env._config.get("episode_length", 1000))
         obs = jax.eval_shape(self.env.reset, jax.random.PRNGKey(0)).obs

@@ -4,7 +4,7 @@
 
 The controller file comes from `python -m gsa_jax.export RUN --out controller.npz`; its task is read
 from the file. Prints the mean return (95% CI over episodes) and episode length of the deterministic
-controller in our MuJoCo C port of the task (the MJCF it was trained on; ported: envs.mujoco_c.C_TASKS);
+controller in our MuJoCo C port of the task (the MJCF it was trained on; every task with a MuJoCo C version, envs/registry.py);
 with --gymnasium ENV_ID also in gymnasium's own task (its MJCF, reward, termination and time limit;
 refused with the reason where its observation layout is not ours, gsa_jax.deployment.gymnasium_task); with
 --compare-mjx RUN_DIR also in the MJX environment it was trained in (this part uses JAX).
@@ -14,8 +14,8 @@ import argparse
 import json
 import sys
 
-from envs import has_c_backend
-from gsa_jax.deployment.evaluation import DeployError, compare_mjx, load_controller, report_line, run_gymnasium, run_mujoco_c
+from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, has_mujoco_c, load_controller, report_line, run_gymnasium,
+                                           run_mujoco_c)
 
 
 def deploy(args):
@@ -24,7 +24,7 @@ def deploy(args):
         raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
     ctrl, env_name, config = load_controller(args.controller)
     result = {"env": env_name, "controller": args.controller}
-    if has_c_backend(env_name) or not args.gymnasium:
+    if has_mujoco_c(env_name) or not (args.gymnasium or args.compare_mjx):  # else: the others only
         result["mujoco_c"] = run_mujoco_c(ctrl, env_name, config, args.episodes, args.episode_length, args.seed)
         print(report_line(env_name, "MuJoCo C (our port),", result["mujoco_c"]))
     if args.gymnasium:

@@ -174,9 +174,29 @@ def test_register_names_a_task_for_library_users():
         with pytest.raises(ValueError, match="built-in"):
             envs.register("Hopper-v5", Reacher)
     finally:
-        del envs._REGISTERED["my_reacher"]
-        envs._factory.cache_clear()
+        envs.unregister("my_reacher")
     assert not envs.is_name("my_reacher")
+
+
+def test_make_train_takes_a_task_object_and_trains_it_as_its_name_does():
+    """make_train(cfg, task) with the Task class itself (no name registered): two iterations on backend 'c' equal,
+    bit for bit, the run of the same class named 'module:Class'; a Config naming another task is one line."""
+    from examples.reacher import Reacher
+
+    from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+
+    small = dict(policy="mixture", k_max=2, num_envs=4, unroll_length=8, num_minibatches=2, num_epochs=1,
+                 eval_envs=2, backend="c")
+    key, hp = jax.random.PRNGKey(0), make_hparams(K=2)
+    runs = []
+    for cfg, task in ((Config(env="Reacher", **small), Reacher), (Config(env=TASK, **small), None)):
+        tr = make_train(cfg, task)
+        assert tr.cfg.episode_length == 200
+        runs.append(jax.jit(tr.run_chunk, static_argnums=2)(tr.init(key, hp), hp, 2))
+    for a, b in zip(jax.tree.leaves(runs[0]), jax.tree.leaves(runs[1])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="names env 'hopper' but the task given is 'Reacher'"):
+        make_train(Config(env="hopper", **small), Reacher)
 
 
 def test_tools_reading_a_user_tasks_controller_elsewhere_say_so_in_one_line(tmp_path):
@@ -211,7 +231,7 @@ def test_a_brax_environment_trains_on_mjx_and_what_it_cannot_do_is_one_line(tmp_
     assert config["result"]["final_episode_return"] > -60.0 and config["task"]["library"] == "brax", config["result"]
     assert export_main([str(run), "--out", str(tmp_path / "ctrl.npz")]) == 0
     capsys.readouterr()
-    for command, message in ((lambda: deploy_main([str(tmp_path / "ctrl.npz")]), "MuJoCo C versions exist for"),
+    for command, message in ((lambda: deploy_main([str(tmp_path / "ctrl.npz")]), "no MuJoCo C version of 'brax:reacher'"),
                              (lambda: train_main(["--env", "brax:reacher", "--physics", "c", "--out", str(tmp_path / "c")]),
                               "another library's environments step in JAX only"),
                              (lambda: train_main(["--env", "brax:reachr", "--out", str(tmp_path / "x")]),
@@ -234,3 +254,52 @@ def test_a_playground_environment_trains_on_mjx(tmp_path):
     assert config["result"]["final_episode_return"] > 120.0 and config["task"]["library"] == "playground", config["result"]
     with pytest.raises(ValueError, match="did you mean playground:CartpoleBalance"):
         envs.check_name("playground:CartpoleBalanse")
+
+
+USER_ENVS = '''
+from brax.envs import reacher
+from mujoco_playground._src.dm_control_suite import cartpole
+
+
+class MyReacher(reacher.Reacher):
+    """Brax's reacher as a user's subclass (made with backend='mjx', as Brax's registry makes its own)."""
+
+
+class MyBalance(cartpole.Balance):
+    def __init__(self, config=cartpole.default_config(), config_overrides=None):
+        super().__init__(swing_up=False, sparse=False, config=config, config_overrides=config_overrides)
+
+
+class OnGeneralized(reacher.Reacher):
+    def __init__(self):
+        super().__init__(backend="generalized")
+'''
+
+
+@pytest.mark.parametrize("mine, theirs", [("MyReacher", "brax:reacher"), ("MyBalance", "playground:CartpoleBalance")])
+def test_a_users_brax_or_playground_env_class_steps_as_the_librarys_own(mine, theirs, tmp_path):
+    """A brax.envs.Env or Playground MjxEnv subclass named 'file.py:Class' (MJX): reset and 8 random steps equal, bit
+    for bit, the library's registered environment it subclasses; its record names its file and sha256; one not on
+    MJX and backend 'c' are one line each."""
+    (tmp_path / "user_envs.py").write_text(USER_ENVS)
+    name = f"{tmp_path / 'user_envs.py'}:{mine}"
+    source = envs.task_source(name)
+    assert source["builtin"] is False and source["class"] == mine and len(source["sha256"]) == 64, source
+
+    def roll(env):
+        def body(s, a):
+            s = env.step(s, a)
+            return s, (s.obs, s.reward, s.done)
+
+        actions = jax.random.uniform(jax.random.PRNGKey(1), (8, env.action_size), minval=-1, maxval=1)
+        s = env.reset(jax.random.PRNGKey(0))
+        return s.obs, jax.lax.scan(body, s, actions)[1]
+
+    got, want = (jax.jit(roll, static_argnums=0)(envs.make(n, episode_length=50)) for n in (name, theirs))
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="another library's environments step in JAX only"):
+        envs.make_base(name, Physics(backend="c"))
+    if mine == "MyReacher":
+        with pytest.raises(ValueError, match="steps on MJX .* has backend 'generalized'"):
+            envs.check_name(f"{tmp_path / 'user_envs.py'}:OnGeneralized")

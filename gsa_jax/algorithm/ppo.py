@@ -89,9 +89,14 @@ class Config:
     def minibatch_size(self):
         return self.batch_size // self.num_minibatches
 
-    def validate(self):
-        """Raise ValueError naming the first bad field (before anything is compiled)."""
-        envs.check_task(self.env)
+    def validate(self, task=None):
+        """Raise ValueError naming the first bad field (before anything is compiled). task: the task's record
+        (envs/registry.py; default: self.env resolved), whose name must be self.env."""
+        task = envs.task_record(self.env if task is None else task)
+        if task.name != self.env:
+            raise ValueError(f"the Config names env {self.env!r} but the task given is {task.name!r}: make the Config "
+                             "with env=<the task's name>")
+        envs.check_task(task)
         if self.policy not in POLICY_KINDS:
             raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
         if self.subpolicy not in SUBPOLICY_KINDS:
@@ -102,7 +107,7 @@ class Config:
                      "retrace_iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        envs.check_backend(self.env, self.physics)
+        envs.check_backend(task, self.physics)
         if self.batch_size % self.num_minibatches:
             raise ValueError(
                 f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"
@@ -247,9 +252,9 @@ class Trainer(NamedTuple):
     evaluate: Callable
 
 
-def make_env(cfg, auto_reset=True):
-    """The task as a Config describes it: time limit and physics options."""
-    return envs.make(cfg.env, cfg.episode_length, auto_reset, cfg.physics)
+def make_env(cfg, auto_reset=True, task=None):
+    """The task (its record, default: cfg.env's) as a Config describes it: time limit and physics options."""
+    return envs.make(cfg.env if task is None else task, cfg.episode_length, auto_reset, cfg.physics)
 
 
 class Parts(NamedTuple):
@@ -558,10 +563,17 @@ def make_parts(cfg, env, eval_env):
                  jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
 
 
-def make_train(cfg):
-    """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...)."""
-    cfg.validate()
-    p = make_parts(cfg, make_env(cfg), make_env(cfg, auto_reset=False))
+def make_train(cfg: Config, task=None) -> Trainer:
+    """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...).
+
+    task: what to train, as Brax's train takes an environment: a task name, its record (envs.task_record) or a
+    task definition (an envs.task.Task instance or subclass, named for its class); default: cfg.env. Resolved
+    once here; cfg.env must be its name (Config(env=...)); cfg.episode_length None: the task's own."""
+    task = envs.task_record(cfg.env if task is None else task)
+    if cfg.episode_length is None:
+        cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
+    cfg.validate(task)
+    p = make_parts(cfg, make_env(cfg, task=task), make_env(cfg, auto_reset=False, task=task))
     bind = functools.partial
     return Trainer(cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
 

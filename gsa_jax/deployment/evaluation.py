@@ -7,7 +7,7 @@ import zipfile
 
 import numpy as np
 
-from envs import C_BACKEND_TASKS, default_episode_length, has_c_backend
+from envs import default_episode_length, task_record
 from gsa_jax.deployment import numpy_policy
 
 
@@ -38,18 +38,23 @@ def load_controller(controller_path):
     return ctrl, meta["config"]["env"], meta["config"]
 
 
+def has_mujoco_c(env_name):
+    """Whether plain MuJoCo C runs the controller's task (DeployError, one line, if its name does not resolve)."""
+    try:
+        return task_record(env_name).has_c
+    except ValueError as e:
+        raise DeployError(f"the controller is for {env_name!r}: {e}") from None
+
+
 def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
-    from envs.mujoco_c import make_c, run_episodes
+    from envs.mujoco_c import run_episodes
 
-    if not has_c_backend(env_name):
-        raise DeployError(f"the controller is for {env_name!r}; MuJoCo C versions exist for {', '.join(C_BACKEND_TASKS)} "
-                          "and every task definition (envs/task.py)")
     try:  # a task defined outside the package is imported here: its errors in one line
+        task = task_record(env_name).make_c()
         length = episode_length or config.get("episode_length") or default_episode_length(env_name)
-        task = make_c(env_name)
     except ValueError as e:
-        raise DeployError(str(e)) from None
+        raise DeployError(f"the controller is for {env_name!r}: {e}") from None
     returns, lengths = run_episodes(task, ctrl, episodes, int(length), seed)
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
 
