@@ -2,7 +2,7 @@
 
     env = envs.make("hopper", physics=Physics(backend="c"))     # a Brax-style env, like the MJX one
 
-The classes are built by the tasks' records (envs/registry.py): BraxCTask, AllegroCTask, TaskCEnv.
+The classes are built by the tasks' records (envs/registry.py): TaskCEnv, AllegroCTask.
 
 Each env's simulation state is its float64 mjSTATE_INTEGRATION row (time, qpos, qvel, act, solver
 warmstart, ctrl, ...), carried through the JAX program bit for bit as uint32 pairs (the program runs
@@ -10,12 +10,10 @@ float32). A step is one host call (envs/host_call.py) into mujoco.batch.Batch, w
 batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjData per env. The state
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
 
-Tasks: every task definition (envs/task.py: gymnasium's v5 tasks, envs/gym_v5.py, and a user's), whose
-observations, rewards and terminations are computed on the host in float64 by the task's own functions (for
-the v5 tasks, the ones checked against gymnasium); the Brax
-locomotion tasks (envs.mujoco_c.BRAX_PORTS), whose observations, rewards and terminations are
-envs/mujoco_c.py's definitions (written once for NumPy and jax.numpy), evaluated here with jax.numpy on
-the float32 qpos, qvel and torso position the callback returns; and allegro_cylinder, whose PD-target
+Tasks: every task definition (envs/task.py: gymnasium's v5 tasks, envs/gym_v5.py; Brax's locomotion tasks,
+envs.mujoco_c.BRAX_PORTS; and a user's), whose observations, rewards and terminations are computed on the host
+in float64 by the task's own functions (for the v5 tasks, the ones checked against gymnasium); and
+allegro_cylinder, whose PD-target
 update, reward and tactile values (MuJoCo contact sensors on the fingertips, envs/allegro_task.py) are
 computed on the host in float64 as envs/allegro_task.step_mujoco computes them.
 """
@@ -58,7 +56,7 @@ def host_seconds():
 class SimState(NamedTuple):
     """An env's simulation state inside the program (a pytree)."""
 
-    rows: jax.Array  # uint32 [2 nstate]: the float64 mjSTATE_INTEGRATION row, bit for bit
+    rows: jax.Array  # uint32 [2 nstate]: the float64 mjSTATE_INTEGRATION row (and what the host carries), bit for bit
     qpos: jax.Array  # float32 [nq]
     qvel: jax.Array  # float32 [nv]
     extra: jax.Array  # float32 [n_extra]: the task's derived values (HostBatches.extra)
@@ -69,12 +67,14 @@ class HostBatches:
     Subclasses say what a reset and a step write into the rows and which derived values come back."""
 
     n_extra = 0
+    n_carry = 0  # float64 values a row carries after the mjSTATE_INTEGRATION state (carry())
     bound = ()  # derived MjData fields the batch copies out after every call
     keyframe = None  # the keyframe resets start from (None: mj_resetData's state)
 
     def __init__(self, model, n_frames, threads):
         self.model, self.n_frames, self.threads = model, int(n_frames), resolve_threads(threads)
-        self.nstate = mujoco.mj_stateSize(model, STATE_SPEC)
+        self.n_mj = mujoco.mj_stateSize(model, STATE_SPEC)
+        self.nstate = self.n_mj + self.n_carry
         self.template = self.reset_row()
         self._batches, self._lock = {}, threading.Lock()
         self.clock = dict.fromkeys(CLOCK_FIELDS, 0)  # see host_seconds()
@@ -85,9 +85,13 @@ class HostBatches:
         data = mujoco.MjData(self.model)
         if self.keyframe is not None:
             mujoco.mj_resetDataKeyframe(self.model, data, self.model.key(self.keyframe).id)
-        row = np.zeros(self.nstate)
+        row = np.zeros(self.n_mj)
         mujoco.mj_getState(self.model, data, row, STATE_SPEC)
         return row
+
+    def carry(self, b):
+        """float64 [nsim, n_carry]: what each row carries to the next call, from the batch after a call."""
+        return np.zeros((b.state.shape[0], 0))
 
     def _get(self, nsim):
         with self._lock:
@@ -112,7 +116,8 @@ class HostBatches:
             t1 = time.perf_counter()
             call(b)
             t2 = time.perf_counter()
-            out = (b.state.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
+            rows = np.concatenate([b.state, self.carry(b)], axis=1) if self.n_carry else b.state
+            out = (rows.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
                    b.qvel.astype(np.float32).reshape(*lead, m.nv),
                    self.extra(b, before).astype(np.float32).reshape(*lead, self.n_extra))
         with self._lock:
@@ -122,13 +127,14 @@ class HostBatches:
         return out
 
     def step_rows(self, rows, action, fn):
-        """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64) set the
-        controls; fn's return value is passed to extra()."""
+        """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64, carried
+        [nsim, n_carry] float64) set the controls; fn's return value is passed to extra()."""
         lead = rows.shape[:-1]
 
         def write(b):
-            b.state[:] = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
-            return fn(b, np.asarray(action, np.float64).reshape(-1, self.model.nu))
+            full = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
+            b.state[:] = full[:, : self.n_mj]
+            return fn(b, np.asarray(action, np.float64).reshape(-1, self.model.nu), full[:, self.n_mj:])
 
         return self._run(lead, write, lambda b: b.step(nstep=self.n_frames))
 
@@ -149,23 +155,6 @@ class NoisyStartHost(HostBatches):
             b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, m.nv)
 
         return self._run(dq.shape[:-1], write, lambda b: b.forward())
-
-
-class BraxHost(NoisyStartHost):
-    """A Brax locomotion task: actions are the controls; extra = the torso's position [3] (body 1's xpos,
-    as mj_step leaves it: before its last substep)."""
-
-    n_extra = 3
-    bound = ("xpos",)
-
-    def extra(self, b, before):
-        return b.xpos[:, 1]
-
-    def step(self, rows, ctrl):
-        def set_ctrl(b, u):
-            b.ctrl[:] = u
-
-        return self.step_rows(rows, ctrl, set_ctrl)
 
 
 class AllegroHost(HostBatches):
@@ -204,7 +193,7 @@ class AllegroHost(HostBatches):
 
     def step(self, rows, action):
         """action [..., nu], already clipped to [-1, 1], moves the PD targets by ACTION_SCALE per unit."""
-        def move_targets(b, a):
+        def move_targets(b, a, carried):
             b.ctrl[:] = np.clip(b.ctrl + allegro_task.ACTION_SCALE * a, self.lo, self.hi)
             return b.qpos[:, self.hinge].copy()
 
@@ -212,19 +201,26 @@ class AllegroHost(HostBatches):
 
 
 class TaskHost(NoisyStartHost):
-    """A task definition (envs/task.py; gymnasium's v5 tasks, a user's): actions are the controls; extra =
-    [observation, reward, terminated], computed in float64 by the task's own functions on the batch's
-    arrays (the derived fields as mj_step leaves them, as gymnasium reads them) before the float32 cast."""
+    """A task definition (envs/task.py; gymnasium's v5 tasks, Brax's locomotion tasks, a user's): actions are the
+    controls; extra = [observation, reward, terminated], computed in float64 by the task's own functions on the
+    batch's arrays (the derived fields as mj_step leaves them, as gymnasium reads them) before the float32 cast.
+    A row carries the task's `before` values after each call (what the next step's reward starts from), so a
+    step depends on its row alone: not on what the batch held before, and the same after a resume."""
 
     def __init__(self, task, threads):
         self.task, self.start_qpos = task, task.start_qpos
         self.bound = task.derived
         self.n_obs = int(task.observation_size)
         self.n_extra = self.n_obs + 2
+        data = mujoco.MjData(task.model)
+        self.n_carry = task.before(data.qpos[None], {f: getattr(data, f)[None] for f in task.derived}).shape[1]
         super().__init__(task.model, task.frame_skip, threads)
 
     def _derived(self, b):
         return {f: getattr(b, f) for f in self.task.derived}
+
+    def carry(self, b):
+        return self.task.before(b.qpos, self._derived(b))
 
     def extra(self, b, before):
         """before: (the task's values from before the step [n, k], action [n, nu] float64); None after a reset."""
@@ -235,10 +231,9 @@ class TaskHost(NoisyStartHost):
         return np.concatenate([obs, reward[:, None], terminated[:, None].astype(np.float64)], axis=1)
 
     def step(self, rows, ctrl):
-        def set_ctrl(b, u):
-            before = self.task.before(b.qpos, self._derived(b))
+        def set_ctrl(b, u, carried):
             b.ctrl[:] = u
-            return before, u
+            return carried, u
 
         return self.step_rows(rows, ctrl, set_ctrl)
 
@@ -253,9 +248,9 @@ class PostConstraintHost:
 
     def __init__(self, task, threads):
         self.task, self.model, self.threads = task, task.model, resolve_threads(threads)
-        self.n_state = mujoco.mj_stateSize(self.model, STATE_SPEC)
-        self.n_before = task.before(np.zeros((1, self.model.nq)), self._derived(mujoco.MjData(self.model))).shape[1]
-        self.nstate = self.n_state + self.n_before
+        self.n_mj = mujoco.mj_stateSize(self.model, STATE_SPEC)
+        self.n_carry = task.before(np.zeros((1, self.model.nq)), self._derived(mujoco.MjData(self.model))).shape[1]
+        self.nstate = self.n_mj + self.n_carry
         self.n_obs = int(task.observation_size)
         self.n_extra = self.n_obs + 2
         self._datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
@@ -280,7 +275,7 @@ class PostConstraintHost:
             return [r for chunk in chunks for r in chunk]
 
     def _read(self, d, row_out):
-        mujoco.mj_getState(self.model, d, row_out[: self.n_state], STATE_SPEC)
+        mujoco.mj_getState(self.model, d, row_out[: self.n_mj], STATE_SPEC)
         return d.qpos.copy(), d.qvel.copy(), self._derived(d)
 
     def _finish(self, lead, results, obs, reward, terminated):
@@ -307,7 +302,7 @@ class PostConstraintHost:
             mujoco.mj_forward(m, d)
             row = np.zeros(self.nstate)
             qpos, qvel, derived = self._read(d, row)
-            row[self.n_state:] = self.task.before(qpos[None], derived)[0]
+            row[self.n_mj:] = self.task.before(qpos[None], derived)[0]
             return row, qpos, qvel, derived
 
         results = self._each(len(dq), one)
@@ -326,20 +321,20 @@ class PostConstraintHost:
         u = np.asarray(ctrl, np.float64).reshape(-1, m.nu)
 
         def one(d, i):
-            mujoco.mj_setState(m, d, rows[i, : self.n_state], STATE_SPEC)
+            mujoco.mj_setState(m, d, rows[i, : self.n_mj], STATE_SPEC)
             d.ctrl[:] = u[i]
             mujoco.mj_step(m, d, nstep=self.task.frame_skip)
             mujoco.mj_rnePostConstraint(m, d)
             row = np.zeros(self.nstate)
             qpos, qvel, derived = self._read(d, row)
-            row[self.n_state:] = self.task.before(qpos[None], derived)[0]
+            row[self.n_mj:] = self.task.before(qpos[None], derived)[0]
             return row, qpos, qvel, derived
 
         t1 = time.perf_counter()
         results = self._each(len(rows), one)
         t2 = time.perf_counter()
         qpos, qvel, derived = self._gather(results)
-        obs, reward, terminated = self.task.outcome(rows[:, self.n_state:], qpos, qvel, derived, u)
+        obs, reward, terminated = self.task.outcome(rows[:, self.n_mj:], qpos, qvel, derived, u)
         out = self._finish(lead, results, obs, reward, terminated)
         self._count(time.perf_counter() - t0, t2 - t1)
         return out
@@ -380,32 +375,6 @@ class CTask(Env):
     def _check_action(self, action):
         if action.shape[-1:] != (self.action_size,):
             raise ValueError(f"action has shape {action.shape}; this environment takes ({self.action_size},)")
-
-
-class BraxCTask(CTask):
-    """A BraxTaskC task (envs/mujoco_c.py) stepped by MuJoCo C."""
-
-    def __init__(self, name, physics):
-        port = mujoco_c.BRAX_PORTS[name]()
-        super().__init__(name, physics, port, BraxHost(port.model, port.n_frames, physics.threads))
-        self.n_frames, self.dt = port.n_frames, port.dt
-
-    def _observe(self, sim):
-        return self.port.observe_state(sim.qpos, sim.qvel, sim.extra, jnp).astype(jnp.float32)
-
-    def reset(self, rng):
-        """Brax's reset noise for the task (port.noise, port.qvel_noise), drawn here from rng."""
-        sim = self._call(self.host.reset, *start_noise(rng, self.mj_model, self.port.noise, self.port.qvel_noise))
-        zero = jnp.zeros((), jnp.float32)
-        return State(sim, self._observe(sim), zero, zero, {}, {})
-
-    def step(self, state, action):
-        self._check_action(action)
-        sim = self._call(self.host.step, state.pipeline_state.rows, action.astype(jnp.float32))
-        reward = self.port.reward_state(state.pipeline_state.extra, sim.extra, action, jnp)
-        healthy = self.port.healthy_state(sim.qpos, sim.qvel, sim.extra, jnp)
-        return state.replace(pipeline_state=sim, obs=self._observe(sim), reward=reward.astype(jnp.float32),
-                             done=1.0 - healthy.astype(jnp.float32))
 
 
 class AllegroCTask(CTask):

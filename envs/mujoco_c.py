@@ -6,9 +6,10 @@ versions, for running an exported controller outside the simulator it was traine
     obs, reward, done = task.step(action)
 
 Each task ports its MJX environment's reset distribution, observation, reward and termination to
-NumPy (hopper, walker2d, halfcheetah, ant: Brax's tasks with their defaults on backend 'mjx';
-allegro_cylinder: envs/allegro.py). Nothing here
-imports JAX; tests/test_mujoco_c.py checks the ports step for step against the MJX environments.
+NumPy: hopper, walker2d, halfcheetah, ant (Brax's tasks with their defaults on backend 'mjx') as task
+definitions (envs/task.py, BRAX_PORTS: stepped here by envs.task.TaskC, in the program by the C backend as every
+task definition is); allegro_cylinder (envs/allegro.py) as AllegroC. Nothing here imports JAX;
+tests/test_mujoco_c.py checks the ports step for step against the MJX environments.
 """
 
 import importlib.util
@@ -17,7 +18,7 @@ import os
 import mujoco
 import numpy as np
 
-from envs.task import TaskC, coordinate_names
+from envs.task import Task, coordinate_names
 
 C_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")  # the MuJoCo C ports here
 
@@ -30,149 +31,119 @@ def brax_asset(name):
     return os.path.join(spec.submodule_search_locations[0], "envs", "assets", name)
 
 
-class BraxTaskC:
-    """A Brax locomotion task (its defaults, backend 'mjx') in MuJoCo C: the same MJCF and solver
-    options, reset noise, observation, reward and termination. Subclasses set the task's constants
-    and `observe_state` / `healthy_state`, written once over (qpos, qvel, torso position) for NumPy and
-    jax.numpy alike: MuJoCo C here, the C physics backend inside the compiled trainer
-    (envs/c_backend.py). `observation(m, d)` / `healthy(m, d)` read them from an MjData, so they also
-    apply to another simulator's model of the same robot (gsa_jax.deployment.gymnasium_task checks layouts with them).
+class BraxTask(Task):
+    """A Brax locomotion task (its defaults, backend 'mjx') as a task definition (envs/task.py): the same MJCF and
+    solver options, reset noise, observation, reward and termination, so both backends and plain MuJoCo C step it
+    as they step every task definition. Subclasses set the task's constants and `observe_state` /
+    `healthy_state`, written over (qpos [..., nq], qvel [..., nv], torso position [..., 3]) for NumPy and
+    jax.numpy alike, batched or not; `observation(m, d)` reads them from one MjData, so they also apply to another
+    simulator's model of the same robot (gsa_jax.deployment.gymnasium_task checks layouts with them).
 
-    The torso is body 1 (Brax's x.pos[0]); the forward reward is its x velocity over the env step."""
+    The torso is body 1 (Brax's x.pos[0]), read as mj_step leaves it (before the step's last substep, as MJX
+    holds it); the forward reward is its x velocity over the env step."""
 
     asset = ""
-    n_frames = 1
-    noise = 0.0
-    qvel_noise = "uniform"  # 'uniform': U(-noise, noise); 'normal': noise * N(0, 1)
+    options = {}  # MjOption overrides that Brax applies for backend 'mjx'
     ctrl_cost = 0.0
     healthy_reward = 0.0
-    options = {}  # MjOption overrides that Brax applies for backend 'mjx'
+    derived = ("xpos",)
 
-    def __init__(self):
-        self.model = mujoco.MjModel.from_xml_path(brax_asset(self.asset))
+    def load_model(self):
+        model = mujoco.MjModel.from_xml_path(brax_asset(self.asset))
         for k, v in self.options.items():
-            setattr(self.model.opt, k, v)
-        self.data = mujoco.MjData(self.model)
-        self.dt = self.model.opt.timestep * self.n_frames
-
-    @property
-    def action_size(self):
-        return self.model.nu
+            setattr(model.opt, k, v)
+        return model
 
     @staticmethod
     def observe_state(qpos, qvel, torso, xp=np):
-        """Observation from qpos [nq], qvel [nv] and the torso's position torso [3] (Brax's x.pos[0]);
-        xp is numpy or jax.numpy, so the C physics backend (envs/c_backend.py) uses the same definition."""
+        """Observation [..., d] from qpos, qvel and the torso's position (Brax's x.pos[0])."""
         raise NotImplementedError
 
     @staticmethod
     def healthy_state(qpos, qvel, torso, xp=np):
-        """Whether the episode goes on, from the same arrays as observe_state (a bool array)."""
-        return xp.asarray(True)
+        """Whether the episode goes on [...] (bool), from the same arrays as observe_state."""
+        return xp.ones(torso.shape[:-1], bool)
 
-    def reward_state(self, torso0, torso1, action, xp=np):
-        """Forward velocity of the torso over the env step + healthy reward - control cost."""
-        return (torso1[0] - torso0[0]) / self.dt + self.healthy_reward - self.ctrl_cost * xp.sum(action * action)
+    def before(self, qpos, derived, xp=np):
+        """[n, 1] the torso's x position before a step."""
+        return derived["xpos"][:, 1, :1] + 0.0
 
-    @classmethod
-    def observation(cls, m, d):
-        return cls.observe_state(d.qpos, d.qvel, d.xpos[1], np).astype(np.float32)
+    def observe(self, qpos, qvel, derived, xp=np):
+        return self.observe_state(qpos, qvel, derived["xpos"][:, 1], xp)
 
-    @classmethod
-    def healthy(cls, m, d):
-        return bool(cls.healthy_state(d.qpos, d.qvel, d.xpos[1], np))
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        """Forward velocity of the torso over the env step + healthy reward - control cost; done when unhealthy."""
+        torso = derived["xpos"][:, 1]
+        reward = (torso[:, 0] - before[:, 0]) / self.dt + self.healthy_reward - self.ctrl_cost * xp.sum(action * action, axis=1)
+        return self.observe(qpos, qvel, derived, xp), reward, ~self.healthy_state(qpos, qvel, torso, xp)
 
-    def observe(self):
-        return self.observation(self.model, self.data)
+    def observation(self, m, d):
+        """[d] float32: the observation of one MjData (of this model or another simulator's of the same robot)."""
+        return self.observe_state(d.qpos, d.qvel, d.xpos[1], np).astype(np.float32)
 
-    def reset(self, seed):
-        rng = np.random.default_rng(seed)
-        m, d = self.model, self.data
-        mujoco.mj_resetData(m, d)
-        d.qpos[:] = m.qpos0 + rng.uniform(-self.noise, self.noise, m.nq)
-        if self.qvel_noise == "uniform":
-            d.qvel[:] = rng.uniform(-self.noise, self.noise, m.nv)
-        else:
-            d.qvel[:] = self.noise * rng.normal(size=m.nv)
-        mujoco.mj_forward(m, d)
-        return self.observe()
-
-    def step(self, action):
-        """One env step (n_frames physics steps) -> (obs, reward, done)."""
-        a = np.asarray(action, np.float64)
-        if a.shape != (self.model.nu,):
-            raise ValueError(f"action has shape {a.shape}; {type(self).__name__} takes ({self.model.nu},)")
-        m, d = self.model, self.data
-        torso0 = d.xpos[1].copy()
-        d.ctrl[:] = a
-        mujoco.mj_step(m, d, nstep=self.n_frames)
-        reward = self.reward_state(torso0, d.xpos[1], a)
-        return self.observe(), float(reward), not self.healthy(m, d)
-
-    def set_state(self, qpos, qvel):
-        self.data.qpos[:], self.data.qvel[:] = qpos, qvel
-        mujoco.mj_forward(self.model, self.data)
+    def observation_layout(self):
+        return brax_layout(self.port_name)
 
 
-class HopperC(BraxTaskC):
+class HopperC(BraxTask):
     """Brax's `hopper`: 4 substeps of 2 ms; healthy while z > 0.7, |angle| < 0.2, |qpos[2:], qvel| < 100;
     reward = forward velocity + 1 - 1e-3 |a|^2; observation [torso z, qpos[2:], clip(qvel, -10, 10)];
     reset noise U(-5e-3, 5e-3) on qpos and qvel."""
 
-    asset, n_frames, noise, ctrl_cost, healthy_reward = "hopper.xml", 4, 5e-3, 1e-3, 1.0
+    port_name, asset, frame_skip, noise, ctrl_cost, healthy_reward = "hopper", "hopper.xml", 4, 5e-3, 1e-3, 1.0
 
     @staticmethod
     def observe_state(qpos, qvel, torso, xp=np):
         # qpos[1] replaced by the torso height (Brax: x.pos[0, 2])
-        return xp.concatenate([torso[2:3], qpos[2:], xp.clip(qvel, -10.0, 10.0)])
+        return xp.concatenate([torso[..., 2:3], qpos[..., 2:], xp.clip(qvel, -10.0, 10.0)], axis=-1)
 
     @staticmethod
     def healthy_state(qpos, qvel, torso, xp=np):
-        z, angle = torso[2], qpos[2]
-        state = xp.concatenate([qpos[2:], qvel])
-        return xp.all(xp.abs(state) < 100.0) & (z > 0.7) & (angle > -0.2) & (angle < 0.2)
+        z, angle = torso[..., 2], qpos[..., 2]
+        state = xp.concatenate([qpos[..., 2:], qvel], axis=-1)
+        return xp.all(xp.abs(state) < 100.0, axis=-1) & (z > 0.7) & (angle > -0.2) & (angle < 0.2)
 
 
 class Walker2dC(HopperC):
     """Brax's `walker2d`: 4 substeps of 2 ms; healthy while 0.8 < z < 2 and -1 < angle < 1; reward =
     forward velocity + 1 - 1e-3 |a|^2; observation as hopper's; reset noise U(-5e-3, 5e-3)."""
 
-    asset = "walker2d.xml"
+    port_name, asset = "walker2d", "walker2d.xml"
 
     @staticmethod
     def healthy_state(qpos, qvel, torso, xp=np):
-        z, angle = torso[2], qpos[2]
+        z, angle = torso[..., 2], qpos[..., 2]
         return (z > 0.8) & (z < 2.0) & (angle > -1.0) & (angle < 1.0)
 
 
-class HalfCheetahC(BraxTaskC):
+class HalfCheetahC(BraxTask):
     """Brax's `halfcheetah`: 5 substeps of 10 ms; no termination; reward = forward velocity - 0.1 |a|^2;
     observation [qpos[1:], qvel]; reset noise U(-0.1, 0.1) on qpos, 0.1 N(0, 1) on qvel."""
 
-    asset, n_frames, noise, qvel_noise, ctrl_cost = "half_cheetah.xml", 5, 0.1, "normal", 0.1
+    port_name, asset, frame_skip, noise, qvel_noise, ctrl_cost = "halfcheetah", "half_cheetah.xml", 5, 0.1, "normal", 0.1
 
     @staticmethod
     def observe_state(qpos, qvel, torso, xp=np):
-        return xp.concatenate([qpos[1:], qvel])
+        return xp.concatenate([qpos[..., 1:], qvel], axis=-1)
 
 
-class AntC(BraxTaskC):
+class AntC(BraxTask):
     """Brax's `ant` on MJX: 5 substeps of 10 ms with Brax's MJX solver options (Newton, 1 iteration,
     4 line-search iterations, Euler damping off); healthy while 0.2 <= torso z <= 1; reward = forward
     velocity + 1 - 0.5 |a|^2 (no contact cost); observation [qpos[2:], qvel]; reset noise U(-0.1, 0.1)
     on qpos, 0.1 N(0, 1) on qvel."""
 
-    asset, n_frames, noise, qvel_noise, ctrl_cost, healthy_reward = "ant.xml", 5, 0.1, "normal", 0.5, 1.0
+    port_name, asset, frame_skip, noise, qvel_noise, ctrl_cost, healthy_reward = "ant", "ant.xml", 5, 0.1, "normal", 0.5, 1.0
     options = {"solver": int(mujoco.mjtSolver.mjSOL_NEWTON), "disableflags": int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP),
                "iterations": 1, "ls_iterations": 4}
 
     @staticmethod
     def observe_state(qpos, qvel, torso, xp=np):
-        return xp.concatenate([qpos[2:], qvel])
+        return xp.concatenate([qpos[..., 2:], qvel], axis=-1)
 
     @staticmethod
     def healthy_state(qpos, qvel, torso, xp=np):
-        return (torso[2] >= 0.2) & (torso[2] <= 1.0)
+        return (torso[..., 2] >= 0.2) & (torso[..., 2] <= 1.0)
 
 
 class AllegroC:
@@ -208,7 +179,7 @@ class AllegroC:
         return obs, reward, False
 
 
-BRAX_PORTS = {"hopper": HopperC, "walker2d": Walker2dC, "halfcheetah": HalfCheetahC, "ant": AntC}
+BRAX_PORTS = {"hopper": HopperC, "walker2d": Walker2dC, "halfcheetah": HalfCheetahC, "ant": AntC}  # task definitions
 
 
 def make_c(name):

@@ -84,10 +84,11 @@ def _quiet_brax():
     return brax_envs
 
 
-def _make_c_backend(cls_name, name, physics):
+def _c_backend():
+    """envs/c_backend.py (imports JAX), imported without mujoco.mjx's notice."""
     with contextlib.redirect_stdout(io.StringIO()):
         from envs import c_backend
-    return getattr(c_backend, cls_name)(name, physics)
+    return c_backend
 
 
 class BraxVariant(TaskRecord):
@@ -102,13 +103,21 @@ class BraxVariant(TaskRecord):
 
         return self.name in mujoco_c.BRAX_PORTS
 
+    def port(self):
+        """A new instance of the task's MuJoCo C port, a task definition (envs/mujoco_c.py's BRAX_PORTS)."""
+        from envs import mujoco_c
+
+        task = mujoco_c.BRAX_PORTS[self.name]()
+        task.name = self.name
+        return task
+
     def model(self):
         import mujoco
 
         from envs import mujoco_c
 
         if self.has_c:
-            return mujoco_c.BRAX_PORTS[self.name]().model
+            return self.port().model
         return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(self.name + ".xml"))
 
     def make_mjx(self):
@@ -117,14 +126,14 @@ class BraxVariant(TaskRecord):
     def make_c_backend(self, physics):
         if not self.has_c:
             return super().make_c_backend(physics)
-        return _make_c_backend("BraxCTask", self.name, physics)
+        return _c_backend().TaskCEnv(self.name, physics, self.port())
 
     def make_c(self):
-        from envs import mujoco_c
+        from envs.task import TaskC
 
         if not self.has_c:
             return super().make_c()
-        return mujoco_c.BRAX_PORTS[self.name]()
+        return TaskC(self.port())
 
     def observation_layout(self):
         from envs import mujoco_c
@@ -154,7 +163,7 @@ class AllegroRecord(TaskRecord):
         return allegro.AllegroCylinder()
 
     def make_c_backend(self, physics):
-        return _make_c_backend("AllegroCTask", self.name, physics)
+        return _c_backend().AllegroCTask(self.name, physics)
 
     def make_c(self):
         from envs import mujoco_c
@@ -215,9 +224,7 @@ class Definition(TaskRecord):
         return TaskMjx(self.new())
 
     def make_c_backend(self, physics):
-        with contextlib.redirect_stdout(io.StringIO()):
-            from envs import c_backend
-        return c_backend.TaskCEnv(self.name, physics, self.new())
+        return _c_backend().TaskCEnv(self.name, physics, self.new())
 
     def make_c(self):
         from envs.task import TaskC

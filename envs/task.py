@@ -152,6 +152,11 @@ class TaskC:
         mujoco.mj_forward(m, d)
         return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
 
+    def observe(self):
+        """[d] the observation of the current state."""
+        d = self.data
+        return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
+
     def reset(self, seed):
         dq, dv = start_noise(self.task, np.random.default_rng(seed))
         return self.set_start(self.task.start_qpos + dq, dv)

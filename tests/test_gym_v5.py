@@ -66,7 +66,7 @@ def start_state(task, qpos, qvel):
     row = np.zeros(mujoco.mj_stateSize(m, STATE_SPEC))
     mujoco.mj_getState(m, d, row, STATE_SPEC)
     derived = {f: getattr(d, f)[None] for f in task.port.derived}
-    if getattr(task.host, "n_before", 0):  # Ant-v5's host carries what the next step starts from
+    if task.host.n_carry:  # a row carries what the next step starts from (the task's `before` values)
         row = np.concatenate([row, task.port.before(d.qpos[None], derived)[0]])
     obs = task.port.observe(d.qpos[None], d.qvel[None], derived)[0]
     extra = np.concatenate([obs, [0.0, 0.0]]).astype(np.float32)

@@ -19,7 +19,7 @@ from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_layout, make
 def test_v5_layouts_match_ours(task, env_id):
     """gymnasium's v5 observation equals our observation function on its states (ant with its option)."""
     env, options = make_gym(task, env_id, check_steps=30)
-    assert env.observation_space.shape == BRAX_PORTS[task]().observe().shape
+    assert env.observation_space.shape == (BRAX_PORTS[task]().observation_size,)
     assert options == ({"include_cfrc_ext_in_observation": False} if task == "ant" else {})
 
 
