@@ -35,6 +35,7 @@ DEFAULT_EPISODE_LENGTH = 1000
 # the locomotion tasks' actuator ctrlrange and gymnasium's action_space (tests/test_export.py), and the range of
 # allegro_cylinder's PD-target steps (envs/allegro.py).
 ACTION_RANGE = (-1.0, 1.0)
+RESET_MODES = ("first", "fresh")  # where an ended episode restarts (envs/wrappers.py's AutoReset)
 
 
 _REGISTERED = {}  # name -> factory (a Task subclass, or a callable returning a Task)
@@ -309,9 +310,11 @@ def substeps(env):
     return int(getattr(env, "n_frames", None) or getattr(env, "_n_frames", 1))
 
 
-def make(name, episode_length=None, auto_reset=True, physics=None):
+def make(name, episode_length=None, auto_reset=True, physics=None, reset_mode="first"):
     """Task `name` (a name or a TaskRecord) with a time limit of `episode_length` steps (default: the task's own,
-    `default_episode_length(name)`) and (by default) Brax-style auto-reset. physics: see make_base.
+    `default_episode_length(name)`) and (by default) auto-reset: an ended episode restarts from the env's first
+    start state (reset_mode 'first', Brax's convention) or from a new draw of the task's start law ('fresh',
+    as gymnasium and dm_control reset; envs/wrappers.py). physics: see make_base.
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
@@ -323,4 +326,4 @@ def make(name, episode_length=None, auto_reset=True, physics=None):
     if episode_length < 1:
         raise ValueError(f"episode_length must be >= 1, got {episode_length}")
     env = EpisodeLimit(make_base(name, physics), episode_length)
-    return AutoReset(env) if auto_reset else env
+    return AutoReset(env, reset_mode) if auto_reset else env

@@ -1,14 +1,18 @@
 """Time limit and auto-reset for single (unbatched) Brax environments.
 
-Like Brax's EpisodeWrapper + AutoResetWrapper (an ended episode restarts from the state
-its env was first reset to; `info['truncation']` tells a time-limit end from a
-termination), with one addition the value bootstrap needs: `info['final_obs']` holds the
-true last observation of the step, before the reset replaced it.
+Like Brax's EpisodeWrapper + AutoResetWrapper (by default an ended episode restarts from the state its env
+was first reset to; `info['truncation']` tells a time-limit end from a termination), with two additions:
+`info['final_obs']` holds the true last observation of the step, before the reset replaced it (the value
+bootstrap needs it), and reset mode 'fresh', where every episode starts from a new draw of the task's
+start-state law (as gymnasium's and dm_control's resets do): with 'first', a run of n envs sees n start
+states in all, which matters for a task that draws its goal at reset.
 """
 
 import jax
 import jax.numpy as jnp
 from brax.envs.base import Wrapper
+
+from envs import RESET_MODES
 
 
 class EpisodeLimit(Wrapper):
@@ -46,14 +50,35 @@ class EpisodeLimit(Wrapper):
 
 
 class AutoReset(Wrapper):
-    """On done, swap in the first state of this env (Brax's convention); keep the true last obs in info['final_obs']."""
+    """On done, swap in a start state: the env's first (mode 'first', Brax's convention) or a new draw of the
+    task's reset from the env's own key sequence (mode 'fresh'; one reset is computed per step and kept where
+    an episode ended). The true last obs stays in info['final_obs']."""
+
+    def __init__(self, env, mode="first"):
+        super().__init__(env)
+        if mode not in RESET_MODES:
+            raise ValueError(f"reset mode must be one of {', '.join(RESET_MODES)}, got {mode!r}")
+        self.mode = mode
 
     def reset(self, rng):
+        if self.mode == "fresh":
+            key, rng = jax.random.split(rng)
         state = self.env.reset(rng)
-        state.info["first_pipeline_state"] = state.pipeline_state
-        state.info["first_obs"] = state.obs
+        if self.mode == "fresh":
+            state.info["reset_key"] = key
+        else:
+            state.info["first_pipeline_state"] = state.pipeline_state
+            state.info["first_obs"] = state.obs
         state.info["final_obs"] = state.obs
         return state
+
+    def _start(self, state):
+        """(pipeline_state, obs) an episode ended in `state` restarts from; advances the env's reset key."""
+        if self.mode == "first":
+            return state.info["first_pipeline_state"], state.info["first_obs"], state.info
+        key, sub = jax.random.split(state.info["reset_key"])
+        new = self.env.reset(sub)
+        return new.pipeline_state, new.obs, {**state.info, "reset_key": key}
 
     def step(self, state, action):
         # the previous step may have ended an episode and already been reset: start the new one clean
@@ -63,7 +88,8 @@ class AutoReset(Wrapper):
         def pick(first, current):
             return jnp.where(done, first, current)
 
-        pipeline_state = jax.tree.map(pick, state.info["first_pipeline_state"], state.pipeline_state)
-        state.info["final_obs"] = state.obs
-        state.info["steps"] = jnp.where(done, 0, state.info["steps"])
-        return state.replace(pipeline_state=pipeline_state, obs=pick(state.info["first_obs"], state.obs))
+        start, start_obs, info = self._start(state)
+        pipeline_state = jax.tree.map(pick, start, state.pipeline_state)
+        info["final_obs"] = state.obs
+        info["steps"] = jnp.where(done, 0, state.info["steps"])
+        return state.replace(pipeline_state=pipeline_state, obs=pick(start_obs, state.obs), info=info)

@@ -72,6 +72,9 @@ def build_parser():
                         "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
     p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
                    help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
+    p.add_argument("--reset-mode", default=Config.reset_mode, choices=("first", "fresh"),
+                   help="where an ended training episode restarts: the env's first start state (Brax's convention) "
+                        "or a fresh draw of the task's start law (gymnasium's and dm_control's)")
     p.add_argument("--value-target", default=Config.value_target,
                    help=f"the value function's targets, one of {', '.join(VALUE_TARGETS)}: GAE(lambda) on each "
                         "iteration's samples (default), or Retrace "
@@ -106,7 +109,8 @@ def make_config(args, k_max):
         b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
         solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
         cholesky=args.cholesky, value_target=args.value_target, retrace_iterations=args.retrace_iterations,
-        backend=args.physics, physics_threads=args.physics_threads, **getattr(args, "unflagged_config", {}),
+        backend=args.physics, physics_threads=args.physics_threads, reset_mode=args.reset_mode,
+        **getattr(args, "unflagged_config", {}),
     )
     try:
         return cfg.validate()
@@ -114,7 +118,7 @@ def make_config(args, k_max):
         msg = str(e)
         for field, flag in (("num_envs", "--num-envs"), ("num_minibatches", "--minibatches"),
                             ("solver_iterations", "--solver-iterations"), ("ls_iterations", "--ls-iterations"),
-                            ("retrace_iterations", "--retrace-iterations"), ("value_target", "--value-target"),
+                            ("retrace_iterations", "--retrace-iterations"), ("value_target", "--value-target"), ("reset_mode", "--reset-mode"),
                             ("backend", "--physics"), ("threads", "--physics-threads")):
             msg = msg.replace(field, flag)
         raise UsageError(msg) from None
@@ -173,7 +177,7 @@ def saved_options(saved):
             "minibatches": c["num_minibatches"], "episode_length": c["episode_length"],
             "solver_iterations": c["solver_iterations"], "ls_iterations": c["ls_iterations"],
             "linesearch": c["linesearch"], "cholesky": c["cholesky"], "physics": c["backend"],
-            "physics_threads": c["physics_threads"], "value_target": c["value_target"],
+            "physics_threads": c["physics_threads"], "value_target": c["value_target"], "reset_mode": c["reset_mode"],
             "retrace_iterations": c["retrace_iterations"], "b_init_scale": c["b_init_scale"],
             "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],
             "eval_every": saved.get("eval_every"), "eval_seed": saved.get("eval_seed", 0), "eval_envs": c["eval_envs"],

@@ -303,3 +303,33 @@ def test_a_users_brax_or_playground_env_class_steps_as_the_librarys_own(mine, th
     if mine == "MyReacher":
         with pytest.raises(ValueError, match="steps on MJX .* has backend 'generalized'"):
             envs.check_name(f"{tmp_path / 'user_envs.py'}:OnGeneralized")
+
+
+def test_reset_mode_fresh_starts_every_episode_from_a_new_draw_and_first_from_the_first():
+    """envs.make(..., reset_mode): with 'fresh' each of 4 envs' 6 episodes (5-step time limit, backend 'c') starts
+    from a different target (the example draws its target at reset), and a run of 4 envs sees 24 targets; with
+    'first' (Brax's convention, the default) every episode of an env restarts where its first did."""
+    def targets(mode):
+        env = envs.make(TASK, episode_length=5, physics=Physics(backend="c"), reset_mode=mode)
+        s = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
+
+        def body(s, a):
+            s = jax.vmap(env.step)(s, a)
+            return s, (s.obs[:, 4:6], s.done)  # the target's position, obs after any reset
+
+        actions = jnp.zeros((30, 4, env.action_size))
+        _, (obs, done) = jax.jit(lambda s, a: jax.lax.scan(body, s, a))(s, actions)
+        first = np.asarray(s.obs[:, 4:6])
+        return first, np.asarray(obs)[np.asarray(done) > 0.5].reshape(6, 4, 2)  # each env's 6 restarts
+
+    first, restarts = targets("first")
+    np.testing.assert_array_equal(restarts, np.broadcast_to(first, restarts.shape))
+    first, restarts = targets("fresh")
+    all_targets = np.concatenate([first[None], restarts]).reshape(-1, 2)
+    assert len({t.tobytes() for t in all_targets}) == 28 and np.all(np.abs(all_targets) <= 0.14 + 1e-6)
+    with pytest.raises(ValueError, match="reset mode must be one of first, fresh"):
+        envs.make(TASK, reset_mode="again")
+    from gsa_jax.algorithm.ppo import Config
+
+    with pytest.raises(ValueError, match="unknown reset_mode 'again'; choose one of first, fresh"):
+        Config(env=TASK, reset_mode="again").validate()

@@ -50,6 +50,9 @@ class Config:
     num_minibatches: int = 32
     hidden: tuple = (64, 64)
     episode_length: int | None = None  # None: the task's own (envs.default_episode_length)
+    # where an ended training episode restarts: "first" (the env's first start state, Brax's convention) or
+    # "fresh" (a new draw of the task's start law, as gymnasium and dm_control reset; envs/wrappers.py)
+    reset_mode: str = "first"
     normalize_obs: bool = True
     normalize_reward: bool = True
     b_init_scale: float = 1.0
@@ -101,6 +104,8 @@ class Config:
             raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
         if self.subpolicy not in SUBPOLICY_KINDS:
             raise ValueError(f"unknown subpolicy {self.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
+        if self.reset_mode not in envs.RESET_MODES:
+            raise ValueError(f"unknown reset_mode {self.reset_mode!r}; choose one of {', '.join(envs.RESET_MODES)}")
         if self.value_target not in VALUE_TARGETS:
             raise ValueError(f"unknown value_target {self.value_target!r}; choose one of {', '.join(VALUE_TARGETS)}")
         for name in ("k_max", "num_envs", "unroll_length", "num_epochs", "num_minibatches", "episode_length", "eval_envs",
@@ -254,7 +259,7 @@ class Trainer(NamedTuple):
 
 def make_env(cfg, auto_reset=True, task=None):
     """The task (its record, default: cfg.env's) as a Config describes it: time limit and physics options."""
-    return envs.make(cfg.env if task is None else task, cfg.episode_length, auto_reset, cfg.physics)
+    return envs.make(cfg.env if task is None else task, cfg.episode_length, auto_reset, cfg.physics, cfg.reset_mode)
 
 
 class Parts(NamedTuple):
