@@ -73,6 +73,8 @@ class HopperV5(V5Task):
     """Hopper-v5: reward = x velocity + 1 (while healthy) - 1e-3 |a|^2; healthy while every element of
     qpos[2:], qvel lies in (-100, 100), 0.7 < z and -0.2 < angle < 0.2; obs [qpos[1:], clip(qvel, +-10)]."""
 
+    planar = True
+
     env_id, xml, frame_skip, noise = "Hopper-v5", "hopper.xml", 4, 5e-3
     ctrl_cost = 1e-3
 
@@ -106,6 +108,8 @@ class HalfCheetahV5(V5Task):
     """HalfCheetah-v5: reward = x velocity - 0.1 |a|^2, never terminates; obs [qpos[1:], qvel];
     reset noise U(-0.1, 0.1) on qpos, 0.1 N(0, 1) on qvel."""
 
+    planar = True
+
     env_id, xml, frame_skip, noise, qvel_noise = "HalfCheetah-v5", "half_cheetah.xml", 5, 0.1, "normal"
 
     def observe(self, qpos, qvel, derived, xp=np):
@@ -121,6 +125,8 @@ class InvertedDoublePendulumV5(V5Task):
     """InvertedDoublePendulum-v5: obs [cart x, sin, cos of the two hinges, clip(qvel, +-10),
     clip(qfrc_constraint[0], +-10)] (9); the tip site at (x, _, y) ends the episode when y <= 1;
     reward = 10 (unless terminated) - 0.01 x^2 - (y - 2)^2 - 1e-3 v1^2 - 5e-3 v2^2."""
+
+    planar = True
 
     env_id, xml, frame_skip, noise, qvel_noise = "InvertedDoublePendulum-v5", "inverted_double_pendulum.xml", 5, 0.1, "normal"
     derived = ("site_xpos", "qfrc_constraint")

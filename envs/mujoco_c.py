@@ -90,6 +90,8 @@ class HopperC(BraxTask):
     reward = forward velocity + 1 - 1e-3 |a|^2; observation [torso z, qpos[2:], clip(qvel, -10, 10)];
     reset noise U(-5e-3, 5e-3) on qpos and qvel."""
 
+    planar = True
+
     port_name, asset, frame_skip, noise, ctrl_cost, healthy_reward = "hopper", "hopper.xml", 4, 5e-3, 1e-3, 1.0
 
     @staticmethod
@@ -119,6 +121,8 @@ class Walker2dC(HopperC):
 class HalfCheetahC(BraxTask):
     """Brax's `halfcheetah`: 5 substeps of 10 ms; no termination; reward = forward velocity - 0.1 |a|^2;
     observation [qpos[1:], qvel]; reset noise U(-0.1, 0.1) on qpos, 0.1 N(0, 1) on qvel."""
+
+    planar = True
 
     port_name, asset, frame_skip, noise, qvel_noise, ctrl_cost = "halfcheetah", "half_cheetah.xml", 5, 0.1, "normal", 0.1
 

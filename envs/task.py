@@ -74,6 +74,10 @@ class Task:
     qvel_noise = "uniform"
     derived = ()  # MjData fields read after a call, as mj_step leaves them (one substep behind the state)
     post_constraint = False  # whether a derived field needs mj_rnePostConstraint after the step
+    # robustness pushes (gsa_jax.robustness): the body they act on (a name, or an index: 1 is the first body below
+    # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
+    push_body = 1
+    planar = False
 
     def __init__(self):
         for field in ("noise", "vel_noise", "init_qpos"):  # lists as arrays (scalars stay scalars)
@@ -112,6 +116,12 @@ class Task:
     def observation_layout(self):
         """One short description per observation entry (exported controllers' docs)."""
         return [f"obs[{i}]" for i in range(self.observation_size)]
+
+    def push_body_id(self):
+        """The index of the body robustness pushes act on (push_body)."""
+        if isinstance(self.push_body, str):
+            return mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, self.push_body)
+        return int(self.push_body)
 
 
 def start_noise(task, rng):
@@ -207,6 +217,11 @@ def _validate(task, where):
         raise TaskError(f"{where}: actuator {m.actuator(int(limited[0])).name or int(limited[0])} has ctrlrange "
                         f"{m.actuator_ctrlrange[limited[0]].tolist()}; the policy's actions lie in [-1, 1]: give every "
                         "actuator ctrlrange=\"-1 1\" and scale it with gear")
+    body = task.push_body
+    if not ((isinstance(body, str) and mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body) >= 0)
+            or (isinstance(body, int) and 0 < body < m.nbody)):
+        raise TaskError(f"{where}: push_body {task.push_body!r} is not a body of the model (a name, or an index in 1 .. "
+                        f"{m.nbody - 1})")
     for field, size in (("noise", m.nq), ("vel_noise", m.nv), ("init_qpos", m.nq)):
         v = getattr(task, field)
         if v is not None and np.ndim(v) > 0 and np.shape(v) != (size,):

@@ -18,7 +18,7 @@ from gsa_jax.running.trained import FormatError, read_run
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.render", description=__doc__.split("\n")[0])
-    p.add_argument("env", help=f"one of: {', '.join(envs.NAMES)}")
+    p.add_argument("env", help=f"one of: {', '.join(envs.NAMES)}; a task of yours, 'module:Class'; 'brax:<name>', 'playground:<Name>'")
     p.add_argument("--out", required=True, help="scene.png, or with --run: video.gif / video.mp4")
     p.add_argument("--run", default=None, help="a run directory or SWEEP_DIR/<run label>: render its deterministic controller")
     p.add_argument("--episodes", type=int, default=1)

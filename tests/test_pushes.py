@@ -172,3 +172,25 @@ def test_cli_adds_paired_pushes_to_an_evaluation_made_without_them(tmp_path, cap
         assert main(base + flags) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and message in err, err
+
+
+def test_a_push_acts_on_the_body_the_task_names():
+    """step_task pushes the task definition's push_body (envs/task.py; here the example's forearm, by name) during
+    the step only; a task's `planar` decides the directions (the example: any horizontal angle)."""
+    from examples.reacher import Reacher
+
+    from envs.task import TaskC
+    from gsa_jax.deployment.shifts import is_planar, step_task
+
+    class Forearm(Reacher):
+        push_body = "forearm"
+
+    task = TaskC(Forearm())
+    task.reset(0)
+    seen = []
+    inner = task.step
+    task.step = lambda a: (seen.append(task.data.xfrc_applied.copy()), inner(a))[1]
+    step_task(task, np.zeros(2), np.array([0.5, -0.25]))
+    forearm = task.model.body("forearm").id
+    assert seen[0][forearm, :2].tolist() == [0.5, -0.25] and np.count_nonzero(seen[0]) == 2
+    assert not task.data.xfrc_applied.any() and not is_planar(task)

@@ -99,6 +99,7 @@ BAD = {
     "post_constraint": ("FILE:ForcesWithoutFlag", "set post_constraint = True"),
     "raises": ("FILE:Raises", "stepping it failed: ZeroDivisionError"),
     "not_a_task": ("FILE:NotATask", "not an envs.task.Task"),
+    "push_body": ("FILE:NoSuchBody", "push_body 'hand' is not a body of the model"),
     "ctrlrange": ("FILE:WideRange", "has ctrlrange [-2.0, 2.0]; the policy's actions lie in [-1, 1]"),
 }
 BAD_TASKS = '''
@@ -147,6 +148,9 @@ class WideRange(Reacher):
 
 class NotATask:
     pass
+
+class NoSuchBody(Reacher):
+    push_body = "hand"
 '''
 
 

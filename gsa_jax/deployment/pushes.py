@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gsa_jax.deployment.shifts import PLANAR, Shift, shifted_task, step_task, task_step_seconds
+from gsa_jax.deployment.shifts import Shift, is_planar, shifted_task, step_task, task_step_seconds
 
 PUSH_SIZES = (0.25, 0.5, 1.0)  # m/s: the velocity change of the whole robot each push gives
 WINDOWS = (20, 50, 100)  # env steps after the push in which a fall counts
@@ -154,9 +154,9 @@ def evaluate_pushes(ctrl, env_name, seeds, sizes=PUSH_SIZES, windows=WINDOWS, pe
     event_row's columns) and its control episodes' {nominal_score, mean_length, full_length_fraction}.
     make_task: the task's MuJoCo C twin (default: env_name's, nominal physics)."""
     make_task = make_task or (lambda: shifted_task(env_name, Shift("nominal")))
-    rows, returns, lengths = [], [], []
+    rows, returns, lengths, planar = [], [], [], is_planar(make_task())
     for seed in seeds:
-        new, control = push_start(ctrl, make_task, env_name in PLANAR, seed, sizes, windows, per_episode, length)
+        new, control = push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, length)
         rows += new
         returns.append(control.rewards.sum())
         lengths.append(int(control.lengths[0]))

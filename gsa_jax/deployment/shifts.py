@@ -27,8 +27,6 @@ from envs.mujoco_c import make_c
 PUSH_RATE = 0.01  # probability of a push at each env step (one every 100 steps on average)
 OTHER_SIMULATOR = {"Hopper-v5": "hopper", "Walker2d-v5": "walker2d", "HalfCheetah-v5": "halfcheetah",
                    "hopper": "Hopper-v5", "walker2d": "Walker2d-v5", "halfcheetah": "HalfCheetah-v5"}
-PLANAR = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "InvertedDoublePendulum-v5", "hopper", "walker2d", "halfcheetah",
-          "inverted_double_pendulum")  # robots that move in the x-z plane: pushes along +-x
 KINDS = ("nominal", "simulator", "mass", "friction", "gear", "obs_noise", "action_delay", "push")
 
 
@@ -76,15 +74,28 @@ def push_schedule(rng, length, planar):
     return hit[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
 
 
+def is_planar(task):
+    """Whether a MuJoCo C task's robot moves in the x-z plane (pushes then act along +-x): its definition's
+    `planar` (envs/task.py; False for a task without one)."""
+    return bool(getattr(getattr(task, "task", None), "planar", False))
+
+
+def push_body(task):
+    """The body a push acts on in a MuJoCo C task: its definition's push_body (envs/task.py), else body 1."""
+    definition = getattr(task, "task", None)
+    return definition.push_body_id() if definition is not None else 1
+
+
 def step_task(task, action, push_force):
-    """One env step of a MuJoCo C task, with a horizontal force [2] on body 1 during it (zero: none)."""
+    """One env step of a MuJoCo C task, with a horizontal force [2] on its push body during it (zero: none)."""
     if not push_force.any():
         return task.step(action)
-    task.data.xfrc_applied[1, :2] = push_force
+    body = push_body(task)
+    task.data.xfrc_applied[body, :2] = push_force
     try:
         return task.step(action)
     finally:
-        task.data.xfrc_applied[1, :2] = 0.0
+        task.data.xfrc_applied[body, :2] = 0.0
 
 
 def task_step_seconds(task):
@@ -100,7 +111,7 @@ def run_shifted(ctrl, env_name, shift, seeds, length=1000, record=False):
     obs = np.stack([t.reset(int(s)) for t, s in zip(tasks, seeds)]).astype(np.float64)
     rng = np.random.default_rng([int(s) for s in seeds] + [KINDS.index(shift.kind)])
     std = np.asarray(ctrl.obs_std, np.float64)
-    pushes = np.stack([push_schedule(rng, length, env_name in PLANAR) for _ in seeds]) if shift.kind == "push" else None
+    pushes = np.stack([push_schedule(rng, length, is_planar(tasks[0])) for _ in seeds]) if shift.kind == "push" else None
     impulse = shift.level * float(np.sum(tasks[0].model.body_mass)) / task_step_seconds(tasks[0])
     alive, returns, lengths = np.ones(len(seeds), bool), np.zeros(len(seeds)), np.zeros(len(seeds), int)
     prev, seen = np.zeros((len(seeds), tasks[0].model.nu)), []
