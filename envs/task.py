@@ -64,20 +64,20 @@ class Task:
     or vel_noise * N(0, 1) ('normal'); noise and vel_noise are scalars or per-coordinate arrays [nq] / [nv]
     (vel_noise None: noise). init_qpos None: the model's qpos0."""
 
-    name = ""  # set by the registry: the name the task was asked for
-    xml = None
-    frame_skip = 1
-    episode_length = 1000
-    init_qpos = None
-    noise = 0.0
-    vel_noise = None
-    qvel_noise = "uniform"
-    derived = ()  # MjData fields read after a call, as mj_step leaves them (one substep behind the state)
-    post_constraint = False  # whether a derived field needs mj_rnePostConstraint after the step
+    name: str = ""  # set by the registry: the name the task was asked for
+    xml: "str | os.PathLike | mujoco.MjSpec | None" = None
+    frame_skip: int = 1
+    episode_length: int = 1000
+    init_qpos: "np.ndarray | None" = None
+    noise: "float | np.ndarray" = 0.0
+    vel_noise: "float | np.ndarray | None" = None
+    qvel_noise: str = "uniform"
+    derived: tuple = ()  # MjData fields read after a call, as mj_step leaves them (one substep behind the state)
+    post_constraint: bool = False  # whether a derived field needs mj_rnePostConstraint after the step
     # robustness pushes (gsa_jax.robustness): the body they act on (a name, or an index: 1 is the first body below
     # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
-    push_body = 1
-    planar = False
+    push_body: "int | str" = 1
+    planar: bool = False
 
     def __init__(self):
         for field in ("noise", "vel_noise", "init_qpos"):  # lists as arrays (scalars stay scalars)
@@ -101,15 +101,16 @@ class Task:
         zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
         return self.observe(self.start_qpos[None], np.zeros((1, self.model.nv)), zeros).shape[-1]
 
-    def before(self, qpos, derived, xp=np):
+    def before(self, qpos: np.ndarray, derived: dict, xp=np) -> np.ndarray:
         """[n, k] what the reward needs from before a step (default: nothing, k = 0)."""
         return qpos[:, :0] + 0.0
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp=np) -> np.ndarray:
         """[n, d] observation of n simulations: qpos [n, nq], qvel [n, nv], derived {field: [n, ...]}."""
         raise NotImplementedError(f"{type(self).__name__} defines no observe()")
 
-    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+    def outcome(self, before: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+                xp=np) -> tuple:
         """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
         raise NotImplementedError(f"{type(self).__name__} defines no outcome()")
 

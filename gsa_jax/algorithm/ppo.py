@@ -152,8 +152,9 @@ HPARAM_DEFAULTS = Hparams()._asdict()
 _INT_HPARAMS = ("K", "total_iterations")
 
 
-def make_hparams(**overrides):
-    """Hparams of array scalars (float32; K and total_iterations int32): the defaults with `overrides`."""
+def make_hparams(**overrides) -> Hparams:
+    """Hparams of array scalars (float32; K and total_iterations int32): the defaults with `overrides` (names of
+    Hparams' fields; an unknown name is a ValueError)."""
     unknown = set(overrides) - set(HPARAM_DEFAULTS)
     if unknown:
         raise ValueError(f"unknown hyperparameter(s) {sorted(unknown)}; known: {', '.join(HPARAM_DEFAULTS)}")

@@ -110,7 +110,7 @@ class Controller:
             return np.zeros(z.shape[:-1], np.int64)
         return np.argmax(self._mlp(z)[..., : self.num_clusters], axis=-1)
 
-    def act(self, obs, clip=True):
+    def act(self, obs: np.ndarray, clip: bool = True) -> np.ndarray:
         """Deterministic action for obs [..., d_s] -> float32 [..., d_a], inside [action_low, action_high] (clip=False:
         the raw action; a controller without bounds, see load, always returns it)."""
         raw = self._raw_action(obs)
@@ -128,7 +128,7 @@ class Controller:
         return np.einsum("...ij,...j->...i", self.L[c], self.features(z)) + self.b[c]
 
 
-def load(path):
+def load(path: str) -> Controller:
     """The controller of an exported .npz; one warning line where it has no action bounds and names no known task."""
     with np.load(path, allow_pickle=False) as f:
         return Controller({k: f[k] for k in f.files}, name=str(path))

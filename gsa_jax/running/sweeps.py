@@ -21,7 +21,7 @@ from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
 from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
 from gsa_jax.running.spec import (
-    Group, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name,
+    Group, SweepSpec, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name,
 )
 from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
 from gsa_jax.running.trained import run_label
@@ -159,9 +159,12 @@ def write_sweep_meta(root, spec, groups, options):
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
 
-def run_sweep(spec, out, options=SweepOptions()):
+def run_sweep(spec: SweepSpec, out: str, options: SweepOptions = SweepOptions()) -> bool:
     """Train every group of the spec (this process's share of each). Returns True when all groups are done;
-    failed runs (NaN/inf) go to failed_runs.json in this process's directory; TensorBoard: out/tensorboard/<run>/."""
+    failed runs (NaN/inf) go to failed_runs.json in this process's directory; TensorBoard: out/tensorboard/<run>/.
+
+    spec: an experiment file, checked (gsa_jax.running.spec.load_spec); out: the sweep directory (a directory that
+    holds this sweep is resumed); options: devices, processes, chunking, progress (SweepOptions)."""
     pid, nproc = options.process_id, options.num_processes
     prefix = f"[process {pid}] " if nproc > 1 else ""
 
