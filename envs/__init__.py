@@ -217,7 +217,8 @@ def default_episode_length(name) -> int:
 def task_model(name):
     """The MuJoCo C model (MjModel) of a task's MJCF with the solver options its MJX version steps with
     (Brax's for the gym tasks), loaded without JAX or MJX (but for another library's environment, built once):
-    for sizes and physics records."""
+    for sizes and physics records. The record's own, shared by every caller: read it, never change it (a task to
+    change, e.g. under a shift, comes from task_record(name).make_c())."""
     return task_record(name).model()
 
 

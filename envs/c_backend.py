@@ -5,7 +5,7 @@
 The classes are built by the tasks' records (envs/registry.py): TaskCEnv, AllegroCTask.
 
 Each env's simulation state is its float64 mjSTATE_INTEGRATION row (time, qpos, qvel, act, solver
-warmstart, ctrl, ...), carried through the JAX program bit for bit as uint32 pairs (the program runs
+warmstart, ctrl, ...) followed by what the task carries to its next step (n_carry values: its `before`), carried through the JAX program bit for bit as uint32 pairs (the program runs
 float32). A step is one host call (envs/host_call.py) into mujoco.batch.Batch, which steps every env of the vmapped
 batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjData per env. The state
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
@@ -81,7 +81,7 @@ class HostBatches:
         _HOSTS.add(self)
 
     def reset_row(self):
-        """The row every reset starts from [nstate]: mj_resetData's state, or the keyframe's."""
+        """The mjSTATE_INTEGRATION row every reset starts from [n_mj]: mj_resetData's state, or the keyframe's."""
         data = mujoco.MjData(self.model)
         if self.keyframe is not None:
             mujoco.mj_resetDataKeyframe(self.model, data, self.model.key(self.keyframe).id)
@@ -432,5 +432,6 @@ class TaskCEnv(CTask):
 
 
 def float64_rows(rows):
-    """The float64 mjSTATE_INTEGRATION rows [..., nstate] of SimState.rows [..., 2 nstate] (host arrays)."""
+    """The float64 rows [..., nstate] of SimState.rows [..., 2 nstate] (host arrays): the mjSTATE_INTEGRATION row,
+    then what the host carries (HostBatches.n_carry)."""
     return np.ascontiguousarray(np.asarray(rows)).view(np.float64)

@@ -15,6 +15,7 @@ names into records and keeps no table of its own.
 """
 
 import contextlib
+import copy
 import functools
 import io
 from typing import Any, Callable, Optional
@@ -253,7 +254,7 @@ def definition_record(task, name: str = "") -> "Definition":
     if isinstance(task, type) and issubclass(task, Task):
         factory = task
     elif isinstance(task, Task):
-        factory = lambda: task  # noqa: E731
+        factory = lambda: copy.deepcopy(task)  # noqa: E731  (new() promises its own MjModel)
     else:
         raise TaskError(f"a task is a name, a TaskRecord or an envs.task.Task (instance or subclass), got {task!r}")
     record = Definition(name or (task if isinstance(task, type) else type(task)).__name__, factory)
@@ -370,14 +371,17 @@ class UserEnv(Adapted):
         super().__init__(name)
         self.cls, self.library, self.version_of = cls, library, library
         self.theirs = f"{cls.__module__}.{cls.__qualname__}"
+        self._length = None
 
     def check(self):
         self.model()
 
     def episode_length(self):
-        if self.library == "playground":
-            return int(self.make_mjx().episode_length)
-        return DEFAULT_EPISODE_LENGTH
+        if self.library != "playground":
+            return DEFAULT_EPISODE_LENGTH
+        if self._length is None:  # building the env takes seconds: once per record
+            self._length = int(self.make_mjx().episode_length)
+        return self._length
 
     def make_mjx(self):
         try:
@@ -387,9 +391,7 @@ class UserEnv(Adapted):
 
                     return PlaygroundEnv(self.name, _make_playground(self.cls))
                 env = _make_brax(self.cls)
-        except ValueError:
-            raise
-        except Exception as e:
+        except Exception as e:  # the user's constructor, or the library's: one line naming the task
             raise ValueError(f"task {self.name!r}: making it failed: {type(e).__name__}: "
                              f"{' '.join(str(e).split())[:200]}") from None
         on_mjx = hasattr(env, "mj_model") or hasattr(getattr(env, "sys", None), "mj_model")
@@ -415,11 +417,13 @@ def _make_brax(cls):
 
 
 def _make_playground(cls):
-    """A Playground MjxEnv subclass made as its registry makes one, with impl 'jax' (MJX)."""
-    try:
+    """A Playground MjxEnv subclass made as its registry makes one, with impl 'jax' (MJX) where its constructor
+    takes config_overrides."""
+    import inspect
+
+    if "config_overrides" in inspect.signature(cls.__init__).parameters:
         return cls(config_overrides={"impl": "jax"})
-    except TypeError:
-        return cls()
+    return cls()
 
 
 def library_of(obj) -> Optional[str]:

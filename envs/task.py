@@ -28,6 +28,7 @@ clipped to [-1, 1]), mj_step frame_skip times (and mj_rnePostConstraint if post_
 """
 
 import hashlib
+import numbers
 import os
 
 import mujoco
@@ -152,6 +153,11 @@ class TaskC:
     def action_size(self):
         return self.model.nu
 
+    @property
+    def n_frames(self):
+        """Physics steps per env step (the task's frame_skip)."""
+        return int(self.task.frame_skip)
+
     def _derived(self):
         return {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
 
@@ -220,7 +226,7 @@ def _validate(task, where):
                         "actuator ctrlrange=\"-1 1\" and scale it with gear")
     body = task.push_body
     if not ((isinstance(body, str) and mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body) >= 0)
-            or (isinstance(body, int) and 0 < body < m.nbody)):
+            or (isinstance(body, numbers.Integral) and 0 < body < m.nbody)):
         raise TaskError(f"{where}: push_body {task.push_body!r} is not a body of the model (a name, or an index in 1 .. "
                         f"{m.nbody - 1})")
     for field, size in (("noise", m.nq), ("vel_noise", m.nv), ("init_qpos", m.nq)):

@@ -52,7 +52,9 @@ class EpisodeLimit(Wrapper):
 class AutoReset(Wrapper):
     """On done, swap in a start state: the env's first (mode 'first', Brax's convention) or a new draw of the
     task's reset from the env's own key sequence (mode 'fresh'; one reset is computed per step and kept where
-    an episode ended). The true last obs stays in info['final_obs']."""
+    an episode ended). The true last obs stays in info['final_obs']. A restart takes the new start's
+    pipeline_state and obs only: a task that keeps its goal in state.info (not in pipeline_state) keeps the old
+    goal in mode 'fresh'."""
 
     def __init__(self, env, mode="first"):
         super().__init__(env)

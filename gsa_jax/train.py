@@ -36,6 +36,24 @@ _HP_FLAGS = {  # CLI flag -> hparam name
 }
 
 
+def add_physics_flags(p):
+    """The physics options (envs/physics.py): backend, its threads, and MJX's solver settings."""
+    p.add_argument("--solver-iterations", type=int, default=None,
+                   help="MJX constraint-solver iterations (default: the task's own; hopper 4). Fewer is faster but a "
+                        "changed simulator -- see experiments/solver_hopper/")
+    p.add_argument("--ls-iterations", type=int, default=None,
+                   help="MJX line-search iterations per solver iteration (default: the task's own; hopper 50)")
+    p.add_argument("--linesearch", default=Config.linesearch, choices=("exact", "iterative"),
+                   help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
+    p.add_argument("--cholesky", default=Config.cholesky, choices=("unrolled", "lapack"),
+                   help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
+    p.add_argument("--physics", default=Config.backend, choices=("mjx", "c"),
+                   help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
+                        "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
+    p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
+                   help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=__doc__.split("\n")[0])
     p.add_argument("--env", default="inverted_double_pendulum",
@@ -58,23 +76,9 @@ def build_parser():
     p.add_argument("--epochs", type=int, default=Config.num_epochs)
     p.add_argument("--minibatches", type=int, default=Config.num_minibatches)
     p.add_argument("--episode-length", type=int, default=None, help="time limit in steps (default: the task's own)")
-    p.add_argument("--solver-iterations", type=int, default=None,
-                   help="MJX constraint-solver iterations (default: the task's own; hopper 4). Fewer is faster but a "
-                        "changed simulator -- see experiments/solver_hopper/")
-    p.add_argument("--ls-iterations", type=int, default=None,
-                   help="MJX line-search iterations per solver iteration (default: the task's own; hopper 50)")
-    p.add_argument("--linesearch", default=Config.linesearch, choices=("exact", "iterative"),
-                   help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
-    p.add_argument("--cholesky", default=Config.cholesky, choices=("unrolled", "lapack"),
-                   help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
-    p.add_argument("--physics", default=Config.backend, choices=("mjx", "c"),
-                   help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
-                        "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
-    p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
-                   help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
-    p.add_argument("--reset-mode", default=Config.reset_mode, choices=("first", "fresh"),
-                   help="where an ended training episode restarts: the env's first start state (Brax's convention) "
-                        "or a fresh draw of the task's start law (gymnasium's and dm_control's)")
+    add_physics_flags(p)
+    p.add_argument("--reset-mode", default=Config.reset_mode, choices=envs.RESET_MODES,
+                   help="first: an ended episode restarts from its env's first start (Brax's); fresh: a new draw")
     p.add_argument("--value-target", default=Config.value_target,
                    help=f"the value function's targets, one of {', '.join(VALUE_TARGETS)}: GAE(lambda) on each "
                         "iteration's samples (default), or Retrace "

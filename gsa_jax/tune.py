@@ -2,7 +2,7 @@
 number of configurations drawn from its stated ranges (the first the defaults), trained on the tuning seeds;
 the best by IQM of the final deterministic score is trained on the evaluation seeds:
 
-    python -m gsa_jax.tune TUNING.toml --out DIR [--phase tune|evaluate|all] [--baseline SWEEP_DIR ...]
+    python -m gsa_jax.tune TUNING.toml --out DIR [--phase tune|evaluate|all|rank] [--baseline SWEEP_DIR ...]
 
 (gsa_jax.running.tuning says what a tuning file holds.) Per class under DIR/<class>/: tuning.toml and the
 tuning sweep (tuning/), selection.csv (every configuration's tuning scores, best first), evaluation.toml and
@@ -10,6 +10,11 @@ its sweep (evaluation/). DIR/tuning.csv: per class the chosen configuration, its
 P(beats the flat PPO class) [CI]; with --baseline (sweep directories holding the same env, policy and K at
 the defaults on the evaluation seeds, e.g. Figure 1's) the defaults' IQM and P next to them. Each sweep is
 gsa_jax.sweep's (resumable: run the same command again); a phase already done is not run twice.
+
+--phase rank (after tune) checks that short tuning runs rank configurations as full-length ones would: per
+class the configurations at --rank-check's ranks are trained on the tuning seeds for the evaluation's env
+steps (DIR/<class>/ranking/); DIR/<class>/ranking.csv gives each one's short and full-length tuning IQM, and
+DIR/ranking.csv per class their Spearman correlation and whether the short tuning's best is still the best.
 """
 
 import argparse
@@ -20,7 +25,7 @@ import sys
 import numpy as np
 
 from gsa_jax.analysis import stats
-from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, write_csv
+from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, to_toml
 
@@ -109,12 +114,61 @@ def report(spec, out, chosen, baseline, reps=stats.REPS):
     return rows
 
 
+def rank_check(spec, cls, out, ranks, sweep_args):
+    """Train the class's configurations at `ranks` (1-based ranks of its selection.csv) on the tuning seeds for
+    the evaluation's env steps -> (the sweep's status, DIR/<class>/ranking.csv rows)."""
+    selection = read_csv(os.path.join(out, cls, "selection.csv"))
+    if not selection:
+        raise SpecError(f"class {cls}: no {os.path.join(out, cls, 'selection.csv')}: run --phase tune first")
+    knobs = list(draw_configurations(spec, cls)[0])
+    picked = [selection[r - 1] for r in ranks if r <= len(selection)]
+    status = run_phase(spec, cls, "ranking", [{k: float(r[k]) for k in knobs} for r in picked], out, sweep_args)
+    if status:
+        return status, []
+    long = cell_scores(os.path.join(out, cls, "ranking"))
+    rows = [{"rank": int(r["rank"]), "hparam_set": int(r["hparam_set"]), "tuning_iqm": r["tuning_iqm"],
+             "long_iqm": round(stats.iqm(np.asarray(long[i], float)[:, None]), 3),
+             "long_scores": " ".join(f"{v:.1f}" for v in long[i])} for i, r in enumerate(picked)]
+    write_csv(os.path.join(out, cls, "ranking.csv"), rows)
+    return 0, rows
+
+
+def rank_summary(cls, rows, spec):
+    """DIR/ranking.csv's row of one class: Spearman's rho of short vs full-length tuning IQM over the checked
+    configurations, and whether the short tuning's best is the full-length best among them."""
+    from scipy.stats import spearmanr
+
+    short = np.array([float(r["tuning_iqm"]) if r["tuning_iqm"] != "" else -np.inf for r in rows])
+    long = np.array([r["long_iqm"] for r in rows])
+    return {"env": spec.env, "class": cls, "configurations": len(rows), "ranks": " ".join(str(r["rank"]) for r in rows),
+            "short_steps": spec.tuning_steps, "long_steps": spec.evaluation_steps,
+            "spearman": round(float(spearmanr(short, long).statistic), 3),
+            "best_stays_best": int(np.argmax(long) == np.argmax(short))}
+
+
+def run_rank_checks(spec, args):
+    """--phase rank: every class's rank check, then DIR/ranking.csv."""
+    ranks = [int(r) for r in args.rank_check.split(",")]
+    summary = []
+    for cls in spec.classes:
+        status, rows = rank_check(spec, cls, args.out, ranks, args.sweep_args.split())
+        if status:
+            return status
+        summary.append(rank_summary(cls, rows, spec))
+        print(f"{spec.env} {cls}: Spearman {summary[-1]['spearman']} over ranks {summary[-1]['ranks']}", flush=True)
+    write_csv(os.path.join(args.out, "ranking.csv"), summary)
+    print(f"wrote {os.path.join(args.out, 'ranking.csv')}")
+    return 0
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m gsa_jax.tune", description=__doc__.split("\n")[0])
     p.add_argument("tuning", help="tuning file (TOML; gsa_jax.running.tuning)")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--phase", choices=("tune", "evaluate", "all"), default="all",
-                   help="tune: the tuning sweeps and selection only; evaluate: the chosen configurations (after tune)")
+    p.add_argument("--phase", choices=("tune", "evaluate", "all", "rank"), default="all",
+                   help="tune: the tuning sweeps and selection only; evaluate: the chosen configurations (after tune); "
+                        "rank: do the tuning runs rank configurations as full-length runs would (after tune)")
+    p.add_argument("--rank-check", default="1,2,12,24", help="with --phase rank: the ranks checked (default %(default)s)")
     p.add_argument("--baseline", nargs="*", default=[], help="sweep directories with the defaults on the evaluation seeds")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
     p.add_argument("--sweep-args", default="--no-tensorboard", help="flags passed to each gsa_jax.sweep (default %(default)s)")
@@ -127,6 +181,12 @@ def main(argv=None):
     except SpecError as e:
         print(f"gsa_jax.tune: error: {e}", file=sys.stderr)
         return 2
+    if args.phase == "rank":
+        try:
+            return run_rank_checks(spec, args)
+        except (SpecError, ValueError) as e:
+            print(f"gsa_jax.tune: error: {e}", file=sys.stderr)
+            return 2
     return run_tuning(spec, args)
 
 

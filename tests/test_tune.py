@@ -110,6 +110,17 @@ def test_tuning_selects_evaluates_and_a_vmapped_configuration_equals_it_alone(tm
         np.testing.assert_allclose([float(r[col]) for r in rows], np.asarray(m[col], np.float64), rtol=2e-3, atol=1e-5, err_msg=col)
     capsys.readouterr()
     assert main(args) == 0 and "chose configuration" in capsys.readouterr().out  # a re-run trains nothing again
+    # the rank check: both configurations on the tuning seed for the evaluation's env steps
+    assert main(args + ["--phase", "rank", "--rank-check", "1,2,7"]) == 0
+    with open(out / "mix" / "ranking.csv") as f:
+        ranking = list(csv.DictReader(f))
+    assert [r["hparam_set"] for r in ranking] == [r["hparam_set"] for r in selection]  # rank 7 does not exist
+    assert (out / "mix" / "ranking" / "sweep.json").exists()
+    assert "seeds = [5]\nsteps = 1024" in (out / "mix" / "ranking.toml").read_text()
+    with open(out / "ranking.csv") as f:
+        (summary,) = list(csv.DictReader(f))
+    assert summary["class"] == "mix" and summary["configurations"] == "2" and abs(float(summary["spearman"])) == 1.0
+    assert main(args + ["--phase", "rank", "--rank-check", "x"]) == 2
 
 
 def test_a_configuration_of_a_set_is_named_by_its_index():

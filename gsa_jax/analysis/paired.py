@@ -39,8 +39,8 @@ def write_gz(path, rows, columns):
 def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m, flush=True)):
     """Paired pushes of every controller not yet in OUT/nominal.csv -> (event rows, nominal rows); both
     files are rewritten after every controller. settings: {sizes, windows, per_episode}."""
-    from gsa_jax.analysis.results import write_csv
-    from gsa_jax.analysis.retention import controller_key, read_csv
+    from gsa_jax.analysis.results import read_csv, write_csv
+    from gsa_jax.analysis.retention import controller_key
 
     ev_path, nom_path = os.path.join(out, "pushes.csv.gz"), os.path.join(out, "nominal.csv")
     events, nominal = read_csv(ev_path), read_csv(nom_path)

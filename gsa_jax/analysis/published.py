@@ -10,17 +10,11 @@ deterministic final score, next to the published entry.
 """
 
 import argparse
-import csv
 import sys
 
 import numpy as np
 
-from gsa_jax.analysis.results import write_csv
-
-
-def read_csv(path):
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+from gsa_jax.analysis.results import read_csv, write_csv
 
 
 def task_name(env):

@@ -21,7 +21,6 @@ threshold, order. Tables give half-widths under 10 with one decimal.
 """
 
 import argparse
-import csv
 import math
 import os
 import re
@@ -30,6 +29,8 @@ import sys
 from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
+
+from gsa_jax.analysis.results import read_csv
 
 SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
 OPTIONS = ("col", "pm", "ci", "digits", "threshold", "order")
@@ -69,8 +70,7 @@ def read_rows(path, filters):
     """The rows of a CSV file whose columns hold one of the given values."""
     if not os.path.exists(path):
         raise QuoteError(f"{path}: no such file")
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = read_csv(path)
     missing = [c for c in filters if rows and c not in rows[0]]
     if missing:
         raise QuoteError(f"{path} has no column {missing[0]!r}")

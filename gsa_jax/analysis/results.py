@@ -247,6 +247,14 @@ def random_returns_of(dirs, env_names, out_dir, log=print):
     return {e: found[e] for e in env_names}
 
 
+def read_csv(path):
+    """Rows (dicts of strings) of a CSV file, gzipped if its name ends in .gz; [] if it does not exist."""
+    if not os.path.exists(path):
+        return []
+    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path, newline="")) as f:
+        return list(csv.DictReader(f))
+
+
 def write_csv(path, rows, columns=None):
     """rows (dicts) as a CSV file, written atomically; columns: their order (default: as first seen)."""
     from gsa_jax.running.checkpoint import write_atomic

@@ -4,7 +4,6 @@ gsa_jax.robustness` is its command."""
 
 import csv
 import glob
-import gzip
 import json
 import math
 import os
@@ -15,7 +14,7 @@ import envs
 from envs import action_size, check_name
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.figures import plot_profiles
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis.results import read_csv, write_csv
 from gsa_jax.deployment.evaluation import DeployError, load_controller
 from gsa_jax.deployment.shifts import PUSH_RATE, Shift, applies, run_shifted
 from gsa_jax.running.runinfo import run_metadata
@@ -107,14 +106,6 @@ def evaluate_controller(meta, ctrl, shifts, seeds, randoms):
                      "nominal_score": round(float(nominal.mean()), 3), "random_score": round(rand, 3),
                      "retained_fraction": round(float((score - rand) / scale), 4) if abs(scale) > 1e-9 else math.nan})
     return rows, float(np.mean(action_jacobian_norms(ctrl, seen.astype(np.float32))))
-
-
-def read_csv(path):
-    """Rows (dicts of strings) of a CSV file, gzipped if its name ends in .gz; [] if it does not exist."""
-    if not os.path.exists(path):
-        return []
-    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
-        return list(csv.DictReader(f))
 
 
 def controller_key(meta):

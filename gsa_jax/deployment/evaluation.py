@@ -42,8 +42,8 @@ def has_mujoco_c(env_name):
     """Whether plain MuJoCo C runs the controller's task (DeployError, one line, if its name does not resolve)."""
     try:
         return task_record(env_name).has_c
-    except ValueError as e:
-        raise DeployError(f"the controller is for {env_name!r}: {e}") from None
+    except (ValueError, ImportError) as e:  # a name that does not resolve, or a library this machine lacks
+        raise DeployError(f"the controller is for {env_name!r}: {' '.join(str(e).split())}") from None
 
 
 def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):

@@ -100,8 +100,7 @@ def step_task(task, action, push_force):
 
 def task_step_seconds(task):
     """Simulated seconds per env step of a MuJoCo C task."""
-    frames = getattr(task, "n_frames", None) or task.task.frame_skip
-    return task.model.opt.timestep * frames
+    return task.model.opt.timestep * task.n_frames
 
 
 def run_shifted(ctrl, env_name, shift, seeds, length=1000, record=False):

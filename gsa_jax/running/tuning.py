@@ -202,15 +202,17 @@ def to_toml(experiment, comment):
 
 def class_experiment(spec, class_name, phase, sets):
     """The experiment file (a dict, gsa_jax.running.spec's format) of one class's tuning sweep (every set on the
-    tuning seeds) or evaluation sweep (the chosen set on the evaluation seeds)."""
+    tuning seeds), evaluation sweep (the chosen set on the evaluation seeds) or ranking sweep (the given sets on
+    the tuning seeds for the evaluation's env steps: does the short tuning's ranking hold?)."""
     c = spec.classes[class_name]
-    seeds, steps = (spec.tuning_seeds, spec.tuning_steps) if phase == "tuning" else (spec.evaluation_seeds, spec.evaluation_steps)
+    seeds, steps = {"tuning": (spec.tuning_seeds, spec.tuning_steps),
+                    "ranking": (spec.tuning_seeds, spec.evaluation_steps)}.get(phase, (spec.evaluation_seeds, spec.evaluation_steps))
     out = {"name": f"{spec.name}_{class_name}_{phase}", "envs": [spec.env], "policies": [c["policy"]]}
     if c["policy"] == "mixture":
         out["clusters"] = [c["K"]]
     out.update(seeds=list(seeds), steps=steps, config=dict(spec.config))
-    if phase == "tuning":
-        out["hparam_sets"] = sets
-    else:
+    if phase == "evaluation":
         out["hparams"] = dict(sets[0])
+    else:
+        out["hparam_sets"] = sets
     return out
