@@ -81,8 +81,12 @@ class BraxTask(Task):
         """[d] float32: the observation of one MjData (of this model or another simulator's of the same robot)."""
         return self.observe_state(d.qpos, d.qvel, d.xpos[1], np).astype(np.float32)
 
+    # the observation layout: `first` entries, the positions of qpos[pos_from:], then every velocity
+    first, pos_from, vel_label = (), 2, "{} velocity"
+
     def observation_layout(self):
-        return brax_layout(self.port_name)
+        qpos, qvel = coordinate_names(self.model)
+        return list(self.first) + [f"{p} position" for p in qpos[self.pos_from:]] + [self.vel_label.format(v) for v in qvel]
 
 
 class HopperC(BraxTask):
@@ -92,7 +96,8 @@ class HopperC(BraxTask):
 
     planar = True
 
-    port_name, asset, frame_skip, noise, ctrl_cost, healthy_reward = "hopper", "hopper.xml", 4, 5e-3, 1e-3, 1.0
+    asset, frame_skip, noise, ctrl_cost, healthy_reward = "hopper.xml", 4, 5e-3, 1e-3, 1.0
+    first, vel_label = ("torso height",), "{} velocity (clipped to +-10)"
 
     @staticmethod
     def observe_state(qpos, qvel, torso, xp=np):
@@ -110,7 +115,7 @@ class Walker2dC(HopperC):
     """Brax's `walker2d`: 4 substeps of 2 ms; healthy while 0.8 < z < 2 and -1 < angle < 1; reward =
     forward velocity + 1 - 1e-3 |a|^2; observation as hopper's; reset noise U(-5e-3, 5e-3)."""
 
-    port_name, asset = "walker2d", "walker2d.xml"
+    asset = "walker2d.xml"
 
     @staticmethod
     def healthy_state(qpos, qvel, torso, xp=np):
@@ -124,7 +129,8 @@ class HalfCheetahC(BraxTask):
 
     planar = True
 
-    port_name, asset, frame_skip, noise, qvel_noise, ctrl_cost = "halfcheetah", "half_cheetah.xml", 5, 0.1, "normal", 0.1
+    asset, frame_skip, noise, qvel_noise, ctrl_cost = "half_cheetah.xml", 5, 0.1, "normal", 0.1
+    pos_from = 1
 
     @staticmethod
     def observe_state(qpos, qvel, torso, xp=np):
@@ -137,7 +143,7 @@ class AntC(BraxTask):
     velocity + 1 - 0.5 |a|^2 (no contact cost); observation [qpos[2:], qvel]; reset noise U(-0.1, 0.1)
     on qpos, 0.1 N(0, 1) on qvel."""
 
-    port_name, asset, frame_skip, noise, qvel_noise, ctrl_cost, healthy_reward = "ant", "ant.xml", 5, 0.1, "normal", 0.5, 1.0
+    asset, frame_skip, noise, qvel_noise, ctrl_cost, healthy_reward = "ant.xml", 5, 0.1, "normal", 0.5, 1.0
     options = {"solver": int(mujoco.mjtSolver.mjSOL_NEWTON), "disableflags": int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP),
                "iterations": 1, "ls_iterations": 4}
 
@@ -203,20 +209,6 @@ def observation_layout(name):
     import envs
 
     return envs.task_record(name).observation_layout()
-
-
-def brax_layout(name):
-    """The observation layout of Brax's variant `name` (BRAX_PORTS' observe_state, or IDP_LAYOUT)."""
-    if name == "inverted_double_pendulum":
-        return list(IDP_LAYOUT)
-    qpos, qvel = coordinate_names(BRAX_PORTS[name]().model)
-    if name in ("hopper", "walker2d"):
-        pos = ["torso height"] + qpos[2:]
-        vel = [f"{v} velocity (clipped to +-10)" for v in qvel]
-    else:
-        pos = qpos[1:] if name == "halfcheetah" else qpos[2:]
-        vel = [f"{v} velocity" for v in qvel]
-    return [f"{p} position" if p != "torso height" else p for p in pos] + vel
 
 
 def allegro_layout(model):

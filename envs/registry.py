@@ -139,7 +139,7 @@ class BraxVariant(TaskRecord):
     def observation_layout(self):
         from envs import mujoco_c
 
-        return mujoco_c.brax_layout(self.name)
+        return self.port().observation_layout() if self.has_c else list(mujoco_c.IDP_LAYOUT)
 
 
 class AllegroRecord(TaskRecord):
