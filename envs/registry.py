@@ -97,6 +97,7 @@ class BraxVariant(TaskRecord):
     inverted_double_pendulum in envs/mujoco_c.py."""
 
     family = "brax"
+    _port = None
 
     @property
     def has_c(self):
@@ -118,7 +119,9 @@ class BraxVariant(TaskRecord):
         from envs import mujoco_c
 
         if self.has_c:
-            return self.port().model
+            if self._port is None:  # read only (sizes, records): one per record
+                self._port = self.port()
+            return self._port.model
         return mujoco.MjModel.from_xml_path(mujoco_c.brax_asset(self.name + ".xml"))
 
     def make_mjx(self):
@@ -187,7 +190,7 @@ class Definition(TaskRecord):
     def __init__(self, name: str, factory: Callable[[], Any], builtin: bool = False):
         super().__init__(name)
         self.factory, self.builtin = factory, builtin
-        self._task = None
+        self._task, self._traced = None, False
 
     def task(self):
         """The Task instance read for sizes, layouts and records (made and validated on first use; TaskError in one
@@ -208,10 +211,11 @@ class Definition(TaskRecord):
             self.task()
 
     def check_traced(self):
-        if not self.builtin:  # the v5 tasks are checked against gymnasium by the test suite
+        if not self.builtin and not self._traced:  # the v5 tasks are checked against gymnasium by the test suite
             from envs.task import check_jax_agrees
 
             check_jax_agrees(self.task(), f"task {self.name!r}")
+            self._traced = True
 
     def episode_length(self):
         return int(self.task().episode_length)
