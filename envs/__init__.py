@@ -5,6 +5,7 @@ with a time limit and auto-reset; batch it with jax.vmap. A name is resolved onc
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
 `allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and every task
 definition (envs/task.py): gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/gym_v5.py), the
+DeepMind Control Suite's (DMC_TASKS, 'dmc:<domain>-<task>': envs/dmc/, with dm_control installed), the
 tasks registered with `register(name, factory)`, and a user's task named by where it is defined,
 'my_pkg.my_module:MyTask' or 'path/to/file.py:MyTask'. A task definition runs on both backends (MJX:
 envs/task_mjx.py; MuJoCo C in the program: envs/c_backend.py) and in plain MuJoCo C (envs.task.TaskC).
@@ -28,7 +29,9 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")  # Brax's MJX variants
 GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "InvertedDoublePendulum-v5")  # gymnasium's own: envs/gym_v5.py
-NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS
+from envs.dmc import NAMES as DMC_TASKS  # noqa: E402  (the DeepMind Control Suite's: envs/dmc/, 'dmc:<domain>-<task>')
+
+NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS + DMC_TASKS
 DEFAULT_EPISODE_LENGTH = 1000
 # Every task's action bounds, per action: PPO clips its actions to them (training and evaluation,
 # gsa_jax/algorithm/ppo.py) and an exported controller's act() does (gsa_jax/deployment/numpy_policy.py). They are
@@ -86,6 +89,10 @@ def _record(name):
     record = registry.adapted_record(name)
     if record is not None:
         return record
+    if name.startswith("dmc:"):
+        from envs import dmc
+
+        dmc.task_class(name)  # the name is not one of them: ValueError listing those there are
     if name in _REGISTERED or ":" in name:
         return registry.user_record(name, _REGISTERED.get(name) or _import_factory(name))
     raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, name your "

@@ -32,7 +32,7 @@ from mujoco import batch as mj_batch
 
 import envs
 from envs import allegro_task, mujoco_c
-from envs.task_mjx import start_noise
+from envs.task_mjx import task_start_noise
 from envs.host_call import host_call
 from envs.physics import resolve_threads
 
@@ -126,6 +126,8 @@ class HostBatches:
             self.clock["mujoco_c_s"] += t2 - t1
         return out
 
+    stage = 0  # mjtStage computed at the new state after a step (mjSTAGE_VEL: as mj_step1, Task.derived_after)
+
     def step_rows(self, rows, action, fn):
         """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64, carried
         [nsim, n_carry] float64) set the controls; fn's return value is passed to extra()."""
@@ -136,7 +138,7 @@ class HostBatches:
             b.state[:] = full[:, : self.n_mj]
             return fn(b, np.asarray(action, np.float64).reshape(-1, self.model.nu), full[:, self.n_mj:])
 
-        return self._run(lead, write, lambda b: b.step(nstep=self.n_frames))
+        return self._run(lead, write, lambda b: b.step(nstep=self.n_frames, stage=self.stage))
 
 
 class NoisyStartHost(HostBatches):
@@ -210,6 +212,7 @@ class TaskHost(NoisyStartHost):
     def __init__(self, task, threads):
         self.task, self.start_qpos = task, task.start_qpos
         self.bound = task.derived
+        self.stage = int(mujoco.mjtStage.mjSTAGE_VEL) if task.derived_after == "step1" else 0
         self.n_obs = int(task.observation_size)
         self.n_extra = self.n_obs + 2
         data = mujoco.MjData(task.model)
@@ -420,7 +423,7 @@ class TaskCEnv(CTask):
 
     def reset(self, rng):
         task = self.port
-        sim = self._call(self.host.reset, *start_noise(rng, self.mj_model, task.noise, task.qvel_noise, task.vel_noise))
+        sim = self._call(self.host.reset, *task_start_noise(rng, task))
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
 

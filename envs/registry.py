@@ -474,11 +474,20 @@ def builtin_records() -> dict:
 
         return Definition(name, make, builtin=True)
 
-    from envs import BRAX_TASKS, GYM_V5_TASKS
+    def dmc(name):
+        def make():  # dm_control's MJCF is read when the task is first used (TaskError without dm_control)
+            from envs import dmc as dmc_tasks
+
+            return dmc_tasks.task_class(name)()
+
+        return Definition(name, make, builtin=True)
+
+    from envs import BRAX_TASKS, DMC_TASKS, GYM_V5_TASKS
 
     table = {name: BraxVariant for name in BRAX_TASKS}
     table["allegro_cylinder"] = AllegroRecord
     table.update({name: v5 for name in GYM_V5_TASKS})
+    table.update({name: dmc for name in DMC_TASKS})
     return table
 
 

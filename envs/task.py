@@ -18,6 +18,11 @@
 
     python -m gsa_jax.train --env my_module:Reach --physics c     # or envs.register("reach", Reach)
 
+dm_control's tasks (envs/dmc/) read their derived fields as its legacy step leaves them: `derived_after = "step1"`
+runs mj_step1 after the step, so position- and velocity-dependent fields (xpos, xmat, their sensors) are the new
+state's, while acceleration-dependent ones (touch, accelerometer, force sensors) stay the last substep's; the
+state itself is the same either way.
+
 Observation, reward and termination are written once over batches (a leading axis of simulations) for NumPy and
 jax.numpy (`xp`): backend 'c' (envs/c_backend.py) evaluates them in float64 on MuJoCo C's arrays inside the
 compiled trainer, MJX (envs/task_mjx.py) with jax.numpy on MJX's data, and TaskC here (plain MuJoCo C, no JAX)
@@ -61,9 +66,10 @@ class Task:
     """A MuJoCo task: its model, control frame skip, episode length, start-state law, and its observation,
     reward and termination over batches for NumPy and jax.numpy (subclass it; see the module docstring).
 
-    Start state: qpos ~ init_qpos + U(-noise, noise); qvel ~ U(-vel_noise, vel_noise) (qvel_noise 'uniform')
-    or vel_noise * N(0, 1) ('normal'); noise and vel_noise are scalars or per-coordinate arrays [nq] / [nv]
-    (vel_noise None: noise). init_qpos None: the model's qpos0."""
+    Start state: qpos ~ init_qpos + U(-noise, noise) (qpos_noise 'uniform') or init_qpos + noise * N(0, 1)
+    ('normal'); qvel ~ U(-vel_noise, vel_noise) (qvel_noise 'uniform') or vel_noise * N(0, 1) ('normal'); noise
+    and vel_noise are scalars or per-coordinate arrays [nq] / [nv] (vel_noise None: noise). init_qpos None: the
+    model's qpos0."""
 
     name: str = ""  # set by the registry: the name the task was asked for
     xml: "str | os.PathLike | mujoco.MjSpec | None" = None
@@ -72,8 +78,11 @@ class Task:
     init_qpos: "np.ndarray | None" = None
     noise: "float | np.ndarray" = 0.0
     vel_noise: "float | np.ndarray | None" = None
+    qpos_noise: str = "uniform"
     qvel_noise: str = "uniform"
     derived: tuple = ()  # MjData fields read after a call, as mj_step leaves them (one substep behind the state)
+    # "step": derived fields as mj_step leaves them (gymnasium); "step1": mj_step1 after the step (dm_control)
+    derived_after: str = "step"
     post_constraint: bool = False  # whether a derived field needs mj_rnePostConstraint after the step
     # robustness pushes (gsa_jax.robustness): the body they act on (a name, or an index: 1 is the first body below
     # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
@@ -129,7 +138,10 @@ class Task:
 def start_noise(task, rng):
     """(dq [nq], dv [nv]) of a reset, drawn from a NumPy Generator (qpos first, then qvel, as gymnasium draws)."""
     m = task.model
-    dq = rng.uniform(low=-task.noise, high=task.noise, size=m.nq)
+    if task.qpos_noise == "uniform":
+        dq = rng.uniform(low=-task.noise, high=task.noise, size=m.nq)
+    else:
+        dq = task.noise * rng.standard_normal(m.nq)
     scale = task.vel_scale
     dv = rng.uniform(low=-scale, high=scale, size=m.nv) if task.qvel_noise == "uniform" else scale * rng.standard_normal(m.nv)
     return dq, dv
@@ -189,10 +201,13 @@ class TaskC:
         mujoco.mj_step(m, d, nstep=self.task.frame_skip)
         if self.task.post_constraint:
             mujoco.mj_rnePostConstraint(m, d)
+        if self.task.derived_after == "step1":
+            mujoco.mj_step1(m, d)
         obs, reward, terminated = self.task.outcome(before, d.qpos[None], d.qvel[None], self._derived(), a[None])
         return obs[0], float(reward[0]), bool(terminated[0])
 
 
+DERIVED_AFTER = ("step", "step1")  # when derived fields are read (Task.derived_after)
 POST_CONSTRAINT_FIELDS = ("cacc", "cfrc_int", "cfrc_ext")  # MjData fields only mj_rnePostConstraint computes
 
 
@@ -233,8 +248,13 @@ def _validate(task, where):
         v = getattr(task, field)
         if v is not None and np.ndim(v) > 0 and np.shape(v) != (size,):
             raise TaskError(f"{where}: {field} has shape {np.shape(v)}; use a scalar or [{size}]")
-    if task.qvel_noise not in ("uniform", "normal"):
-        raise TaskError(f"{where}: qvel_noise must be 'uniform' or 'normal', got {task.qvel_noise!r}")
+    for field in ("qpos_noise", "qvel_noise"):
+        if getattr(task, field) not in ("uniform", "normal"):
+            raise TaskError(f"{where}: {field} must be 'uniform' or 'normal', got {getattr(task, field)!r}")
+    if task.derived_after not in DERIVED_AFTER:
+        raise TaskError(f"{where}: derived_after must be one of {DERIVED_AFTER}, got {task.derived_after!r}")
+    if task.derived_after == "step1" and task.post_constraint:
+        raise TaskError(f"{where}: derived_after 'step1' and post_constraint cannot be combined")
     if int(task.frame_skip) < 1 or int(task.episode_length) < 1:
         raise TaskError(f"{where}: frame_skip and episode_length must be >= 1")
     c = TaskC(task)

@@ -1,0 +1,148 @@
+"""The DeepMind Control Suite's tasks (envs/dmc/) against dm_control itself, from fixtures recorded in dm_control's
+own environment (experiments/dmc_reference/record.py: mujoco 3.17 + dm_control 1.0.50, since `suite.load` fails
+under mujoco 4.0): dm_control's reset states, random actions (out-of-range ones included), flattened observations
+and rewards of whole episodes, and the state before every step of one episode.
+
+Measured (tests below assert it): on cartpole, pendulum, acrobot and point_mass our MuJoCo C task gives dm_control's
+observations and rewards over whole episodes to float64 rounding (largest difference 0.0 for observations, 6e-28
+for rewards); on walker and hopper, whose contacts amplify the last-bit differences between mujoco 3.17 and 4.0
+(~1e-16 at the first steps, 1e-10 by step 50, then apart), every single step from dm_control's recorded state gives
+its next observation and reward to 1e-9, and whole episodes agree to 1e-8 over their first 50 steps.
+"""
+
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+import envs
+from envs.physics import Physics
+from envs.task import TaskC
+
+pytest.importorskip("dm_control")  # the MJCFs' source (the extra make test installs)
+GOLDEN = os.path.join(os.path.dirname(__file__), "golden", "dmc")
+CONTACT_FREE = ("cartpole-balance", "cartpole-swingup", "pendulum-swingup", "acrobot-swingup", "point_mass-easy")
+CONTACT_HORIZON, CONTACT_TOL, STEP_TOL = 50, 1e-8, 1e-9
+
+
+def fixture(name):
+    return np.load(os.path.join(GOLDEN, f"{name}.npz"))
+
+
+def replay(c, f, i):
+    """Episode i of a fixture replayed by TaskC c from dm_control's reset state: (obs [T+1, d], rewards [T])."""
+    obs, rewards = [c.set_start(f[f"ep{i}_qpos0"], f[f"ep{i}_qvel0"])], []
+    for a in f[f"ep{i}_actions"]:
+        o, r, terminated = c.step(a.astype(np.float64))
+        assert not terminated
+        obs.append(o)
+        rewards.append(r)
+    return np.array(obs), np.array(rewards)
+
+
+@pytest.mark.parametrize("name", list(envs.dmc.TASKS))
+def test_whole_episodes_equal_dm_controls(name):
+    """Every step of whole episodes (dm_control's 1000, no termination: every discount 1): observations in
+    dm_control's key order and sizes, and rewards, to float64 rounding (contact tasks: over CONTACT_HORIZON steps)."""
+    f, c = fixture(name), TaskC(f"dmc:{name}")
+    layout = c.task.observation_layout()
+    assert [(k, int(s)) for k, s in zip(f["obs_keys"], f["obs_sizes"])] == list(c.task.observation_keys)
+    assert len(layout) == int(f["obs_sizes"].sum()) and c.task.frame_skip == int(f["n_sub_steps"])
+    for i in range(3):
+        assert len(f[f"ep{i}_actions"]) == c.task.episode_length == 1000 and np.all(f[f"ep{i}_discounts"] == 1.0)
+        obs, rewards = replay(c, f, i)
+        horizon = None if name in CONTACT_FREE else CONTACT_HORIZON
+        tol = 1e-12 if horizon is None else CONTACT_TOL
+        np.testing.assert_allclose(obs[:horizon], f[f"ep{i}_obs"][:horizon], rtol=0, atol=tol, err_msg=f"{name} ep{i}")
+        np.testing.assert_allclose(rewards[:horizon], f[f"ep{i}_rewards"][:horizon], rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("name", list(envs.dmc.TASKS))
+def test_every_single_step_from_dm_controls_state(name):
+    """From dm_control's state before each step of an episode (qpos, qvel, qacc_warmstart): one step with its action
+    gives its next observation and reward to STEP_TOL (mujoco 4.0 stepping what mujoco 3.17 recorded)."""
+    f, c = fixture(name), TaskC(f"dmc:{name}")
+    m = c.model
+    worst = 0.0
+    for t, (state, a) in enumerate(zip(f["ep0_states"], f["ep0_actions"])):
+        c.set_start(state[: m.nq], state[m.nq: m.nq + m.nv])
+        c.data.qacc_warmstart[:] = state[m.nq + m.nv + m.na:]
+        o, r, _ = c.step(a.astype(np.float64))
+        worst = max(worst, np.abs(o - f["ep0_obs"][t + 1]).max(), abs(r - f["ep0_rewards"][t]))
+    assert worst <= STEP_TOL, (name, worst)
+
+
+@pytest.mark.parametrize("name", ["cartpole-balance", "cartpole-swingup", "walker-walk", "hopper-hop"])
+def test_resets_draw_from_dm_controls_law(name):
+    """The trainer's resets (JAX draws, backend 'c') against dm_control's 300 recorded ones: the same law per
+    coordinate (two-sample Kolmogorov-Smirnov), and the same constants where dm_control does not randomize."""
+    env = envs.make(f"dmc:{name}", physics=Physics(backend="c"))
+    s = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 1000))
+    ours = np.concatenate([np.asarray(s.pipeline_state.qpos, np.float64), np.asarray(s.pipeline_state.qvel)], 1)
+    theirs = fixture(name)["resets"]
+    for j in range(ours.shape[1]):
+        if np.ptp(theirs[:, j]) == 0:
+            np.testing.assert_allclose(ours[:, j], theirs[0, j], atol=1e-6, err_msg=f"{name} coordinate {j}")
+        else:
+            assert sps.ks_2samp(ours[:, j], theirs[:, j]).pvalue > 1e-3, (name, j)
+
+
+def test_backend_c_steps_as_mujoco_c_rounded_to_float32():
+    """The trainer's backend 'c' (mujoco.batch, mj_step1's stage after each step) from dm_control's reset states:
+    every observation and reward is TaskC's float64 value rounded to float32, over whole episodes of hopper-hop
+    (touch sensors from the last substep, positions from the new state) and cartpole-swingup."""
+    for name in ("hopper-hop", "cartpole-swingup"):
+        f = fixture(name)
+        env = envs.make(f"dmc:{name}", auto_reset=False, physics=Physics(backend="c"))
+        from test_gym_v5 import start_state
+
+        sims, ref_obs, ref_rew = [], [], []
+        for i in range(3):
+            sim, _ = start_state(env.env, f[f"ep{i}_qpos0"], f[f"ep{i}_qvel0"])
+            sims.append(sim)
+            obs, rew = replay(TaskC(f"dmc:{name}"), f, i)
+            ref_obs.append(obs[1:])
+            ref_rew.append(rew)
+        s0 = jax.tree.map(lambda x: jnp.stack([x] * 3), env.reset(jax.random.PRNGKey(0)))
+        sims = jax.tree.map(lambda *xs: jnp.stack(xs), *sims)
+        s0 = s0.replace(pipeline_state=sims)
+        actions = jnp.asarray(np.stack([f[f"ep{i}_actions"] for i in range(3)], 1))
+
+        def step(s, a):
+            s = jax.vmap(env.step)(s, a)
+            return s, (s.obs, s.reward)
+
+        _, (obs, rew) = jax.device_get(jax.jit(lambda s, a: jax.lax.scan(step, s, a))(s0, actions))
+        for i in range(3):
+            np.testing.assert_array_equal(obs[:, i], ref_obs[i].astype(np.float32), err_msg=f"{name} ep{i}")
+            np.testing.assert_array_equal(rew[:, i], ref_rew[i].astype(np.float32), err_msg=f"{name} ep{i}")
+
+
+MJX_HORIZON, MJX_OBS_TOL, MJX_REWARD_TOL = 50, 1e-3, 1e-3
+
+
+@pytest.mark.parametrize("name", ["cartpole-swingup", "pendulum-swingup"])
+def test_mjx_agrees_with_mujoco_c(name):
+    """The MJX version (float32) from the same start under the same actions: observations within MJX_OBS_TOL and
+    rewards within MJX_REWARD_TOL over MJX_HORIZON env steps."""
+    env, c = envs.make_base(f"dmc:{name}"), TaskC(f"dmc:{name}")
+    s = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    step = jax.jit(env.step)
+    np.testing.assert_allclose(c.set_start(np.asarray(s.pipeline_state.qpos, np.float64),
+                                           np.asarray(s.pipeline_state.qvel, np.float64)), np.asarray(s.obs), atol=1e-5)
+    rng = np.random.default_rng(0)
+    for t in range(MJX_HORIZON):
+        a = rng.uniform(-1, 1, env.action_size).astype(np.float32)
+        s = step(s, jnp.asarray(a))
+        obs, reward, _ = c.step(a)
+        np.testing.assert_allclose(np.asarray(s.obs), obs, atol=MJX_OBS_TOL, err_msg=f"{name} step {t}")
+        assert abs(float(s.reward) - reward) <= MJX_REWARD_TOL, (name, t, float(s.reward), reward)
+
+
+def test_an_unknown_dmc_task_lists_the_available_ones_in_one_line():
+    with pytest.raises(ValueError, match=r"unknown DeepMind Control Suite task 'dmc:cartpole-upside'; choose one of "
+                                         r"dmc:cartpole-balance, dmc:cartpole-swingup, .*dmc:hopper-hop$"):
+        envs.check_name("dmc:cartpole-upside")
