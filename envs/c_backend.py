@@ -89,8 +89,9 @@ class HostBatches:
         mujoco.mj_getState(self.model, data, row, STATE_SPEC)
         return row
 
-    def carry(self, b):
-        """float64 [nsim, n_carry]: what each row carries to the next call, from the batch after a call."""
+    def carry(self, b, before):
+        """float64 [nsim, n_carry]: what each row carries to the next call, from the batch after a call (before: what
+        the call's write returned)."""
         return np.zeros((b.state.shape[0], 0))
 
     def _get(self, nsim):
@@ -116,7 +117,7 @@ class HostBatches:
             t1 = time.perf_counter()
             call(b)
             t2 = time.perf_counter()
-            rows = np.concatenate([b.state, self.carry(b)], axis=1) if self.n_carry else b.state
+            rows = np.concatenate([b.state, self.carry(b, before)], axis=1) if self.n_carry else b.state
             out = (rows.view(np.uint32).reshape(*lead, 2 * self.nstate), b.qpos.astype(np.float32).reshape(*lead, m.nq),
                    b.qvel.astype(np.float32).reshape(*lead, m.nv),
                    self.extra(b, before).astype(np.float32).reshape(*lead, self.n_extra))
@@ -215,30 +216,67 @@ class TaskHost(NoisyStartHost):
         self.stage = int(mujoco.mjtStage.mjSTAGE_VEL) if task.derived_after == "step1" else 0
         self.n_obs = int(task.observation_size)
         self.n_extra = self.n_obs + 2
-        data = mujoco.MjData(task.model)
-        self.n_carry = task.before(data.qpos[None], {f: getattr(data, f)[None] for f in task.derived}).shape[1]
+        self._init_data, self._init_lock = mujoco.MjData(task.model), threading.Lock()  # initialize() resets
+        data = self._init_data
+        self.n_before = task.before(data.qpos[None], self._goal_derived(data, np.zeros((1, task.goal_size)))).shape[1]
+        self.n_carry = self.n_before + task.goal_size  # a row carries [before values, goal]
         super().__init__(task.model, task.frame_skip, threads)
 
-    def _derived(self, b):
-        return {f: getattr(b, f) for f in self.task.derived}
+    def _goal_derived(self, arrays, goal, lead=lambda x: x[None]):
+        """{field: [n, ...]} of the task's derived fields of `arrays` (a batch, or an MjData with lead), and its goal."""
+        derived = {f: lead(getattr(arrays, f)) for f in self.task.derived}
+        return {**derived, "goal": goal} if self.task.goal_size else derived
 
-    def carry(self, b):
-        return self.task.before(b.qpos, self._derived(b))
+    def _goals(self, before, nsim):
+        """[nsim, goal_size] the goals the call's rows carried (zeros after a noise-law reset)."""
+        return np.zeros((nsim, self.task.goal_size)) if before is None else before[0][:, self.n_before:]
+
+    def carry(self, b, before):
+        goal = self._goals(before, b.qpos.shape[0])
+        return np.concatenate([self.task.before(b.qpos, self._goal_derived(b, goal, lambda x: x)), goal], axis=1)
 
     def extra(self, b, before):
-        """before: (the task's values from before the step [n, k], action [n, nu] float64); None after a reset."""
+        """before: (the carried values [n, n_carry], action [n, nu] float64); None after a reset."""
+        derived = self._goal_derived(b, self._goals(before, b.qpos.shape[0]), lambda x: x)
         if before is None:
-            obs = self.task.observe(b.qpos, b.qvel, self._derived(b))
+            obs = self.task.observe(b.qpos, b.qvel, derived)
             return np.concatenate([obs, np.zeros((len(obs), 2))], axis=1)
-        obs, reward, terminated = self.task.outcome(before[0], b.qpos, b.qvel, self._derived(b), before[1])
+        obs, reward, terminated = self.task.outcome(before[0][:, : self.n_before], b.qpos, b.qvel, derived, before[1])
         return np.concatenate([obs, reward[:, None], terminated[:, None].astype(np.float64)], axis=1)
 
-    def step(self, rows, ctrl):
-        def set_ctrl(b, u, carried):
+    def reset_init(self, seeds, needed):
+        """Resets by the task's initialize() (envs/task.py) from seeds [...] uint32, on the host's own MjData, for
+        the envs where needed [...] is nonzero (the others get the template row, which the caller discards)
+        -> SimState fields."""
+        t0 = time.perf_counter()
+        m, lead = self.model, np.shape(seeds)
+        seeds, needed = np.asarray(seeds).reshape(-1), np.asarray(needed).reshape(-1)
+        n = len(seeds)
+        rows = np.tile(np.concatenate([self.template, np.zeros(self.n_carry)]), (n, 1))
+        qpos, qvel, obs = np.tile(m.qpos0, (n, 1)), np.zeros((n, m.nv)), np.zeros((n, self.n_obs))
+        with self._init_lock:
+            d = self._init_data
+            for i in np.flatnonzero(needed):
+                goal = self.task.start(d, seeds[i])[None]
+                derived = self._goal_derived(d, goal)
+                mujoco.mj_getState(m, d, rows[i, : self.n_mj], STATE_SPEC)
+                rows[i, self.n_mj:] = np.concatenate([self.task.before(d.qpos[None], derived), goal], axis=1)[0]
+                qpos[i], qvel[i] = d.qpos, d.qvel
+                obs[i] = self.task.observe(d.qpos[None], d.qvel[None], derived)[0]
+        extra = np.concatenate([obs, np.zeros((n, 2))], axis=1)
+        with self._lock:
+            self.clock["calls"] += 1
+            self.clock["host_s"] += time.perf_counter() - t0
+        return (rows.view(np.uint32).reshape(*lead, 2 * self.nstate), qpos.astype(np.float32).reshape(*lead, m.nq),
+                qvel.astype(np.float32).reshape(*lead, m.nv), extra.astype(np.float32).reshape(*lead, self.n_extra))
+
+    def step(self, rows, action):
+        def set_ctrl(b, a, carried):
+            u = self.task.controls(a)
             b.ctrl[:] = u
             return carried, u
 
-        return self.step_rows(rows, ctrl, set_ctrl)
+        return self.step_rows(rows, action, set_ctrl)
 
 
 class PostConstraintHost:
@@ -321,7 +359,7 @@ class PostConstraintHost:
         m, lead = self.model, rows.shape[:-1]
         # a copy: XLA's buffer need not be 8-byte aligned, and MuJoCo C reads the rows as doubles
         rows = np.array(rows, np.uint32).reshape(-1, 2 * self.nstate).view(np.float64)
-        u = np.asarray(ctrl, np.float64).reshape(-1, m.nu)
+        u = self.task.controls(np.asarray(ctrl, np.float64).reshape(-1, m.nu))
 
         def one(d, i):
             mujoco.mj_setState(m, d, rows[i, : self.n_mj], STATE_SPEC)
@@ -423,7 +461,19 @@ class TaskCEnv(CTask):
 
     def reset(self, rng):
         task = self.port
+        if task.has_initialize:
+            return self.reset_where(rng, jnp.ones((), bool))
         sim = self._call(self.host.reset, *task_start_noise(rng, task))
+        zero = jnp.zeros((), jnp.float32)
+        return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
+
+    def reset_where(self, rng, needed):
+        """A reset where `needed` (a bool) holds, else an unused placeholder state: a task whose start law is code
+        (initialize()) runs it on the host only for the envs that restart (envs/wrappers.py's AutoReset)."""
+        if not self.port.has_initialize:
+            return self.reset(rng)
+        seed = jax.random.bits(rng, (), jnp.uint32)
+        sim = self._call(self.host.reset_init, seed, needed.astype(jnp.int32))
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
 

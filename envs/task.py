@@ -83,6 +83,10 @@ class Task:
     derived: tuple = ()  # MjData fields read after a call, as mj_step leaves them (one substep behind the state)
     # "step": derived fields as mj_step leaves them (gymnasium); "step1": mj_step1 after the step (dm_control)
     derived_after: str = "step"
+    goal_size: int = 0  # values initialize() returns, read back by observe/outcome as derived["goal"] [n, goal_size]
+    # "unit": every actuator's ctrlrange is [-1, 1] and ctrl = action; "model": action a in [-1, 1] is mapped onto
+    # the MJCF's ctrlrange, ctrl = lo + (a + 1) (hi - lo) / 2 (controls())
+    ctrl_range: str = "unit"
     post_constraint: bool = False  # whether a derived field needs mj_rnePostConstraint after the step
     # robustness pushes (gsa_jax.robustness): the body they act on (a name, or an index: 1 is the first body below
     # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
@@ -109,7 +113,35 @@ class Task:
     @property
     def observation_size(self):
         zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
+        zeros.update({"goal": np.zeros((1, self.goal_size))} if self.goal_size else {})
         return self.observe(self.start_qpos[None], np.zeros((1, self.model.nv)), zeros).shape[-1]
+
+    def controls(self, action, xp=np):
+        """[n, nu] the controls of actions [n, nu] in [-1, 1] (ctrl_range); outcome() receives these as `action`."""
+        if self.ctrl_range == "unit":
+            return action
+        lo, hi = self.model.actuator_ctrlrange.T
+        return lo + (action + 1.0) * (0.5 * (hi - lo))
+
+    def initialize(self, data, rng):
+        """The start law as code, for what the noise fields cannot say (dm_control's initialize_episode): set the state
+        of `data` (an MjData just after mj_resetData) with draws from `rng` (a numpy Generator); it may step `data`
+        (a settling phase) and redraw (rejection). Returns the goal [goal_size] (a target drawn at reset), or None
+        when goal_size is 0. mj_forward follows. Backend 'c' and TaskC run it on the host, MJX through a host
+        callback. Not overridden: the noise law above, drawn in the program."""
+        raise NotImplementedError
+
+    @property
+    def has_initialize(self):
+        """Whether the task's start law is initialize() (rather than the noise fields)."""
+        return type(self).initialize is not Task.initialize
+
+    def start(self, data, seed):
+        """initialize() on `data` from mj_resetData with a Generator seeded by `seed`, then mj_forward -> goal [goal_size]."""
+        mujoco.mj_resetData(self.model, data)
+        goal = self.initialize(data, np.random.default_rng(int(seed)))
+        mujoco.mj_forward(self.model, data)
+        return np.zeros(0) if goal is None else np.asarray(goal, np.float64).reshape(self.goal_size)
 
     def before(self, qpos: np.ndarray, derived: dict, xp=np) -> np.ndarray:
         """[n, k] what the reward needs from before a step (default: nothing, k = 0)."""
@@ -160,6 +192,7 @@ class TaskC:
         self.task = task
         self.model = self.task.model
         self.data = mujoco.MjData(self.model)
+        self.goal = np.zeros(task.goal_size)
 
     @property
     def action_size(self):
@@ -171,14 +204,16 @@ class TaskC:
         return int(self.task.frame_skip)
 
     def _derived(self):
-        return {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
+        derived = {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
+        return {**derived, "goal": self.goal[None].copy()} if self.task.goal_size else derived
 
-    def set_start(self, qpos, qvel):
-        """The start state (mj_resetData, qpos, qvel, mj_forward) -> obs."""
+    def set_start(self, qpos, qvel, goal=None):
+        """The start state (mj_resetData, qpos, qvel, mj_forward; the goal [goal_size] of a task that has one) -> obs."""
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
         d.qpos[:], d.qvel[:] = qpos, qvel
         mujoco.mj_forward(m, d)
+        self.goal = np.zeros(self.task.goal_size) if goal is None else np.asarray(goal, np.float64)
         return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
 
     def observe(self):
@@ -187,15 +222,24 @@ class TaskC:
         return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
 
     def reset(self, seed):
+        if self.task.has_initialize:
+            self.goal = self.task.start(self.data, seed)
+            return self.observe()
         dq, dv = start_noise(self.task, np.random.default_rng(seed))
         return self.set_start(self.task.start_qpos + dq, dv)
 
     def step(self, action):
-        """One env step -> (obs, reward, terminated)."""
+        """One env step with an action in [-1, 1]^nu -> (obs, reward, terminated)."""
         a = np.asarray(action, np.float64)
         if a.shape != (self.model.nu,):
             raise ValueError(f"action has shape {a.shape}; {self.task.name or type(self.task).__name__} takes ({self.model.nu},)")
+        return self.step_controls(self.task.controls(a[None])[0])
+
+    def step_controls(self, ctrl):
+        """One env step with the controls ctrl [nu] themselves (the task's controls() of an action) -> (obs, reward,
+        terminated)."""
         m, d = self.model, self.data
+        a = np.asarray(ctrl, np.float64)
         before = self.task.before(d.qpos[None], self._derived())
         d.ctrl[:] = a
         mujoco.mj_step(m, d, nstep=self.task.frame_skip)
@@ -234,8 +278,14 @@ def _validate(task, where):
         raise TaskError(f"{where}: derived {needs} are computed by mj_rnePostConstraint: set post_constraint = True")
     if m.nu < 1:
         raise TaskError(f"{where}: the model has no actuators (action size 0); a task needs at least one")
+    if task.ctrl_range not in ("unit", "model"):
+        raise TaskError(f"{where}: ctrl_range must be 'unit' or 'model', got {task.ctrl_range!r}")
+    unlimited = np.flatnonzero(~m.actuator_ctrllimited.astype(bool))
+    if task.ctrl_range == "model" and len(unlimited):
+        raise TaskError(f"{where}: ctrl_range 'model' maps actions onto each actuator's ctrlrange, but actuator "
+                        f"{m.actuator(int(unlimited[0])).name or int(unlimited[0])} has none (ctrllimited false)")
     limited = np.flatnonzero(m.actuator_ctrllimited.astype(bool) & np.any(m.actuator_ctrlrange != [-1.0, 1.0], axis=1))
-    if len(limited):
+    if task.ctrl_range == "unit" and len(limited):
         raise TaskError(f"{where}: actuator {m.actuator(int(limited[0])).name or int(limited[0])} has ctrlrange "
                         f"{m.actuator_ctrlrange[limited[0]].tolist()}; the policy's actions lie in [-1, 1]: give every "
                         "actuator ctrlrange=\"-1 1\" and scale it with gear")
@@ -253,8 +303,10 @@ def _validate(task, where):
             raise TaskError(f"{where}: {field} must be 'uniform' or 'normal', got {getattr(task, field)!r}")
     if task.derived_after not in DERIVED_AFTER:
         raise TaskError(f"{where}: derived_after must be one of {DERIVED_AFTER}, got {task.derived_after!r}")
-    if task.derived_after == "step1" and task.post_constraint:
-        raise TaskError(f"{where}: derived_after 'step1' and post_constraint cannot be combined")
+    if task.post_constraint and (task.derived_after == "step1" or task.has_initialize or task.goal_size):
+        raise TaskError(f"{where}: post_constraint cannot be combined with derived_after 'step1', initialize() or a goal")
+    if task.goal_size and not task.has_initialize:
+        raise TaskError(f"{where}: goal_size {task.goal_size} needs an initialize() that returns the goal")
     if int(task.frame_skip) < 1 or int(task.episode_length) < 1:
         raise TaskError(f"{where}: frame_skip and episode_length must be >= 1")
     c = TaskC(task)
@@ -279,7 +331,7 @@ def check_jax_agrees(task, where):
     obs = np.asarray(c.reset(0))
     d = c.data
     qpos, qvel = jnp.asarray(d.qpos[None], jnp.float32), jnp.asarray(d.qvel[None], jnp.float32)
-    derived = {f: jnp.asarray(getattr(d, f)[None], jnp.float32) for f in task.derived}
+    derived = {f: jnp.asarray(v, jnp.float32) for f, v in c._derived().items()}
     action = jnp.zeros((1, task.model.nu), jnp.float32)
     try:
         got = np.asarray(jax.jit(lambda q, v, x: task.observe(q, v, x, jnp))(qpos, qvel, derived))

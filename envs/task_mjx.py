@@ -8,8 +8,11 @@ distance within float32 rounding of the geoms' margin can go the other way in MJ
 part after such an event (Ant-v5 from ~3 env steps on); from a shared state one env step agrees.
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
 from mujoco import mjx
@@ -59,8 +62,49 @@ def mjx_model(model):
     return model
 
 
+@jax.tree_util.register_pytree_node_class
+class WithGoal:
+    """MJX's data and the goal a task drew at reset ([goal_size]): the pipeline state of a task with a goal, so an
+    auto-reset swaps both (qpos and qvel read through)."""
+
+    def __init__(self, data, goal):
+        self.data, self.goal = data, goal
+
+    def tree_flatten(self):
+        return (self.data, self.goal), None
+
+    @classmethod
+    def tree_unflatten(cls, _, children):
+        return cls(*children)
+
+    @property
+    def qpos(self):
+        return self.data.qpos
+
+    @property
+    def qvel(self):
+        return self.data.qvel
+
+
+def host_start(task, seeds, needed):
+    """(qpos [..., nq], qvel [..., nv], goal [..., goal_size]) float32 of task.initialize() from seeds [...] where
+    needed [...] (zeros elsewhere): the host side of an MJX reset whose start law is code."""
+    import mujoco
+
+    m, lead = task.model, np.shape(seeds)
+    seeds, needed = np.asarray(seeds).reshape(-1), np.asarray(needed).reshape(-1)
+    out = [np.zeros((len(seeds), k), np.float32) for k in (m.nq, m.nv, task.goal_size)]
+    data = mujoco.MjData(m)
+    for i in np.flatnonzero(needed):
+        out[2][i] = task.start(data, seeds[i])
+        out[0][i], out[1][i] = data.qpos, data.qvel
+    return tuple(o.reshape(*lead, o.shape[-1]) for o in out)
+
+
 class TaskMjx(PipelineEnv):
-    """A Task (envs/task.py) as a single-env Brax environment on MJX."""
+    """A Task (envs/task.py) as a single-env Brax environment on MJX. A start law written as code (initialize())
+    runs on the host through a callback, for the envs that restart (reset_where); its goal rides with MJX's data
+    (WithGoal)."""
 
     def __init__(self, task):
         import mujoco
@@ -70,26 +114,45 @@ class TaskMjx(PipelineEnv):
         self._shapes = {f: getattr(data, f).shape for f in task.derived}  # MuJoCo C's (xmat [nbody, 9], not [.., 3, 3])
         super().__init__(mjcf.load_model(mjx_model(task.model)), backend="mjx", n_frames=task.frame_skip)
 
-    def _derived(self, data):
-        return {f: getattr(data, f).reshape(self._shapes[f])[None] for f in self.task.derived}
+    def _derived(self, data, goal=None):
+        derived = {f: getattr(data, f).reshape(self._shapes[f])[None] for f in self.task.derived}
+        return {**derived, "goal": goal[None]} if self.task.goal_size else derived
+
+    def _state(self, data, goal):
+        obs = self.task.observe(data.qpos[None], data.qvel[None], self._derived(data, goal), jnp)[0]
+        zero = jnp.zeros((), jnp.float32)
+        return State(WithGoal(data, goal) if self.task.goal_size else data, obs.astype(jnp.float32), zero, zero, {}, {})
 
     def reset(self, rng):
         task = self.task
+        if task.has_initialize:
+            return self.reset_where(rng, jnp.ones((), bool))
         dq, dv = task_start_noise(rng, task)
-        data = self.pipeline_init(jnp.asarray(task.start_qpos, jnp.float32) + dq, dv)
-        obs = task.observe(data.qpos[None], data.qvel[None], self._derived(data), jnp)[0]
-        zero = jnp.zeros((), jnp.float32)
-        return State(data, obs.astype(jnp.float32), zero, zero, {}, {})
+        return self._state(self.pipeline_init(jnp.asarray(task.start_qpos, jnp.float32) + dq, dv), None)
+
+    def reset_where(self, rng, needed):
+        """The reset where `needed` holds (else an unused placeholder): initialize() on the host by a callback."""
+        if not self.task.has_initialize:
+            return self.reset(rng)
+        m = self.task.model
+        shapes = tuple(jax.ShapeDtypeStruct((k,), jnp.float32) for k in (m.nq, m.nv, self.task.goal_size))
+        qpos, qvel, goal = jax.pure_callback(functools.partial(host_start, self.task), shapes,
+                                             jax.random.bits(rng, (), jnp.uint32), needed, vmap_method="broadcast_all")
+        return self._state(self.pipeline_init(qpos, qvel), goal)
 
     def step(self, state, action):
-        d0 = state.pipeline_state
-        before = self.task.before(d0.qpos[None], self._derived(d0), jnp)
-        data = self.pipeline_step(d0, action)
+        d0, goal = state.pipeline_state, None
+        if self.task.goal_size:
+            d0, goal = d0.data, d0.goal
+        before = self.task.before(d0.qpos[None], self._derived(d0, goal), jnp)
+        ctrl = self.task.controls(action[None], jnp)[0]
+        data = self.pipeline_step(d0, ctrl)
         if self.task.post_constraint:
             data = mjx.rne_postconstraint(self.sys, data)  # cfrc_ext, as gymnasium's mj_rnePostConstraint
         if self.task.derived_after == "step1":
             data = step1(self.sys, data)
-        obs, reward, terminated = self.task.outcome(before, data.qpos[None], data.qvel[None], self._derived(data),
-                                                    action[None], jnp)
-        return state.replace(pipeline_state=data, obs=obs[0].astype(jnp.float32), reward=reward[0].astype(jnp.float32),
+        obs, reward, terminated = self.task.outcome(before, data.qpos[None], data.qvel[None], self._derived(data, goal),
+                                                    ctrl[None], jnp)
+        return state.replace(pipeline_state=WithGoal(data, goal) if self.task.goal_size else data,
+                             obs=obs[0].astype(jnp.float32), reward=reward[0].astype(jnp.float32),
                              done=terminated[0].astype(jnp.float32))

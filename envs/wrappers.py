@@ -74,12 +74,15 @@ class AutoReset(Wrapper):
         state.info["final_obs"] = state.obs
         return state
 
-    def _start(self, state):
-        """(pipeline_state, obs) an episode ended in `state` restarts from; advances the env's reset key."""
+    def _start(self, state, done):
+        """(pipeline_state, obs) an episode ended in `state` restarts from; advances the env's reset key. An env with
+        reset_where(rng, needed) (a start law run on the host: envs/c_backend.py, envs/task_mjx.py) computes the
+        reset only where `done`."""
         if self.mode == "first":
             return state.info["first_pipeline_state"], state.info["first_obs"], state.info
         key, sub = jax.random.split(state.info["reset_key"])
-        new = self.env.reset(sub)
+        reset_where = getattr(self.env, "reset_where", None)
+        new = reset_where(sub, done) if reset_where else self.env.reset(sub)
         return new.pipeline_state, new.obs, {**state.info, "reset_key": key}
 
     def step(self, state, action):
@@ -90,7 +93,7 @@ class AutoReset(Wrapper):
         def pick(first, current):
             return jnp.where(done, first, current)
 
-        start, start_obs, info = self._start(state)
+        start, start_obs, info = self._start(state, done)
         pipeline_state = jax.tree.map(pick, start, state.pipeline_state)
         info["final_obs"] = state.obs
         info["steps"] = jnp.where(done, 0, state.info["steps"])

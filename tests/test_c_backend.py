@@ -34,9 +34,10 @@ def mj_row(m, d):
 
 
 def test_backend_runs_every_ported_task():
-    """The Brax variants' and Allegro's MuJoCo C ports (here), gymnasium's v5 tasks (tests/test_gym_v5.py): the
-    records say so; Brax's inverted_double_pendulum has no port and is refused in one line."""
-    assert {n for n in envs.NAMES if envs.has_c_backend(n)} == set(C_TASKS) | set(envs.GYM_V5_TASKS)
+    """The Brax variants' and Allegro's MuJoCo C ports (here), gymnasium's v5 tasks (tests/test_gym_v5.py) and the
+    DeepMind Control Suite's (tests/test_dmc.py): the records say so; Brax's inverted_double_pendulum has no port and
+    is refused in one line."""
+    assert {n for n in envs.NAMES if envs.has_c_backend(n)} == set(C_TASKS) | set(envs.GYM_V5_TASKS) | set(envs.DMC_TASKS)
     with pytest.raises(ValueError, match="backend 'c' does not step 'inverted_double_pendulum'"):
         envs.make_base("inverted_double_pendulum", C)
 

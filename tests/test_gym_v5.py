@@ -17,6 +17,7 @@ from envs.c_backend import STATE_SPEC, SimState
 from envs.gym_v5 import V5_TASKS
 from envs.task import TaskC
 from envs.physics import Physics
+from mjx_vs_c import assert_mjx_follows_mujoco_c
 
 gym = pytest.importorskip("gymnasium")
 SEEDS = 6
@@ -150,19 +151,7 @@ def test_mjx_task_agrees_with_mujoco_c(env_id):
     over the first MJX_HORIZON env steps, the same terminations (measured here: Hopper-v5 and
     InvertedDoublePendulum-v5 within 1e-5, Walker2d-v5 5e-5, HalfCheetah-v5 1e-4 at 10 steps; halfcheetah's
     contacts drift to 4e-2 by 25 steps)."""
-    env = envs.make_base(env_id)
-    c = TaskC(env_id)
-    s = jax.jit(env.reset)(jax.random.PRNGKey(0))
-    step = jax.jit(env.step)
-    np.testing.assert_allclose(c.set_start(np.asarray(s.pipeline_state.qpos, np.float64),
-                                           np.asarray(s.pipeline_state.qvel, np.float64)), np.asarray(s.obs), atol=1e-5)
-    rng = np.random.default_rng(0)
-    for t in range(MJX_HORIZON):
-        a = rng.uniform(-1, 1, env.action_size).astype(np.float32)
-        s = step(s, jnp.asarray(a))
-        obs, reward, terminated = c.step(a)
-        np.testing.assert_allclose(np.asarray(s.obs), obs, atol=MJX_OBS_TOL, err_msg=f"{env_id} step {t}")
-        assert abs(float(s.reward) - reward) <= MJX_REWARD_TOL and bool(s.done) == terminated, (env_id, t)
+    assert_mjx_follows_mujoco_c(env_id, MJX_HORIZON, MJX_OBS_TOL, MJX_REWARD_TOL, terminations=True)
 
 
 def test_a_trained_v5_controller_exports_and_scores_the_same_in_mujoco_c_and_gymnasium(tmp_path, capsys):

@@ -18,6 +18,7 @@ import pytest
 import envs
 from envs.physics import Physics
 from envs.task import TaskC
+from mjx_vs_c import assert_mjx_follows_mujoco_c
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TASK = "examples.reacher:Reacher"
@@ -51,19 +52,7 @@ def test_the_example_learns_on_c_exports_and_runs_in_mujoco_c(tmp_path):
 def test_mjx_steps_the_example_like_mujoco_c():
     """From MJX's own start state, under the same random actions, MuJoCo C's observations stay within MJX_OBS_TOL and
     rewards within MJX_REWARD_TOL for a whole episode (MJX_HORIZON steps; no contacts in this model)."""
-    env = envs.make_base(TASK)
-    c = TaskC(TASK)
-    s = jax.jit(env.reset)(jax.random.PRNGKey(3))
-    step = jax.jit(env.step)
-    obs = c.set_start(np.asarray(s.pipeline_state.qpos, np.float64), np.asarray(s.pipeline_state.qvel, np.float64))
-    np.testing.assert_allclose(obs, np.asarray(s.obs), atol=1e-5)
-    rng = np.random.default_rng(0)
-    for t in range(MJX_HORIZON):
-        a = rng.uniform(-1, 1, env.action_size).astype(np.float32)
-        s = step(s, jnp.asarray(a))
-        obs, reward, _ = c.step(a)
-        np.testing.assert_allclose(np.asarray(s.obs), obs, atol=MJX_OBS_TOL, err_msg=f"step {t}")
-        assert abs(float(s.reward) - reward) <= MJX_REWARD_TOL, t
+    assert_mjx_follows_mujoco_c(TASK, MJX_HORIZON, MJX_OBS_TOL, MJX_REWARD_TOL, key=3)
 
 
 def test_the_start_law_is_the_tasks_on_every_path():

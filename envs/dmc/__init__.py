@@ -17,6 +17,13 @@ TASKS = {
     "walker-run": "walker:Run",
     "hopper-stand": "hopper:Stand",
     "hopper-hop": "hopper:Hop",
+    "cheetah-run": "cheetah:Run",
+    "reacher-easy": "reacher:Easy",
+    "reacher-hard": "reacher:Hard",
+    "finger-spin": "finger:Spin",
+    "ball_in_cup-catch": "ball_in_cup:Catch",
+    "fish-swim": "fish:Swim",
+    "quadruped-walk": "quadruped:Walk",
 }
 NAMES = tuple(PREFIX + name for name in TASKS)
 

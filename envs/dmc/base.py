@@ -72,7 +72,7 @@ def joint_start_law(model):
     qpos0. TaskError for ball and free joints (their quaternions are not a per-coordinate uniform law)."""
     center, half = model.qpos0.copy(), np.zeros(model.nq)
     for j in range(model.njnt):
-        kind, adr = model.jnt_type[j], model.jnt_qposadr[j]
+        kind, adr = int(model.jnt_type[j]), model.jnt_qposadr[j]  # an int: mjtJoint == numpy.int32 is False
         if kind in (mujoco.mjtJoint.mjJNT_BALL, mujoco.mjtJoint.mjJNT_FREE):
             raise TaskError(f"joint {model.joint(j).name!r}: random quaternions are not a per-coordinate law")
         lo, hi = model.jnt_range[j]
@@ -81,6 +81,42 @@ def joint_start_law(model):
         elif kind == mujoco.mjtJoint.mjJNT_HINGE:
             center[adr], half[adr] = 0.0, np.pi
     return center, half
+
+
+def randomize_joints(model, data, rng):
+    """dm_control's randomizers.randomize_limited_and_rotational_joints on `data` with a numpy Generator: limited hinges
+    and slides uniform in their ranges, unlimited hinges uniform in [-pi, pi], unlimited ball joints a normalized
+    N(0, I) quaternion, free joints' orientation a normalized U[0, 1)^4 quaternion (dm_control's own choice);
+    positions of free joints untouched."""
+    for j in range(model.njnt):
+        kind, adr = int(model.jnt_type[j]), model.jnt_qposadr[j]  # an int: mjtJoint == numpy.int32 is False
+        lo, hi = model.jnt_range[j]
+        if model.jnt_limited[j]:
+            if kind in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+                data.qpos[adr] = rng.uniform(lo, hi)
+            elif kind == mujoco.mjtJoint.mjJNT_BALL:
+                raise TaskError(f"joint {model.joint(j).name!r}: limited ball joints are not supported")
+        elif kind == mujoco.mjtJoint.mjJNT_HINGE:
+            data.qpos[adr] = rng.uniform(-np.pi, np.pi)
+        elif kind == mujoco.mjtJoint.mjJNT_BALL:
+            quat = rng.standard_normal(4)
+            data.qpos[adr: adr + 4] = quat / np.linalg.norm(quat)
+        elif kind == mujoco.mjtJoint.mjJNT_FREE:
+            quat = rng.random(4)
+            data.qpos[adr + 3: adr + 7] = quat / np.linalg.norm(quat)
+
+
+def legacy_step(model, data, nstep=1):
+    """dm_control's Physics.step (legacy_step): mj_step2 on the stages already computed, nstep - 1 mj_steps, then
+    mj_step1 (RK4: nstep mj_steps, then mj_step1). From a state set after the last forward pass, the first
+    substep uses that pass's position stage, as dm_control's settling steps at reset do."""
+    if model.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4:
+        mujoco.mj_step2(model, data)
+        if nstep > 1:
+            mujoco.mj_step(model, data, nstep - 1)
+    else:
+        mujoco.mj_step(model, data, nstep)
+    mujoco.mj_step1(model, data)
 
 
 def sub_steps(control_timestep, timestep):
@@ -117,6 +153,14 @@ class DmcTask(Task):
     def load_model(self):
         path = os.path.join(suite_dir(f"task {self.name or type(self).__name__!r}"), f"{self.domain}.xml")
         return mujoco.MjModel.from_xml_path(path)
+
+    def start(self, data, seed):
+        """As dm_control's reset: mj_resetData and a forward pass (Physics.reset), initialize(), mj_forward."""
+        mujoco.mj_resetData(self.model, data)
+        mujoco.mj_forward(self.model, data)
+        goal = self.initialize(data, np.random.default_rng(int(seed)))
+        mujoco.mj_forward(self.model, data)
+        return np.zeros(0) if goal is None else np.asarray(goal, np.float64).reshape(self.goal_size)
 
     def id(self, kind, name):
         """The index of a named body / joint / site / geom / sensor (kind: 'body', 'joint', ...)."""

@@ -5,9 +5,10 @@ dm_control's `suite.load` needs mujoco 3.17 (it fails under mujoco 4.0), so this
     python3 -m venv /tmp/dmcref && /tmp/dmcref/bin/pip install mujoco==3.17.0 dm_control==1.0.50
     /tmp/dmcref/bin/python experiments/dmc_reference/record.py [domain-task ...]     (default: every task of envs/dmc)
 
-Per task: the state after `reset()` of RESETS environments seeded 0.. (qpos, qvel: the reset law's samples), and
+Per task: the state after `reset()` of RESETS environments seeded 0.. (qpos, qvel and, where dm_control writes a
+target into the model at reset, the target geom's position: the reset law's samples), and
 EPISODES whole episodes (seeds 1000..) under uniform random actions in [-1.5, 1.5] (out-of-range ones included;
-float32 values, so that the test replays them exactly): the start state, every action, every flattened
+float32 values, so that the test replays them exactly): the start state (and target), every action, every flattened
 observation (dm_control's dict in its key order), reward and discount, the episode's length, and the final state;
 for the first episode also the state before every step (qpos, qvel, act, qacc_warmstart), from which the tests
 take single steps (mujoco 3.17 and 4.0 differ in the last bits, which contacts amplify over an episode).
@@ -38,11 +39,17 @@ def flat(observation):
     return np.concatenate([np.asarray(v, np.float64).ravel() for v in observation.values()])
 
 
+def target(physics):
+    """The position dm_control wrote into the model's 'target' geom at reset (reacher, fish, swimmer), else []."""
+    names = [physics.model.id2name(i, "geom") for i in range(physics.model.ngeom)]
+    return physics.named.model.geom_pos["target"].copy() if "target" in names else np.zeros(0)
+
+
 def record_episode(suite, domain, task, seed):
     env = suite.load(domain, task, task_kwargs={"random": seed})
     ts = env.reset()
     physics = env.physics
-    start = (physics.data.qpos.copy(), physics.data.qvel.copy(), physics.data.act.copy())
+    start = (physics.data.qpos.copy(), physics.data.qvel.copy(), target(physics))
     rng = np.random.default_rng(seed)
     obs, rewards, discounts, actions, states = [flat(ts.observation)], [], [], [], []
     while not ts.last():
@@ -71,16 +78,16 @@ def record(name):
     for seed in range(RESETS):
         e = suite.load(domain, task, task_kwargs={"random": seed})
         e.reset()
-        resets.append(np.concatenate([e.physics.data.qpos, e.physics.data.qvel]))
+        resets.append(np.concatenate([e.physics.data.qpos, e.physics.data.qvel, target(e.physics)]))
     arrays = {"resets": np.array(resets), "obs_keys": np.array([k for k, _ in keys]),
               "obs_sizes": np.array([s for _, s in keys]), "n_sub_steps": np.array(env._n_sub_steps),
               "timestep": np.array(env.physics.timestep()), "dm_control": np.array(dm_control.__version__ if hasattr(
                   dm_control, "__version__") else _version("dm_control")), "mujoco": np.array(mujoco.__version__)}
     for i in range(EPISODES):
-        (q0, v0, act0), actions, obs, rewards, discounts, (q1, v1), states = record_episode(suite, domain, task, 1000 + i)
+        (q0, v0, target0), actions, obs, rewards, discounts, (q1, v1), states = record_episode(suite, domain, task, 1000 + i)
         if i == 0:  # the state before every step (qpos, qvel, act, qacc_warmstart): one-step checks
             arrays["ep0_states"] = states
-        arrays.update({f"ep{i}_qpos0": q0, f"ep{i}_qvel0": v0, f"ep{i}_act0": act0, f"ep{i}_actions": actions,
+        arrays.update({f"ep{i}_qpos0": q0, f"ep{i}_qvel0": v0, f"ep{i}_target": target0, f"ep{i}_actions": actions,
                        f"ep{i}_obs": obs, f"ep{i}_rewards": rewards, f"ep{i}_discounts": discounts,
                        f"ep{i}_qpos_end": q1, f"ep{i}_qvel_end": v1})
     os.makedirs(OUT, exist_ok=True)

@@ -1,0 +1,92 @@
+"""The atlas's table and figure from the committed results: `.venv/bin/python experiments/atlas_dmc/atlas.py`.
+
+Reads results/<task>/final_returns.csv and sufficient_k.csv (gsa_jax.plot's, one folder per finished task) and,
+for comparison, Figure 1 on gymnasium's v5 tasks (experiments/fig1_v5/results/merged: a different protocol, the PPO
+paper's settings and Brax-style resets, marked apart). Writes results/atlas.csv (one row per task: d_a, flat PPO's
+IQM, the best mixture's K, IQM and P(> flat PPO), the smallest sufficient K, flat PPO's last-100-episode training
+return next to CleanRL's published PPO on the same task) and results/atlas.png.
+"""
+
+import os
+
+from gsa_jax.analysis.results import read_csv, write_csv
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
+V5 = os.path.join(HERE, "..", "fig1_v5", "results", "merged")
+
+
+def task_rows(final_csv, sufficient_csv, family):
+    """One atlas row per task of a gsa_jax.plot output."""
+    finals, sufficient = read_csv(final_csv), {r["env"]: r for r in read_csv(sufficient_csv)}
+    rows = []
+    for env in dict.fromkeys(r["env"] for r in finals):
+        flat = next(r for r in finals if r["env"] == env and r["policy"] == "mlp")
+        mixtures = [r for r in finals if r["env"] == env and r["policy"] == "mixture"]
+        best = max(mixtures, key=lambda r: float(r["iqm"]))
+        d_a = round(int(best["K"]) / float(best["K_over_action_dim"]))
+        s = sufficient.get(env, {})
+        rows.append({"task": env, "family": family, "d_a": d_a, "flat_iqm": flat["iqm"],
+                     "flat_iqm_ci": f"{flat['iqm_ci_low']}..{flat['iqm_ci_high']}", "best_K": best["K"],
+                     "best_iqm": best["iqm"], "best_over_flat": f"{float(best['iqm']) / float(flat['iqm']):.3f}",
+                     "p_best_gt_flat": best["p_better_than_flat_ppo"],
+                     "p_ci": f"{best['p_ci_low']}..{best['p_ci_high']}",
+                     "smallest_sufficient_K": s.get("smallest_sufficient_K", ""), "ks_tried": s.get("ks_tried", ""),
+                     "flat_training_return": flat["training_return_mean"]})
+    return rows
+
+
+def published(rows):
+    """CleanRL's PPO (published_ppo.csv, plain PPO rows) beside each DMC task."""
+    table = {r["task"]: r for r in read_csv(os.path.join(HERE, "published_ppo.csv")) if "rpo" not in r["algorithm"].lower()}
+    for row in rows:
+        p = table.get(row["task"].removeprefix("dmc:"), {})
+        row["published_ppo"] = f"{p['published_mean']} ± {p['published_std']} ({int(p['env_steps']) // 10**6}M)" if p else ""
+    return rows
+
+
+def plot(rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 5.5))
+    rows = sorted(rows, key=lambda r: float(r["best_over_flat"]))
+    colors = ["tab:blue" if r["family"] == "dmc" else "tab:gray" for r in rows]
+    a.barh([r["task"] for r in rows], [float(r["best_over_flat"]) for r in rows], color=colors)
+    a.axvline(1.0, color="k", lw=1)
+    for i, r in enumerate(rows):
+        a.text(float(r["best_over_flat"]), i, f"  K={r['best_K']}, P={float(r['p_best_gt_flat']):.2f}", va="center", fontsize=7)
+    a.set_xlabel("best mixture's IQM / flat PPO's IQM (deterministic controllers)")
+    a.set_title("How good is the best mixture? (blue: DMC atlas, grey: v5 Figure 1)", fontsize=9)
+    for r in rows:
+        d_a, k = int(r["d_a"]), r["smallest_sufficient_K"]
+        top = max(int(x) for x in r["ks_tried"].split()) * 1.6 if r["ks_tried"] else 1
+        b.scatter(d_a, int(k) if k else top, marker="o" if k else "x", color="tab:blue" if r["family"] == "dmc" else "tab:gray")
+        b.annotate(r["task"].removeprefix("dmc:"), (d_a, int(k) if k else top), fontsize=6, xytext=(3, 2),
+                   textcoords="offset points")
+    b.plot([0.8, 40], [0.8, 40], "k:", lw=1, label="K = d_a")
+    b.axhline(10, color="tab:red", lw=1, ls="--", label="K = 10 (the paper: 'typically less than ten')")
+    b.set_xscale("log"), b.set_yscale("log")
+    b.set_xlabel("action dimension d_a"), b.set_ylabel("smallest K on par with flat PPO (x: none of those tried)")
+    b.legend(fontsize=7)
+    b.set_title("How few linear controllers suffice?", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+
+
+def main():
+    rows = []
+    for task in sorted(os.listdir(RESULTS)) if os.path.isdir(RESULTS) else []:
+        final = os.path.join(RESULTS, task, "final_returns.csv")
+        if os.path.exists(final):
+            rows += task_rows(final, os.path.join(RESULTS, task, "sufficient_k.csv"), "dmc")
+    rows = published(rows) + task_rows(os.path.join(V5, "final_returns.csv"), os.path.join(V5, "sufficient_k.csv"), "v5")
+    write_csv(os.path.join(RESULTS, "atlas.csv"), rows)
+    plot(rows, os.path.join(RESULTS, "atlas.png"))
+    print(open(os.path.join(RESULTS, "atlas.csv")).read())
+
+
+if __name__ == "__main__":
+    main()
