@@ -230,12 +230,25 @@ def action_size(name) -> int:
 
 def action_bounds(name, size=None):
     """(low [d_a], high [d_a]) float32: the bounds of task `name`'s d_a actions (ACTION_RANGE for each); size: d_a
-    (default: action_size(name), read from the MJCF)."""
+    (default: action_size(name), read from the MJCF). A task with ctrl_range 'model' maps these actions onto its
+    actuators' ctrlrange (control_range())."""
     import numpy as np
 
     task_record(name)
     size = action_size(name) if size is None else int(size)
     return np.full(size, ACTION_RANGE[0], np.float32), np.full(size, ACTION_RANGE[1], np.float32)
+
+
+def control_range(name):
+    """(low [nu], high [nu]) float64 a task maps its actions in ACTION_RANGE onto (envs/task.py's ctrl_range 'model':
+    ctrl = low + (a + 1) (high - low) / 2), or None where the actions are the controls."""
+    from envs.registry import Definition
+
+    record = task_record(name)
+    if not isinstance(record, Definition) or record.task().ctrl_range != "model":
+        return None
+    low, high = record.model().actuator_ctrlrange.T
+    return low.copy(), high.copy()
 
 
 def make_base(name, physics=None):
@@ -263,8 +276,9 @@ def make_base(name, physics=None):
     if override:
         env.sys = env.sys.tree_replace(override)
     env.physics = physics
-    for fn in ("reset", "step"):  # the solver is traced inside these
-        setattr(env, fn, _applying(getattr(env, fn), physics, mj_model(env)))
+    for fn in ("reset", "step", "reset_where"):  # the solver is traced inside these
+        if hasattr(env, fn):
+            setattr(env, fn, _applying(getattr(env, fn), physics, mj_model(env)))
     return env
 
 

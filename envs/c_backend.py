@@ -245,12 +245,12 @@ class TaskHost(NoisyStartHost):
         return np.concatenate([obs, reward[:, None], terminated[:, None].astype(np.float64)], axis=1)
 
     def reset_init(self, seeds, needed):
-        """Resets by the task's initialize() (envs/task.py) from seeds [...] uint32, on the host's own MjData, for
+        """Resets by the task's initialize() (envs/task.py) from seeds [..., 2] uint32, on the host's own MjData, for
         the envs where needed [...] is nonzero (the others get the template row, which the caller discards)
         -> SimState fields."""
         t0 = time.perf_counter()
-        m, lead = self.model, np.shape(seeds)
-        seeds, needed = np.asarray(seeds).reshape(-1), np.asarray(needed).reshape(-1)
+        m, lead = self.model, np.shape(needed)
+        seeds, needed = np.asarray(seeds).reshape(-1, 2), np.asarray(needed).reshape(-1)
         n = len(seeds)
         rows = np.tile(np.concatenate([self.template, np.zeros(self.n_carry)]), (n, 1))
         qpos, qvel, obs = np.tile(m.qpos0, (n, 1)), np.zeros((n, m.nv)), np.zeros((n, self.n_obs))
@@ -472,7 +472,7 @@ class TaskCEnv(CTask):
         (initialize()) runs it on the host only for the envs that restart (envs/wrappers.py's AutoReset)."""
         if not self.port.has_initialize:
             return self.reset(rng)
-        seed = jax.random.bits(rng, (), jnp.uint32)
+        seed = jax.random.bits(rng, (2,), jnp.uint32)  # 64 bits: start states do not repeat across many resets
         sim = self._call(self.host.reset_init, seed, needed.astype(jnp.int32))
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})

@@ -27,8 +27,8 @@ Observation, reward and termination are written once over batches (a leading axi
 jax.numpy (`xp`): backend 'c' (envs/c_backend.py) evaluates them in float64 on MuJoCo C's arrays inside the
 compiled trainer, MJX (envs/task_mjx.py) with jax.numpy on MJX's data, and TaskC here (plain MuJoCo C, no JAX)
 steps one MjData for deployment, evaluation and robustness. gymnasium's v5 tasks (envs/gym_v5.py) are
-instances. A step: `before` reads what the reward needs from the state before it, ctrl = action (already
-clipped to [-1, 1]), mj_step frame_skip times (and mj_rnePostConstraint if post_constraint), then
+instances. A step: `before` reads what the reward needs from the state before it, ctrl = controls(action) (the action,
+already clipped to [-1, 1], or with ctrl_range 'model' its map onto the actuators' ctrlrange), mj_step frame_skip times (and mj_rnePostConstraint if post_constraint), then
 `outcome`. validate() checks a definition in one line before anything compiles.
 """
 
@@ -128,7 +128,8 @@ class Task:
         of `data` (an MjData just after mj_resetData) with draws from `rng` (a numpy Generator); it may step `data`
         (a settling phase) and redraw (rejection). Returns the goal [goal_size] (a target drawn at reset), or None
         when goal_size is 0. mj_forward follows. Backend 'c' and TaskC run it on the host, MJX through a host
-        callback. Not overridden: the noise law above, drawn in the program."""
+        callback. It must not change the model (one model serves every env; MJX never sees such a change): draw what
+        differs per episode as the goal. Not overridden: the noise law above, drawn in the program."""
         raise NotImplementedError
 
     @property
@@ -137,9 +138,10 @@ class Task:
         return type(self).initialize is not Task.initialize
 
     def start(self, data, seed):
-        """initialize() on `data` from mj_resetData with a Generator seeded by `seed`, then mj_forward -> goal [goal_size]."""
+        """initialize() on `data` from mj_resetData with a Generator seeded by `seed` (an int or a sequence of ints),
+        then mj_forward -> goal [goal_size]."""
         mujoco.mj_resetData(self.model, data)
-        goal = self.initialize(data, np.random.default_rng(int(seed)))
+        goal = self.initialize(data, np.random.default_rng(seed_words(seed)))
         mujoco.mj_forward(self.model, data)
         return np.zeros(0) if goal is None else np.asarray(goal, np.float64).reshape(self.goal_size)
 
@@ -179,6 +181,11 @@ def start_noise(task, rng):
     return dq, dv
 
 
+def seed_words(seed):
+    """A numpy seed from an int or the uint32 words a program drew (a list of ints)."""
+    return [int(w) for w in np.ravel(seed)]
+
+
 class TaskC:
     """One task on one MjData in plain MuJoCo C (no JAX), stepped as the trainer's backends step it
     (ctrl = action, mj_step frame_skip times, mj_rnePostConstraint), reading obs, reward and termination
@@ -213,6 +220,9 @@ class TaskC:
         mujoco.mj_resetData(m, d)
         d.qpos[:], d.qvel[:] = qpos, qvel
         mujoco.mj_forward(m, d)
+        if goal is None and self.task.goal_size:
+            raise ValueError(f"{self.task.name or type(self.task).__name__} draws a goal at reset: give set_start its goal "
+                             f"[{self.task.goal_size}]")
         self.goal = np.zeros(self.task.goal_size) if goal is None else np.asarray(goal, np.float64)
         return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
 

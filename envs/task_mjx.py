@@ -87,13 +87,15 @@ class WithGoal:
 
 
 def host_start(task, seeds, needed):
-    """(qpos [..., nq], qvel [..., nv], goal [..., goal_size]) float32 of task.initialize() from seeds [...] where
-    needed [...] (zeros elsewhere): the host side of an MJX reset whose start law is code."""
+    """(qpos [..., nq], qvel [..., nv], goal [..., goal_size]) float32 of task.initialize() from seeds [..., 2] where
+    needed [...] (elsewhere qpos0, at rest: a placeholder the caller discards): the host side of an MJX reset whose
+    start law is code."""
     import mujoco
 
-    m, lead = task.model, np.shape(seeds)
-    seeds, needed = np.asarray(seeds).reshape(-1), np.asarray(needed).reshape(-1)
-    out = [np.zeros((len(seeds), k), np.float32) for k in (m.nq, m.nv, task.goal_size)]
+    m, lead = task.model, np.shape(needed)
+    seeds, needed = np.asarray(seeds).reshape(-1, 2), np.asarray(needed).reshape(-1)
+    out = [np.zeros((len(needed), k), np.float32) for k in (m.nq, m.nv, task.goal_size)]
+    out[0][:] = m.qpos0
     data = mujoco.MjData(m)
     for i in np.flatnonzero(needed):
         out[2][i] = task.start(data, seeds[i])
@@ -137,7 +139,7 @@ class TaskMjx(PipelineEnv):
         m = self.task.model
         shapes = tuple(jax.ShapeDtypeStruct((k,), jnp.float32) for k in (m.nq, m.nv, self.task.goal_size))
         qpos, qvel, goal = jax.pure_callback(functools.partial(host_start, self.task), shapes,
-                                             jax.random.bits(rng, (), jnp.uint32), needed, vmap_method="broadcast_all")
+                                             jax.random.bits(rng, (2,), jnp.uint32), needed, vmap_method="broadcast_all")
         return self._state(self.pipeline_init(qpos, qvel), goal)
 
     def step(self, state, action):

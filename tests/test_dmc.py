@@ -181,6 +181,7 @@ def test_a_goal_drawn_at_reset_is_carried_and_redrawn_only_when_an_episode_resta
     its goal through an episode and gets a new one exactly when its episode restarts (5-step episodes here); the
     observation's to_target is goal - finger xy throughout."""
     env = envs.make("dmc:reacher-easy", physics=Physics(backend=backend), reset_mode="fresh", episode_length=5)
+    c = TaskC("dmc:reacher-easy")
     s = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(2), 3))
     step = jax.jit(jax.vmap(env.step))
 
@@ -199,6 +200,28 @@ def test_a_goal_drawn_at_reset_is_carried_and_redrawn_only_when_an_episode_resta
         assert np.all(np.any(new != g, axis=1) == restarted), (backend, t)
         seen.append(new)
         g = new
-        finger = np.asarray(s.obs)[:, 2:4]  # to_target
-        assert np.all(np.linalg.norm(new, axis=1) <= 0.2 + 1e-6) and np.all(np.isfinite(finger))
+        assert np.all(np.linalg.norm(new, axis=1) <= 0.2 + 1e-6)
+        for i in range(3):  # the observation is MuJoCo C's at the same state and goal (to_target = goal - finger xy)
+            ref = c.set_start(np.asarray(s.pipeline_state.qpos[i], np.float64),
+                              np.asarray(s.pipeline_state.qvel[i], np.float64), new[i])
+            np.testing.assert_allclose(np.asarray(s.obs[i]), ref, atol=1e-5, err_msg=f"{backend} step {t} env {i}")
     assert len({tuple(np.round(x, 6)) for x in np.concatenate(seen)}) == 9  # 3 envs x 3 episodes, all different
+
+
+def test_exported_controllers_carry_the_map_onto_a_models_ctrlrange():
+    """An exported controller of a ctrl_range 'model' task stores its ctrlrange (ctrl_low, ctrl_high) and
+    Controller.controls maps act()'s actions as the task does; a task whose actions are its controls stores none."""
+    from gsa_jax.deployment.exporting import control_range_arrays
+    from gsa_jax.deployment.numpy_policy import Controller
+
+    assert control_range_arrays("dmc:walker-walk") == {}
+    stored = control_range_arrays("dmc:quadruped-walk")
+    task = envs.resolve_task("dmc:quadruped-walk")
+    np.testing.assert_array_equal(np.stack([stored["ctrl_low"], stored["ctrl_high"]], 1), task.model.actuator_ctrlrange)
+    nu = task.model.nu
+    arrays = {"kind": np.array("mlp"), "obs_mean": np.zeros(3, np.float32), "obs_var": np.ones(3, np.float32),
+              "obs_clip": np.array(10.0), "n_layers": np.array(1), "w0": np.zeros((3, nu), np.float32),
+              "b0": np.zeros(nu, np.float32), "action_low": -np.ones(nu, np.float32), "action_high": np.ones(nu, np.float32),
+              **stored}
+    a = np.random.default_rng(0).uniform(-1, 1, nu)
+    np.testing.assert_array_equal(Controller(arrays).controls(a), task.controls(a[None])[0])

@@ -14,7 +14,7 @@ import os
 import mujoco
 import numpy as np
 
-from envs.task import Task, TaskError
+from envs.task import Task, TaskError, seed_words
 
 DM_CONTROL_VERSION = "1.0.50"
 INSTALL = f"pip install 'dm_control=={DM_CONTROL_VERSION}' (or: pip install -e '.[dmc]'; make test installs it)"
@@ -119,6 +119,17 @@ def legacy_step(model, data, nstep=1):
     mujoco.mj_step1(model, data)
 
 
+def forward_without_actuation(model, data):
+    """mj_forward with the actuation flag disabled, as dm_control's Physics.reset and after_reset run it."""
+    flag = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+    saved = model.opt.disableflags
+    model.opt.disableflags = saved | flag
+    try:
+        mujoco.mj_forward(model, data)
+    finally:
+        model.opt.disableflags = saved
+
+
 def sub_steps(control_timestep, timestep):
     """dm_control's control.compute_n_steps: physics steps per control step (ValueError unless a whole number)."""
     n = control_timestep / timestep
@@ -155,11 +166,12 @@ class DmcTask(Task):
         return mujoco.MjModel.from_xml_path(path)
 
     def start(self, data, seed):
-        """As dm_control's reset: mj_resetData and a forward pass (Physics.reset), initialize(), mj_forward."""
+        """As dm_control's reset: mj_resetData and a forward pass (Physics.reset), initialize(), a forward pass (both
+        with actuation disabled, as dm_control's)."""
         mujoco.mj_resetData(self.model, data)
-        mujoco.mj_forward(self.model, data)
-        goal = self.initialize(data, np.random.default_rng(int(seed)))
-        mujoco.mj_forward(self.model, data)
+        forward_without_actuation(self.model, data)
+        goal = self.initialize(data, np.random.default_rng(seed_words(seed)))
+        forward_without_actuation(self.model, data)  # Physics.after_reset
         return np.zeros(0) if goal is None else np.asarray(goal, np.float64).reshape(self.goal_size)
 
     def id(self, kind, name):

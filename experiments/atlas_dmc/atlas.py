@@ -4,7 +4,8 @@ Reads results/<task>/final_returns.csv and sufficient_k.csv (gsa_jax.plot's, one
 for comparison, Figure 1 on gymnasium's v5 tasks (experiments/fig1_v5/results/merged: a different protocol, the PPO
 paper's settings and Brax-style resets, marked apart). Writes results/atlas.csv (one row per task: d_a, flat PPO's
 IQM, the best mixture's K, IQM and P(> flat PPO), the smallest sufficient K, flat PPO's last-100-episode training
-return next to CleanRL's published PPO on the same task) and results/atlas.png.
+return next to CleanRL's published PPO on the same task), results/atlas.md (the same as a Markdown table) and
+results/atlas.png.
 """
 
 import os
@@ -43,6 +44,22 @@ def published(rows):
         p = table.get(row["task"].removeprefix("dmc:"), {})
         row["published_ppo"] = f"{p['published_mean']} ± {p['published_std']} ({int(p['env_steps']) // 10**6}M)" if p else ""
     return rows
+
+
+def markdown(rows):
+    """The atlas table as Markdown (results/atlas.md)."""
+    head = ["task", "d_a", "flat PPO IQM [95% CI]", "best mixture: K, IQM", "P(best > flat) [95% CI]",
+            "smallest sufficient K (K tried)", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        low, high = r["flat_iqm_ci"].split("..")
+        p_low, p_high = r["p_ci"].split("..")
+        lines.append("| " + " | ".join([
+            r["task"], str(r["d_a"]), f"{float(r['flat_iqm']):,.0f} [{float(low):,.0f}, {float(high):,.0f}]",
+            f"K = {r['best_K']}: {float(r['best_iqm']):,.0f}", f"{float(r['p_best_gt_flat']):.2f} [{p_low}, {p_high}]",
+            f"{r['smallest_sufficient_K'] or 'none'} ({r['ks_tried']})", f"{float(r['flat_training_return']):,.0f}",
+            r.get("published_ppo", "")]) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def plot(rows, path):
@@ -84,6 +101,8 @@ def main():
             rows += task_rows(final, os.path.join(RESULTS, task, "sufficient_k.csv"), "dmc")
     rows = published(rows) + task_rows(os.path.join(V5, "final_returns.csv"), os.path.join(V5, "sufficient_k.csv"), "v5")
     write_csv(os.path.join(RESULTS, "atlas.csv"), rows)
+    with open(os.path.join(RESULTS, "atlas.md"), "w") as f:
+        f.write(markdown(rows))
     plot(rows, os.path.join(RESULTS, "atlas.png"))
     print(open(os.path.join(RESULTS, "atlas.csv")).read())
 

@@ -76,7 +76,11 @@ def _header_comment(ctrl, arrays, layout, c):
              f"obs: {d_s} floats, the task's raw observation (normalized inside):"]
     lines += [f"  [{i}] {n}" for i, n in enumerate(names)]
     lines += [f"action: {ctrl.action_size} floats, the task's action inside its bounds, {_bounds_text(ctrl)}",
-              "  (gsa_action_low, gsa_action_high); gsa_act_raw writes the raw action, before them.",
+              "  (gsa_action_low, gsa_action_high); gsa_act_raw writes the raw action, before them."]
+    if ctrl.ctrl_range is not None:
+        lines += ["  The task maps the action onto its actuators' controls: ctrl = low + (action + 1) (high - low) / 2,",
+                  f"  low = {np.round(ctrl.ctrl_range[0], 6).tolist()}, high = {np.round(ctrl.ctrl_range[1], 6).tolist()}."]
+    lines += [
               "cluster: index of the active linear piece." if ctrl.kind == "mixture" else "cluster: 0.", "",
               f"Constants: {c['constants']} floats ({c['bytes']} bytes). Per call: {c['multiply_adds']} multiply-adds, "
               f"{c['tanh']} tanhf, {c['compares']} compares.", "",

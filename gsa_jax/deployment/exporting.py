@@ -23,7 +23,18 @@ def with_bounds(arrays, source):
     bounds = action_bounds(arrays)
     if bounds is None:
         raise ExportError(f"{source!r} names no known task ({task_name(arrays)!r}), so no action bounds to export")
-    return {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
+    arrays = {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
+    return {**arrays, **control_range_arrays(task_name(arrays))}
+
+
+def control_range_arrays(task):
+    """{ctrl_low, ctrl_high} where the task maps actions onto its actuators' ctrlrange (envs.control_range), else {}."""
+    import envs
+
+    if task is None or not envs.is_name(task):
+        return {}
+    ranges = envs.control_range(task)
+    return {} if ranges is None else {"ctrl_low": ranges[0], "ctrl_high": ranges[1]}
 
 
 def controller_arrays(address):

@@ -10,7 +10,8 @@ the action they are given); `act(obs, clip=False)` is the raw action, for analys
 
 File format (written by `python -m gsa_jax.export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
 obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), action_low, action_high [d_a],
-config_json (the run's config: its task is config.env), and for mixtures subpolicy
+config_json (the run's config: its task is config.env), ctrl_low, ctrl_high [d_a] where the task maps its actions
+onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), and for mixtures subpolicy
 ('constant'|'linear'|'quadratic'; absent = linear), L [K, d_a, d_phi], b [K, d_a] of the K active clusters.
 Files exported before the bounds were stored get their task's (`action_bounds`).
 """
@@ -69,10 +70,20 @@ class Controller:
             raise ValueError(f"unknown controller kind {self.kind!r}")
         self.action_size = action_size(arrays)
         self.action_low, self.action_high = action_bounds(arrays) or (None, None)
+        self.ctrl_range = ((np.asarray(arrays["ctrl_low"], np.float64), np.asarray(arrays["ctrl_high"], np.float64))
+                           if "ctrl_low" in arrays else None)
         self.no_bounds = (f"{name} stores no action bounds and its task {task_name(arrays)!r} is not a known task: "
                           "act() returns raw, unclipped actions")
         if self.action_low is None:
             warnings.warn(self.no_bounds, stacklevel=2)
+
+    def controls(self, action):
+        """The actuator controls of an action from act(): the action itself, or its map onto the task's ctrlrange
+        (ctrl = low + (a + 1) (high - low) / 2) where the task has one (ctrl_low, ctrl_high)."""
+        if self.ctrl_range is None:
+            return np.asarray(action)
+        low, high = self.ctrl_range
+        return low + (np.asarray(action, np.float64) + 1.0) * (0.5 * (high - low))
 
     @property
     def num_clusters(self):
