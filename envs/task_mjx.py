@@ -114,7 +114,11 @@ class TaskMjx(PipelineEnv):
         self.task = task
         data = mujoco.MjData(task.model)
         self._shapes = {f: getattr(data, f).shape for f in task.derived}  # MuJoCo C's (xmat [nbody, 9], not [.., 3, 3])
-        super().__init__(mjcf.load_model(mjx_model(task.model)), backend="mjx", n_frames=task.frame_skip)
+        try:
+            super().__init__(mjcf.load_model(mjx_model(task.model)), backend="mjx", n_frames=task.frame_skip)
+        except NotImplementedError as e:  # a model MJX cannot step (dmc:fish-swim: ellipsoid-box collisions)
+            raise ValueError(f"MJX cannot step task {task.name or type(task).__name__!r} ({e}); train it with backend "
+                             "'c' (--physics c)") from None
 
     def _derived(self, data, goal=None):
         derived = {f: getattr(data, f).reshape(self._shapes[f])[None] for f in self.task.derived}

@@ -225,3 +225,9 @@ def test_exported_controllers_carry_the_map_onto_a_models_ctrlrange():
               **stored}
     a = np.random.default_rng(0).uniform(-1, 1, nu)
     np.testing.assert_array_equal(Controller(arrays).controls(a), task.controls(a[None])[0])
+
+
+def test_a_task_mjx_cannot_step_says_so_in_one_line():
+    with pytest.raises(ValueError, match=r"MJX cannot step task 'dmc:fish-swim' \(.*collisions not implemented.*\); "
+                                         r"train it with backend 'c'"):
+        envs.make_base("dmc:fish-swim")

@@ -267,16 +267,20 @@ COMMITTED = {  # one committed controller per task family, exported before the b
 
 def test_action_range_is_every_tasks_actuator_range():
     """envs.ACTION_RANGE, what training clips to and act() clips to, is each locomotion task's actuator ctrlrange and
-    gymnasium's action space; allegro_cylinder clips its own actions (PD-target steps) to it."""
+    gymnasium's action space, or (ctrl_range 'model': dmc:quadruped-walk) maps onto the ctrlrange end to end;
+    allegro_cylinder clips its own actions (PD-target steps) to it."""
     import gymnasium
 
     import envs
     from envs.mujoco_c import make_c
 
     for name in envs.NAMES:
-        if name != "allegro_cylinder":
-            np.testing.assert_array_equal(envs.task_model(name).actuator_ctrlrange,
-                                          np.transpose(envs.action_bounds(name)), err_msg=name)
+        if name == "allegro_cylinder":
+            continue
+        ranges = envs.control_range(name)
+        controls = np.transpose(envs.action_bounds(name)) if ranges is None else np.transpose(ranges)
+        np.testing.assert_array_equal(envs.task_model(name).actuator_ctrlrange, controls, err_msg=name)
+    assert [n for n in envs.NAMES if envs.control_range(n) is not None] == ["dmc:quadruped-walk"]
     for env_id in envs.GYM_V5_TASKS:
         space = gymnasium.make(env_id).action_space
         np.testing.assert_array_equal([space.low, space.high], envs.action_bounds(env_id), err_msg=env_id)
