@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The MJX path on one accelerator, in one call (experiments/gpu_mjx/README.md): the benchmark at 256-4096 runs,
-# one Figure-1 cell (fig1_hopper_K6.toml), the tests that apply. Uses the machine's own jax (with its CUDA
+# one Figure-1 cell (gpu_fig1_hopper_K6.toml), the tests that apply. Uses the machine's own jax (with its CUDA
 # plugin) and the wheels in .whl/ for what the machine lacks (mujoco, mujoco-mjx, brax, gymnasium, ...).
 #   OUT=dir bash experiments/gpu_mjx/device_run.sh          (TINY=1: the same steps at toy sizes, for a dry run)
 set -u
@@ -23,7 +23,7 @@ timeout $T_BENCH $PY -m gsa_jax.bench --env hopper --physics mjx --sizes $SIZES 
   --raw-batches $RAW --run-batch 0 --solver-variant none --repeats 2 --out "$OUT/bench" > "$OUT/bench.log" 2>&1
 echo "bench rc=$? $(( $(date +%s) - t0 )) s" | tee -a "$OUT/device.txt"
 t0=$(date +%s)
-sed "s/^steps = .*/steps = $STEPS/" experiments/gpu_mjx/fig1_hopper_K6.toml > /tmp/cell.toml
+sed "s/^steps = .*/steps = $STEPS/" experiments/gpu_mjx/gpu_fig1_hopper_K6.toml > /tmp/cell.toml
 rm -rf /tmp/cell
 timeout $T_CELL $PY -m gsa_jax.sweep /tmp/cell.toml --out /tmp/cell --local-processes 1 --run-batch 0 --no-watchdog \
   --no-tensorboard > "$OUT/cell.log" 2>&1
