@@ -28,10 +28,10 @@ def task_rows(final_csv, sufficient_csv, family):
         d_a = round(int(best["K"]) / float(best["K_over_action_dim"]))
         s = sufficient.get(env, {})
         rows.append({"task": env, "family": family, "d_a": d_a, "flat_iqm": flat["iqm"],
-                     "flat_iqm_ci": f"{flat['iqm_ci_low']}..{flat['iqm_ci_high']}", "best_K": best["K"],
+                     "flat_iqm_ci_low": flat["iqm_ci_low"], "flat_iqm_ci_high": flat["iqm_ci_high"], "best_K": best["K"],
                      "best_iqm": best["iqm"], "best_over_flat": f"{float(best['iqm']) / float(flat['iqm']):.3f}",
                      "p_best_gt_flat": best["p_better_than_flat_ppo"],
-                     "p_ci": f"{best['p_ci_low']}..{best['p_ci_high']}",
+                     "p_ci_low": best["p_ci_low"], "p_ci_high": best["p_ci_high"],
                      "smallest_sufficient_K": s.get("smallest_sufficient_K", ""), "ks_tried": s.get("ks_tried", ""),
                      "flat_training_return": flat["training_return_mean"]})
     return rows
@@ -43,6 +43,7 @@ def published(rows):
     for row in rows:
         p = table.get(row["task"].removeprefix("dmc:"), {})
         row["published_ppo"] = f"{p['published_mean']} ± {p['published_std']} ({int(p['env_steps']) // 10**6}M)" if p else ""
+        row["published_mean"], row["published_std"] = p.get("published_mean", ""), p.get("published_std", "")
     return rows
 
 
@@ -52,8 +53,7 @@ def markdown(rows):
             "smallest sufficient K (K tried)", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        low, high = r["flat_iqm_ci"].split("..")
-        p_low, p_high = r["p_ci"].split("..")
+        low, high, p_low, p_high = r["flat_iqm_ci_low"], r["flat_iqm_ci_high"], r["p_ci_low"], r["p_ci_high"]
         lines.append("| " + " | ".join([
             r["task"], str(r["d_a"]), f"{float(r['flat_iqm']):,.0f} [{float(low):,.0f}, {float(high):,.0f}]",
             f"K = {r['best_K']}: {float(r['best_iqm']):,.0f}", f"{float(r['p_best_gt_flat']):.2f} [{p_low}, {p_high}]",
