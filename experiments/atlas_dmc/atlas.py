@@ -73,20 +73,28 @@ def plot(rows, path):
     colors = ["tab:blue" if r["family"] == "dmc" else "tab:gray" for r in rows]
     a.barh([r["task"] for r in rows], [float(r["best_over_flat"]) for r in rows], color=colors)
     a.axvline(1.0, color="k", lw=1)
+    a.set_xscale("log")
+    a.set_xticks([0.25, 0.5, 1, 2, 4, 8], ["1/4", "1/2", "1", "2", "4", "8"])
+    a.minorticks_off()
     for i, r in enumerate(rows):
         a.text(float(r["best_over_flat"]), i, f"  K={r['best_K']}, P={float(r['p_best_gt_flat']):.2f}", va="center", fontsize=7)
     a.set_xlabel("best mixture's IQM / flat PPO's IQM (deterministic controllers)")
     a.set_title("How good is the best mixture? (blue: DMC atlas, grey: v5 Figure 1)", fontsize=9)
+    points = {}  # (d_a, y, marker, color) -> task names (tasks at the same point share one label)
     for r in rows:
-        d_a, k = int(r["d_a"]), r["smallest_sufficient_K"]
-        top = max(int(x) for x in r["ks_tried"].split()) * 1.6 if r["ks_tried"] else 1
-        b.scatter(d_a, int(k) if k else top, marker="o" if k else "x", color="tab:blue" if r["family"] == "dmc" else "tab:gray")
-        b.annotate(r["task"].removeprefix("dmc:"), (d_a, int(k) if k else top), fontsize=6, xytext=(3, 2),
-                   textcoords="offset points")
+        d_a, k, k_max = int(r["d_a"]), r["smallest_sufficient_K"], max(int(x) for x in r["ks_tried"].split())
+        name = r["task"].removeprefix("dmc:") + ("" if k else f" (none <= {k_max})")
+        key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray")
+        points.setdefault(key, []).append(name)
+    for (d_a, y, marker, color), names in points.items():
+        b.scatter(d_a, y, marker=marker, color=color)
+        left = color == "tab:gray"  # v5 labels on the left, so that a v5 and a DMC task at one point both read
+        b.annotate("\n".join(names), (d_a, y), fontsize=6, xytext=(-4 if left else 4, 0), textcoords="offset points",
+                   va="center", ha="right" if left else "left")
     b.plot([0.8, 40], [0.8, 40], "k:", lw=1, label="K = d_a")
     b.axhline(10, color="tab:red", lw=1, ls="--", label="K = 10 (the paper: 'typically less than ten')")
     b.set_xscale("log"), b.set_yscale("log")
-    b.set_xlabel("action dimension d_a"), b.set_ylabel("smallest K on par with flat PPO (x: none of those tried)")
+    b.set_xlabel("action dimension d_a"), b.set_ylabel("smallest K on par with flat PPO (x: none of the K tried)")
     b.legend(fontsize=7)
     b.set_title("How few linear controllers suffice?", fontsize=9)
     fig.tight_layout()
