@@ -6,6 +6,7 @@ scores with its 95% stratified-bootstrap interval, and P(accelerator run > CPU r
 the two programs are the same spec and seeds, run by different XLA backends (and jax versions), so equal
 returns are not expected, an equal distribution is; (2) the benchmark's throughputs on the accelerator
 (results/bench.json) beside the newest committed 2-core CPU benchmark of the same task (experiments/bench_hopper).
+Also writes results/dmc/dmc_accelerator.csv: the DeepMind Control Suite tasks' throughputs on the accelerator.
 """
 
 import glob
@@ -49,29 +50,42 @@ def newest_cpu_bench():
     return max(paths, key=lambda p: int(date(p)))
 
 
-def bench_rows():
-    gpu_path, cpu_path = os.path.join(HERE, "results", "bench.json"), newest_cpu_bench()
-    rows = []
-    for label, path in (("accelerator", gpu_path), ("cpu", cpu_path)):
-        b = json.load(open(path))
-        src = os.path.relpath(path, ROOT)
-        rows.append({"key": f"mujoco_c_{label}", "what": f"MuJoCo C rollout, {b['mujoco_c']['threads']} threads ({label} machine)", "n": 1,
-                     "value": f"{b['mujoco_c']['env_steps_per_s']:.0f}", "source": src})
-        for r in b["raw"]:
-            if "error" not in r and "solver" not in r:
-                rows.append({"key": f"raw_{label}_b{r['batch']}_p{r['processes']}", "what": f"raw MJX stepping, batch {r['batch']}, {r['processes']} process(es) ({label})", "n": 1,
-                             "value": f"{r['env_steps_per_s']:.0f}", "source": src})
-        for r in b["sweeps"]:
-            if "error" not in r and "solver" not in r and r["policy"] == "mixture":
-                rows.append({"key": f"train_{label}_r{r['runs']}_p{r['processes']}", "what": f"training, mixture K=6, {r['runs']} runs, {r['processes']} process(es) ({label})",
-                             "n": 1, "value": f"{r['env_steps_per_s']:.0f}", "source": src})
+def file_rows(path, label, tag=""):
+    """A bench.json's MuJoCo C, raw MJX and mixture training throughputs as rows keyed <what>_<label>[_<tag>]."""
+    b = json.load(open(path))
+    src, env = os.path.relpath(path, ROOT), b["env"]
+    suffix = f"{label}_{tag}" if tag else label
+    rows = [{"key": f"mujoco_c_{suffix}", "what": f"{env}: MuJoCo C rollout, {b['mujoco_c']['threads']} threads ({label} machine)",
+             "n": 1, "value": f"{b['mujoco_c']['env_steps_per_s']:.0f}", "source": src}]
+    for r in b["raw"]:
+        if "error" not in r and "solver" not in r:
+            rows.append({"key": f"raw_{suffix}_b{r['batch']}_p{r['processes']}", "n": 1, "value": f"{r['env_steps_per_s']:.0f}",
+                         "what": f"{env}: raw MJX stepping, batch {r['batch']}, {r['processes']} process(es) ({label})", "source": src})
+    for r in b["sweeps"]:
+        if "error" not in r and "solver" not in r and r["policy"] == "mixture":
+            rows.append({"key": f"train_{suffix}_r{r['runs']}_p{r['processes']}", "n": 1, "value": f"{r['env_steps_per_s']:.0f}",
+                         "what": f"{env}: training, mixture, {r['runs']} runs, {r['processes']} process(es) ({label})", "source": src})
     return rows
+
+
+def bench_rows():
+    return file_rows(os.path.join(HERE, "results", "bench.json"), "accelerator") + file_rows(newest_cpu_bench(), "cpu")
+
+
+def dmc_rows():
+    """The DeepMind Control Suite tasks on the accelerator (results/dmc/, device_run_dmc.sh and the walker-walk
+    256-run rerun)."""
+    found = [("cartpole", "bench_cartpole-swingup/bench.json"), ("walker", "bench_walker-walk/bench.json"),
+             ("walker_rerun", "walker256/bench_walker-walk_256/bench.json")]
+    return [row for tag, rel in found for row in file_rows(os.path.join(HERE, "results", "dmc", rel), "accelerator", tag)]
 
 
 def main():
     out = os.path.join(HERE, "results", "compare_cpu.csv")
     write_csv(out, cell_rows() + bench_rows(), ["key", "what", "n", "value", "low", "high", "source"])
-    print(open(out).read())
+    dmc = os.path.join(HERE, "results", "dmc", "dmc_accelerator.csv")
+    write_csv(dmc, dmc_rows(), ["key", "what", "n", "value", "source"])
+    print(open(out).read() + open(dmc).read())
 
 
 if __name__ == "__main__":
