@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test sweep figures bench bench-quick profile scene clean
+.PHONY: install demo test sweep figures bench bench-quick profile profile-bench scene clean
 EXP ?= experiments/fig1_small/fig1_small.toml
 
 $(STAMP): pyproject.toml
@@ -54,9 +54,14 @@ bench: $(STAMP)
 bench-quick: $(STAMP)
 	$(BIN)/python -m gsa_jax.bench --quick --out runs/bench-quick
 
-## profile: where one PPO iteration's time goes (64 hopper runs, 1 process: physics / rollout / update; ~7 min)
+## profile: where the PPO program's time goes, part by part, on the five v5 tasks and dm_control's cartpole
+## (gsa_jax.profile: one sweep worker's 8 runs on one core, mixture and flat PPO; ~10 min on an idle machine)
 profile: $(STAMP)
-	$(BIN)/python -m gsa_jax.bench --sizes 64 --processes 1 --raw-batches 256 --profile-runs 64 --solver-variant none --out runs/profile
+	$(BIN)/python -m gsa_jax.profile --out runs/profile
+
+## profile-bench: the bench's coarser split at 64 hopper runs (physics / rollout / update, MJX; ~7 min)
+profile-bench: $(STAMP)
+	$(BIN)/python -m gsa_jax.bench --sizes 64 --processes 1 --raw-batches 256 --profile-runs 64 --solver-variant none --out runs/profile-bench
 
 ## scene: a picture of the Allegro task (offscreen OSMesa rendering; installs Debian's libosmesa6 if missing)
 scene: $(STAMP)

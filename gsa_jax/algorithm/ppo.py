@@ -425,6 +425,24 @@ def group_learning_rates(params, hp, lr):
     return {"policy": policy, "value": jax.tree.map(lambda _: lr * hp.lr_scale_critic, params["value"])}
 
 
+def minibatch_gradients(p, params, mb, hp, sched):
+    """(gradients of ppo_loss like params, its aux metrics) on one minibatch."""
+    return jax.grad(lambda prm: ppo_loss(p, prm, mb, hp, sched), has_aux=True)(params)
+
+
+def apply_gradients(params, opt, grads, hp, lrs):
+    """Global-norm clipping and one Adam step -> (params, opt, norm before clipping)."""
+    grads, gnorm = clip_by_global_norm(grads, hp.max_grad_norm)
+    params, opt = adam_step(params, grads, opt, lrs)
+    return params, opt, gnorm
+
+
+def epoch_minibatches(p, batch, key):
+    """One epoch's minibatches: the batch [B, ...] shuffled (key) into [num_minibatches, minibatch_size, ...]."""
+    perm = shuffle(key, p.cfg.batch_size)
+    return jax.tree.map(lambda x: x[perm].reshape((p.cfg.num_minibatches, p.cfg.minibatch_size) + x.shape[1:]), batch)
+
+
 def sgd_update(p, params, opt, batch, hp, sched, lr, key):
     """cfg.num_epochs epochs of shuffled minibatch Adam steps (each parameter group at its own rate,
     group_learning_rates) -> (params, opt, mean stats)."""
@@ -432,17 +450,12 @@ def sgd_update(p, params, opt, batch, hp, sched, lr, key):
 
     def minibatch(carry, mb):
         params, opt = carry
-        grads, aux = jax.grad(lambda prm: ppo_loss(p, prm, mb, hp, sched), has_aux=True)(params)
-        grads, gnorm = clip_by_global_norm(grads, hp.max_grad_norm)
-        params, opt = adam_step(params, grads, opt, lrs)
+        grads, aux = minibatch_gradients(p, params, mb, hp, sched)
+        params, opt, gnorm = apply_gradients(params, opt, grads, hp, lrs)
         return (params, opt), dict(aux, grad_norm=gnorm)
 
     def epoch(carry, k):
-        perm = shuffle(k, p.cfg.batch_size)
-        mbs = jax.tree.map(
-            lambda x: x[perm].reshape((p.cfg.num_minibatches, p.cfg.minibatch_size) + x.shape[1:]), batch
-        )
-        return jax.lax.scan(minibatch, carry, mbs)
+        return jax.lax.scan(minibatch, carry, epoch_minibatches(p, batch, k))
 
     (params, opt), stats = jax.lax.scan(epoch, (params, opt), jax.random.split(key, p.cfg.num_epochs))
     return params, opt, jax.tree.map(jnp.mean, stats)
@@ -569,19 +582,24 @@ def make_parts(cfg, env, eval_env):
                  jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
 
 
+def make_run_parts(cfg: Config, task=None) -> Parts:
+    """The Parts of a run of cfg on `task` (as make_train takes it), validated; gsa_jax.benchmark.parts times them."""
+    task = envs.task_record(cfg.env if task is None else task)
+    if cfg.episode_length is None:
+        cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
+    cfg.validate(task)
+    return make_parts(cfg, make_env(cfg, task=task), make_env(cfg, auto_reset=False, task=task))
+
+
 def make_train(cfg: Config, task=None) -> Trainer:
     """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...).
 
     task: what to train, as Brax's train takes an environment: a task name, its record (envs.task_record) or a
     task definition (an envs.task.Task instance or subclass, named for its class); default: cfg.env. Resolved
     once here; cfg.env must be its name (Config(env=...)); cfg.episode_length None: the task's own."""
-    task = envs.task_record(cfg.env if task is None else task)
-    if cfg.episode_length is None:
-        cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
-    cfg.validate(task)
-    p = make_parts(cfg, make_env(cfg, task=task), make_env(cfg, auto_reset=False, task=task))
+    p = make_run_parts(cfg, task)
     bind = functools.partial
-    return Trainer(cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
+    return Trainer(p.cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
 
 
 def all_finite(tree):

@@ -1,0 +1,68 @@
+"""gsa_jax.profile: the parts of the update it times compute what the update computes (on the toy task of
+test_ppo_parts), its split of an iteration adds up, and bad input is refused in one line."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsa_jax import profile
+from gsa_jax.algorithm.optim import init_adam
+from gsa_jax.algorithm.ppo import Config, TrainState, apply_gradients, epoch_minibatches, minibatch_gradients, schedule
+from gsa_jax.benchmark.parts import NUDGE, PARTS, PPO_PARTS, split_seconds, update_parts
+from tests.test_ppo_parts import HP, minibatch, toy_params, toy_parts
+
+
+def toy_state(params):
+    return TrainState(params, init_adam(params), None, None, None, None, None, jax.random.PRNGKey(5), jnp.int32(0),
+                      jnp.int32(-1))
+
+
+def test_update_parts_compute_the_updates_steps():
+    """shuffle_gather gives every epoch's epoch_minibatches; the gradients part's first step is
+    minibatch_gradients at the run's parameters and each later step is taken at parameters moved by NUDGE x the
+    gradients before it; the optimizer part's first step is apply_gradients."""
+    p = toy_parts(Config(num_envs=4, unroll_length=4, num_epochs=2, num_minibatches=2))
+    params, batch = toy_params(), minibatch()
+    s, sched = toy_state(params), schedule(HP, jnp.int32(0))
+    parts = update_parts(p)
+    mbs = parts["shuffle_gather"](s, batch)
+    for e, k in enumerate(jax.random.split(s.key, 2)):
+        for a, b in zip(jax.tree.leaves(jax.tree.map(lambda x: x[e], mbs)), jax.tree.leaves(epoch_minibatches(p, batch, k))):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    moved, aux = parts["gradients"](s, HP, mbs)
+    first = jax.tree.map(lambda x: x[0, 0], mbs)
+    grads, want = minibatch_gradients(p, params, first, HP, sched)
+    np.testing.assert_array_equal(np.asarray(aux["policy_loss"][0]), np.asarray(want["policy_loss"]))
+    second = jax.tree.map(lambda x: x[0, 1], mbs)
+    at = jax.tree.map(lambda x, g: x - NUDGE * g, params, grads)
+    np.testing.assert_array_equal(np.asarray(aux["policy_loss"][1]),
+                                  np.asarray(minibatch_gradients(p, at, second, HP, sched)[1]["policy_loss"]))
+    assert aux["policy_loss"].shape == (4,)
+    one, _, _ = parts["opt_one"](s, HP, grads)
+    lr = HP.lr  # group_learning_rates of the toy's params: every scale is 1 for its flat policy group
+    want_params, _, _ = apply_gradients(params, s.opt, grads, HP, jax.tree.map(lambda _: lr, params))
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(want_params)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+
+
+def test_the_split_adds_up_to_the_iteration():
+    """Every part from the timed pieces (wall, host, MuJoCo C): the physics parts add up to the replayed env
+    steps, all parts to the whole iteration."""
+    t = {"iteration": (10.0, 4.2, 0), "rollout": (6.0, 4.0, 3.0), "physics": (5.0, 4.0, 3.0), "rollout_policy": (0.5, 0, 0),
+         "targets": (0.25, 0, 0), "update": (3.0, 0, 0), "shuffle_gather": (0.5, 0, 0), "gradients": (1.5, 0, 0),
+         "optimizer": (0.75, 0, 0)}
+    s = split_seconds(t)
+    assert set(s) == set(PARTS)
+    assert s["mujoco_c"] == 3.0 and s["host_other"] == 1.0 and s["env_step_program"] == 1.0
+    assert s["rollout_rest"] == 0.5 and s["update_loop"] == 0.25 and s["rest"] == 0.75
+    assert sum(s.values()) == pytest.approx(10.0)
+    assert sum(s[k] for k in PPO_PARTS) == pytest.approx(10.0 - 5.0)
+
+
+@pytest.mark.parametrize("argv, words", [(["--runs", "0"], "--runs"), (["--cores", "-1"], "--cores"),
+                                         (["--envs", "no-such-task"], "no-such-task"), (["--cores", "64"], "only")])
+def test_bad_input_is_refused_in_one_line(argv, words, capsys, tmp_path):
+    assert profile.main(argv + ["--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err
