@@ -185,19 +185,22 @@ TIMED = ("iteration", "rollout", "targets", "update", "physics", "rollout_policy
 
 
 def split_seconds(t):
-    """Seconds per iteration of every part from the timed pieces t[name] = (wall, host, mujoco_c); the
-    residual parts (rollout_rest, update_loop, rest) are differences of measured wholes, so noise can make them
-    slightly negative."""
+    """Seconds per iteration of every part from the timed pieces t[name] = (wall, host, mujoco_c). MuJoCo C and
+    the host calls are the iteration's own (its clock); the program's side of a piece with host calls is its wall
+    less its host time, so the residual parts (rollout_rest, update_loop, rest: differences of measured wholes,
+    which noise can make slightly negative) do not carry MuJoCo C's run-to-run variation. The parts add up to the
+    iteration's wall time."""
     wall = {name: v[0] for name, v in t.items()}
-    _, host, c = t["physics"]
+    program = {name: v[0] - v[1] for name, v in t.items()}
     return {
-        "mujoco_c": c, "host_other": host - c, "env_step_program": wall["physics"] - host,
+        "mujoco_c": t["iteration"][2], "host_other": t["iteration"][1] - t["iteration"][2],
+        "env_step_program": program["physics"],
         "rollout_policy": wall["rollout_policy"],
-        "rollout_rest": wall["rollout"] - wall["physics"] - wall["rollout_policy"],
+        "rollout_rest": program["rollout"] - program["physics"] - wall["rollout_policy"],
         "targets": wall["targets"], "shuffle_gather": wall["shuffle_gather"], "gradients": wall["gradients"],
         "optimizer": wall["optimizer"],
         "update_loop": wall["update"] - wall["shuffle_gather"] - wall["gradients"] - wall["optimizer"],
-        "rest": wall["iteration"] - wall["rollout"] - wall["targets"] - wall["update"],
+        "rest": program["iteration"] - program["rollout"] - wall["targets"] - wall["update"],
     }
 
 
@@ -218,18 +221,26 @@ def profile_parts(cfg, runs, K, repeats=5):
     clock = host_clock(p.cfg)
     timed = {name: time_call(programs[name], args[name], repeats, clock) for name in TIMED}
     flops = count_flops(p, programs, args)
-    rate = matmul_rate()
-    seconds = split_seconds(timed)
-    env_steps = runs * p.cfg.batch_size
+    prof = {"env": cfg.env, "policy": cfg.policy, "K": K if cfg.policy == "mixture" else None, "runs": runs,
+            "backend": cfg.backend, "repeats": repeats, "env_steps_per_iteration": runs * p.cfg.batch_size,
+            "matmul_gflop_per_s": matmul_rate() / 1e9, "flops_per_iteration": flops,
+            "timed": {k: dict(zip(("wall_s", "host_s", "mujoco_c_s"), v)) for k, v in timed.items()}}
+    return {**prof, **summarize(prof)}
+
+
+def summarize(prof):
+    """A profile's derived figures from what it measured (timed pieces {name: {wall_s, host_s, mujoco_c_s}},
+    flops_per_iteration, env_steps_per_iteration, matmul_gflop_per_s): the iteration's, PPO's own program's and the
+    program's (the iteration less its host calls) seconds, and one row per part."""
+    t = {k: (v["wall_s"], v["host_s"], v["mujoco_c_s"]) for k, v in prof["timed"].items()}
+    flops, env_steps = prof["flops_per_iteration"], prof["env_steps_per_iteration"]
+    seconds = split_seconds(t)
     ppo_s = sum(seconds[k] for k in PPO_PARTS)
+    rate = prof["matmul_gflop_per_s"] * 1e9
     rows = [{"part": k, "s_per_iteration": v, "us_per_env_step": 1e6 * v / env_steps,
-             "share_of_iteration": v / timed["iteration"][0], "share_of_ppo": v / ppo_s if k in PPO_PARTS else None,
+             "share_of_iteration": v / t["iteration"][0], "share_of_ppo": v / ppo_s if k in PPO_PARTS else None,
              "kflop_per_env_step": flops[k] / env_steps / 1e3 if k in flops else None,
              "gflop_per_s": flops[k] / v / 1e9 if k in flops and v > 0 else None,
              "of_matmul_rate": flops[k] / v / rate if k in flops and v > 0 else None} for k, v in seconds.items()]
-    return {"env": cfg.env, "policy": cfg.policy, "K": K if cfg.policy == "mixture" else None, "runs": runs,
-            "backend": cfg.backend, "repeats": repeats, "env_steps_per_iteration": env_steps,
-            "iteration_s": timed["iteration"][0], "ppo_program_s": ppo_s,
-            "program_s": timed["iteration"][0] - timed["iteration"][1],
-            "matmul_gflop_per_s": rate / 1e9, "timed": {k: dict(zip(("wall_s", "host_s", "mujoco_c_s"), v)) for k, v in timed.items()},
+    return {"iteration_s": t["iteration"][0], "ppo_program_s": ppo_s, "program_s": t["iteration"][0] - t["iteration"][1],
             "parts": rows}
