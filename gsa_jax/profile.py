@@ -62,10 +62,12 @@ def sweep_config(env, policy, K, runs, backend):
 def table(prof):
     """A profile as a markdown table (one row per part)."""
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
+    ops = prof["gradients_ops_s"]
     head = (f"### {prof['env']}, {prof['policy']}" + (f" K={prof['K']}" if prof["K"] else "") + f", {prof['runs']} runs, "
             f"backend {prof['backend']}: iteration {prof['iteration_s'] * 1e3:.0f} ms, PPO's own program "
             f"{prof['ppo_program_s'] * 1e3:.0f} ms ({prof['ppo_program_s'] / prof['iteration_s']:.0%}); matmul "
-            f"{prof['matmul_gflop_per_s']:.0f} GFLOP/s\n\n"
+            f"{prof['matmul_gflop_per_s']:.0f} GFLOP/s; the gradients' matrix products {ops['matrix_products'] * 1e3:.0f} ms, "
+            f"their other ops {ops['other_ops'] * 1e3:.0f} ms\n\n"
             "| part | ms / iteration | us / env step | of iteration | of PPO program | kFLOP / env step | GFLOP/s | of matmul |\n"
             "|---|---:|---:|---:|---:|---:|---:|---:|\n")
     rows = [f"| {r['part']} | {r['s_per_iteration'] * 1e3:.1f} | {r['us_per_env_step']:.2f} | {r['share_of_iteration']:.1%} | "

@@ -9,7 +9,7 @@ import pytest
 from gsa_jax import profile
 from gsa_jax.algorithm.optim import init_adam
 from gsa_jax.algorithm.ppo import Config, TrainState, apply_gradients, epoch_minibatches, minibatch_gradients, schedule
-from gsa_jax.benchmark.parts import NUDGE, PARTS, PPO_PARTS, split_seconds, update_parts
+from gsa_jax.benchmark.parts import NUDGE, PARTS, PPO_PARTS, op_seconds, split_seconds, update_parts
 from tests.test_ppo_parts import HP, minibatch, toy_params, toy_parts
 
 
@@ -66,3 +66,12 @@ def test_bad_input_is_refused_in_one_line(argv, words, capsys, tmp_path):
     assert profile.main(argv + ["--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and words in err
+
+
+def test_op_seconds_splits_matrix_products_from_other_ops():
+    """A matmul followed by a tanh: both kinds of op are seen, and a bigger matmul moves the split its way."""
+    f = jax.jit(lambda a: jnp.tanh(a @ a))
+    small = op_seconds(f, (jnp.ones((64, 64)),))
+    big = op_seconds(f, (jnp.ones((512, 512)),))
+    assert small["matrix_products"] > 0 and small["other_ops"] > 0
+    assert big["matrix_products"] / big["other_ops"] > small["matrix_products"] / small["other_ops"]

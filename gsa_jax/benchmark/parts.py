@@ -15,13 +15,20 @@ Parts (all vmapped over the runs, as a sweep worker runs them), in seconds per i
   minibatch_gradients), optimizer (global-norm clipping and Adam on every minibatch: apply_gradients),
   update_loop (what the whole update, sgd_update, takes beyond those three alone) and rest (what the whole
   iteration takes beyond everything above: metrics, normalizer statistics, the failure guard)
+The gradients part is also traced (jax.profiler) to split its time between XLA's matrix-product ops and its
+other ops (op_seconds): what no reordering of the rest can remove.
 FLOPs are XLA's cost analysis of each part's loop-free body times its trip count; the reference rate is a
 1024 x 1024 float32 matmul in the same process, so "of matmul" says how close a part runs to what the
 process's cores reach on dense work.
 """
 
 import functools
+import glob
+import gzip
+import json
+import os
 import statistics
+import tempfile
 import time
 
 import jax
@@ -221,10 +228,12 @@ def profile_parts(cfg, runs, K, repeats=5):
     clock = host_clock(p.cfg)
     timed = {name: time_call(programs[name], args[name], repeats, clock) for name in TIMED}
     flops = count_flops(p, programs, args)
+    ops = op_seconds(programs["gradients"], args["gradients"])
     prof = {"env": cfg.env, "policy": cfg.policy, "K": K if cfg.policy == "mixture" else None, "runs": runs,
             "backend": cfg.backend, "repeats": repeats, "env_steps_per_iteration": runs * p.cfg.batch_size,
             "matmul_gflop_per_s": matmul_rate() / 1e9, "flops_per_iteration": flops,
-            "timed": {k: dict(zip(("wall_s", "host_s", "mujoco_c_s"), v)) for k, v in timed.items()}}
+            "timed": {k: dict(zip(("wall_s", "host_s", "mujoco_c_s"), v)) for k, v in timed.items()},
+            "gradients_ops_s": ops}
     return {**prof, **summarize(prof)}
 
 
@@ -244,3 +253,29 @@ def summarize(prof):
              "of_matmul_rate": flops[k] / v / rate if k in flops and v > 0 else None} for k, v in seconds.items()]
     return {"iteration_s": t["iteration"][0], "ppo_program_s": ppo_s, "program_s": t["iteration"][0] - t["iteration"][1],
             "parts": rows}
+
+
+def op_seconds(fn, args, repeats=3):
+    """{'matrix_products', 'other_ops'}: seconds per call of fn(*args) inside XLA:CPU's matrix-product ops (dots,
+    YNNPACK fusions) and inside its other ops, from a jax.profiler trace of `repeats` calls (each executed op is
+    one complete event; loops and runtime bookkeeping are not ops)."""
+    jax.block_until_ready(fn(*args))
+    with tempfile.TemporaryDirectory() as d:
+        jax.profiler.start_trace(d)
+        for _ in range(repeats):
+            jax.block_until_ready(fn(*args))
+        jax.profiler.stop_trace()
+        with gzip.open(glob.glob(os.path.join(d, "**", "*.trace.json.gz"), recursive=True)[0]) as f:
+            events = json.load(f)
+    events = events["traceEvents"] if isinstance(events, dict) else events
+    out = {"matrix_products": 0.0, "other_ops": 0.0}
+    for e in events:
+        name = e.get("name", "")
+        if e.get("ph") != "X" or name.startswith(NOT_OPS) or name.split(".")[0] in ("while", "conditional", "call"):
+            continue
+        kind = "matrix_products" if name.startswith(("dot", "ynn", "xnn", "onednn")) else "other_ops"
+        out[kind] += e.get("dur", 0) * 1e-6 / repeats
+    return out
+
+
+NOT_OPS = ("ThunkExecutor", "$", "PjitFunction", "CommonPjRt", "Thunk")  # trace events that are not XLA ops
