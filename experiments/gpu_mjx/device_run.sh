@@ -3,14 +3,7 @@
 # one Figure-1 cell (gpu_fig1_hopper_K6.toml), the tests that apply. Uses the machine's own jax (with its CUDA
 # plugin) and the wheels in .whl/ for what the machine lacks (mujoco, mujoco-mjx, brax, gymnasium, ...).
 #   OUT=dir bash experiments/gpu_mjx/device_run.sh          (TINY=1: the same steps at toy sizes, for a dry run)
-set -u
-export PYTHONUNBUFFERED=1 MUJOCO_GL=disable
-OUT=${OUT:?set OUT to the results folder}
-PY=${PY:-python3}
-if [ -d .whl ] && [ -z "${TINY:-}" ]; then
-  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-  export PYTHONPATH=/tmp/site:$PWD
-fi
+source experiments/gpu_mjx/device_env.sh || exit 1
 if [ -n "${TINY:-}" ]; then
   SIZES=2,4; RAW=64; STEPS=20000; T_BENCH=600; T_CELL=600; T_TEST=600
 else

@@ -5,14 +5,7 @@
 # dm_control's MJCFs from .dmc_mjcf/ (dm_control/suite/*.xml copied from dm_control 1.0.50; the tasks read only
 # those files, never import dm_control).
 #   OUT=dir bash experiments/gpu_mjx/device_run_dmc.sh          (TINY=1: the same steps at toy sizes, for a dry run)
-set -u
-export PYTHONUNBUFFERED=1 MUJOCO_GL=disable
-OUT=${OUT:?set OUT to the results folder}
-PY=${PY:-python3}
-if [ -d .whl ] && [ -z "${TINY:-}" ]; then
-  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-  export PYTHONPATH=/tmp/site:$PWD
-fi
+source experiments/gpu_mjx/device_env.sh || exit 1
 [ -d .dmc_mjcf ] && export PYTHONPATH=${PYTHONPATH:-$PWD}:$PWD/.dmc_mjcf
 if [ -n "${TINY:-}" ]; then
   SIZES=2,4; RAW=64; T_BENCH=900; T_TEST=900; TESTS="-k mjx"
