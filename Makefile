@@ -55,8 +55,9 @@ bench-quick: $(STAMP)
 	$(BIN)/python -m gsa_jax.bench --quick --out runs/bench-quick
 
 ## profile: where the PPO program's time goes, part by part, on the five v5 tasks and dm_control's cartpole
-## (gsa_jax.profile: one sweep worker's 8 runs on one core, mixture and flat PPO; ~10 min on an idle machine)
-profile: $(STAMP)
+## (gsa_jax.profile: one sweep worker's 8 runs on one core, mixture and flat PPO; ~10 min on an idle machine;
+## installs the test extras, dm_control among them, for dmc:cartpole-swingup)
+profile: $(TEST_STAMP)
 	$(BIN)/python -m gsa_jax.profile --out runs/profile
 
 ## profile-bench: the bench's coarser split at 64 hopper runs (physics / rollout / update, MJX; ~7 min)

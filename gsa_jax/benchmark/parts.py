@@ -13,11 +13,13 @@ Parts (all vmapped over the runs, as a sweep worker runs them), in seconds per i
   the trajectory, GAE(lambda), flattening: make_batch), shuffle_gather (every epoch's permutation and minibatch
   gathers: epoch_minibatches), gradients (forward and backward of the loss on every minibatch:
   minibatch_gradients), optimizer (global-norm clipping and Adam on every minibatch: apply_gradients),
-  update_loop (what the whole update, sgd_update, takes beyond those three alone) and rest (what the whole
-  iteration takes beyond everything above: metrics, normalizer statistics, the failure guard)
+  update_loop (the whole update, sgd_update, less those three timed alone: negative where the parts alone cost
+  more than inside the update, which they do on every task measured, so their shares are upper bounds) and rest
+  (what the whole iteration takes beyond everything above: metrics, normalizer statistics, the failure guard)
 The gradients part is also traced (jax.profiler) to split its time between XLA's matrix-product ops and its
 other ops (op_seconds): what no reordering of the rest can remove.
-FLOPs are XLA's cost analysis of each part's loop-free body times its trip count; the reference rate is a
+FLOPs are XLA's cost analysis of each part's loop-free body times its trip count (the targets' GAE scan body
+counted once: a few FLOPs per sample); the reference rate is a
 1024 x 1024 float32 matmul in the same process, so "of matmul" says how close a part runs to what the
 process's cores reach on dense work.
 """
@@ -56,8 +58,8 @@ def whole_programs(p):
     def iteration(s, h):
         return ppo.run_chunk(p, s, h, 1)
 
-    def rollout(s, h):
-        return ppo.rollout(p, s, h, ppo.schedule(h, s.iteration), s.key)[1]
+    def rollout(s, h):  # the whole result: the episode bookkeeping in the carry is part of the work
+        return ppo.rollout(p, s, h, ppo.schedule(h, s.iteration), s.key)
 
     def targets(s, h, traj):
         return ppo.make_batch(p, s, traj, h, ppo.schedule(h, s.iteration), 1.0)[0]
@@ -165,7 +167,7 @@ def matmul_rate(repeats=10, n=1024):
 def inputs(p, states, hps, programs):
     """Every part's arguments, made by running the pieces before it once: the rollout's trajectory, the batch,
     the minibatches and one minibatch's gradients."""
-    traj = programs["rollout"](states, hps)
+    traj = programs["rollout"](states, hps)[1]
     batch = programs["targets"](states, hps, traj)
     mbs = programs["shuffle_gather"](states, batch)
     first = jax.tree.map(lambda x: x[:, 0, 0], mbs)
@@ -240,7 +242,9 @@ def profile_parts(cfg, runs, K, repeats=5):
 def summarize(prof):
     """A profile's derived figures from what it measured (timed pieces {name: {wall_s, host_s, mujoco_c_s}},
     flops_per_iteration, env_steps_per_iteration, matmul_gflop_per_s): the iteration's, PPO's own program's and the
-    program's (the iteration less its host calls) seconds, and one row per part."""
+    program's (the iteration less its host calls) seconds; the gradients' matrix products in seconds (their share of
+    the traced op time, gradients_ops_s, times the gradients' untraced wall: a trace slows every op roughly alike);
+    and one row per part."""
     t = {k: (v["wall_s"], v["host_s"], v["mujoco_c_s"]) for k, v in prof["timed"].items()}
     flops, env_steps = prof["flops_per_iteration"], prof["env_steps_per_iteration"]
     seconds = split_seconds(t)
@@ -251,8 +255,10 @@ def summarize(prof):
              "kflop_per_env_step": flops[k] / env_steps / 1e3 if k in flops else None,
              "gflop_per_s": flops[k] / v / 1e9 if k in flops and v > 0 else None,
              "of_matmul_rate": flops[k] / v / rate if k in flops and v > 0 else None} for k, v in seconds.items()]
+    ops = prof["gradients_ops_s"]
+    matrix_products_s = seconds["gradients"] * ops["matrix_products"] / (ops["matrix_products"] + ops["other_ops"])
     return {"iteration_s": t["iteration"][0], "ppo_program_s": ppo_s, "program_s": t["iteration"][0] - t["iteration"][1],
-            "parts": rows}
+            "matrix_products_s": matrix_products_s, "parts": rows}
 
 
 def op_seconds(fn, args, repeats=3):
@@ -262,10 +268,15 @@ def op_seconds(fn, args, repeats=3):
     jax.block_until_ready(fn(*args))
     with tempfile.TemporaryDirectory() as d:
         jax.profiler.start_trace(d)
-        for _ in range(repeats):
-            jax.block_until_ready(fn(*args))
-        jax.profiler.stop_trace()
-        with gzip.open(glob.glob(os.path.join(d, "**", "*.trace.json.gz"), recursive=True)[0]) as f:
+        try:
+            for _ in range(repeats):
+                jax.block_until_ready(fn(*args))
+        finally:
+            jax.profiler.stop_trace()
+        found = glob.glob(os.path.join(d, "**", "*.trace.json.gz"), recursive=True)
+        if not found:
+            raise RuntimeError(f"jax.profiler wrote no trace under {d}: cannot split the gradients' op time")
+        with gzip.open(found[0]) as f:
             events = json.load(f)
     events = events["traceEvents"] if isinstance(events, dict) else events
     out = {"matrix_products": 0.0, "other_ops": 0.0}
