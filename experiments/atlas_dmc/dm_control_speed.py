@@ -42,6 +42,7 @@ def step_rate(name, episodes=3, seed=0):
 
 
 def _worker(args):
+    """One process of machine_wide: wait for the common start, then step_rate."""
     name, seed, start = args
     while time.time() < start:
         time.sleep(0.001)
@@ -56,6 +57,7 @@ def machine_wide(name, processes):
 
 
 def main():
+    """Measure every task named, write --out (JSON) and print a line per task."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("tasks", nargs="+", help="domain-task names, e.g. walker-walk")
     ap.add_argument("--out", required=True)

@@ -41,6 +41,7 @@ def bench_rows(path):
 
 
 def dm_control_rows(path):
+    """dm_control's stepping rates (one process; one per core) of dm_control_stepping.json."""
     d = json.load(open(path))
     src = os.path.relpath(path, HERE)
     return [row for r in d["rows"] for row in (
@@ -51,6 +52,7 @@ def dm_control_rows(path):
 
 
 def main():
+    """Write results/speed/speed.csv."""
     rows = [row for p in sorted(glob.glob(os.path.join(SPEED, "*", "bench.json"))) for row in bench_rows(p)]
     dmc = os.path.join(SPEED, "dm_control_stepping.json")
     if os.path.exists(dmc):
