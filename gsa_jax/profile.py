@@ -23,7 +23,7 @@ from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.supervise import SINGLE_THREAD_EIGEN
-from gsa_jax.running.spec import SpecError, build_grid, check_spec, group_config
+from gsa_jax.running.spec import SpecError, single_group
 
 DEFAULT_ENVS = "Hopper-v5,Walker2d-v5,HalfCheetah-v5,InvertedDoublePendulum-v5,Ant-v5,dmc:cartpole-swingup"
 
@@ -62,9 +62,7 @@ def sweep_config(env, policy, K, runs, backend):
     record = envs.task_record(env)
     if isinstance(record, Definition):
         record.task()
-    spec = check_spec({"envs": [env], "policies": [policy], "clusters": [K], "seeds": runs, "steps": 10**9,
-                       "config": {"backend": backend}}, source="gsa_jax.profile")
-    return group_config(spec, build_grid(spec)[0])
+    return single_group(env, policy, K, list(range(runs)), backend, source="gsa_jax.profile")[1]
 
 
 def table(prof):

@@ -16,7 +16,7 @@ from gsa_jax.benchmark.measure import RAW_UNROLL
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import GroupRuns, GroupShape, compile_group, pad_runs
-from gsa_jax.running.spec import build_grid, check_spec, group_config
+from gsa_jax.running.spec import single_group
 
 
 def _beat(args, payload=None):
@@ -58,11 +58,8 @@ def worker(args):
     """One process: compile the group program for args.runs runs, wait at the barrier, time chunks of
     one PPO iteration."""
 
-    spec = check_spec({"envs": [args.env], "policies": [args.policy], "clusters": [args.clusters],
-                       "seeds": list(range(args.seed0, args.seed0 + args.runs)), "steps": 10**9,
-                       "config": {"backend": args.physics}})
-    group = build_grid(spec)[0]
-    cfg = group_config(spec, group)
+    group, cfg = single_group(args.env, args.policy, args.clusters, list(range(args.seed0, args.seed0 + args.runs)),
+                              args.physics)
     if args.epochs:
         cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
     cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,

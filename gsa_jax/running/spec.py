@@ -331,6 +331,15 @@ def group_config(spec, group):
     return Config(env=group.env, policy=group.policy, k_max=max(r["K"] for r in group.runs), **static)
 
 
+def single_group(env, policy, K, seeds, backend, source="spec"):
+    """(Group, Config) of the one group a sweep of `seeds` (a list) of one task, policy and K would train: its
+    defaults, this physics backend (the benchmark's workers and gsa_jax.profile build their programs from it)."""
+    spec = check_spec({"envs": [env], "policies": [policy], "clusters": [K], "seeds": seeds, "steps": 10**9,
+                       "config": {"backend": backend}}, source=source)
+    group = build_grid(spec)[0]
+    return group, group_config(spec, group)
+
+
 def default_chunk(spec, cfg):
     """PPO iterations per compiled chunk: the spec's, or ~1/20 of the run (at most 10)."""
     return spec.chunk or max(1, min(10, math.ceil(spec.steps / cfg.batch_size) // 20))
