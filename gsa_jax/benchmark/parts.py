@@ -133,7 +133,12 @@ def host_clock(cfg):
     if cfg.backend == "c":
         from envs.c_backend import host_seconds
         return host_seconds
-    return lambda: {"host_s": 0.0, "mujoco_c_s": 0.0}
+    return no_host_clock
+
+
+def no_host_clock():
+    """The clock of a program without host calls: always zero."""
+    return {"host_s": 0.0, "mujoco_c_s": 0.0}
 
 
 def time_call(fn, args, repeats, clock):
@@ -160,7 +165,7 @@ def flops_of(fn, args):
 def matmul_rate(repeats=10, n=1024):
     """FLOP/s of an n x n float32 matmul in this process (the reference for how well a part uses the cores)."""
     a = jnp.ones((n, n), jnp.float32)
-    t, _, _ = time_call(jax.jit(lambda x: x @ x), (a,), repeats, lambda: {"host_s": 0.0, "mujoco_c_s": 0.0})
+    t, _, _ = time_call(jax.jit(lambda x: x @ x), (a,), repeats, no_host_clock)
     return 2 * n**3 / t
 
 
