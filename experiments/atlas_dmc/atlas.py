@@ -15,6 +15,7 @@ from gsa_jax.analysis.results import read_csv, write_csv
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 V5 = os.path.join(HERE, "..", "fig1_v5", "results", "merged")
+NEITHER = 100.0  # a DMC task whose flat PPO and best mixture both score below a tenth of the 1,000 maximum: no answer
 
 
 def task_rows(final_csv, sufficient_csv, family):
@@ -33,7 +34,8 @@ def task_rows(final_csv, sufficient_csv, family):
                      "p_best_gt_flat": best["p_better_than_flat_ppo"],
                      "p_ci_low": best["p_ci_low"], "p_ci_high": best["p_ci_high"],
                      "smallest_sufficient_K": s.get("smallest_sufficient_K", ""), "ks_tried": s.get("ks_tried", ""),
-                     "flat_training_return": flat["training_return_mean"]})
+                     "flat_training_return": flat["training_return_mean"],
+                     "learned_by_neither": family == "dmc" and max(float(flat["iqm"]), float(best["iqm"])) < NEITHER})
     return rows
 
 
@@ -57,46 +59,70 @@ def markdown(rows):
         lines.append("| " + " | ".join([
             r["task"], str(r["d_a"]), f"{float(r['flat_iqm']):,.0f} [{float(low):,.0f}, {float(high):,.0f}]",
             f"K = {r['best_K']}: {float(r['best_iqm']):,.0f}", f"{float(r['p_best_gt_flat']):.2f} [{p_low}, {p_high}]",
-            f"{r['smallest_sufficient_K'] or 'none'} ({r['ks_tried']})", f"{float(r['flat_training_return']):,.0f}",
+            f"{r['smallest_sufficient_K'] or 'none'} ({r['ks_tried']})" + (" both fail" if r["learned_by_neither"] else ""),
+            f"{float(r['flat_training_return']):,.0f}",
             r.get("published_ppo", "")]) + " |")
     return "\n".join(lines) + "\n"
 
 
-def plot(rows, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 5.5))
+def draw_ratios(a, rows):
+    """Left panel: the best mixture's IQM over flat PPO's per task (hatched: learned by neither, no answer)."""
     rows = sorted(rows, key=lambda r: float(r["best_over_flat"]))
     colors = ["tab:blue" if r["family"] == "dmc" else "tab:gray" for r in rows]
-    a.barh([r["task"] for r in rows], [float(r["best_over_flat"]) for r in rows], color=colors)
+    bars = a.barh([r["task"] for r in rows], [float(r["best_over_flat"]) for r in rows], color=colors)
+    for bar, r in zip(bars, rows):
+        if r["learned_by_neither"]:
+            bar.set_alpha(0.35), bar.set_hatch("//")
     a.axvline(1.0, color="k", lw=1)
     a.set_xscale("log")
     a.set_xticks([0.25, 0.5, 1, 2, 4, 8], ["1/4", "1/2", "1", "2", "4", "8"])
     a.minorticks_off()
     for i, r in enumerate(rows):
-        a.text(float(r["best_over_flat"]), i, f"  K={r['best_K']}, P={float(r['p_best_gt_flat']):.2f}", va="center", fontsize=7)
+        note = f"  K={r['best_K']}, P={float(r['p_best_gt_flat']):.2f}"
+        note += f" (both < {NEITHER:.0f}: no answer)" if r["learned_by_neither"] else ""
+        a.text(float(r["best_over_flat"]), i, note, va="center", fontsize=7)
     a.set_xlabel("best mixture's IQM / flat PPO's IQM (deterministic controllers)")
     a.set_title("How good is the best mixture? (blue: DMC atlas, grey: v5 Figure 1)", fontsize=9)
-    points = {}  # (d_a, y, marker, color) -> task names (tasks at the same point share one label)
+
+
+def draw_sufficient(b, rows):
+    """Right panel: the smallest sufficient K against d_a (x: none of the K tried; hollow: learned by neither)."""
+    points = {}  # (d_a, y, marker, color, hollow) -> task names (tasks at the same point share one label)
     for r in rows:
         d_a, k, k_max = int(r["d_a"]), r["smallest_sufficient_K"], max(int(x) for x in r["ks_tried"].split())
         name = r["task"].removeprefix("dmc:") + ("" if k else f" (none <= {k_max})")
-        key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray")
+        key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray",
+               bool(r["learned_by_neither"]))
         points.setdefault(key, []).append(name)
-    for (d_a, y, marker, color), names in points.items():
-        b.scatter(d_a, y, marker=marker, color=color)
-        left = color == "tab:gray"  # v5 labels on the left, so that a v5 and a DMC task at one point both read
-        b.annotate("\n".join(names), (d_a, y), fontsize=6, xytext=(-4 if left else 4, 0), textcoords="offset points",
-                   va="center", ha="right" if left else "left")
+    for (d_a, y, marker, color, hollow), names in points.items():
+        b.scatter(d_a, y, marker=marker, color=color, facecolors="none" if hollow and marker == "o" else color)
+        # where labels go, so that the tasks crowding at K <= 3 all read: v5 on a line (below the crowded K = 2 row,
+        # above elsewhere), DMC with d_a = 1 on the left, the others (and the hollow points, lower) on the right
+        v5, left, below = color == "tab:gray", d_a == 1 and not hollow, y <= 2
+        offset = (0, -22 if below else 12) if v5 else ((-5 if left else 5), (-9 if hollow else 0))
+        b.annotate("\n".join(names), (d_a, y), fontsize=6, xytext=offset, textcoords="offset points",
+                   va=("top" if below else "bottom") if v5 else "center", ha="center" if v5 else "right" if left else "left",
+                   color="dimgray" if v5 else "black", arrowprops={"arrowstyle": "-", "color": "lightgray"} if v5 else None)
     b.plot([0.8, 40], [0.8, 40], "k:", lw=1, label="K = d_a")
     b.axhline(10, color="tab:red", lw=1, ls="--", label="K = 10 (the paper: 'typically less than ten')")
     b.set_xscale("log"), b.set_yscale("log")
-    b.set_xlabel("action dimension d_a"), b.set_ylabel("smallest K on par with flat PPO (x: none of the K tried)")
+    b.set_xlim(0.25, 60)
+    b.set_xlabel("action dimension d_a")
+    b.set_ylabel("smallest K on par with flat PPO")
     b.legend(fontsize=7)
-    b.set_title("How few linear controllers suffice?", fontsize=9)
+    b.set_title("How few linear controllers suffice?\n(x: none of the K tried; hollow: learned by neither)", fontsize=9)
+
+
+def plot(rows, path):
+    """results/atlas.png: both panels side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(14, 6))
+    draw_ratios(a, rows)
+    draw_sufficient(b, rows)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
 
