@@ -4,7 +4,8 @@ Reads results/<task>/final_returns.csv and sufficient_k.csv (gsa_jax.plot's, one
 for comparison, Figure 1 on gymnasium's v5 tasks (experiments/fig1_v5/results/merged: a different protocol, the PPO
 paper's settings and Brax-style resets, marked apart). Writes results/atlas.csv (one row per task: d_a, flat PPO's
 IQM, the best mixture's K, IQM and P(> flat PPO), the smallest sufficient K, flat PPO's last-100-episode training
-return next to CleanRL's published PPO on the same task), results/atlas.md (the same as a Markdown table) and
+return next to CleanRL's published PPO on the same task, and learned_by_neither: a DMC task where flat PPO and the
+best mixture both score below NEITHER), results/atlas.md (the same as a Markdown table) and
 results/atlas.png.
 """
 
@@ -52,7 +53,7 @@ def published(rows):
 def markdown(rows):
     """The atlas table as Markdown (results/atlas.md)."""
     head = ["task", "d_a", "flat PPO IQM [95% CI]", "best mixture: K, IQM", "P(best > flat) [95% CI]",
-            "smallest sufficient K (K tried)", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
+            "smallest sufficient K (K tried; 'both fail': flat and best < 100)", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         low, high, p_low, p_high = r["flat_iqm_ci_low"], r["flat_iqm_ci_high"], r["p_ci_low"], r["p_ci_high"]
@@ -72,7 +73,8 @@ def draw_ratios(a, rows):
     bars = a.barh([r["task"] for r in rows], [float(r["best_over_flat"]) for r in rows], color=colors)
     for bar, r in zip(bars, rows):
         if r["learned_by_neither"]:
-            bar.set_alpha(0.35), bar.set_hatch("//")
+            bar.set_alpha(0.35)
+            bar.set_hatch("//")
     a.axvline(1.0, color="k", lw=1)
     a.set_xscale("log")
     a.set_xticks([0.25, 0.5, 1, 2, 4, 8], ["1/4", "1/2", "1", "2", "4", "8"])
@@ -86,20 +88,19 @@ def draw_ratios(a, rows):
 
 
 def draw_sufficient(b, rows):
-    """Right panel: the smallest sufficient K against d_a (x: none of the K tried; hollow: learned by neither)."""
-    points = {}  # (d_a, y, marker, color, hollow) -> task names (tasks at the same point share one label)
-    for r in rows:
+    """Right panel: the smallest sufficient K against d_a (x: none of the K tried); tasks learned by neither left out."""
+    points = {}  # (d_a, y, marker, color) -> task names (tasks at the same point share one label)
+    for r in [r for r in rows if not r["learned_by_neither"]]:
         d_a, k, k_max = int(r["d_a"]), r["smallest_sufficient_K"], max(int(x) for x in r["ks_tried"].split())
-        name = r["task"].removeprefix("dmc:") + ("" if k else f" (none <= {k_max})")
-        key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray",
-               bool(r["learned_by_neither"]))
+        name = r["task"].removeprefix("dmc:") + ("" if k else f" (none of K = {r['ks_tried']})")
+        key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray")
         points.setdefault(key, []).append(name)
-    for (d_a, y, marker, color, hollow), names in points.items():
-        b.scatter(d_a, y, marker=marker, color=color, facecolors="none" if hollow and marker == "o" else color)
+    for (d_a, y, marker, color), names in points.items():
+        b.scatter(d_a, y, marker=marker, color=color)
         # where labels go, so that the tasks crowding at K <= 3 all read: v5 on a line (below the crowded K = 2 row,
-        # above elsewhere), DMC with d_a = 1 on the left, the others (and the hollow points, lower) on the right
-        v5, left, below = color == "tab:gray", d_a == 1 and not hollow, y <= 2
-        offset = (0, -22 if below else 12) if v5 else ((-5 if left else 5), (-9 if hollow else 0))
+        # above elsewhere), DMC with d_a = 1 on the left, the others on the right
+        v5, left, below = color == "tab:gray", d_a == 1, y <= 2
+        offset = (0, -22 if below else 12) if v5 else (-5 if left else 5, 0)
         b.annotate("\n".join(names), (d_a, y), fontsize=6, xytext=offset, textcoords="offset points",
                    va=("top" if below else "bottom") if v5 else "center", ha="center" if v5 else "right" if left else "left",
                    color="dimgray" if v5 else "black", arrowprops={"arrowstyle": "-", "color": "lightgray"} if v5 else None)
@@ -110,7 +111,7 @@ def draw_sufficient(b, rows):
     b.set_xlabel("action dimension d_a")
     b.set_ylabel("smallest K on par with flat PPO")
     b.legend(fontsize=7)
-    b.set_title("How few linear controllers suffice?\n(x: none of the K tried; hollow: learned by neither)", fontsize=9)
+    b.set_title("How few linear controllers suffice?\n(x: none of the K tried; tasks learned by neither left out)", fontsize=9)
 
 
 def plot(rows, path):

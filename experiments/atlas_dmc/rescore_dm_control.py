@@ -168,12 +168,21 @@ def episode(env, domain, ctrl, start=None):
         obs = flatten(ts.observation, domain)
 
 
+def check_bounds(ctrl, env, path):
+    """The controls the file can emit span exactly dm_control's action spec (not taken from the port on trust)."""
+    low, high = ctrl["ctrl_range"] if ctrl["ctrl_range"] is not None else (ctrl["low"], ctrl["high"])
+    spec = env.action_spec()
+    if not (np.allclose(low, spec.minimum, atol=1e-6) and np.allclose(high, spec.maximum, atol=1e-6)):
+        raise ValueError(f"{path}: action bounds [{low}, {high}] differ from dm_control's [{spec.minimum}, {spec.maximum}]")
+
+
 def score(task, path, episodes):
     """Returns [episodes] of the controller at `path` in dm_control's task, episode i with random=i."""
     ctrl = load_controller(path)
     out = []
     for seed in range(episodes):
         env, domain = load_env(task, seed)
+        check_bounds(ctrl, env, path)
         ret, steps, _ = episode(env, domain, ctrl)
         if steps != 1000:
             raise RuntimeError(f"{task}: an episode of {steps} steps, expected 1000")
@@ -290,7 +299,7 @@ def provenance(args, wall_s, path):
     import mujoco
 
     try:
-        commit = subprocess.run(["git", "-C", REPO, "rev-parse", "--short", "HEAD"], capture_output=True,
+        commit = subprocess.run(["git", "-C", REPO, "describe", "--always", "--dirty"], capture_output=True,
                                 text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
