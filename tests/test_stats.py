@@ -277,6 +277,10 @@ def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
     assert rows[0]["eval_failures"] == 0
     cell = final_table(data, {"hopper": 3}, reps=20)[0]
     assert cell["final_return_mean"] == pytest.approx(np.mean([r["final_score"] for r in rows]), abs=1e-3)
+    # other tidy columns on request, in iteration order; one the table lacks is NaN throughout
+    asked = load_sweep(str(d), ("iteration", "episodes", "approx_kl"))[("hopper", "mixture", 2)][1]
+    assert list(asked["iteration"]) == list(range(1, 21)) and set(asked["episodes"]) == {30.0}
+    assert set(asked) == {"iteration", "episodes", "approx_kl"} and np.isnan(asked["approx_kl"]).all()
 
 
 def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_them(tmp_path):

@@ -8,54 +8,56 @@ update), the median clip fraction, the mean number of clusters the partition use
 each row for scale.
 """
 
-import csv
 import glob
-import gzip
 import os
 import statistics
 
-from gsa_jax.analysis.results import write_csv
+import numpy as np
+
+from gsa_jax.analysis.results import load_sweep, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
+COLUMNS = ("iteration", "approx_kl", "clip_fraction", "clusters_used")
 
 
 def read_cells(task_dir):
-    """{(env, policy, K): [metric rows of the second half of training]} from one task's metrics files."""
-    rows = []
-    for path in sorted(glob.glob(os.path.join(task_dir, "*", "metrics-*.csv.gz"))):
-        with gzip.open(path, "rt") as f:
-            rows += list(csv.DictReader(f))
-    last = max((int(r["iteration"]) for r in rows), default=0)
+    """{(env, policy, K): {column: [values of the second half of training, every seed pooled]}} of one task."""
+    data = load_sweep(task_dir, COLUMNS)
+    last = max(int(np.max(run["iteration"])) for seeds in data.values() for run in seeds.values())
     cells = {}
-    for r in rows:
-        if int(r["iteration"]) > last // 2:
-            cells.setdefault((r["env"], r["policy"], r["K"]), []).append(r)
+    for (env, policy, k, *_), seeds in data.items():
+        pooled = cells.setdefault((env, policy, k), {c: [] for c in COLUMNS[1:]})
+        for run in seeds.values():
+            late = run["iteration"] > last // 2
+            for c in COLUMNS[1:]:
+                pooled[c] += [float(v) for v in run[c][late] if np.isfinite(v)]
     return cells
 
 
-def median_of(rows, col):
-    """Median of a column over rows where it is set ('' when never set)."""
-    values = [float(r[col]) for r in rows if r.get(col, "") not in ("", "nan")]
+def median_of(values):
+    """Median of a list ('' when empty)."""
     return f"{statistics.median(values):.4g}" if values else ""
 
 
 def summarize(cells):
     """One output row per cell, flat PPO's approx_kl beside each."""
-    flat_kl = {env: median_of(rows, "approx_kl") for (env, policy, _), rows in cells.items() if policy == "mlp"}
+    flat_kl = {env: median_of(cols["approx_kl"]) for (env, policy, _), cols in cells.items() if policy == "mlp"}
     out = []
-    for (env, policy, k), rows in sorted(cells.items(), key=lambda c: (c[0][0], c[0][1], int(c[0][2] or 0))):
-        used = [float(r["clusters_used"]) for r in rows if r.get("clusters_used", "") not in ("", "nan")]
-        out.append({"task": env, "policy": policy, "K": k if policy == "mixture" else "", "approx_kl_median": median_of(rows, "approx_kl"),
-                    "clip_fraction_median": median_of(rows, "clip_fraction"),
+    for (env, policy, k), cols in sorted(cells.items()):
+        used = cols["clusters_used"]
+        out.append({"task": env, "policy": policy, "K": k if policy == "mixture" else "",
+                    "approx_kl_median": median_of(cols["approx_kl"]),
+                    "clip_fraction_median": median_of(cols["clip_fraction"]),
                     "clusters_used_mean": f"{statistics.fmean(used):.3g}" if used and policy == "mixture" else "",
-                    "flat_ppo_approx_kl_median": flat_kl.get(env, ""), "rows": len(rows)})
+                    "flat_ppo_approx_kl_median": flat_kl.get(env, ""), "rows": len(cols["approx_kl"])})
     return out
 
 
 def main():
     table = []
-    for task_dir in sorted(glob.glob(os.path.join(RESULTS, "*", ""))):
+    tables = glob.glob(os.path.join(RESULTS, "*", "*", "metrics-*.csv.gz"))
+    for task_dir in sorted({os.path.dirname(os.path.dirname(p)) for p in tables}):
         table += summarize(read_cells(task_dir))
     write_csv(os.path.join(RESULTS, "update_diagnostics.csv"), table)
     print(open(os.path.join(RESULTS, "update_diagnostics.csv")).read())

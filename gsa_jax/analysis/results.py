@@ -25,8 +25,9 @@ class PlotError(ValueError):
     pass
 
 
-def read_tidy(path, series):
-    """Add one tidy metrics.csv to series {cell: {seed: {column: [(iteration, value)]}}}; False if not a sweep's."""
+def read_tidy(path, series, columns=_SERIES):
+    """Add one tidy metrics.csv's columns to series {cell: {seed: {column: [(iteration, value)]}}}; False if not a
+    sweep's."""
     with (gzip.open(path, "rt", newline="") if path.endswith(".gz") else open(path, newline="")) as f:
         reader = csv.DictReader(f)
         if reader.fieldnames is None or not set(_ID_COLS) <= set(reader.fieldnames):
@@ -35,23 +36,24 @@ def read_tidy(path, series):
         for r in reader:
             cell = (r["env"], r["policy"], int(r["K"])) + tuple((c, r[c]) for c in extra)
             run = series[cell][int(r["seed"])]
-            for c in _SERIES:
+            for c in columns:
                 v = r.get(c, "")
                 run[c].append((int(r["iteration"]), float(v) if v != "" else math.nan))
     return True
 
 
-def load_sweep(sweep_dir):
+def load_sweep(sweep_dir, columns=_SERIES):
     """All tidy rows under sweep_dir (metrics*.csv, or gzipped as experiments/ keep them) ->
-    {cell: {seed: {env_steps, episode_return, episodes, eval_return, eval_failures: [T]}}}, cell = (env, policy,
-    K, (column, value)...). eval_failures is NaN throughout in tables written before it was recorded."""
+    {cell: {seed: {column: [T] in iteration order}}}, cell = (env, policy, K, (column, value)...); by default the
+    columns env_steps, episode_return, episodes, eval_return, eval_failures (any of TIDY_METRICS can be asked for).
+    A column a table does not carry (eval_failures before it was recorded) is NaN throughout."""
     plain = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv"), recursive=True)
     zipped = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv.gz"), recursive=True)
     paths = sorted(plain + [p for p in zipped if p[:-3] not in plain])
     if not paths:
         raise FileNotFoundError(f"no metrics.csv under {sweep_dir!r} (is it a sweep directory?)")
     series = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
-    if not any([read_tidy(p, series) for p in paths]):
+    if not any([read_tidy(p, series, columns) for p in paths]):
         raise FileNotFoundError(f"no sweep metrics.csv under {sweep_dir!r}")
     return {cell: {seed: {c: np.array([v for _, v in sorted(pts)]) for c, pts in cols.items()}
                    for seed, cols in seeds.items()} for cell, seeds in series.items()}
