@@ -295,3 +295,21 @@ def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_the
     assert random_returns_of([str(a)], ["hopper"], str(out)) == {"hopper": 12.5}
     (a / "random_returns.json").write_text(json.dumps({"hopper": 7.0}))
     assert random_returns_of([str(a)], ["hopper", "walker2d"], str(out)) == {"hopper": 7.0, "walker2d": 3.0}
+
+
+def test_random_returns_are_measured_with_the_backend_the_sweep_trained_with(tmp_path, monkeypatch):
+    """A task MJX cannot step (dmc:fish-swim) trains with backend 'c': its random-policy return is measured
+    with 'c' too, and with MJX where the sweep names no backend."""
+    from gsa_jax.analysis import scoring
+    from gsa_jax.analysis.results import random_returns_of
+
+    asked = []
+    monkeypatch.setattr(scoring, "random_policy_return", lambda env, backend="mjx": asked.append((env, backend)) or 1.0)
+    a = write_sweep(tmp_path / "a", "dmc:fish-swim")
+    meta = json.loads((a / "sweep.json").read_text())
+    meta["spec"]["config"] = {"backend": "c"}
+    (a / "sweep.json").write_text(json.dumps(meta))
+    b = write_sweep(tmp_path / "b", "hopper")
+    assert random_returns_of([str(a), str(b)], ["dmc:fish-swim", "hopper"], str(tmp_path), log=lambda _: None) == {
+        "dmc:fish-swim": 1.0, "hopper": 1.0}
+    assert asked == [("dmc:fish-swim", "c"), ("hopper", "mjx")]

@@ -227,6 +227,16 @@ def setting_columns(data):
     return list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))
 
 
+def backend_of(dirs, env_name):
+    """The physics backend the sweeps in dirs trained env_name with ([config] backend; 'mjx' when none says)."""
+    for d in dirs:
+        for meta in sweep_metas(d):
+            spec = meta.get("spec", {})
+            if env_name in spec.get("envs", []):
+                return (spec.get("config") or {}).get("backend", "mjx")
+    return "mjx"
+
+
 def random_returns_of(dirs, env_names, out_dir, log=print):
     """{env: random-policy return}: from the sweeps' random_returns.json, else from out_dir's (what an earlier
     invocation measured: tables redrawn from committed results normalize as they did), else measured (and
@@ -242,8 +252,9 @@ def random_returns_of(dirs, env_names, out_dir, log=print):
         from gsa_jax.analysis.scoring import random_policy_return
 
         for env_name in missing:
-            log(f"measuring the random-policy return of {env_name} (for normalized scores)")
-            found[env_name] = random_policy_return(env_name)
+            backend = backend_of(dirs, env_name)
+            log(f"measuring the random-policy return of {env_name} (for normalized scores; backend {backend!r})")
+            found[env_name] = random_policy_return(env_name, backend=backend)
         with open(saved, "w") as f:
             json.dump({e: found[e] for e in env_names}, f, indent=1)
     return {e: found[e] for e in env_names}

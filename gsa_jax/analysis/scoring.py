@@ -126,10 +126,13 @@ def mean_ci(rows, cols):
                   "ci95": float(1.96 * np.std([r[col] for r in rows], ddof=1) / np.sqrt(len(rows)))} for col in cols}
 
 
-def random_policy_return(env_name, episodes=16, seed=0, episode_length=None):
+def random_policy_return(env_name, episodes=16, seed=0, episode_length=None, backend="mjx"):
     """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
-    score that normalizes to 0), from the start states of PRNGKey(seed)."""
-    env = envs.make(env_name, episode_length, auto_reset=False)
+    score that normalizes to 0), from the start states of PRNGKey(seed), stepped by `backend` ('mjx' or 'c':
+    the one the sweep trained with, since MJX cannot step every task)."""
+    from envs.physics import Physics
+
+    env = envs.make(env_name, episode_length, auto_reset=False, physics=Physics(backend=backend))
     length = episode_length or envs.default_episode_length(env_name)
 
     def run(key):
