@@ -4,11 +4,12 @@ Reads results/<task>/final_returns.csv and sufficient_k.csv (gsa_jax.plot's, one
 for comparison, Figure 1 on gymnasium's v5 tasks (experiments/fig1_v5/results/merged: a different protocol, the PPO
 paper's settings and Brax-style resets, marked apart). Writes results/atlas.csv (one row per task: d_a, flat PPO's
 IQM, the best mixture's K, IQM and P(> flat PPO), the smallest sufficient K, flat PPO's last-100-episode training
-return next to CleanRL's published PPO on the same task, and learned_by_neither: a DMC task where flat PPO and the
-best mixture both score below NEITHER), results/atlas.md (the same as a Markdown table) and
+return next to CleanRL's published PPO on the same task, a random policy's return (the plot's random_returns.json)
+and learned_by_neither: a DMC task where flat PPO and the best mixture both score below NEITHER), results/atlas.md (the same as a Markdown table) and
 results/atlas.png.
 """
 
+import json
 import os
 
 from gsa_jax.analysis.results import read_csv, write_csv
@@ -22,6 +23,8 @@ NEITHER = 100.0  # a DMC task whose flat PPO and best mixture both score below a
 def task_rows(final_csv, sufficient_csv, family):
     """One atlas row per task of a gsa_jax.plot output."""
     finals, sufficient = read_csv(final_csv), {r["env"]: r for r in read_csv(sufficient_csv)}
+    random_json = os.path.join(os.path.dirname(final_csv), "random_returns.json")
+    random = json.load(open(random_json)) if os.path.exists(random_json) else {}
     rows = []
     for env in dict.fromkeys(r["env"] for r in finals):
         flat = next(r for r in finals if r["env"] == env and r["policy"] == "mlp")
@@ -36,6 +39,7 @@ def task_rows(final_csv, sufficient_csv, family):
                      "p_ci_low": best["p_ci_low"], "p_ci_high": best["p_ci_high"],
                      "smallest_sufficient_K": s.get("smallest_sufficient_K", ""), "ks_tried": s.get("ks_tried", ""),
                      "flat_training_return": flat["training_return_mean"],
+                     "random_return": f"{random[env]:.3f}" if env in random else "",
                      "learned_by_neither": family == "dmc" and max(float(flat["iqm"]), float(best["iqm"])) < NEITHER})
     return rows
 
@@ -96,10 +100,12 @@ def draw_sufficient(b, rows):
         key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray")
         points.setdefault(key, []).append(name)
     for (d_a, y, marker, color), names in points.items():
-        b.scatter(d_a, y, marker=marker, color=color)
+        v5 = color == "tab:gray"  # v5 hollow, so a DMC point at the same place still shows
+        b.scatter(d_a, y, marker=marker, color=color, facecolors="none" if v5 and marker == "o" else color, zorder=2 if v5 else 3)
         # where labels go, so that the tasks crowding at K <= 3 all read: v5 on a line (below the crowded K = 2 row,
-        # above elsewhere), DMC with d_a = 1 on the left, the others on the right
-        v5, left, below = color == "tab:gray", d_a == 1, y <= 2
+        # above elsewhere), DMC on the left where d_a = 1 or another DMC point sits just right of it, else on the right
+        crowded = any(k[1] == y and k[3] == color and d_a < k[0] <= 2 * d_a for k in points)
+        left, below = d_a == 1 or crowded, y <= 2
         offset = (0, -22 if below else 12) if v5 else (-5 if left else 5, 0)
         b.annotate("\n".join(names), (d_a, y), fontsize=6, xytext=offset, textcoords="offset points",
                    va=("top" if below else "bottom") if v5 else "center", ha="center" if v5 else "right" if left else "left",
