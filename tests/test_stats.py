@@ -299,7 +299,7 @@ def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_the
 
 def test_random_returns_are_measured_with_the_backend_the_sweep_trained_with(tmp_path, monkeypatch):
     """A task MJX cannot step (dmc:fish-swim) trains with backend 'c': its random-policy return is measured
-    with 'c' too, and with MJX where the sweep names no backend."""
+    with 'c' too, with MJX where the sweep names no backend, and with 'c' where two sweeps disagree."""
     from gsa_jax.analysis import scoring
     from gsa_jax.analysis.results import random_returns_of
 
@@ -313,3 +313,8 @@ def test_random_returns_are_measured_with_the_backend_the_sweep_trained_with(tmp
     assert random_returns_of([str(a), str(b)], ["dmc:fish-swim", "hopper"], str(tmp_path), log=lambda _: None) == {
         "dmc:fish-swim": 1.0, "hopper": 1.0}
     assert asked == [("dmc:fish-swim", "c"), ("hopper", "mjx")]
+    # two sweeps of one task with different backends: MuJoCo C, which steps every task
+    c = write_sweep(tmp_path / "c", "dmc:fish-swim")
+    assert random_returns_of([str(c), str(a)], ["dmc:fish-swim"], str(tmp_path / "c"), log=lambda _: None) == {
+        "dmc:fish-swim": 1.0}
+    assert asked[-1] == ("dmc:fish-swim", "c")

@@ -4,8 +4,11 @@ Reads results/<task>/final_returns.csv and sufficient_k.csv (gsa_jax.plot's, one
 for comparison, Figure 1 on gymnasium's v5 tasks (experiments/fig1_v5/results/merged: a different protocol, the PPO
 paper's settings and Brax-style resets, marked apart). Writes results/atlas.csv (one row per task: d_a, flat PPO's
 IQM, the best mixture's K, IQM and P(> flat PPO), the smallest sufficient K, flat PPO's last-100-episode training
-return next to CleanRL's published PPO on the same task, a random policy's return (the plot's random_returns.json)
-and learned_by_neither: a DMC task where flat PPO and the best mixture both score below NEITHER), results/atlas.md (the same as a Markdown table) and
+return next to CleanRL's published PPO on the same task, a uniformly random policy's return (the normalizer
+gsa_jax.plot measured once per task and kept in random_returns.json: 16 episodes, stepped by MJX or MuJoCo C; a
+scale, not a reference), learned_by_neither: a DMC task where flat PPO and the best mixture both score below NEITHER,
+and no_answer: why a row's smallest sufficient K answers nothing (learned by neither, or a reason in NO_ANSWER);
+such rows are marked in the table and figure), results/atlas.md (the same as a Markdown table) and
 results/atlas.png.
 """
 
@@ -18,13 +21,17 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 V5 = os.path.join(HERE, "..", "fig1_v5", "results", "merged")
 NEITHER = 100.0  # a DMC task whose flat PPO and best mixture both score below a tenth of the 1,000 maximum: no answer
+# rows above that line that still answer nothing, with the reason (the task's reward, in envs/dmc/)
+NO_ANSWER = {"dmc:fish-swim": "both within the upright term alone (up to 125)"}  # reward (7 in_target + upright) / 8
 
 
 def task_rows(final_csv, sufficient_csv, family):
     """One atlas row per task of a gsa_jax.plot output."""
     finals, sufficient = read_csv(final_csv), {r["env"]: r for r in read_csv(sufficient_csv)}
-    random_json = os.path.join(os.path.dirname(final_csv), "random_returns.json")
-    random = json.load(open(random_json)) if os.path.exists(random_json) else {}
+    randoms = {}
+    if os.path.exists(random_json := os.path.join(os.path.dirname(final_csv), "random_returns.json")):
+        with open(random_json) as f:
+            randoms = json.load(f)
     rows = []
     for env in dict.fromkeys(r["env"] for r in finals):
         flat = next(r for r in finals if r["env"] == env and r["policy"] == "mlp")
@@ -39,8 +46,9 @@ def task_rows(final_csv, sufficient_csv, family):
                      "p_ci_low": best["p_ci_low"], "p_ci_high": best["p_ci_high"],
                      "smallest_sufficient_K": s.get("smallest_sufficient_K", ""), "ks_tried": s.get("ks_tried", ""),
                      "flat_training_return": flat["training_return_mean"],
-                     "random_return": f"{random[env]:.3f}" if env in random else "",
+                     "random_return": f"{randoms[env]:.3f}" if env in randoms else "",
                      "learned_by_neither": family == "dmc" and max(float(flat["iqm"]), float(best["iqm"])) < NEITHER})
+        rows[-1]["no_answer"] = f"both < {NEITHER:.0f}" if rows[-1]["learned_by_neither"] else NO_ANSWER.get(env, "")
     return rows
 
 
@@ -57,26 +65,26 @@ def published(rows):
 def markdown(rows):
     """The atlas table as Markdown (results/atlas.md)."""
     head = ["task", "d_a", "flat PPO IQM [95% CI]", "best mixture: K, IQM", "P(best > flat) [95% CI]",
-            "smallest sufficient K (K tried; 'both fail': flat and best < 100)", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
+            "smallest sufficient K (K tried; no answer: why)", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         low, high, p_low, p_high = r["flat_iqm_ci_low"], r["flat_iqm_ci_high"], r["p_ci_low"], r["p_ci_high"]
         lines.append("| " + " | ".join([
             r["task"], str(r["d_a"]), f"{float(r['flat_iqm']):,.0f} [{float(low):,.0f}, {float(high):,.0f}]",
             f"K = {r['best_K']}: {float(r['best_iqm']):,.0f}", f"{float(r['p_best_gt_flat']):.2f} [{p_low}, {p_high}]",
-            f"{r['smallest_sufficient_K'] or 'none'} ({r['ks_tried']})" + (" both fail" if r["learned_by_neither"] else ""),
+            f"{r['smallest_sufficient_K'] or 'none'} ({r['ks_tried']})" + (f" no answer: {r['no_answer']}" if r["no_answer"] else ""),
             f"{float(r['flat_training_return']):,.0f}",
             r.get("published_ppo", "")]) + " |")
     return "\n".join(lines) + "\n"
 
 
 def draw_ratios(a, rows):
-    """Left panel: the best mixture's IQM over flat PPO's per task (hatched: learned by neither, no answer)."""
+    """Left panel: the best mixture's IQM over flat PPO's per task (hatched: no answer)."""
     rows = sorted(rows, key=lambda r: float(r["best_over_flat"]))
     colors = ["tab:blue" if r["family"] == "dmc" else "tab:gray" for r in rows]
     bars = a.barh([r["task"] for r in rows], [float(r["best_over_flat"]) for r in rows], color=colors)
     for bar, r in zip(bars, rows):
-        if r["learned_by_neither"]:
+        if r["no_answer"]:
             bar.set_alpha(0.35)
             bar.set_hatch("//")
     a.axvline(1.0, color="k", lw=1)
@@ -85,27 +93,28 @@ def draw_ratios(a, rows):
     a.minorticks_off()
     for i, r in enumerate(rows):
         note = f"  K={r['best_K']}, P={float(r['p_best_gt_flat']):.2f}"
-        note += f" (both < {NEITHER:.0f}: no answer)" if r["learned_by_neither"] else ""
+        note += f" (no answer: {r['no_answer']})" if r["no_answer"] else ""
         a.text(float(r["best_over_flat"]), i, note, va="center", fontsize=7)
     a.set_xlabel("best mixture's IQM / flat PPO's IQM (deterministic controllers)")
     a.set_title("How good is the best mixture? (blue: DMC atlas, grey: v5 Figure 1)", fontsize=9)
 
 
 def draw_sufficient(b, rows):
-    """Right panel: the smallest sufficient K against d_a (x: none of the K tried); tasks learned by neither left out."""
+    """Right panel: the smallest sufficient K against d_a (x: none of the K tried); tasks with no answer left out."""
     points = {}  # (d_a, y, marker, color) -> task names (tasks at the same point share one label)
-    for r in [r for r in rows if not r["learned_by_neither"]]:
+    for r in [r for r in rows if not r["no_answer"]]:
         d_a, k, k_max = int(r["d_a"]), r["smallest_sufficient_K"], max(int(x) for x in r["ks_tried"].split())
         name = r["task"].removeprefix("dmc:") + ("" if k else f" (none of K = {r['ks_tried']})")
         key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray")
         points.setdefault(key, []).append(name)
     for (d_a, y, marker, color), names in points.items():
-        v5 = color == "tab:gray"  # v5 hollow, so a DMC point at the same place still shows
-        b.scatter(d_a, y, marker=marker, color=color, facecolors="none" if v5 and marker == "o" else color, zorder=2 if v5 else 3)
+        v5 = color == "tab:gray"  # v5 hollow and on top, so a DMC point at the same place still shows
+        b.scatter(d_a, y, marker=marker, color=color, facecolors="none" if v5 and marker == "o" else color, zorder=3 if v5 else 2)
         # where labels go, so that the tasks crowding at K <= 3 all read: v5 on a line (below the crowded K = 2 row,
-        # above elsewhere), DMC on the left where d_a = 1 or another DMC point sits just right of it, else on the right
+        # above elsewhere), DMC on the left where d_a = 1, another DMC point sits just right of it or the point is at
+        # the right edge, else on the right
         crowded = any(k[1] == y and k[3] == color and d_a < k[0] <= 2 * d_a for k in points)
-        left, below = d_a == 1 or crowded, y <= 2
+        left, below = d_a == 1 or crowded or d_a >= 10, y <= 2
         offset = (0, -22 if below else 12) if v5 else (-5 if left else 5, 0)
         b.annotate("\n".join(names), (d_a, y), fontsize=6, xytext=offset, textcoords="offset points",
                    va=("top" if below else "bottom") if v5 else "center", ha="center" if v5 else "right" if left else "left",
@@ -117,7 +126,7 @@ def draw_sufficient(b, rows):
     b.set_xlabel("action dimension d_a")
     b.set_ylabel("smallest K on par with flat PPO")
     b.legend(fontsize=7)
-    b.set_title("How few linear controllers suffice?\n(x: none of the K tried; tasks learned by neither left out)", fontsize=9)
+    b.set_title("How few linear controllers suffice?\n(x: none of the K tried; tasks with no answer left out)", fontsize=9)
 
 
 def plot(rows, path):

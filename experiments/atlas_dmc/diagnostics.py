@@ -22,14 +22,16 @@ COLUMNS = ("iteration", "approx_kl", "clip_fraction", "clusters_used")
 
 
 def read_cells(task_dir):
-    """{(env, policy, K): {column: [values of the second half of training, every seed pooled]}} of one task."""
+    """{(env, policy, K): {column: [values of the second half of training, every seed pooled]}} of one task
+    (iteration: every row's; the metrics: the finite ones)."""
     data = load_sweep(task_dir, COLUMNS)
     last = max(int(np.max(run["iteration"])) for seeds in data.values() for run in seeds.values())
     cells = {}
     for (env, policy, k, *_), seeds in data.items():
-        pooled = cells.setdefault((env, policy, k), {c: [] for c in COLUMNS[1:]})
+        pooled = cells.setdefault((env, policy, k), {c: [] for c in COLUMNS})
         for run in seeds.values():
             late = run["iteration"] > last // 2
+            pooled["iteration"] += list(run["iteration"][late])
             for c in COLUMNS[1:]:
                 pooled[c] += [float(v) for v in run[c][late] if np.isfinite(v)]
     return cells
@@ -50,7 +52,7 @@ def summarize(cells):
                     "approx_kl_median": median_of(cols["approx_kl"]),
                     "clip_fraction_median": median_of(cols["clip_fraction"]),
                     "clusters_used_mean": f"{statistics.fmean(used):.3g}" if used and policy == "mixture" else "",
-                    "flat_ppo_approx_kl_median": flat_kl.get(env, ""), "rows": len(cols["approx_kl"])})
+                    "flat_ppo_approx_kl_median": flat_kl.get(env, ""), "rows": len(cols["iteration"])})
     return out
 
 

@@ -228,13 +228,11 @@ def setting_columns(data):
 
 
 def backend_of(dirs, env_name):
-    """The physics backend the sweeps in dirs trained env_name with ([config] backend; 'mjx' when none says)."""
-    for d in dirs:
-        for meta in sweep_metas(d):
-            spec = meta.get("spec", {})
-            if env_name in spec.get("envs", []):
-                return (spec.get("config") or {}).get("backend", "mjx")
-    return "mjx"
+    """The physics backend the sweeps in dirs trained env_name with ([config] backend; 'mjx' when none says);
+    'c' when they differ, since MuJoCo C steps every task and MJX not all."""
+    named = {(meta.get("spec", {}).get("config") or {}).get("backend", "mjx") for d in dirs for meta in sweep_metas(d)
+             if env_name in meta.get("spec", {}).get("envs", [])}
+    return named.pop() if len(named) == 1 else "c" if named else "mjx"
 
 
 def random_returns_of(dirs, env_names, out_dir, log=print):
