@@ -39,6 +39,7 @@ def task_rows(final_csv, sufficient_csv, family):
         best = max(mixtures, key=lambda r: float(r["iqm"]))
         d_a = round(int(best["K"]) / float(best["K_over_action_dim"]))
         s = sufficient.get(env, {})
+        neither = family == "dmc" and max(float(flat["iqm"]), float(best["iqm"])) < NEITHER
         rows.append({"task": env, "family": family, "d_a": d_a, "flat_iqm": flat["iqm"],
                      "flat_iqm_ci_low": flat["iqm_ci_low"], "flat_iqm_ci_high": flat["iqm_ci_high"], "best_K": best["K"],
                      "best_iqm": best["iqm"], "best_over_flat": f"{float(best['iqm']) / float(flat['iqm']):.3f}",
@@ -47,8 +48,8 @@ def task_rows(final_csv, sufficient_csv, family):
                      "smallest_sufficient_K": s.get("smallest_sufficient_K", ""), "ks_tried": s.get("ks_tried", ""),
                      "flat_training_return": flat["training_return_mean"],
                      "random_return": f"{randoms[env]:.3f}" if env in randoms else "",
-                     "learned_by_neither": family == "dmc" and max(float(flat["iqm"]), float(best["iqm"])) < NEITHER})
-        rows[-1]["no_answer"] = f"both < {NEITHER:.0f}" if rows[-1]["learned_by_neither"] else NO_ANSWER.get(env, "")
+                     "learned_by_neither": neither,
+                     "no_answer": f"both < {NEITHER:.0f}" if neither else NO_ANSWER.get(env, "")})
     return rows
 
 

@@ -62,7 +62,7 @@ def main():
     for task_dir in sorted({os.path.dirname(os.path.dirname(p)) for p in tables}):
         table += summarize(read_cells(task_dir))
     write_csv(os.path.join(RESULTS, "update_diagnostics.csv"), table)
-    print(open(os.path.join(RESULTS, "update_diagnostics.csv")).read())
+    print(f"wrote {os.path.join(RESULTS, 'update_diagnostics.csv')} ({len(table)} rows)")
 
 
 if __name__ == "__main__":

@@ -230,8 +230,8 @@ def setting_columns(data):
 def backend_of(dirs, env_name):
     """The physics backend the sweeps in dirs trained env_name with ([config] backend; 'mjx' when none says);
     'c' when they differ, since MuJoCo C steps every task and MJX not all."""
-    named = {(meta.get("spec", {}).get("config") or {}).get("backend", "mjx") for d in dirs for meta in sweep_metas(d)
-             if env_name in meta.get("spec", {}).get("envs", [])}
+    named = {settings["config"].get("backend", "mjx") for d in dirs for (env, _, _), settings in group_settings(d).items()
+             if env == env_name}
     return named.pop() if len(named) == 1 else "c" if named else "mjx"
 
 

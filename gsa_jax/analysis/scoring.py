@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from envs.physics import Physics
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import schedule
@@ -130,8 +131,6 @@ def random_policy_return(env_name, episodes=16, seed=0, episode_length=None, bac
     """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
     score that normalizes to 0), from the start states of PRNGKey(seed), stepped by `backend` ('mjx' or 'c':
     the one the sweep trained with, since MJX cannot step every task)."""
-    from envs.physics import Physics
-
     env = envs.make(env_name, episode_length, auto_reset=False, physics=Physics(backend=backend))
     length = episode_length or envs.default_episode_length(env_name)
 
