@@ -124,23 +124,30 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
     assert runs[0]["training_return_last_100_episodes"] == ""  # a table without episode counts
 
 
-def test_smallest_sufficient_k_is_the_first_whose_interval_reaches_one_half():
-    """The product's answer per task: the smallest K whose P(> flat PPO) interval's upper end is >= 0.5; per
-    sub-policy class; none where no K reaches it (a printed line says so)."""
-    from gsa_jax.analysis.tables import sufficient_k_lines, sufficient_k_table
+def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
+    """The product's answer per task, sub-policy class and margin: the smallest K whose gap interval lies above
+    -margin, with the smaller K still undecided named; none where no K is shown sufficient."""
+    from gsa_jax.analysis.tables import sufficient_k_lines, sufficient_k_table, verdict_table
 
-    def row(env, k, hi, sub="linear"):
-        return {"env": env, "policy": "mixture", "K": k, "subpolicy": sub, "seeds": 10, "iqm": 100.0 * k,
-                "p_better_than_flat_ppo": round(hi - 0.2, 3), "p_ci_low": round(hi - 0.4, 3), "p_ci_high": hi, "K_over_action_dim": k / 2}
+    spread = np.linspace(-1.0, 1.0, 10)
+    def cell(policy, k, sub):
+        return ("a", policy, k, ("subpolicy", sub))
 
-    rows = [row("a", 8, 0.9), row("a", 2, 0.4), row("a", 4, 0.5), row("a", 1, 0.6, "constant"), row("b", 2, 0.49),
-            {"env": "a", "policy": "mlp", "K": "", "subpolicy": "", "seeds": 10, "p_ci_high": ""}]
+    scores = {cell("mlp", 1, ""): (1000.0 + 5 * spread, "controller"),       # random policy at 0: the scale is 1000
+              cell("mixture", 1, "linear"): (400.0 + 5 * spread, "controller"),   # gap -0.6: insufficient
+              cell("mixture", 2, "linear"): (930.0 + 300 * spread, "controller"),  # wide: undecided
+              cell("mixture", 4, "linear"): (990.0 + 5 * spread, "controller"),   # gap -0.01: sufficient at every margin
+              cell("mixture", 1, "constant"): (100.0 + 5 * spread, "controller")}
+    rows = verdict_table({c: (np.asarray(v), k) for c, (v, k) in scores.items()}, {"a": 0.0}, ["subpolicy"])
+    by = {(r["subpolicy"], r["K"], r["margin"]): r["verdict"] for r in rows}
+    assert by[("linear", 1, 0.1)] == "insufficient" and by[("linear", 2, 0.1)] == "undecided"
+    assert by[("linear", 4, 0.05)] == "sufficient" and {r["margin"] for r in rows} == {0.05, 0.1, 0.2}
     table = sufficient_k_table(rows, ["subpolicy"])
-    got = {(r["env"], r["subpolicy"]): (r["smallest_sufficient_K"], r["ks_tried"]) for r in table}
-    assert got == {("a", "linear"): (4, "2 4 8"), ("a", "constant"): (1, "1"), ("b", "linear"): ("", "2")}
-    lines = sufficient_k_lines(table)
-    assert "a subpolicy=linear: smallest sufficient K = 4 (IQM 400.0, P(> flat PPO) 0.3 [0.1, 0.5])" in lines[0]
-    assert lines[2] == "  b subpolicy=linear: no K of 2 reaches P(> flat PPO) 0.5 within its 95% CI"
+    got = {(r["subpolicy"], r["margin"]): (r["smallest_sufficient_K"], r["undecided_below"]) for r in table}
+    assert got[("linear", 0.1)] == (4, "2") and got[("constant", 0.1)] == ("", "")
+    lines = sorted(sufficient_k_lines(table))
+    assert len(lines) == 2 and "all shown insufficient" in lines[0]
+    assert "subpolicy=linear: K = 4 linear controllers suffice (shown within 10% of flat PPO); smaller K = 2 undecided" in lines[1]
 
 
 def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):

@@ -6,14 +6,14 @@ import os
 
 import numpy as np
 
-from gsa_jax.analysis import stats
+from gsa_jax.analysis import controller_scores, stats, verdict
 from gsa_jax.analysis.results import (
-    action_dims_of, drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, unscored_lines,
-    write_csv,
+    action_dims_of, drop_failed, final_scores, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers,
+    unscored_lines, write_csv,
 )
 from gsa_jax.analysis.tables import (
     aggregate_table, cell_curves, cell_label, cell_order, final_table, k_curves, normalized_scores, run_table,
-    sufficient_k_lines, sufficient_k_table,
+    sufficient_k_lines, sufficient_k_table, verdict_table,
 )
 
 
@@ -50,26 +50,38 @@ def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE
 
 
 def mark_sufficient_k(ax, table, env_name):
-    """A dotted vertical line at each of the task's smallest sufficient K (sufficient_k_table)."""
+    """A dotted vertical line at the task's smallest sufficient K at the default margin (sufficient_k_table)."""
     for r in table:
-        if r["env"] == env_name and r["smallest_sufficient_K"] != "":
+        if r["env"] == env_name and r["default_margin"] and r["smallest_sufficient_K"] != "":
             ax.axvline(r["smallest_sufficient_K"], color="tab:green", ls=":", lw=1.5,
-                       label=f"smallest K on par with flat PPO: {r['smallest_sufficient_K']}")
+                       label=f"smallest sufficient K (margin {r['margin']:g}): {r['smallest_sufficient_K']}")
 
 
-def plot_return_vs_k(rows, path, settings=()):
-    """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band. One
-    curve per value of the `settings` columns (the cells' sub-policy class, critic, swept hyperparameters)."""
+def draw_margin(ax, verdict_rows, env_name):
+    """A dashed line at flat PPO's IQM less the default margin of its gain over a random policy (or at the target
+    less the margin): the level a mixture's IQM must be shown above to be called sufficient."""
+    for r in verdict_rows:
+        if r["env"] == env_name and r["default_margin"] and r["reference_iqm"] != "" and r["random_return"] != "":
+            ref, rnd = float(r["reference_iqm"]), float(r["random_return"])
+            ax.axhline(ref - r["margin"] * (ref - rnd), color="tab:red", ls="--", lw=1.2,
+                       label=f"{r['versus']} - {r['margin']:g} x (its gain over a random policy)")
+            return
+
+
+def plot_return_vs_k(rows, path, settings=(), sufficient=(), verdict_rows=()):
+    """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band, the default
+    margin below it (dashed) and the smallest sufficient K (dotted). One curve per value of the `settings` columns
+    (the cells' sub-policy class, critic, swept hyperparameters)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
-    table = sufficient_k_table(rows, settings)
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
-        mark_sufficient_k(ax, table, env_name)
+        mark_sufficient_k(ax, sufficient, env_name)
+        draw_margin(ax, verdict_rows, env_name)
         curves = k_curves(rows, env_name, settings)
         all_ks = sorted({r["K"] for pts in curves.values() for r in pts})
         for extra, pts in curves.items():
@@ -122,6 +134,21 @@ def plot_profiles(normalized, path, reps=stats.REPS, xlabel=PROFILE_XLABEL):
     plt.close(fig)
 
 
+def write_verdicts(data, random_returns, settings, out_dir, log=print, looks=1, target=None):
+    """verdicts.csv and sufficient_k.csv of the cells' final scores (the committed controllers' where scored) ->
+    (verdict rows, sufficient_k rows); the answer at the default margin printed per task."""
+    verdicts = verdict_table(final_scores(data), random_returns, settings, looks=looks, target=target)
+    sufficient = sufficient_k_table(verdicts, settings)
+    if verdicts:
+        write_csv(os.path.join(out_dir, "verdicts.csv"), verdicts)
+        write_csv(os.path.join(out_dir, "sufficient_k.csv"), sufficient)
+        log(f"How many linear controllers does each task need (margin {verdict.DEFAULT_MARGIN:g} of flat PPO's gain over a "
+            "random policy, 95% intervals)?")
+        for line in sufficient_k_lines(sufficient):
+            log(line)
+    return verdicts, sufficient
+
+
 def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, log=print, reps=stats.REPS,
                curve_reps=stats.CURVE_REPS):
     """Every figure and table of the merged sweeps into out_dir (default: the first directory); reps /
@@ -132,6 +159,7 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     os.makedirs(out_dir, exist_ok=True)
     failed_runs = [f for d in dirs for f in load_failed(d)]
     data, failed = drop_failed(load_sweeps(dirs), failed_runs)
+    controller_scores.attach(data, dirs)
     if action_dims is None:
         action_dims = action_dims_of(dirs, sorted({c[0] for c in data}))
     evaluated = any(np.isfinite(s["eval_return"]).any() for seeds in data.values() for s in seeds.values())
@@ -147,16 +175,11 @@ def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, 
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
     write_csv(os.path.join(out_dir, "per_run_scores.csv"), run_table(data))
-    scored = [r for r in rows if r["seeds"]]
-    plot_return_vs_k(scored, os.path.join(out_dir, "return_vs_k.png"), setting_columns(data))
-    sufficient = sufficient_k_table(scored, setting_columns(data))
-    if sufficient:
-        write_csv(os.path.join(out_dir, "sufficient_k.csv"), sufficient)
-        log("How many linear controllers does each task need (smallest K on par with flat PPO or better)?")
-        for line in sufficient_k_lines(sufficient):
-            log(line)
     if random_returns is None:
         random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
+    verdicts, sufficient = write_verdicts(data, random_returns, setting_columns(data), out_dir, log)
+    scored = [r for r in rows if r["seeds"]]
+    plot_return_vs_k(scored, os.path.join(out_dir, "return_vs_k.png"), setting_columns(data), sufficient, verdicts)
     normalized = normalized_scores(data, action_dims, random_returns, spec_multipliers(dirs))
     if normalized:
         write_csv(os.path.join(out_dir, "aggregate.csv"), aggregate_table(normalized, reps))

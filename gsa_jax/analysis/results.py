@@ -183,10 +183,10 @@ def eval_failures(seeds):
     return int(sum(np.nansum(s["eval_failures"]) for s in seeds.values()))
 
 
-def final_scores(data):
-    """{cell: (scores [n], kind)}: each run's final score (stats.final_score over the cell's schedule),
-    seeds in order, without the runs unscored_runs lists; kind is 'deterministic' when every run has
-    evaluations, else 'training'."""
+def evaluation_scores(data):
+    """{cell: (scores [n], kind)}: each run's score from its training-time evaluations (stats.final_score over the
+    cell's schedule: the mean of its last scheduled evaluations, a learning-curve statistic), seeds in order,
+    without the runs unscored_runs lists; kind is 'deterministic' when every run has evaluations, else 'training'."""
     out = {}
     for cell, seeds in data.items():
         sched = cell_schedule(seeds)
@@ -196,6 +196,18 @@ def final_scores(data):
             got = [stats.final_score([], s["episode_return"]) for _, s in sorted(seeds.items())]
         scores = np.array([v for v, _ in got])
         out[cell] = (scores[np.isfinite(scores)], kind)
+    return out
+
+
+def final_scores(data):
+    """{cell: (scores [n], kind)}: each run's score, seeds in order. Where every run of a cell has its committed
+    controller's score (controller_score, gsa_jax.analysis.controller_scores: the final controller re-run in MuJoCo C
+    from fixed start states) those, kind 'controller'; else evaluation_scores."""
+    out = evaluation_scores(data)
+    for cell, seeds in data.items():
+        got = np.array([s.get("controller_score", math.nan) for _, s in sorted(seeds.items())], float)
+        if len(got) and np.isfinite(got).all():
+            out[cell] = (got, "controller")
     return out
 
 

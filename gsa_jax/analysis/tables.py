@@ -6,8 +6,8 @@ from collections import defaultdict
 
 import numpy as np
 
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.results import cell_schedule, eval_failures, final_scores, unscored_runs
+from gsa_jax.analysis import stats, verdict
+from gsa_jax.analysis.results import cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
 
 
 def smooth(y, window):
@@ -107,23 +107,27 @@ def final_table(data, action_dims, failed=None, reps=stats.REPS):
 
 
 def run_table(data):
-    """per_run_scores.csv rows: per run (cells in table order, seeds in order) its final score as
-    final_returns.csv scores it (score_kind says which; '' for a run unscored_runs lists), its last
-    scheduled evaluation, failed evaluation episodes, its training return over the last 10% of iterations
-    and over its last LAST_EPISODES (100) episodes (stats.last_episodes_return: how CleanRL's tables score
-    a run)."""
+    """per_run_scores.csv rows: per run (cells in table order, seeds in order) its committed controller's score
+    (controller_score: the final controller re-run in MuJoCo C from fixed start states, what every verdict uses;
+    '' where not scored), score_kind (which score the tables use: controller, deterministic or training), its
+    final_score from training-time evaluations (the mean of its last scheduled evaluations, a learning-curve
+    statistic; '' for a run unscored_runs lists), its last scheduled evaluation, failed evaluation episodes, its
+    training return over the last 10% of iterations and over its last LAST_EPISODES (100) episodes
+    (stats.last_episodes_return: how CleanRL's tables score a run)."""
     r = lambda x: "" if not np.isfinite(x) else round(float(x), 3)  # noqa: E731
     rows = []
     for cell in sorted(data, key=cell_order):
         sched = cell_schedule(data[cell])
         kind = final_scores({cell: data[cell]})[cell][1]
+        evaluated = evaluation_scores({cell: data[cell]})[cell][1] == "deterministic"
         for seed, s in sorted(data[cell].items()):
-            score = stats.final_score(s["eval_return"] if kind == "deterministic" else [], s["episode_return"], sched)[0]
+            score = stats.final_score(s["eval_return"] if evaluated else [], s["episode_return"], sched)[0]
             last = s["eval_return"][sched[: len(s["eval_return"])]][-1:]
             last_100 = stats.last_episodes_return(s["episode_return"], s["episodes"])
             rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
-                         "seed": seed, "score_kind": kind, "final_score": r(score),
-                         "last_eval_return": r(last[0]) if len(last) else "", "eval_failures": eval_failures({seed: s}),
+                         "seed": seed, "controller_score": r(s.get("controller_score", math.nan)), "score_kind": kind,
+                         "final_score": r(score), "last_eval_return": r(last[0]) if len(last) else "",
+                         "eval_failures": eval_failures({seed: s}),
                          "training_return": r(stats.final_score([], s["episode_return"])[0]),
                          f"training_return_last_{stats.LAST_EPISODES}_episodes": r(last_100)})
     return rows
@@ -223,35 +227,60 @@ def k_curves(rows, env_name, settings):
     return {k: sorted(pts, key=lambda r: r["K"]) for k, pts in curves.items()}
 
 
-def sufficient_k_table(rows, settings=()):
-    """sufficient_k.csv rows: per task and setting, the smallest K whose P(better than flat PPO) 95% interval
-    reaches 0.5 (its upper end >= 0.5: not shown worse than flat PPO), with that cell's IQM and P; K ''
-    where no K does. The product's answer to "how many linear controllers does this task need?"."""
+def cell_setting(cell, settings):
+    """((column, value) of `settings`...) of a cell: which return-vs-K curve it belongs to."""
+    extra = dict(cell[3:])
+    return tuple((c, extra.get(c, "")) for c in settings)
+
+
+def verdict_table(scores, random_returns, settings=(), margins=None, looks=1, target=None, reps=verdict.REPS):
+    """verdicts.csv rows: per task, setting, K and margin (verdict.MARGINS and the default) the gap of the mixture
+    cell's IQM to flat PPO's (or to `target`) on the scale of flat PPO's gain over a random policy, its interval
+    for a design of `looks` looks, the verdict, seeds and the seeds per cell likely to decide it. scores: {cell:
+    (scores [n], kind)} (final_scores); tasks without a random-policy return are left out."""
+    margins = sorted(set(margins or verdict.MARGINS) | {verdict.DEFAULT_MARGIN})
+    r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 4)  # noqa: E731
+    rows = []
+    for cell in sorted((c for c in scores if c[1] == "mixture" and len(scores[c][0])), key=cell_order):
+        flat = flat_cell(cell, scores)
+        if cell[0] not in random_returns or (target is None and (flat is None or not len(scores[flat][0]))):
+            continue
+        ref = None if target is not None else scores[flat][0]
+        for m in margins:
+            g = verdict.judge(scores[cell][0], ref, random_returns[cell[0]], m, looks, target, reps)
+            rows.append({"env": cell[0], **dict(cell_setting(cell, settings)), "K": cell[2], "margin": m,
+                         "default_margin": int(m == verdict.DEFAULT_MARGIN), "versus": "flat PPO" if target is None else f"target {target:g}",
+                         "score": scores[cell][1], "seeds": len(scores[cell][0]), "reference_seeds": "" if ref is None else len(ref),
+                         "random_return": r(random_returns[cell[0]]),
+                         "reference_iqm": r(verdict.iqm(ref)) if ref is not None else target, "iqm": r(verdict.iqm(scores[cell][0])),
+                         "gap": r(g.point), "gap_low": r(g.low), "gap_high": r(g.high), "level": round(g.level, 4),
+                         "verdict": g.verdict, "seeds_to_decide": "" if g.seeds_to_decide is None else g.seeds_to_decide})
+    return rows
+
+
+def sufficient_k_table(verdict_rows, settings=()):
+    """sufficient_k.csv rows: per task, setting and margin the smallest K judged sufficient (verdict_table), ''
+    where none is, with the smaller K still undecided and the answer in one sentence. The product's answer to
+    "how many linear controllers does this task need?"."""
+    groups = defaultdict(dict)
+    for r in verdict_rows:
+        key = (r["env"], tuple((c, r.get(c, "")) for c in settings), r["margin"], r["versus"])
+        groups[key][int(r["K"])] = r
     out = []
-    for env_name in dict.fromkeys(r["env"] for r in rows):
-        for extra, pts in k_curves(rows, env_name, settings).items():
-            ok = [r for r in pts if r.get("p_ci_high") != "" and r["p_ci_high"] >= 0.5]
-            r = ok[0] if ok else {}
-            out.append({"env": env_name, **dict(extra), "smallest_sufficient_K": r.get("K", ""),
-                        "K_over_action_dim": r.get("K_over_action_dim", ""), "iqm": r.get("iqm", ""),
-                        "p_better_than_flat_ppo": r.get("p_better_than_flat_ppo", ""),
-                        "p_ci_low": r.get("p_ci_low", ""), "p_ci_high": r.get("p_ci_high", ""),
-                        "ks_tried": " ".join(str(q["K"]) for q in pts)})
+    for (env_name, extra, margin, versus), by_k in groups.items():
+        verdicts = {k: r["verdict"] for k, r in by_k.items()}
+        chosen, below = verdict.smallest_sufficient(verdicts)
+        first = next(iter(by_k.values()))
+        out.append({"env": env_name, **dict(extra), "margin": margin, "default_margin": first["default_margin"],
+                    "versus": versus, "smallest_sufficient_K": "" if chosen is None else chosen,
+                    "undecided_below": " ".join(map(str, below)), "ks_tried": " ".join(map(str, sorted(by_k))),
+                    "verdicts": " ".join(f"{k}:{verdicts[k]}" for k in sorted(by_k)),
+                    "seeds": " ".join(f"{k}:{by_k[k]['seeds']}" for k in sorted(by_k)),
+                    "answer": verdict.sentence(env_name + "".join(f" {c}={v}" for c, v in extra if v != ""), verdicts,
+                                               margin, versus)})
     return out
 
 
 def sufficient_k_lines(table):
-    """One printed line per row of sufficient_k_table."""
-    lines = []
-    for r in table:
-        extra = "".join(f" {c}={v}" for c, v in r.items() if c not in SUFFICIENT_COLS and v != "")
-        if r["smallest_sufficient_K"] == "":
-            lines.append(f"  {r['env']}{extra}: no K of {r['ks_tried']} reaches P(> flat PPO) 0.5 within its 95% CI")
-        else:
-            lines.append(f"  {r['env']}{extra}: smallest sufficient K = {r['smallest_sufficient_K']} "
-                         f"(IQM {r['iqm']}, P(> flat PPO) {r['p_better_than_flat_ppo']} [{r['p_ci_low']}, {r['p_ci_high']}])")
-    return lines
-
-
-SUFFICIENT_COLS = ("env", "smallest_sufficient_K", "K_over_action_dim", "iqm", "p_better_than_flat_ppo", "p_ci_low",
-                   "p_ci_high", "ks_tried")
+    """One printed line per row of sufficient_k_table at the default margin."""
+    return ["  " + r["answer"] for r in table if r["default_margin"]]

@@ -1,0 +1,148 @@
+"""A run's score as anyone who re-runs its committed controller gets it: the exported final controller's
+deterministic return in plain MuJoCo C (gsa_jax.deploy's episodes) over a fixed, recorded set of start states.
+
+Each results directory holding controllers/<run label>.npz gets a controller_scores.csv beside it: one row per
+controller with its file's sha256, the start seeds (`start_seed` + 0 .. episodes - 1, the seeds gsa_jax.deploy
+--seed takes) and the mean return over them. Rows are written as each controller finishes (an interrupted scoring
+loses nothing) and kept while the file's sha256, the episodes and the start seed are unchanged, so scoring a
+directory again only scores what is new. `python -m gsa_jax.score DIR [DIR ...]` is its command; gsa_jax.plot
+and gsa_jax.answer read the scores (per_run_scores.csv `controller_score`) and every verdict uses them.
+"""
+
+import csv
+import glob
+import hashlib
+import io
+import json
+import os
+import time
+
+import numpy as np
+
+from gsa_jax.running.checkpoint import write_atomic
+
+EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
+START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
+FILE = "controller_scores.csv"
+COLUMNS = ("label", "env", "policy", "K", "seed", "sha256", "episodes", "start_seed", "controller_score",
+           "episode_std", "length_mean", "simulator", "mujoco_version")
+
+
+class ScoreError(Exception):
+    pass
+
+
+def file_sha256(path: str) -> str:
+    """The sha256 of a file's bytes (what identifies a committed controller)."""
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+def read_scores(path: str) -> dict:
+    """{label: row} of a controller_scores.csv ({} if there is none)."""
+    if not os.path.exists(path):
+        return {}
+    with open(path, newline="") as f:
+        return {r["label"]: r for r in csv.DictReader(f)}
+
+
+def write_scores(path: str, rows: dict) -> None:
+    """Write {label: row} as a controller_scores.csv (atomically, labels sorted)."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
+    w.writeheader()
+    for label in sorted(rows):
+        w.writerow({c: rows[label].get(c, "") for c in COLUMNS})
+    write_atomic(path, buf.getvalue())
+
+
+def score_controller(path: str, episodes: int = EPISODES, start_seed: int = START_SEED) -> dict:
+    """One controller's row: its deterministic episodes in MuJoCo C from seeds start_seed .. start_seed +
+    episodes - 1 (gsa_jax.deployment.evaluation.run_mujoco_c, what gsa_jax.deploy runs)."""
+    import mujoco
+
+    from gsa_jax.deployment.evaluation import DeployError, has_mujoco_c, load_controller, run_mujoco_c
+
+    try:
+        ctrl, env_name, config = load_controller(path)
+        if not has_mujoco_c(env_name):
+            raise ScoreError(f"{env_name!r} has no MuJoCo C version: its controllers cannot be scored outside training")
+        summary = run_mujoco_c(ctrl, env_name, config, episodes, seed=start_seed)
+    except DeployError as e:
+        raise ScoreError(str(e)) from None
+    k = ctrl.num_clusters if ctrl.kind == "mixture" else ""
+    with np.load(path, allow_pickle=False) as f:
+        seed = json.loads(str(f["config_json"])).get("seed", "")
+    return {"label": os.path.basename(path)[: -len(".npz")], "env": env_name, "policy": ctrl.kind,
+            "K": k, "seed": seed, "sha256": file_sha256(path), "episodes": episodes, "start_seed": start_seed,
+            "controller_score": round(summary["return_mean"], 4),
+            "episode_std": round(float(np.std(summary["returns"], ddof=1)) if episodes > 1 else 0.0, 4),
+            "length_mean": round(summary["length_mean"], 2), "simulator": "mujoco_c", "mujoco_version": mujoco.__version__}
+
+
+def controller_dirs(roots) -> list:
+    """Every directory holding controllers/*.npz under the given directories (sorted, no repeats)."""
+    found = set()
+    for root in roots:
+        for path in glob.glob(os.path.join(root, "**", "controllers", "*.npz"), recursive=True):
+            found.add(os.path.dirname(os.path.dirname(path)))
+    return sorted(found)
+
+
+def is_current(row: dict, sha: str, episodes: int, start_seed: int) -> bool:
+    """Whether a stored row scores this very file with these episodes and start seed."""
+    return (row.get("sha256") == sha and str(row.get("episodes")) == str(episodes)
+            and str(row.get("start_seed")) == str(start_seed) and row.get("controller_score", "") != "")
+
+
+def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int = START_SEED, log=print) -> dict:
+    """Score every controllers/*.npz of one results directory that its controller_scores.csv does not hold
+    yet (or holds for another file, episode count or start seed) -> {label: row}; rows of controllers no
+    longer there are dropped."""
+    path = os.path.join(results_dir, FILE)
+    stored = read_scores(path)
+    files = sorted(glob.glob(os.path.join(results_dir, "controllers", "*.npz")))
+    rows = {}
+    todo = []
+    for f in files:
+        label, sha = os.path.basename(f)[: -len(".npz")], file_sha256(f)
+        if label in stored and is_current(stored[label], sha, episodes, start_seed):
+            rows[label] = stored[label]
+        else:
+            todo.append(f)
+    t0 = time.monotonic()
+    for i, f in enumerate(todo):
+        row = score_controller(f, episodes, start_seed)
+        rows[row["label"]] = row
+        write_scores(path, rows)  # after every controller: an interruption loses at most one
+        if log:
+            eta = (time.monotonic() - t0) / (i + 1) * (len(todo) - i - 1)
+            log(f"  {results_dir}: {i + 1}/{len(todo)} {row['label']}: {row['controller_score']:.1f} (ETA {eta:.0f} s)")
+    if rows != stored:
+        write_scores(path, rows)
+    return rows
+
+
+def label_scores(roots) -> dict:
+    """{run label: controller_score} from every controller_scores.csv under the directories."""
+    out = {}
+    for root in roots:
+        for path in glob.glob(os.path.join(root, "**", FILE), recursive=True):
+            for label, row in read_scores(path).items():
+                if row.get("controller_score", "") != "":
+                    out[label] = float(row["controller_score"])
+    return out
+
+
+def attach(data: dict, roots) -> int:
+    """Put each run's controller_score (from the controller_scores.csv files under `roots`, matched by run label)
+    into data {cell: {seed: {column: ...}}} as a float (NaN where not scored) -> how many runs have one."""
+    from gsa_jax.running.trained import run_label
+
+    scores, found = label_scores(roots), 0
+    for cell, seeds in data.items():
+        for seed, s in seeds.items():
+            label = run_label({"env": cell[0], "policy": cell[1], "K": cell[2], **dict(cell[3:]), "seed": seed})
+            s["controller_score"] = scores.get(label, float("nan"))
+            found += label in scores
+    return found
