@@ -1,0 +1,191 @@
+"""How few linear controllers does a task need? One command trains, judges and adds seeds until it is decided:
+
+    python -m gsa_jax.answer --env TASK [--clusters 1,2,4] [--margin 0.1] [--target SCORE] [--looks 5,10,20,40]
+                             [--steps 1000000] [--budget-minutes 120] [--start-from RESULTS_DIR ...] [--out DIR]
+    make answer ENV=TASK
+
+Trains flat PPO and a mixture of K linear controllers for every K of the ladder (default K = ceil(m d_a), m in 0.5,
+1, 2, 4), scores every run by its exported controller in MuJoCo C from fixed start states, and judges each K
+sufficient, insufficient or undecided against flat PPO at the margin (gsa_jax.analysis.verdict: the IQM gap on the
+scale of flat PPO's gain over a random policy, a bootstrap interval, Bonferroni over the looks). Seeds are added,
+look by look, only to the undecided K below the smallest sufficient one (and to flat PPO), each round one vmapped
+program per class, until the smallest sufficient K is decided, the last look (the seed cap) is reached or the
+budget would run out. --target SCORE judges against a score your robot needs instead of flat PPO.
+--start-from takes committed results (gsa_jax.extract --results; e.g. experiments/atlas_dmc/results/<task>/*):
+their runs are the first seeds and their sweep.json settings train the new ones.
+
+Writes DIR (default runs/answers/<task>): answer.json (the state: the same command resumes it), report.md (the
+answer in one sentence, verdicts at the margin and at 0.05, 0.1, 0.2, score against K with the margin drawn, the
+seeds, the rounds' times, the command), verdicts.csv, score_vs_k.png, controller/controller.{npz,h,onnx} (the
+chosen K's best seed), results/<round>/ (what each round's sweeps commit: sweep.json, tidy metrics, controllers,
+controller_scores.csv). Exit status: 0 answered (decided or not), 2 bad input, 3 a sweep failed.
+"""
+
+import argparse
+import math
+import os
+import shlex
+import subprocess
+import sys
+
+from gsa_jax.analysis import verdict
+from gsa_jax.running.answering import FLAT, AnswerError, Setup, check_setup, collect_scores, run_answer
+
+MULTIPLIERS = (0.5, 1, 2, 4)
+
+
+def parse_ints(text: str, what: str) -> tuple:
+    """'1,2,4' -> (1, 2, 4); AnswerError in one line otherwise."""
+    try:
+        values = tuple(int(v) for v in text.replace(" ", ",").split(",") if v != "")
+    except ValueError:
+        raise AnswerError(f"{what} must be integers separated by commas, got {text!r}") from None
+    if not values:
+        raise AnswerError(f"{what} is empty")
+    return values
+
+
+def default_ladder(env: str) -> tuple:
+    """K = ceil(m d_a) for m in MULTIPLIERS, the atlas's ladder ({1, 2, 4} on a one-action task)."""
+    import envs
+
+    d_a = envs.action_size(env)
+    return (1, 2, 4) if d_a == 1 else tuple(sorted({max(1, math.ceil(m * d_a - 1e-9)) for m in MULTIPLIERS}))
+
+
+def start_specs(dirs: list) -> dict:
+    """{policy: base spec} from the sweep.json of each --start-from directory (their settings train new seeds)."""
+    from gsa_jax.analysis.results import sweep_metas
+
+    specs = {}
+    for d in dirs:
+        if not os.path.isdir(d):
+            raise AnswerError(f"--start-from {d!r} is not a directory")
+        metas = sweep_metas(d)
+        if not metas:
+            raise AnswerError(f"--start-from {d!r} holds no sweep.json (give gsa_jax.extract --results directories)")
+        for meta in metas:
+            for policy in meta["spec"]["policies"]:
+                specs[policy] = {k: v for k, v in meta["spec"].items() if k not in ("seeds", "policies", "envs")}
+    return specs
+
+
+def base_specs(args, env: str) -> dict:
+    """The base spec per class: --start-from's, else the defaults with --steps and the backend."""
+    import envs
+
+    backend = args.backend or ("c" if envs.has_c_backend(env) else "mjx")
+    default = {"steps": args.steps, "hparams": {}, "config": {"backend": backend}}
+    specs = {"mlp": dict(default), "mixture": dict(default)}
+    specs.update(start_specs(args.start_from or []))
+    return specs
+
+
+def make_setup(args) -> Setup:
+    """The checked Setup of the command line (AnswerError in one line; nothing compiles)."""
+    import envs
+
+    if args.budget_minutes <= 0:
+        raise AnswerError(f"--budget-minutes must be > 0, got {args.budget_minutes:g}")
+    if not 0.0 < args.margin < 1.0:
+        raise AnswerError(f"--margin must be in (0, 1), got {args.margin:g}")
+    if args.steps < 1:
+        raise AnswerError(f"--steps must be >= 1, got {args.steps}")
+    try:
+        envs.check_name(args.env)
+    except ValueError as e:
+        raise AnswerError(" ".join(str(e).split())) from None
+    if not envs.has_c_backend(args.env):
+        raise AnswerError(f"{args.env!r} has no MuJoCo C version, and the answer scores every run by its controller in "
+                          "MuJoCo C: give a gymnasium v5 task, a dmc: task or your own Task (envs/task.py)")
+    ladder = parse_ints(args.clusters, "--clusters (the K ladder)") if args.clusters is not None else default_ladder(args.env)
+    setup = Setup(args.env, tuple(sorted(set(ladder))), args.margin, parse_ints(args.looks, "--looks"),
+                  base_specs(args, args.env), args.target, tuple(args.start_from or ()))
+    check_setup(setup)
+    return setup
+
+
+def random_return(setup: Setup) -> float:
+    """The random policy's return on the task: the one --start-from's plots used, else measured with the backend
+    the answer trains with (gsa_jax.analysis.scoring.random_policy_return)."""
+    import json
+
+    for d in setup.start_from:
+        for path in (os.path.join(d, "random_returns.json"), os.path.join(os.path.dirname(d.rstrip("/")), "random_returns.json")):
+            if os.path.exists(path):
+                with open(path) as f:
+                    found = json.load(f)
+                if setup.env in found:
+                    return float(found[setup.env])
+    from gsa_jax.analysis.scoring import random_policy_return
+
+    return random_policy_return(setup.env, backend=setup.specs["mixture"]["config"].get("backend", "mjx"))
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
+    """The answer's sentence, report and exported controller -> the sentence."""
+    import jax
+    import mujoco
+
+    from gsa_jax.analysis.answer_report import export_choice, margin_verdicts, write_report
+
+    scores = collect_scores(out, setup)
+    verdicts = {int(k): r["verdict"] for k, r in state["judged"].items()}
+    versus = "flat PPO" if setup.target is None else f"the target score {setup.target:g}"
+    sentence = verdict.sentence(setup.env, verdicts, setup.margin, versus)
+    chosen, _ = verdict.smallest_sufficient(verdicts)
+    choice = None
+    if chosen is not None:
+        choice = export_choice(out, list(setup.start_from) + [os.path.join(out, "results")], setup.env, chosen, scores)
+        if choice:
+            choice["K"] = chosen
+    rows = margin_verdicts(setup, scores, state["random_return"], state["frozen"], FLAT)
+    command = "python -m gsa_jax.answer " + " ".join(shlex.quote(a) for a in argv)
+    versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit()}
+    path = write_report(out, setup, state, scores, rows, sentence, choice, command, versions)
+    print(f"wrote {path}")
+    return sentence
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.answer", description=__doc__.split("\n")[0])
+    p.add_argument("--env", required=True, help="the task (any name gsa_jax.train takes, your own 'module:Class' too)")
+    p.add_argument("--clusters", default=None, help="the K ladder, e.g. 1,2,4 (default: ceil(m d_a), m = 0.5, 1, 2, 4)")
+    p.add_argument("--margin", type=float, default=verdict.DEFAULT_MARGIN,
+                   help="the margin delta, a fraction of flat PPO's gain over a random policy (default %(default)s)")
+    p.add_argument("--target", type=float, default=None, help="judge against this score instead of flat PPO")
+    p.add_argument("--looks", default="5,10,20,40", help="seeds per cell at each look; the last is the seed cap (default %(default)s)")
+    p.add_argument("--steps", type=int, default=1_000_000, help="env steps per run (default %(default)s)")
+    p.add_argument("--backend", choices=("c", "mjx"), default=None, help="physics (default: c where the task has MuJoCo C)")
+    p.add_argument("--budget-minutes", type=float, default=120.0, help="stop before a round that would run past it (default %(default)s)")
+    p.add_argument("--start-from", nargs="+", default=None, metavar="RESULTS_DIR",
+                   help="committed results whose runs are the first seeds (their sweep.json settings train the rest)")
+    p.add_argument("--out", default=None, help="output directory (default runs/answers/<task>)")
+    return p
+
+
+def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    try:
+        setup = make_setup(args)
+        from gsa_jax.running.trained import path_part
+
+        out = args.out or os.path.join("runs", "answers", path_part(setup.env))
+        state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_return(setup))
+        print(finish(out, setup, state, argv))
+    except AnswerError as e:
+        print(f"gsa_jax.answer: error: {e}", file=sys.stderr)
+        return 3 if "sweep" in str(e) and "exit status" in str(e) else 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,133 @@
+"""gsa_jax.answer: seeds go only to undecided cells, a stopped answer resumes to the same result, bad input is one
+line before anything compiles, and the whole loop on a small real task."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from gsa_jax.analysis import controller_scores, verdict
+from gsa_jax.running import answering as A
+
+SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
+
+
+def synthetic_trainer(truth):
+    """A stand-in for a round's sweep that writes each planned run's controller score, drawn from a known
+    distribution per cell ({FLAT or K: (mean, spread)}), as run_class_sweep's scoring would: the loop's
+    decisions are then tested against known truth without training."""
+    calls = []
+
+    def run(out, name, spec, log):
+        calls.append((name, spec.get("clusters", []), list(spec["seeds"])))
+        results = os.path.join(out, "results", name)
+        os.makedirs(os.path.join(results, "controllers"), exist_ok=True)
+        rows = {}
+        for k in spec.get("clusters") or [A.FLAT]:
+            for seed in spec["seeds"]:
+                mean, spread = truth[k]
+                rng = np.random.default_rng(1000 * (0 if k == A.FLAT else k) + seed)
+                policy = "mlp" if k == A.FLAT else "mixture"
+                label = f"task-{policy}-{'' if k == A.FLAT else f'K{k}-'}s{seed}"
+                rows[label] = {"label": label, "env": "task", "policy": policy, "K": "" if k == A.FLAT else k,
+                               "seed": seed, "controller_score": mean + spread * rng.standard_normal()}
+        controller_scores.write_scores(os.path.join(results, controller_scores.FILE), rows)
+        return {"seconds": 1.0, "compile_s": 0.0, "status": 0}
+
+    return run, calls
+
+
+def synthetic_setup():
+    spec = {"steps": 1000, "hparams": {}, "config": {}}
+    return A.Setup("task", (1, 2, 4), 0.1, (4, 8, 16), {"mlp": spec, "mixture": spec})
+
+
+# flat PPO at 1000 (random 0); K = 1 clearly worse, K = 2 a little worse and noisy (undecided for a while), K = 4 on par
+TRUTH = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (940.0, 120.0), 4: (1000.0, 5.0)}
+
+
+def test_seeds_go_only_to_undecided_cells(tmp_path, monkeypatch):
+    run, calls = synthetic_trainer(TRUTH)
+    monkeypatch.setattr(A, "run_class_sweep", run)
+    state = A.run_answer(str(tmp_path), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+    assert calls[0][1:] == ([], [0, 1, 2, 3]) and calls[1][1:] == ([1, 2, 4], [0, 1, 2, 3])  # the first look: every cell
+    for r in state["rounds"][1:]:
+        before = r["verdicts_before"]
+        chosen, below = verdict.smallest_sufficient({int(k): v for k, v in before.items()})
+        assert r["plan"]["mixture"][0] == below and all(before[str(k)] == verdict.UNDECIDED for k in below)
+    scores = A.collect_scores(str(tmp_path), synthetic_setup())
+    assert len(scores[1]) == 4 and len(scores[4]) == 4  # decided at the first look: never trained again
+    assert state["judged"]["1"]["verdict"] == verdict.INSUFFICIENT and state["judged"]["4"]["verdict"] == verdict.SUFFICIENT
+    assert len(state["rounds"]) >= 2 and len(scores[2]) > 4  # K = 2 got more seeds
+    assert state["stopped"] == "decided" or state["stopped"].startswith("seed cap")
+
+
+def test_a_stopped_answer_resumes_to_the_same_result(tmp_path, monkeypatch):
+    run, _ = synthetic_trainer(TRUTH)
+    monkeypatch.setattr(A, "run_class_sweep", run)
+    whole = A.run_answer(str(tmp_path / "whole"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+
+    def interrupted(out, name, spec, log):  # the second round's mixture sweep is killed
+        if name == "round2-mixture":
+            raise KeyboardInterrupt
+        return run(out, name, spec, log)
+
+    monkeypatch.setattr(A, "run_class_sweep", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+    saved = json.loads((tmp_path / "stopped" / A.STATE).read_text())
+    assert saved["rounds"][-1]["status"] == "running" and "mlp" in saved["rounds"][-1]["sweeps"]
+    monkeypatch.setattr(A, "run_class_sweep", run)
+    resumed = A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+    assert resumed["judged"] == whole["judged"] and resumed["stopped"] == whole["stopped"]
+    assert [r["plan"] for r in resumed["rounds"]] == [r["plan"] for r in whole["rounds"]]
+
+
+def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path, monkeypatch):
+    run, calls = synthetic_trainer(TRUTH)
+    monkeypatch.setattr(A, "run_class_sweep", run)
+    state = A.run_answer(str(tmp_path), synthetic_setup(), 0.5, lambda: 0.0, log=lambda m: None)
+    assert len(calls) == 2 and state["stopped"].startswith("budget")  # the first round ran; the second would pass it
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--env", "dmc:cartpole-swingup", "--budget-minutes", "0"], "--budget-minutes must be > 0"),
+    (["--env", "dmc:cartpole-swingup", "--margin", "1.5"], "--margin must be in (0, 1)"),
+    (["--env", "dmc:cartpole-swingup", "--margin", "0"], "--margin must be in (0, 1)"),
+    (["--env", "dmc:cartpole-swingup", "--clusters", ""], "--clusters (the K ladder) is empty"),
+    (["--env", "no_such_task"], "unknown env 'no_such_task'"),
+    (["--env", "inverted_double_pendulum"], "'inverted_double_pendulum' has no MuJoCo C version"),
+    (["--env", "dmc:cartpole-swingup", "--looks", "10,5"], "--looks must be increasing"),
+])
+def test_bad_input_is_one_line_before_anything_compiles(argv, message, tmp_path, capsys):
+    from gsa_jax.answer import main
+
+    assert main(argv + ["--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err and err.startswith("gsa_jax.answer: error:")
+    assert not (tmp_path / "a").exists()
+
+
+def test_a_small_real_task_end_to_end(tmp_path):
+    """Two looks of K = 1, 2 against a target on InvertedDoublePendulum-v5 (a few iterations each): every run trained,
+    exported and scored in MuJoCo C; the verdicts follow from those scores; the report and the chosen controller
+    written; running the same command again changes nothing."""
+    from gsa_jax.answer import finish
+
+    spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, backend="c")}
+    setup = A.Setup("InvertedDoublePendulum-v5", (1, 2), 0.2, (2, 3), {"mlp": spec, "mixture": spec}, target=60.0)
+    out = str(tmp_path / "answer")
+    state = A.run_answer(out, setup, 1e9, lambda: 20.0, log=lambda m: None)
+    scores = A.collect_scores(out, setup)
+    assert set(scores) == {1, 2} and all(len(v) in (2, 3) for v in scores.values())
+    for k in (1, 2):
+        mix = [scores[k][s] for s in sorted(scores[k])]
+        expect = verdict.judge(mix, None, 20.0, 0.2, 2, target=60.0).verdict
+        assert state["judged"][str(k)]["verdict"] == expect
+    sentence = finish(out, setup, state, ["--env", "InvertedDoublePendulum-v5"])
+    assert sentence.startswith("InvertedDoublePendulum-v5:")
+    report = open(os.path.join(out, "report.md")).read()
+    assert "## Verdicts" in report and os.path.getsize(os.path.join(out, "score_vs_k.png")) > 5000
+    again = A.run_answer(out, setup, 1e9, lambda: 20.0, log=lambda m: None)
+    assert again["judged"] == state["judged"] and len(again["rounds"]) == len(state["rounds"])
