@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test sweep figures bench bench-quick profile profile-bench scene clean
+.PHONY: install demo test answer score sweep figures bench bench-quick profile profile-bench scene clean
 EXP ?= experiments/fig1_small/fig1_small.toml
 
 $(STAMP): pyproject.toml
@@ -37,6 +37,23 @@ demo: $(STAMP)
 ## the 15 slowest tests are listed at the end). One worker: $(BIN)/python -m pytest tests -m "not benchmark"
 test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q tests -m "not benchmark" -n auto --maxprocesses 4 --dist loadfile --durations=15
+
+## answer: how few linear controllers a task needs, decided with as many seeds as it takes (gsa_jax.answer;
+## make answer ENV=dmc:cartpole-swingup ARGS="--budget-minutes 60"); installs dm_control (the extra dmc) for dmc: tasks
+ENV ?= InvertedDoublePendulum-v5
+ARGS ?=
+DMC_STAMP := $(VENV)/.installed-dmc
+$(DMC_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install -q -e ".[test,deploy,dmc]"
+	touch $(DMC_STAMP)
+
+answer: $(DMC_STAMP)
+	$(BIN)/python -m gsa_jax.answer --env $(ENV) $(ARGS)
+
+## score: every committed controller under DIRS re-run in MuJoCo C from fixed start states (controller_scores.csv)
+DIRS ?= experiments/atlas_dmc/results experiments/fig1_v5/results
+score: $(DMC_STAMP)
+	$(BIN)/python -m gsa_jax.score $(DIRS)
 
 ## sweep: train an experiment's whole grid as vmapped programs (make sweep EXP=experiments/fig1/fig1.toml)
 sweep: $(STAMP)

@@ -16,6 +16,7 @@ import json
 import os
 
 from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.verdict import MARGINS
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
@@ -27,7 +28,11 @@ NO_ANSWER = {"dmc:fish-swim": "both within the upright term alone (up to 125)"} 
 
 def task_rows(final_csv, sufficient_csv, family):
     """One atlas row per task of a gsa_jax.plot output."""
-    finals, sufficient = read_csv(final_csv), {r["env"]: r for r in read_csv(sufficient_csv)}
+    by_margin = {}
+    for r in read_csv(sufficient_csv):  # one row per margin: the default's answers the table, the others beside it
+        by_margin.setdefault(r["env"], {})[float(r["margin"])] = r
+    finals = read_csv(final_csv)
+    sufficient = {env: next(r for r in rows.values() if r["default_margin"] == "1") for env, rows in by_margin.items()}
     randoms = {}
     if os.path.exists(random_json := os.path.join(os.path.dirname(final_csv), "random_returns.json")):
         with open(random_json) as f:
@@ -46,6 +51,10 @@ def task_rows(final_csv, sufficient_csv, family):
                      "p_best_gt_flat": best["p_better_than_flat_ppo"],
                      "p_ci_low": best["p_ci_low"], "p_ci_high": best["p_ci_high"],
                      "smallest_sufficient_K": s.get("smallest_sufficient_K", ""), "ks_tried": s.get("ks_tried", ""),
+                     "margin": s.get("margin", ""), "undecided_below": s.get("undecided_below", ""),
+                     "verdicts": s.get("verdicts", ""), "seeds": s.get("seeds", ""),
+                     **{f"smallest_sufficient_K_margin_{m:g}": by_margin.get(env, {}).get(m, {}).get("smallest_sufficient_K", "")
+                        for m in MARGINS},
                      "flat_training_return": flat["training_return_mean"],
                      "random_return": f"{randoms[env]:.3f}" if env in randoms else "",
                      "learned_by_neither": neither,
@@ -66,14 +75,18 @@ def published(rows):
 def markdown(rows):
     """The atlas table as Markdown (results/atlas.md)."""
     head = ["task", "d_a", "flat PPO IQM [95% CI]", "best mixture: K, IQM", "P(best > flat) [95% CI]",
-            "smallest sufficient K (K tried; no answer: why)", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
+            "smallest sufficient K, margin 0.1 (K tried; undecided: smaller K not decided; no answer: why)",
+            "at margins 0.05 / 0.2", "flat PPO training return (last 100 ep.)", "CleanRL PPO (published)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         low, high, p_low, p_high = r["flat_iqm_ci_low"], r["flat_iqm_ci_high"], r["p_ci_low"], r["p_ci_high"]
         lines.append("| " + " | ".join([
             r["task"], str(r["d_a"]), f"{float(r['flat_iqm']):,.0f} [{float(low):,.0f}, {float(high):,.0f}]",
             f"K = {r['best_K']}: {float(r['best_iqm']):,.0f}", f"{float(r['p_best_gt_flat']):.2f} [{p_low}, {p_high}]",
-            f"{r['smallest_sufficient_K'] or 'none'} ({r['ks_tried']})" + (f" no answer: {r['no_answer']}" if r["no_answer"] else ""),
+            f"{r['smallest_sufficient_K'] or 'none'} ({r['ks_tried']})"
+            + (f"; undecided: {r['undecided_below']}" if r["undecided_below"] else "")
+            + (f" no answer: {r['no_answer']}" if r["no_answer"] else ""),
+            f"{r['smallest_sufficient_K_margin_0.05'] or 'none'} / {r['smallest_sufficient_K_margin_0.2'] or 'none'}",
             f"{float(r['flat_training_return']):,.0f}",
             r.get("published_ppo", "")]) + " |")
     return "\n".join(lines) + "\n"
@@ -106,7 +119,8 @@ def draw_sufficient(b, rows):
     for r in [r for r in rows if not r["no_answer"]]:
         d_a, k, k_max = int(r["d_a"]), r["smallest_sufficient_K"], max(int(x) for x in r["ks_tried"].split())
         name = r["task"].removeprefix("dmc:") + ("" if k else f" (none of K = {r['ks_tried']})")
-        key = (d_a, int(k) if k else k_max * 1.6, "o" if k else "x", "tab:blue" if r["family"] == "dmc" else "tab:gray")
+        marker = ("o" if not r["undecided_below"] else "^") if k else ("$?$" if r["undecided_below"] else "x")
+        key = (d_a, int(k) if k else k_max * 1.6, marker, "tab:blue" if r["family"] == "dmc" else "tab:gray")
         points.setdefault(key, []).append(name)
     for (d_a, y, marker, color), names in points.items():
         v5 = color == "tab:gray"  # v5 hollow and on top, so a DMC point at the same place still shows
@@ -125,9 +139,10 @@ def draw_sufficient(b, rows):
     b.set_xscale("log"), b.set_yscale("log")
     b.set_xlim(0.25, 60)
     b.set_xlabel("action dimension d_a")
-    b.set_ylabel("smallest K on par with flat PPO")
+    b.set_ylabel("smallest sufficient K (within 0.1 of flat PPO's gain)")
     b.legend(fontsize=7)
-    b.set_title("How few linear controllers suffice?\n(x: none of the K tried; tasks with no answer left out)", fontsize=9)
+    b.set_title("How few linear controllers suffice? (triangle: a smaller K undecided;\nx: every K tried insufficient; ?: none sufficient, "
+                "some undecided; tasks with no answer left out)", fontsize=9)
 
 
 def plot(rows, path):

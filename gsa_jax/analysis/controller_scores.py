@@ -97,8 +97,8 @@ def is_current(row: dict, sha: str, episodes: int, start_seed: int) -> bool:
 
 def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int = START_SEED, log=print) -> dict:
     """Score every controllers/*.npz of one results directory that its controller_scores.csv does not hold
-    yet (or holds for another file, episode count or start seed) -> {label: row}; rows of controllers no
-    longer there are dropped."""
+    yet (or holds for another file, episode count or start seed) -> {label: row as stored}; rows of controllers
+    no longer there are dropped."""
     path = os.path.join(results_dir, FILE)
     stored = read_scores(path)
     files = sorted(glob.glob(os.path.join(results_dir, "controllers", "*.npz")))
@@ -118,9 +118,9 @@ def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int 
         if log:
             eta = (time.monotonic() - t0) / (i + 1) * (len(todo) - i - 1)
             log(f"  {results_dir}: {i + 1}/{len(todo)} {row['label']}: {row['controller_score']:.1f} (ETA {eta:.0f} s)")
-    if rows != stored:
+    if set(rows) != set(stored) or todo:
         write_scores(path, rows)
-    return rows
+    return read_scores(path)  # as stored: strings, as a later read gives them
 
 
 def label_scores(roots) -> dict:

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Every committed controller of Figure 1 on v5 and the atlas re-run in MuJoCo C from fixed start states (gsa_jax.score,
+# controller_scores.csv), then every table regenerated from those scores with the verdicts (gsa_jax.plot), the atlas
+# table and the re-judged answers. Run from the repository root:  bash experiments/verdicts/regenerate.sh
+set -euo pipefail
+py=.venv/bin/python
+v5=experiments/fig1_v5/results
+$py -m gsa_jax.score experiments/atlas_dmc/results $v5
+for d in experiments/atlas_dmc/results/*/; do
+  if [ -d "$d/flat_ppo" ]; then $py -m gsa_jax.plot "$d/flat_ppo" "$d/mixture" --out "$d"; fi
+done
+for t in InvertedDoublePendulum-v5 Hopper-v5 HalfCheetah-v5; do $py -m gsa_jax.plot $v5/fig1_v5_$t; done
+for t in Walker2d-v5 Ant-v5; do $py -m gsa_jax.plot $v5/fig1_v5_${t}_seeds_0_4 $v5/fig1_v5_${t}_seeds_5_9 --out $v5/fig1_v5_$t; done
+$py -m gsa_jax.plot $v5/fig1_v5_InvertedDoublePendulum-v5 $v5/fig1_v5_Hopper-v5 $v5/fig1_v5_HalfCheetah-v5 \
+  $v5/fig1_v5_Walker2d-v5_seeds_0_4 $v5/fig1_v5_Walker2d-v5_seeds_5_9 $v5/fig1_v5_Ant-v5_seeds_0_4 $v5/fig1_v5_Ant-v5_seeds_5_9 \
+  --out $v5/merged
+$py experiments/atlas_dmc/atlas.py > /dev/null
+$py experiments/verdicts/rejudge.py

@@ -1,0 +1,111 @@
+"""The published answers re-judged: `.venv/bin/python experiments/verdicts/rejudge.py` (after regenerate.sh).
+
+Reads the answers of the P-interval criterion (results/p_interval_criterion.csv: the smallest K whose P(mixture run >
+flat PPO run) 95% interval reaches 0.5, on the mean of each run's last three training-time evaluations; read from the
+sufficient_k.csv files at commit 39094e8) and the verdicts that gsa_jax.plot now writes (sufficient_k.csv per margin,
+on the committed controllers' MuJoCo C scores), and per run both scores (per_run_scores.csv). Writes
+results/rejudged.csv and results/rejudged.md: per task the old answer, the new smallest sufficient K at margins
+0.05 / 0.1 / 0.2, the smaller K still undecided, the verdict of every K, and what happened to the answer at 0.1
+(held, moved, undecided, no answer); and results/score_change.csv: per task how far the controller score lies from
+the training-time evaluation average.
+"""
+
+import os
+from collections import Counter
+
+import numpy as np
+
+from gsa_jax.analysis.results import read_csv, write_csv
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.join(HERE, "..")
+TASK_DIRS = {"dmc": os.path.join(ROOT, "atlas_dmc", "results"), "v5": os.path.join(ROOT, "fig1_v5", "results", "merged")}
+
+
+def new_answers():
+    """{(family, env): {margin: sufficient_k row}} from the regenerated tables."""
+    out = {}
+    paths = [("v5", os.path.join(TASK_DIRS["v5"], "sufficient_k.csv"))]
+    paths += [("dmc", os.path.join(TASK_DIRS["dmc"], t, "sufficient_k.csv")) for t in sorted(os.listdir(TASK_DIRS["dmc"]))]
+    for family, path in paths:
+        for r in read_csv(path):
+            out.setdefault((family, r["env"]), {})[float(r["margin"])] = r
+    return out
+
+
+def status(old, new, undecided, no_answer):
+    """What happened to a task's answer at the default margin."""
+    if no_answer:
+        return "no answer"
+    if new and new == old:
+        return "held" + (" (a smaller K undecided)" if undecided else "")
+    if new and old:
+        return "moved"
+    if new:
+        return "moved (was none)"
+    if undecided:
+        return "undecided"
+    return "none sufficient" + (f" (was K = {old})" if old else " (held)")
+
+
+def rejudged_rows():
+    old = {(r["family"], r["env"]): r for r in read_csv(os.path.join(HERE, "results", "p_interval_criterion.csv"))}
+    no_answer = {r["task"]: r["no_answer"] for r in read_csv(os.path.join(ROOT, "atlas_dmc", "results", "atlas.csv"))}
+    rows = []
+    for (family, env), by_margin in sorted(new_answers().items()):
+        d = by_margin[0.1]
+        verdicts = dict(v.split(":") for v in d["verdicts"].split())
+        why = no_answer.get(env, "") or ("flat PPO not above a random policy" if "no answer" in verdicts.values() else "")
+        o = old.get((family, env), {}).get("smallest_sufficient_K", "")
+        rows.append({"family": family, "env": env, "ks_tried": d["ks_tried"], "p_interval_K": o,
+                     "K_margin_0.05": by_margin[0.05]["smallest_sufficient_K"], "K_margin_0.1": d["smallest_sufficient_K"],
+                     "K_margin_0.2": by_margin[0.2]["smallest_sufficient_K"], "undecided_below_0.1": d["undecided_below"],
+                     "verdicts_0.1": d["verdicts"], "seeds": d["seeds"], "no_answer": why,
+                     "status": status(o, d["smallest_sufficient_K"], d["undecided_below"], why)})
+    return rows
+
+
+def score_change_rows():
+    """Per task: the controller score against the training-time evaluation average, run by run."""
+    rows = []
+    dirs = [("v5", TASK_DIRS["v5"])] + [("dmc", os.path.join(TASK_DIRS["dmc"], t)) for t in sorted(os.listdir(TASK_DIRS["dmc"]))]
+    for family, d in dirs:
+        runs = [r for r in read_csv(os.path.join(d, "per_run_scores.csv")) if r.get("controller_score", "") != ""]
+        for env in dict.fromkeys(r["env"] for r in runs):
+            c = np.array([float(r["controller_score"]) for r in runs if r["env"] == env])
+            f = np.array([float(r["final_score"]) for r in runs if r["env"] == env])
+            last = np.array([float(r["last_eval_return"]) for r in runs if r["env"] == env])
+            scale = np.maximum(np.abs(f), 1.0)
+            rows.append({"family": family, "env": env, "runs": len(c),
+                         "median_abs_rel_diff_to_final_score": round(float(np.median(np.abs(c - f) / scale)), 4),
+                         "max_abs_rel_diff_to_final_score": round(float(np.max(np.abs(c - f) / scale)), 4),
+                         "median_abs_rel_diff_to_last_eval": round(float(np.median(np.abs(c - last) / np.maximum(np.abs(last), 1.0))), 4),
+                         "max_abs_rel_diff_to_last_eval": round(float(np.max(np.abs(c - last) / np.maximum(np.abs(last), 1.0))), 4)})
+    return rows
+
+
+def markdown(rows):
+    head = ["family", "task", "K tried", "P-interval criterion", "margin 0.05", "margin 0.1", "margin 0.2",
+            "undecided below (0.1)", "verdicts at 0.1 (K:verdict)", "at 0.1"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        lines.append("| " + " | ".join([r["family"], r["env"], r["ks_tried"], r["p_interval_K"] or "none",
+                                        r["K_margin_0.05"] or "none", r["K_margin_0.1"] or "none", r["K_margin_0.2"] or "none",
+                                        r["undecided_below_0.1"], r["verdicts_0.1"],
+                                        r["status"] + (f": {r['no_answer']}" if r["no_answer"] else "")]) + " |")
+    counts = Counter(r["status"].split(" (")[0] for r in rows)
+    lines += ["", "At margin 0.1: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + f" (of {len(rows)} tasks)."]
+    return "\n".join(lines) + "\n"
+
+
+def main():
+    rows = rejudged_rows()
+    write_csv(os.path.join(HERE, "results", "rejudged.csv"), rows)
+    with open(os.path.join(HERE, "results", "rejudged.md"), "w") as f:
+        f.write(markdown(rows))
+    write_csv(os.path.join(HERE, "results", "score_change.csv"), score_change_rows())
+    print(markdown(rows))
+
+
+if __name__ == "__main__":
+    main()
