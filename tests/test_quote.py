@@ -87,6 +87,13 @@ def test_a_value_with_spaces_is_quoted(tmp_path):
     assert quote.main([str(page)]) == 0 and "-->1.07 [0.98, 1.16]<!-- /quote -->" in page.read_text()
 
 
+def test_median_of_the_matching_rows(tmp_path):
+    (tmp_path / "t.csv").write_text("env,x\na,1\na,5\na,2\nb,100\n")
+    page = tmp_path / "README.md"
+    page.write_text('<!-- quote median t.csv env=a col=x -->?<!-- /quote --> <!-- quote median t.csv col=x digits=1 -->?<!-- /quote -->')
+    assert quote.main([str(page)]) == 0 and page.read_text().count("-->2<!--") == 1 and "-->3.5<!--" in page.read_text()
+
+
 def test_spread_is_mean_and_population_std_over_seeds(results):
     page = results / "README.md"
     page.write_text("<!-- quote spread results/per_run_scores.csv policy=mixture K=3 "

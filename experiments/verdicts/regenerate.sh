@@ -5,7 +5,8 @@
 set -euo pipefail
 py=.venv/bin/python
 v5=experiments/fig1_v5/results
-$py -m gsa_jax.score experiments/atlas_dmc/results $v5
+checks=experiments/atlas_dmc/checks/results/quadruped-walk_mixture_figure1_settings
+$py -m gsa_jax.score experiments/atlas_dmc/results $v5 $checks
 for d in experiments/atlas_dmc/results/*/; do
   if [ -d "$d/flat_ppo" ]; then $py -m gsa_jax.plot "$d/flat_ppo" "$d/mixture" --out "$d"; fi
 done
@@ -14,5 +15,6 @@ for t in Walker2d-v5 Ant-v5; do $py -m gsa_jax.plot $v5/fig1_v5_${t}_seeds_0_4 $
 $py -m gsa_jax.plot $v5/fig1_v5_InvertedDoublePendulum-v5 $v5/fig1_v5_Hopper-v5 $v5/fig1_v5_HalfCheetah-v5 \
   $v5/fig1_v5_Walker2d-v5_seeds_0_4 $v5/fig1_v5_Walker2d-v5_seeds_5_9 $v5/fig1_v5_Ant-v5_seeds_0_4 $v5/fig1_v5_Ant-v5_seeds_5_9 \
   --out $v5/merged
+$py -m gsa_jax.plot experiments/atlas_dmc/results/quadruped-walk/flat_ppo $checks/mixture --out $checks
 $py experiments/atlas_dmc/atlas.py > /dev/null
 $py experiments/verdicts/rejudge.py

@@ -7,7 +7,8 @@ on the committed controllers' MuJoCo C scores), and per run both scores (per_run
 results/rejudged.csv and results/rejudged.md: per task the old answer, the new smallest sufficient K at margins
 0.05 / 0.1 / 0.2, the smaller K still undecided, the verdict of every K, and what happened to the answer at 0.1
 (held, moved, undecided, no answer); and results/score_change.csv: per task how far the controller score lies from
-the training-time evaluation average.
+the training-time evaluation average; and results/episode_noise.csv: per cell the episode noise of a controller's
+score beside the spread over seeds, and flat PPO's interquartile range over seeds as a share of its gain.
 """
 
 import os
@@ -84,6 +85,38 @@ def score_change_rows():
     return rows
 
 
+def noise_rows():
+    """Per task and policy class: the episode noise of a controller's score (its 10 episodes' standard deviation over
+    sqrt(10), median over the cell's controllers) beside the spread of the scores over seeds (standard deviation), and
+    flat PPO's interquartile range over seeds as a share of its gain over a random policy."""
+    import glob
+    import json
+
+    from gsa_jax.analysis.verdict import iqm
+
+    rows = []
+    for d in [os.path.join(ROOT, "fig1_v5", "results", n) for n in sorted(os.listdir(os.path.join(ROOT, "fig1_v5", "results")))
+              if n.startswith("fig1_v5_") and "seeds" not in n] + [os.path.join(TASK_DIRS["dmc"], t) for t in sorted(os.listdir(TASK_DIRS["dmc"]))]:
+        scored = [r for p in glob.glob(os.path.join(os.path.dirname(d), os.path.basename(d) + "*", "**", "controller_scores.csv"),
+                                       recursive=True) for r in read_csv(p)]
+        randoms = {}
+        for p in glob.glob(os.path.join(d, "random_returns.json")):
+            with open(p) as f:
+                randoms = json.load(f)
+        for (env, policy, k) in dict.fromkeys((r["env"], r["policy"], r["K"]) for r in scored):
+            cell = [r for r in scored if (r["env"], r["policy"], r["K"]) == (env, policy, k)]
+            scores = np.array([float(r["controller_score"]) for r in cell])
+            noise = np.median([float(r["episode_std"]) / np.sqrt(float(r["episodes"])) for r in cell])
+            row = {"env": env, "policy": policy, "K": k, "controllers": len(cell), "median_episode_noise": round(float(noise), 3),
+                   "seed_std": round(float(np.std(scores, ddof=1)), 3), "noise_over_seed_std": round(float(noise / max(np.std(scores, ddof=1), 1e-9)), 4)}
+            if policy == "mlp" and env in randoms:
+                gain = float(iqm(scores)) - randoms[env]
+                q75, q25 = np.percentile(scores, [75, 25])
+                row["flat_iqr_over_gain"] = round(float((q75 - q25) / gain), 4) if gain > 0 else ""
+            rows.append(row)
+    return rows
+
+
 def markdown(rows):
     head = ["family", "task", "K tried", "P-interval criterion", "margin 0.05", "margin 0.1", "margin 0.2",
             "undecided below (0.1)", "verdicts at 0.1 (K:verdict)", "at 0.1"]
@@ -104,6 +137,7 @@ def main():
     with open(os.path.join(HERE, "results", "rejudged.md"), "w") as f:
         f.write(markdown(rows))
     write_csv(os.path.join(HERE, "results", "score_change.csv"), score_change_rows())
+    write_csv(os.path.join(HERE, "results", "episode_noise.csv"), noise_rows())
     print(markdown(rows))
 
 

@@ -8,7 +8,7 @@ value "a,b" matches either; quote a value with spaces: config="K = 0.5 d_a"). KI
   value      one row's `col` (exactly one row must match); with pm=COLUMN "col ± pm", with ci=LOW,HIGH
              "col [low, high]"
   scores     every row's `col`, ascending (order=file: as the rows come), joined by " / "
-  range      "min-max" of the rows' `col`          min, max: one end
+  range      "min-max" of the rows' `col`          min, max: one end; median: the rows' median
   spread     "mean ± std" over the rows' `col` (std with ddof 0, as CleanRL's tables give it)
   table      the rows of a final_returns.csv as Figure 1's Markdown table (a block: put the markers on
              their own lines)
@@ -178,9 +178,9 @@ def render(args, page_dir):
         return " / ".join(fmt(x, digits) for x in ordered)
     if not finite:
         raise QuoteError(f"{path}: no finite value in the matching rows")
-    if kind in ("range", "min", "max"):
+    if kind in ("range", "min", "max", "median"):
         ends = {"range": f"{fmt(finite[0], digits)}-{fmt(finite[-1], digits)}", "min": fmt(finite[0], digits),
-                "max": fmt(finite[-1], digits)}
+                "max": fmt(finite[-1], digits), "median": fmt(float(np.median(finite)), digits)}
         return ends[kind]
     if kind == "spread":
         mean = sum(finite) / len(finite)
