@@ -73,7 +73,7 @@ def test_table_half_widths_under_ten_keep_a_decimal():
 def test_a_quote_that_matches_nothing_or_names_no_file_is_an_error(results, capsys):
     page = results / "README.md"
     for span in ("value results/per_run_scores.csv policy=mlp", "min results/per_run_scores.csv env=Ant-v5",
-                 "scores results/missing.csv", "min results/per_run_scores.csv col=nope", "median results/per_run_scores.csv"):
+                 "scores results/missing.csv", "min results/per_run_scores.csv col=nope", "mean results/per_run_scores.csv"):
         page.write_text(f"<!-- quote {span} -->x<!-- /quote -->")
         assert quote.main([str(page)]) == 2
         assert capsys.readouterr().err.startswith("gsa_jax.analysis.quote: error: ")
@@ -92,6 +92,14 @@ def test_median_of_the_matching_rows(tmp_path):
     page = tmp_path / "README.md"
     page.write_text('<!-- quote median t.csv env=a col=x -->?<!-- /quote --> <!-- quote median t.csv col=x digits=1 -->?<!-- /quote -->')
     assert quote.main([str(page)]) == 0 and page.read_text().count("-->2<!--") == 1 and "-->3.5<!--" in page.read_text()
+
+
+def test_text_of_one_row(tmp_path):
+    (tmp_path / "s.csv").write_text("env,margin,smallest_sufficient_K,undecided_below\na,0.1,2,1\na,0.2,,\n")
+    page = tmp_path / "README.md"
+    page.write_text('<!-- quote text s.csv margin=0.1 col=smallest_sufficient_K -->?<!-- /quote --> '
+                    '<!-- quote text s.csv margin=0.2 col=undecided_below -->?<!-- /quote -->')
+    assert quote.main([str(page)]) == 0 and "-->2<!--" in page.read_text() and "-->none<!--" in page.read_text()
 
 
 def test_spread_is_mean_and_population_std_over_seeds(results):

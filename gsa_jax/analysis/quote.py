@@ -7,6 +7,7 @@ aggregate.csv, ... as gsa_jax.plot writes them), over the rows whose columns equ
 value "a,b" matches either; quote a value with spaces: config="K = 0.5 d_a"). KIND:
   value      one row's `col` (exactly one row must match); with pm=COLUMN "col ± pm", with ci=LOW,HIGH
              "col [low, high]"
+  text       one row's `col` as written, 'none' where empty (a verdict, a list of K)
   scores     every row's `col`, ascending (order=file: as the rows come), joined by " / "
   range      "min-max" of the rows' `col`          min, max: one end; median: the rows' median
   spread     "mean ± std" over the rows' `col` (std with ddof 0, as CleanRL's tables give it)
@@ -165,6 +166,11 @@ def render(args, page_dir):
         if not rows:
             raise QuoteError(f"{path}: no row matches")
         return "\n\n" + (cell_table(rows) if kind == "table" else aggregate_table(rows)) + "\n\n"
+    if kind == "text":  # one row's column as it is written ('none' where empty): verdicts, K lists
+        col = options.get("col", "final_score")
+        if len(rows) != 1 or col not in rows[0]:
+            raise QuoteError(f"'quote {args}': {len(rows)} rows match, not one" if len(rows) != 1 else f"{path} has no column {col!r}")
+        return rows[0][col] or "none"
     xs = values(rows, options.get("col", "final_score"), path)
     if kind == "value":
         if len(xs) != 1:
