@@ -47,10 +47,9 @@ def synthetic_setup():
 TRUTH = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (940.0, 120.0), 4: (1000.0, 5.0)}
 
 
-def test_seeds_go_only_to_undecided_cells(tmp_path, monkeypatch):
+def test_seeds_go_only_to_undecided_cells(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
-    monkeypatch.setattr(A, "run_class_sweep", run)
-    state = A.run_answer(str(tmp_path), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+    state = A.run_answer(str(tmp_path), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None, train=run)
     assert calls[0][1:] == ([], [0, 1, 2, 3]) and calls[1][1:] == ([1, 2, 4], [0, 1, 2, 3])  # the first look: every cell
     for r in state["rounds"][1:]:
         before = r["verdicts_before"]
@@ -63,31 +62,27 @@ def test_seeds_go_only_to_undecided_cells(tmp_path, monkeypatch):
     assert state["stopped"] == "decided" or state["stopped"].startswith("seed cap")
 
 
-def test_a_stopped_answer_resumes_to_the_same_result(tmp_path, monkeypatch):
+def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
     run, _ = synthetic_trainer(TRUTH)
-    monkeypatch.setattr(A, "run_class_sweep", run)
-    whole = A.run_answer(str(tmp_path / "whole"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+    whole = A.run_answer(str(tmp_path / "whole"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None, train=run)
 
     def interrupted(out, name, spec, log):  # the second round's mixture sweep is killed
         if name == "round2-mixture":
             raise KeyboardInterrupt
         return run(out, name, spec, log)
 
-    monkeypatch.setattr(A, "run_class_sweep", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+        A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None, train=interrupted)
     saved = json.loads((tmp_path / "stopped" / A.STATE).read_text())
     assert saved["rounds"][-1]["status"] == "running" and "mlp" in saved["rounds"][-1]["sweeps"]
-    monkeypatch.setattr(A, "run_class_sweep", run)
-    resumed = A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None)
+    resumed = A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, lambda: 0.0, log=lambda m: None, train=run)
     assert resumed["judged"] == whole["judged"] and resumed["stopped"] == whole["stopped"]
     assert [r["plan"] for r in resumed["rounds"]] == [r["plan"] for r in whole["rounds"]]
 
 
-def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path, monkeypatch):
+def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
-    monkeypatch.setattr(A, "run_class_sweep", run)
-    state = A.run_answer(str(tmp_path), synthetic_setup(), 0.5, lambda: 0.0, log=lambda m: None)
+    state = A.run_answer(str(tmp_path), synthetic_setup(), 0.5, lambda: 0.0, log=lambda m: None, train=run)
     assert len(calls) == 2 and state["stopped"].startswith("budget")  # the first round ran; the second would pass it
 
 

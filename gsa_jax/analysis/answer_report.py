@@ -55,14 +55,17 @@ def plot_answer(setup, scores: dict, random_return: float, path: str, flat_key="
         ax.errorbar(i, verdict.iqm(x), yerr=[[verdict.iqm(x) - lo], [hi - verdict.iqm(x)]], fmt="o", color="tab:blue",
                     capsize=4, label="mixture: IQM (95% CI), dots = seeds" if i == 0 else None)
     if setup.target is None and scores.get(flat_key):
-        ref = float(verdict.iqm([scores[flat_key][s] for s in scores[flat_key]]))
-        ax.axhline(ref, color="k", lw=1.5, label=f"flat PPO IQM ({len(scores[flat_key])} seeds)")
+        flat = np.array([scores[flat_key][s] for s in sorted(scores[flat_key])])
+        ref = float(verdict.iqm(flat))
+        ax.scatter(np.full(len(flat), -1) + rng.uniform(-0.12, 0.12, len(flat)), flat, s=10, color="k", alpha=0.5)
+        ax.axhline(ref, color="k", lw=1.5, label=f"flat PPO IQM ({len(flat)} seeds; dots at the left)")
     else:
         ref = float(setup.target)
         ax.axhline(ref, color="k", lw=1.5, label=f"target {ref:g}")
     ax.axhline(ref - setup.margin * (ref - random_return), color="tab:red", ls="--",
                label=f"margin: {setup.margin:g} of the gain over a random policy ({random_return:.0f})")
-    ax.set_xticks(range(len(ks)), [str(k) for k in ks])
+    flat_tick = setup.target is None and bool(scores.get(flat_key))
+    ax.set_xticks(([-1] if flat_tick else []) + list(range(len(ks))), (["flat PPO"] if flat_tick else []) + [str(k) for k in ks])
     ax.set(xlabel="K (linear controllers)", ylabel="controller score (MuJoCo C, fixed starts)", title=setup.env)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
@@ -135,6 +138,8 @@ def write_report(out: str, setup, state: dict, scores: dict, rows: list, sentenc
     plot_answer(setup, scores, state["random_return"], os.path.join(out, "score_vs_k.png"))
     write_csv_rows(os.path.join(out, "verdicts.csv"), rows)
     rounds, share = rounds_text(state)
+    if not state["rounds"]:
+        rounds, share = "No round trained: every cell was judged on the runs of --start-from.", None
     versus = "flat PPO" if setup.target is None else f"the target score {setup.target:g}"
     seeds = ", ".join(f"{'flat PPO' if k == 'flat' else 'K = ' + str(k)}: {len(v)}" for k, v in scores.items())
     lines = [f"# How many linear controllers does {setup.env} need?", "", f"**{sentence}**", "",
@@ -152,7 +157,9 @@ def write_report(out: str, setup, state: dict, scores: dict, rows: list, sentenc
              f"![score against K](score_vs_k.png)", "", "## Verdicts", "",
              table_text(rows), "",
              "Other margins are judged once on the same seeds (the seeds were added for the answer's margin, bold).", "",
-             "## Rounds", "", rounds, "", f"Compiling or loading programs: {share:.0%} of the training time.", ""]
+             "## Rounds", "", rounds, ""]
+    if share is not None:
+        lines += [f"Compiling or loading programs: {share:.0%} of the training time.", ""]
     if choice:
         lines += ["## The chosen controller", "",
                   f"K = {choice.get('K')}, seed {choice['seed']} (the best of its seeds: {choice['score']:.1f}), from "

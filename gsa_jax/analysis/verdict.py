@@ -145,4 +145,5 @@ def sentence(task: str, verdicts: dict, margin: float, versus: str) -> str:
         return f"{task}: no K of {sorted(verdicts)} is within {pct} of {versus} (all shown insufficient)."
     tail = (f"; smaller K = {', '.join(map(str, below))} undecided" if below
             else ("; every smaller K shown insufficient" if chosen != min(verdicts) else ""))
-    return f"{task}: K = {chosen} linear controllers suffice (shown within {pct} of {versus}){tail}."
+    verb = "controller suffices" if chosen == 1 else "controllers suffice"
+    return f"{task}: K = {chosen} linear {verb} (shown within {pct} of {versus}){tail}."

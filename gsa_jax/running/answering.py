@@ -225,8 +225,10 @@ def plan_round(setup: Setup, scores: dict, ks: list, look: int) -> dict:
     return plan
 
 
-def run_round(out: str, setup: Setup, state: dict, plan: dict, log, verdicts_before=None) -> dict:
-    """Train a planned round (flat PPO first), recording it in the state before and after."""
+def run_round(out: str, setup: Setup, state: dict, plan: dict, log, verdicts_before=None, train=None) -> dict:
+    """Train a planned round (flat PPO first), recording it in the state before and after. train(out, name, spec,
+    log): what trains one class's sweep and scores its controllers (default run_class_sweep)."""
+    train = train or run_class_sweep
     index = len([r for r in state["rounds"] if r["status"] == "done"]) + 1
     if not state["rounds"] or state["rounds"][-1]["status"] == "done":
         state["rounds"].append({"round": index, "plan": {p: [ks, seeds] for p, (ks, seeds) in plan.items()},
@@ -238,7 +240,7 @@ def run_round(out: str, setup: Setup, state: dict, plan: dict, log, verdicts_bef
             continue
         ks, seeds = record["plan"][policy]
         name = f"round{record['round']}-{'flat_ppo' if policy == 'mlp' else 'mixture'}"
-        record["sweeps"][policy] = run_class_sweep(out, name, sweep_spec(setup, policy, ks, seeds, name), log)
+        record["sweeps"][policy] = train(out, name, sweep_spec(setup, policy, ks, seeds, name), log)
         save_state(out, state)
     record["status"] = "done"
     save_state(out, state)
@@ -286,10 +288,10 @@ def decide_next(setup: Setup, state: dict, out: str, random_return: float):
     return judged, plan_round(setup, scores, ks, look), None
 
 
-def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print) -> dict:
+def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print, train=None) -> dict:
     """The answer loop (resumable): rounds until the smallest sufficient K is decided, the seed cap or the budget
     -> the final state (with 'judged' and 'stopped'). random_return: a function measuring the random policy's
-    return (called once; the state keeps it)."""
+    return (called once; the state keeps it); train: see run_round."""
     os.makedirs(out, exist_ok=True)
     state = load_state(out, setup)
     if "random_return" not in state:
@@ -301,7 +303,7 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print
     while True:
         if state["rounds"] and state["rounds"][-1]["status"] == "running":
             log(f"answer: resuming round {state['rounds'][-1]['round']}")
-            run_round(out, setup, state, None, log)
+            run_round(out, setup, state, None, log, train=train)
         judged, plan, stop = decide_next(setup, state, out, state["random_return"])
         state["elapsed_s"] = round(before + time.monotonic() - t0, 1)
         eta = round_eta(state, plan) if plan else 0.0
@@ -313,7 +315,7 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print
             save_state(out, state)
             return state
         save_state(out, state)
-        run_round(out, setup, state, plan, log, {str(k): r["verdict"] for k, r in judged.items()})
+        run_round(out, setup, state, plan, log, {str(k): r["verdict"] for k, r in judged.items()}, train)
 
 
 def controller_dirs_of(roots) -> list:
