@@ -8,7 +8,8 @@ results/rejudged.csv and results/rejudged.md: per task the old answer, the new s
 0.05 / 0.1 / 0.2, the smaller K still undecided, the verdict of every K, and what happened to the answer at 0.1
 (held, moved, undecided, no answer); and results/score_change.csv: per task how far the controller score lies from
 the training-time evaluation average; and results/episode_noise.csv: per cell the episode noise of a controller's
-score beside the spread over seeds, and flat PPO's interquartile range over seeds as a share of its gain.
+score beside the spread over seeds, and flat PPO's interquartile range over seeds as a share of its gain; and
+results/answers.csv: the committed answers of gsa_jax.answer (answers/<task>/).
 """
 
 import os
@@ -117,6 +118,31 @@ def noise_rows():
     return rows
 
 
+def answer_rows():
+    """Per committed answer (answers/<task>/answer.json): the answer at its margin, why it stopped, the verdicts,
+    the seeds per cell and the rounds' minutes."""
+    import glob
+    import json
+
+    from gsa_jax.analysis import verdict
+
+    rows = []
+    for path in sorted(glob.glob(os.path.join(HERE, "answers", "*", "answer.json"))):
+        with open(path) as f:
+            state = json.load(f)
+        setup, judged = state["setup"], state["judged"]
+        verdicts = {int(k): r["verdict"] for k, r in judged.items()}
+        minutes = sum(sw["seconds"] for r in state["rounds"] for sw in r["sweeps"].values()) / 60
+        compile_min = sum(sw["compile_s"] for r in state["rounds"] for sw in r["sweeps"].values()) / 60
+        rows.append({"env": setup["env"], "margin": setup["margin"], "looks": " ".join(map(str, setup["looks"])),
+                     "answer": verdict.sentence(setup["env"], verdicts, setup["margin"], "flat PPO"),
+                     "stopped": state["stopped"], "verdicts": " ".join(f"{k}:{v}" for k, v in sorted(verdicts.items())),
+                     "seeds": " ".join(f"{k}:{judged[str(k)].get('seeds', judged[str(k)].get('n'))}" for k in sorted(verdicts)),
+                     "rounds": len(state["rounds"]), "training_minutes": round(minutes, 1),
+                     "compile_share": round(compile_min / minutes, 3) if minutes else ""})
+    return rows
+
+
 def markdown(rows):
     head = ["family", "task", "K tried", "P-interval criterion", "margin 0.05", "margin 0.1", "margin 0.2",
             "undecided below (0.1)", "verdicts at 0.1 (K:verdict)", "at 0.1"]
@@ -138,6 +164,7 @@ def main():
         f.write(markdown(rows))
     write_csv(os.path.join(HERE, "results", "score_change.csv"), score_change_rows())
     write_csv(os.path.join(HERE, "results", "episode_noise.csv"), noise_rows())
+    write_csv(os.path.join(HERE, "results", "answers.csv"), answer_rows())
     print(markdown(rows))
 
 
