@@ -152,9 +152,13 @@ def markdown(rows):
                                         r["K_margin_0.05"] or "none", r["K_margin_0.1"] or "none", r["K_margin_0.2"] or "none",
                                         r["undecided_below_0.1"], r["verdicts_0.1"],
                                         r["status"] + (f": {r['no_answer']}" if r["no_answer"] else "")]) + " |")
+    return "\n".join(lines + ["", summary(rows)]) + "\n"
+
+
+def summary(rows):
+    """One line: how many answers held, moved, became undecided, gave no answer at margin 0.1."""
     counts = Counter(r["status"].split(" (")[0] for r in rows)
-    lines += ["", "At margin 0.1: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + f" (of {len(rows)} tasks)."]
-    return "\n".join(lines) + "\n"
+    return "At margin 0.1: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + f" (of {len(rows)} tasks)."
 
 
 def main():
@@ -162,6 +166,7 @@ def main():
     write_csv(os.path.join(HERE, "results", "rejudged.csv"), rows)
     with open(os.path.join(HERE, "results", "rejudged.md"), "w") as f:
         f.write(markdown(rows))
+    write_csv(os.path.join(HERE, "results", "rejudged_summary.csv"), [{"summary": summary(rows)}])
     write_csv(os.path.join(HERE, "results", "score_change.csv"), score_change_rows())
     write_csv(os.path.join(HERE, "results", "episode_noise.csv"), noise_rows())
     write_csv(os.path.join(HERE, "results", "answers.csv"), answer_rows())
