@@ -228,6 +228,17 @@ def action_size(name) -> int:
     return int(task_model(name).nu)
 
 
+def observation_size(name) -> int:
+    """Observation values of task `name` as its definition is now (a task definition's observe(); else the length of
+    its observation layout)."""
+    from envs.registry import Definition
+
+    record = task_record(name)
+    if isinstance(record, Definition):
+        return int(record.task().observation_size)
+    return len(record.observation_layout())
+
+
 def action_bounds(name, size=None):
     """(low [d_a], high [d_a]) float32: the bounds of task `name`'s d_a actions (ACTION_RANGE for each); size: d_a
     (default: action_size(name), read from the MJCF). A task with ctrl_range 'model' maps these actions onto its

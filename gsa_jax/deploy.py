@@ -22,7 +22,7 @@ def deploy(args):
     """Every requested simulator's summary, printed as it completes."""
     if args.episodes < 1:
         raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
-    ctrl, env_name, config = load_controller(args.controller)
+    ctrl, env_name, config = load_controller(args.controller, args.force)
     result = {"env": env_name, "controller": args.controller}
     if has_mujoco_c(env_name) or not (args.gymnasium or args.compare_mjx):  # else: the others only
         result["mujoco_c"] = run_mujoco_c(ctrl, env_name, config, args.episodes, args.episode_length, args.seed)
@@ -46,6 +46,9 @@ def main(argv=None):
                    help="also run it in gymnasium's own task, e.g. Hopper-v5 (needs the deploy extra)")
     p.add_argument("--compare-mjx", default=None, metavar="RUN_DIR", help="also roll out the run's controller in MJX")
     p.add_argument("--out", default=None, help="write the results as JSON")
+    p.add_argument("--force", action="store_true",
+                   help="run a controller whose task's definition changed since it was trained, or that names another "
+                        "task, where the observation sizes agree")
     args = p.parse_args(argv)
     try:
         result = deploy(args)

@@ -23,19 +23,26 @@ def summarize(returns, lengths):
             "returns": [round(float(x), 3) for x in r]}
 
 
-def load_controller(controller_path):
-    """(NumPy controller, its task name, its config) of an exported controller file."""
+def load_controller(controller_path, force=False):
+    """(NumPy controller, its task name, its config) of an exported controller file; DeployError (one line) where it
+    does not fit its task's definition as it is now (numpy_policy.check_task; force: only its observation size)."""
     if not os.path.exists(controller_path):
         raise DeployError(f"{controller_path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
     if not zipfile.is_zipfile(controller_path):
         raise DeployError(f"{controller_path!r} is not an exported controller (not an .npz archive)")
     try:
-        ctrl = numpy_policy.load(controller_path)
         with np.load(controller_path, allow_pickle=False) as f:
-            meta = json.loads(str(f["config_json"]))
+            arrays = {k: f[k] for k in f.files}
+        ctrl = numpy_policy.Controller(arrays, name=str(controller_path))
+        config = json.loads(str(arrays["config_json"]))["config"]
     except (OSError, KeyError, ValueError) as e:
         raise DeployError(f"{controller_path!r} is not an exported controller ({e})") from None
-    return ctrl, meta["config"]["env"], meta["config"]
+    if has_mujoco_c(config["env"]):  # a task MuJoCo C steps: its definition is read without JAX
+        try:
+            numpy_policy.check_task(arrays, config["env"], force, name=str(controller_path))
+        except numpy_policy.TaskMismatch as e:
+            raise DeployError(str(e)) from None
+    return ctrl, config["env"], config
 
 
 def has_mujoco_c(env_name):

@@ -24,7 +24,16 @@ def with_bounds(arrays, source):
     if bounds is None:
         raise ExportError(f"{source!r} names no known task ({task_name(arrays)!r}), so no action bounds to export")
     arrays = {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
-    return {**arrays, **control_range_arrays(task_name(arrays))}
+    return {**arrays, **identity_arrays(arrays), **control_range_arrays(task_name(arrays))}
+
+
+def identity_arrays(arrays, sha256=None):
+    """{task, obs_size, task_sha256}: what the controller was trained on (numpy_policy.check_task compares them with
+    the task as it is). sha256: the task definition's at training (the run's config.json); else the one stored, else
+    '' (a built-in task, or a file exported before it was stored)."""
+    stored = str(arrays["task_sha256"]) if "task_sha256" in arrays else ""
+    return {"task": np.array(task_name(arrays) or ""), "obs_size": np.array(int(np.shape(arrays["obs_mean"])[0])),
+            "task_sha256": np.array(sha256 or stored)}
 
 
 def control_range_arrays(task):
@@ -71,7 +80,16 @@ def controller_arrays(address):
         k = int(meta["hparams"]["K"])
         out["L"] = arrays[f"{prefix}['L']"][:k]
         out["b"] = arrays[f"{prefix}['b']"][:k]
+        out = active_partition(out)
+    out["task_sha256"] = np.array((meta.get("task") or {}).get("sha256") or "")
     return with_bounds(out, address)
+
+
+def active_partition(arrays):
+    """A mixture's arrays with the partition network's last layer cut to its K clusters' logits (training pads it to
+    K_max; numpy_policy reads a padded file's first K)."""
+    last, k = int(arrays["n_layers"]) - 1, int(np.shape(arrays["L"])[0])
+    return {**arrays, f"w{last}": np.asarray(arrays[f"w{last}"])[:, :k], f"b{last}": np.asarray(arrays[f"b{last}"])[:k]}
 
 
 SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
@@ -79,7 +97,8 @@ SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
 
 def load_arrays(source):
     """Controller arrays of a trained run (a run directory or SWEEP_DIR/<run label>) or of an exported
-    controller .npz, with action bounds (a file exported before they were stored: its task's)."""
+    controller .npz, with action bounds (a file exported before they were stored: its task's), what it was trained on
+    (identity_arrays) and a mixture's partition cut to its K clusters (active_partition)."""
     if os.path.isfile(source) and source.endswith(".npz"):
         if not zipfile.is_zipfile(source):
             raise ExportError(f"{source!r} is not an exported controller (not an .npz archive)")
@@ -90,7 +109,7 @@ def load_arrays(source):
             raise ExportError(f"{source!r} is not an exported controller ({e})") from None
         if "kind" not in arrays or "obs_mean" not in arrays:
             raise ExportError(f"{source!r} is not an exported controller (no 'kind' / 'obs_mean' arrays)")
-        return with_bounds(arrays, source)
+        return with_bounds(active_partition(arrays) if str(arrays["kind"]) == "mixture" else arrays, source)
     return controller_arrays(source)
 
 

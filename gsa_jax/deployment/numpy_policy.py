@@ -10,10 +10,13 @@ the action they are given); `act(obs, clip=False)` is the raw action, for analys
 
 File format (written by `python -m gsa_jax.export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
 obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), action_low, action_high [d_a],
-config_json (the run's config: its task is config.env), ctrl_low, ctrl_high [d_a] where the task maps its actions
+config_json (the run's config: its task is config.env), task (its name), obs_size (d_s) and task_sha256 (the sha256
+of the file that defined the task, '' for a built-in one; envs.task_source), ctrl_low, ctrl_high [d_a] where the task maps its actions
 onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), and for mixtures subpolicy
 ('constant'|'linear'|'quadratic'; absent = linear), L [K, d_a, d_phi], b [K, d_a] of the K active clusters.
-Files exported before the bounds were stored get their task's (`action_bounds`).
+Files exported before the bounds were stored get their task's (`action_bounds`); docs/deploy.md lists every key.
+`load(path, task=NAME)` refuses (TaskMismatch, one line) a controller that does not fit that task as it is now
+(check_task).
 """
 
 import json
@@ -50,6 +53,39 @@ def action_bounds(arrays):
     if not envs.is_name(task):  # a built-in name resolves without loading its task
         return None
     return envs.action_bounds(task, action_size(arrays))
+
+
+class TaskMismatch(ValueError):
+    """An exported controller that does not fit the task it is asked to run (one line)."""
+
+
+def stored_sha256(arrays):
+    """The sha256 of the task definition an exported controller was trained on, or None where it has none."""
+    return str(arrays["task_sha256"]) or None if "task_sha256" in arrays else None
+
+
+def check_task(arrays, task, force=False, name="the controller"):
+    """TaskMismatch (one line) unless the controller fits `task` (a task name) as its definition is now: the same
+    observation size, and (unless force) the same task name and, where both are recorded, the same definition
+    sha256 (envs.task_source, what `train --resume` compares)."""
+    import envs
+
+    d_s = int(np.shape(arrays["obs_mean"])[0])
+    mine = (str(arrays["task"]) if "task" in arrays else "") or task_name(arrays)  # task: as exported
+    size = envs.observation_size(task)
+    if size != d_s:
+        raise TaskMismatch(f"{name} takes {d_s} observation values and task {task!r} now observes {size}: it was "
+                           f"trained on {'task ' + repr(mine) if mine else 'another task'} as it was then; export it "
+                           "again from a run of the task as it is")
+    sha = envs.task_source(task).get("sha256")
+    if force:
+        return
+    if mine is not None and mine != task:
+        raise TaskMismatch(f"{name} is for task {mine!r}, not {task!r} (pass --force / force=True to run it anyway)")
+    if stored_sha256(arrays) and sha and stored_sha256(arrays) != sha:
+        raise TaskMismatch(f"the definition of task {task!r} changed since {name} was trained (sha256 "
+                           f"{stored_sha256(arrays)[:12]}... then, {sha[:12]}... now); pass --force / force=True to "
+                           "run it anyway")
 
 
 class Controller:
@@ -139,7 +175,12 @@ class Controller:
         return np.einsum("...ij,...j->...i", self.L[c], self.features(z)) + self.b[c]
 
 
-def load(path: str) -> Controller:
-    """The controller of an exported .npz; one warning line where it has no action bounds and names no known task."""
+def load(path: str, task: "str | None" = None, force: bool = False) -> Controller:
+    """The controller of an exported .npz; one warning line where it has no action bounds and names no known task.
+    task: a task name it must fit (check_task: TaskMismatch, one line, where it does not; force: only its
+    observation size is checked)."""
     with np.load(path, allow_pickle=False) as f:
-        return Controller({k: f[k] for k in f.files}, name=str(path))
+        arrays = {k: f[k] for k in f.files}
+    if task is not None:
+        check_task(arrays, task, force, name=str(path))
+    return Controller(arrays, name=str(path))
