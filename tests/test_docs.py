@@ -5,6 +5,8 @@ import glob
 import os
 import re
 
+import pytest
+
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 
@@ -48,3 +50,40 @@ def test_every_quoted_number_is_what_the_committed_tables_give():
         with open(page) as f:
             stale += [(os.path.relpath(page, ROOT), spec) for spec, _, _ in requote(f.read(), os.path.dirname(page))[1]]
     assert not stale, stale
+
+
+def python_blocks(page):
+    """The ```python blocks of a page under docs/, as written."""
+    with open(os.path.join(ROOT, "docs", page)) as f:
+        return re.findall(r"```python\n(.*?)```", f.read(), re.S)
+
+
+def test_the_documented_evaluator_is_numpy_policy_on_a_padded_controller():
+    """docs/deploy.md's evaluator, run as written, gives numpy_policy's actions and clusters on a committed mixture
+    controller whose partition outputs are padded beyond its K (an argmax over all of them would pick clusters that
+    do not exist) and on a flat MLP controller."""
+    import numpy as np
+
+    from gsa_jax.deployment import numpy_policy
+
+    code = next(b for b in python_blocks("deploy.md") if "def evaluate(" in b)
+    assert len(code.strip().splitlines()) <= 25
+    namespace = {}
+    exec(code, namespace)
+    padded = os.path.join(ROOT, "experiments", "atlas_dmc", "results", "point_mass-easy", "mixture", "controllers",
+                          "dmc.point_mass-easy-mixture-K4-s6.npz")
+    flat = os.path.join(ROOT, "experiments", "fig1_v5", "results", "fig1_v5_Ant-v5_seeds_0_4", "controllers",
+                        "Ant-v5-mlp-s0.npz")
+    with np.load(padded) as f:
+        assert f[f"w{int(f['n_layers']) - 1}"].shape[-1] > f["L"].shape[0] == 4  # padded beyond its K
+    for path in (padded, flat):
+        ctrl = numpy_policy.load(path)
+        obs = (ctrl.obs_mean + 3 * ctrl.obs_std * np.random.default_rng(0).normal(size=(2000, ctrl.obs_mean.size)))
+        obs = obs.astype(np.float32)
+        action, cluster = namespace["evaluate"](path, obs)
+        np.testing.assert_array_equal(cluster, ctrl.cluster(obs))
+        np.testing.assert_allclose(action, ctrl.act(obs), rtol=1e-6, atol=1e-6)
+        if path == padded:  # the argmax over every output picks clusters that do not exist, and crashes
+            exec(code.replace('x[..., : f["L"].shape[0]]', "x"), unpadded := {})
+            with pytest.raises(IndexError):
+                unpadded["evaluate"](path, obs)
