@@ -436,21 +436,23 @@ def test_export_records_its_task_and_exactly_k_clusters(tmp_path, capsys):
         np.testing.assert_array_equal(numpy_policy.Controller(f).act(obs), numpy_policy.Controller(old).act(obs))
 
 
-def deploy_lines(controller, *flags):
+def deploy_lines(controller, *flags, out=None):
     """(exit status, stderr) of `python -m gsa_jax.deploy controller` for one short episode, in a new process (each
-    reads the task's file afresh)."""
+    reads the task's file afresh); out: a list that receives its stdout."""
     import subprocess
     import sys
 
     done = subprocess.run([sys.executable, "-m", "gsa_jax.deploy", str(controller), "--episodes", "1",
                            "--episode-length", "5", *flags], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    if out is not None:
+        out.append(done.stdout)
     return done.returncode, done.stderr.strip()
 
 
 def test_a_controller_whose_task_changed_is_refused_in_one_line(tmp_path):
     """deploy and numpy_policy.load(task=...) refuse a controller whose task definition's sha256 changed (--force
     runs it), that names another task, or whose observation size is no longer the task's (even with --force): one
-    line, no traceback. A committed controller without the fields still deploys."""
+    line, no traceback. A committed controller without the fields still deploys, labelled as the user's task."""
     import hashlib
 
     source = open(os.path.join(ROOT, "examples", "reacher.py")).read()
@@ -458,7 +460,8 @@ def test_a_controller_whose_task_changed_is_refused_in_one_line(tmp_path):
     mine.write_text(source)
     name = f"{mine}:Reacher"
     committed = sorted(glob.glob(os.path.join(ROOT, "experiments", "your_task_reacher", "results", "controllers", "*.npz")))[0]
-    assert deploy_lines(committed)[0] == 0
+    assert deploy_lines(committed, out=(printed := []))[0] == 0
+    assert "examples.reacher:Reacher: MuJoCo C (your task)," in printed[0], printed  # not "our port"
     with np.load(committed) as f:
         arrays = {k: f[k] for k in f.files}
     arrays.update(config_json=np.array(json.dumps({"config": {"env": name}})), task=np.array(name), obs_size=np.array(10),

@@ -70,3 +70,4 @@ def test_deploy_cli_in_gymnasium(tmp_path, random_controller):
     bad = subprocess.run([sys.executable, "-m", "gsa_jax.deploy", str(path), "--gymnasium", "Ant-v5"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "not 'Ant-v5'" in bad.stderr
+    assert bad.stdout == ""  # refused before any episode in MuJoCo C

@@ -66,18 +66,37 @@ def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
 
 
-def run_gymnasium(ctrl, env_name, env_id, episodes, seed=0):
-    """Summary of the controller in gymnasium's own task `env_id` (its MJCF, reward, termination, time limit)."""
-    from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym, run_episodes
+def open_gymnasium(ctrl, env_name, env_id, seed=0):
+    """(gymnasium's env `env_id` for the controller, its options), checked (DeployError, one line, where there is no
+    counterpart of the task or its layout or action space is not the controller's)."""
+    from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym
 
     try:
         env, options = make_gym(env_name, env_id, seed=seed)
         check_bounds(ctrl, env, env_id)
     except (GymnasiumError, ValueError) as e:
         raise DeployError(str(e)) from None
+    return env, options
+
+
+def run_gymnasium(ctrl, gym, env_id, episodes, seed=0):
+    """Summary of the controller in gymnasium's own task (its MJCF, reward, termination, time limit); gym: (env,
+    options) of open_gymnasium."""
+    from gsa_jax.deployment.gymnasium_task import run_episodes
+
+    env, options = gym
     returns, lengths = run_episodes(env, ctrl, episodes, seed)
     return {**summarize(returns, lengths), "env_id": env_id, "options": options,
             "episode_length_limit": int(env.spec.max_episode_steps or 0)}
+
+
+def mujoco_c_label(env_name):
+    """What runs a task in MuJoCo C, for report lines: our port of Brax's task (or of the Allegro hand), a built-in
+    task definition, or the user's own."""
+    record = task_record(env_name)
+    if record.family in ("brax", "allegro"):
+        return "MuJoCo C (our port)"
+    return "MuJoCo C" if record.builtin else "MuJoCo C (your task)"
 
 
 def run_mjx(run_dir, episodes, seed=0):
