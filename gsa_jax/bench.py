@@ -37,6 +37,7 @@ import time
 
 import envs
 from envs.physics import Physics
+from gsa_jax import cli_description
 from gsa_jax.benchmark.measure import (
     QUICK_SIZES, RAW_BATCHES, RAW_UNROLL, SIZES, SOLVER_VARIANT, BenchError, SweepCell, solver_field, in_run_ceiling,
     measure_mujoco_c, measure_raw, measure_sweep, ratio_ceiling, time_profile,
@@ -93,7 +94,7 @@ def positive_ints(flag, text, default):
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=cli_description(__doc__))
     p.add_argument("--quick", action="store_true",
                    help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
     p.add_argument("--out", default="runs/bench")

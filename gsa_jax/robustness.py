@@ -42,6 +42,7 @@ import sys
 
 import numpy as np
 
+from gsa_jax import cli_description
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.retention import (START_SEED, RobustnessError, analyse, evaluate_all, load_controllers,
                                         write_settings)
@@ -131,7 +132,7 @@ def resolve_settings(args):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.robustness", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.robustness", description=cli_description(__doc__))
     p.add_argument("controllers", nargs="+", help="exported controller files or directories of them")
     p.add_argument("--out", required=True, help="output directory (a re-run continues what it holds, with the shifts "
                                                 "and episodes it recorded unless given again)")

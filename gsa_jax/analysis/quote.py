@@ -30,6 +30,7 @@ from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
+from gsa_jax import cli_description
 from gsa_jax.analysis.results import read_csv
 
 SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
@@ -203,7 +204,7 @@ def requote(text, page_dir):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=cli_description(__doc__))
     p.add_argument("pages", nargs="+", metavar="PAGE", help="Markdown pages")
     p.add_argument("--check", action="store_true", help="rewrite nothing; exit 1 if any quoted number is stale")
     args = p.parse_args(argv)
