@@ -87,3 +87,34 @@ def test_the_documented_evaluator_is_numpy_policy_on_a_padded_controller():
             exec(code.replace('x[..., : f["L"].shape[0]]', "x"), unpadded := {})
             with pytest.raises(IndexError):
                 unpadded["evaluate"](path, obs)
+
+
+def test_your_task_page_gives_the_signatures_as_called_and_its_example_runs_as_written():
+    """docs/your_task.md's reference block declares observe, outcome, before, observation_layout and initialize with
+    envs.task.Task's own parameters and defaults (xp=np); its example, run as written, is a valid task (the checks
+    train runs, jax.numpy included) stepped in MuJoCo C, with a layout naming every observation entry."""
+    import ast
+    import inspect
+
+    import numpy as np
+
+    from envs.task import Task, check_jax_agrees, validate
+
+    blocks = python_blocks("your_task.md")
+    reference = next(b for b in blocks if b.startswith("class Task:"))
+    documented = {n.name: n.args for n in ast.walk(ast.parse(reference)) if isinstance(n, ast.FunctionDef)}
+    for name in ("observe", "outcome", "before", "observation_layout", "initialize"):
+        params = list(inspect.signature(getattr(Task, name)).parameters.values())
+        assert [a.arg for a in documented[name].args] == [p.name for p in params], name
+        defaults = ["np" if p.default is np else repr(p.default) for p in params if p.default is not p.empty]
+        assert [ast.unparse(d) for d in documented[name].defaults] == defaults, name
+    assert "qpos[:, :0] + 0.0" in inspect.getsource(Task.before) and "qpos[:, :0] + 0.0" in reference
+    example = next(b for b in blocks if "class Pendulum(Task)" in b)
+    namespace = {}
+    exec(example, namespace)
+    task = namespace["Pendulum"]()
+    validate(task, "the documented example")
+    check_jax_agrees(task, "the documented example")
+    assert namespace["obs"].shape == (3,) and isinstance(namespace["terminated"], bool)
+    assert len(task.observation_layout()) == task.observation_size == 3
+    assert task.before(np.zeros((2, 1)), {}).shape == (2, 0)
