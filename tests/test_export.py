@@ -485,3 +485,55 @@ def test_a_controller_whose_task_changed_is_refused_in_one_line(tmp_path):
     np.savez(tmp_path / "relabelled.npz", **relabelled)
     status, err = deploy_lines(tmp_path / "relabelled.npz")
     assert status == 2 and err.count("\n") == 0 and "takes 10 observation values and task 'hopper' now observes 11" in err, err
+
+
+def dm_control_action_spec():
+    """dm_control's action_spec of its quadruped, by its own function on its own model (suite.load itself fails
+    under mujoco 4, tests/test_dmc.py)."""
+    from types import SimpleNamespace
+
+    import mujoco
+
+    pytest.importorskip("dm_control")
+    from dm_control.mujoco.engine import action_spec
+    from dm_control.suite import common, quadruped
+
+    xml = quadruped.make_model()
+    model = mujoco.MjModel.from_xml_string(xml.decode() if isinstance(xml, bytes) else xml, common.ASSETS)
+    return action_spec(SimpleNamespace(model=model))
+
+
+def test_quadruped_controllers_act_in_dm_controls_action_spec(tmp_path, capsys):
+    """dm_control's quadruped maps actions in [-1, 1] onto its actuators' ctrlrange: its exports (npz, ONNX, C) act in
+    that range itself, dm_control's action_spec, on the task's own states and far outside them (the committed file,
+    exported before, acts in [-1, 1], outside the spec); the actions are the committed controller's controls, and
+    deploy's controller (back in [-1, 1], what our MuJoCo C task takes) acts as the committed one (float rounding)."""
+    from envs.mujoco_c import make_c
+    from gsa_jax.deployment.evaluation import load_controller, run_mujoco_c
+
+    spec = dm_control_action_spec()
+    committed = sorted(glob.glob(os.path.join(ROOT, "experiments", "atlas_dmc", "results", "quadruped-walk", "mixture",
+                                              "controllers", "*.npz")))[0]
+    old = numpy_policy.load(committed)
+    out = {fmt: str(tmp_path / f"controller.{fmt}") for fmt in ("npz", "onnx", "h")}
+    for path in out.values():
+        assert export_main([committed, "--out", path]) == 0
+    new = numpy_policy.load(out["npz"])
+    task, rng, states = make_c("dmc:quadruped-walk"), np.random.default_rng(0), []
+    states.append(task.reset(0))
+    for _ in range(300):
+        states.append(task.step(rng.uniform(-1, 1, 12))[0])
+    obs = np.concatenate([np.array(states, np.float32), far_observations(new)])
+
+    def inside(action):
+        return np.all((action.astype(np.float64) >= spec.minimum) & (action.astype(np.float64) <= spec.maximum))
+
+    assert not inside(old.act(obs)) and not np.array_equal(spec.maximum, np.ones(12))
+    assert new.action_space == "controls" and inside(new.act(obs))
+    np.testing.assert_allclose(new.act(obs), old.controls(old.act(obs)), rtol=1e-5, atol=1e-5)
+    assert inside(run_c_header(tmp_path, obs, 12)[0])
+    ort = pytest.importorskip("onnxruntime")
+    assert inside(ort.InferenceSession(out["onnx"], providers=["CPUExecutionProvider"]).run(None, {"obs": obs})[0])
+    unit = load_controller(out["npz"])[0]  # what deploy and robustness step our MuJoCo C task with: [-1, 1] again
+    np.testing.assert_allclose(unit.act(obs), old.act(obs), rtol=1e-5, atol=1e-5)
+    assert np.all(np.isfinite(run_mujoco_c(unit, "dmc:quadruped-walk", {}, 1, 50)["returns"]))

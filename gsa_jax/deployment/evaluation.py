@@ -24,8 +24,9 @@ def summarize(returns, lengths):
 
 
 def load_controller(controller_path, force=False):
-    """(NumPy controller, its task name, its config) of an exported controller file; DeployError (one line) where it
-    does not fit its task's definition as it is now (numpy_policy.check_task; force: only its observation size)."""
+    """(NumPy controller, its task name, its config) of an exported controller file, acting in [-1, 1] as our MuJoCo C
+    tasks' step() takes (Controller.unit_actions); DeployError (one line) where it does not fit its task's definition
+    as it is now (numpy_policy.check_task; force: only its observation size)."""
     if not os.path.exists(controller_path):
         raise DeployError(f"{controller_path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
     if not zipfile.is_zipfile(controller_path):
@@ -42,7 +43,7 @@ def load_controller(controller_path, force=False):
             numpy_policy.check_task(arrays, config["env"], force, name=str(controller_path))
         except numpy_policy.TaskMismatch as e:
             raise DeployError(str(e)) from None
-    return ctrl, config["env"], config
+    return ctrl.unit_actions(), config["env"], config
 
 
 def has_mujoco_c(env_name):

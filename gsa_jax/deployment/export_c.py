@@ -78,7 +78,10 @@ def _header_comment(ctrl, arrays, layout, c):
     lines += [f"  [{i}] {n}" for i, n in enumerate(names)]
     lines += [f"action: {ctrl.action_size} floats, the task's action inside its bounds, {_bounds_text(ctrl)}",
               "  (gsa_action_low, gsa_action_high); gsa_act_raw writes the raw action, before them."]
-    if ctrl.ctrl_range is not None:
+    if ctrl.action_space == "controls":
+        lines += ["  The action is the actuators' controls, in their ctrlrange: the task's own action space (e.g.",
+                  "  dm_control's action_spec), not training's [-1, 1]."]
+    elif ctrl.ctrl_range is not None:
         lines += ["  The task maps the action onto its actuators' controls: ctrl = low + (action + 1) (high - low) / 2,",
                   f"  low = {np.round(ctrl.ctrl_range[0], 6).tolist()}, high = {np.round(ctrl.ctrl_range[1], 6).tolist()}."]
     lines += [

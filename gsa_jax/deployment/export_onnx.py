@@ -126,7 +126,9 @@ def build_model(arrays, layout=None):
     meta = {"config_json": str(arrays["config_json"]) if "config_json" in arrays else "{}"}
     meta.update({k: str(arrays[k]) for k in ("task", "obs_size", "task_sha256") if k in arrays})
     meta.update(action_low=json.dumps(ctrl.action_low.tolist()), action_high=json.dumps(ctrl.action_high.tolist()))
-    if ctrl.ctrl_range is not None:  # the task maps the action onto its controls: low + (a + 1) (high - low) / 2
+    if ctrl.action_space == "controls":  # the action is the actuators' controls (the task's own action space)
+        meta.update(action_space="controls")
+    elif ctrl.ctrl_range is not None:  # the task maps the action onto its controls: low + (a + 1) (high - low) / 2
         meta.update(ctrl_low=json.dumps(ctrl.ctrl_range[0].tolist()), ctrl_high=json.dumps(ctrl.ctrl_range[1].tolist()))
     if layout:
         meta["observation_layout"] = json.dumps(layout)

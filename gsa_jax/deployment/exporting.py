@@ -8,7 +8,7 @@ import zipfile
 import numpy as np
 
 from gsa_jax.deployment.export_c import cost, to_source
-from gsa_jax.deployment.numpy_policy import action_bounds, task_name
+from gsa_jax.deployment.numpy_policy import action_bounds, map_actions, task_name
 from gsa_jax.running.checkpoint import save_npz_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
@@ -19,12 +19,26 @@ class ExportError(Exception):
 
 def with_bounds(arrays, source):
     """The controller arrays with action_low / action_high [d_a] (numpy_policy.action_bounds: the stored ones, else
-    the named task's); ExportError where there are none."""
+    the named task's), in the task's own action space (in_task_action_space) and with what it was trained on
+    (identity_arrays); ExportError where there are no bounds."""
     bounds = action_bounds(arrays)
     if bounds is None:
         raise ExportError(f"{source!r} names no known task ({task_name(arrays)!r}), so no action bounds to export")
-    arrays = {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
-    return {**arrays, **identity_arrays(arrays), **control_range_arrays(task_name(arrays))}
+    if "action_space" not in arrays:
+        arrays = {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
+        arrays = in_task_action_space({**arrays, **control_range_arrays(task_name(arrays))})
+    return {**arrays, **identity_arrays(arrays)}
+
+
+def in_task_action_space(arrays):
+    """Where the task maps its actions in [-1, 1] onto its actuators' ctrlrange [ctrl_low, ctrl_high] (dm_control's
+    quadruped), the controller with that map applied (numpy_policy.map_actions): its actions are the controls, in the
+    task's own action space (dm_control's action_spec), marked action_space 'controls'; else unchanged."""
+    if "ctrl_low" not in arrays:
+        return arrays
+    low, high = np.asarray(arrays["ctrl_low"], np.float64), np.asarray(arrays["ctrl_high"], np.float64)
+    half = 0.5 * (high - low)
+    return {**map_actions(arrays, half, low + half, low, high), "action_space": np.array("controls")}
 
 
 def identity_arrays(arrays, sha256=None):
