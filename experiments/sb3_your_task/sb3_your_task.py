@@ -5,7 +5,9 @@ equal env steps: training wall time and the deterministic policy's score, both s
 
 Per seed: gsa_jax (`python -m gsa_jax.train --policy mlp --physics c`, its defaults; timings from its config.json)
 and SB3 (`PPO("MlpPolicy")` with SB3's defaults, on envs.as_gymnasium(TASK), torch on one thread), each trained to
---steps env steps (train_wall_s: the whole training, compile included; env_steps_per_s: after the compile). Both
+--steps env steps (train_wall_s: the whole training, compile included; env_steps_per_s: after the compile;
+train_cpu_s: the CPU seconds the training used, compile included, which a machine shared with other work changes
+less than wall time). Both
 final policies are then scored the same way: the deterministic action (gsa_jax: the exported
 controller, numpy_policy; SB3: predict(deterministic=True)) over EPISODES episodes of envs.as_gymnasium(TASK) from the
 start seeds EVAL_SEED.. (gsa_jax.deployment.gymnasium_task.run_episodes). Writes runs.csv (one row per tool and seed)
@@ -26,7 +28,8 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TASK = "examples.reacher:Reacher"
 EPISODES, EVAL_SEED = 20, 10_000
-COLUMNS = ("tool", "seed", "env_steps", "train_wall_s", "compile_s", "env_steps_per_s", "score", "score_std")
+COLUMNS = ("tool", "seed", "env_steps", "train_wall_s", "compile_s", "env_steps_per_s", "train_cpu_s", "score",
+           "score_std")
 
 
 def score(policy):
@@ -44,9 +47,11 @@ def gsa_jax_run(steps, seed, workdir):
     from gsa_jax.deployment.exporting import controller_arrays
 
     out = os.path.join(workdir, f"gsa_jax-s{seed}")
+    cpu0 = children_cpu_s()
     subprocess.run([sys.executable, "-m", "gsa_jax.train", "--env", TASK, "--physics", "c", "--policy", "mlp",
                     "--steps", str(steps), "--seed", str(seed), "--out", out, "--quiet", "--no-tensorboard"],
                    check=True, cwd=ROOT)
+    cpu = children_cpu_s() - cpu0
     with open(os.path.join(out, "config.json")) as f:
         config = json.load(f)
     timing = config["timing"]
@@ -54,7 +59,15 @@ def gsa_jax_run(steps, seed, workdir):
     return {"tool": "gsa_jax", "seed": seed, "env_steps": config["env_steps"], "train_wall_s": timing["wall_s"],
             "compile_s": timing["compile_s"],
             "env_steps_per_s": round(config["env_steps"] / (timing["wall_s"] - timing["compile_s"]), 1),
-            "score": round(mean, 3), "score_std": round(std, 3)}
+            "train_cpu_s": round(cpu, 1), "score": round(mean, 3), "score_std": round(std, 3)}
+
+
+def children_cpu_s():
+    """CPU seconds (user + system) of this process's finished child processes."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 class Deterministic:
@@ -76,12 +89,13 @@ def sb3_run(steps, seed):
 
     torch.set_num_threads(1)
     model = PPO("MlpPolicy", envs.as_gymnasium(TASK), seed=seed, device="cpu", verbose=0)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     model.learn(total_timesteps=steps)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     mean, std = score(Deterministic(model))
     return {"tool": "sb3", "seed": seed, "env_steps": int(model.num_timesteps), "train_wall_s": round(wall, 1),
-            "compile_s": 0.0, "env_steps_per_s": round(model.num_timesteps / wall, 1), "score": round(mean, 3),
+            "compile_s": 0.0, "env_steps_per_s": round(model.num_timesteps / wall, 1), "train_cpu_s": round(cpu, 1),
+            "score": round(mean, 3),
             "score_std": round(std, 3)}
 
 
