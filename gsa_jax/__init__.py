@@ -7,13 +7,6 @@ import sys
 __version__ = "0.1.0"
 
 
-def cli_description(doc):
-    """A command's --help description: the first paragraph of its module docstring, whole (a closing ':' that
-    introduces the usage block below it becomes '.')."""
-    text = " ".join(doc.split("\n\n")[0].split())
-    return text[:-1] + "." if text.endswith(":") else text
-
-
 def _check_envs_package():
     """The task registry `envs` must be the one installed beside gsa_jax: a module or folder named `envs` in the
     working directory (first on sys.path) would shadow it silently, so it is refused in one line."""

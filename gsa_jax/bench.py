@@ -37,7 +37,6 @@ import time
 
 import envs
 from envs.physics import Physics
-from gsa_jax import cli_description
 from gsa_jax.benchmark.measure import (
     QUICK_SIZES, RAW_BATCHES, RAW_UNROLL, SIZES, SOLVER_VARIANT, BenchError, SweepCell, solver_field, in_run_ceiling,
     measure_mujoco_c, measure_raw, measure_sweep, ratio_ceiling, time_profile,
@@ -46,7 +45,7 @@ from gsa_jax.benchmark.report import plot
 from gsa_jax.benchmark.workers import raw_worker, worker
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax.running.runinfo import cli_description, run_metadata
 from gsa_jax.running.spec import check_spec
 
 

@@ -16,9 +16,9 @@ import argparse
 import json
 import sys
 
-from gsa_jax import cli_description
 from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, has_mujoco_c, load_controller, mujoco_c_label,
                                            open_gymnasium, report_line, run_gymnasium, run_mujoco_c)
+from gsa_jax.running.runinfo import cli_description
 
 
 def deploy(args):

@@ -12,8 +12,8 @@ import argparse
 import os
 import sys
 
-from gsa_jax import cli_description
 from gsa_jax.deployment.exporting import SUFFIXES, ExportError, load_arrays, write
+from gsa_jax.running.runinfo import cli_description
 
 
 def pick_format(fmt, out):

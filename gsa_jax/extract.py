@@ -14,8 +14,8 @@ import argparse
 import os
 import sys
 
-from gsa_jax import cli_description
 from gsa_jax.analysis.extraction import ExtractError, collect_results, export_controllers, sweep_runs
+from gsa_jax.running.runinfo import cli_description
 
 
 def main(argv=None):

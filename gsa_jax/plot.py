@@ -30,10 +30,10 @@ only in tables written before failed evaluation episodes were counted).
 import argparse
 import sys
 
-from gsa_jax import cli_description
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.figures import plot_sweep
 from gsa_jax.analysis.results import PlotError
+from gsa_jax.running.runinfo import cli_description
 
 
 def main(argv=None):

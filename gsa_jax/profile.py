@@ -18,11 +18,10 @@ import time
 import envs
 from envs.registry import Definition
 from envs.task import TaskError
-from gsa_jax import cli_description
 from gsa_jax.benchmark.parts import profile_parts
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax.running.runinfo import cli_description, run_metadata
 from gsa_jax.running.supervise import SINGLE_THREAD_EIGEN
 from gsa_jax.running.spec import SpecError, single_group
 

@@ -12,8 +12,8 @@ import os
 import sys
 
 import envs
-from gsa_jax import cli_description
 from gsa_jax.deployment.rendering import RenderError, render_run, render_scene
+from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.trained import FormatError, read_run
 
 

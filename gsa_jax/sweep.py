@@ -60,10 +60,9 @@ import sys
 
 import jax
 
-from gsa_jax import cli_description
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import ResumeRefused, resume_command
+from gsa_jax.running.runinfo import ResumeRefused, cli_description, resume_command
 from gsa_jax.running.runlock import LockError, hold
 from gsa_jax.running.spec import SpecError, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise

@@ -19,11 +19,11 @@ import sys
 import time
 
 import envs
-from gsa_jax import cli_description
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, make_hparams, validate_hparams
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
+from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.runlock import LockError, hold
 from gsa_jax.running.single import RunOptions, RunPlan, UsageError, run
 from gsa_jax.running.trained import path_part

@@ -298,7 +298,7 @@ def test_help_describes_the_command_in_whole_sentences(module, capsys):
     --env names every kind of task name, playground:<Name> included."""
     import importlib
 
-    from gsa_jax import cli_description
+    from gsa_jax.running.runinfo import cli_description
 
     mod = importlib.import_module(f"gsa_jax.{module}")
     with pytest.raises(SystemExit):

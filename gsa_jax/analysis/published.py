@@ -14,8 +14,8 @@ import sys
 
 import numpy as np
 
-from gsa_jax import cli_description
 from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.running.runinfo import cli_description
 
 
 def task_name(env):

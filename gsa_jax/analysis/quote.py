@@ -30,8 +30,8 @@ from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
-from gsa_jax import cli_description
 from gsa_jax.analysis.results import read_csv
+from gsa_jax.running.runinfo import cli_description
 
 SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
 OPTIONS = ("col", "pm", "ci", "digits", "threshold", "order")

@@ -20,11 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax import cli_description
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import Config, make_env, make_hparams, make_train, schedule
+from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
 
