@@ -224,7 +224,8 @@ def typed(argv, *flags):
 def check_policy_options(args, argv):
     """UsageError (one line) for an option the chosen policy does not use (the mixture's, with --policy mlp)."""
     if args.policy == "mlp":
-        given = [f for f in ("--clusters", "--k-max") if typed(argv, f, *(("-K",) if f == "--clusters" else ()))]
+        spellings = {"--clusters": ("--clusters", "-K"), "--k-max": ("--k-max",)}
+        given = [flag for flag, names in spellings.items() if typed(argv, *names)]
         if given:
             raise UsageError(f"{' and '.join(given)} appl{'ies' if len(given) == 1 else 'y'} to --policy mixture only "
                              "(--policy mlp trains one flat MLP)")

@@ -41,13 +41,12 @@ def in_task_action_space(arrays):
     return {**map_actions(arrays, half, low + half, low, high), "action_space": np.array("controls")}
 
 
-def identity_arrays(arrays, sha256=None):
+def identity_arrays(arrays):
     """{task, obs_size, task_sha256}: what the controller was trained on (numpy_policy.check_task compares them with
-    the task as it is). sha256: the task definition's at training (the run's config.json); else the one stored, else
-    '' (a built-in task, or a file exported before it was stored)."""
-    stored = str(arrays["task_sha256"]) if "task_sha256" in arrays else ""
+    the task as it is); task_sha256 as stored (a run's: its config.json's), else '' (a built-in task, or a file
+    exported before it was stored)."""
     return {"task": np.array(task_name(arrays) or ""), "obs_size": np.array(int(np.shape(arrays["obs_mean"])[0])),
-            "task_sha256": np.array(sha256 or stored)}
+            "task_sha256": np.array(str(arrays["task_sha256"]) if "task_sha256" in arrays else "")}
 
 
 def control_range_arrays(task):

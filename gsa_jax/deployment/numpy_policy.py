@@ -10,11 +10,11 @@ the action they are given); `act(obs, clip=False)` is the raw action, for analys
 
 File format (written by `python -m gsa_jax.export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
 obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), action_low, action_high [d_a],
-config_json (the run's config: its task is config.env), action_space ('controls' where the actions are the
-actuators' controls, in their ctrlrange [ctrl_low, ctrl_high]: exports of tasks that map their actions onto it; absent:
-actions in [-1, 1]), task (its name), obs_size (d_s) and task_sha256 (the sha256
-of the file that defined the task, '' for a built-in one; envs.task_source), ctrl_low, ctrl_high [d_a] where the task maps its actions
-onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), and for mixtures subpolicy
+config_json (the run's config: its task is config.env), task (its name), obs_size (d_s), task_sha256 (the sha256 of
+the file that defined the task, '' for a built-in one; envs.task_source), ctrl_low, ctrl_high [d_a] where the task maps
+its actions onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), action_space
+('controls' where that map is applied in the file: the actions are the controls; absent: actions in [-1, 1]; see
+unit_actions), and for mixtures subpolicy
 ('constant'|'linear'|'quadratic'; absent = linear), L [K, d_a, d_phi], b [K, d_a] of the K active clusters.
 Files exported before the bounds were stored get their task's (`action_bounds`); docs/deploy.md lists every key.
 `load(path, task=NAME)` refuses (TaskMismatch, one line) a controller that does not fit that task as it is now
@@ -79,9 +79,9 @@ def check_task(arrays, task, force=False, name="the controller"):
         raise TaskMismatch(f"{name} takes {d_s} observation values and task {task!r} now observes {size}: it was "
                            f"trained on {'task ' + repr(mine) if mine else 'another task'} as it was then; export it "
                            "again from a run of the task as it is")
-    sha = envs.task_source(task).get("sha256")
     if force:
         return
+    sha = envs.task_source(task).get("sha256")
     if mine is not None and mine != task:
         raise TaskMismatch(f"{name} is for task {mine!r}, not {task!r} (pass --force / force=True to run it anyway)")
     if stored_sha256(arrays) and sha and stored_sha256(arrays) != sha:
