@@ -7,8 +7,9 @@ verdict:
 
 Controllers: the committed Figure-1 controllers of the task (experiments/fig1_v5/results/fig1_v5_<env>*/controllers),
 the K given and flat PPO, 10 seeds each; start states as the robustness experiment's (seeds 10,000-10,019), 10 push
-events per start, pushes of --size m/s, falls counted over --window steps (gsa_jax.deployment.pushes.evaluate_pushes
-with draw=d; draw 0 is the robustness experiment's own). Per draw: the fall-probability IQM of both configurations
+events per start, pushes of --size m/s, its windows (20, 50, 100 steps: the push times are drawn below the episode
+length minus the longest), falls counted over --window steps (gsa_jax.deployment.pushes.evaluate_pushes with
+draw=d; draw 0 is the robustness experiment's own). Per draw: the fall-probability IQM of both configurations
 and P(the mixture falls less) with its 95% CI (gsa_jax.analysis.paired.aggregate_pushes). Writes draws.csv and
 meta.json beside this file's results/ after every draw.
 """
@@ -24,7 +25,7 @@ import numpy as np
 from gsa_jax.analysis.paired import aggregate_pushes
 from gsa_jax.analysis.results import write_csv
 from gsa_jax.analysis.retention import START_SEED, load_controllers
-from gsa_jax.deployment.pushes import PER_EPISODE, evaluate_pushes
+from gsa_jax.deployment.pushes import PER_EPISODE, WINDOWS, evaluate_pushes
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 STARTS = 20  # the robustness experiment's start states
@@ -42,10 +43,10 @@ def verdict(ctrls, env, size, window, draw):
     """One draw's row: every controller's paired pushes under push-event draw `draw`, aggregated."""
     events = []
     for _, meta, ctrl in ctrls:
-        rows, _ = evaluate_pushes(ctrl, env, np.arange(START_SEED, START_SEED + STARTS), (size,), (window,), PER_EPISODE,
-                                  draw=draw)
+        rows, _ = evaluate_pushes(ctrl, env, np.arange(START_SEED, START_SEED + STARTS), (size,), WINDOWS, PER_EPISODE,
+                                  draw=draw)  # every window: the push times are drawn below length - the longest
         events += [{**meta, **r} for r in rows]
-    agg = aggregate_pushes(events, (window,))
+    agg = [r for r in aggregate_pushes(events, WINDOWS) if r["window"] == window]
     mix = next(r for r in agg if r["policy"] == "mixture")
     flat = next(r for r in agg if r["policy"] == "mlp")
     return {"env": env, "K": mix["K"], "size": size, "window": window, "draw": draw, "mixture_fall_iqm": mix["fall_iqm"],
