@@ -228,6 +228,30 @@ def action_size(name) -> int:
     return int(task_model(name).nu)
 
 
+def observation_size(name) -> int:
+    """Observation values of task `name` as its definition is now (a task definition's observe(); else the length of
+    its observation layout)."""
+    from envs.registry import Definition
+
+    record = task_record(name)
+    if isinstance(record, Definition):
+        return int(record.task().observation_size)
+    return len(record.observation_layout())
+
+
+def as_gymnasium(task):
+    """A gymnasium.Env of `task` (a name, a Task subclass or instance) stepped by its MuJoCo C twin, with the task's
+    start law, observation, reward, termination and time limit (envs/gymnasium_env.py); ValueError (one line) for a
+    task MuJoCo C does not step. Needs gymnasium (the deploy extra)."""
+    record = task_record(task)
+    if not record.has_c:
+        raise ValueError(f"task {record.name!r} has no MuJoCo C version, so no gymnasium environment: MuJoCo C runs "
+                         "every task definition, Brax's hopper, walker2d, halfcheetah and ant, and allegro_cylinder")
+    from envs.gymnasium_env import TaskEnv
+
+    return TaskEnv(record)
+
+
 def action_bounds(name, size=None):
     """(low [d_a], high [d_a]) float32: the bounds of task `name`'s d_a actions (ACTION_RANGE for each); size: d_a
     (default: action_size(name), read from the MJCF). A task with ctrl_range 'model' maps these actions onto its

@@ -320,15 +320,35 @@ def _validate(task, where):
     if int(task.frame_skip) < 1 or int(task.episode_length) < 1:
         raise TaskError(f"{where}: frame_skip and episode_length must be >= 1")
     c = TaskC(task)
-    obs = np.asarray(c.reset(0))
-    if obs.ndim != 1 or not np.all(np.isfinite(obs)):
-        raise TaskError(f"{where}: the first observation must be a finite vector [d], got shape {obs.shape}"
-                        + ("" if obs.ndim != 1 else f" with non-finite entries at {np.flatnonzero(~np.isfinite(obs)).tolist()}"))
-    after, reward, terminated = task.outcome(task.before(c.data.qpos[None], c._derived()), c.data.qpos[None],
-                                             c.data.qvel[None], c._derived(), np.zeros((1, m.nu)))
-    if np.shape(after) != (1,) + obs.shape or np.shape(reward) != (1,) or np.shape(terminated) != (1,):
-        raise TaskError(f"{where}: outcome() must return obs [n, {obs.size}] (as observe()), reward [n] and terminated "
-                        f"[n]; got shapes {np.shape(after)}, {np.shape(reward)} and {np.shape(terminated)} for n = 1")
+    c.reset(0)
+    d = c.data
+    obs = check_rows(where, "observe()", "observation", task.observe(d.qpos[None], d.qvel[None], c._derived()), 2)[0]
+    if not np.all(np.isfinite(obs)):
+        raise TaskError(f"{where}: the first observation must be finite; it has non-finite entries at "
+                        f"{np.flatnonzero(~np.isfinite(obs)).tolist()}")
+    after, reward, terminated = task.outcome(task.before(d.qpos[None], c._derived()), d.qpos[None], d.qvel[None],
+                                             c._derived(), np.zeros((1, m.nu)))
+    if np.shape(after) != (1,) + obs.shape:
+        raise TaskError(f"{where}: outcome() must return obs [n, {obs.size}] (as observe()); got shape "
+                        f"{np.shape(after)} for n = 1")
+    check_rows(where, "outcome()", "reward", reward, 1)
+    check_rows(where, "outcome()", "terminated", terminated, 1, kind="b")
+
+
+KINDS = {"f": "a float array", "b": "a bool array (e.g. a comparison, or xp.zeros(n, bool))"}
+
+
+def check_rows(where, function, what, value, ndim, kind="f"):
+    """`value` as an array [1, ...] of ndim dimensions (one row per simulation; here n = 1) of dtype kind 'f' (float)
+    or 'b' (bool); else TaskError naming the function, its shape and its dtype."""
+    a = np.asarray(value)
+    shape = "[n, d]" if ndim == 2 else "[n]"
+    if a.ndim != ndim or a.shape[0] != 1:
+        raise TaskError(f"{where}: {function} must return the {what} as {shape}, one row per simulation; got shape "
+                        f"{a.shape} ({a.dtype}) for n = 1" + (" -- a single [d] vector?" if a.ndim == ndim - 1 else ""))
+    if a.dtype.kind != kind and not (kind == "f" and a.dtype.kind in "iu"):
+        raise TaskError(f"{where}: {function} must return the {what} as {KINDS[kind]}; got {a.dtype} {list(a.shape)}")
+    return a
 
 
 def check_jax_agrees(task, where):

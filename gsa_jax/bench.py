@@ -45,7 +45,7 @@ from gsa_jax.benchmark.report import plot
 from gsa_jax.benchmark.workers import raw_worker, worker
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax.running.runinfo import cli_description, run_metadata
 from gsa_jax.running.spec import check_spec
 
 
@@ -93,7 +93,7 @@ def positive_ints(flag, text, default):
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=cli_description(__doc__))
     p.add_argument("--quick", action="store_true",
                    help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
     p.add_argument("--out", default="runs/bench")

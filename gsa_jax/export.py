@@ -13,6 +13,7 @@ import os
 import sys
 
 from gsa_jax.deployment.exporting import SUFFIXES, ExportError, load_arrays, write
+from gsa_jax.running.runinfo import cli_description
 
 
 def pick_format(fmt, out):
@@ -23,7 +24,7 @@ def pick_format(fmt, out):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.export", description=__doc__.split("\n")[1])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.export", description=cli_description(__doc__))
     p.add_argument("run_dir", metavar="RUN", help="a run directory (train, extract) or an exported controller .npz")
     p.add_argument("--format", choices=sorted(SUFFIXES), default=None,
                    help="npz (NumPy arrays), onnx (one ONNX graph), c (a C99 header); default: from --out's suffix, else npz")

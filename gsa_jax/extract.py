@@ -15,10 +15,11 @@ import os
 import sys
 
 from gsa_jax.analysis.extraction import ExtractError, collect_results, export_controllers, sweep_runs
+from gsa_jax.running.runinfo import cli_description
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.extract", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.extract", description=cli_description(__doc__))
     p.add_argument("sweep_dir")
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--list", action="store_true", help="list the finished runs' addresses (SWEEP_DIR/<run label>)")

@@ -33,10 +33,11 @@ import sys
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.figures import plot_sweep
 from gsa_jax.analysis.results import PlotError
+from gsa_jax.running.runinfo import cli_description
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.plot", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.plot", description=cli_description(__doc__))
     p.add_argument("sweep_dirs", nargs="+", metavar="DIR", help="sweep directories (merged)")
     p.add_argument("--out", default=None, help="directory for the figures and tables (default: the first DIR)")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples of the tables' intervals (default %(default)s)")

@@ -21,7 +21,7 @@ from envs.task import TaskError
 from gsa_jax.benchmark.parts import profile_parts
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax.running.runinfo import cli_description, run_metadata
 from gsa_jax.running.supervise import SINGLE_THREAD_EIGEN
 from gsa_jax.running.spec import SpecError, single_group
 
@@ -30,7 +30,7 @@ DEFAULT_ENVS = "Hopper-v5,Walker2d-v5,HalfCheetah-v5,InvertedDoublePendulum-v5,A
 
 def build_parser():
     """The command line (see the module docstring)."""
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.profile", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.profile", description=cli_description(__doc__))
     p.add_argument("--envs", default=DEFAULT_ENVS, help=f"comma-separated task names (default {DEFAULT_ENVS})")
     p.add_argument("--policies", default="mixture,mlp", help="comma-separated: mixture, mlp (default both)")
     p.add_argument("--clusters", type=int, default=6, help="K of the mixture (default 6, as gsa_jax.bench)")

@@ -13,11 +13,12 @@ import sys
 
 import envs
 from gsa_jax.deployment.rendering import RenderError, render_run, render_scene
+from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.trained import FormatError, read_run
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.render", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.render", description=cli_description(__doc__))
     p.add_argument("env", help=f"one of: {', '.join(envs.NAMES)}; a task of yours, 'module:Class'; 'brax:<name>', 'playground:<Name>'")
     p.add_argument("--out", required=True, help="scene.png, or with --run: video.gif / video.mp4")
     p.add_argument("--run", default=None, help="a run directory or SWEEP_DIR/<run label>: render its deterministic controller")

@@ -48,6 +48,7 @@ from gsa_jax.analysis.retention import (START_SEED, RobustnessError, analyse, ev
 from gsa_jax.analysis.paired import evaluate_all_pushes
 from gsa_jax.deployment.pushes import PER_EPISODE, PUSH_SIZES, WINDOWS
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
+from gsa_jax.running.runinfo import cli_description
 
 
 def parse_levels(items):
@@ -131,7 +132,7 @@ def resolve_settings(args):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.robustness", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.robustness", description=cli_description(__doc__))
     p.add_argument("controllers", nargs="+", help="exported controller files or directories of them")
     p.add_argument("--out", required=True, help="output directory (a re-run continues what it holds, with the shifts "
                                                 "and episodes it recorded unless given again)")

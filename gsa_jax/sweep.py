@@ -62,7 +62,7 @@ import jax
 
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import ResumeRefused, resume_command
+from gsa_jax.running.runinfo import ResumeRefused, cli_description, resume_command
 from gsa_jax.running.runlock import LockError, hold
 from gsa_jax.running.spec import SpecError, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
@@ -71,7 +71,7 @@ from gsa_jax.running.trained import FormatError
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.sweep", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.sweep", description=cli_description(__doc__))
     p.add_argument("experiment", nargs="?", default=None,
                    help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml (with --resume: optional)")
     p.add_argument("--resume", metavar="DIR", default=None,

@@ -23,6 +23,7 @@ from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, make_hparams, validate_hparams
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
+from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.runlock import LockError, hold
 from gsa_jax.running.single import RunOptions, RunPlan, UsageError, run
 from gsa_jax.running.trained import path_part
@@ -55,10 +56,11 @@ def add_physics_flags(p):
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=cli_description(__doc__))
     p.add_argument("--env", default="inverted_double_pendulum",
                    help=f"one of: {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' or "
-                        "'path/file.py:Class'; or 'brax:<name>', an environment of Brax's registry (docs/your_task.md)")
+                        "'path/file.py:Class'; or another library's environment: 'brax:<name>' (Brax's registry) or "
+                        "'playground:<Name>' (MuJoCo Playground's registry) (docs/your_task.md)")
     p.add_argument("--policy", default="mixture", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
     p.add_argument("--clusters", "-K", type=int, default=4, help="K, number of linear controllers (mixture)")
     p.add_argument("--subpolicy", default="linear",
@@ -194,12 +196,14 @@ def saved_options(saved):
 def resume_args(parser, argv, out):
     """With --resume: the command line parsed again over the run saved in `out` (its settings are the
     defaults, so only the options typed differ from them; run() refuses a difference without --force).
-    A directory without a saved run keeps the command line's own settings (a first invocation of a
-    resumable command). Raises UsageError."""
+    A directory without a saved run keeps the command line's own settings where it names the task (a first
+    invocation of a resumable command), else it is a one-line UsageError. Raises UsageError."""
     if out is None:
         raise UsageError("--resume needs --out DIR, the directory of the run to continue")
     path = os.path.join(out, "config.json")
     if not os.path.exists(path):
+        if not typed(argv, "--env"):
+            raise UsageError(f"no run in {out} to resume (to start one there with --resume, name its task: --env NAME)")
         return parser.parse_args(argv)
     try:
         with open(path) as f:
@@ -209,6 +213,22 @@ def resume_args(parser, argv, out):
         raise UsageError(f"cannot resume: {path} is not a gsa_jax run's config ({type(e).__name__}: {e})") from None
     parser.set_defaults(**defaults)
     return parser.parse_args(argv)
+
+
+def typed(argv, *flags):
+    """Whether the command line argv names one of the options `flags` ('--flag', '--flag=V', or a one-letter '-KV')."""
+    argv = sys.argv[1:] if argv is None else argv
+    return any(a == f or a.startswith(f + "=") or (len(f) == 2 and a.startswith(f)) for a in argv for f in flags)
+
+
+def check_policy_options(args, argv):
+    """UsageError (one line) for an option the chosen policy does not use (the mixture's, with --policy mlp)."""
+    if args.policy == "mlp":
+        spellings = {"--clusters": ("--clusters", "-K"), "--k-max": ("--k-max",)}
+        given = [flag for flag, names in spellings.items() if typed(argv, *names)]
+        if given:
+            raise UsageError(f"{' and '.join(given)} appl{'ies' if len(given) == 1 else 'y'} to --policy mixture only "
+                             "(--policy mlp trains one flat MLP)")
 
 
 def default_out(cfg, hp, seed):
@@ -240,6 +260,7 @@ def main(argv=None):
         if args.resume:
             args = resume_args(parser, argv, args.out)
         envs.check_task(args.env)
+        check_policy_options(args, argv)
         plan = resolve(args)
         out = args.out or default_out(plan.cfg, plan.hp, plan.seed)
         prepare_out(out, args.resume)

@@ -26,6 +26,7 @@ import numpy as np
 
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
+from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, to_toml
 
@@ -162,7 +163,7 @@ def run_rank_checks(spec, args):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.tune", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.tune", description=cli_description(__doc__))
     p.add_argument("tuning", help="tuning file (TOML; gsa_jax.running.tuning)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--phase", choices=("tune", "evaluate", "all", "rank"), default="all",

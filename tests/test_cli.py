@@ -33,6 +33,9 @@ SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--mini
         (["--ls-iterations", "-2"], "--ls-iterations must be an integer >= 1"),
         (["--value-target", "td"], "unknown --value-target 'td'; choose one of gae, retrace"),
         (["--value-target", "retrace", "--retrace-iterations", "0"], "--retrace-iterations must be >= 1, got 0"),
+        (["--policy", "mlp", "--clusters", "3"], "--clusters applies to --policy mixture only"),
+        (["--policy", "mlp", "-K3", "--k-max", "4"], "--clusters and --k-max apply to --policy mixture only"),
+        (["--resume"], "no run in "),  # a typo in --out: not a new run of the default task
     ],
 )
 def test_bad_input_one_line_error(argv, message, capsys, tmp_path):
@@ -286,3 +289,68 @@ def test_export_real_run_matches_jax(full_run, tmp_path):
     np.testing.assert_array_equal(ctrl.cluster(obs), np.asarray(c))
     assert ctrl.subpolicy == trainer.cfg.subpolicy == "linear"
     assert np.abs(ctrl.L).sum() > 0  # trained: not the L = 0 init
+
+
+@pytest.mark.parametrize("module", ["train", "plot", "deploy", "export", "robustness", "tune", "sweep", "extract",
+                                    "render", "bench", "profile", "deployment.inspection"])
+def test_help_describes_the_command_in_whole_sentences(module, capsys):
+    """Every command's --help opens with its docstring's first paragraph, whole (not cut at a line end); train's
+    --env names every kind of task name, playground:<Name> included."""
+    import importlib
+
+    from gsa_jax.running.runinfo import cli_description
+
+    mod = importlib.import_module(f"gsa_jax.{module}")
+    with pytest.raises(SystemExit):
+        mod.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    description = cli_description(mod.__doc__)
+    assert description in text and description.endswith((".", ")", "`")), description
+    if module == "train":
+        assert "'playground:<Name>'" in text and "'brax:<name>'" in text and "'module:Class'" in text
+
+
+def test_a_nan_is_attributed_to_the_tasks_reward_where_an_episode_shows_it():
+    """The failure line names the task's reward where an episode that ended in the failing iteration returned a
+    non-finite total, and the loss or parameters otherwise, saying what it could not see."""
+    from gsa_jax.running.single import failure_line
+
+    m = {"failed_at": np.array([[-1, -1, 3]]), "episodes": np.array([[2.0, 1.0, 4.0]]),
+         "episode_return": np.array([[1.0, 2.0, np.nan]])}  # iteration 3 failed
+    line = failure_line(m, 3, "OUT")
+    assert line.startswith("NaN/inf in the task's reward") and "check its outcome()" in line and "at iteration 3;" in line
+    m["episode_return"][0, 2] = 5.0
+    assert failure_line(m, 3, "OUT").startswith("NaN/inf in the loss or parameters (the episodes that ended in it ")
+    m["episodes"][0, 2], m["episode_return"][0, 2] = 0.0, np.nan
+    assert "no episode ended in it" in failure_line(m, 3, "OUT")
+
+
+def test_the_summary_names_the_iteration_of_its_returns(full_run, capsys):
+    """config.json's result and the closing line say which iteration the final training and evaluation returns
+    are from (the last with an ended episode / an evaluation, not always the last iteration)."""
+    from gsa_jax.running.single import report_end
+
+    rows = read_csv(full_run / "metrics.csv")
+    result = json.loads((full_run / "config.json").read_text())["result"]
+    assert result["final_episode_return_iteration"] == max(int(r["iteration"]) for r in rows if r["episode_return"])
+    assert result["final_eval_return_iteration"] == max(int(r["iteration"]) for r in rows if r["eval_return"])
+    config = {"timing": {"env_steps_run": 10, "wall_s": 1.0, "compile_s": 0.5, "env_steps_per_s": 10.0},
+              "result": {**result, "final_episode_return": 1.25, "final_episode_return_iteration": 3}}
+    ended = type("Ended", (), {"status": "finished", "done": 4, "iterations": 4})
+    lines = []
+    assert report_end(ended, config, "OUT", lines.append) == 0
+    assert "final return 1.2 (iteration 3), eval " in lines[0] and f"(iteration {result['final_eval_return_iteration']})" in lines[0]
+
+
+def test_the_evaluation_compiles_with_the_run(full_run):
+    """A run that evaluates compiles its evaluation with its training chunk (so 'compiled in' counts it, not the
+    first chunk); one without evaluations leaves it to jit."""
+    import jax
+
+    from gsa_jax.running.programs import compile_single
+    from gsa_jax.train import build_parser, resolve
+
+    plan = resolve(build_parser().parse_args(SMALL))
+    assert plan.eval_every > 0
+    evaluate = compile_single(plan.cfg, plan.chunk)[3]  # the program full_run compiled: reused, not compiled again
+    assert isinstance(evaluate, jax.stages.Compiled), type(evaluate)

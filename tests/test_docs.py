@@ -5,6 +5,8 @@ import glob
 import os
 import re
 
+import pytest
+
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 
@@ -48,3 +50,82 @@ def test_every_quoted_number_is_what_the_committed_tables_give():
         with open(page) as f:
             stale += [(os.path.relpath(page, ROOT), spec) for spec, _, _ in requote(f.read(), os.path.dirname(page))[1]]
     assert not stale, stale
+
+
+def python_blocks(page):
+    """The ```python blocks of a page under docs/, as written."""
+    with open(os.path.join(ROOT, "docs", page)) as f:
+        return re.findall(r"```python\n(.*?)```", f.read(), re.S)
+
+
+def test_the_documented_evaluator_is_numpy_policy_on_a_padded_controller():
+    """docs/deploy.md's evaluator, run as written, gives numpy_policy's actions and clusters on a committed mixture
+    controller whose partition outputs are padded beyond its K (an argmax over all of them would pick clusters that
+    do not exist) and on a flat MLP controller."""
+    import numpy as np
+
+    from gsa_jax.deployment import numpy_policy
+
+    code = next(b for b in python_blocks("deploy.md") if "def evaluate(" in b)
+    assert len(code.strip().splitlines()) <= 25
+    namespace = {}
+    exec(code, namespace)
+    padded = os.path.join(ROOT, "experiments", "atlas_dmc", "results", "point_mass-easy", "mixture", "controllers",
+                          "dmc.point_mass-easy-mixture-K4-s6.npz")
+    flat = os.path.join(ROOT, "experiments", "fig1_v5", "results", "fig1_v5_Ant-v5_seeds_0_4", "controllers",
+                        "Ant-v5-mlp-s0.npz")
+    with np.load(padded) as f:
+        assert f[f"w{int(f['n_layers']) - 1}"].shape[-1] > f["L"].shape[0] == 4  # padded beyond its K
+    for path in (padded, flat):
+        ctrl = numpy_policy.load(path)
+        obs = (ctrl.obs_mean + 3 * ctrl.obs_std * np.random.default_rng(0).normal(size=(2000, ctrl.obs_mean.size)))
+        obs = obs.astype(np.float32)
+        action, cluster = namespace["evaluate"](path, obs)
+        np.testing.assert_array_equal(cluster, ctrl.cluster(obs))
+        np.testing.assert_allclose(action, ctrl.act(obs), rtol=1e-6, atol=1e-6)
+        if path == padded:  # the argmax over every output picks clusters that do not exist, and crashes
+            exec(code.replace('x[..., : f["L"].shape[0]]', "x"), unpadded := {})
+            with pytest.raises(IndexError):
+                unpadded["evaluate"](path, obs)
+
+
+def test_your_task_page_gives_the_signatures_as_called_and_its_example_runs_as_written():
+    """docs/your_task.md's reference block declares observe, outcome, before, observation_layout and initialize with
+    envs.task.Task's own parameters and defaults (xp=np); its example, run as written, is a valid task (the checks
+    train runs, jax.numpy included) stepped in MuJoCo C, with a layout naming every observation entry."""
+    import ast
+    import inspect
+
+    import numpy as np
+
+    from envs.task import Task, check_jax_agrees, validate
+
+    blocks = python_blocks("your_task.md")
+    reference = next(b for b in blocks if b.startswith("class Task:"))
+    documented = {n.name: n.args for n in ast.walk(ast.parse(reference)) if isinstance(n, ast.FunctionDef)}
+    for name in ("observe", "outcome", "before", "observation_layout", "initialize"):
+        params = list(inspect.signature(getattr(Task, name)).parameters.values())
+        assert [a.arg for a in documented[name].args] == [p.name for p in params], name
+        defaults = ["np" if p.default is np else repr(p.default) for p in params if p.default is not p.empty]
+        assert [ast.unparse(d) for d in documented[name].defaults] == defaults, name
+    assert "qpos[:, :0] + 0.0" in inspect.getsource(Task.before) and "qpos[:, :0] + 0.0" in reference
+    example = next(b for b in blocks if "class Pendulum(Task)" in b)
+    namespace = {}
+    exec(example, namespace)
+    task = namespace["Pendulum"]()
+    validate(task, "the documented example")
+    check_jax_agrees(task, "the documented example")
+    assert namespace["obs"].shape == (3,) and isinstance(namespace["terminated"], bool)
+    assert len(task.observation_layout()) == task.observation_size == 3
+    assert task.before(np.zeros((2, 1)), {}).shape == (2, 0)
+
+
+def test_the_stable_baselines3_snippet_runs_on_a_task_as_a_gymnasium_env():
+    """docs/your_task.md's Stable-Baselines3 snippet, as written but for a training of one rollout (SB3's 2,048
+    steps) instead of 100,000 steps, trains on envs.as_gymnasium and acts inside the action space."""
+    pytest.importorskip("stable_baselines3")
+    code = next(b for b in python_blocks("your_task.md") if "stable_baselines3" in b)
+    assert code.count("total_timesteps=100_000") == 1
+    namespace = {}
+    exec(code.replace("total_timesteps=100_000", "total_timesteps=64"), namespace)
+    assert namespace["env"].action_space.contains(namespace["action"].astype("float32"))

@@ -403,3 +403,137 @@ def test_readme_snippet_scores_the_committed_ant_controller(monkeypatch):
     assert abs(clipped.mean() - final_eval) < noise, (clipped.mean(), final_eval, noise)
     raw = scores(code.replace("ctrl.act(obs)", "ctrl.act(obs, clip=False)"))
     assert raw.mean() < nominal - 10.0 and np.all(raw <= clipped + 1e-6), (raw.mean(), nominal)
+
+
+# --- what a controller was trained on: task, observation size, definition sha256; exactly K clusters ---------------
+
+
+def test_export_records_its_task_and_exactly_k_clusters(tmp_path, capsys):
+    """A run's export (K = 3 of K_max = 8) carries its task, observation size and the task definition's sha256 (the
+    run's config.json) in npz, ONNX metadata and the C header; its partition outputs are the K clusters only, and a
+    committed padded file re-exports to its K as well."""
+    _, _, _, run = fake_run(tmp_path, "mixture", 3, 8)
+    config = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**config, "task": {"task": "Hopper-v5", "sha256": "ab" * 32}}))
+    out = {fmt: str(tmp_path / f"c.{fmt}") for fmt in ("npz", "onnx", "h")}
+    for path in out.values():
+        assert export_main([str(run), "--out", path]) == 0
+    with np.load(out["npz"]) as f:
+        assert (str(f["task"]), int(f["obs_size"]), str(f["task_sha256"])) == ("Hopper-v5", D_S, "ab" * 32)
+        last = int(f["n_layers"]) - 1
+        assert f[f"w{last}"].shape[-1] == 3 and f[f"b{last}"].shape == (3,) and f["L"].shape[0] == 3
+    header = open(out["h"]).read()
+    assert f"Task Hopper-v5, observation size {D_S}, task definition sha256 {'ab' * 32}." in header
+    onnx = pytest.importorskip("onnx")
+    props = {p.key: p.value for p in onnx.load(out["onnx"]).metadata_props}
+    assert (props["task"], props["obs_size"], props["task_sha256"]) == ("Hopper-v5", str(D_S), "ab" * 32)
+    padded = os.path.join(ROOT, COMMITTED["Ant-v5"])
+    assert export_main([padded, "--out", out["npz"]]) == 0
+    with np.load(out["npz"]) as f, np.load(padded) as old:
+        last = int(f["n_layers"]) - 1
+        assert old[f"w{last}"].shape[-1] > 4 and f[f"w{last}"].shape[-1] == 4 and str(f["task_sha256"]) == ""
+        obs = far_observations(numpy_policy.Controller(f))
+        np.testing.assert_array_equal(numpy_policy.Controller(f).act(obs), numpy_policy.Controller(old).act(obs))
+
+
+def deploy_lines(controller, *flags, out=None):
+    """(exit status, stderr) of `python -m gsa_jax.deploy controller` for one short episode, in a new process (each
+    reads the task's file afresh); out: a list that receives its stdout."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "gsa_jax.deploy", str(controller), "--episodes", "1",
+                           "--episode-length", "5", *flags], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    if out is not None:
+        out.append(done.stdout)
+    return done.returncode, done.stderr.strip()
+
+
+def test_a_controller_whose_task_changed_is_refused_in_one_line(tmp_path):
+    """deploy and numpy_policy.load(task=...) refuse a controller whose task definition's sha256 changed (--force
+    runs it), that names another task, or whose observation size is no longer the task's (even with --force): one
+    line, no traceback. A committed controller without the fields still deploys, labelled as the user's task."""
+    import hashlib
+
+    source = open(os.path.join(ROOT, "examples", "reacher.py")).read()
+    mine = tmp_path / "mine.py"
+    mine.write_text(source)
+    name = f"{mine}:Reacher"
+    committed = sorted(glob.glob(os.path.join(ROOT, "experiments", "your_task_reacher", "results", "controllers", "*.npz")))[0]
+    assert deploy_lines(committed, out=(printed := []))[0] == 0
+    assert "examples.reacher:Reacher: MuJoCo C (your task)," in printed[0], printed  # not "our port"
+    with np.load(committed) as f:
+        arrays = {k: f[k] for k in f.files}
+    arrays.update(config_json=np.array(json.dumps({"config": {"env": name}})), task=np.array(name), obs_size=np.array(10),
+                  task_sha256=np.array(hashlib.sha256(source.encode()).hexdigest()))
+    np.savez(tmp_path / "ctrl.npz", **arrays)
+    assert deploy_lines(tmp_path / "ctrl.npz") == (0, "")
+    assert numpy_policy.load(str(tmp_path / "ctrl.npz"), task=name).obs_mean.shape == (10,)
+    with pytest.raises(numpy_policy.TaskMismatch, match="is for task .*mine.py:Reacher', not 'examples.reacher:Reacher'"):
+        numpy_policy.load(str(tmp_path / "ctrl.npz"), task="examples.reacher:Reacher")
+    with pytest.raises(numpy_policy.TaskMismatch, match="takes 10 observation values and task 'hopper' now observes 11"):
+        numpy_policy.load(str(tmp_path / "ctrl.npz"), task="hopper", force=True)
+    mine.write_text(source + "\n# an edit\n")
+    status, err = deploy_lines(tmp_path / "ctrl.npz")
+    assert status == 2 and err.count("\n") == 0 and "changed since" in err and "--force" in err, err
+    assert deploy_lines(tmp_path / "ctrl.npz", "--force")[0] == 0
+    mine.write_text(source.replace("self._to_target(qpos, derived)], axis=1)", "self._to_target(qpos, derived)[:, :1]], axis=1)"))
+    for flags in ((), ("--force",)):
+        status, err = deploy_lines(tmp_path / "ctrl.npz", *flags)
+        assert status == 2 and err.count("\n") == 0 and "takes 10 observation values" in err and "now observes 9" in err, err
+    relabelled = {**arrays, "config_json": np.array(json.dumps({"config": {"env": "hopper"}}))}
+    np.savez(tmp_path / "relabelled.npz", **relabelled)
+    status, err = deploy_lines(tmp_path / "relabelled.npz")
+    assert status == 2 and err.count("\n") == 0 and "takes 10 observation values and task 'hopper' now observes 11" in err, err
+
+
+def dm_control_action_spec():
+    """dm_control's action_spec of its quadruped, by its own function on its own model (suite.load itself fails
+    under mujoco 4, tests/test_dmc.py)."""
+    from types import SimpleNamespace
+
+    import mujoco
+
+    pytest.importorskip("dm_control")
+    from dm_control.mujoco.engine import action_spec
+    from dm_control.suite import common, quadruped
+
+    xml = quadruped.make_model()
+    model = mujoco.MjModel.from_xml_string(xml.decode() if isinstance(xml, bytes) else xml, common.ASSETS)
+    return action_spec(SimpleNamespace(model=model))
+
+
+def test_quadruped_controllers_act_in_dm_controls_action_spec(tmp_path, capsys):
+    """dm_control's quadruped maps actions in [-1, 1] onto its actuators' ctrlrange: its exports (npz, ONNX, C) act in
+    that range itself, dm_control's action_spec, on the task's own states and far outside them (the committed file,
+    exported before, acts in [-1, 1], outside the spec); the actions are the committed controller's controls, and
+    deploy's controller (back in [-1, 1], what our MuJoCo C task takes) acts as the committed one (float rounding)."""
+    from envs.mujoco_c import make_c
+    from gsa_jax.deployment.evaluation import load_controller, run_mujoco_c
+
+    spec = dm_control_action_spec()
+    committed = sorted(glob.glob(os.path.join(ROOT, "experiments", "atlas_dmc", "results", "quadruped-walk", "mixture",
+                                              "controllers", "*.npz")))[0]
+    old = numpy_policy.load(committed)
+    out = {fmt: str(tmp_path / f"controller.{fmt}") for fmt in ("npz", "onnx", "h")}
+    for path in out.values():
+        assert export_main([committed, "--out", path]) == 0
+    new = numpy_policy.load(out["npz"])
+    task, rng, states = make_c("dmc:quadruped-walk"), np.random.default_rng(0), []
+    states.append(task.reset(0))
+    for _ in range(300):
+        states.append(task.step(rng.uniform(-1, 1, 12))[0])
+    obs = np.concatenate([np.array(states, np.float32), far_observations(new)])
+
+    def inside(action):
+        return np.all((action.astype(np.float64) >= spec.minimum) & (action.astype(np.float64) <= spec.maximum))
+
+    assert not inside(old.act(obs)) and not np.array_equal(spec.maximum, np.ones(12))
+    assert new.action_space == "controls" and inside(new.act(obs))
+    np.testing.assert_allclose(new.act(obs), old.controls(old.act(obs)), rtol=1e-5, atol=1e-5)
+    assert inside(run_c_header(tmp_path, obs, 12)[0])
+    ort = pytest.importorskip("onnxruntime")
+    assert inside(ort.InferenceSession(out["onnx"], providers=["CPUExecutionProvider"]).run(None, {"obs": obs})[0])
+    unit = load_controller(out["npz"])[0]  # what deploy and robustness step our MuJoCo C task with: [-1, 1] again
+    np.testing.assert_allclose(unit.act(obs), old.act(obs), rtol=1e-5, atol=1e-5)
+    assert np.all(np.isfinite(run_mujoco_c(unit, "dmc:quadruped-walk", {}, 1, 50)["returns"]))

@@ -1,5 +1,6 @@
 """gymnasium's own MuJoCo tasks for exported controllers (gsa_jax.deployment.gymnasium_task, deploy --gymnasium):
-layouts checked, not assumed; mismatches refused with a reason."""
+layouts checked, not assumed; mismatches refused with a reason. And a task of ours as a gymnasium env
+(envs.as_gymnasium): checked by gymnasium, its episodes its MuJoCo C twin's."""
 
 import json
 import subprocess
@@ -70,3 +71,60 @@ def test_deploy_cli_in_gymnasium(tmp_path, random_controller):
     bad = subprocess.run([sys.executable, "-m", "gsa_jax.deploy", str(path), "--gymnasium", "Ant-v5"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "not 'Ant-v5'" in bad.stderr
+    assert bad.stdout == ""  # refused before any episode in MuJoCo C
+
+
+@pytest.mark.parametrize("task", ["examples.reacher:Reacher", "Hopper-v5"])
+def test_a_task_as_a_gymnasium_env_passes_check_env_and_steps_as_its_mujoco_c_twin(task):
+    """envs.as_gymnasium(task) passes gymnasium's env checker, and under the same seeds and random actions (some
+    outside [-1, 1]: clipped, as training clips them) its episodes are the task's MuJoCo C twin's step for step:
+    observations, rewards, terminations (Hopper-v5 falls), and truncation at the task's time limit."""
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    import envs
+
+    env = envs.as_gymnasium(task)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # unbounded observation boxes, as gymnasium's own MuJoCo tasks have
+        check_env(env, skip_render_check=True)
+    twin = envs.task_record(task).make_c()
+    rng = np.random.default_rng(0)
+    ends = []
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        np.testing.assert_array_equal(obs, twin.reset(seed))
+        for t in range(1, env.max_episode_steps + 1):
+            action = rng.uniform(-1.5, 1.5, env.action_space.shape)
+            obs, reward, terminated, truncated, _ = env.step(action.astype(np.float32))
+            want, want_reward, want_done = twin.step(np.clip(action.astype(np.float32), -1.0, 1.0))
+            np.testing.assert_array_equal(obs, want)
+            assert (reward, terminated) == (want_reward, want_done) and truncated == (t == env.max_episode_steps)
+            if terminated or truncated:
+                break
+        ends.append((t, terminated))
+    assert all(t == 200 and not term for t, term in ends) if task.startswith("examples") else all(t < 1000 and term for t, term in ends)
+    with pytest.raises(ValueError, match="has no MuJoCo C version"):
+        envs.as_gymnasium("inverted_double_pendulum")
+
+
+def test_a_controller_scores_in_the_gymnasium_env_what_deploy_scores_in_mujoco_c():
+    """The committed reacher controller, run by gymnasium_task.run_episodes in envs.as_gymnasium, returns what
+    mujoco_c.run_episodes (deploy's MuJoCo C episodes) returns for the same start seeds."""
+    import glob
+    import os
+
+    import envs
+    from envs.mujoco_c import make_c
+    from envs.mujoco_c import run_episodes as c_episodes
+    from gsa_jax.deployment import numpy_policy
+    from gsa_jax.deployment.gymnasium_task import run_episodes
+
+    root = os.path.join(os.path.dirname(__file__), "..", "experiments", "your_task_reacher", "results", "controllers")
+    ctrl = numpy_policy.load(sorted(glob.glob(os.path.join(root, "*K2-s0.npz")))[0])
+    task = "examples.reacher:Reacher"
+    returns, lengths = run_episodes(envs.as_gymnasium(task), ctrl, 4, seed=5)
+    want_returns, want_lengths = c_episodes(make_c(task), ctrl, 4, 200, seed=5)
+    np.testing.assert_allclose(returns, want_returns, rtol=1e-12)
+    np.testing.assert_array_equal(lengths, want_lengths)

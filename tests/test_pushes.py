@@ -35,6 +35,9 @@ def test_push_times_and_directions_depend_on_the_start_alone():
     assert a == b and a != push_events(8, 10, 900, planar=True)
     assert all(0 <= t <= 900 for t, _ in a) and {d for _, d in a} <= {(1.0, 0.0), (-1.0, 1.2246467991473532e-16)}
     assert all(abs(np.hypot(*d) - 1) < 1e-12 for _, d in push_events(7, 10, 900, planar=False))
+    # another draw: other times and directions from the same start; draw 0 is the committed experiment's
+    assert push_events(7, 10, 900, True, draw=0) == a and push_events(7, 10, 900, False, draw=1) != push_events(7, 10, 900, False)
+    assert push_events(7, 10, 900, False, draw=1) == push_events(7, 10, 900, False, draw=1)
 
 
 class FakeTask:

@@ -90,6 +90,12 @@ BAD = {
     "not_a_task": ("FILE:NotATask", "not an envs.task.Task"),
     "push_body": ("FILE:NoSuchBody", "push_body 'hand' is not a body of the model"),
     "ctrlrange": ("FILE:WideRange", "has ctrlrange [-2.0, 2.0]; the policy's actions lie in [-1, 1]"),
+    "vector_obs": ("FILE:VectorObservation", "observe() must return the observation as [n, d], one row per simulation; "
+                                             "got shape (10,) (float64) for n = 1"),
+    "float_terminated": ("FILE:FloatTerminated", "outcome() must return the terminated as a bool array (e.g. a "
+                                                 "comparison, or xp.zeros(n, bool)); got float64 [1]"),
+    "scalar_reward": ("FILE:ScalarReward", "outcome() must return the reward as [n], one row per simulation; got "
+                                             "shape () (float64)"),
 }
 BAD_TASKS = '''
 import numpy as np
@@ -140,6 +146,20 @@ class NotATask:
 
 class NoSuchBody(Reacher):
     push_body = "hand"
+
+class VectorObservation(Reacher):
+    def observe(self, qpos, qvel, derived, xp=np):
+        return super().observe(qpos, qvel, derived, xp)[0]
+
+class FloatTerminated(Reacher):
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        obs, reward, terminated = super().outcome(before, qpos, qvel, derived, action, xp)
+        return obs, reward, xp.zeros(qpos.shape[:1])
+
+class ScalarReward(Reacher):
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        obs, reward, terminated = super().outcome(before, qpos, qvel, derived, action, xp)
+        return obs, xp.sum(reward), terminated
 '''
 
 

@@ -120,7 +120,7 @@ def model_differences(env_name):
 
 def score(run_dir, out, episodes):
     from gsa_jax.deployment import numpy_policy
-    from gsa_jax.deployment.evaluation import load_controller, run_gymnasium, run_mjx, run_mujoco_c
+    from gsa_jax.deployment.evaluation import load_controller, open_gymnasium, run_gymnasium, run_mjx, run_mujoco_c
     from gsa_jax.deployment.exporting import load_arrays, write
 
     arrays = load_arrays(run_dir)
@@ -135,7 +135,8 @@ def score(run_dir, out, episodes):
            "kind": str(arrays["kind"]), "K": int(np.asarray(arrays["L"]).shape[0]) if "L" in arrays else ""}
     for name, summary in (("mjx", run_mjx(run_dir, episodes)[1]),
                           ("mujoco_c", run_mujoco_c(ctrl, env_name, config, episodes)),
-                          ("gymnasium_v5", run_gymnasium(ctrl, env_name, GYM_IDS[env_name], episodes))):
+                          ("gymnasium_v5", run_gymnasium(ctrl, open_gymnasium(ctrl, env_name, GYM_IDS[env_name]),
+                                                         GYM_IDS[env_name], episodes))):
         row[f"{name}_return"] = round(summary["return_mean"], 1)
         row[f"{name}_ci95"] = round(summary["return_ci95"], 1)
         row[f"{name}_length"] = round(summary["length_mean"], 1)

@@ -15,6 +15,7 @@ import sys
 import numpy as np
 
 from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.running.runinfo import cli_description
 
 
 def task_name(env):
@@ -47,7 +48,7 @@ def compare(reference, runs):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.published", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.published", description=cli_description(__doc__))
     p.add_argument("reference", help="CSV of published scores: env, mean, std, source")
     p.add_argument("per_run", nargs="+", help="per_run_scores.csv files of gsa_jax.plot")
     p.add_argument("--out", required=True, help="the comparison CSV to write")

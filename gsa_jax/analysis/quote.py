@@ -32,6 +32,7 @@ from decimal import ROUND_HALF_UP, Decimal
 import numpy as np
 
 from gsa_jax.analysis.results import read_csv
+from gsa_jax.running.runinfo import cli_description
 
 SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
 OPTIONS = ("col", "pm", "ci", "digits", "threshold", "order")
@@ -209,7 +210,7 @@ def requote(text, page_dir):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=cli_description(__doc__))
     p.add_argument("pages", nargs="+", metavar="PAGE", help="Markdown pages")
     p.add_argument("--check", action="store_true", help="rewrite nothing; exit 1 if any quoted number is stale")
     args = p.parse_args(argv)

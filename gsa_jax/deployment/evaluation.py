@@ -23,19 +23,27 @@ def summarize(returns, lengths):
             "returns": [round(float(x), 3) for x in r]}
 
 
-def load_controller(controller_path):
-    """(NumPy controller, its task name, its config) of an exported controller file."""
+def load_controller(controller_path, force=False):
+    """(NumPy controller, its task name, its config) of an exported controller file, acting in [-1, 1] as our MuJoCo C
+    tasks' step() takes (Controller.unit_actions); DeployError (one line) where it does not fit its task's definition
+    as it is now (numpy_policy.check_task; force: only its observation size)."""
     if not os.path.exists(controller_path):
         raise DeployError(f"{controller_path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
     if not zipfile.is_zipfile(controller_path):
         raise DeployError(f"{controller_path!r} is not an exported controller (not an .npz archive)")
     try:
-        ctrl = numpy_policy.load(controller_path)
         with np.load(controller_path, allow_pickle=False) as f:
-            meta = json.loads(str(f["config_json"]))
+            arrays = {k: f[k] for k in f.files}
+        ctrl = numpy_policy.Controller(arrays, name=str(controller_path))
+        config = json.loads(str(arrays["config_json"]))["config"]
     except (OSError, KeyError, ValueError) as e:
         raise DeployError(f"{controller_path!r} is not an exported controller ({e})") from None
-    return ctrl, meta["config"]["env"], meta["config"]
+    if has_mujoco_c(config["env"]):  # a task MuJoCo C steps: its definition is read without JAX
+        try:
+            numpy_policy.check_task(arrays, config["env"], force, name=str(controller_path))
+        except numpy_policy.TaskMismatch as e:
+            raise DeployError(str(e)) from None
+    return ctrl.unit_actions(), config["env"], config
 
 
 def has_mujoco_c(env_name):
@@ -59,18 +67,37 @@ def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
 
 
-def run_gymnasium(ctrl, env_name, env_id, episodes, seed=0):
-    """Summary of the controller in gymnasium's own task `env_id` (its MJCF, reward, termination, time limit)."""
-    from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym, run_episodes
+def open_gymnasium(ctrl, env_name, env_id, seed=0):
+    """(gymnasium's env `env_id` for the controller, its options), checked (DeployError, one line, where there is no
+    counterpart of the task or its layout or action space is not the controller's)."""
+    from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym
 
     try:
         env, options = make_gym(env_name, env_id, seed=seed)
         check_bounds(ctrl, env, env_id)
     except (GymnasiumError, ValueError) as e:
         raise DeployError(str(e)) from None
+    return env, options
+
+
+def run_gymnasium(ctrl, gym, env_id, episodes, seed=0):
+    """Summary of the controller in gymnasium's own task (its MJCF, reward, termination, time limit); gym: (env,
+    options) of open_gymnasium."""
+    from gsa_jax.deployment.gymnasium_task import run_episodes
+
+    env, options = gym
     returns, lengths = run_episodes(env, ctrl, episodes, seed)
     return {**summarize(returns, lengths), "env_id": env_id, "options": options,
             "episode_length_limit": int(env.spec.max_episode_steps or 0)}
+
+
+def mujoco_c_label(env_name):
+    """What runs a task in MuJoCo C, for report lines: our port of Brax's task (or of the Allegro hand), a built-in
+    task definition, or the user's own."""
+    record = task_record(env_name)
+    if record.family in ("brax", "allegro"):
+        return "MuJoCo C (our port)"
+    return "MuJoCo C" if record.builtin else "MuJoCo C (your task)"
 
 
 def run_mjx(run_dir, episodes, seed=0):

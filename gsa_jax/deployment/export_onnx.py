@@ -2,7 +2,8 @@
 
 Input `obs` float32 [N, d_s]; outputs `action` float32 [N, d_a] (inside the task's action bounds, as
 numpy_policy's act), `cluster` int64 [N] (0 for an MLP controller) and `raw_action` float32 [N, d_a] (before the
-bounds, as act(obs, clip=False)); the bounds are also in its metadata (action_low, action_high). The graph:
+bounds, as act(obs, clip=False)); the bounds are also in its metadata (action_low, action_high), with what it was
+trained on (task, obs_size, task_sha256: the npz's, docs/deploy.md). The graph:
 normalize (subtract the running mean, divide by the std, clip), then for a mixture: partition MLP -> logits of the
 K active clusters -> ArgMax (first maximum, as NumPy's) -> gather that cluster's L_c, b_c -> L_c phi(z) + b_c; for
 an MLP controller its tanh MLP; then Max / Min with the bounds.
@@ -123,8 +124,11 @@ def build_model(arrays, layout=None):
     model.ir_version = IR_VERSION
     model.doc_string = describe(arrays)
     meta = {"config_json": str(arrays["config_json"]) if "config_json" in arrays else "{}"}
+    meta.update({k: str(arrays[k]) for k in ("task", "obs_size", "task_sha256") if k in arrays})
     meta.update(action_low=json.dumps(ctrl.action_low.tolist()), action_high=json.dumps(ctrl.action_high.tolist()))
-    if ctrl.ctrl_range is not None:  # the task maps the action onto its controls: low + (a + 1) (high - low) / 2
+    if ctrl.action_space == "controls":  # the action is the actuators' controls (the task's own action space)
+        meta.update(action_space="controls")
+    elif ctrl.ctrl_range is not None:  # the task maps the action onto its controls: low + (a + 1) (high - low) / 2
         meta.update(ctrl_low=json.dumps(ctrl.ctrl_range[0].tolist()), ctrl_high=json.dumps(ctrl.ctrl_range[1].tolist()))
     if layout:
         meta["observation_layout"] = json.dumps(layout)

@@ -8,7 +8,7 @@ import zipfile
 import numpy as np
 
 from gsa_jax.deployment.export_c import cost, to_source
-from gsa_jax.deployment.numpy_policy import action_bounds, task_name
+from gsa_jax.deployment.numpy_policy import action_bounds, map_actions, task_name
 from gsa_jax.running.checkpoint import save_npz_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
@@ -19,12 +19,34 @@ class ExportError(Exception):
 
 def with_bounds(arrays, source):
     """The controller arrays with action_low / action_high [d_a] (numpy_policy.action_bounds: the stored ones, else
-    the named task's); ExportError where there are none."""
+    the named task's), in the task's own action space (in_task_action_space) and with what it was trained on
+    (identity_arrays); ExportError where there are no bounds."""
     bounds = action_bounds(arrays)
     if bounds is None:
         raise ExportError(f"{source!r} names no known task ({task_name(arrays)!r}), so no action bounds to export")
-    arrays = {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
-    return {**arrays, **control_range_arrays(task_name(arrays))}
+    if "action_space" not in arrays:
+        arrays = {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
+        arrays = in_task_action_space({**arrays, **control_range_arrays(task_name(arrays))})
+    return {**arrays, **identity_arrays(arrays)}
+
+
+def in_task_action_space(arrays):
+    """Where the task maps its actions in [-1, 1] onto its actuators' ctrlrange [ctrl_low, ctrl_high] (dm_control's
+    quadruped), the controller with that map applied (numpy_policy.map_actions): its actions are the controls, in the
+    task's own action space (dm_control's action_spec), marked action_space 'controls'; else unchanged."""
+    if "ctrl_low" not in arrays:
+        return arrays
+    low, high = np.asarray(arrays["ctrl_low"], np.float64), np.asarray(arrays["ctrl_high"], np.float64)
+    half = 0.5 * (high - low)
+    return {**map_actions(arrays, half, low + half, low, high), "action_space": np.array("controls")}
+
+
+def identity_arrays(arrays):
+    """{task, obs_size, task_sha256}: what the controller was trained on (numpy_policy.check_task compares them with
+    the task as it is); task_sha256 as stored (a run's: its config.json's), else '' (a built-in task, or a file
+    exported before it was stored)."""
+    return {"task": np.array(task_name(arrays) or ""), "obs_size": np.array(int(np.shape(arrays["obs_mean"])[0])),
+            "task_sha256": np.array(str(arrays["task_sha256"]) if "task_sha256" in arrays else "")}
 
 
 def control_range_arrays(task):
@@ -71,7 +93,16 @@ def controller_arrays(address):
         k = int(meta["hparams"]["K"])
         out["L"] = arrays[f"{prefix}['L']"][:k]
         out["b"] = arrays[f"{prefix}['b']"][:k]
+        out = active_partition(out)
+    out["task_sha256"] = np.array((meta.get("task") or {}).get("sha256") or "")
     return with_bounds(out, address)
+
+
+def active_partition(arrays):
+    """A mixture's arrays with the partition network's last layer cut to its K clusters' logits (training pads it to
+    K_max; numpy_policy reads a padded file's first K)."""
+    last, k = int(arrays["n_layers"]) - 1, int(np.shape(arrays["L"])[0])
+    return {**arrays, f"w{last}": np.asarray(arrays[f"w{last}"])[:, :k], f"b{last}": np.asarray(arrays[f"b{last}"])[:k]}
 
 
 SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
@@ -79,7 +110,8 @@ SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
 
 def load_arrays(source):
     """Controller arrays of a trained run (a run directory or SWEEP_DIR/<run label>) or of an exported
-    controller .npz, with action bounds (a file exported before they were stored: its task's)."""
+    controller .npz, with action bounds (a file exported before they were stored: its task's), what it was trained on
+    (identity_arrays) and a mixture's partition cut to its K clusters (active_partition)."""
     if os.path.isfile(source) and source.endswith(".npz"):
         if not zipfile.is_zipfile(source):
             raise ExportError(f"{source!r} is not an exported controller (not an .npz archive)")
@@ -90,7 +122,7 @@ def load_arrays(source):
             raise ExportError(f"{source!r} is not an exported controller ({e})") from None
         if "kind" not in arrays or "obs_mean" not in arrays:
             raise ExportError(f"{source!r} is not an exported controller (no 'kind' / 'obs_mean' arrays)")
-        return with_bounds(arrays, source)
+        return with_bounds(active_partition(arrays) if str(arrays["kind"]) == "mixture" else arrays, source)
     return controller_arrays(source)
 
 

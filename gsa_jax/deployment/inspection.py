@@ -24,6 +24,7 @@ from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import Config, make_env, make_hparams, make_train, schedule
+from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
 
@@ -237,7 +238,7 @@ def inspect_run(run_dir, out=None, episodes=8, seed=0):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.inspect", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.inspect", description=cli_description(__doc__))
     p.add_argument("run_dir", metavar="RUN", help="a run directory (gsa_jax.train) or SWEEP_DIR/<run label>")
     p.add_argument("--out", default=None)
     p.add_argument("--episodes", type=int, default=8)

@@ -10,10 +10,15 @@ the action they are given); `act(obs, clip=False)` is the raw action, for analys
 
 File format (written by `python -m gsa_jax.export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
 obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), action_low, action_high [d_a],
-config_json (the run's config: its task is config.env), ctrl_low, ctrl_high [d_a] where the task maps its actions
-onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), and for mixtures subpolicy
+config_json (the run's config: its task is config.env), task (its name), obs_size (d_s), task_sha256 (the sha256 of
+the file that defined the task, '' for a built-in one; envs.task_source), ctrl_low, ctrl_high [d_a] where the task maps
+its actions onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), action_space
+('controls' where that map is applied in the file: the actions are the controls; absent: actions in [-1, 1]; see
+unit_actions), and for mixtures subpolicy
 ('constant'|'linear'|'quadratic'; absent = linear), L [K, d_a, d_phi], b [K, d_a] of the K active clusters.
-Files exported before the bounds were stored get their task's (`action_bounds`).
+Files exported before the bounds were stored get their task's (`action_bounds`); docs/deploy.md lists every key.
+`load(path, task=NAME)` refuses (TaskMismatch, one line) a controller that does not fit that task as it is now
+(check_task).
 """
 
 import json
@@ -52,8 +57,68 @@ def action_bounds(arrays):
     return envs.action_bounds(task, action_size(arrays))
 
 
+class TaskMismatch(ValueError):
+    """An exported controller that does not fit the task it is asked to run (one line)."""
+
+
+def stored_sha256(arrays):
+    """The sha256 of the task definition an exported controller was trained on, or None where it has none."""
+    return str(arrays["task_sha256"]) or None if "task_sha256" in arrays else None
+
+
+def check_task(arrays, task, force=False, name="the controller"):
+    """TaskMismatch (one line) unless the controller fits `task` (a task name) as its definition is now: the same
+    observation size, and (unless force) the same task name and, where both are recorded, the same definition
+    sha256 (envs.task_source, what `train --resume` compares)."""
+    import envs
+
+    d_s = int(np.shape(arrays["obs_mean"])[0])
+    mine = (str(arrays["task"]) if "task" in arrays else "") or task_name(arrays)  # task: as exported
+    size = envs.observation_size(task)
+    if size != d_s:
+        raise TaskMismatch(f"{name} takes {d_s} observation values and task {task!r} now observes {size}: it was "
+                           f"trained on {'task ' + repr(mine) if mine else 'another task'} as it was then; export it "
+                           "again from a run of the task as it is")
+    if force:
+        return
+    sha = envs.task_source(task).get("sha256")
+    if mine is not None and mine != task:
+        raise TaskMismatch(f"{name} is for task {mine!r}, not {task!r} (pass --force / force=True to run it anyway)")
+    if stored_sha256(arrays) and sha and stored_sha256(arrays) != sha:
+        raise TaskMismatch(f"the definition of task {task!r} changed since {name} was trained (sha256 "
+                           f"{stored_sha256(arrays)[:12]}... then, {sha[:12]}... now); pass --force / force=True to "
+                           "run it anyway")
+
+
+def inward_float32(low, high):
+    """(low, high) as float32 inside [low, high]: a bound float32 rounds outward is moved one step in, so an action
+    clipped to them is inside the float64 range too (dm_control checks actions against its action_spec's)."""
+    lo, hi = np.asarray(low, np.float32), np.asarray(high, np.float32)
+    lo = np.where(lo.astype(np.float64) < low, np.nextafter(lo, np.float32(np.inf)), lo)
+    hi = np.where(hi.astype(np.float64) > high, np.nextafter(hi, np.float32(-np.inf)), hi)
+    return lo.astype(np.float32), hi.astype(np.float32)
+
+
+def map_actions(arrays, scale, offset, low, high):
+    """The controller arrays with every action a replaced by offset + scale * a (scale > 0, per action) and its bounds
+    by [low, high]: the last affine step (a mixture's L, b; an MLP's last layer) absorbs the map, so the cluster
+    choice is unchanged and, the map being increasing, clipping commutes with it."""
+    scale, offset = np.asarray(scale, np.float64), np.asarray(offset, np.float64)
+    out = dict(arrays)
+    if str(arrays["kind"]) == "mixture":
+        out["L"] = (np.asarray(arrays["L"], np.float64) * scale[:, None]).astype(np.float32)
+        out["b"] = (offset + scale * np.asarray(arrays["b"], np.float64)).astype(np.float32)
+    else:
+        last = int(arrays["n_layers"]) - 1
+        out[f"w{last}"] = (np.asarray(arrays[f"w{last}"], np.float64) * scale).astype(np.float32)
+        out[f"b{last}"] = (offset + scale * np.asarray(arrays[f"b{last}"], np.float64)).astype(np.float32)
+    out["action_low"], out["action_high"] = inward_float32(low, high)
+    return out
+
+
 class Controller:
     def __init__(self, arrays, name="the controller"):
+        self.arrays = arrays
         self.kind = str(arrays["kind"])
         self.obs_mean = np.asarray(arrays["obs_mean"], np.float32)
         self.obs_std = np.sqrt(np.asarray(arrays["obs_var"], np.float32) + np.float32(1e-8))
@@ -72,18 +137,32 @@ class Controller:
         self.action_low, self.action_high = action_bounds(arrays) or (None, None)
         self.ctrl_range = ((np.asarray(arrays["ctrl_low"], np.float64), np.asarray(arrays["ctrl_high"], np.float64))
                            if "ctrl_low" in arrays else None)
+        # 'controls': the actions are the actuators' own controls, in their ctrlrange (the task's action space)
+        self.action_space = str(arrays["action_space"]) if "action_space" in arrays else "unit"
         self.no_bounds = (f"{name} stores no action bounds and its task {task_name(arrays)!r} is not a known task: "
                           "act() returns raw, unclipped actions")
         if self.action_low is None:
             warnings.warn(self.no_bounds, stacklevel=2)
 
     def controls(self, action):
-        """The actuator controls of an action from act(): the action itself, or its map onto the task's ctrlrange
-        (ctrl = low + (a + 1) (high - low) / 2) where the task has one (ctrl_low, ctrl_high)."""
-        if self.ctrl_range is None:
+        """The actuator controls of an action from act(): the action itself (also where its actions are the controls
+        already, action_space 'controls'), or its map onto the task's ctrlrange (ctrl = low + (a + 1) (high - low) / 2)
+        where the task has one (ctrl_low, ctrl_high)."""
+        if self.ctrl_range is None or self.action_space == "controls":
             return np.asarray(action)
         low, high = self.ctrl_range
         return low + (np.asarray(action, np.float64) + 1.0) * (0.5 * (high - low))
+
+    def unit_actions(self):
+        """This controller with actions in [-1, 1] (what training acts in, and our MuJoCo C tasks' step() takes):
+        itself, or, for one whose actions are its task's controls (action_space 'controls'), the map
+        ctrl = low + (a + 1) (high - low) / 2 undone, with low and high as its ctrl_range."""
+        if self.action_space != "controls":
+            return self
+        low, high = self.ctrl_range
+        half = 0.5 * (high - low)
+        arrays = map_actions(self.arrays, 1.0 / half, -(low + half) / half, -np.ones_like(low), np.ones_like(high))
+        return Controller({k: v for k, v in arrays.items() if k != "action_space"})
 
     @property
     def num_clusters(self):
@@ -139,7 +218,12 @@ class Controller:
         return np.einsum("...ij,...j->...i", self.L[c], self.features(z)) + self.b[c]
 
 
-def load(path: str) -> Controller:
-    """The controller of an exported .npz; one warning line where it has no action bounds and names no known task."""
+def load(path: str, task: "str | None" = None, force: bool = False) -> Controller:
+    """The controller of an exported .npz; one warning line where it has no action bounds and names no known task.
+    task: a task name it must fit (check_task: TaskMismatch, one line, where it does not; force: only its
+    observation size is checked)."""
     with np.load(path, allow_pickle=False) as f:
-        return Controller({k: f[k] for k in f.files}, name=str(path))
+        arrays = {k: f[k] for k in f.files}
+    if task is not None:
+        check_task(arrays, task, force, name=str(path))
+    return Controller(arrays, name=str(path))

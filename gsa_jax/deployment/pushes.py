@@ -28,10 +28,11 @@ class Event(NamedTuple):
     direction: tuple  # horizontal unit vector (x, y)
 
 
-def push_events(seed, per_episode, latest, planar):
+def push_events(seed, per_episode, latest, planar, draw=0):
     """[Event] of one start: `per_episode` push times uniform in [0, latest] and directions (+-x for planar
-    robots, any horizontal angle otherwise), drawn from `seed` alone (the same for every controller)."""
-    rng = np.random.default_rng([int(seed), 0x9055])
+    robots, any horizontal angle otherwise), drawn from `seed` alone (the same for every controller); draw > 0:
+    another independent draw of them (0: the robustness experiment's)."""
+    rng = np.random.default_rng([int(seed), 0x9055] + ([int(draw)] if draw else []))
     times = np.sort(rng.integers(0, latest + 1, per_episode))
     angle = np.where(rng.random(per_episode) < 0.5, 0.0, np.pi) if planar else rng.uniform(0, 2 * np.pi, per_episode)
     return [(int(t), (float(np.cos(a)), float(np.sin(a)))) for t, a in zip(times, angle)]
@@ -124,11 +125,12 @@ def event_row(control, e, t, branch_fall, branch_rewards, windows, length):
     return row
 
 
-def push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, length):
-    """(rows, control) of one start seed: the control episode, then every push event x size as a pushed copy
-    of it (none where the control has ended or terminates at the push's step: a row never counted)."""
+def push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, length, draw=0):
+    """(rows, control) of one start seed: the control episode, then every push event x size (push_events' draw)
+    as a pushed copy of it (none where the control has ended or terminates at the push's step: a row never
+    counted)."""
     wmax = max(windows)
-    events = push_events(seed, per_episode, length - wmax, planar)
+    events = push_events(seed, per_episode, length - wmax, planar, draw)
     control = run_controls(ctrl, make_task, [seed], {0: {t for t, _ in events}}, length)
     keys, branches, limits = [], [], []
     for j, (t, direction) in enumerate(events):
@@ -149,14 +151,15 @@ def push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, lengt
 
 
 def evaluate_pushes(ctrl, env_name, seeds, sizes=PUSH_SIZES, windows=WINDOWS, per_episode=PER_EPISODE, length=1000,
-                    make_task=None):
+                    make_task=None, draw=0):
     """(rows, nominal) of one controller: a row per push event x size (start_seed, event, time, size and
     event_row's columns) and its control episodes' {nominal_score, mean_length, full_length_fraction}.
-    make_task: the task's MuJoCo C twin (default: env_name's, nominal physics)."""
+    make_task: the task's MuJoCo C twin (default: env_name's, nominal physics); draw: which independent draw of
+    push events (push_events; 0: the robustness experiment's)."""
     make_task = make_task or (lambda: shifted_task(env_name, Shift("nominal")))
     rows, returns, lengths, planar = [], [], [], is_planar(make_task())
     for seed in seeds:
-        new, control = push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, length)
+        new, control = push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, length, draw)
         rows += new
         returns.append(control.rewards.sum())
         lengths.append(int(control.lengths[0]))

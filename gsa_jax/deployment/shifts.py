@@ -9,8 +9,10 @@ patched), and every episode starts from the same fixed start states as the nomin
     Shift("obs_noise", 0.1)   Gaussian noise of 0.1 x each observation's running std (the controller's
                               normalizer statistics) added to what the controller sees
     Shift("action_delay", 1)  each action applied one control step late (zero action first)
-    Shift("push", 0.25)       horizontal pushes on the root body, each a velocity change of `level` m/s of
-                              the whole robot (impulse = level x total mass, spread over one env step),
+    Shift("push", 0.25)       horizontal pushes on the task's push body (1: the torso), each a force of
+                              level x total mass / dt for one env step dt: an impulse of level x total mass,
+                              the momentum of a `level` m/s velocity change of the whole robot as one rigid
+                              body (not a velocity set on the root joint),
                               at each env step with probability PUSH_RATE, in a random horizontal direction
                               (+-x for planar robots)
     Shift("simulator", 0)     the same robot in the other task family: gymnasium's v5 task <-> Brax's

@@ -147,9 +147,10 @@ def compile_group(shape, group, share=None, log=print):
     return init(keys, hps), run, hps, place, how[0]
 
 
-def compile_single(cfg, chunk):
-    """(trainer, jitted init, compiled run_chunk of `chunk` iterations, jitted evaluate) of one run of a
-    Config (not vmapped: train.py's program), compiled once per process for these shapes."""
+def compile_single(cfg, chunk, evaluate=True):
+    """(trainer, jitted init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
+    vmapped: train.py's program), compiled once per process for these shapes; evaluate is compiled with them
+    (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only)."""
 
     def build():
         trainer = make_train(cfg)
@@ -157,9 +158,12 @@ def compile_single(cfg, chunk):
         hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
         state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
         run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
-        return trainer, init, run_chunk, jax.jit(trainer.evaluate)
+        evaluation = jax.jit(trainer.evaluate)
+        if evaluate:
+            evaluation = evaluation.lower(state.params, state.obs_stats, hp, jax.random.PRNGKey(0)).compile()
+        return trainer, init, run_chunk, evaluation
 
-    return cached("single", (cfg, chunk), build)
+    return cached("single", (cfg, chunk, evaluate), build)
 
 
 def with_run_axis(tree):
@@ -171,12 +175,12 @@ def first_run(tree):
     return jax.tree.map(lambda x: x[0], tree)
 
 
-def single_program(cfg, chunk, seed, hp_py, eval_seed=0):
+def single_program(cfg, chunk, seed, hp_py, eval_seed=0, evaluate=True):
     """(Program of one run, its trainer). The run is a group of one: its state and metrics carry a leading run
     axis of 1 (what the group store saves), around the un-vmapped compiled run_chunk. The deterministic
     evaluation after iteration `it` starts its episodes from fold_in(PRNGKey(eval_seed), it): the same starts
-    for every seed."""
-    trainer, init, run_chunk, evaluate = compile_single(cfg, chunk)
+    for every seed; it is compiled with the run unless `evaluate` is False (compile_single)."""
+    trainer, init, run_chunk, evaluate = compile_single(cfg, chunk, evaluate)
     hp = make_hparams(**hp_py)
     eval_key = jax.random.PRNGKey(eval_seed)
 

@@ -96,3 +96,10 @@ def resume_command(module, *flags):
     if not rel.startswith(".."):
         python = rel if os.sep in rel else os.path.join(".", rel)
     return shlex.join([python, "-m", module, *flags])
+
+
+def cli_description(doc):
+    """A command's --help description: the first paragraph of its module docstring, whole (a closing ':' that
+    introduces the usage block below it becomes '.')."""
+    text = " ".join(doc.split("\n\n")[0].split())
+    return text[:-1] + "." if text.endswith(":") else text

@@ -182,7 +182,7 @@ def train_run(plan, options, config, log):
     """Compile (or reuse) the run's program and drive it with its store; then finish. Returns the exit status."""
     cfg, out = plan.cfg, options.out
     t0 = time.perf_counter()
-    program, trainer = single_program(cfg, plan.chunk, plan.seed, plan.hp, plan.eval_seed)
+    program, trainer = single_program(cfg, plan.chunk, plan.seed, plan.hp, plan.eval_seed, plan.eval_every > 0)
     log_start(plan, trainer, out, log)
     if cfg.value_target == "retrace":
         config["retrace_buffer_bytes"] = buffer_bytes(program.state.buffer)
@@ -203,9 +203,7 @@ def report_end(result, config, out, log):
     """The closing lines of this invocation. Returns the exit status: 0, 1 (NaN/inf), 130 (interrupted)."""
     timing, res = config["timing"], config["result"]
     if result.status == "failed":
-        failed_at = int(result.metrics["failed_at"][0, result.done - 1])
-        print(f"gsa_jax.train: error: NaN/inf in the loss or parameters at iteration {failed_at}; stopped. "
-              f"Last good parameters (iteration {failed_at - 1}) are in {os.path.join(out, 'params.npz')}", file=sys.stderr)
+        print(f"gsa_jax.train: error: {failure_line(result.metrics, result.done, out)}", file=sys.stderr)
         return 1
     if result.status == "interrupted":
         print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
@@ -216,9 +214,32 @@ def report_end(result, config, out, log):
         log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with: {again}")
     else:
         log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
-            f"{timing['env_steps_per_s']:,.0f} steps/s); final return {fmt(res['final_episode_return'], '.1f')}, "
-            f"eval {fmt(res['final_eval_return'], '.1f')}; results in {out}")
+            f"{timing['env_steps_per_s']:,.0f} steps/s); final return {returned(res, 'final_episode_return')}, "
+            f"eval {returned(res, 'final_eval_return')}; results in {out}")
     return 0
+
+
+def returned(result, key):
+    """A result's return with the iteration it is from ('-' where there is none)."""
+    it = result.get(f"{key}_iteration")
+    return fmt(result[key], ".1f") + (f" (iteration {it})" if it is not None else "")
+
+
+def failure_line(metrics, done, out):
+    """What stopped a run at a NaN/inf, from its metrics [1, iterations] up to `done`: the task's reward where an
+    episode that ended in the failing iteration returned a non-finite total, else the loss or parameters."""
+    failed_at = int(metrics["failed_at"][0, done - 1])
+    ended, total = metrics["episodes"][0, failed_at - 1], float(metrics["episode_return"][0, failed_at - 1])
+    if ended > 0 and not math.isfinite(total):
+        what = (f"NaN/inf in the task's reward (the episodes that ended in iteration {failed_at} returned {total}: "
+                "check its outcome()), and so in the loss")
+    elif ended > 0:
+        what = "NaN/inf in the loss or parameters (the episodes that ended in it returned finite rewards)"
+    else:
+        what = ("NaN/inf in the loss or parameters (no episode ended in it, so its rewards are not known here: if "
+                "the task's reward can be NaN/inf, check its outcome())")
+    return (f"{what} at iteration {failed_at}; stopped. Last good parameters (iteration {failed_at - 1}) are in "
+            f"{os.path.join(out, 'params.npz')}")
 
 
 def log_start(plan, trainer, out, log):
@@ -249,11 +270,14 @@ def record_result(plan, out, config, ended):
         except OSError as e:  # a figure is not worth failing a run for (e.g. a full disk)
             print(f"gsa_jax.train: warning: curve.png not written ({e.strerror or e})", file=sys.stderr)
     last = [r for r in rows if r["episode_return"] != ""]
+    evals = [r for r in rows if r["eval_return"] != ""]
     config["timing"] = timing
     config["result"] = {
         "iterations_done": done,
         "final_episode_return": float(last[-1]["episode_return"]) if last else None,
-        "final_eval_return": next((float(r["eval_return"]) for r in reversed(rows) if r["eval_return"] != ""), None),
+        "final_episode_return_iteration": int(last[-1]["iteration"]) if last else None,
+        "final_eval_return": float(evals[-1]["eval_return"]) if evals else None,
+        "final_eval_return_iteration": int(evals[-1]["iteration"]) if evals else None,
         "status": status,
     }
     write_atomic(os.path.join(out, "config.json"), json.dumps(config, indent=2))
