@@ -79,8 +79,8 @@ def test_falsification_finds_a_planted_failure_quadrant(tmp_path):
     below the worst the same search finds for the LQR alone."""
     planted = load_system(quadrant_controller(tmp_path / "planted.npz"))
     lqr = load_system(export(tmp_path / "lqr.npz", POINT_MASS, -lqr_gain()[None] * np.sqrt(1.0 + 1e-8), [[0.0]]))
-    f = analysis.falsification(planted, analysis.QUICK)["starts"]
-    g = analysis.falsification(lqr, analysis.QUICK)["starts"]
+    f = analysis.falsification(planted, analysis.QUICK)["start_law"]
+    g = analysis.falsification(lqr, analysis.QUICK)["start_law"]
     worst = f["counterexamples"][0]
     assert worst["qpos"][0] > 0 and worst["qvel"][0] > 0
     assert f["episodes"] == g["episodes"] == analysis.QUICK.population * analysis.QUICK.iterations

@@ -22,7 +22,7 @@ class Budget(NamedTuple):
     seed: int = 0
 
 
-QUICK = Budget(nominal_episodes=16, roa_directions=24, roa_bisections=5, population=32, iterations=4)
+QUICK = Budget(nominal_episodes=16, roa_directions=16, roa_bisections=4, population=24, iterations=4)
 
 
 def eig_list(a) -> list:
@@ -38,23 +38,26 @@ def state_dict(task, qref, x) -> dict:
     return {"qpos": [float(q) for q in to_qpos(task.model, qref, x[:nv])[0]], "qvel": [float(v) for v in x[nv:]]}
 
 
-def local_piece(system: System, piece, qref, scale) -> dict:
-    """One piece's fixed point near the equilibrium (Newton), whether the partition picks that piece there, and the
-    closed loop's eigenvalues there (piece None: flat PPO's network)."""
+def local_piece(system: System, piece, qref, scale, starts) -> dict:
+    """One piece's fixed point (Newton from each of starts [S, 2 nv]; the converged one nearest the first start),
+    whether the partition picks that piece there, and the closed loop's eigenvalues there (piece None: flat PPO's
+    network)."""
     task, ctrl = system.task, system.ctrl
     jac = piece_jac(ctrl, piece)
-    fp = lin.fixed_point(task, jac, qref, np.zeros(2 * task.model.nv), scale)
-    out = {"piece": piece, "fixed_point_found": bool(fp.converged), "residual": fp.residual,
-           **state_dict(task, qref, fp.x)}
-    if not np.all(np.isfinite(fp.x)):
-        return {**out, "fixed_point_found": False}
+    tries = [lin.fixed_point(task, jac, qref, x0, scale) for x0 in starts]
+    done = [f for f in tries if f.converged and np.all(np.isfinite(f.x))]
+    fp = min(done, key=lambda f: np.linalg.norm((f.x - starts[0]) / scale)) if done else tries[0]
+    out = {"piece": piece, "fixed_point_found": bool(done), "residual": fp.residual}
+    if not done:
+        return out
     L = lin.linearize(task, jac, qref, fp.x)
+    out.update(state_dict(task, qref, fp.x))
     picked = int(ctrl.cluster(lin.observe_at(task, out["qpos"], fp.x[task.model.nv:]).astype(np.float32)))
     a_cl = L.closed
     return {**out, "picked_there": picked, "own_region": bool(piece is None or picked == piece),
             "action": [float(a) for a in L.action], "saturated": saturated(ctrl, L.action),
             "eigenvalues": eig_list(a_cl), "spectral_radius": float(np.max(np.abs(np.linalg.eigvals(a_cl)))),
-            "distance_scaled": float(np.linalg.norm(fp.x / scale)), "_a_cl": a_cl, "_x": fp.x}
+            "distance_from_hold_scaled": float(np.linalg.norm((fp.x - starts[0]) / scale)), "_a_cl": a_cl}
 
 
 def saturated(ctrl, action) -> bool:
@@ -64,38 +67,47 @@ def saturated(ctrl, action) -> bool:
     return bool(np.any(np.isclose(action, ctrl.action_low) | np.isclose(action, ctrl.action_high)))
 
 
-def local_analysis(system: System, qref, scale) -> list:
+def local_analysis(system: System, qref, scale, hold) -> dict:
+    """Every piece's fixed point near the hold and the equilibrium, and the closed loop's own fixed point: the one
+    nearest the hold among those that lie in their own piece's region."""
+    starts = np.stack([hold.x, np.zeros_like(hold.x)])
     pieces = range(system.ctrl.num_clusters) if system.ctrl.kind == "mixture" else [None]
-    return [local_piece(system, p, qref, scale) for p in pieces]
+    found = [local_piece(system, p, qref, scale, starts) for p in pieces]
+    own = [p for p in found if p["fixed_point_found"] and p["own_region"]]
+    fp = min(own, key=lambda p: p["distance_from_hold_scaled"]) if own else None
+    return {"pieces": found, "has_fixed_point": fp is not None,
+            "closed_loop_fixed_point": None if fp is None else {k: fp[k] for k in
+                                                                 ("piece", "qpos", "qvel", "spectral_radius")},
+            "_a_cl": None if fp is None else fp["_a_cl"]}
 
 
-def closed_loop_fixed_point(pieces) -> "dict | None":
-    """The nearest-to-equilibrium fixed point that lies in its own piece's region (a fixed point of the closed loop)."""
-    own = [p for p in pieces if p["fixed_point_found"] and p.get("own_region")]
-    return min(own, key=lambda p: p["distance_scaled"]) if own else None
+DRIFT_TOL = 1e-3  # scaled state change of one zero-action step at the equilibrium that still counts as one
 
 
 def lqr_design(system, qref, scale, x_eq):
-    """(summary, policy) of an LQR on the task's linearization at the equilibrium with zero action, or (note, None)."""
+    """(summary, policy) of an LQR (Q = I on scaled states, R = I on actions) on the task's linearization at the
+    equilibrium with zero action, or (note, None) where that is not an equilibrium."""
     task, ctrl = system.task, system.ctrl
     zero = lambda obs: (np.zeros(ctrl.action_size), np.zeros((ctrl.action_size, len(obs))))
-    drift = lin.closed_step(task, zero, qref, x_eq) - x_eq
-    if np.linalg.norm(drift / scale) > 1e-6:
-        return {"note": "the equilibrium needs a nonzero action; no LQR designed"}, None
+    drift = float(np.linalg.norm((lin.closed_step(task, zero, qref, x_eq) - x_eq) / scale))
+    if drift > DRIFT_TOL:
+        return {"note": f"zero action does not hold the equilibrium (drift {drift:.3g}); no LQR designed"}, None
     L = lin.linearize(task, zero, qref, x_eq)
     A, B = roa.scaled_system(L.A, L.B @ L.G, scale)
     K, P = roa.lqr_gain(A, B)
-    summary = {"gain_scaled": K.tolist(), "eigenvalues": eig_list(A - B @ K),
+    summary = {"gain_scaled": K.tolist(), "eigenvalues": eig_list(A - B @ K), "drift": drift,
                "spectral_radius": float(np.max(np.abs(np.linalg.eigvals(A - B @ K)))),
                "open_loop_eigenvalues": eig_list(A), "_a_cl": A - B @ K}
     bounds = (ctrl.action_low, ctrl.action_high) if ctrl.action_low is not None else None
     return summary, roa.lqr_policy(task, qref, x_eq, np.zeros(ctrl.action_size), K, scale, bounds)
 
 
-def roa_of(system, policy, qref, scale, budget, a_cl=None) -> dict:
+def roa_of(system, policy, qref, scale, budget, a_cl=None, hold=None) -> dict:
+    """The region of attraction of policy's hold (found here unless given), with the Lyapunov sublevel set of a_cl
+    (scaled coordinates; None: none)."""
     task = system.task
     horizon, dim = int(task.episode_length), 2 * task.model.nv
-    hold = roa.find_hold(task, policy, qref, scale, horizon)
+    hold = hold or roa.find_hold(task, policy, qref, scale, horizon)
     out = {"hold": {**state_dict(task, qref, hold.x), "excursion_scaled": (hold.excursion / scale).tolist(),
                     "holds": hold.holds}, "r_max": budget.roa_radius, "directions": budget.roa_directions}
     if not hold.holds:
@@ -107,7 +119,7 @@ def roa_of(system, policy, qref, scale, budget, a_cl=None) -> dict:
                 "no_boundary_in_range": bool(np.all(r.radius >= budget.roa_radius)),
                 "volume_fraction": roa.volume_fraction(r.radius, budget.roa_radius, dim)})
     P = roa.lyapunov(a_cl, dim) if a_cl is not None else None
-    out["lyapunov"] = roa.sublevel(P, r) if P is not None else None
+    out["lyapunov"] = roa.sublevel(P, r, budget.roa_radius) if P is not None else None
     return out
 
 
@@ -120,14 +132,41 @@ def nominal(system, budget) -> tuple:
             "return_min": float(r.min()), "length_mean": float(ep.lengths.mean())}, ep
 
 
+SEARCHES = (("start_law", 1.0, False), ("twice_the_spread", 2.0, False), ("start_law_and_pushes", 1.0, True))
+
+
 def falsification(system, budget) -> dict:
+    """The three searches (start law; starts up to twice its spread; start law and pushes), each population x
+    iterations episodes, with their counterexamples."""
     task, ctrl = system.task, system.ctrl
     horizon, policy, out = int(task.episode_length), simulate.controller_policy(ctrl), {}
-    for name, push in (("starts", False), ("starts_and_pushes", True)):
-        s = falsify.cem(task, policy, horizon, push, budget.population, budget.iterations, budget.seed)
-        out[name] = {"episodes": int(s.returns.size), "worst_return": float(s.returns.min()),
-                     "first_iteration_p05": float(np.percentile(s.returns[0], 5)), "best_by_iteration": s.best.tolist(),
-                     "counterexamples": falsify.counterexamples(task, ctrl, s, horizon, push, budget.counterexamples)}
+    for name, spread, push in SEARCHES:
+        s = falsify.cem(task, policy, horizon, push, budget.population, budget.iterations, budget.seed, spread)
+        out[name] = {"spread": spread, "pushes": push, "episodes": int(s.returns.size),
+                     "worst_return": float(s.returns.min()), "first_iteration_p05": float(np.percentile(s.returns[0], 5)),
+                     "best_by_iteration": s.best.tolist(),
+                     "counterexamples": falsify.counterexamples(task, ctrl, s, horizon, push, spread,
+                                                                budget.counterexamples)}
+    return out
+
+
+def equilibrium_part(system, budget, scale, qref, cost) -> dict:
+    """Local analysis, region of attraction and the LQR beside it, for a task with an equilibrium."""
+    task, policy = system.task, simulate.controller_policy(system.ctrl)
+    t0 = time.perf_counter()
+    hold = roa.find_hold(task, policy, qref, scale, int(task.episode_length))
+    local = local_analysis(system, qref, scale, hold)
+    cost["local"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    a_cl = local["_a_cl"] / scale[:, None] * scale[None, :] if local["_a_cl"] is not None else None  # scaled
+    out = {"local": local, "roa": roa_of(system, policy, qref, scale, budget, a_cl, hold)}
+    cost["roa"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    lqr, lqr_policy = lqr_design(system, qref, scale, np.zeros(2 * task.model.nv))
+    if lqr_policy is not None:
+        lqr["roa"] = roa_of(system, lqr_policy, qref, scale, budget, lqr["_a_cl"])
+    out["lqr"] = lqr
+    cost["lqr"] = time.perf_counter() - t0
     return out
 
 
@@ -141,22 +180,7 @@ def verify(system: System, budget: Budget) -> dict:
     cost["nominal_and_switching"] = time.perf_counter() - t0
     qref = equilibrium_guess(task)
     if qref is not None:
-        t0 = time.perf_counter()
-        pieces = local_analysis(system, qref, scale)
-        fp = closed_loop_fixed_point(pieces)
-        cost["local"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        a_cl = fp["_a_cl"] / scale[:, None] * scale[None, :] if fp is not None else None  # scaled coordinates
-        result["roa"] = roa_of(system, simulate.controller_policy(ctrl), qref, scale, budget, a_cl)
-        cost["roa"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        lqr, lqr_pol = lqr_design(system, qref, scale, np.zeros(2 * task.model.nv))
-        if lqr_pol is not None:
-            lqr["roa"] = roa_of(system, lqr_pol, qref, scale, budget, lqr["_a_cl"])
-        result["lqr"] = lqr
-        cost["lqr"] = time.perf_counter() - t0
-        result["local"] = {"pieces": pieces, "closed_loop_fixed_point": None if fp is None else fp["piece"],
-                           "has_fixed_point": fp is not None}
+        result.update(equilibrium_part(system, budget, scale, qref, cost))
     else:
         result["local"] = {"note": f"{system.env!r} declares no equilibrium (Task.equilibrium_qpos): no local "
                                    "analysis or region of attraction"}

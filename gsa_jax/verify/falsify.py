@@ -1,7 +1,8 @@
 """Falsification: a cross-entropy search for the lowest-return episodes over start states and pushes.
 
-Search space, u in [-1, 1]^p: the start state centre + 2 x spread x u (the task's start law, envs/task.py: centre
-start_qpos at rest, spread its uniform half-width or normal std per coordinate, so up to twice its spread), and
+Search space, u in [-1, 1]^p: the start state centre + f x spread x u (the task's start law, envs/task.py: centre
+start_qpos at rest, spread its uniform half-width or normal std per coordinate; f = 1 within the start law, 2 up
+to twice its spread), and
 with pushes (push=True) three more: the push's step (uniform over the episode's first 90%), and its velocity change
 along x and y (up to PUSH_SPEED m/s of the whole robot, as gsa_jax.deployment.pushes sizes them; along x only for a
 planar robot), a force on the task's push body during that step. Each iteration draws `population` from a Gaussian
@@ -32,11 +33,11 @@ class Search(NamedTuple):
     best: np.ndarray  # [iterations] the lowest return so far after each iteration
 
 
-def decode(task, u: np.ndarray, horizon: int, push: bool) -> tuple:
-    """(qpos [B, nq], qvel [B, nv], simulate.Push or None) of points u [B, p] in the search box."""
+def decode(task, u: np.ndarray, horizon: int, push: bool, spread: float) -> tuple:
+    """(qpos [B, nq], qvel [B, nv], simulate.Push or None) of points u [B, p] in the search box (spread: f)."""
     m, nv = task.model, task.model.nv
     sq, sv = start_spread(task)
-    dq, v = 2.0 * sq * u[:, :nv], 2.0 * sv * u[:, nv:2 * nv]
+    dq, v = spread * sq * u[:, :nv], spread * sv * u[:, nv:2 * nv]
     qpos = to_qpos(m, task.start_qpos, dq)
     if not push:
         return qpos, v, None
@@ -47,7 +48,7 @@ def decode(task, u: np.ndarray, horizon: int, push: bool) -> tuple:
     return qpos, v, simulate.Push(step, simulate.push_impulse(task, 1.0) * dv)
 
 
-def cem(task, policy, horizon, push, population, iterations, seed, elite_frac=0.125) -> Search:
+def cem(task, policy, horizon, push, population, iterations, seed, spread=1.0, elite_frac=0.125) -> Search:
     """The cross-entropy search (see the module docstring)."""
     p = 2 * task.model.nv + (3 if push else 0)
     rng = np.random.default_rng(seed)
@@ -56,7 +57,7 @@ def cem(task, policy, horizon, push, population, iterations, seed, elite_frac=0.
     rets, pars, best = [], [], []
     for _ in range(iterations):
         u = np.clip(mean + std * rng.standard_normal((population, p)), -1.0, 1.0)
-        qpos, qvel, pushes = decode(task, u, horizon, push)
+        qpos, qvel, pushes = decode(task, u, horizon, push, spread)
         r = simulate.run(task, policy, qpos, qvel, horizon, push=pushes).returns
         elite = u[np.argsort(r)[:n_elite]]
         mean, std = elite.mean(0), np.maximum(elite.std(0), 0.02)
@@ -81,12 +82,12 @@ def replay(task, ctrl, qpos, qvel, push, horizon) -> tuple:
     return total, t
 
 
-def counterexamples(task, ctrl, search: Search, horizon, push, count) -> list:
+def counterexamples(task, ctrl, search: Search, horizon, push, spread, count) -> list:
     """The `count` lowest-return distinct episodes of a search, replayed in plain MuJoCo C."""
     flat_r, flat_u = search.returns.ravel(), search.params.reshape(-1, search.params.shape[-1])
     order = np.argsort(flat_r)
     picked = [i for k, i in enumerate(order) if not any(np.allclose(flat_u[i], flat_u[j]) for j in order[:k])][:count]
-    qpos, qvel, pushes = decode(task, flat_u[picked], horizon, push)
+    qpos, qvel, pushes = decode(task, flat_u[picked], horizon, push, spread)
     out = []
     for j, i in enumerate(picked):
         p = None

@@ -181,15 +181,18 @@ class FixedPoint(NamedTuple):
     converged: bool
 
 
-def fixed_point(task, jac: Callable, qref, x0, scale, iters: int = 40, tol: float = 1e-8) -> FixedPoint:
+def fixed_point(task, jac: Callable, qref, x0, scale, iters: int = 40, tol: float = 1e-8,
+                max_step: float = 1.0) -> FixedPoint:
     """x with f(x) = x for the closed loop of jac, by Newton's method from x0 (least squares where J - I is
-    singular, e.g. coordinates the controller does not move), halving steps that do not reduce the residual."""
+    singular, e.g. coordinates the controller does not move), each step at most max_step scale units per coordinate,
+    halved while it does not reduce the residual."""
     x, r = np.asarray(x0, np.float64), closed_step(task, jac, qref, x0) - x0
     for _ in range(iters):
         if np.linalg.norm(r / scale) < tol:
             return FixedPoint(x, float(np.linalg.norm(r / scale)), True)
         J = linearize(task, jac, qref, x).closed - np.eye(len(x))
         dx = np.linalg.lstsq(J, -r, rcond=1e-10)[0]
+        dx = dx / max(1.0, float(np.max(np.abs(dx / scale))) / max_step)
         for _ in range(20):
             xn = x + dx
             rn = closed_step(task, jac, qref, xn) - xn

@@ -36,29 +36,38 @@ def local_lines(doc) -> list:
     local = doc.get("local", {})
     if "note" in local:
         return [f"No local analysis: {local['note']}."]
-    lines = ["| piece | fixed point found | picked there | spectral radius | saturated | qpos | qvel |", "|---|---|---|---|---|---|---|"]
+    lines = ["| piece | fixed point | picked there | spectral radius | saturated | qpos | qvel |",
+             "|---|---|---|---|---|---|---|"]
     for p in local["pieces"]:
         piece = "network" if p["piece"] is None else p["piece"]
-        if not p.get("fixed_point_found") or "spectral_radius" not in p:
-            lines.append(f"| {piece} | no (residual {_fmt(p['residual'])}) | | | | | |")
+        if not p["fixed_point_found"]:
+            lines.append(f"| {piece} | none found (residual {_fmt(p['residual'])}) | | | | | |")
             continue
-        lines.append(f"| {piece} | yes | {p['picked_there']}{'' if p['own_region'] else ' (not its own)'} | "
+        lines.append(f"| {piece} | found | {p['picked_there']}{'' if p['own_region'] else ' (not its own)'} | "
                      f"{p['spectral_radius']:.4f} | {p['saturated']} | {np.round(p['qpos'], 4).tolist()} | "
                      f"{np.round(p['qvel'], 4).tolist()} |")
-    verdict = ("the closed loop has a fixed point here (piece {})".format(local["closed_loop_fixed_point"])
-               if local["has_fixed_point"] else "no piece's fixed point lies where the partition picks it: the closed "
-               "loop has no fixed point near the equilibrium (it holds by switching, or not at all)")
-    return lines + ["", f"Verdict: {verdict}."]
+    return lines + ["", f"Verdict: {fixed_point_verdict(local)}."]
+
+
+def fixed_point_verdict(local) -> str:
+    fp = local["closed_loop_fixed_point"]
+    if fp is None:
+        return ("no piece's fixed point lies where the partition picks that piece: the closed loop has no fixed point "
+                "near the hold (it holds by switching, or not at all)")
+    where = "network" if fp["piece"] is None else f"piece {fp['piece']}"
+    stable = "stable" if fp["spectral_radius"] < 1 else "unstable"
+    return (f"the closed loop's fixed point nearest the hold is {where}'s at qpos {np.round(fp['qpos'], 4).tolist()}, "
+            f"{stable} (spectral radius {fp['spectral_radius']:.4f})")
 
 
 def roa_lines(name, r) -> list:
     if r is None:
         return []
-    if not r["hold"]["holds"]:
-        return [f"- {name}: {r.get('note', 'does not hold')} (0 volume)."]
+    if "note" in r:
+        return [f"- {name}: {r['note']} (volume 0)."]
     lyap = r.get("lyapunov")
-    ly = (f"; quadratic Lyapunov level {lyap['level']:.3g} ({lyap['bounded_by']}), ellipsoid = {lyap['ball_share']:.3g} "
-          "of the unit ball" if lyap else "; no quadratic Lyapunov function (no stable fixed point)")
+    ly = (f"; quadratic Lyapunov level {lyap['level']:.3g} ({lyap['bounded_by']}), its ellipsoid "
+          f"{lyap['ball_share']:.3g} of the sampled ball" if lyap else "; no quadratic Lyapunov function (no stable fixed point)")
     return [f"- {name}: radius min {r['radius_min']:.3g}, median {r['radius_median']:.3g} of r_max {r['r_max']} "
             f"(scaled units), volume fraction {r['volume_fraction']:.3g}"
             f"{', no boundary in range' if r['no_boundary_in_range'] else ''}{ly}."]
@@ -69,7 +78,7 @@ def falsification_lines(doc) -> list:
              f"5th percentile {doc['nominal']['return_p05']:.1f}, worst {doc['nominal']['return_min']:.1f}.", ""]
     for name, f in doc["falsification"].items():
         lines.append(f"- {name.replace('_', ' ')}: {f['episodes']} episodes, worst return {f['worst_return']:.1f} "
-                     f"(5th percentile of the first, uniform iteration {f['first_iteration_p05']:.1f})")
+                     f"(5th percentile of the first iteration's draws {f['first_iteration_p05']:.1f})")
         for c in f["counterexamples"]:
             push = "no push" if c["push"] is None else f"push {np.round(c['push']['velocity_change'], 2).tolist()} m/s at step {c['push']['step']}"
             lines.append(f"  - return {c['return']:.1f} in {c['steps']} steps from qpos {np.round(c['qpos'], 3).tolist()}, "
@@ -84,6 +93,7 @@ def write_markdown(path, doc) -> None:
              "## Local analysis per piece", "", *local_lines(doc), "", "## Region of attraction", ""]
     if "roa" in doc:
         lines += roa_lines("controller", doc["roa"]) + roa_lines("LQR on the same linearization", doc["lqr"].get("roa"))
+        lines += [f"- LQR: {doc['lqr']['note']}."] if "note" in doc["lqr"] else []
     else:
         lines.append("None: no equilibrium declared.")
     lines += ["", "## Falsification", "", *falsification_lines(doc), "", "## Switching", "",
@@ -113,12 +123,14 @@ def write_figure(path, doc) -> None:
         e = np.array(doc["lqr"]["eigenvalues"])
         ax[0].plot(e[:, 0], e[:, 1], "kx", label="LQR")
     ax[0].set(title="closed-loop eigenvalues", aspect="equal")
-    ax[0].legend(fontsize=7)
+    if len(ax[0].lines) > 1:
+        ax[0].legend(fontsize=7)
     for name, r in (("controller", doc.get("roa")), ("LQR", doc.get("lqr", {}).get("roa"))):
         if r and r.get("radius"):
             ax[1].plot(np.sort(r["radius"]), label=name)
     ax[1].set(title="region of attraction: radius per direction (sorted)", ylabel="scaled radius")
-    ax[1].legend(fontsize=7)
+    if ax[1].lines:
+        ax[1].legend(fontsize=7)
     for name, f in doc["falsification"].items():
         ax[2].plot(f["best_by_iteration"], "o-", label=name)
     ax[2].axhline(doc["nominal"]["return_mean"], color="k", ls="--", label="nominal mean")

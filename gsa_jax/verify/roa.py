@@ -2,7 +2,8 @@
 Lyapunov function and an LQR design on the same linearization beside it.
 
 The hold: the closed loop started at the task's equilibrium (Task.equilibrium_qpos, at rest) for `horizon` steps;
-its last tenth is the hold (its mean state; a fixed point, or the small orbit a switching controller chatters in).
+its last tenth is the hold (its mean state; a fixed point, or the small orbit a switching controller chatters in),
+held when the episode does not terminate and the positions stay within one scale unit over that tenth.
 A start converges when its episode does not terminate and its last tenth stays within tol of the hold on every
 coordinate: tol = TOL x scale + twice the hold's own excursion (scaled coordinates, gsa_jax.verify.system).
 Radii: along unit directions sampled uniformly in scaled coordinates, the largest radius (bisection in
@@ -24,7 +25,7 @@ TOL = 0.1  # convergence tolerance in scaled coordinates (plus the hold's own ex
 class Hold(NamedTuple):
     x: np.ndarray  # [2 nv] the hold's mean tangent state
     excursion: np.ndarray  # [2 nv] its largest deviation from the mean over the last tenth
-    holds: bool  # the run from the equilibrium did not terminate and stays within one scale unit
+    holds: bool  # the run from the equilibrium did not terminate and its positions stay within one scale unit
 
 
 def tangent_states(task, qref, ep) -> np.ndarray:
@@ -45,7 +46,8 @@ def find_hold(task, policy, qref, scale, horizon) -> Hold:
     tail = tangent_states(task, qref, ep)[-max(1, horizon // 10):, 0]
     mean = tail.mean(0)
     exc = np.abs(tail - mean).max(0)
-    return Hold(mean, exc, bool(not ep.terminated[0] and ep.lengths[0] == horizon and np.all(exc <= scale)))
+    nv = task.model.nv
+    return Hold(mean, exc, bool(not ep.terminated[0] and ep.lengths[0] == horizon and np.all(exc[:nv] <= scale[:nv])))
 
 
 def converged(task, policy, qref, hold, scale, xs, horizon) -> np.ndarray:
@@ -100,15 +102,16 @@ def lyapunov(a_cl, dim) -> "np.ndarray | None":
     return scipy.linalg.solve_discrete_lyapunov(a_cl.T, np.eye(dim))
 
 
-def sublevel(P, radii: Radii) -> dict:
-    """The largest level c with every sampled start of V(x) = x' P x < c converged (scaled coordinates), and the
-    ellipsoid's share of the ball of radius 1 (its volume over the unit ball's)."""
+def sublevel(P, radii: Radii, r_max) -> dict:
+    """The largest level c of V(x) = x' P x (scaled coordinates) with every sampled start below it converged and its
+    ellipsoid inside the sampled ball (c <= lambda_min(P) r_max^2), and the ellipsoid's share of that ball."""
     v = np.einsum("si,ij,sj->s", radii.samples, P, radii.samples)
     failed = v[~radii.ok]
-    c = float(failed.min()) if len(failed) else float(v.max())
+    inside = float(np.linalg.eigvalsh(P)[0]) * r_max ** 2
+    c = min(float(failed.min()) if len(failed) else np.inf, inside)
     n = len(P)
-    share = float(np.exp(0.5 * n * np.log(c) - 0.5 * np.linalg.slogdet(P)[1]))
-    return {"level": c, "bounded_by": "a failed start" if len(failed) else "the largest sampled start",
+    share = float(np.exp(0.5 * n * np.log(c) - 0.5 * np.linalg.slogdet(P)[1] - n * np.log(r_max)))
+    return {"level": c, "bounded_by": "a failed start" if c < inside else "the sampled ball",
             "ball_share": share, "samples": int(len(v)), "failed_samples": int(len(failed))}
 
 

@@ -13,6 +13,8 @@ import mujoco
 import numpy as np
 from mujoco import batch as mj_batch
 
+from gsa_jax.deployment.pushes import act_each
+
 Policy = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
@@ -31,8 +33,9 @@ class Episodes(NamedTuple):
 
 
 def controller_policy(ctrl) -> Policy:
-    """The exported controller's deterministic action (clipped to its bounds), as deployment computes it."""
-    return lambda obs, qpos, qvel: ctrl.act(obs.astype(np.float32)).astype(np.float64)
+    """The exported controller's deterministic action (clipped to its bounds), computed for each observation alone
+    as deployment computes it (gsa_jax.deployment.pushes.act_each: a batched float32 product rounds differently)."""
+    return lambda obs, qpos, qvel: act_each(ctrl, obs)
 
 
 def push_impulse(task, velocity: float) -> float:
