@@ -12,7 +12,7 @@ import scipy.linalg
 
 from envs.task import TaskC
 from gsa_jax.running.checkpoint import save_npz_atomic
-from gsa_jax.verify import analysis, falsify
+from gsa_jax.verify import analysis
 from gsa_jax.verify.system import load_system
 from verify_tasks import analytic_step
 

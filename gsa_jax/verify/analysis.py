@@ -143,8 +143,8 @@ def falsification(system, budget) -> dict:
     for name, spread, push in SEARCHES:
         s = falsify.cem(task, policy, horizon, push, budget.population, budget.iterations, budget.seed, spread)
         out[name] = {"spread": spread, "pushes": push, "episodes": int(s.returns.size),
-                     "worst_return": float(s.returns.min()), "first_iteration_p05": float(np.percentile(s.returns[0], 5)),
-                     "best_by_iteration": s.best.tolist(),
+                     "worst_return": float(s.returns.min()),
+                     "first_iteration_p05": float(np.percentile(s.returns[0], 5)), "best_by_iteration": s.best.tolist(),
                      "counterexamples": falsify.counterexamples(task, ctrl, s, horizon, push, spread,
                                                                 budget.counterexamples)}
     return out

@@ -66,23 +66,31 @@ def roa_lines(name, r) -> list:
     if "note" in r:
         return [f"- {name}: {r['note']} (volume 0)."]
     lyap = r.get("lyapunov")
-    ly = (f"; quadratic Lyapunov level {lyap['level']:.3g} ({lyap['bounded_by']}), its ellipsoid "
-          f"{lyap['ball_share']:.3g} of the sampled ball" if lyap else "; no quadratic Lyapunov function (no stable fixed point)")
+    ly = "; no quadratic Lyapunov function (no stable fixed point)"
+    if lyap:
+        ly = (f"; quadratic Lyapunov level {lyap['level']:.3g} ({lyap['bounded_by']}), its ellipsoid "
+              f"{lyap['ball_share']:.3g} of the sampled ball")
     return [f"- {name}: radius min {r['radius_min']:.3g}, median {r['radius_median']:.3g} of r_max {r['r_max']} "
             f"(scaled units), volume fraction {r['volume_fraction']:.3g}"
             f"{', no boundary in range' if r['no_boundary_in_range'] else ''}{ly}."]
 
 
+def push_text(push) -> str:
+    if push is None:
+        return "no push"
+    return f"push {np.round(push['velocity_change'], 2).tolist()} m/s at step {push['step']}"
+
+
 def falsification_lines(doc) -> list:
-    lines = [f"Nominal (start law, {doc['nominal']['episodes']} episodes): mean return {doc['nominal']['return_mean']:.1f}, "
-             f"5th percentile {doc['nominal']['return_p05']:.1f}, worst {doc['nominal']['return_min']:.1f}.", ""]
+    n = doc["nominal"]
+    lines = [f"Nominal (start law, {n['episodes']} episodes): mean return {n['return_mean']:.1f}, "
+             f"5th percentile {n['return_p05']:.1f}, worst {n['return_min']:.1f}.", ""]
     for name, f in doc["falsification"].items():
         lines.append(f"- {name.replace('_', ' ')}: {f['episodes']} episodes, worst return {f['worst_return']:.1f} "
                      f"(5th percentile of the first iteration's draws {f['first_iteration_p05']:.1f})")
         for c in f["counterexamples"]:
-            push = "no push" if c["push"] is None else f"push {np.round(c['push']['velocity_change'], 2).tolist()} m/s at step {c['push']['step']}"
-            lines.append(f"  - return {c['return']:.1f} in {c['steps']} steps from qpos {np.round(c['qpos'], 3).tolist()}, "
-                         f"qvel {np.round(c['qvel'], 3).tolist()}, {push}")
+            lines.append(f"  - return {c['return']:.1f} in {c['steps']} steps from qpos "
+                         f"{np.round(c['qpos'], 3).tolist()}, qvel {np.round(c['qvel'], 3).tolist()}, {push_text(c['push'])}")
     return lines
 
 
@@ -118,7 +126,8 @@ def write_figure(path, doc) -> None:
     for p in doc.get("local", {}).get("pieces", []):
         if "eigenvalues" in p:
             e = np.array(p["eigenvalues"])
-            ax[0].plot(e[:, 0], e[:, 1], "o", ms=4, label=f"piece {p['piece']}" if p["piece"] is not None else "network")
+            label = f"piece {p['piece']}" if p["piece"] is not None else "network"
+            ax[0].plot(e[:, 0], e[:, 1], "o", ms=4, label=label)
     if "lqr" in doc and "eigenvalues" in doc["lqr"]:
         e = np.array(doc["lqr"]["eigenvalues"])
         ax[0].plot(e[:, 0], e[:, 1], "kx", label="LQR")
