@@ -8,7 +8,7 @@ import numpy as np
 
 from gsa_jax.verify import falsify, roa, simulate, switching
 from gsa_jax.verify import linearize as lin
-from gsa_jax.verify.system import System, equilibrium_guess, state_scale, to_qpos
+from gsa_jax.verify.system import System, equilibrium_guess, state_scale, to_qpos, wrap
 
 
 class Budget(NamedTuple):
@@ -46,18 +46,20 @@ def local_piece(system: System, piece, qref, scale, starts) -> dict:
     jac = piece_jac(ctrl, piece)
     tries = [lin.fixed_point(task, jac, qref, x0, scale) for x0 in starts]
     done = [f for f in tries if f.converged and np.all(np.isfinite(f.x))]
-    fp = min(done, key=lambda f: np.linalg.norm((f.x - starts[0]) / scale)) if done else tries[0]
+    distance = lambda x: float(np.linalg.norm(wrap(task.model, x - starts[0]) / scale))
+    fp = min(done, key=lambda f: distance(f.x)) if done else tries[0]
     out = {"piece": piece, "fixed_point_found": bool(done), "residual": fp.residual}
     if not done:
         return out
-    L = lin.linearize(task, jac, qref, fp.x)
-    out.update(state_dict(task, qref, fp.x))
-    picked = int(ctrl.cluster(lin.observe_at(task, out["qpos"], fp.x[task.model.nv:]).astype(np.float32)))
+    x = wrap(task.model, fp.x)
+    L = lin.linearize(task, jac, qref, x)
+    out.update(state_dict(task, qref, x))
+    picked = int(ctrl.cluster(lin.observe_at(task, out["qpos"], x[task.model.nv:]).astype(np.float32)))
     a_cl = L.closed
     return {**out, "picked_there": picked, "own_region": bool(piece is None or picked == piece),
             "action": [float(a) for a in L.action], "saturated": saturated(ctrl, L.action),
             "eigenvalues": eig_list(a_cl), "spectral_radius": float(np.max(np.abs(np.linalg.eigvals(a_cl)))),
-            "distance_from_hold_scaled": float(np.linalg.norm((fp.x - starts[0]) / scale)), "_a_cl": a_cl}
+            "distance_from_hold_scaled": distance(x), "_a_cl": a_cl}
 
 
 def saturated(ctrl, action) -> bool:

@@ -17,7 +17,7 @@ import numpy as np
 import scipy.linalg
 
 from gsa_jax.verify import simulate
-from gsa_jax.verify.system import to_qpos, to_tangent
+from gsa_jax.verify.system import to_qpos, to_tangent, wrap
 
 TOL = 0.1  # convergence tolerance in scaled coordinates (plus the hold's own excursion)
 
@@ -29,10 +29,10 @@ class Hold(NamedTuple):
 
 
 def tangent_states(task, qref, ep) -> np.ndarray:
-    """[T, B, 2 nv] tangent states of recorded episodes (simulate.Episodes)."""
+    """[T, B, 2 nv] tangent states of recorded episodes (simulate.Episodes), unlimited hinges' angles wrapped."""
     T, B = ep.qpos.shape[:2]
     dq = to_tangent(task.model, qref, ep.qpos.reshape(T * B, -1)).reshape(T, B, -1)
-    return np.concatenate([dq, ep.qvel], axis=-1)
+    return wrap(task.model, np.concatenate([dq, ep.qvel], axis=-1))
 
 
 def run_from(task, policy, qref, xs, horizon, record=False):
@@ -55,7 +55,7 @@ def converged(task, policy, qref, hold, scale, xs, horizon) -> np.ndarray:
     ep = run_from(task, policy, qref, xs, horizon, record=True)
     tail = tangent_states(task, qref, ep)[-max(1, horizon // 10):]
     tol = TOL * scale + 2.0 * hold.excursion
-    near = np.all(np.abs(tail - hold.x) <= tol, axis=(0, 2)) if len(tail) else np.zeros(len(xs), bool)
+    near = np.all(np.abs(wrap(task.model, tail - hold.x)) <= tol, axis=(0, 2))
     return near & ~ep.terminated & (ep.lengths == horizon)
 
 

@@ -119,6 +119,24 @@ def to_tangent(model, qref, qpos) -> np.ndarray:
     return out
 
 
+def periodic_dofs(model) -> np.ndarray:
+    """[nv] bool: the degrees of freedom of unlimited hinge joints (an angle and that angle + 2 pi are one state)."""
+    mask = np.zeros(model.nv, bool)
+    for j in range(model.njnt):
+        if int(model.jnt_type[j]) == mujoco.mjtJoint.mjJNT_HINGE and not model.jnt_limited[j]:
+            mask[model.jnt_dofadr[j]] = True
+    return mask
+
+
+def wrap(model, x) -> np.ndarray:
+    """Tangent states x [..., 2 nv] with the periodic coordinates' displacements wrapped into [-pi, pi)."""
+    x = np.array(x, np.float64)
+    dq = x[..., : model.nv]
+    periodic = periodic_dofs(model)
+    dq[..., periodic] = np.mod(dq[..., periodic] + np.pi, 2 * np.pi) - np.pi
+    return x
+
+
 def equilibrium_guess(task) -> "np.ndarray | None":
     """[nq] the task's declared equilibrium qpos (Task.equilibrium_qpos: the upright of a pendulum), or None."""
     q = getattr(task, "equilibrium_qpos", None)
