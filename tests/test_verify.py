@@ -154,7 +154,8 @@ def test_one_line_errors(tmp_path, case, expect):
 
 def test_quick_run_writes_json_report_and_figure(tmp_path):
     """The CLI on a K = 2 controller of the linear task: verify.json, report.md and the figure, with each part's
-    cost."""
+    cost; the diverging piece's fixed point (the origin, where the partition picks the LQR piece) is not the closed
+    loop's."""
     path = quadrant_controller(tmp_path / "planted.npz")
     p = run_cli(path, "--quick", "--out", str(tmp_path / "out"))
     assert p.returncode == 0, p.stderr
@@ -162,5 +163,9 @@ def test_quick_run_writes_json_report_and_figure(tmp_path):
     assert doc["schema"] == 1 and doc["clusters"] == 2 and doc["quick"]
     assert set(doc["cost_seconds"]) == {"nominal_and_switching", "local", "roa", "lqr", "falsification"}
     assert doc["local"]["has_fixed_point"] and doc["lqr"]["spectral_radius"] < 1
+    lqr_piece, diverging = doc["local"]["pieces"]
+    assert lqr_piece["own_region"] and lqr_piece["spectral_radius"] < 1
+    assert not diverging["own_region"] and diverging["picked_there"] == 0 and diverging["spectral_radius"] > 1
+    assert doc["local"]["closed_loop_fixed_point"]["piece"] == 0
     assert (tmp_path / "out" / "verify.png").stat().st_size > 0
     assert "## Falsification" in (tmp_path / "out" / "report.md").read_text()
