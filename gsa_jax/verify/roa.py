@@ -3,7 +3,8 @@ Lyapunov function and an LQR design on the same linearization beside it.
 
 The hold: the closed loop started at the task's equilibrium (Task.equilibrium_qpos, at rest) for `horizon` steps;
 its last tenth is the hold (its mean state; a fixed point, or the small orbit a switching controller chatters in),
-held when the episode does not terminate and the positions stay within one scale unit over that tenth.
+held when the episode does not terminate, the positions stay within one scale unit over that tenth, and no angle of
+an unlimited hinge is more than 90 degrees from the equilibrium's (a pendulum resting hanging down holds nothing).
 A start converges when its episode does not terminate and its last tenth stays within tol of the hold on every
 coordinate: tol = TOL x scale + twice the hold's own excursion (scaled coordinates, gsa_jax.verify.system).
 Radii: along unit directions sampled uniformly in scaled coordinates, the largest radius (bisection in
@@ -17,7 +18,7 @@ import numpy as np
 import scipy.linalg
 
 from gsa_jax.verify import simulate
-from gsa_jax.verify.system import to_qpos, to_tangent, wrap
+from gsa_jax.verify.system import periodic_dofs, to_qpos, to_tangent, wrap
 
 TOL = 0.1  # convergence tolerance in scaled coordinates (plus the hold's own excursion)
 
@@ -25,7 +26,7 @@ TOL = 0.1  # convergence tolerance in scaled coordinates (plus the hold's own ex
 class Hold(NamedTuple):
     x: np.ndarray  # [2 nv] the hold's mean tangent state
     excursion: np.ndarray  # [2 nv] its largest deviation from the mean over the last tenth
-    holds: bool  # the run from the equilibrium did not terminate and its positions stay within one scale unit
+    holds: bool  # the run from the equilibrium goes on, its positions stay within one scale unit, its angles upright
 
 
 def tangent_states(task, qref, ep) -> np.ndarray:
@@ -47,7 +48,9 @@ def find_hold(task, policy, qref, scale, horizon) -> Hold:
     mean = tail.mean(0)
     exc = np.abs(tail - mean).max(0)
     nv = task.model.nv
-    return Hold(mean, exc, bool(not ep.terminated[0] and ep.lengths[0] == horizon and np.all(exc[:nv] <= scale[:nv])))
+    upright = np.all(np.abs(mean[:nv][periodic_dofs(task.model)]) <= np.pi / 2)  # not fallen to the other side
+    still = np.all(exc[:nv] <= scale[:nv])
+    return Hold(mean, exc, bool(not ep.terminated[0] and ep.lengths[0] == horizon and still and upright))
 
 
 def converged(task, policy, qref, hold, scale, xs, horizon) -> np.ndarray:
