@@ -16,18 +16,19 @@ from gsa_jax.verify.system import load_system
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
-FIG1 = "experiments/fig1_v5/results/fig1_v5_{0}/controllers/{0}-{1}-s*.npz"
+FIG1 = "experiments/fig1_v5/results/fig1_v5_{0}/controllers/{0}-{1}-s{2}.npz"
 ATLAS = "experiments/atlas_dmc/results/{0}/{1}/controllers/dmc.{0}-{2}-s*.npz"
 REACHER = "experiments/your_task_reacher/results/controllers/examples.reacher.Reacher-{0}-s*.npz"
-# group -> controller globs: flat PPO against the mixture the task's study found best (or smallest on par)
+# group -> controller globs: flat PPO against the mixture the task's study found best (or smallest on par); Hopper-v5
+# (the slowest, ~100 s a controller here) 5 seeds of each
 GROUPS = {
-    "InvertedDoublePendulum-v5": [FIG1.format("InvertedDoublePendulum-v5", "mlp"),
-                                  FIG1.format("InvertedDoublePendulum-v5", "mixture-K4")],
+    "InvertedDoublePendulum-v5": [FIG1.format("InvertedDoublePendulum-v5", "mlp", "*"),
+                                  FIG1.format("InvertedDoublePendulum-v5", "mixture-K4", "*")],
     "cartpole-balance": [ATLAS.format("cartpole-balance", "flat_ppo", "mlp"),
                          ATLAS.format("cartpole-balance", "mixture", "mixture-K2")],
     "pendulum-swingup": [ATLAS.format("pendulum-swingup", "flat_ppo", "mlp"),
                          ATLAS.format("pendulum-swingup", "mixture", "mixture-K4")],
-    "Hopper-v5": [FIG1.format("Hopper-v5", "mlp"), FIG1.format("Hopper-v5", "mixture-K2")],
+    "Hopper-v5": [FIG1.format("Hopper-v5", "mlp", "[0-4]"), FIG1.format("Hopper-v5", "mixture-K2", "[0-4]")],  # 5 seeds
     "reacher": [REACHER.format("mlp"), REACHER.format("mixture-K4")],
 }
 

@@ -5,7 +5,7 @@ task and metric, flat PPO's and the mixture's IQM with 95% stratified-bootstrap 
 (rliable, gsa_jax.analysis.stats). results/confound.csv: per task, the rank correlation of nominal return and ROA
 volume over both classes' controllers, and P(mixture > flat PPO) on the ROA volume left after a linear fit on the
 nominal return (pooled over both classes): the comparison at equal nominal score. results/cost.csv: each part's
-mean seconds per controller.
+mean seconds per controller (empty: the task has no such part). results/summary.md: the three tables in Markdown.
 """
 
 import glob
@@ -70,6 +70,27 @@ def confound(task, rows):
             "p_mixture_better_at_equal_nominal": p[0], "p_ci_low": p[1], "p_ci_high": p[2]}
 
 
+def markdown(summary, confounds, cost) -> str:
+    """results/summary.md: the three tables in Markdown."""
+    f = lambda x: f"{float(x):.3g}"
+    lines = ["| task | metric | flat PPO IQM [95% CI] | mixture IQM [95% CI] | P(mixture > flat PPO) [95% CI] |",
+             "|---|---|---|---|---|"]
+    for r in summary:
+        lines.append(f"| {r['task']} | {r['metric']} | {f(r['flat_iqm'])} [{f(r['flat_ci_low'])}, {f(r['flat_ci_high'])}] | "
+                     f"{f(r['mixture_iqm'])} [{f(r['mixture_ci_low'])}, {f(r['mixture_ci_high'])}] | "
+                     f"{r['p_mixture_better']:.2f} [{r['p_ci_low']:.2f}, {r['p_ci_high']:.2f}] |")
+    lines += ["", "| task | controllers | Spearman(nominal, ROA volume) | P(mixture > flat PPO) at equal nominal [95% CI] |",
+              "|---|---|---|---|"]
+    for r in confounds:
+        lines.append(f"| {r['task']} | {r['controllers']} | {r['spearman_nominal_vs_roa_volume']:.2f} | "
+                     f"{r['p_mixture_better_at_equal_nominal']:.2f} [{r['p_ci_low']:.2f}, {r['p_ci_high']:.2f}] |")
+    parts = list(dict.fromkeys(k for r in cost for k in r if k not in ("task", "controllers")))
+    lines += ["", "| task | controllers | " + " | ".join(parts) + " |", "|---" * (len(parts) + 2) + "|"]
+    for r in cost:
+        lines.append(f"| {r['task']} | {r['controllers']} | " + " | ".join(str(r.get(k, "")) for k in parts) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main():
     rows = load_rows()
     out = os.path.join(HERE, "results")
@@ -85,10 +106,12 @@ def main():
             confounds.append(confound(task, mine))
         parts = [k for k in mine[0] if k.startswith("cost_")]
         cost.append({"task": task, "controllers": len(mine),
-                     **{k[5:]: round(float(np.mean([r.get(k, 0.0) for r in mine])), 1) for k in parts}})
+                     **{k[5:]: round(float(np.mean([r[k] for r in mine])), 1) for k in parts}})
     write_csv(os.path.join(out, "summary.csv"), summary)
     write_csv(os.path.join(out, "confound.csv"), confounds)
     write_csv(os.path.join(out, "cost.csv"), cost)
+    with open(os.path.join(out, "summary.md"), "w") as fh:
+        fh.write(markdown(summary, confounds, cost))
     print(f"wrote {out}/per_controller.csv, summary.csv, confound.csv, cost.csv ({len(rows)} controllers)")
 
 
