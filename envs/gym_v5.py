@@ -130,6 +130,7 @@ class InvertedDoublePendulumV5(V5Task):
 
     env_id, xml, frame_skip, noise, qvel_noise = "InvertedDoublePendulum-v5", "inverted_double_pendulum.xml", 5, 0.1, "normal"
     derived = ("site_xpos", "qfrc_constraint")
+    equilibrium_qpos = (0.0, 0.0, 0.0)  # cart centred, both poles upright
 
     def observe(self, qpos, qvel, derived, xp=np):
         force = xp.clip(derived["qfrc_constraint"], -10.0, 10.0)[:, :1]

@@ -92,6 +92,9 @@ class Task:
     # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
     push_body: "int | str" = 1
     planar: bool = False
+    # the qpos of the state the task asks the controller to hold (an inverted pendulum's upright, at rest), where it
+    # has one: python -m gsa_jax.verify analyses the closed loop there (None: no equilibrium, falsification only)
+    equilibrium_qpos: "np.ndarray | None" = None
 
     def __init__(self):
         for field in ("noise", "vel_noise", "init_qpos"):  # lists as arrays (scalars stay scalars)

@@ -14,6 +14,7 @@ class Cartpole(DmcTask):
     observation_keys = (("position", 3), ("velocity", 2))
     qvel_noise, vel_noise = "normal", 0.01  # qvel = 0.01 * N(0, 1)
     push_body = "cart"
+    equilibrium_qpos = (0.0, 0.0)  # cart centred, pole upright
 
     def observe(self, qpos, qvel, derived, xp=np):
         pole = derived["xmat"][:, 2]

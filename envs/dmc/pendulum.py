@@ -16,6 +16,7 @@ class Swingup(DmcTask):
     observation_keys = (("orientation", 2), ("velocity", 1))
     init_qpos, noise, vel_noise = (0.0,), np.pi, 0.0
     push_body = "pole"
+    equilibrium_qpos = (0.0,)  # upright
 
     def observe(self, qpos, qvel, derived, xp=np):
         pole = derived["xmat"][:, self.id("body", "pole")]

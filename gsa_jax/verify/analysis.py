@@ -1,0 +1,193 @@
+"""The analyses of one controller, each timed: local analysis per piece, region of attraction (with a Lyapunov
+sublevel set and an LQR beside it), falsification and switching -> the dict verify.json holds."""
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from gsa_jax.verify import falsify, roa, simulate, switching
+from gsa_jax.verify import linearize as lin
+from gsa_jax.verify.system import System, equilibrium_guess, state_scale, to_qpos, wrap
+
+
+class Budget(NamedTuple):
+    nominal_episodes: int = 50
+    roa_directions: int = 96
+    roa_bisections: int = 7
+    roa_radius: float = 4.0  # r_max, scaled coordinates
+    population: int = 64
+    iterations: int = 8
+    counterexamples: int = 3
+    seed: int = 0
+
+
+QUICK = Budget(nominal_episodes=16, roa_directions=16, roa_bisections=4, population=24, iterations=4)
+
+
+def eig_list(a) -> list:
+    return [[float(e.real), float(e.imag)] for e in sorted(np.linalg.eigvals(a), key=lambda e: -abs(e))]
+
+
+def piece_jac(ctrl, piece):
+    return lambda obs: lin.piece_jacobian(ctrl, obs, piece)
+
+
+def state_dict(task, qref, x) -> dict:
+    nv = task.model.nv
+    return {"qpos": [float(q) for q in to_qpos(task.model, qref, x[:nv])[0]], "qvel": [float(v) for v in x[nv:]]}
+
+
+def local_piece(system: System, piece, qref, scale, starts) -> dict:
+    """One piece's fixed point (Newton from each of starts [S, 2 nv]; the converged one nearest the first start),
+    whether the partition picks that piece there, and the closed loop's eigenvalues there (piece None: flat PPO's
+    network)."""
+    task, ctrl = system.task, system.ctrl
+    jac = piece_jac(ctrl, piece)
+    tries = [lin.fixed_point(task, jac, qref, x0, scale) for x0 in starts]
+    done = [f for f in tries if f.converged and np.all(np.isfinite(f.x))]
+    distance = lambda x: float(np.linalg.norm(wrap(task.model, x - starts[0]) / scale))
+    fp = min(done, key=lambda f: distance(f.x)) if done else tries[0]
+    out = {"piece": piece, "fixed_point_found": bool(done), "residual": fp.residual}
+    if not done:
+        return out
+    x = wrap(task.model, fp.x)
+    L = lin.linearize(task, jac, qref, x)
+    out.update(state_dict(task, qref, x))
+    picked = int(ctrl.cluster(lin.observe_at(task, out["qpos"], x[task.model.nv:]).astype(np.float32)))
+    a_cl = L.closed
+    return {**out, "picked_there": picked, "own_region": bool(piece is None or picked == piece),
+            "action": [float(a) for a in L.action], "saturated": saturated(ctrl, L.action),
+            "eigenvalues": eig_list(a_cl), "spectral_radius": float(np.max(np.abs(np.linalg.eigvals(a_cl)))),
+            "distance_from_hold_scaled": distance(x), "_a_cl": a_cl}
+
+
+def saturated(ctrl, action) -> bool:
+    """Whether an action lies on the controller's bounds (its Jacobian is zero there)."""
+    if ctrl.action_low is None:
+        return False
+    return bool(np.any(np.isclose(action, ctrl.action_low) | np.isclose(action, ctrl.action_high)))
+
+
+def local_analysis(system: System, qref, scale, hold) -> dict:
+    """Every piece's fixed point near the hold and the equilibrium, and the closed loop's own fixed point: the one
+    nearest the hold among those that lie in their own piece's region."""
+    starts = np.stack([hold.x, np.zeros_like(hold.x)])
+    pieces = range(system.ctrl.num_clusters) if system.ctrl.kind == "mixture" else [None]
+    found = [local_piece(system, p, qref, scale, starts) for p in pieces]
+    own = [p for p in found if p["fixed_point_found"] and p["own_region"]]
+    fp = min(own, key=lambda p: p["distance_from_hold_scaled"]) if own else None
+    return {"pieces": found, "has_fixed_point": fp is not None,
+            "closed_loop_fixed_point": None if fp is None else {k: fp[k] for k in
+                                                                 ("piece", "qpos", "qvel", "spectral_radius")},
+            "_a_cl": None if fp is None else fp["_a_cl"]}
+
+
+DRIFT_TOL = 1e-3  # scaled state change of one zero-action step at the equilibrium that still counts as one
+
+
+def lqr_design(system, qref, scale, x_eq):
+    """(summary, policy) of an LQR (Q = I on scaled states, R = I on actions) on the task's linearization at the
+    equilibrium with zero action, or (note, None) where that is not an equilibrium."""
+    task, ctrl = system.task, system.ctrl
+    zero = lambda obs: (np.zeros(ctrl.action_size), np.zeros((ctrl.action_size, len(obs))))
+    drift = float(np.linalg.norm((lin.closed_step(task, zero, qref, x_eq) - x_eq) / scale))
+    if drift > DRIFT_TOL:
+        return {"note": f"zero action does not hold the equilibrium (drift {drift:.3g}); no LQR designed"}, None
+    L = lin.linearize(task, zero, qref, x_eq)
+    A, B = roa.scaled_system(L.A, L.B @ L.G, scale)
+    K, P = roa.lqr_gain(A, B)
+    summary = {"gain_scaled": K.tolist(), "eigenvalues": eig_list(A - B @ K), "drift": drift,
+               "spectral_radius": float(np.max(np.abs(np.linalg.eigvals(A - B @ K)))),
+               "open_loop_eigenvalues": eig_list(A), "_a_cl": A - B @ K}
+    bounds = (ctrl.action_low, ctrl.action_high) if ctrl.action_low is not None else None
+    return summary, roa.lqr_policy(task, qref, x_eq, np.zeros(ctrl.action_size), K, scale, bounds)
+
+
+def roa_of(system, policy, qref, scale, budget, a_cl=None, hold=None) -> dict:
+    """The region of attraction of policy's hold (found here unless given), with the Lyapunov sublevel set of a_cl
+    (scaled coordinates; None: none)."""
+    task = system.task
+    horizon, dim = int(task.episode_length), 2 * task.model.nv
+    hold = hold or roa.find_hold(task, policy, qref, scale, horizon)
+    out = {"hold": {**state_dict(task, qref, hold.x), "excursion_scaled": (hold.excursion / scale).tolist(),
+                    "holds": hold.holds}, "r_max": budget.roa_radius, "directions": budget.roa_directions}
+    if not hold.holds:
+        return {**out, "radius": [], "volume_fraction": 0.0, "note": "the closed loop does not hold the equilibrium"}
+    dirs = roa.directions(budget.roa_directions, dim, budget.seed)
+    r = roa.search_radii(task, policy, qref, hold, scale, dirs, budget.roa_radius, budget.roa_bisections, horizon)
+    out.update({"radius": r.radius.tolist(), "radius_min": float(r.radius.min()),
+                "radius_median": float(np.median(r.radius)),
+                "no_boundary_in_range": bool(np.all(r.radius >= budget.roa_radius)),
+                "volume_fraction": roa.volume_fraction(r.radius, budget.roa_radius, dim)})
+    P = roa.lyapunov(a_cl, dim) if a_cl is not None else None
+    out["lyapunov"] = roa.sublevel(P, r, budget.roa_radius) if P is not None else None
+    return out
+
+
+def nominal(system, budget) -> tuple:
+    task = system.task
+    qpos, qvel = falsify.start_law_states(task, budget.nominal_episodes, 10_000 + budget.seed)
+    ep = simulate.run(task, simulate.controller_policy(system.ctrl), qpos, qvel, int(task.episode_length), record=True)
+    r = ep.returns
+    return {"episodes": len(r), "return_mean": float(r.mean()), "return_p05": float(np.percentile(r, 5)),
+            "return_min": float(r.min()), "length_mean": float(ep.lengths.mean())}, ep
+
+
+SEARCHES = (("start_law", 1.0, False), ("twice_the_spread", 2.0, False), ("start_law_and_pushes", 1.0, True))
+
+
+def falsification(system, budget) -> dict:
+    """The three searches (start law; starts up to twice its spread; start law and pushes), each population x
+    iterations episodes, with their counterexamples."""
+    task, ctrl = system.task, system.ctrl
+    horizon, policy, out = int(task.episode_length), simulate.controller_policy(ctrl), {}
+    for name, spread, push in SEARCHES:
+        s = falsify.cem(task, policy, horizon, push, budget.population, budget.iterations, budget.seed, spread)
+        out[name] = {"spread": spread, "pushes": push, "episodes": int(s.returns.size),
+                     "worst_return": float(s.returns.min()),
+                     "first_iteration_p05": float(np.percentile(s.returns[0], 5)), "best_by_iteration": s.best.tolist(),
+                     "counterexamples": falsify.counterexamples(task, ctrl, s, horizon, push, spread,
+                                                                budget.counterexamples)}
+    return out
+
+
+def equilibrium_part(system, budget, scale, qref, cost) -> dict:
+    """Local analysis, region of attraction and the LQR beside it, for a task with an equilibrium."""
+    task, policy = system.task, simulate.controller_policy(system.ctrl)
+    t0 = time.perf_counter()
+    hold = roa.find_hold(task, policy, qref, scale, int(task.episode_length))
+    local = local_analysis(system, qref, scale, hold)
+    cost["local"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    a_cl = local["_a_cl"] / scale[:, None] * scale[None, :] if local["_a_cl"] is not None else None  # scaled
+    out = {"local": local, "roa": roa_of(system, policy, qref, scale, budget, a_cl, hold)}
+    cost["roa"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    lqr, lqr_policy = lqr_design(system, qref, scale, np.zeros(2 * task.model.nv))
+    if lqr_policy is not None:
+        lqr["roa"] = roa_of(system, lqr_policy, qref, scale, budget, lqr["_a_cl"])
+    out["lqr"] = lqr
+    cost["lqr"] = time.perf_counter() - t0
+    return out
+
+
+def verify(system: System, budget: Budget) -> dict:
+    """Every analysis of one controller, with its cost in seconds."""
+    task, ctrl, cost = system.task, system.ctrl, {}
+    scale = state_scale(task)
+    t0 = time.perf_counter()
+    nom, ep = nominal(system, budget)
+    result = {"nominal": nom, "switching": switching.switching_stats(ctrl, ep.obs, ep.lengths, task.dt)}
+    cost["nominal_and_switching"] = time.perf_counter() - t0
+    qref = equilibrium_guess(task)
+    if qref is not None:
+        result.update(equilibrium_part(system, budget, scale, qref, cost))
+    else:
+        result["local"] = {"note": f"{system.env!r} declares no equilibrium (Task.equilibrium_qpos): no local "
+                                   "analysis or region of attraction"}
+    t0 = time.perf_counter()
+    result["falsification"] = falsification(system, budget)
+    cost["falsification"] = time.perf_counter() - t0
+    result["cost_seconds"] = {k: round(v, 2) for k, v in cost.items()}
+    return result

@@ -1,0 +1,158 @@
+"""verify.json (schema: docs/verify.md), report.md and figures of one controller's verification."""
+
+import json
+import os
+
+import numpy as np
+
+SCHEMA = 1
+
+
+def public(obj):
+    """obj without the private entries (keys starting with '_') the analyses pass between themselves."""
+    if isinstance(obj, dict):
+        return {k: public(v) for k, v in obj.items() if not str(k).startswith("_")}
+    if isinstance(obj, list):
+        return [public(v) for v in obj]
+    return obj
+
+
+def write_json(path, system, result, budget, quick) -> dict:
+    import mujoco
+
+    doc = {"schema": SCHEMA, "controller": system.path, "env": system.env, "kind": system.ctrl.kind,
+           "clusters": int(system.ctrl.num_clusters), "quick": bool(quick), "budget": budget._asdict(),
+           "versions": {"mujoco": mujoco.__version__, "numpy": np.__version__}, **public(result)}
+    with open(path, "w") as f:
+        json.dump(doc, f, indent=1)
+    return doc
+
+
+def _fmt(x, digits=3):
+    return f"{x:.{digits}g}" if isinstance(x, float) else str(x)
+
+
+def local_lines(doc) -> list:
+    local = doc.get("local", {})
+    if "note" in local:
+        return [f"No local analysis: {local['note']}."]
+    lines = ["| piece | fixed point | picked there | spectral radius | saturated | qpos | qvel |",
+             "|---|---|---|---|---|---|---|"]
+    for p in local["pieces"]:
+        piece = "network" if p["piece"] is None else p["piece"]
+        if not p["fixed_point_found"]:
+            lines.append(f"| {piece} | none found (residual {_fmt(p['residual'])}) | | | | | |")
+            continue
+        lines.append(f"| {piece} | found | {p['picked_there']}{'' if p['own_region'] else ' (not its own)'} | "
+                     f"{p['spectral_radius']:.4f} | {p['saturated']} | {np.round(p['qpos'], 4).tolist()} | "
+                     f"{np.round(p['qvel'], 4).tolist()} |")
+    return lines + ["", f"Verdict: {fixed_point_verdict(local)}."]
+
+
+def fixed_point_verdict(local) -> str:
+    fp = local["closed_loop_fixed_point"]
+    if fp is None:
+        return ("no piece's fixed point lies where the partition picks that piece: the closed loop has no fixed point "
+                "near the hold (it holds by switching, or not at all)")
+    where = "network" if fp["piece"] is None else f"piece {fp['piece']}"
+    stable = "stable" if fp["spectral_radius"] < 1 else "unstable"
+    return (f"the closed loop's fixed point nearest the hold is {where}'s at qpos {np.round(fp['qpos'], 4).tolist()}, "
+            f"{stable} (spectral radius {fp['spectral_radius']:.4f})")
+
+
+def roa_lines(name, r) -> list:
+    if r is None:
+        return []
+    if "note" in r:
+        return [f"- {name}: {r['note']} (volume 0)."]
+    lyap = r.get("lyapunov")
+    ly = "; no quadratic Lyapunov function (no stable fixed point)"
+    if lyap:
+        ly = (f"; quadratic Lyapunov level {lyap['level']:.3g} ({lyap['bounded_by']}), its ellipsoid "
+              f"{lyap['ball_share']:.3g} of the sampled ball")
+    return [f"- {name}: radius min {r['radius_min']:.3g}, median {r['radius_median']:.3g} of r_max {r['r_max']} "
+            f"(scaled units), volume fraction {r['volume_fraction']:.3g}"
+            f"{', no boundary in range' if r['no_boundary_in_range'] else ''}{ly}."]
+
+
+def push_text(push) -> str:
+    if push is None:
+        return "no push"
+    return f"push {np.round(push['velocity_change'], 2).tolist()} m/s at step {push['step']}"
+
+
+def falsification_lines(doc) -> list:
+    n = doc["nominal"]
+    lines = [f"Nominal (start law, {n['episodes']} episodes): mean return {n['return_mean']:.1f}, "
+             f"5th percentile {n['return_p05']:.1f}, worst {n['return_min']:.1f}.", ""]
+    for name, f in doc["falsification"].items():
+        lines.append(f"- {name.replace('_', ' ')}: {f['episodes']} episodes, worst return {f['worst_return']:.1f} "
+                     f"(5th percentile of the first iteration's draws {f['first_iteration_p05']:.1f})")
+        for c in f["counterexamples"]:
+            lines.append(f"  - return {c['return']:.1f} in {c['steps']} steps from qpos "
+                         f"{np.round(c['qpos'], 3).tolist()}, qvel {np.round(c['qvel'], 3).tolist()}, {push_text(c['push'])}")
+    return lines
+
+
+def write_markdown(path, doc) -> None:
+    s = doc["switching"]
+    lines = [f"# Verification of `{doc['controller']}`", "",
+             f"{doc['env']}, {doc['kind']} ({doc['clusters']} pieces){', quick budget' if doc['quick'] else ''}.", "",
+             "## Local analysis per piece", "", *local_lines(doc), "", "## Region of attraction", ""]
+    if "roa" in doc:
+        lines += roa_lines("controller", doc["roa"]) + roa_lines("LQR on the same linearization", doc["lqr"].get("roa"))
+        lines += [f"- LQR: {doc['lqr']['note']}."] if "note" in doc["lqr"] else []
+    else:
+        lines.append("None: no equilibrium declared.")
+    lines += ["", "## Falsification", "", *falsification_lines(doc), "", "## Switching", "",
+              f"Switches per second {s['switches_per_second']:.3g} (second half of the episodes: "
+              f"{s['switches_per_second_second_half']:.3g}); dwell {s['dwell_steps_mean']:.3g} steps on average "
+              f"(median {s['dwell_steps_median']:.3g}); pieces used {s['pieces_used']} with shares "
+              f"{np.round(s['piece_share'], 3).tolist()}; crossings {s['crossings']}.", "",
+              f"Cost (s): {doc['cost_seconds']}.", "", "![figures](verify.png)", ""]
+    with open(path, "w") as f:
+        f.write("\n".join(lines))
+
+
+def write_figure(path, doc) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(13, 4))
+    t = np.linspace(0, 2 * np.pi, 200)
+    ax[0].plot(np.cos(t), np.sin(t), "k:", lw=0.8)
+    for p in doc.get("local", {}).get("pieces", []):
+        if "eigenvalues" in p:
+            e = np.array(p["eigenvalues"])
+            label = f"piece {p['piece']}" if p["piece"] is not None else "network"
+            ax[0].plot(e[:, 0], e[:, 1], "o", ms=4, label=label)
+    if "lqr" in doc and "eigenvalues" in doc["lqr"]:
+        e = np.array(doc["lqr"]["eigenvalues"])
+        ax[0].plot(e[:, 0], e[:, 1], "kx", label="LQR")
+    ax[0].set(title="closed-loop eigenvalues", aspect="equal")
+    if len(ax[0].lines) > 1:
+        ax[0].legend(fontsize=7)
+    for name, r in (("controller", doc.get("roa")), ("LQR", doc.get("lqr", {}).get("roa"))):
+        if r and r.get("radius"):
+            ax[1].plot(np.sort(r["radius"]), label=name)
+    ax[1].set(title="region of attraction: radius per direction (sorted)", ylabel="scaled radius")
+    if ax[1].lines:
+        ax[1].legend(fontsize=7)
+    for name, f in doc["falsification"].items():
+        ax[2].plot(f["best_by_iteration"], "o-", label=name)
+    ax[2].axhline(doc["nominal"]["return_mean"], color="k", ls="--", label="nominal mean")
+    ax[2].set(title="falsification: lowest return so far", xlabel="CEM iteration")
+    ax[2].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write_all(out_dir, system, result, budget, quick) -> dict:
+    os.makedirs(out_dir, exist_ok=True)
+    doc = write_json(os.path.join(out_dir, "verify.json"), system, result, budget, quick)
+    write_markdown(os.path.join(out_dir, "report.md"), doc)
+    write_figure(os.path.join(out_dir, "verify.png"), doc)
+    return doc

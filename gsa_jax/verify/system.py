@@ -1,0 +1,143 @@
+"""The controller under verification, its task definition in MuJoCo C, and the state coordinates the analyses use.
+
+A state is x = (dq [nv], v [nv]): qpos as a tangent displacement from a reference qpos (mj_differentiatePos) and
+qvel. Searches work in *scaled* coordinates x / scale, where scale is the task's start-law spread per coordinate
+(uniform half-width or normal std; 1 in SI units where that spread is 0 or above 1, e.g. an angle drawn over the
+whole circle), so that radius 1 is the size of the start law.
+"""
+
+import os
+import zipfile
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+from gsa_jax.deployment import numpy_policy
+
+
+class VerifyError(Exception):
+    """A one-line error of `python -m gsa_jax.verify` (exit code 2)."""
+
+
+C_TWINS = ("gymnasium's v5 tasks (Hopper-v5, Walker2d-v5, HalfCheetah-v5, Ant-v5, InvertedDoublePendulum-v5), "
+           "the DeepMind Control Suite's (dmc:<domain>-<task>), Brax's hopper, walker2d, halfcheetah and ant, "
+           "and a task of your own (module:Class, envs/task.py)")
+
+
+class System(NamedTuple):
+    ctrl: numpy_policy.Controller
+    task: object  # envs.task.Task: the task definition MuJoCo C steps
+    env: str  # the task's name as the controller names it
+    path: str
+
+
+def load_system(path: str) -> System:
+    """The controller at `path` and its task's definition; VerifyError (one line) for a file that is not an exported
+    controller, a task without a MuJoCo C twin, or an observation size that differs from the task's."""
+    ctrl, env = _load_controller(path)
+    task = _task_definition(env)
+    d_s, d_in = task.observation_size, controller_input_size(ctrl)
+    if d_in != d_s:
+        raise VerifyError(f"{path!r} takes observations of size {d_in} but its task {env!r} observes {d_s}: "
+                          "it was exported for another version of the task")
+    if task.goal_size:
+        raise VerifyError(f"{env!r} draws a goal at reset, which verify does not search over yet")
+    return System(ctrl, task, env, path)
+
+
+def _load_controller(path):
+    import json
+
+    if not os.path.exists(path):
+        raise VerifyError(f"{path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
+    if not zipfile.is_zipfile(path):
+        raise VerifyError(f"{path!r} is not an exported controller (not an .npz archive)")
+    try:
+        ctrl = numpy_policy.load(path)
+        with np.load(path, allow_pickle=False) as f:
+            env = str(json.loads(str(f["config_json"]))["config"]["env"])
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise VerifyError(f"{path!r} is not an exported controller ({' '.join(str(e).split())})") from None
+    return ctrl, env
+
+
+def _task_definition(env):
+    import envs
+    from envs.registry import Definition
+
+    try:
+        record = envs.task_record(env)
+    except (ValueError, ImportError) as e:
+        raise VerifyError(f"the controller is for {env!r}: {' '.join(str(e).split())}") from None
+    if not record.has_c or not isinstance(record, Definition):
+        raise VerifyError(f"the controller is for {env!r}, which has no MuJoCo C twin verify can step; "
+                          f"these have one: {C_TWINS}")
+    return envs.resolve_task(env)
+
+
+def controller_input_size(ctrl) -> int:
+    """d_s the controller reads: its normalizer's size (and its L's input size for linear pieces)."""
+    d = int(np.shape(ctrl.obs_mean)[-1])
+    if ctrl.kind == "mixture" and ctrl.subpolicy == "linear" and ctrl.L.shape[-1] != d:
+        return int(ctrl.L.shape[-1])
+    return d
+
+
+def start_spread(task) -> tuple:
+    """(qpos half-widths [nv], qvel half-widths [nv]) of the start law: uniform half-width or normal std per
+    coordinate (tangent coordinates: hinge and slide joints map one to one)."""
+    m = task.model
+    q = np.broadcast_to(np.asarray(task.noise, np.float64), (m.nq,))
+    v = np.broadcast_to(np.asarray(task.vel_scale, np.float64), (m.nv,))
+    if m.nq != m.nv:  # quaternions: no per-coordinate law in tangent space; the mean over the qpos entries
+        q = np.full(m.nv, float(np.mean(q)))
+    return np.array(q, np.float64), np.array(v, np.float64)
+
+
+def state_scale(task) -> np.ndarray:
+    """[2 nv] the scale of each state coordinate: its start-law spread, 1 where that is 0 or above 1."""
+    s = np.concatenate(start_spread(task))
+    return np.where((s > 0) & (s <= 1.0), s, 1.0)
+
+
+def to_qpos(model, qref, dq) -> np.ndarray:
+    """[..., nq] qpos of tangent displacements dq [..., nv] from qref [nq]."""
+    dq = np.atleast_2d(dq)
+    out = np.tile(qref, (len(dq), 1)).astype(np.float64)
+    for i in range(len(dq)):
+        mujoco.mj_integratePos(model, out[i], dq[i], 1.0)
+    return out
+
+
+def to_tangent(model, qref, qpos) -> np.ndarray:
+    """[..., nv] tangent displacements of qpos [..., nq] from qref [nq]."""
+    qpos = np.atleast_2d(qpos)
+    out = np.zeros((len(qpos), model.nv))
+    for i in range(len(qpos)):
+        mujoco.mj_differentiatePos(model, out[i], 1.0, np.asarray(qref, np.float64), np.asarray(qpos[i], np.float64))
+    return out
+
+
+def periodic_dofs(model) -> np.ndarray:
+    """[nv] bool: the degrees of freedom of unlimited hinge joints (an angle and that angle + 2 pi are one state)."""
+    mask = np.zeros(model.nv, bool)
+    for j in range(model.njnt):
+        if int(model.jnt_type[j]) == mujoco.mjtJoint.mjJNT_HINGE and not model.jnt_limited[j]:
+            mask[model.jnt_dofadr[j]] = True
+    return mask
+
+
+def wrap(model, x) -> np.ndarray:
+    """Tangent states x [..., 2 nv] with the periodic coordinates' displacements wrapped into [-pi, pi)."""
+    x = np.array(x, np.float64)
+    dq = x[..., : model.nv]
+    periodic = periodic_dofs(model)
+    dq[..., periodic] = np.mod(dq[..., periodic] + np.pi, 2 * np.pi) - np.pi
+    return x
+
+
+def equilibrium_guess(task) -> "np.ndarray | None":
+    """[nq] the task's declared equilibrium qpos (Task.equilibrium_qpos: the upright of a pendulum), or None."""
+    q = getattr(task, "equilibrium_qpos", None)
+    return None if q is None else np.asarray(q, np.float64).reshape(task.model.nq)
