@@ -98,7 +98,7 @@ def main():
     for env, (ladder, dirs) in TASKS.items():
         scores, rnd = pool(env, dirs), random_return_of(env, dirs)
         per_run = seconds_per_run(env)
-        for design, looks in (("fixed grid, 10 seeds", (10,)), ("gsa_jax.answer, looks 5, 10, 20, 40", (5, 10, 20, 40))):
+        for design, looks in (("fixed grid of 10 seeds", (10,)), ("gsa_jax.answer looks 5-10-20-40", (5, 10, 20, 40))):
             state, stopped = replay(env, ladder, scores, rnd, looks)
             runs = sum(max(len(ks), 1) * len(got) for r in state["rounds"] if r["status"] == "done"
                        for ks, got in r["plan"].values())

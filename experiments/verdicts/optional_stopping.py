@@ -57,8 +57,8 @@ def simulate(draw, looks, adjusted, seed=0):
 
 def main():
     rows = []
-    designs = [("one look at 10 seeds", (10,), True), ("looks at 5, 10, 20, 40 (Bonferroni: gsa_jax.answer)", (5, 10, 20, 40), True),
-               ("looks at 5, 10, 20, 40, unadjusted 95%", (5, 10, 20, 40), False)]
+    designs = [("one look at 10 seeds", (10,), True), ("looks 5-10-20-40 with Bonferroni (gsa_jax.answer)", (5, 10, 20, 40), True),
+               ("looks 5-10-20-40 unadjusted 95%", (5, 10, 20, 40), False)]
     for name, draw in (("normal", normal), ("bimodal", bimodal), ("skewed", skewed)):
         for design, looks, adjusted in designs:
             suff, insuff, und, seeds = simulate(draw, looks, adjusted)
