@@ -29,7 +29,7 @@ import subprocess
 import sys
 
 from gsa_jax.analysis import verdict
-from gsa_jax.running.answering import FLAT, AnswerError, Setup, check_setup, collect_scores, run_answer
+from gsa_jax.analysis.answering import FLAT, AnswerError, Setup, check_setup, collect_scores, run_answer
 
 MULTIPLIERS = (0.5, 1, 2, 4)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gsa_jax.analysis import controller_scores, verdict
-from gsa_jax.running import answering as A
+from gsa_jax.analysis import answering as A
 
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
 

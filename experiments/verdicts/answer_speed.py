@@ -16,7 +16,7 @@ import tempfile
 
 from gsa_jax.analysis import controller_scores, verdict
 from gsa_jax.analysis.results import write_csv
-from gsa_jax.running import answering as A
+from gsa_jax.analysis import answering as A
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.join(HERE, "..")

@@ -19,7 +19,6 @@ import time
 
 import numpy as np
 
-from gsa_jax.running.checkpoint import write_atomic
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
 START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
@@ -48,6 +47,8 @@ def read_scores(path: str) -> dict:
 
 def write_scores(path: str, rows: dict) -> None:
     """Write {label: row} as a controller_scores.csv (atomically, labels sorted)."""
+    from gsa_jax.running.checkpoint import write_atomic  # imports JAX: not at module level, which plot and deploy read
+
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
     w.writeheader()
