@@ -30,6 +30,7 @@ import sys
 
 from gsa_jax.analysis import verdict
 from gsa_jax.analysis.answering import FLAT, AnswerError, Setup, check_setup, collect_scores, run_answer
+from gsa_jax.running.runinfo import cli_description
 
 MULTIPLIERS = (0.5, 1, 2, 4)
 
@@ -155,7 +156,7 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.answer", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.answer", description=cli_description(__doc__))
     p.add_argument("--env", required=True, help="the task (any name gsa_jax.train takes, your own 'module:Class' too)")
     p.add_argument("--clusters", default=None, help="the K ladder, e.g. 1,2,4 (default: ceil(m d_a), m = 0.5, 1, 2, 4)")
     p.add_argument("--margin", type=float, default=verdict.DEFAULT_MARGIN,

@@ -14,10 +14,11 @@ import os
 import sys
 
 from gsa_jax.analysis.controller_scores import EPISODES, START_SEED, ScoreError, controller_dirs, score_directory
+from gsa_jax.running.runinfo import cli_description
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.score", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.score", description=cli_description(__doc__))
     p.add_argument("dirs", nargs="+", metavar="DIR", help="results directories (searched for controllers/*.npz)")
     p.add_argument("--episodes", type=int, default=EPISODES, help="start states per controller (default %(default)s)")
     p.add_argument("--start-seed", type=int, default=START_SEED,

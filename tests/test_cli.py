@@ -292,7 +292,7 @@ def test_export_real_run_matches_jax(full_run, tmp_path):
 
 
 @pytest.mark.parametrize("module", ["train", "plot", "deploy", "export", "robustness", "tune", "sweep", "extract",
-                                    "render", "bench", "profile", "deployment.inspection"])
+                                    "render", "bench", "profile", "deployment.inspection", "answer", "score"])
 def test_help_describes_the_command_in_whole_sentences(module, capsys):
     """Every command's --help opens with its docstring's first paragraph, whole (not cut at a line end); train's
     --env names every kind of task name, playground:<Name> included."""
