@@ -2,15 +2,14 @@
 at verdict.MARGINS, score against K with the margin drawn, the seeds each cell got, the command that reproduces
 it, and the chosen controller exported (npz, C header, ONNX)."""
 
-import csv
 import glob
-import io
 import os
 
 import numpy as np
 
 from gsa_jax.analysis import verdict
 from gsa_jax.analysis.controller_scores import EPISODES, START_SEED
+from gsa_jax.analysis.results import write_csv
 from gsa_jax.running.checkpoint import write_atomic
 
 
@@ -110,14 +109,6 @@ def table_text(rows: list) -> str:
     return "\n".join(lines)
 
 
-def write_csv_rows(path: str, rows: list) -> None:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
-    w.writeheader()
-    w.writerows(rows)
-    write_atomic(path, buf.getvalue())
-
-
 def rounds_text(state: dict) -> tuple:
     """(markdown table of the rounds: what each trained and how long it took, compile share of the whole)."""
     lines = ["| round | trained | seconds | of it compiling or loading programs |", "|---|---|---|---|"]
@@ -136,7 +127,7 @@ def write_report(out: str, setup, state: dict, scores: dict, rows: list, sentenc
                  versions: dict) -> str:
     """out/report.md (and verdicts.csv, score_vs_k.png) -> its path."""
     plot_answer(setup, scores, state["random_return"], os.path.join(out, "score_vs_k.png"))
-    write_csv_rows(os.path.join(out, "verdicts.csv"), rows)
+    write_csv(os.path.join(out, "verdicts.csv"), rows)
     rounds, share = rounds_text(state)
     if not state["rounds"]:
         rounds, share = "No round trained: every cell was judged on the runs of --start-from.", None
