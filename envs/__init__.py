@@ -350,11 +350,13 @@ def substeps(env):
     return int(getattr(env, "n_frames", None) or getattr(env, "_n_frames", 1))
 
 
-def make(name, episode_length=None, auto_reset=True, physics=None, reset_mode="first"):
+def make(name, episode_length=None, auto_reset=True, physics=None, reset_mode="first", randomize=None):
     """Task `name` (a name or a TaskRecord) with a time limit of `episode_length` steps (default: the task's own,
     `default_episode_length(name)`) and (by default) auto-reset: an ended episode restarts from the env's first
     start state (reset_mode 'first', Brax's convention) or from a new draw of the task's start law ('fresh',
-    as gymnasium and dm_control reset; envs/wrappers.py). physics: see make_base.
+    as gymnasium and dm_control reset; envs/wrappers.py). physics: see make_base. randomize: a domain
+    randomization (envs/randomize.py: its text, a table or a Randomize; None or '': none) drawn per episode
+    (envs/randomized.py); RandomizeError (one line) where the task or backend cannot apply it.
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
@@ -365,5 +367,69 @@ def make(name, episode_length=None, auto_reset=True, physics=None, reset_mode="f
         episode_length = default_episode_length(name)
     if episode_length < 1:
         raise ValueError(f"episode_length must be >= 1, got {episode_length}")
-    env = EpisodeLimit(make_base(name, physics), episode_length)
-    return AutoReset(env, reset_mode) if auto_reset else env
+    spec = check_randomize(name, randomize, episode_length, physics)
+    base = make_base(name, physics)
+    env = EpisodeLimit(base, episode_length)
+    env = AutoReset(env, reset_mode) if auto_reset else env
+    if spec is None:
+        return env
+    from envs.randomized import Randomized
+
+    return Randomized(env, base, spec)
+
+
+def task_randomize(name) -> str:
+    """The randomization a task definition declares (Task.randomize, envs/randomize.py's text); ValueError if none."""
+    from envs.registry import Definition
+
+    record = task_record(name)
+    text = record.task().randomize if isinstance(record, Definition) else ""
+    if not text:
+        raise ValueError(f"task {record.name!r} declares no randomization (Task.randomize); give one, e.g. "
+                         "randomize='mass=0.9:1.1, delay=1'")
+    from envs.randomize import parse
+
+    return parse(text).text()
+
+
+def check_randomize(name, randomize, episode_length=None, physics=None):
+    """The Randomize of `randomize` (envs/randomize.py) checked against task `name`'s model and the backend of
+    `physics` (None: MJX), or None for none; RandomizeError (one line) for an unknown parameter, a range out of
+    bounds, a delay as long as the episode, or model scales or pushes the backend cannot apply (saying which can).
+    Builds no environment."""
+    from envs.randomize import RandomizeError, check_model, parse
+
+    spec = parse(randomize)
+    if not spec.scales and spec.is_nominal:
+        return None
+    record = task_record(name)
+    check_model(spec, record.model(), episode_length)
+    if spec.model_fields or spec.push:
+        reason = _variant_reason(record, "mjx" if physics is None else physics.backend, spec)
+        if reason:
+            raise RandomizeError(f"randomize: {reason}; obs_noise and delay apply everywhere")
+    return spec
+
+
+def _variant_reason(record, backend, spec):
+    """Why model scales or pushes cannot run for this task on this backend (None: they can)."""
+    from envs.registry import BraxVariant, Definition, PlaygroundAdapted, UserEnv
+
+    if backend == "c":
+        task = record.task() if isinstance(record, Definition) else record.port() if isinstance(record, BraxVariant) else None
+        if task is None or task.post_constraint:
+            why = "its steps run mj_rnePostConstraint outside mujoco.batch" if task else "its host steps no variants"
+            return (f"{record.name} takes no per-simulation model on backend 'c' ({why}); its model scales and pushes "
+                    "run on MJX (--physics mjx)")
+        return None
+    if isinstance(record, (PlaygroundAdapted, UserEnv)):
+        return f"{record.name} is not a Brax PipelineEnv; model scales and pushes apply to task definitions and Brax's envs"
+    import dataclasses
+
+    from mujoco import mjx
+
+    have = {f.name for f in dataclasses.fields(mjx.Model)}
+    missing = [f for f, _, _ in spec.model_fields if f not in have]
+    if missing:
+        return f"MJX's model has no field {missing[0]}; backend 'c' (--physics c) scales any float MjModel field"
+    return None

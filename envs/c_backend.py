@@ -18,6 +18,7 @@ update, reward and tactile values (MuJoCo contact sensors on the fingertips, env
 computed on the host in float64 as envs/allegro_task.step_mujoco computes them.
 """
 
+import contextlib
 import threading
 import time
 import weakref
@@ -35,6 +36,7 @@ from envs import allegro_task, mujoco_c
 from envs.task_mjx import task_start_noise
 from envs.host_call import host_call
 from envs.physics import resolve_threads
+from envs.randomize import scaled_values
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 _HOSTS = weakref.WeakSet()  # this process's live hosts, read by host_seconds()
@@ -94,6 +96,38 @@ class HostBatches:
         the call's write returned)."""
         return np.zeros((b.state.shape[0], 0))
 
+    variant_fields = ()  # ((MjModel field, column or None, scale index), ...): enable_variants
+    push_body = None  # the body a step's push acts on (None: no pushes)
+
+    def enable_variants(self, spec, push_body):
+        """Step each simulation with its own model fields (envs/randomize.py's spec.model_fields scaled by the
+        scales a call passes) and pushes on push_body: per-simulation fields of the batch (Batch.expand), written
+        only for the simulations whose scales changed, then mj_setConst for them where a field feeds it."""
+        self.variant_fields, self.n_scales = spec.model_fields, len(spec.scales)
+        self.nominal = {f: np.array(getattr(self.model, f)) for f, _, _ in self.variant_fields}
+        self.setconst = any(f in mujoco.MjModel._setconst_inputs for f, _, _ in self.variant_fields)
+        self.push_body = push_body if spec.push else None
+        self._held = {}  # nsim -> float64 [nsim, n_scales]: the scales each simulation of that batch holds
+
+    def apply_variants(self, b, scales):
+        """Give batch b's simulations the model fields of scales [nsim, n_scales] (writes only what changed)."""
+        if not self.variant_fields:
+            return
+        scales = np.asarray(scales, np.float64).reshape(-1, self.n_scales)
+        held = self._held.setdefault(len(scales), np.ones_like(scales))
+        changed = np.flatnonzero((scales != held).any(axis=1))
+        if changed.size:
+            for field, col, i in self.variant_fields:
+                b.expand(field)[changed] = scaled_values(self.nominal[field], col, scales[changed, i])
+            if self.setconst:
+                b.set_const(changed)
+            held[changed] = scales[changed]
+
+    def set_push(self, b, push):
+        """Horizontal forces push [nsim, 2] on the push body for the coming call (zeros: none)."""
+        if self.push_body is not None:
+            b.xfrc_applied[:, self.push_body, :2] = np.asarray(push, np.float64).reshape(-1, 2)
+
     def _get(self, nsim):
         with self._lock:
             if nsim not in self._batches:
@@ -129,17 +163,26 @@ class HostBatches:
 
     stage = 0  # mjtStage computed at the new state after a step (mjSTAGE_VEL: as mj_step1, Task.derived_after)
 
-    def step_rows(self, rows, action, fn):
+    def step_rows(self, rows, action, fn, variant=None):
         """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64, carried
-        [nsim, n_carry] float64) set the controls; fn's return value is passed to extra()."""
+        [nsim, n_carry] float64) set the controls; fn's return value is passed to extra(). variant: (scales
+        [..., n_scales], push [..., 2]) the simulations step with (enable_variants), the push for this call only."""
         lead = rows.shape[:-1]
 
         def write(b):
             full = np.ascontiguousarray(rows).reshape(-1, 2 * self.nstate).view(np.float64)
             b.state[:] = full[:, : self.n_mj]
+            if variant is not None:
+                self.apply_variants(b, variant[0])
+                self.set_push(b, variant[1])
             return fn(b, np.asarray(action, np.float64).reshape(-1, self.model.nu), full[:, self.n_mj:])
 
-        return self._run(lead, write, lambda b: b.step(nstep=self.n_frames, stage=self.stage))
+        def call(b):
+            b.step(nstep=self.n_frames, stage=self.stage)
+            if variant is not None:
+                self.set_push(b, np.zeros((len(b.state), 2)))  # the push lasts this call; no row carries it
+
+        return self._run(lead, write, call)
 
 
 class NoisyStartHost(HostBatches):
@@ -147,12 +190,15 @@ class NoisyStartHost(HostBatches):
 
     start_qpos = None
 
-    def reset(self, dq, dv):
-        """Rows at start_qpos + dq [..., nq], qvel dv [..., nv] after mj_forward -> SimState fields."""
+    def reset(self, dq, dv, scales=None):
+        """Rows at start_qpos + dq [..., nq], qvel dv [..., nv] after mj_forward (under the model variant of scales
+        [..., n_scales], enable_variants) -> SimState fields."""
         m = self.model
         start = m.qpos0 if self.start_qpos is None else self.start_qpos
 
         def write(b):
+            if scales is not None:
+                self.apply_variants(b, scales)
             b.state[:] = self.template
             b.qpos[:] = start + np.asarray(dq, np.float64).reshape(-1, m.nq)
             b.qvel[:] = np.asarray(dv, np.float64).reshape(-1, m.nv)
@@ -270,13 +316,15 @@ class TaskHost(NoisyStartHost):
         return (rows.view(np.uint32).reshape(*lead, 2 * self.nstate), qpos.astype(np.float32).reshape(*lead, m.nq),
                 qvel.astype(np.float32).reshape(*lead, m.nv), extra.astype(np.float32).reshape(*lead, self.n_extra))
 
-    def step(self, rows, action):
+    def step(self, rows, action, scales=None, push=None):
+        """Every row [..., 2 nstate] one env step with controls from action [..., nu] (and the model variant of
+        scales [..., n_scales] with pushes push [..., 2]: enable_variants)."""
         def set_ctrl(b, a, carried):
             u = self.task.controls(a)
             b.ctrl[:] = u
             return carried, u
 
-        return self.step_rows(rows, action, set_ctrl)
+        return self.step_rows(rows, action, set_ctrl, None if scales is None else (scales, push))
 
 
 class PostConstraintHost:
@@ -458,12 +506,32 @@ class TaskCEnv(CTask):
         super().__init__(name, physics, task, host)
         self.n_frames, self.dt = task.frame_skip, task.dt
         self._n_obs = self.host.n_obs
+        self._nominal = None  # with variants enabled: (scales [P], push [2]) outside variant()
+        self._active = None  # (scales, push) while variant() is open
+
+    def enable_variants(self, spec, push_body):
+        """Step with per-simulation model fields and pushes (envs/randomized.py); see TaskHost.enable_variants."""
+        self.host.enable_variants(spec, push_body)
+        self._nominal = (jnp.ones(len(spec.scales), jnp.float32), jnp.zeros(2, jnp.float32))
+
+    @contextlib.contextmanager
+    def variant(self, scales, push):
+        """Inside (while traced): resets and steps run the model variant of scales [P] and push [2] (None: none)."""
+        self._active = (scales, self._nominal[1] if push is None else push)
+        try:
+            yield
+        finally:
+            self._active = None
+
+    def _variant_args(self):
+        """The (scales, push) of the call being traced: variant()'s, else the nominal ones; () without variants."""
+        return () if self._nominal is None else (self._active or self._nominal)
 
     def reset(self, rng):
         task = self.port
         if task.has_initialize:
             return self.reset_where(rng, jnp.ones((), bool))
-        sim = self._call(self.host.reset, *task_start_noise(rng, task))
+        sim = self._call(self.host.reset, *task_start_noise(rng, task), *self._variant_args()[:1])
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
 
@@ -479,7 +547,7 @@ class TaskCEnv(CTask):
 
     def step(self, state, action):
         self._check_action(action)
-        sim = self._call(self.host.step, state.pipeline_state.rows, action.astype(jnp.float32))
+        sim = self._call(self.host.step, state.pipeline_state.rows, action.astype(jnp.float32), *self._variant_args())
         n = self._n_obs
         return state.replace(pipeline_state=sim, obs=sim.extra[:n], reward=sim.extra[n], done=sim.extra[n + 1])
 

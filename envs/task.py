@@ -92,6 +92,9 @@ class Task:
     # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
     push_body: "int | str" = 1
     planar: bool = False
+    # the domain randomization this task is trained under with --randomize task (envs/randomize.py's text or a
+    # {name: value} table; '': none declared)
+    randomize: "str | dict" = ""
     # the qpos of the state the task asks the controller to hold (an inverted pendulum's upright, at rest), where it
     # has one: python -m gsa_jax.verify analyses the closed loop there (None: no equilibrium, falsification only)
     equilibrium_qpos: "np.ndarray | None" = None

@@ -53,6 +53,12 @@ def add_physics_flags(p):
                         "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
     p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
                    help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
+    p.add_argument("--randomize", default=Config.randomize, metavar="TEXT",
+                   help="domain randomization of the training episodes, e.g. 'mass=0.9:1.1, friction=0.75:1.25, "
+                        "gear=0.9:1.1, damping=0.8:1.2, obs_noise=0.01, delay=1, push=0.125' (docs/randomize.md), or "
+                        "'task': the task's own `randomize`; default none")
+    p.add_argument("--eval-randomized", action="store_true",
+                   help="evaluate under the training randomization (default: the nominal task)")
 
 
 def build_parser():
@@ -116,7 +122,7 @@ def make_config(args, k_max):
         solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
         cholesky=args.cholesky, value_target=args.value_target, retrace_iterations=args.retrace_iterations,
         backend=args.physics, physics_threads=args.physics_threads, reset_mode=args.reset_mode,
-        **getattr(args, "unflagged_config", {}),
+        randomize=args.randomize, eval_randomized=args.eval_randomized, **getattr(args, "unflagged_config", {}),
     )
     try:
         return cfg.validate()
@@ -183,7 +189,8 @@ def saved_options(saved):
             "minibatches": c["num_minibatches"], "episode_length": c["episode_length"],
             "solver_iterations": c["solver_iterations"], "ls_iterations": c["ls_iterations"],
             "linesearch": c["linesearch"], "cholesky": c["cholesky"], "physics": c["backend"],
-            "physics_threads": c["physics_threads"], "value_target": c["value_target"], "reset_mode": c["reset_mode"],
+            "physics_threads": c["physics_threads"], "randomize": c["randomize"],
+            "eval_randomized": c["eval_randomized"], "value_target": c["value_target"], "reset_mode": c["reset_mode"],
             "retrace_iterations": c["retrace_iterations"], "b_init_scale": c["b_init_scale"],
             "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],
             "eval_every": saved.get("eval_every"), "eval_seed": saved.get("eval_seed", 0), "eval_envs": c["eval_envs"],

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 
 import envs
 from envs.physics import Physics
+from envs.randomize import parse as parse_randomize
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.nn import apply_mlp, init_mlp
 from gsa_jax.algorithm.normalize import init_stats, normalize, update_stats
@@ -73,10 +74,21 @@ class Config:
     # thread count
     backend: str = Physics.backend
     physics_threads: int = Physics.threads
+    # domain randomization of the training episodes (envs/randomize.py's text, e.g. "mass=0.9:1.1, delay=1"; '':
+    # none); evaluation runs the nominal task unless eval_randomized
+    randomize: str = ""
+    eval_randomized: bool = False
 
     def __post_init__(self):
         if self.episode_length is None and envs.is_name(self.env):
             object.__setattr__(self, "episode_length", envs.default_episode_length(self.env))
+        if self.randomize == "task" and envs.is_name(self.env):  # the task's own declared randomization
+            object.__setattr__(self, "randomize", envs.task_randomize(self.env))
+        try:  # the canonical text of a text, a table ({name: value}) or a Randomize; validate() names a bad one
+            object.__setattr__(self, "randomize", parse_randomize(self.randomize).text())
+        except ValueError:
+            if not isinstance(self.randomize, str):
+                raise
 
     @property
     def batch_size(self):
@@ -113,6 +125,9 @@ class Config:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         envs.check_backend(task, self.physics)
+        envs.check_randomize(task, self.randomize, self.episode_length, self.physics)
+        if self.eval_randomized and not self.randomize:
+            raise ValueError("eval_randomized evaluates under the training randomization; randomize is empty")
         if self.batch_size % self.num_minibatches:
             raise ValueError(
                 f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"
@@ -258,9 +273,12 @@ class Trainer(NamedTuple):
     evaluate: Callable
 
 
-def make_env(cfg, auto_reset=True, task=None):
-    """The task (its record, default: cfg.env's) as a Config describes it: time limit and physics options."""
-    return envs.make(cfg.env if task is None else task, cfg.episode_length, auto_reset, cfg.physics, cfg.reset_mode)
+def make_env(cfg, auto_reset=True, task=None, randomized=None):
+    """The task (its record, default: cfg.env's) as a Config describes it: time limit, physics options and (where
+    randomized, default auto_reset: the training env) its domain randomization."""
+    randomized = auto_reset if randomized is None else randomized
+    return envs.make(cfg.env if task is None else task, cfg.episode_length, auto_reset, cfg.physics, cfg.reset_mode,
+                     cfg.randomize if randomized else None)
 
 
 class Parts(NamedTuple):
@@ -588,7 +606,8 @@ def make_run_parts(cfg: Config, task=None) -> Parts:
     if cfg.episode_length is None:
         cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
     cfg.validate(task)
-    return make_parts(cfg, make_env(cfg, task=task), make_env(cfg, auto_reset=False, task=task))
+    return make_parts(cfg, make_env(cfg, task=task),
+                      make_env(cfg, auto_reset=False, task=task, randomized=cfg.eval_randomized))
 
 
 def make_train(cfg: Config, task=None) -> Trainer:

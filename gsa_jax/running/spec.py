@@ -16,6 +16,7 @@ import tomllib
 from typing import NamedTuple
 
 import envs
+from envs.randomize import parse as parse_randomize
 from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
@@ -130,10 +131,12 @@ def check_spec(raw, source="spec"):
     def bad(field, msg):
         raise SpecError(f"{source}: field '{field}': {msg}")
 
-    unknown = set(raw) - set(SPEC_FIELDS)
+    unknown = set(raw) - set(SPEC_FIELDS) - {"randomize"}
     if unknown:
-        bad(sorted(unknown)[0], f"unknown field; allowed: {', '.join(SPEC_FIELDS)}")
+        bad(sorted(unknown)[0], f"unknown field; allowed: {', '.join(SPEC_FIELDS + ('randomize',))}")
     spec = dict(raw)
+    if "randomize" in spec:
+        spec["config"] = {**spec.get("config", {}), "randomize": randomize_text(spec.pop("randomize"), spec, bad)}
     spec.setdefault("name", os.path.splitext(os.path.basename(source))[0])
     if not isinstance(spec["name"], str) or not NAME_PATTERN.fullmatch(spec["name"]):
         bad("name", f"must be a plain name (letters, digits, '-', '_', '.'; not starting with '.' or '-'), got {spec['name']!r}")
@@ -147,6 +150,19 @@ def check_spec(raw, source="spec"):
     spec["config"] = check_config_table(spec.get("config", {}), spec["envs"], bad)
     check_group_axes(spec, bad)
     return SweepSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
+
+
+def randomize_text(table, spec, bad):
+    """The [randomize] table (envs/randomize.py: {name: value}, a range as "lo:hi" or [lo, hi]) as Config's
+    canonical text; it goes to config.randomize, which the file must not also set."""
+    if "randomize" in spec.get("config", {}):
+        bad("randomize", "set it either as a [randomize] table or as config.randomize, not both")
+    if not isinstance(table, (dict, str)):
+        bad("randomize", "must be a table, e.g. [randomize] mass = [0.9, 1.1]")
+    try:
+        return parse_randomize(table).text()
+    except ValueError as e:
+        bad("randomize", str(e))
 
 
 def check_names(spec, bad):
