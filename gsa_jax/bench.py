@@ -123,6 +123,9 @@ def build_parser():
                         "mjx (default), c (MuJoCo C inside the program), or mjx,c")
     p.add_argument("--physics-threads", type=int, default=0,
                    help="MuJoCo C threads per worker process for --physics c (default 0: its share of the cores)")
+    p.add_argument("--randomize", default=None, metavar="TEXT",
+                   help="also measure every sweep trained under this domain randomization (envs/randomize.py's text), "
+                        "right after its nominal twin; bench.json gives each one's ratio_vs_nominal")
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
@@ -162,8 +165,9 @@ def make_plan(args):
     if args.profile_runs and max(profile_procs) > args.profile_runs:
         raise ValueError(f"--profile-processes {max(profile_procs)} is more than --profile-runs {args.profile_runs}")
     for pol, be in itertools.product(policies, backends):  # the sweeps' own validation, before anything compiles
+        randomize = {"randomize": args.randomize} if args.randomize else {}
         check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1,
-                    "config": {"value_target": args.value_target, "backend": be}}, source="bench")
+                    "config": {"value_target": args.value_target, "backend": be, **randomize}}, source="bench")
     plan = [(pol, n, k, None, be) for be in backends for pol in policies for n in sizes for k in procs if k <= n]
     raw_plan = [(b, k, None, be) for be in backends for b in batches for k in procs if k <= b]
     if args.quick and not args.processes:  # under 3 min: each size on as many processes as it can use
@@ -175,6 +179,8 @@ def make_plan(args):
     if variant and "mjx" in backends:  # MJX's solver options
         plan += [("mixture", max(sizes), k_all, variant, "mjx")]
         raw_plan += [(max(batches), max(k for k in procs if k <= max(batches)), variant, "mjx")]
+    if args.randomize:  # each sweep's randomized twin right after it (the same machine state, one ratio)
+        plan = [entry for p in plan for entry in ((*p[:4], p[4]), (*p[:4], (p[4], args.randomize)))]
     return {"sizes": sizes, "procs": procs, "batches": batches, "policies": policies, "variant": variant, "backends": backends,
             "profile_procs": profile_procs,
             "repeats": args.repeats or (2 if args.quick else 3), "plan": plan, "raw_plan": raw_plan}
@@ -221,20 +227,29 @@ def measure_raw_plan(args, info, report, c_ref, save):
 def measure_sweep_plan(args, info, report, c_ref, save):
     print(f"{'policy':8} {'physics':>7} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} "
           f"{'peak_MiB':>9}", flush=True)
+    nominal = {}  # (policy, runs, processes, solver, backend) -> its nominal rate, for the randomized twin's ratio
     for pol, n, k, sol, be in info["plan"]:
+        be, randomize = be if isinstance(be, tuple) else (be, "")
         try:
             cell = SweepCell(args.env, pol, n, k, solver=sol, run_batch=args.run_batch, value_target=args.value_target,
-                             backend=be, physics_threads=args.physics_threads)
+                             backend=be, physics_threads=args.physics_threads, randomize=randomize)
             r = measure_sweep(cell, reps(info["repeats"], n, args.repeats is not None))
             add_ratios(r, c_ref, sol)
+            twin = (pol, n, k, sol, be)
+            if randomize and twin in nominal:
+                r["ratio_vs_nominal"] = r["env_steps_per_s"] / nominal[twin]
+            elif not randomize:
+                nominal[twin] = r["env_steps_per_s"]
             print(f"{pol:8} {be:>7} {n:5d} {k:5d} {r['env_steps_per_s']:12,.0f} {r['ratio_vs_mujoco_c']:10.3f} "
-                  f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol), flush=True)
+                  f"{r['compile_s']:9.1f} {r['peak_rss_mib']:9.0f}" + solver_tag(sol)
+                  + (f"  randomized: {r.get('ratio_vs_nominal', float('nan')):.3f} of nominal" if randomize else ""), flush=True)
             if "in_run" in r:
                 r["in_run"].update(in_run_ceiling(r["in_run"], c_ref[sol]))
                 r["in_run"]["sweep_of_ceiling"] = r["ratio_vs_mujoco_c"] / r["in_run"]["ratio_ceiling_in_run"]
                 print_in_run(r["in_run"])
         except BenchError as e:
-            r = {"env": args.env, "policy": pol, "runs": n, "processes": k, **solver_field(sol), "backend": be, "error": str(e)}
+            r = {"env": args.env, "policy": pol, "runs": n, "processes": k, **solver_field(sol), "backend": be,
+                 "randomize": randomize, "error": str(e)}
         report["sweeps"].append(r)
         save()
 
@@ -306,7 +321,7 @@ def main(argv=None):
         report["profiles"] = [measure_profile(args, repeats, mujoco_c, be, k) for be in info["backends"]
                               for k in info["profile_procs"]]
         save()
-    plot(report["sweeps"], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"), report.get("mujoco_c_solver_variant"))
+    plot([r for r in report["sweeps"] if not r.get("randomize")], report["raw"], mujoco_c, os.path.join(args.out, "bench.png"), report.get("mujoco_c_solver_variant"))
     print(f"wrote {args.out}/bench.json and bench.png in {(time.perf_counter() - t_start) / 60:.1f} min", flush=True)
     return 0
 

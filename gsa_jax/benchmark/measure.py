@@ -112,6 +112,7 @@ class SweepCell(NamedTuple):
     value_target: str = "gae"
     backend: str = "mjx"
     physics_threads: int = 0
+    randomize: str = ""  # the runs' domain randomization (envs/randomize.py's text; '': none)
 
 
 def worker_command(cell, runs, seed0, repeats):
@@ -120,7 +121,8 @@ def worker_command(cell, runs, seed0, repeats):
              "--clusters", str(cell.clusters), "--runs", str(runs), "--seed0", str(seed0), "--repeats", str(repeats)]
             + (["--epochs", str(cell.epochs)] if cell.epochs else []) + _solver_args(cell.solver)
             + ["--run-batch", str(cell.run_batch)]
-            + ["--value-target", cell.value_target, "--physics", cell.backend, "--physics-threads", str(cell.physics_threads)])
+            + ["--value-target", cell.value_target, "--physics", cell.backend, "--physics-threads", str(cell.physics_threads)]
+            + (["--randomize", cell.randomize] if cell.randomize else []))
 
 
 def measure_sweep(cell, repeats, log=print, compile_each=False):
@@ -133,7 +135,7 @@ def measure_sweep(cell, repeats, log=print, compile_each=False):
     return {
         "env": cell.env, "policy": cell.policy, "runs": cell.runs, "processes": cell.processes,
         **({"num_epochs": cell.epochs} if cell.epochs else {}), **solver_field(cell.solver), "value_target": cell.value_target,
-        "backend": cell.backend, "physics_threads": cell.physics_threads,
+        "backend": cell.backend, "physics_threads": cell.physics_threads, "randomize": cell.randomize,
         "env_steps_per_s": sum(r["env_steps_per_s"] for r in results),
         "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results),
         "peak_rss_mib": sum(r["peak_rss_mib"] for r in results),

@@ -63,7 +63,8 @@ def worker(args):
     if args.epochs:
         cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
     cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
-                              value_target=args.value_target, backend=args.physics, physics_threads=args.physics_threads)
+                              value_target=args.value_target, backend=args.physics, physics_threads=args.physics_threads,
+                              randomize=args.randomize or "")
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
     runs = pad_runs(group.runs, len(devices))
