@@ -14,7 +14,8 @@ LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "comman
 JAX_FREE = ("deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.stats", "analysis.results", "analysis.tables", "analysis.figures",
-            "analysis.retention", "running.trained", "plot", "robustness", "deploy")
+            "analysis.retention", "analysis.retention_eval", "analysis.retention_stats", "analysis.retention_plots",
+            "analysis.shift_rows", "analysis.paired", "analysis.fairness", "running.trained", "plot", "robustness", "deploy")
 
 
 def modules():

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from gsa_jax.analysis import stats
-from gsa_jax.analysis.retention import cells
+from gsa_jax.analysis.shift_rows import cells
 
 MIN_RUNS = 3  # controllers per side for an interval
 

@@ -12,6 +12,8 @@ import os
 import numpy as np
 
 from gsa_jax.analysis import stats
+from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.shift_rows import controller_key
 from gsa_jax.deployment.pushes import evaluate_pushes
 
 KEY = ("env", "policy", "K", "seed")
@@ -39,9 +41,6 @@ def write_gz(path, rows, columns):
 def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m, flush=True)):
     """Paired pushes of every controller not yet in OUT/nominal.csv -> (event rows, nominal rows); both
     files are rewritten after every controller. settings: {sizes, windows, per_episode}."""
-    from gsa_jax.analysis.results import read_csv, write_csv
-    from gsa_jax.analysis.retention import controller_key
-
     ev_path, nom_path = os.path.join(out, "pushes.csv.gz"), os.path.join(out, "nominal.csv")
     events, nominal = read_csv(ev_path), read_csv(nom_path)
     done = {controller_key(r) for r in nominal}
