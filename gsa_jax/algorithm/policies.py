@@ -14,9 +14,9 @@ exploration of the partition), sigma_min (floor of every sub-policy std).
 
 Mixture: pi(c, a | s) = pi_p(c | s) N(a | L_c phi(s) + b_c, diag(max(sigma_c, sigma_min)^2)),
 pi_p = (1 - eps) softmax(partition_mlp(s))[active] + eps / K on the K active clusters.
-phi is the sub-policy class (the paper's second complexity knob): constant (phi = [], one action
-per cluster: classic state abstraction), linear (phi = s, the default), quadratic
-(phi = [s, upper-triangular s (x) s]).
+phi is the sub-policy class (the paper's second complexity knob; gsa_jax/algorithm/subpolicies.py, one entry
+each): constant (phi = [], one action per cluster: classic state abstraction), linear (phi = s, the default),
+quadratic (phi = [s, upper-triangular s (x) s]).
 Params: partition (MLP d_s -> hidden -> K_max), L [K_max, d_a, d_phi], b [K_max, d_a],
 log_sigma [K_max, d_a]. Clusters c >= K are masked: probability exactly 0, excluded from
 the uniform part, never sampled; every quantity (init, samples, log-probs, modes) is the
@@ -29,10 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.nn import apply_mlp, init_mlp
 
-POLICY_KINDS = ("mixture", "mlp")
-SUBPOLICY_KINDS = ("constant", "linear", "quadratic")
+SUBPOLICY_KINDS = subpolicies.SUBPOLICIES.keys()  # the sub-policy classes' names, registered ones included
 _LOG_2PI = float(np.log(2.0 * np.pi))
 _PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79, 83, 89, 97)
 
@@ -85,20 +86,13 @@ def gaussian_log_prob(x, mean, sigma):
 
 
 def feature_size(subpolicy, obs_size):
-    """d_phi: length of the sub-policy features of a d_s observation."""
-    if subpolicy not in SUBPOLICY_KINDS:
-        raise ValueError(f"unknown subpolicy {subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
-    return {"constant": 0, "linear": obs_size, "quadratic": obs_size + obs_size * (obs_size + 1) // 2}[subpolicy]
+    """d_phi: length of the sub-policy features of a d_s observation (gsa_jax.algorithm.subpolicies)."""
+    return subpolicies.get(subpolicy).size(obs_size)
 
 
 def subpolicy_features(subpolicy, obs):
-    """phi(s) [d_phi] for one observation [d_s]: [] | s | [s, s_i s_j for i <= j (row-major upper triangle)]."""
-    if subpolicy == "constant":
-        return obs[:0]
-    if subpolicy == "linear":
-        return obs
-    i, j = np.triu_indices(obs.shape[-1])
-    return jnp.concatenate([obs, obs[i] * obs[j]])
+    """phi(s) [d_phi] for one observation [d_s] (gsa_jax.algorithm.subpolicies): [] | s | [s, s_i s_j for i <= j]."""
+    return subpolicies.get(subpolicy).features(obs, jnp)
 
 
 def component(params, phi, c, sigma_min):
@@ -197,9 +191,9 @@ def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
 
 
 def make_policy(kind, obs_size, action_size, k_max=1, hidden=(64, 64), b_init_scale=1.0, subpolicy="linear"):
-    if kind == "mixture":
+    if kind == MIXTURE:
         return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale, subpolicy)
-    if kind == "mlp":
+    if kind == MLP:
         return make_mlp_policy(obs_size, action_size, hidden)
     raise ValueError(f"unknown policy {kind!r}; choose one of {', '.join(POLICY_KINDS)}")
 

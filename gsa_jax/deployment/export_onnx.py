@@ -14,6 +14,8 @@ import json
 
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
 
 OPSET = 17
@@ -53,17 +55,14 @@ def _normalize(nodes, ctrl):
 
 
 def _features(nodes, ctrl, z):
-    """phi(z) of the sub-policy class (linear: z; quadratic: [z, z_i z_j, i <= j])."""
+    """phi(z): the nodes of the sub-policy class's ONNX emitter (gsa_jax.algorithm.subpolicies); phi's name."""
     from onnx import helper
 
-    if ctrl.subpolicy == "linear":
-        return z
-    i, j = np.triu_indices(ctrl.obs_mean.shape[0])
-    nodes.append(helper.make_node("Gather", [z, _const(nodes, "quad_i", i.astype(np.int64))], ["z_i"], axis=1))
-    nodes.append(helper.make_node("Gather", [z, _const(nodes, "quad_j", j.astype(np.int64))], ["z_j"], axis=1))
-    nodes.append(helper.make_node("Mul", ["z_i", "z_j"], ["z_ij"]))
-    nodes.append(helper.make_node("Concat", [z, "z_ij"], ["phi"], axis=1))
-    return "phi"
+    def node(op, inputs, outputs, **attributes):
+        nodes.append(helper.make_node(op, inputs, outputs, **attributes))
+
+    emit = subpolicies.SUBPOLICIES[ctrl.subpolicy].onnx
+    return emit(node, lambda name, value: _const(nodes, name, value), z, ctrl.obs_mean.shape[0])
 
 
 def _mixture(nodes, ctrl, z):
@@ -105,7 +104,7 @@ def build_model(arrays, layout=None):
     d_s, d_a = ctrl.obs_mean.shape[0], ctrl.action_size
     nodes = []
     z = _normalize(nodes, ctrl)
-    if ctrl.kind == "mixture":
+    if ctrl.kind == MIXTURE:
         _mixture(nodes, ctrl, z)
     else:
         out = _mlp(nodes, z, ctrl.layers, "mlp")
@@ -142,8 +141,9 @@ def describe(arrays):
     meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
     cfg = meta.get("config", {})
     kind = str(arrays["kind"])
-    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {arrays['subpolicy'] if 'subpolicy' in arrays else 'linear'} "
-            "controllers (most probable cluster, mean action)" if kind == "mixture" else "tanh MLP (mean action)")
+    sub = arrays["subpolicy"] if "subpolicy" in arrays else subpolicies.DEFAULT
+    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {sub} "
+            "controllers (most probable cluster, mean action)" if kind == MIXTURE else "tanh MLP (mean action)")
     return (f"gsa_jax deterministic controller: {what}; task {cfg.get('env', '?')}, seed {meta.get('seed', '?')}, "
             f"commit {meta.get('git_commit') or '?'}")
 

@@ -20,7 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.episodes import step_episodes
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import Config, make_env, make_hparams, make_train, schedule
@@ -40,7 +42,7 @@ def load_run(address, require_mixture=True):
     except (RunNotFound, FormatError) as e:
         raise InspectError(str(e)) from None
     meta = run.meta
-    if require_mixture and meta["config"]["policy"] != "mixture":
+    if require_mixture and meta["config"]["policy"] != MIXTURE:
         raise InspectError(f"{address!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
     c = dict(meta["config"])
     c["hidden"] = tuple(c["hidden"])
@@ -115,13 +117,8 @@ def cluster_stats(cluster, alive, k):
 
 
 def feature_names(subpolicy, obs_names):
-    """Names of the sub-policy features phi(z) (see gsa_jax.algorithm.policies.subpolicy_features)."""
-    if subpolicy == "constant":
-        return []
-    if subpolicy == "linear":
-        return list(obs_names)
-    i, j = np.triu_indices(len(obs_names))
-    return list(obs_names) + [f"{obs_names[a]}*{obs_names[b]}" for a, b in zip(i, j)]
+    """Names of the sub-policy features phi(z) (the class's entry in gsa_jax.algorithm.subpolicies)."""
+    return subpolicies.get(subpolicy).names(obs_names)
 
 
 def controller_table(params, k, obs_names, act_names, subpolicy="linear", top=3):
@@ -129,8 +126,7 @@ def controller_table(params, k, obs_names, act_names, subpolicy="linear", top=3)
     b = np.asarray(params["policy"]["b"])[:k]
     names = feature_names(subpolicy, obs_names)
     shown = names[: len(obs_names)]  # quadratic: the table shows the linear terms; "strongest" ranks all
-    rule = {"constant": "a = b_c", "linear": "a = L_c z + b_c",
-            "quadratic": "a = L_c [z, z_i z_j (i <= j)] + b_c"}[subpolicy]
+    rule = subpolicies.get(subpolicy).rule
     lines = [f"# {subpolicy.capitalize()} controllers", "",
              f"{rule} on the normalized observation z = (obs - mean) / std (clipped to +-10), "
              "for the cluster c the partition network picks.", ""]

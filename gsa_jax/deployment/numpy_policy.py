@@ -2,8 +2,8 @@
 
 A mixture controller is piecewise simple: normalize the observation, pick the most probable
 cluster of the partition network (eps-uniform exploration does not change the argmax), apply
-that cluster's L_c phi(z) + b_c, where phi is the sub-policy class: [] (constant), z (linear),
-[z, z_i z_j for i <= j] (quadratic). An MLP controller applies its tanh MLP to the normalized observation.
+that cluster's L_c phi(z) + b_c, where phi is the sub-policy class (gsa_jax.algorithm.subpolicies): [] (constant),
+z (linear), [z, z_i z_j for i <= j] (quadratic). An MLP controller applies its tanh MLP to the normalized observation.
 `act` then clips that raw action to the task's action bounds (action_low, action_high: envs.action_bounds, what
 training clips to), so it can go straight into the task's step (gymnasium's v5 tasks charge their control cost on
 the action they are given); `act(obs, clip=False)` is the raw action, for analysis.
@@ -26,6 +26,9 @@ import warnings
 
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
+
 
 def task_name(arrays):
     """The task an exported controller was trained on (config_json's config.env), or None."""
@@ -37,7 +40,7 @@ def task_name(arrays):
 
 def action_size(arrays):
     """d_a of an exported controller's arrays."""
-    if str(arrays["kind"]) == "mixture":
+    if str(arrays["kind"]) == MIXTURE:
         return int(np.shape(arrays["b"])[-1])
     return int(np.shape(arrays[f"b{int(arrays['n_layers']) - 1}"])[-1])
 
@@ -105,7 +108,7 @@ def map_actions(arrays, scale, offset, low, high):
     choice is unchanged and, the map being increasing, clipping commutes with it."""
     scale, offset = np.asarray(scale, np.float64), np.asarray(offset, np.float64)
     out = dict(arrays)
-    if str(arrays["kind"]) == "mixture":
+    if str(arrays["kind"]) == MIXTURE:
         out["L"] = (np.asarray(arrays["L"], np.float64) * scale[:, None]).astype(np.float32)
         out["b"] = (offset + scale * np.asarray(arrays["b"], np.float64)).astype(np.float32)
     else:
@@ -125,13 +128,13 @@ class Controller:
         self.obs_clip = float(arrays["obs_clip"])
         n = int(arrays["n_layers"])
         self.layers = [(np.asarray(arrays[f"w{i}"], np.float32), np.asarray(arrays[f"b{i}"], np.float32)) for i in range(n)]
-        if self.kind == "mixture":
-            self.subpolicy = str(arrays["subpolicy"]) if "subpolicy" in arrays else "linear"
-            if self.subpolicy not in ("constant", "linear", "quadratic"):
+        if self.kind == MIXTURE:
+            self.subpolicy = str(arrays["subpolicy"]) if "subpolicy" in arrays else subpolicies.DEFAULT
+            if self.subpolicy not in subpolicies.SUBPOLICIES:
                 raise ValueError(f"unknown sub-policy class {self.subpolicy!r}")
             self.L = np.asarray(arrays["L"], np.float32)
             self.b = np.asarray(arrays["b"], np.float32)
-        elif self.kind != "mlp":
+        elif self.kind != MLP:
             raise ValueError(f"unknown controller kind {self.kind!r}")
         self.action_size = action_size(arrays)
         self.action_low, self.action_high = action_bounds(arrays) or (None, None)
@@ -166,7 +169,7 @@ class Controller:
 
     @property
     def num_clusters(self):
-        return self.L.shape[0] if self.kind == "mixture" else 1
+        return self.L.shape[0] if self.kind == MIXTURE else 1
 
     def bounds(self):
         """(action_low [d_a], action_high [d_a]); ValueError where the controller has none."""
@@ -185,18 +188,13 @@ class Controller:
         return x
 
     def features(self, z):
-        """phi(z) [..., d_phi] of normalized observations z [..., d_s]."""
-        if self.subpolicy == "constant":
-            return z[..., :0]
-        if self.subpolicy == "linear":
-            return z
-        i, j = np.triu_indices(z.shape[-1])
-        return np.concatenate([z, z[..., i] * z[..., j]], axis=-1)
+        """phi(z) [..., d_phi] of normalized observations z [..., d_s] (the sub-policy class's features)."""
+        return subpolicies.SUBPOLICIES[self.subpolicy].features(z, np)
 
     def cluster(self, obs):
         """Active cluster for obs [..., d_s] -> int array [...] (0 for an MLP controller)."""
         z = self.normalize(obs)
-        if self.kind == "mlp":
+        if self.kind == MLP:
             return np.zeros(z.shape[:-1], np.int64)
         return np.argmax(self._mlp(z)[..., : self.num_clusters], axis=-1)
 
@@ -210,7 +208,7 @@ class Controller:
 
     def _raw_action(self, obs):
         z = self.normalize(obs)
-        if self.kind == "mlp":
+        if self.kind == MLP:
             return self._mlp(z)
         c = self.cluster(obs)
         if self.L.shape[-1] == 0:  # constant sub-policies (an empty contraction can come back uninitialized)
