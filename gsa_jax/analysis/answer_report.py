@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis import verdict
 from gsa_jax.analysis.controller_scores import EPISODES, START_SEED
 from gsa_jax.analysis.results import write_csv
@@ -114,7 +115,7 @@ def rounds_text(state: dict) -> tuple:
     lines = ["| round | trained | seconds | of it compiling or loading programs |", "|---|---|---|---|"]
     total = compile_s = 0.0
     for r in state["rounds"]:
-        what = "; ".join(f"{'flat PPO' if p == 'mlp' else 'K = ' + ', '.join(map(str, ks))}: seeds {seeds[0]}-{seeds[-1]}"
+        what = "; ".join(f"{'flat PPO' if p == MLP else 'K = ' + ', '.join(map(str, ks))}: seeds {seeds[0]}-{seeds[-1]}"
                          for p, (ks, seeds) in r["plan"].items())
         secs = sum(s["seconds"] for s in r["sweeps"].values())
         comp = sum(s["compile_s"] for s in r["sweeps"].values())

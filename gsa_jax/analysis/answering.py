@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import controller_scores, verdict
 from gsa_jax.analysis.extraction import collect_results
 from gsa_jax.running.checkpoint import write_atomic
@@ -53,7 +54,7 @@ def sweep_spec(setup: Setup, policy: str, ks: list, seeds: list, name: str) -> d
     """The experiment spec of one round's sweep of one class: the base spec with the round's K and seeds."""
     spec = {k: v for k, v in setup.specs[policy].items() if k not in ("clusters", "cluster_multipliers", "name")}
     spec.update(name=name, envs=[setup.env], policies=[policy], seeds=list(seeds))
-    if policy == "mixture":
+    if policy == MIXTURE:
         spec["clusters"] = sorted(ks)
     return spec
 
@@ -68,8 +69,8 @@ def check_setup(setup: Setup) -> None:
         raise AnswerError(f"--margin must be in (0, 1), got {setup.margin}")
     if not setup.looks or any(b <= a for a, b in zip(setup.looks, setup.looks[1:])) or setup.looks[0] < 2:
         raise AnswerError(f"--looks must be increasing seed counts >= 2, got {list(setup.looks)}")
-    for policy in ("mlp", "mixture"):
-        if policy == "mlp" and setup.target is not None:
+    for policy in (MLP, MIXTURE):
+        if policy == MLP and setup.target is not None:
             continue
         try:
             check_spec(sweep_spec(setup, policy, list(setup.ladder), list(range(setup.looks[0])), "answer_check"),
@@ -128,7 +129,7 @@ def collect_scores(out: str, setup: Setup) -> dict:
             for row in controller_scores.read_scores(path).values():
                 if row["env"] != setup.env or row.get("controller_score", "") == "":
                     continue
-                key = FLAT if row["policy"] == "mlp" else int(row["K"])
+                key = FLAT if row["policy"] == MLP else int(row["K"])
                 if key == FLAT or key in setup.ladder:
                     found.setdefault(key, {})[int(row["seed"])] = float(row["controller_score"])
     return found
@@ -235,11 +236,11 @@ def run_round(out: str, setup: Setup, state: dict, plan: dict, log, verdicts_bef
                                 "verdicts_before": verdicts_before, "status": "running", "sweeps": {}})
         save_state(out, state)
     record = state["rounds"][-1]
-    for policy in ("mlp", "mixture"):
+    for policy in (MLP, MIXTURE):
         if policy not in record["plan"] or policy in record["sweeps"]:
             continue
         ks, seeds = record["plan"][policy]
-        name = f"round{record['round']}-{'flat_ppo' if policy == 'mlp' else 'mixture'}"
+        name = f"round{record['round']}-{'flat_ppo' if policy == MLP else 'mixture'}"
         record["sweeps"][policy] = train(out, name, sweep_spec(setup, policy, ks, seeds, name), log)
         save_state(out, state)
     record["status"] = "done"
@@ -265,7 +266,7 @@ def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> s
     so_far = " ".join(f"K={k}:{r['verdict']}({r.get('seeds', r.get('n', 0))})" for k, r in sorted(judged.items()))
     if plan is None:
         return f"answer: verdicts {so_far}"
-    cells = "; ".join(f"{'flat PPO' if p == 'mlp' else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
+    cells = "; ".join(f"{'flat PPO' if p == MLP else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
                       for p, (ks, seeds) in plan.items())
     return (f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts "
             f"{so_far} | ETA {eta / 60:.0f} min" if eta else

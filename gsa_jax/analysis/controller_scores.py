@@ -19,6 +19,8 @@ import time
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE
+
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
 START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
@@ -71,7 +73,7 @@ def score_controller(path: str, episodes: int = EPISODES, start_seed: int = STAR
         summary = run_mujoco_c(ctrl, env_name, config, episodes, seed=start_seed)
     except DeployError as e:
         raise ScoreError(str(e)) from None
-    k = ctrl.num_clusters if ctrl.kind == "mixture" else ""
+    k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""
     with np.load(path, allow_pickle=False) as f:
         seed = json.loads(str(f["config_json"])).get("seed", "")
     return {"label": os.path.basename(path)[: -len(".npz")], "env": env_name, "policy": ctrl.kind,

@@ -7,6 +7,7 @@ import gzip
 import json
 import os
 
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.exporting import controller_arrays
 from gsa_jax.running.checkpoint import save_npz_atomic, write_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, finished_runs
@@ -29,7 +30,7 @@ def select(sweep_dir, env, policy, k, seed):
     hyperparameters or group axes)."""
     def matches(row):
         return ((row["env"], row["policy"], row["seed"]) == (env, policy, str(seed))
-                and (policy != "mixture" or row["K"] == str(k)))
+                and (policy != MIXTURE or row["K"] == str(k)))
 
     hits = [label for label, _, _, row in sweep_runs(sweep_dir) if matches(row)]
     if len(hits) != 1:

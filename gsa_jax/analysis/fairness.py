@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.shift_rows import cells
 
@@ -67,8 +68,8 @@ def fair_rows(rows, nominal, reps=stats.REPS):
     fin = lambda x: x[np.isfinite(x)][:, None]  # noqa: E731
     iqm_res = stats.iqm_ci({str(c): resid[c][0][:, None] for c in resid}, reps=reps) if resid else {}
     iqm_fl = stats.iqm_ci({str(c): fin(fl[c]) for c in keys if len(fin(fl[c])) >= MIN_RUNS}, reps=reps)
-    flat = lambda c: (c[0], "mlp", "", c[3])  # noqa: E731
-    mix = [c for c in keys if c[1] == "mixture" and flat(c) in by]
+    flat = lambda c: (c[0], MLP, "", c[3])  # noqa: E731
+    mix = [c for c in keys if c[1] == MIXTURE and flat(c) in by]
     p_res = probabilities({str(c): (resid[c][0][:, None], resid[flat(c)][0][:, None]) for c in mix if c in resid}, reps=reps)
     p_fl = probabilities({str(c): (fin(fl[c]), fin(fl[flat(c)])) for c in mix
                                           if min(len(fin(fl[c])), len(fin(fl[flat(c)]))) >= MIN_RUNS}, reps=reps)
@@ -78,7 +79,7 @@ def fair_rows(rows, nominal, reps=stats.REPS):
     p_nom = {str(c): stats.improvement_probability({0: (score(c, "nominal_score"), score(flat(c), "nominal_score"))}, reps=1)[0][0]
              for c in mix}
     return [{**fair_row(c, resid.get(c), len(fl[c]), iqm_res, iqm_fl, p_res, p_fl, p_ret), **absolute_columns(c, p_abs, p_nom)}
-            for c in sorted(keys, key=lambda c: (c[0], c[3], c[1] != "mlp", int(c[2] or 0)))]
+            for c in sorted(keys, key=lambda c: (c[0], c[3], c[1] != MLP, int(c[2] or 0)))]
 
 
 def absolute_columns(c, p_abs, p_nom):

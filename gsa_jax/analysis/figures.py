@@ -6,6 +6,7 @@ import os
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis import controller_scores, stats, verdict
 from gsa_jax.analysis.results import (
     action_dims_of, drop_failed, final_scores, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers,
@@ -33,7 +34,7 @@ def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE
         cells = sorted((c for c in data if c[0] == env_name), key=cell_order)
         for i, cell in enumerate(c for c in cells if c in curves):
             xs, iqm, lo, hi = curves[cell]
-            style = dict(color="black", lw=2.0) if cell[1] == "mlp" else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
+            style = dict(color="black", lw=2.0) if cell[1] == MLP else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
             n_failed = f", {len(failed[cell])} failed (NaN/inf), not shown" if cell in failed else ""
             ax.plot(xs, iqm, marker="o" if column == "eval_return" else None, ms=3,
                     label=f"{cell_label(cell, action_dims)} (n={len(data[cell])}{n_failed})", **style)
@@ -94,7 +95,7 @@ def plot_return_vs_k(rows, path, settings=(), sufficient=(), verdict_rows=()):
             ax.set_xscale("log", base=2)
             ax.set_xticks(all_ks, [f"{int(k)}" for k in all_ks])
         for r in rows:
-            if r["env"] == env_name and r["policy"] == "mlp" and r["seeds"]:
+            if r["env"] == env_name and r["policy"] == MLP and r["seeds"]:
                 ax.axhspan(r["iqm_ci_low"], r["iqm_ci_high"], color="k", alpha=0.15, lw=0)
                 ax.axhline(r["iqm"], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
         ax.set(title=env_name, xlabel="K (number of clusters / sub-policies)", ylabel=f"final score ({rows[0].get('score', '')})")

@@ -11,6 +11,7 @@ import os
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.results import read_csv, write_csv
 from gsa_jax.analysis.shift_rows import controller_key
@@ -98,13 +99,13 @@ def aggregate_pushes(events, windows, reps=stats.REPS):
     fin = lambda x: x[np.isfinite(x)][:, None]  # noqa: E731
     fall = stats.iqm_ci({str(c): fin(col(c, 1)) for c in cells if np.isfinite(col(c, 1)).any()}, reps=reps)
     lost = stats.iqm_ci({str(c): fin(col(c, 2)) for c in cells if np.isfinite(col(c, 2)).any()}, reps=reps)
-    flat = lambda c: (c[0], "mlp", "", c[3], c[4])  # noqa: E731
-    ok = [c for c in cells if c[1] == "mixture" and flat(c) in cells and len(fin(col(c, 1))) and len(fin(col(flat(c), 1)))]
+    flat = lambda c: (c[0], MLP, "", c[3], c[4])  # noqa: E731
+    ok = [c for c in cells if c[1] == MIXTURE and flat(c) in cells and len(fin(col(c, 1))) and len(fin(col(flat(c), 1)))]
     p_fall = stats.improvement_probability({str(c): (-fin(col(c, 1)), -fin(col(flat(c), 1))) for c in ok}, reps=reps) if ok else {}
     p_lost = stats.improvement_probability({str(c): (-fin(col(c, 2)), -fin(col(flat(c), 2))) for c in ok}, reps=reps) if ok else {}
     r3 = lambda v: round(float(v), 4) if np.isfinite(v) else ""  # noqa: E731
     rows = []
-    for c in sorted(cells, key=lambda c: (c[0], c[3], c[4], c[1] != "mlp", int(c[2] or 0))):
+    for c in sorted(cells, key=lambda c: (c[0], c[3], c[4], c[1] != MLP, int(c[2] or 0))):
         n = col(c, 0)
         f, lo, pf, pl = (fall.get(str(c), (math.nan,) * 3), lost.get(str(c), (math.nan,) * 3),
                          p_fall.get(str(c), (math.nan,) * 3), p_lost.get(str(c), (math.nan,) * 3))
@@ -139,8 +140,8 @@ def plot_pushes(agg, path):
                 x = np.array([float(r["size"]) for r in pts])
                 y = np.array([r[f"{what}_iqm"] for r in pts], float)
                 err = np.array([[r[f"{what}_iqm"] - r[f"{what}_ci_low"], r[f"{what}_ci_high"] - r[f"{what}_iqm"]] for r in pts], float).T
-                ax.errorbar(x, y, yerr=err if len(pts) else None, marker="o", ms=3, capsize=2, color="k" if policy == "mlp" else None,
-                            label="flat PPO" if policy == "mlp" else f"K = {k}")
+                ax.errorbar(x, y, yerr=err if len(pts) else None, marker="o", ms=3, capsize=2, color="k" if policy == MLP else None,
+                            label="flat PPO" if policy == MLP else f"K = {k}")
             ax.set(title=f"{env_name}, W = {w} steps", xlabel="push (m/s)", ylabel=label)
             ax.grid(alpha=0.3)
         axes[i, 0].legend(fontsize=7)

@@ -14,6 +14,7 @@ import sys
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis.results import read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
 
@@ -33,10 +34,10 @@ def compare(reference, runs):
     """Rows of the comparison: per reference task with flat PPO runs of the same name, ours and theirs."""
     out = []
     for ref in reference:
-        for env in dict.fromkeys(r["env"] for r in runs if r["policy"] == "mlp"):
+        for env in dict.fromkeys(r["env"] for r in runs if r["policy"] == MLP):
             if task_name(env) != task_name(ref["env"]):
                 continue
-            mine = [r for r in runs if r["env"] == env and r["policy"] == "mlp"]
+            mine = [r for r in runs if r["env"] == env and r["policy"] == MLP]
             num = lambda r, c: float(r[c]) if r[c] != "" else np.nan  # noqa: E731
             last_mean, last_std = spread([num(r, "training_return_last_100_episodes") for r in mine])
             det_mean, det_std = spread([num(r, "final_score") for r in mine])

@@ -31,6 +31,7 @@ from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.results import read_csv
 from gsa_jax.running.runinfo import cli_description
 
@@ -97,7 +98,7 @@ def interval(row, point, low, high, digits=0):
 
 def cell_name(row):
     """A final_returns.csv row's configuration: flat PPO, or K with its ratio to the action dimension."""
-    if row["policy"] == "mlp":
+    if row["policy"] == MLP:
         return "flat PPO (MLP 64x64)"
     ratio = float(row["K_over_action_dim"]) if row.get("K_over_action_dim", "") != "" else math.nan
     return f"K = {row['K']}" + (f" ({round(ratio, 2):g} d_a)" if math.isfinite(ratio) else "")
@@ -110,7 +111,7 @@ def halfwidth(x):
 
 def cell_table(rows):
     """Figure 1's per-task table of final_returns.csv rows (one task)."""
-    mixture = [r for r in rows if r["policy"] == "mixture" and r.get("K_over_action_dim", "") != ""]
+    mixture = [r for r in rows if r["policy"] == MIXTURE and r.get("K_over_action_dim", "") != ""]
     d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0]['K_over_action_dim']))})" if mixture else ""
     lines = [f"| {rows[0]['env']}{d_a} | deterministic: mean ± 95% CI | IQM [95% CI] | P(> flat PPO) [95% CI] "
              "| training return | learning speed IQM |", "|---|---|---|---|---|---|"]
@@ -149,7 +150,7 @@ def reach(dirs, filters, threshold):
         firsts = [s["env_steps"][np.flatnonzero(s["eval_return"] >= threshold)[0]] for s in data[cell].values()
                   if np.any(s["eval_return"] >= threshold)]
         at = f" at {round(float(np.median(firsts)) / 1000)}k" if firsts else ""
-        parts.append(f"{'flat PPO' if cell[1] == 'mlp' else f'K = {cell[2]}'} {len(firsts)}/{len(data[cell])}{at}")
+        parts.append(f"{'flat PPO' if cell[1] == MLP else f'K = {cell[2]}'} {len(firsts)}/{len(data[cell])}{at}")
     return ", ".join(parts)
 
 

@@ -10,6 +10,7 @@ import os
 import numpy as np
 
 from envs import action_size, check_name
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.analysis.results import read_csv, write_csv
 from gsa_jax.analysis.shift_rows import TIDY, RobustnessError, controller_key
 from gsa_jax.deployment.evaluation import DeployError, load_controller
@@ -40,7 +41,7 @@ def load_controllers(paths):
             check_name(env_name)  # a task defined outside the package: importable from here, in one line if not
         except (DeployError, ValueError) as e:
             raise RobustnessError(f"{f}: {e}") from None
-        k = ctrl.num_clusters if ctrl.kind == "mixture" else ""
+        k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""
         out.append((f, {"env": env_name, "policy": ctrl.kind, "K": k, "seed": int(meta.get("seed", 0))}, ctrl))
     return out
 
@@ -67,7 +68,7 @@ def random_score(env_name, shift, seeds):
 def action_jacobian_norms(ctrl, obs):
     """[N] Frobenius norms of d action / d z at observations obs [N, d_s], z the normalized observation:
     a mixture's active piece L_c (linear sub-policies), an MLP's Jacobian through its tanh layers."""
-    if ctrl.kind == "mixture":
+    if ctrl.kind == MIXTURE:
         if ctrl.subpolicy != "linear":
             raise RobustnessError(f"sensitivity is defined for linear sub-policies, not {ctrl.subpolicy!r}")
         return np.linalg.norm(ctrl.L[ctrl.cluster(obs)], axis=(1, 2))

@@ -2,6 +2,8 @@
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MLP
+
 
 def plot_robustness(agg, path):
     """Per task: retained fraction (IQM, 95% CI) under each shift, flat PPO and each K side by side."""
@@ -23,8 +25,8 @@ def plot_robustness(agg, path):
             y = np.array([pts[sh]["retained_iqm"] for sh in shifts if sh in pts], float)
             err = np.array([[pts[sh]["retained_iqm"] - pts[sh]["retained_ci_low"], pts[sh]["retained_ci_high"] - pts[sh]["retained_iqm"]]
                             for sh in shifts if sh in pts], float).T
-            ax.bar(x, y, width, yerr=err, capsize=2, color="k" if policy == "mlp" else None, alpha=0.8,
-                   label="flat PPO (MLP 64x64)" if policy == "mlp" else f"K = {k}")
+            ax.bar(x, y, width, yerr=err, capsize=2, color="k" if policy == MLP else None, alpha=0.8,
+                   label="flat PPO (MLP 64x64)" if policy == MLP else f"K = {k}")
         ax.axhline(1.0, color="gray", lw=0.8, ls="--")
         ax.set_xticks(range(len(shifts)), shifts, fontsize=8)
         ax.set(title=env_name, ylabel="retained fraction (IQM)")

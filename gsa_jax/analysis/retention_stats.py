@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.fairness import partial_spearman
 from gsa_jax.analysis.shift_rows import cells, controller_key
@@ -16,7 +17,7 @@ MULTIPLIERS = (0.5, 1, 2, 4)
 def config_names(policy, k, action_dim):
     """['flat PPO'] or ['K = m d_a', ...] for every Figure-1 multiplier m whose ceil(m d_a) is K (on a
     one-action task K = 1 is both 0.5 and 1 d_a), else ['K = k']."""
-    if policy == "mlp":
+    if policy == MLP:
         return ["flat PPO"]
     ms = [m for m in MULTIPLIERS if max(1, math.ceil(m * action_dim - 1e-9)) == int(k)]
     return [f"K = {m:g} d_a" for m in ms] or [f"K = {k}"]
@@ -30,11 +31,11 @@ def aggregate(rows, reps=stats.REPS):
     score = {c: np.array([float(r["score"]) for r in v.values()]) for c, v in by.items()}
     iqm_r = stats.iqm_ci({str(c): x[np.isfinite(x)][:, None] for c, x in retained.items()}, reps=reps)
     iqm_s = stats.iqm_ci({str(c): x[:, None] for c, x in score.items()}, reps=reps)
-    pairs = {str(c): (retained[c][:, None], retained[(c[0], "mlp", "", c[3])][:, None]) for c in by
-             if c[1] == "mixture" and (c[0], "mlp", "", c[3]) in by}
+    pairs = {str(c): (retained[c][:, None], retained[(c[0], MLP, "", c[3])][:, None]) for c in by
+             if c[1] == MIXTURE and (c[0], MLP, "", c[3]) in by}
     better = stats.improvement_probability(pairs, reps=reps) if pairs else {}
     out = []
-    for c in sorted(by, key=lambda c: (c[0], c[1] != "mlp", int(c[2] or 0), c[3])):
+    for c in sorted(by, key=lambda c: (c[0], c[1] != MLP, int(c[2] or 0), c[3])):
         p = better.get(str(c), (math.nan,) * 3)
         r3 = lambda v: round(float(v), 3) if np.isfinite(v) else ""  # noqa: E731
         out.append({"env": c[0], "policy": c[1], "K": c[2], "shift": c[3], "runs": len(by[c]),

@@ -13,6 +13,7 @@ import numpy as np
 import envs
 from envs.physics import Physics
 from gsa_jax.algorithm.episodes import step_episodes
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import schedule
 from gsa_jax.analysis.extraction import select, sweep_runs
@@ -26,10 +27,10 @@ def load_cell(sweep_dir, env_name, policy, k):
     """Per seed (sorted): (trainer, params, obs_stats, hp, iteration, address) of one sweep cell."""
 
     seeds = sorted({int(r["seed"]) for _, _, _, r in sweep_runs(sweep_dir) if r["env"] == env_name
-                    and r["policy"] == policy and (policy == "mlp" or int(r["K"]) == k)})
+                    and r["policy"] == policy and (policy == MLP or int(r["K"]) == k)})
     out = []
     for seed in seeds:
-        address = select(sweep_dir, env_name, policy, k if policy == "mixture" else 1, seed)
+        address = select(sweep_dir, env_name, policy, k if policy == MIXTURE else 1, seed)
         trainer, params, obs_stats, hp, meta = load_run(address, require_mixture=False)
         out.append((seed, trainer, params, obs_stats, hp, last_iteration(meta), address))
     return out
@@ -95,14 +96,14 @@ def score_sweep(sweep, env_name, clusters, episodes, variants, tmp, **tags):
     tmp: a directory for the exported controllers."""
 
     rows = []
-    for policy in ("mlp", "mixture"):
+    for policy in (MLP, MIXTURE):
         cell = load_cell(sweep, env_name, policy, clusters)
         res = evaluate_cell(cell, episodes, variants)
         for i, c in enumerate(cell):
-            row = {**tags, "policy": policy, "K": clusters if policy == "mixture" else "", "seed": c[0]}
+            row = {**tags, "policy": policy, "K": clusters if policy == MIXTURE else "", "seed": c[0]}
             for name in variants:
                 row[name] = round(float(res[name][i].mean()), 1)
-            if policy == "mixture":
+            if policy == MIXTURE:
                 ctrl = os.path.join(tmp, os.path.basename(c[6]) + ".npz")
                 save_npz_atomic(ctrl, **controller_arrays(c[6]))
                 row["mujoco_c"] = round(run_mujoco_c(*load_controller(ctrl), episodes)["return_mean"], 1)

@@ -6,6 +6,7 @@ from collections import defaultdict
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats, verdict
 from gsa_jax.analysis.results import cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
 
@@ -27,7 +28,7 @@ def smooth(y, window):
 def cell_label(cell, action_dims):
     env, policy, k = cell[:3]
     extra = "".join(f", {v}" if c == "subpolicy" else f", {c}={v}" for c, v in cell[3:] if v != "")
-    if policy == "mlp":
+    if policy == MLP:
         return "flat PPO (MLP 64x64)" + extra
     d_a = action_dims.get(env)
     mult = f" ({k / d_a:.3g} d_a)" if d_a else ""
@@ -35,13 +36,13 @@ def cell_label(cell, action_dims):
 
 
 def cell_order(cell):
-    return cell[0], cell[1] != "mlp", cell[2], cell[3:]
+    return cell[0], cell[1] != MLP, cell[2], cell[3:]
 
 
 def flat_cell(cell, cells):
     """The flat PPO cell a mixture cell is compared with: same env and swept settings (sub-policy aside)."""
     rest = tuple((c, v) for c, v in cell[3:] if c != "subpolicy")
-    flats = [c for c in cells if c[0] == cell[0] and c[1] == "mlp"]
+    flats = [c for c in cells if c[0] == cell[0] and c[1] == MLP]
     same = [c for c in flats if tuple((k, v) for k, v in c[3:] if k != "subpolicy") == rest]
     return (same or (flats if len(flats) == 1 else [None]))[0]
 
@@ -59,8 +60,8 @@ def cell_row(cell, scores, kind, data, action_dims, versus, reps=stats.REPS):
     auc = stats.iqm_ci({"c": area[:, None]}, reps=reps)["c"] if len(area) else (math.nan,) * 3
     p = versus or (math.nan,) * 3
     r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
-    return {"env": env, "policy": policy, "K": k if policy == "mixture" else "",
-            "K_over_action_dim": round(k / action_dims[env], 3) if policy == "mixture" and env in action_dims else "",
+    return {"env": env, "policy": policy, "K": k if policy == MIXTURE else "",
+            "K_over_action_dim": round(k / action_dims[env], 3) if policy == MIXTURE and env in action_dims else "",
             **dict(cell[3:]), "seeds": n, "score": kind, "final_return_mean": r(mean), "ci95_halfwidth": r(half),
             "iqm": r(iqm[0]), "iqm_ci_low": r(iqm[1]), "iqm_ci_high": r(iqm[2]),
             "p_better_than_flat_ppo": r(p[0]), "p_ci_low": r(p[1]), "p_ci_high": r(p[2]),
@@ -85,14 +86,14 @@ def final_table(data, action_dims, failed=None, reps=stats.REPS):
     """final_returns.csv rows: per cell, statistics of its final scores and P(better than flat PPO)."""
     failed = failed or {}
     scores = final_scores(data)
-    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == "mixture"
+    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == MIXTURE
              for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
     versus = stats.improvement_probability(pairs, reps=reps) if pairs else {}
     critics = critic_comparisons(scores, reps)
     unscored = unscored_runs(data)
     rows = []
     for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
-        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
+        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == MIXTURE else "", **dict(cell[3:]),
                      "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
     for cell in sorted(data, key=cell_order):
         row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell), reps)
@@ -124,7 +125,7 @@ def run_table(data):
             score = stats.final_score(s["eval_return"] if evaluated else [], s["episode_return"], sched)[0]
             last = s["eval_return"][sched[: len(s["eval_return"])]][-1:]
             last_100 = stats.last_episodes_return(s["episode_return"], s["episodes"])
-            rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
+            rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == MIXTURE else "", **dict(cell[3:]),
                          "seed": seed, "controller_score": r(s.get("controller_score", math.nan)), "score_kind": kind,
                          "final_score": r(score), "last_eval_return": r(last[0]) if len(last) else "",
                          "eval_failures": eval_failures({seed: s}),
@@ -140,7 +141,7 @@ def config_keys(cell, action_dims, multipliers):
     from gsa_jax.running.spec import cluster_count
 
     env, policy, k = cell[:3]
-    if policy == "mlp":
+    if policy == MLP:
         return [("flat PPO",) + tuple(cell[3:])]
     if env not in action_dims:
         return [(f"K = {k}",) + tuple(cell[3:])]
@@ -162,7 +163,7 @@ def normalized_scores(data, action_dims, random_returns, multipliers=None):
     scores = final_scores(data)
     by_config = defaultdict(dict)
     for cell in data:
-        flat = flat_cell(cell, data) if cell[1] == "mixture" else cell
+        flat = flat_cell(cell, data) if cell[1] == MIXTURE else cell
         if flat is None or cell[0] not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
             continue
         ref = stats.iqm(scores[flat][0][:, None])  # the point only: no bootstrap per mixture cell
@@ -222,7 +223,7 @@ def k_curves(rows, env_name, settings):
     return-vs-K curve per sub-policy class, critic and other swept setting."""
     curves = defaultdict(list)
     for r in rows:
-        if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]:
+        if r["env"] == env_name and r["policy"] == MIXTURE and r["seeds"]:
             curves[tuple((c, r.get(c, "")) for c in settings)].append(r)
     return {k: sorted(pts, key=lambda r: r["K"]) for k, pts in curves.items()}
 
@@ -241,7 +242,7 @@ def verdict_table(scores, random_returns, settings=(), margins=None, looks=1, ta
     margins = sorted(set(margins or verdict.MARGINS) | {verdict.DEFAULT_MARGIN})
     r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 4)  # noqa: E731
     rows = []
-    for cell in sorted((c for c in scores if c[1] == "mixture" and len(scores[c][0])), key=cell_order):
+    for cell in sorted((c for c in scores if c[1] == MIXTURE and len(scores[c][0])), key=cell_order):
         flat = flat_cell(cell, scores)
         if cell[0] not in random_returns or (target is None and (flat is None or not len(scores[flat][0]))):
             continue

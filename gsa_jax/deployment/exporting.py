@@ -7,6 +7,7 @@ import zipfile
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.export_c import cost, to_source
 from gsa_jax.deployment.numpy_policy import action_bounds, map_actions, task_name
 from gsa_jax.running.checkpoint import save_npz_atomic
@@ -69,7 +70,7 @@ def controller_arrays(address):
     meta, arrays = run.meta, run.params
     kind = meta["config"]["policy"]
     prefix = "['params']['policy']"
-    net = "partition" if kind == "mixture" else "mlp"
+    net = "partition" if kind == MIXTURE else "mlp"
     n_layers = 0
     while f"{prefix}['{net}'][{n_layers}]['w']" in arrays:
         n_layers += 1
@@ -88,7 +89,7 @@ def controller_arrays(address):
     for i in range(n_layers):
         out[f"w{i}"] = arrays[f"{prefix}['{net}'][{i}]['w']"]
         out[f"b{i}"] = arrays[f"{prefix}['{net}'][{i}]['b']"]
-    if kind == "mixture":
+    if kind == MIXTURE:
         out["subpolicy"] = np.array(meta["config"].get("subpolicy", "linear"))
         k = int(meta["hparams"]["K"])
         out["L"] = arrays[f"{prefix}['L']"][:k]
@@ -122,7 +123,7 @@ def load_arrays(source):
             raise ExportError(f"{source!r} is not an exported controller ({e})") from None
         if "kind" not in arrays or "obs_mean" not in arrays:
             raise ExportError(f"{source!r} is not an exported controller (no 'kind' / 'obs_mean' arrays)")
-        return with_bounds(active_partition(arrays) if str(arrays["kind"]) == "mixture" else arrays, source)
+        return with_bounds(active_partition(arrays) if str(arrays["kind"]) == MIXTURE else arrays, source)
     return controller_arrays(source)
 
 
