@@ -16,6 +16,7 @@ import re
 import subprocess
 import sys
 import time
+from typing import Callable, Sequence
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import controller_scores, verdict
@@ -172,7 +173,7 @@ def cells_to_extend(setup: Setup, judged: dict) -> list:
     return below if chosen is not None else [k for k, v in verdicts.items() if v == verdict.UNDECIDED]
 
 
-def next_look(setup: Setup, scores: dict, ks: list):
+def next_look(setup: Setup, scores: dict, ks: list) -> int | None:
     """The seed count the cells `ks` go to next (the first look above the most seeds any of them has), or None
     at the seed cap."""
     have = max(len(scores.get(k, {})) for k in ks)
@@ -183,7 +184,7 @@ def next_look(setup: Setup, scores: dict, ks: list):
 COMPILE_LINE = re.compile(r"program (.*?) \(([\d.]+)s\)")
 
 
-def run_class_sweep(out: str, name: str, spec: dict, log) -> dict:
+def run_class_sweep(out: str, name: str, spec: dict, log: Callable) -> dict:
     """Train one class's sweep of a round in a subprocess (gsa_jax.sweep: resumes if interrupted), collect its
     results (sweep.json, tidy metrics, controllers) into out/results/<name> and score its controllers ->
     {seconds, compile_s (program compile or cache load, from the sweep's log), status}."""
@@ -226,7 +227,8 @@ def plan_round(setup: Setup, scores: dict, ks: list, look: int) -> dict:
     return plan
 
 
-def run_round(out: str, setup: Setup, state: dict, plan: dict, log, verdicts_before=None, train=None) -> dict:
+def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, verdicts_before: dict | None = None,
+              train: Callable | None = None) -> dict:
     """Train a planned round (flat PPO first), recording it in the state before and after. train(out, name, spec,
     log): what trains one class's sweep and scores its controllers (default run_class_sweep)."""
     train = train or run_class_sweep
@@ -273,7 +275,7 @@ def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> s
             f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts {so_far}")
 
 
-def decide_next(setup: Setup, state: dict, out: str, random_return: float):
+def decide_next(setup: Setup, state: dict, out: str, random_return: float) -> tuple:
     """(judged cells, plan of the next round or None, why it stops or None), freezing decided cells."""
     scores = collect_scores(out, setup)
     judged = judge_cells(setup, scores, random_return, state["frozen"])
@@ -289,7 +291,8 @@ def decide_next(setup: Setup, state: dict, out: str, random_return: float):
     return judged, plan_round(setup, scores, ks, look), None
 
 
-def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print, train=None) -> dict:
+def run_answer(out: str, setup: Setup, budget_s: float, random_return: float, log: Callable = print,
+               train: Callable | None = None) -> dict:
     """The answer loop (resumable): rounds until the smallest sufficient K is decided, the seed cap or the budget
     -> the final state (with 'judged' and 'stopped'). random_return: a function measuring the random policy's
     return (called once; the state keeps it); train: see run_round."""
@@ -319,5 +322,5 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print
         run_round(out, setup, state, plan, log, {str(k): r["verdict"] for k, r in judged.items()}, train)
 
 
-def controller_dirs_of(roots) -> list:
+def controller_dirs_of(roots: Sequence[str]) -> list:
     return controller_scores.controller_dirs(roots) if roots else []

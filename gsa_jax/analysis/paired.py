@@ -8,6 +8,7 @@ import gzip
 import io
 import math
 import os
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -21,13 +22,13 @@ KEY = ("env", "policy", "K", "seed")
 NOMINAL = KEY + ("nominal_score", "mean_length", "full_length_fraction", "episodes")
 
 
-def event_columns(windows):
+def event_columns(windows: Sequence[int]) -> tuple:
     """The column order of pushes.csv.gz."""
     per = [f"{c}_W{w}" for w in windows for c in ("counted", "fell", "lost")]
     return KEY + ("start_seed", "event", "time", "size", "control_fall", "branch_fall", *per)
 
 
-def write_gz(path, rows, columns):
+def write_gz(path: str, rows: list, columns: Sequence[str]) -> None:
     """rows as a gzipped CSV, written atomically (a fixed mtime: the same rows give the same bytes)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=columns)
@@ -39,7 +40,8 @@ def write_gz(path, rows, columns):
     os.replace(tmp, path)
 
 
-def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m, flush=True)):
+def evaluate_all_pushes(controllers: list, settings: dict, seeds: np.ndarray, out: str,
+                        log: Callable = lambda m: print(m, flush=True)) -> tuple:
     """Paired pushes of every controller not yet in OUT/nominal.csv -> (event rows, nominal rows); both
     files are rewritten after every controller. settings: {sizes, windows, per_episode}."""
     ev_path, nom_path = os.path.join(out, "pushes.csv.gz"), os.path.join(out, "nominal.csv")
@@ -60,7 +62,7 @@ def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m
     return events, nominal
 
 
-def per_controller(events, windows):
+def per_controller(events: list, windows: Sequence[int]) -> dict:
     """{(env, policy, K, seed, size, W): (counted pushes, fall probability, mean return lost)}: a controller's
     falls per counted push (NaN where none counted) and the mean return a counted push cost it."""
     acc = {}
@@ -76,7 +78,7 @@ def per_controller(events, windows):
     return {k: (n, f / n, lost / n) for k, (n, f, lost) in acc.items()}
 
 
-def group(per, events, windows):
+def group(per: dict, events: list, windows: Sequence[int]) -> dict:
     """{(env, policy, K, size, W): {seed: (counted, fall prob, lost)}}, every controller of the events
     included (one with no counted push as (0, NaN, NaN))."""
     out = {}
@@ -90,7 +92,7 @@ def group(per, events, windows):
     return out
 
 
-def aggregate_pushes(events, windows, reps=stats.REPS):
+def aggregate_pushes(events: list, windows: Sequence[int], reps: int = stats.REPS) -> list:
     """paired_pushes.csv rows: per task x configuration x push size x window, the controllers with a counted
     push, counted pushes per controller, IQM [CI] of the fall probability and of the return lost per push,
     P(a mixture falls less / loses less than flat PPO) [CI] (ties count half: two that never fall tie)."""
@@ -118,7 +120,7 @@ def aggregate_pushes(events, windows, reps=stats.REPS):
     return rows
 
 
-def plot_pushes(agg, path):
+def plot_pushes(agg: list, path: str) -> None:
     """Per task (rows) and window (columns): fall probability per counted push (IQM, 95% CI) against push
     size, flat PPO and each K; tasks where no controller ever falls show the return lost per push."""
     import matplotlib

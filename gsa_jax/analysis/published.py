@@ -19,18 +19,18 @@ from gsa_jax.analysis.results import read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
 
 
-def task_name(env):
+def task_name(env: str) -> str:
     """A task's name without its version, lower case: Hopper-v5 -> hopper (and Brax's variant, hopper)."""
     return env.rsplit("-v", 1)[0].lower()
 
 
-def spread(xs):
+def spread(xs: np.ndarray) -> tuple:
     """(mean, std with ddof 0) of the finite values, rounded to 3 decimals."""
     xs = np.asarray([x for x in xs if np.isfinite(x)], float)
     return round(float(xs.mean()), 3), round(float(xs.std()), 3)
 
 
-def compare(reference, runs):
+def compare(reference: list, runs: list) -> list:
     """Rows of the comparison: per reference task with flat PPO runs of the same name, ours and theirs."""
     out = []
     for ref in reference:
@@ -48,7 +48,7 @@ def compare(reference, runs):
     return out
 
 
-def main(argv=None):
+def main(argv: list | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.published", description=cli_description(__doc__))
     p.add_argument("reference", help="CSV of published scores: env, mean, std, source")
     p.add_argument("per_run", nargs="+", help="per_run_scores.csv files of gsa_jax.plot")

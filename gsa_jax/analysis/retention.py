@@ -4,6 +4,7 @@ pushes paired_pushes.csv, pushes.png, fair.csv); `python -m gsa_jax.robustness` 
 evaluation is retention_eval, the statistics retention_stats, the shared row helpers shift_rows."""
 
 import os
+from typing import Callable, Sequence
 
 import envs
 from gsa_jax.analysis import stats
@@ -22,7 +23,8 @@ from gsa_jax.analysis.shift_rows import TIDY, RobustnessError, cells  # noqa: F4
 EARLY_PUSHES = 300  # env steps: paired_pushes_early.csv's pushes
 
 
-def analyse(rows, sens, out, reps=stats.REPS, log=print, events=(), nominal=(), windows=()):
+def analyse(rows: list, sens: list, out: str, reps: int = stats.REPS, log: Callable = print, events: Sequence = (),
+            nominal: Sequence = (), windows: Sequence = ()) -> tuple:
     """aggregate.csv, correlation.csv, robustness.png, profile.png from the tidy rows; with the paired
     pushes' events and nominal rows also paired_pushes.csv, pushes.png and fair.csv."""
     agg = aggregate(rows, reps)
@@ -43,7 +45,8 @@ def analyse(rows, sens, out, reps=stats.REPS, log=print, events=(), nominal=(), 
     return agg, corr
 
 
-def analyse_pairs(rows, out, reps, events, nominal, windows, log):
+def analyse_pairs(rows: list, out: str, reps: int, events: Sequence, nominal: Sequence, windows: Sequence,
+                  log: Callable) -> None:
     """paired_pushes.csv (and paired_pushes_early.csv: pushes before step EARLY_PUSHES only, where the counted
     pushes of controllers that fall early and of those that do not come from the same part of the episode),
     pushes.png, fair.csv (gsa_jax.analysis.paired, .fairness), and how far the paired pushes' control

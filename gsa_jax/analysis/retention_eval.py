@@ -6,6 +6,7 @@ import glob
 import json
 import math
 import os
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -14,13 +15,14 @@ from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.analysis.results import read_csv, write_csv
 from gsa_jax.analysis.shift_rows import TIDY, RobustnessError, controller_key
 from gsa_jax.deployment.evaluation import DeployError, load_controller
+from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.deployment.shifts import PUSH_RATE, Shift, applies, run_shifted
 from gsa_jax.running.runinfo import run_metadata
 
 START_SEED = 10_000
 
 
-def load_controllers(paths):
+def load_controllers(paths: Sequence[str]) -> list:
     """[(path, meta {env, policy, K, seed}, controller)] of exported controllers in files or directories."""
     files = []
     for p in paths:
@@ -53,11 +55,11 @@ class RandomController:
         self.rng, self.action_size = np.random.default_rng(seed), action_size
         self.obs_std = np.ones(1)  # unused: a random policy's shifts never read it (same law under noise)
 
-    def act(self, obs):
+    def act(self, obs: np.ndarray) -> np.ndarray:
         return self.rng.uniform(-1.0, 1.0, obs.shape[:-1] + (self.action_size,))
 
 
-def random_score(env_name, shift, seeds):
+def random_score(env_name: str, shift: Shift, seeds: np.ndarray) -> float:
     """Mean return of the random policy under the shift from the same starts."""
     ctrl = RandomController(action_size(env_name))
     same_law = shift.kind in ("obs_noise", "action_delay")  # a random policy ignores what it sees and when
@@ -65,7 +67,7 @@ def random_score(env_name, shift, seeds):
     return float(returns.mean())
 
 
-def action_jacobian_norms(ctrl, obs):
+def action_jacobian_norms(ctrl: Controller, obs: np.ndarray) -> np.ndarray:
     """[N] Frobenius norms of d action / d z at observations obs [N, d_s], z the normalized observation:
     a mixture's active piece L_c (linear sub-policies), an MLP's Jacobian through its tanh layers."""
     if ctrl.kind == MIXTURE:
@@ -83,7 +85,7 @@ def action_jacobian_norms(ctrl, obs):
     return np.linalg.norm(jac, axis=(1, 2))
 
 
-def evaluate_controller(meta, ctrl, shifts, seeds, randoms):
+def evaluate_controller(meta: dict, ctrl: Controller, shifts: Sequence[Shift], seeds: np.ndarray, randoms: dict) -> tuple:
     """Tidy rows of one controller under every applicable shift, and its sensitivity along its nominal episodes."""
     nominal, _, seen = run_shifted(ctrl, meta["env"], Shift("nominal"), seeds, record=True)
     rows = []
@@ -99,7 +101,8 @@ def evaluate_controller(meta, ctrl, shifts, seeds, randoms):
     return rows, float(np.mean(action_jacobian_norms(ctrl, seen.astype(np.float32))))
 
 
-def evaluate_all(controllers, shifts, episodes, out, log=lambda m: print(m, flush=True)):
+def evaluate_all(controllers: list, shifts: Sequence[Shift], episodes: int, out: str,
+                 log: Callable = lambda m: print(m, flush=True)) -> tuple:
     """Evaluate every controller not yet in OUT/robustness.csv; returns (tidy rows, sensitivity rows)."""
     tidy_path, sens_path = os.path.join(out, "robustness.csv"), os.path.join(out, "sensitivity.csv")
     rows, sens = read_csv(tidy_path), read_csv(sens_path)
@@ -124,7 +127,7 @@ def evaluate_all(controllers, shifts, episodes, out, log=lambda m: print(m, flus
     return rows, sens
 
 
-def write_settings(out, shifts, episodes, pushes=None):
+def write_settings(out: str, shifts: Sequence[Shift], episodes: int, pushes: dict | None = None) -> None:
     """robustness.json: the shifts, episodes, start seeds, push rate and paired pushes ({sizes, windows,
     per_episode}), versions and commit; a re-run into the same OUT with other settings is refused (its rows
     would not be comparable). A setting the file lacks (an evaluation made before it existed) is added, with

@@ -5,7 +5,7 @@ import numpy as np
 from gsa_jax.algorithm.kinds import MLP
 
 
-def plot_robustness(agg, path):
+def plot_robustness(agg: list, path: str) -> None:
     """Per task: retained fraction (IQM, 95% CI) under each shift, flat PPO and each K side by side."""
     import matplotlib
 

@@ -3,6 +3,7 @@ and shifted score, P(retains more than flat PPO)), correlation.csv (sensitivity 
 per-run scores of the performance profile."""
 
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from gsa_jax.analysis.shift_rows import cells, controller_key
 MULTIPLIERS = (0.5, 1, 2, 4)
 
 
-def config_names(policy, k, action_dim):
+def config_names(policy: str, k: int | str, action_dim: int) -> list:
     """['flat PPO'] or ['K = m d_a', ...] for every Figure-1 multiplier m whose ceil(m d_a) is K (on a
     one-action task K = 1 is both 0.5 and 1 d_a), else ['K = k']."""
     if policy == MLP:
@@ -23,7 +24,7 @@ def config_names(policy, k, action_dim):
     return [f"K = {m:g} d_a" for m in ms] or [f"K = {k}"]
 
 
-def aggregate(rows, reps=stats.REPS):
+def aggregate(rows: list, reps: int = stats.REPS) -> list:
     """aggregate.csv rows: per task x (policy, K) x shift, IQM [CI] of retained fraction and shifted score,
     P(retains more than flat PPO) [CI] for mixtures (runs paired by nothing: rliable's P over runs)."""
     by = cells(rows)
@@ -46,7 +47,7 @@ def aggregate(rows, reps=stats.REPS):
     return out
 
 
-def correlations(sens, rows=()):
+def correlations(sens: list, rows: Sequence = ()) -> list:
     """correlation.csv rows: Spearman's rho (and its p-value) between sensitivity and mean retained
     fraction across controllers, per task and pooled (ranks within each task); with the tidy rows, also
     the partial rank correlation controlling for the controller's nominal score (fairness.partial_spearman)."""
@@ -68,7 +69,7 @@ def correlations(sens, rows=()):
     return out
 
 
-def correlation_row(name, xyz):
+def correlation_row(name: str, xyz: np.ndarray) -> dict:
     """One correlation.csv row of [n, 3] (sensitivity, mean retained fraction, nominal score)."""
     from scipy.stats import spearmanr
 
@@ -81,7 +82,7 @@ def correlation_row(name, xyz):
     return row
 
 
-def profile_scores(rows, action_dims):
+def profile_scores(rows: list, action_dims: dict) -> dict:
     """{(configuration name,): (tasks, [runs, tasks] retained fractions)}: each run's mean over its shifts
     (tasks with every configuration only; runs beyond the fewest of a task dropped to align the matrix)."""
     per = {}

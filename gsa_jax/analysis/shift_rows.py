@@ -11,11 +11,11 @@ class RobustnessError(ValueError):
     pass
 
 
-def controller_key(meta):
+def controller_key(meta: dict) -> tuple:
     return (meta["env"], meta["policy"], str(meta["K"]), str(meta["seed"]))
 
 
-def cells(rows):
+def cells(rows: list) -> dict:
     """{(env, policy, K, shift name): {seed: row}} of tidy rows (strings or numbers)."""
     out = {}
     for r in rows:

@@ -11,6 +11,7 @@ as act(obs, clip=False)), then gsa_act clamps each action to [gsa_action_low, gs
 """
 
 import json
+from typing import Mapping
 
 import numpy as np
 
@@ -45,7 +46,7 @@ def _layers(ctrl):
     return list(ctrl.layers[:-1]) + [(ctrl.layers[-1][0][:, :k], ctrl.layers[-1][1][:k])]
 
 
-def cost(arrays):
+def cost(arrays: Mapping) -> dict:
     """{'constants': floats stored, 'bytes', 'multiply_adds', 'tanh', 'compares'} of one gsa_act call."""
     ctrl = Controller(arrays)
     layers = _layers(ctrl)
@@ -196,7 +197,7 @@ def _mixture_code(ctrl, logits):
     return code
 
 
-def to_source(arrays, layout=None):
+def to_source(arrays: Mapping, layout: list | None = None) -> str:
     """The header's text."""
     ctrl = Controller(arrays)
     c = cost(arrays)

@@ -11,12 +11,16 @@ Needs the optional `deploy` extra (`pip install gsa_jax[deploy]`).
 """
 
 import json
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
+
+if TYPE_CHECKING:
+    import onnx
 
 OPSET = 17
 IR_VERSION = 8  # the IR of opset 17: readable by every onnxruntime that runs opset 17
@@ -95,7 +99,7 @@ def _bound(nodes, ctrl):
     nodes.append(helper.make_node("Min", ["above_low", _const(nodes, "action_high", high)], ["action"]))
 
 
-def build_model(arrays, layout=None):
+def build_model(arrays: Mapping, layout: list | None = None) -> "onnx.ModelProto":
     """onnx.ModelProto of the controller in `arrays` (the export's arrays, see numpy_policy)."""
     import onnx
     from onnx import TensorProto, helper
@@ -136,7 +140,7 @@ def build_model(arrays, layout=None):
     return model
 
 
-def describe(arrays):
+def describe(arrays: Mapping) -> str:
     """One line saying what the controller is."""
     meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
     cfg = meta.get("config", {})
@@ -148,6 +152,6 @@ def describe(arrays):
             f"commit {meta.get('git_commit') or '?'}")
 
 
-def to_bytes(arrays, layout=None):
+def to_bytes(arrays: Mapping, layout: list | None = None) -> bytes:
     """The serialized, checked ONNX model of the controller."""
     return build_model(arrays, layout).SerializeToString()
