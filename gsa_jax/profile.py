@@ -18,6 +18,7 @@ import time
 import envs
 from envs.registry import Definition
 from envs.task import TaskError
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.benchmark.parts import profile_parts
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
@@ -101,7 +102,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     for cfg, policy in configs:
         print(f"profiling {cfg.env}, {policy}, {args.runs} runs ...", flush=True)
-        prof = profile_parts(cfg, args.runs, args.clusters if policy == "mixture" else 1, args.repeats)
+        prof = profile_parts(cfg, args.runs, args.clusters if policy == MIXTURE else 1, args.repeats)
         report["profiles"].append(prof)
         report["wall_s"] = time.perf_counter() - t0
         write_atomic(os.path.join(args.out, "parts.json"), json.dumps(report, indent=1))

@@ -43,9 +43,10 @@ import sys
 import numpy as np
 
 from gsa_jax.analysis import stats
-from gsa_jax.analysis.retention import (START_SEED, RobustnessError, analyse, evaluate_all, load_controllers,
-                                        write_settings)
 from gsa_jax.analysis.paired import evaluate_all_pushes
+from gsa_jax.analysis.retention import analyse
+from gsa_jax.analysis.retention_eval import START_SEED, evaluate_all, load_controllers, write_settings
+from gsa_jax.analysis.shift_rows import RobustnessError
 from gsa_jax.deployment.pushes import PER_EPISODE, PUSH_SIZES, WINDOWS
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
 from gsa_jax.running.runinfo import cli_description

@@ -24,6 +24,7 @@ import sys
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
@@ -92,7 +93,7 @@ def report(spec, out, chosen, baseline, reps=stats.REPS):
     """DIR/tuning.csv rows: per class the chosen set, evaluation IQM [CI], P(> the flat class) [CI], and the
     defaults' (baseline) IQM [CI] and P where given."""
     evaluated = {cls: np.asarray(cell_scores(os.path.join(out, cls, "evaluation"))[None], float) for cls in chosen}
-    flat = next((c for c in spec.classes if spec.classes[c]["policy"] == "mlp"), None)
+    flat = next((c for c in spec.classes if spec.classes[c]["policy"] == MLP), None)
     iqm = stats.iqm_ci({c: v[:, None] for c, v in evaluated.items()}, reps=reps)
     base = stats.iqm_ci({c: np.asarray(v, float)[:, None] for c, v in baseline.items()}, reps=reps) if baseline else {}
     pairs = lambda d: {c: (np.asarray(d[c], float)[:, None], np.asarray(d[flat], float)[:, None])  # noqa: E731
@@ -103,7 +104,7 @@ def report(spec, out, chosen, baseline, reps=stats.REPS):
     rows = []
     for cls, (knobs, index) in chosen.items():
         c = spec.classes[cls]
-        rows.append({"env": spec.env, "class": cls, "policy": c["policy"], "K": c["K"] if c["policy"] == "mixture" else "",
+        rows.append({"env": spec.env, "class": cls, "policy": c["policy"], "K": c["K"] if c["policy"] == MIXTURE else "",
                      "chosen_set": index, "chosen": json.dumps(knobs), "runs": len(evaluated[cls]),
                      "tuned_iqm": r1(iqm[cls], 0), "tuned_ci_low": r1(iqm[cls], 1), "tuned_ci_high": r1(iqm[cls], 2),
                      "p_tuned_above_flat": r1(p_tuned.get(cls), 0), "p_tuned_ci_low": r1(p_tuned.get(cls), 1),

@@ -11,10 +11,11 @@ import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
 LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
-JAX_FREE = ("deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
+JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.stats", "analysis.results", "analysis.tables", "analysis.figures",
-            "analysis.retention", "running.trained", "plot", "robustness", "deploy")
+            "analysis.retention", "analysis.retention_eval", "analysis.retention_stats", "analysis.retention_plots",
+            "analysis.shift_rows", "analysis.paired", "analysis.fairness", "running.trained", "plot", "robustness", "deploy")
 
 
 def modules():

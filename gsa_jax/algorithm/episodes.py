@@ -9,11 +9,13 @@ still NaN. An episode whose step gives a non-finite reward or observation while 
 how many of its episodes the physics lost instead of turning NaN or being skipped.
 """
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
 
-def step_episodes(env, state, action, alive):
+def step_episodes(env: Any, state: Any, action: jax.Array, alive: jax.Array) -> tuple:
     """One step of E episodes: (state, reward [E], alive [E], failed [E] bool).
 
     state: the env's batched state (leading axis E); action [E, d_a]; alive [E] float (1 while the

@@ -1,12 +1,13 @@
 """Multilayer perceptrons as plain pytrees: a list of {'w': [d_in, d_out], 'b': [d_out]} layers."""
 
 import math
+from typing import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 
 
-def orthogonal(key, shape, scale=1.0, iterations=60):
+def orthogonal(key: jax.Array, shape: tuple, scale: float = 1.0, iterations: int = 60) -> jax.Array:
     """A random (semi-)orthogonal matrix [d_in, d_out] times `scale`: the orthogonal polar factor of a
     Gaussian matrix, by Newton-Schulz iteration (matmuls only).
 
@@ -23,7 +24,8 @@ def orthogonal(key, shape, scale=1.0, iterations=60):
     return scale * x
 
 
-def init_mlp(key, sizes, hidden_scale=math.sqrt(2.0), out_scale=1.0):
+def init_mlp(key: jax.Array, sizes: Sequence[int], hidden_scale: float = math.sqrt(2.0),
+             out_scale: float = 1.0) -> list:
     """Orthogonal init (the usual PPO choice); biases zero.
 
     sizes: (d_in, h1, ..., d_out). out_scale=0 gives a zero last layer, whose
@@ -43,7 +45,7 @@ def init_mlp(key, sizes, hidden_scale=math.sqrt(2.0), out_scale=1.0):
     return layers
 
 
-def apply_mlp(layers, x, activation=jnp.tanh):
+def apply_mlp(layers: list, x: jax.Array, activation: Callable = jnp.tanh) -> jax.Array:
     """x: [..., d_in] -> [..., d_out]; activation between layers, none after the last."""
     for layer in layers[:-1]:
         x = activation(x @ layer["w"] + layer["b"])

@@ -1,10 +1,11 @@
 """Running mean/variance statistics (Chan et al. parallel update) for observation and return normalization."""
 
+import jax
 import jax.numpy as jnp
 
 
-def init_stats(size):
-    """Stats for vectors of length `size` ([] for scalars). count starts tiny so the first batch dominates."""
+def init_stats(size: int | None) -> dict:
+    """Stats for vectors of length `size` (None: scalars). count starts tiny so the first batch dominates."""
     shape = () if size is None else (size,)
     return {
         "count": jnp.full((), 1e-4, jnp.float32),
@@ -13,7 +14,7 @@ def init_stats(size):
     }
 
 
-def update_stats(stats, batch):
+def update_stats(stats: dict, batch: jax.Array) -> dict:
     """Merge a batch [..., size] (all leading axes are samples) into the stats."""
     event_ndim = stats["mean"].ndim
     axes = tuple(range(batch.ndim - event_ndim))
@@ -27,6 +28,6 @@ def update_stats(stats, batch):
     return {"count": count, "mean": mean, "var": m2 / count}
 
 
-def normalize(stats, x, clip=10.0):
+def normalize(stats: dict, x: jax.Array, clip: float = 10.0) -> jax.Array:
     """(x - mean) / std, clipped to [-clip, clip]."""
     return jnp.clip((x - stats["mean"]) / jnp.sqrt(stats["var"] + 1e-8), -clip, clip)

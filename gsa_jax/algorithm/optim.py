@@ -1,27 +1,30 @@
 """Adam and global-norm gradient clipping as pure functions on pytrees."""
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
 
-def init_adam(params):
+def init_adam(params: Any) -> dict:
     """Adam state: first/second moment pytrees shaped like params, and a step count."""
     zeros = jax.tree.map(jnp.zeros_like, params)
     return {"m": zeros, "v": jax.tree.map(jnp.zeros_like, params), "count": jnp.zeros((), jnp.int32)}
 
 
-def global_norm(tree):
+def global_norm(tree: Any) -> jax.Array:
     return jnp.sqrt(sum(jnp.sum(jnp.square(x)) for x in jax.tree.leaves(tree)))
 
 
-def clip_by_global_norm(grads, max_norm):
+def clip_by_global_norm(grads: Any, max_norm: float | jax.Array) -> tuple:
     """Scale grads so their global L2 norm is at most max_norm. Returns (grads, norm before clipping)."""
     norm = global_norm(grads)
     scale = jnp.minimum(1.0, max_norm / jnp.maximum(norm, 1e-12))
     return jax.tree.map(lambda g: g * scale, grads), norm
 
 
-def adam_step(params, grads, state, lr, b1=0.9, b2=0.999, eps=1e-8):
+def adam_step(params: Any, grads: Any, state: dict, lr: Any, b1: float = 0.9, b2: float = 0.999,
+              eps: float = 1e-8) -> tuple:
     """One bias-corrected Adam step (Kingma & Ba, Alg. 1). lr: a (traced) scalar, or a pytree like params
     of one per leaf (per-group learning rates)."""
     count = state["count"] + 1

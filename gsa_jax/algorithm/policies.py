@@ -14,9 +14,9 @@ exploration of the partition), sigma_min (floor of every sub-policy std).
 
 Mixture: pi(c, a | s) = pi_p(c | s) N(a | L_c phi(s) + b_c, diag(max(sigma_c, sigma_min)^2)),
 pi_p = (1 - eps) softmax(partition_mlp(s))[active] + eps / K on the K active clusters.
-phi is the sub-policy class (the paper's second complexity knob): constant (phi = [], one action
-per cluster: classic state abstraction), linear (phi = s, the default), quadratic
-(phi = [s, upper-triangular s (x) s]).
+phi is the sub-policy class (the paper's second complexity knob; gsa_jax/algorithm/subpolicies.py, one entry
+each): constant (phi = [], one action per cluster: classic state abstraction), linear (phi = s, the default),
+quadratic (phi = [s, upper-triangular s (x) s]).
 Params: partition (MLP d_s -> hidden -> K_max), L [K_max, d_a, d_phi], b [K_max, d_a],
 log_sigma [K_max, d_a]. Clusters c >= K are masked: probability exactly 0, excluded from
 the uniform part, never sampled; every quantity (init, samples, log-probs, modes) is the
@@ -29,10 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.nn import apply_mlp, init_mlp
 
-POLICY_KINDS = ("mixture", "mlp")
-SUBPOLICY_KINDS = ("constant", "linear", "quadratic")
+SUBPOLICY_KINDS = subpolicies.SUBPOLICIES.keys()  # the sub-policy classes' names, registered ones included
 _LOG_2PI = float(np.log(2.0 * np.pi))
 _PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79, 83, 89, 97)
 
@@ -47,7 +48,7 @@ class Policy(NamedTuple):
     partition_probs: Callable
 
 
-def halton(n, dim):
+def halton(n: int, dim: int) -> np.ndarray:
     """First n points of the Halton sequence in [0, 1)^dim (row i depends on i only). [n, dim]."""
     if dim > len(_PRIMES):
         raise ValueError(f"halton: dim {dim} > {len(_PRIMES)}")
@@ -64,13 +65,13 @@ def halton(n, dim):
     return out
 
 
-def bias_spread(n, action_size, scale=1.0):
+def bias_spread(n: int, action_size: int, scale: float = 1.0) -> np.ndarray:
     """Diverse initial biases b_c in [-scale, scale)^d_a: a Halton set shifted by 1/2, so cluster 0 sits
     at the centre of the action box and the first K points spread over it for every K. [n, d_a]."""
     return (scale * (2.0 * np.mod(halton(n, action_size) + 0.5, 1.0) - 1.0)).astype(np.float32)
 
 
-def draw_noise(key, shape, action_size):
+def draw_noise(key: jax.Array, shape: tuple, action_size: int) -> dict:
     """The random draws `sample` turns into actions, for a batch `shape` of observations at once (one
     generator call for a whole rollout instead of several per step): {"u": uniform [0, 1) [*shape] (the
     cluster), "z": standard normal [*shape, d_a] (the action)}."""
@@ -78,30 +79,23 @@ def draw_noise(key, shape, action_size):
     return {"u": jax.random.uniform(k_c, shape), "z": jax.random.normal(k_a, (*shape, action_size))}
 
 
-def gaussian_log_prob(x, mean, sigma):
+def gaussian_log_prob(x: jax.Array, mean: jax.Array, sigma: jax.Array) -> jax.Array:
     """Sum over the last axis of log N(x | mean, diag sigma^2)."""
     z = (x - mean) / sigma
     return jnp.sum(-0.5 * jnp.square(z) - jnp.log(sigma) - 0.5 * _LOG_2PI, axis=-1)
 
 
-def feature_size(subpolicy, obs_size):
-    """d_phi: length of the sub-policy features of a d_s observation."""
-    if subpolicy not in SUBPOLICY_KINDS:
-        raise ValueError(f"unknown subpolicy {subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
-    return {"constant": 0, "linear": obs_size, "quadratic": obs_size + obs_size * (obs_size + 1) // 2}[subpolicy]
+def feature_size(subpolicy: str, obs_size: int) -> int:
+    """d_phi: length of the sub-policy features of a d_s observation (gsa_jax.algorithm.subpolicies)."""
+    return subpolicies.get(subpolicy).size(obs_size)
 
 
-def subpolicy_features(subpolicy, obs):
-    """phi(s) [d_phi] for one observation [d_s]: [] | s | [s, s_i s_j for i <= j (row-major upper triangle)]."""
-    if subpolicy == "constant":
-        return obs[:0]
-    if subpolicy == "linear":
-        return obs
-    i, j = np.triu_indices(obs.shape[-1])
-    return jnp.concatenate([obs, obs[i] * obs[j]])
+def subpolicy_features(subpolicy: str, obs: jax.Array) -> jax.Array:
+    """phi(s) [d_phi] for one observation [d_s] (gsa_jax.algorithm.subpolicies): [] | s | [s, s_i s_j for i <= j]."""
+    return subpolicies.get(subpolicy).features(obs, jnp)
 
 
-def component(params, phi, c, sigma_min):
+def component(params: dict, phi: jax.Array, c: jax.Array, sigma_min: jax.Array) -> tuple:
     """Cluster c's Gaussian of the mixture's params for features phi [d_phi]: mean [d_a] and std [d_a]
     (exp(log_sigma) floored at sigma_min). Every cluster's mean L phi + b [K_max, d_a], then c's by a one-hot
     product (the same value): the batched gradient is then dense products instead of a scatter into L, which
@@ -111,7 +105,8 @@ def component(params, phi, c, sigma_min):
     return mean, jnp.maximum(jnp.exp(params["log_sigma"][c]), sigma_min)
 
 
-def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_scale=1.0, subpolicy="linear"):
+def make_mixture_policy(obs_size: int, action_size: int, k_max: int, hidden: tuple = (64, 64), b_init_scale: float = 1.0,
+                        subpolicy: str = "linear") -> Policy:
     bias_init = jnp.asarray(bias_spread(k_max, action_size, b_init_scale))
     d_phi = feature_size(subpolicy, obs_size)
 
@@ -169,7 +164,7 @@ def make_mixture_policy(obs_size, action_size, k_max, hidden=(64, 64), b_init_sc
     return Policy(init, sample, log_prob, mode, partition_probs)
 
 
-def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
+def make_mlp_policy(obs_size: int, action_size: int, hidden: tuple = (64, 64)) -> Policy:
     """Flat baseline: mean = tanh-MLP(s), state-independent log-std initialised to 0."""
 
     def init(key, hp):
@@ -196,15 +191,16 @@ def make_mlp_policy(obs_size, action_size, hidden=(64, 64)):
     return Policy(init, sample, log_prob, mode, partition_probs)
 
 
-def make_policy(kind, obs_size, action_size, k_max=1, hidden=(64, 64), b_init_scale=1.0, subpolicy="linear"):
-    if kind == "mixture":
+def make_policy(kind: str, obs_size: int, action_size: int, k_max: int = 1, hidden: tuple = (64, 64),
+                b_init_scale: float = 1.0, subpolicy: str = "linear") -> Policy:
+    if kind == MIXTURE:
         return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale, subpolicy)
-    if kind == "mlp":
+    if kind == MLP:
         return make_mlp_policy(obs_size, action_size, hidden)
     raise ValueError(f"unknown policy {kind!r}; choose one of {', '.join(POLICY_KINDS)}")
 
 
-def partition_entropy(probs):
+def partition_entropy(probs: jax.Array) -> jax.Array:
     """Entropy of a categorical distribution [..., K] in nats (0 log 0 = 0)."""
     h = -jnp.sum(jnp.where(probs > 0, probs * jnp.log(jnp.where(probs > 0, probs, 1.0)), 0.0), axis=-1)
     return jnp.maximum(h, 0.0)  # no "-0.0" for a single cluster

@@ -18,6 +18,8 @@ with the statistics and policy of the iteration that uses them. Each iteration's
 block; the recursion runs within a block and bootstraps from V at its end, as GAE does.
 """
 
+from typing import Callable
+
 import jax
 import jax.numpy as jnp
 
@@ -25,7 +27,8 @@ VALUE_TARGETS = ("gae", "retrace")
 FIELDS = ("raw_obs", "raw_next_obs", "action", "cluster", "logp", "reward", "term", "done")
 
 
-def retrace_targets(rewards, values, next_values, terminations, dones, ratios, gamma, lam):
+def retrace_targets(rewards: jax.Array, values: jax.Array, next_values: jax.Array, terminations: jax.Array,
+                    dones: jax.Array, ratios: jax.Array, gamma: float, lam: float) -> jax.Array:
     """Retrace value targets over time-major arrays [T, ...]; ratios = pi/mu of each sample. -> [T, ...]."""
     rho = jnp.minimum(1.0, ratios)
     deltas = rho * (rewards + gamma * (1.0 - terminations) * next_values - values)
@@ -40,7 +43,7 @@ def retrace_targets(rewards, values, next_values, terminations, dones, ratios, g
     return values + corrections
 
 
-def init_buffer(iterations, unroll_length, num_envs, obs_size, action_size):
+def init_buffer(iterations: int, unroll_length: int, num_envs: int, obs_size: int, action_size: int) -> dict:
     """An empty buffer of `iterations` slots [N, T, E, ...]; filled[N] = 1 where a slot holds samples."""
     shape = (iterations, unroll_length, num_envs)
     zeros = lambda *tail, dtype=jnp.float32: jnp.zeros(shape + tail, dtype)  # noqa: E731
@@ -49,7 +52,7 @@ def init_buffer(iterations, unroll_length, num_envs, obs_size, action_size):
             "filled": jnp.zeros((iterations,), jnp.float32)}
 
 
-def store(buffer, traj, iteration):
+def store(buffer: dict, traj: dict, iteration: jax.Array) -> dict:
     """The buffer with this iteration's trajectory (dict of [T, E, ...]) in slot iteration mod N (the oldest)."""
     slot = iteration % buffer["filled"].shape[0]
     out = {f: buffer[f].at[slot].set(traj[f]) for f in FIELDS}
@@ -57,12 +60,13 @@ def store(buffer, traj, iteration):
     return out
 
 
-def buffer_bytes(buffer):
+def buffer_bytes(buffer: dict) -> int:
     """Bytes one run's buffer holds."""
     return sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(buffer))
 
 
-def buffer_targets(buffer, normalize_obs, value_fn, log_prob_fn, ret_scale, gamma, lam):
+def buffer_targets(buffer: dict, normalize_obs: Callable, value_fn: Callable, log_prob_fn: Callable, ret_scale: jax.Array,
+                   gamma: float, lam: float) -> tuple:
     """Retrace targets of every slot with today's normalization, value and policy.
 
     normalize_obs: raw [..., d_s] -> network input; value_fn: inputs [..., d_s] -> [...];

@@ -7,13 +7,15 @@ import os
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis import verdict
+from gsa_jax.analysis.answering import Setup
 from gsa_jax.analysis.controller_scores import EPISODES, START_SEED
 from gsa_jax.analysis.results import write_csv
 from gsa_jax.running.checkpoint import write_atomic
 
 
-def margin_verdicts(setup, scores: dict, random_return: float, frozen: dict, flat_key="flat") -> list:
+def margin_verdicts(setup: Setup, scores: dict, random_return: float, frozen: dict, flat_key: str = "flat") -> list:
     """Rows per K and margin: the answer's margin takes the sequential design's (frozen) verdicts; the other
     margins are judged once on all the seeds the answer trained, at the same per-look level."""
     flat = None if setup.target is not None else [scores[flat_key][s] for s in sorted(scores.get(flat_key, {}))]
@@ -36,7 +38,7 @@ def margin_verdicts(setup, scores: dict, random_return: float, frozen: dict, fla
     return rows
 
 
-def plot_answer(setup, scores: dict, random_return: float, path: str, flat_key="flat") -> None:
+def plot_answer(setup: Setup, scores: dict, random_return: float, path: str, flat_key: str = "flat") -> None:
     """Score against K: every seed's controller score, each cell's IQM with its 95% bootstrap interval, flat PPO's
     IQM (or the target) and the margin the mixtures must be shown above (dashed)."""
     import matplotlib
@@ -114,7 +116,7 @@ def rounds_text(state: dict) -> tuple:
     lines = ["| round | trained | seconds | of it compiling or loading programs |", "|---|---|---|---|"]
     total = compile_s = 0.0
     for r in state["rounds"]:
-        what = "; ".join(f"{'flat PPO' if p == 'mlp' else 'K = ' + ', '.join(map(str, ks))}: seeds {seeds[0]}-{seeds[-1]}"
+        what = "; ".join(f"{'flat PPO' if p == MLP else 'K = ' + ', '.join(map(str, ks))}: seeds {seeds[0]}-{seeds[-1]}"
                          for p, (ks, seeds) in r["plan"].items())
         secs = sum(s["seconds"] for s in r["sweeps"].values())
         comp = sum(s["compile_s"] for s in r["sweeps"].values())
@@ -123,8 +125,8 @@ def rounds_text(state: dict) -> tuple:
     return "\n".join(lines), (compile_s / total if total else float("nan"))
 
 
-def write_report(out: str, setup, state: dict, scores: dict, rows: list, sentence: str, choice, command: str,
-                 versions: dict) -> str:
+def write_report(out: str, setup: Setup, state: dict, scores: dict, rows: list, sentence: str, choice: dict | None,
+                 command: str, versions: dict) -> str:
     """out/report.md (and verdicts.csv, score_vs_k.png) -> its path."""
     plot_answer(setup, scores, state["random_return"], os.path.join(out, "score_vs_k.png"))
     write_csv(os.path.join(out, "verdicts.csv"), rows)

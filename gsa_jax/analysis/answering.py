@@ -16,7 +16,9 @@ import re
 import subprocess
 import sys
 import time
+from typing import Callable, Sequence
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import controller_scores, verdict
 from gsa_jax.analysis.extraction import collect_results
 from gsa_jax.running.checkpoint import write_atomic
@@ -53,7 +55,7 @@ def sweep_spec(setup: Setup, policy: str, ks: list, seeds: list, name: str) -> d
     """The experiment spec of one round's sweep of one class: the base spec with the round's K and seeds."""
     spec = {k: v for k, v in setup.specs[policy].items() if k not in ("clusters", "cluster_multipliers", "name")}
     spec.update(name=name, envs=[setup.env], policies=[policy], seeds=list(seeds))
-    if policy == "mixture":
+    if policy == MIXTURE:
         spec["clusters"] = sorted(ks)
     return spec
 
@@ -68,8 +70,8 @@ def check_setup(setup: Setup) -> None:
         raise AnswerError(f"--margin must be in (0, 1), got {setup.margin}")
     if not setup.looks or any(b <= a for a, b in zip(setup.looks, setup.looks[1:])) or setup.looks[0] < 2:
         raise AnswerError(f"--looks must be increasing seed counts >= 2, got {list(setup.looks)}")
-    for policy in ("mlp", "mixture"):
-        if policy == "mlp" and setup.target is not None:
+    for policy in (MLP, MIXTURE):
+        if policy == MLP and setup.target is not None:
             continue
         try:
             check_spec(sweep_spec(setup, policy, list(setup.ladder), list(range(setup.looks[0])), "answer_check"),
@@ -128,7 +130,7 @@ def collect_scores(out: str, setup: Setup) -> dict:
             for row in controller_scores.read_scores(path).values():
                 if row["env"] != setup.env or row.get("controller_score", "") == "":
                     continue
-                key = FLAT if row["policy"] == "mlp" else int(row["K"])
+                key = FLAT if row["policy"] == MLP else int(row["K"])
                 if key == FLAT or key in setup.ladder:
                     found.setdefault(key, {})[int(row["seed"])] = float(row["controller_score"])
     return found
@@ -171,7 +173,7 @@ def cells_to_extend(setup: Setup, judged: dict) -> list:
     return below if chosen is not None else [k for k, v in verdicts.items() if v == verdict.UNDECIDED]
 
 
-def next_look(setup: Setup, scores: dict, ks: list):
+def next_look(setup: Setup, scores: dict, ks: list) -> int | None:
     """The seed count the cells `ks` go to next (the first look above the most seeds any of them has), or None
     at the seed cap."""
     have = max(len(scores.get(k, {})) for k in ks)
@@ -182,7 +184,7 @@ def next_look(setup: Setup, scores: dict, ks: list):
 COMPILE_LINE = re.compile(r"program (.*?) \(([\d.]+)s\)")
 
 
-def run_class_sweep(out: str, name: str, spec: dict, log) -> dict:
+def run_class_sweep(out: str, name: str, spec: dict, log: Callable) -> dict:
     """Train one class's sweep of a round in a subprocess (gsa_jax.sweep: resumes if interrupted), collect its
     results (sweep.json, tidy metrics, controllers) into out/results/<name> and score its controllers ->
     {seconds, compile_s (program compile or cache load, from the sweep's log), status}."""
@@ -225,7 +227,8 @@ def plan_round(setup: Setup, scores: dict, ks: list, look: int) -> dict:
     return plan
 
 
-def run_round(out: str, setup: Setup, state: dict, plan: dict, log, verdicts_before=None, train=None) -> dict:
+def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, verdicts_before: dict | None = None,
+              train: Callable | None = None) -> dict:
     """Train a planned round (flat PPO first), recording it in the state before and after. train(out, name, spec,
     log): what trains one class's sweep and scores its controllers (default run_class_sweep)."""
     train = train or run_class_sweep
@@ -235,11 +238,11 @@ def run_round(out: str, setup: Setup, state: dict, plan: dict, log, verdicts_bef
                                 "verdicts_before": verdicts_before, "status": "running", "sweeps": {}})
         save_state(out, state)
     record = state["rounds"][-1]
-    for policy in ("mlp", "mixture"):
+    for policy in (MLP, MIXTURE):
         if policy not in record["plan"] or policy in record["sweeps"]:
             continue
         ks, seeds = record["plan"][policy]
-        name = f"round{record['round']}-{'flat_ppo' if policy == 'mlp' else 'mixture'}"
+        name = f"round{record['round']}-{'flat_ppo' if policy == MLP else 'mixture'}"
         record["sweeps"][policy] = train(out, name, sweep_spec(setup, policy, ks, seeds, name), log)
         save_state(out, state)
     record["status"] = "done"
@@ -265,14 +268,14 @@ def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> s
     so_far = " ".join(f"K={k}:{r['verdict']}({r.get('seeds', r.get('n', 0))})" for k, r in sorted(judged.items()))
     if plan is None:
         return f"answer: verdicts {so_far}"
-    cells = "; ".join(f"{'flat PPO' if p == 'mlp' else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
+    cells = "; ".join(f"{'flat PPO' if p == MLP else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
                       for p, (ks, seeds) in plan.items())
     return (f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts "
             f"{so_far} | ETA {eta / 60:.0f} min" if eta else
             f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts {so_far}")
 
 
-def decide_next(setup: Setup, state: dict, out: str, random_return: float):
+def decide_next(setup: Setup, state: dict, out: str, random_return: float) -> tuple:
     """(judged cells, plan of the next round or None, why it stops or None), freezing decided cells."""
     scores = collect_scores(out, setup)
     judged = judge_cells(setup, scores, random_return, state["frozen"])
@@ -288,7 +291,8 @@ def decide_next(setup: Setup, state: dict, out: str, random_return: float):
     return judged, plan_round(setup, scores, ks, look), None
 
 
-def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print, train=None) -> dict:
+def run_answer(out: str, setup: Setup, budget_s: float, random_return: float, log: Callable = print,
+               train: Callable | None = None) -> dict:
     """The answer loop (resumable): rounds until the smallest sufficient K is decided, the seed cap or the budget
     -> the final state (with 'judged' and 'stopped'). random_return: a function measuring the random policy's
     return (called once; the state keeps it); train: see run_round."""
@@ -318,5 +322,5 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_return, log=print
         run_round(out, setup, state, plan, log, {str(k): r["verdict"] for k, r in judged.items()}, train)
 
 
-def controller_dirs_of(roots) -> list:
+def controller_dirs_of(roots: Sequence[str]) -> list:
     return controller_scores.controller_dirs(roots) if roots else []

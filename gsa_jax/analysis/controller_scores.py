@@ -16,8 +16,11 @@ import io
 import json
 import os
 import time
+from typing import Callable, Sequence
 
 import numpy as np
+
+from gsa_jax.algorithm.kinds import MIXTURE
 
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
@@ -71,7 +74,7 @@ def score_controller(path: str, episodes: int = EPISODES, start_seed: int = STAR
         summary = run_mujoco_c(ctrl, env_name, config, episodes, seed=start_seed)
     except DeployError as e:
         raise ScoreError(str(e)) from None
-    k = ctrl.num_clusters if ctrl.kind == "mixture" else ""
+    k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""
     with np.load(path, allow_pickle=False) as f:
         seed = json.loads(str(f["config_json"])).get("seed", "")
     return {"label": os.path.basename(path)[: -len(".npz")], "env": env_name, "policy": ctrl.kind,
@@ -81,7 +84,7 @@ def score_controller(path: str, episodes: int = EPISODES, start_seed: int = STAR
             "length_mean": round(summary["length_mean"], 2), "simulator": "mujoco_c", "mujoco_version": mujoco.__version__}
 
 
-def controller_dirs(roots) -> list:
+def controller_dirs(roots: Sequence[str]) -> list:
     """Every directory holding controllers/*.npz under the given directories (sorted, no repeats)."""
     found = set()
     for root in roots:
@@ -96,7 +99,8 @@ def is_current(row: dict, sha: str, episodes: int, start_seed: int) -> bool:
             and str(row.get("start_seed")) == str(start_seed) and row.get("controller_score", "") != "")
 
 
-def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int = START_SEED, log=print) -> dict:
+def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int = START_SEED,
+                    log: Callable = print) -> dict:
     """Score every controllers/*.npz of one results directory that its controller_scores.csv does not hold
     yet (or holds for another file, episode count or start seed) -> {label: row as stored}; rows of controllers
     no longer there are dropped."""
@@ -124,7 +128,7 @@ def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int 
     return read_scores(path)  # as stored: strings, as a later read gives them
 
 
-def label_scores(roots) -> dict:
+def label_scores(roots: Sequence[str]) -> dict:
     """{run label: controller_score} from every controller_scores.csv under the directories."""
     out = {}
     for root in roots:
@@ -135,7 +139,7 @@ def label_scores(roots) -> dict:
     return out
 
 
-def attach(data: dict, roots) -> int:
+def attach(data: dict, roots: Sequence[str]) -> int:
     """Put each run's controller_score (from the controller_scores.csv files under `roots`, matched by run label)
     into data {cell: {seed: {column: ...}}} as a float (NaN where not scored) -> how many runs have one."""
     from gsa_jax.running.trained import run_label

@@ -7,6 +7,7 @@ import gzip
 import json
 import os
 
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.exporting import controller_arrays
 from gsa_jax.running.checkpoint import save_npz_atomic, write_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, finished_runs
@@ -16,7 +17,7 @@ class ExtractError(Exception):
     pass
 
 
-def sweep_runs(sweep_dir):
+def sweep_runs(sweep_dir: str) -> list:
     """[(label, group dir, index, runs.csv row)] of a sweep's finished runs; ExtractError if it is no sweep."""
     try:
         return finished_runs(sweep_dir)
@@ -24,12 +25,12 @@ def sweep_runs(sweep_dir):
         raise ExtractError(str(e)) from None
 
 
-def select(sweep_dir, env, policy, k, seed):
+def select(sweep_dir: str, env: str, policy: str, k: int, seed: int) -> str:
     """The address (SWEEP_DIR/<run label>) of the one finished run of a cell and seed (a sweep without swept
     hyperparameters or group axes)."""
     def matches(row):
         return ((row["env"], row["policy"], row["seed"]) == (env, policy, str(seed))
-                and (policy != "mixture" or row["K"] == str(k)))
+                and (policy != MIXTURE or row["K"] == str(k)))
 
     hits = [label for label, _, _, row in sweep_runs(sweep_dir) if matches(row)]
     if len(hits) != 1:
@@ -37,7 +38,7 @@ def select(sweep_dir, env, policy, k, seed):
     return os.path.join(sweep_dir, hits[0])
 
 
-def export_controllers(sweep_dir, out_dir):
+def export_controllers(sweep_dir: str, out_dir: str) -> list:
     """Write every finished run's deterministic controller to out_dir/<run label>.npz -> [paths]."""
     runs = sweep_runs(sweep_dir)
     if not runs:
@@ -50,7 +51,7 @@ def export_controllers(sweep_dir, out_dir):
     return paths
 
 
-def collect_results(sweep_dir, out_dir):
+def collect_results(sweep_dir: str, out_dir: str) -> list:
     """Copy a sweep's results into out_dir -- sweep.json, each worker's tidy metrics.csv gzipped
     (metrics[-process-<i>].csv.gz), failed_runs.json, controllers/ (export_controllers) -- and no training
     state. Returns the paths written."""

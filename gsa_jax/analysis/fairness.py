@@ -18,20 +18,21 @@ import math
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats
-from gsa_jax.analysis.retention import cells
+from gsa_jax.analysis.shift_rows import cells
 
 MIN_RUNS = 3  # controllers per side for an interval
 
 
-def verdict(p, low, high):
+def verdict(p: float, low: float, high: float) -> str:
     """'more' / 'less' / 'no difference' of P(mixture > flat PPO) and its CI ('' where none)."""
     if not all(isinstance(v, float) and np.isfinite(v) for v in (p, low, high)):
         return ""
     return "more" if low > 0.5 else "less" if high < 0.5 else "no difference"
 
 
-def leave_out_residuals(by, env_name, shift, config):
+def leave_out_residuals(by: dict, env_name: str, shift: str, config: tuple) -> tuple:
     """(residuals [n], share of the config's controllers inside the others' nominal range) of one
     configuration: shifted score minus the least-squares line of shifted on nominal score fit to every
     other configuration's controllers of the task under the shift."""
@@ -46,7 +47,7 @@ def leave_out_residuals(by, env_name, shift, config):
     return res, float(np.mean((nom >= x.min()) & (nom <= x.max())))
 
 
-def full_length_retained(by, full, env_name, shift, config):
+def full_length_retained(by: dict, full: set, env_name: str, shift: str, config: tuple) -> np.ndarray:
     """[n] retained fractions under the shift of the configuration's controllers whose nominal episodes all
     reach the time limit (full: {controller key} of such controllers)."""
     cell = by[(env_name, *config, shift)]
@@ -54,7 +55,7 @@ def full_length_retained(by, full, env_name, shift, config):
                      if (env_name, config[0], config[1], seed) in full and r["retained_fraction"] not in ("", None)], float)
 
 
-def fair_rows(rows, nominal, reps=stats.REPS):
+def fair_rows(rows: list, nominal: list, reps: int = stats.REPS) -> list:
     """fair.csv rows: per task x configuration x shift (not nominal), the residual above the others' line
     (IQM [CI], P(mixture > flat PPO) [CI], in_range), the full-length-only retained fraction (controllers,
     IQM, P [CI]) and the verdict of each next to the retained fraction's (aggregate.csv's P)."""
@@ -67,8 +68,8 @@ def fair_rows(rows, nominal, reps=stats.REPS):
     fin = lambda x: x[np.isfinite(x)][:, None]  # noqa: E731
     iqm_res = stats.iqm_ci({str(c): resid[c][0][:, None] for c in resid}, reps=reps) if resid else {}
     iqm_fl = stats.iqm_ci({str(c): fin(fl[c]) for c in keys if len(fin(fl[c])) >= MIN_RUNS}, reps=reps)
-    flat = lambda c: (c[0], "mlp", "", c[3])  # noqa: E731
-    mix = [c for c in keys if c[1] == "mixture" and flat(c) in by]
+    flat = lambda c: (c[0], MLP, "", c[3])  # noqa: E731
+    mix = [c for c in keys if c[1] == MIXTURE and flat(c) in by]
     p_res = probabilities({str(c): (resid[c][0][:, None], resid[flat(c)][0][:, None]) for c in mix if c in resid}, reps=reps)
     p_fl = probabilities({str(c): (fin(fl[c]), fin(fl[flat(c)])) for c in mix
                                           if min(len(fin(fl[c])), len(fin(fl[flat(c)]))) >= MIN_RUNS}, reps=reps)
@@ -78,10 +79,10 @@ def fair_rows(rows, nominal, reps=stats.REPS):
     p_nom = {str(c): stats.improvement_probability({0: (score(c, "nominal_score"), score(flat(c), "nominal_score"))}, reps=1)[0][0]
              for c in mix}
     return [{**fair_row(c, resid.get(c), len(fl[c]), iqm_res, iqm_fl, p_res, p_fl, p_ret), **absolute_columns(c, p_abs, p_nom)}
-            for c in sorted(keys, key=lambda c: (c[0], c[3], c[1] != "mlp", int(c[2] or 0)))]
+            for c in sorted(keys, key=lambda c: (c[0], c[3], c[1] != MLP, int(c[2] or 0)))]
 
 
-def absolute_columns(c, p_abs, p_nom):
+def absolute_columns(c: tuple, p_abs: dict, p_nom: dict) -> dict:
     """P(the mixture's shifted score > flat PPO's) [CI], its verdict, and P(its nominal score > flat PPO's)."""
     r3 = lambda v: round(float(v), 3) if np.isfinite(v) else ""  # noqa: E731
     p = p_abs.get(str(c), (math.nan,) * 3)
@@ -89,12 +90,13 @@ def absolute_columns(c, p_abs, p_nom):
             "absolute_says": verdict(*p), "p_nominal_above_flat_ppo": r3(p_nom.get(str(c), math.nan))}
 
 
-def probabilities(pairs, reps):
+def probabilities(pairs: dict, reps: int) -> dict:
     """stats.improvement_probability of the pairs, {} where there are none."""
     return stats.improvement_probability(pairs, reps=reps) if pairs else {}
 
 
-def fair_row(c, resid, n_full, iqm_res, iqm_fl, p_res, p_fl, p_ret):
+def fair_row(c: tuple, resid: tuple | None, n_full: int, iqm_res: dict, iqm_fl: dict, p_res: dict, p_fl: dict,
+             p_ret: dict) -> dict:
     """One fair.csv row from the computed statistics (blank where a statistic does not exist)."""
     nan3 = (math.nan,) * 3
     r3 = lambda v: round(float(v), 3) if np.isfinite(v) else ""  # noqa: E731
@@ -110,7 +112,7 @@ def fair_row(c, resid, n_full, iqm_res, iqm_fl, p_res, p_fl, p_ret):
             "retained_fraction_says": verdict(*pt), "line_says": verdict(*pr), "full_length_says": verdict(*pf)}
 
 
-def partial_spearman(x, y, z):
+def partial_spearman(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple:
     """(rho, p) of Spearman's rank correlation between x and y controlling for z: the Pearson correlation of
     the ranks' residuals after a least-squares fit on z's ranks, its p-value from Student's t with n - 3
     degrees of freedom."""

@@ -3,9 +3,11 @@
 
 import math
 import os
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis import controller_scores, stats, verdict
 from gsa_jax.analysis.results import (
     action_dims_of, drop_failed, final_scores, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers,
@@ -17,7 +19,8 @@ from gsa_jax.analysis.tables import (
 )
 
 
-def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE_REPS):
+def plot_curves(data: dict, action_dims: dict, failed: dict, column: str, path: str, title: str,
+                reps: int = stats.CURVE_REPS) -> None:
     """Per task, the IQM learning curve of every cell with its 95% bootstrap band."""
     import matplotlib
 
@@ -33,7 +36,7 @@ def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE
         cells = sorted((c for c in data if c[0] == env_name), key=cell_order)
         for i, cell in enumerate(c for c in cells if c in curves):
             xs, iqm, lo, hi = curves[cell]
-            style = dict(color="black", lw=2.0) if cell[1] == "mlp" else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
+            style = dict(color="black", lw=2.0) if cell[1] == MLP else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
             n_failed = f", {len(failed[cell])} failed (NaN/inf), not shown" if cell in failed else ""
             ax.plot(xs, iqm, marker="o" if column == "eval_return" else None, ms=3,
                     label=f"{cell_label(cell, action_dims)} (n={len(data[cell])}{n_failed})", **style)
@@ -49,7 +52,7 @@ def plot_curves(data, action_dims, failed, column, path, title, reps=stats.CURVE
     plt.close(fig)
 
 
-def mark_sufficient_k(ax, table, env_name):
+def mark_sufficient_k(ax: Any, table: list, env_name: str) -> None:
     """A dotted vertical line at the task's smallest sufficient K at the default margin (sufficient_k_table)."""
     for r in table:
         if r["env"] == env_name and r["default_margin"] and r["smallest_sufficient_K"] != "":
@@ -57,7 +60,7 @@ def mark_sufficient_k(ax, table, env_name):
                        label=f"smallest sufficient K (margin {r['margin']:g}): {r['smallest_sufficient_K']}")
 
 
-def draw_margin(ax, verdict_rows, env_name):
+def draw_margin(ax: Any, verdict_rows: list, env_name: str) -> None:
     """A dashed line at flat PPO's IQM less the default margin of its gain over a random policy (or at the target
     less the margin): the level a mixture's IQM must be shown above to be called sufficient."""
     for r in verdict_rows:
@@ -68,7 +71,8 @@ def draw_margin(ax, verdict_rows, env_name):
             return
 
 
-def plot_return_vs_k(rows, path, settings=(), sufficient=(), verdict_rows=()):
+def plot_return_vs_k(rows: list, path: str, settings: Sequence[str] = (), sufficient: Sequence = (),
+                     verdict_rows: Sequence = ()) -> None:
     """Final score IQM (95% bootstrap CI over seeds) against K per task; flat PPO as a horizontal band, the default
     margin below it (dashed) and the smallest sufficient K (dotted). One curve per value of the `settings` columns
     (the cells' sub-policy class, critic, swept hyperparameters)."""
@@ -94,7 +98,7 @@ def plot_return_vs_k(rows, path, settings=(), sufficient=(), verdict_rows=()):
             ax.set_xscale("log", base=2)
             ax.set_xticks(all_ks, [f"{int(k)}" for k in all_ks])
         for r in rows:
-            if r["env"] == env_name and r["policy"] == "mlp" and r["seeds"]:
+            if r["env"] == env_name and r["policy"] == MLP and r["seeds"]:
                 ax.axhspan(r["iqm_ci_low"], r["iqm_ci_high"], color="k", alpha=0.15, lw=0)
                 ax.axhline(r["iqm"], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
         ax.set(title=env_name, xlabel="K (number of clusters / sub-policies)", ylabel=f"final score ({rows[0].get('score', '')})")
@@ -109,7 +113,7 @@ def plot_return_vs_k(rows, path, settings=(), sufficient=(), verdict_rows=()):
 PROFILE_XLABEL = "normalized score tau (0 = random policy, 1 = flat PPO's final IQM)"
 
 
-def plot_profiles(normalized, path, reps=stats.REPS, xlabel=PROFILE_XLABEL):
+def plot_profiles(normalized: dict, path: str, reps: int = stats.REPS, xlabel: str = PROFILE_XLABEL) -> None:
     """Performance profiles: the fraction of runs (averaged over tasks) whose normalized score exceeds tau.
     normalized: {(configuration, (column, value)...): (tasks, scores [runs, tasks])}."""
     import matplotlib
@@ -134,7 +138,8 @@ def plot_profiles(normalized, path, reps=stats.REPS, xlabel=PROFILE_XLABEL):
     plt.close(fig)
 
 
-def write_verdicts(data, random_returns, settings, out_dir, log=print, looks=1, target=None):
+def write_verdicts(data: dict, random_returns: dict, settings: Sequence[str], out_dir: str, log: Callable = print,
+                   looks: int = 1, target: float | None = None) -> tuple:
     """verdicts.csv and sufficient_k.csv of the cells' final scores (the committed controllers' where scored) ->
     (verdict rows, sufficient_k rows); the answer at the default margin printed per task."""
     verdicts = verdict_table(final_scores(data), random_returns, settings, looks=looks, target=target)
@@ -149,8 +154,9 @@ def write_verdicts(data, random_returns, settings, out_dir, log=print, looks=1, 
     return verdicts, sufficient
 
 
-def plot_sweep(sweep_dirs, out_dir=None, action_dims=None, random_returns=None, log=print, reps=stats.REPS,
-               curve_reps=stats.CURVE_REPS):
+def plot_sweep(sweep_dirs: Sequence[str], out_dir: str | None = None, action_dims: dict | None = None,
+               random_returns: dict | None = None, log: Callable = print, reps: int = stats.REPS,
+               curve_reps: int = stats.CURVE_REPS) -> tuple:
     """Every figure and table of the merged sweeps into out_dir (default: the first directory); reps /
     curve_reps: bootstrap resamples of the tables' intervals / of each learning-curve point's band.
     Returns (figure.png path, final_returns.csv path, final_returns rows)."""

@@ -8,23 +8,27 @@ import gzip
 import io
 import math
 import os
+from typing import Callable, Sequence
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats
+from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.shift_rows import controller_key
 from gsa_jax.deployment.pushes import evaluate_pushes
 
 KEY = ("env", "policy", "K", "seed")
 NOMINAL = KEY + ("nominal_score", "mean_length", "full_length_fraction", "episodes")
 
 
-def event_columns(windows):
+def event_columns(windows: Sequence[int]) -> tuple:
     """The column order of pushes.csv.gz."""
     per = [f"{c}_W{w}" for w in windows for c in ("counted", "fell", "lost")]
     return KEY + ("start_seed", "event", "time", "size", "control_fall", "branch_fall", *per)
 
 
-def write_gz(path, rows, columns):
+def write_gz(path: str, rows: list, columns: Sequence[str]) -> None:
     """rows as a gzipped CSV, written atomically (a fixed mtime: the same rows give the same bytes)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=columns)
@@ -36,12 +40,10 @@ def write_gz(path, rows, columns):
     os.replace(tmp, path)
 
 
-def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m, flush=True)):
+def evaluate_all_pushes(controllers: list, settings: dict, seeds: np.ndarray, out: str,
+                        log: Callable = lambda m: print(m, flush=True)) -> tuple:
     """Paired pushes of every controller not yet in OUT/nominal.csv -> (event rows, nominal rows); both
     files are rewritten after every controller. settings: {sizes, windows, per_episode}."""
-    from gsa_jax.analysis.results import read_csv, write_csv
-    from gsa_jax.analysis.retention import controller_key
-
     ev_path, nom_path = os.path.join(out, "pushes.csv.gz"), os.path.join(out, "nominal.csv")
     events, nominal = read_csv(ev_path), read_csv(nom_path)
     done = {controller_key(r) for r in nominal}
@@ -60,7 +62,7 @@ def evaluate_all_pushes(controllers, settings, seeds, out, log=lambda m: print(m
     return events, nominal
 
 
-def per_controller(events, windows):
+def per_controller(events: list, windows: Sequence[int]) -> dict:
     """{(env, policy, K, seed, size, W): (counted pushes, fall probability, mean return lost)}: a controller's
     falls per counted push (NaN where none counted) and the mean return a counted push cost it."""
     acc = {}
@@ -76,7 +78,7 @@ def per_controller(events, windows):
     return {k: (n, f / n, lost / n) for k, (n, f, lost) in acc.items()}
 
 
-def group(per, events, windows):
+def group(per: dict, events: list, windows: Sequence[int]) -> dict:
     """{(env, policy, K, size, W): {seed: (counted, fall prob, lost)}}, every controller of the events
     included (one with no counted push as (0, NaN, NaN))."""
     out = {}
@@ -90,7 +92,7 @@ def group(per, events, windows):
     return out
 
 
-def aggregate_pushes(events, windows, reps=stats.REPS):
+def aggregate_pushes(events: list, windows: Sequence[int], reps: int = stats.REPS) -> list:
     """paired_pushes.csv rows: per task x configuration x push size x window, the controllers with a counted
     push, counted pushes per controller, IQM [CI] of the fall probability and of the return lost per push,
     P(a mixture falls less / loses less than flat PPO) [CI] (ties count half: two that never fall tie)."""
@@ -99,13 +101,13 @@ def aggregate_pushes(events, windows, reps=stats.REPS):
     fin = lambda x: x[np.isfinite(x)][:, None]  # noqa: E731
     fall = stats.iqm_ci({str(c): fin(col(c, 1)) for c in cells if np.isfinite(col(c, 1)).any()}, reps=reps)
     lost = stats.iqm_ci({str(c): fin(col(c, 2)) for c in cells if np.isfinite(col(c, 2)).any()}, reps=reps)
-    flat = lambda c: (c[0], "mlp", "", c[3], c[4])  # noqa: E731
-    ok = [c for c in cells if c[1] == "mixture" and flat(c) in cells and len(fin(col(c, 1))) and len(fin(col(flat(c), 1)))]
+    flat = lambda c: (c[0], MLP, "", c[3], c[4])  # noqa: E731
+    ok = [c for c in cells if c[1] == MIXTURE and flat(c) in cells and len(fin(col(c, 1))) and len(fin(col(flat(c), 1)))]
     p_fall = stats.improvement_probability({str(c): (-fin(col(c, 1)), -fin(col(flat(c), 1))) for c in ok}, reps=reps) if ok else {}
     p_lost = stats.improvement_probability({str(c): (-fin(col(c, 2)), -fin(col(flat(c), 2))) for c in ok}, reps=reps) if ok else {}
     r3 = lambda v: round(float(v), 4) if np.isfinite(v) else ""  # noqa: E731
     rows = []
-    for c in sorted(cells, key=lambda c: (c[0], c[3], c[4], c[1] != "mlp", int(c[2] or 0))):
+    for c in sorted(cells, key=lambda c: (c[0], c[3], c[4], c[1] != MLP, int(c[2] or 0))):
         n = col(c, 0)
         f, lo, pf, pl = (fall.get(str(c), (math.nan,) * 3), lost.get(str(c), (math.nan,) * 3),
                          p_fall.get(str(c), (math.nan,) * 3), p_lost.get(str(c), (math.nan,) * 3))
@@ -118,7 +120,7 @@ def aggregate_pushes(events, windows, reps=stats.REPS):
     return rows
 
 
-def plot_pushes(agg, path):
+def plot_pushes(agg: list, path: str) -> None:
     """Per task (rows) and window (columns): fall probability per counted push (IQM, 95% CI) against push
     size, flat PPO and each K; tasks where no controller ever falls show the return lost per push."""
     import matplotlib
@@ -140,8 +142,8 @@ def plot_pushes(agg, path):
                 x = np.array([float(r["size"]) for r in pts])
                 y = np.array([r[f"{what}_iqm"] for r in pts], float)
                 err = np.array([[r[f"{what}_iqm"] - r[f"{what}_ci_low"], r[f"{what}_ci_high"] - r[f"{what}_iqm"]] for r in pts], float).T
-                ax.errorbar(x, y, yerr=err if len(pts) else None, marker="o", ms=3, capsize=2, color="k" if policy == "mlp" else None,
-                            label="flat PPO" if policy == "mlp" else f"K = {k}")
+                ax.errorbar(x, y, yerr=err if len(pts) else None, marker="o", ms=3, capsize=2, color="k" if policy == MLP else None,
+                            label="flat PPO" if policy == MLP else f"K = {k}")
             ax.set(title=f"{env_name}, W = {w} steps", xlabel="push (m/s)", ylabel=label)
             ax.grid(alpha=0.3)
         axes[i, 0].legend(fontsize=7)

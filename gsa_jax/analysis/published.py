@@ -14,29 +14,30 @@ import sys
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis.results import read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
 
 
-def task_name(env):
+def task_name(env: str) -> str:
     """A task's name without its version, lower case: Hopper-v5 -> hopper (and Brax's variant, hopper)."""
     return env.rsplit("-v", 1)[0].lower()
 
 
-def spread(xs):
+def spread(xs: np.ndarray) -> tuple:
     """(mean, std with ddof 0) of the finite values, rounded to 3 decimals."""
     xs = np.asarray([x for x in xs if np.isfinite(x)], float)
     return round(float(xs.mean()), 3), round(float(xs.std()), 3)
 
 
-def compare(reference, runs):
+def compare(reference: list, runs: list) -> list:
     """Rows of the comparison: per reference task with flat PPO runs of the same name, ours and theirs."""
     out = []
     for ref in reference:
-        for env in dict.fromkeys(r["env"] for r in runs if r["policy"] == "mlp"):
+        for env in dict.fromkeys(r["env"] for r in runs if r["policy"] == MLP):
             if task_name(env) != task_name(ref["env"]):
                 continue
-            mine = [r for r in runs if r["env"] == env and r["policy"] == "mlp"]
+            mine = [r for r in runs if r["env"] == env and r["policy"] == MLP]
             num = lambda r, c: float(r[c]) if r[c] != "" else np.nan  # noqa: E731
             last_mean, last_std = spread([num(r, "training_return_last_100_episodes") for r in mine])
             det_mean, det_std = spread([num(r, "final_score") for r in mine])
@@ -47,7 +48,7 @@ def compare(reference, runs):
     return out
 
 
-def main(argv=None):
+def main(argv: list | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.published", description=cli_description(__doc__))
     p.add_argument("reference", help="CSV of published scores: env, mean, std, source")
     p.add_argument("per_run", nargs="+", help="per_run_scores.csv files of gsa_jax.plot")

@@ -28,9 +28,11 @@ import re
 import shlex
 import sys
 from decimal import ROUND_HALF_UP, Decimal
+from typing import Sequence
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.results import read_csv
 from gsa_jax.running.runinfo import cli_description
 
@@ -42,7 +44,7 @@ class QuoteError(ValueError):
     pass
 
 
-def fmt(x, digits=0):
+def fmt(x: float | str, digits: int = 0) -> str:
     """A number as the pages write it: thousands separated by commas, `digits` decimals, halves rounded away
     from zero as the table prints them (0.205 -> 0.21)."""
     if x == "" or not math.isfinite(float(x)):
@@ -51,7 +53,7 @@ def fmt(x, digits=0):
     return f"{exact:,.{int(digits)}f}"
 
 
-def parse_args(args):
+def parse_args(args: str) -> tuple:
     """(kind, file, {column: [values]}, {option: value}) of a span's argument string."""
     try:
         words = shlex.split(args)
@@ -68,7 +70,7 @@ def parse_args(args):
     return words[0], words[1], filters, options
 
 
-def read_rows(path, filters):
+def read_rows(path: str, filters: dict) -> list:
     """The rows of a CSV file whose columns hold one of the given values."""
     if not os.path.exists(path):
         raise QuoteError(f"{path}: no such file")
@@ -79,7 +81,7 @@ def read_rows(path, filters):
     return [r for r in rows if all(r[c] in values for c, values in filters.items())]
 
 
-def values(rows, col, path):
+def values(rows: list, col: str, path: str) -> list:
     """The rows' `col` as floats (NaN where empty)."""
     if not rows:
         raise QuoteError(f"{path}: no row matches")
@@ -88,29 +90,29 @@ def values(rows, col, path):
     return [float(r[col]) if r[col] != "" else math.nan for r in rows]
 
 
-def interval(row, point, low, high, digits=0):
+def interval(row: dict, point: str, low: str, high: str, digits: int = 0) -> str:
     """'point [low, high]' of a row's columns ('' where the point is empty)."""
     if row.get(point, "") == "":
         return ""
     return f"{fmt(row[point], digits)} [{fmt(row[low], digits)}, {fmt(row[high], digits)}]"
 
 
-def cell_name(row):
+def cell_name(row: dict) -> str:
     """A final_returns.csv row's configuration: flat PPO, or K with its ratio to the action dimension."""
-    if row["policy"] == "mlp":
+    if row["policy"] == MLP:
         return "flat PPO (MLP 64x64)"
     ratio = float(row["K_over_action_dim"]) if row.get("K_over_action_dim", "") != "" else math.nan
     return f"K = {row['K']}" + (f" ({round(ratio, 2):g} d_a)" if math.isfinite(ratio) else "")
 
 
-def halfwidth(x):
+def halfwidth(x: float | str) -> str:
     """A table's ± half-width: one decimal under 10 (cells at a task's ceiling), none above."""
     return fmt(x, 1 if x != "" and abs(float(x)) < 10 else 0)
 
 
-def cell_table(rows):
+def cell_table(rows: list) -> str:
     """Figure 1's per-task table of final_returns.csv rows (one task)."""
-    mixture = [r for r in rows if r["policy"] == "mixture" and r.get("K_over_action_dim", "") != ""]
+    mixture = [r for r in rows if r["policy"] == MIXTURE and r.get("K_over_action_dim", "") != ""]
     d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0]['K_over_action_dim']))})" if mixture else ""
     lines = [f"| {rows[0]['env']}{d_a} | deterministic: mean ± 95% CI | IQM [95% CI] | P(> flat PPO) [95% CI] "
              "| training return | learning speed IQM |", "|---|---|---|---|---|---|"]
@@ -122,7 +124,7 @@ def cell_table(rows):
     return "\n".join(lines)
 
 
-def aggregate_table(rows):
+def aggregate_table(rows: list) -> str:
     """The normalized-score table of aggregate.csv rows."""
     lines = ["| configuration | normalized IQM [95% CI] | P(> flat PPO) [95% CI] |", "|---|---|---|"]
     for r in rows:
@@ -131,7 +133,7 @@ def aggregate_table(rows):
     return "\n".join(lines)
 
 
-def reach(dirs, filters, threshold):
+def reach(dirs: Sequence[str], filters: dict, threshold: float) -> str:
     """'flat PPO 10/10 at 358k, K = 2 8/10 at 532k, ...': per cell of the sweeps' tidy metrics (cells whose
     columns hold the filters' values), the runs whose deterministic return reached `threshold` at an
     evaluation, and the median env step of their first such evaluation."""
@@ -149,11 +151,11 @@ def reach(dirs, filters, threshold):
         firsts = [s["env_steps"][np.flatnonzero(s["eval_return"] >= threshold)[0]] for s in data[cell].values()
                   if np.any(s["eval_return"] >= threshold)]
         at = f" at {round(float(np.median(firsts)) / 1000)}k" if firsts else ""
-        parts.append(f"{'flat PPO' if cell[1] == 'mlp' else f'K = {cell[2]}'} {len(firsts)}/{len(data[cell])}{at}")
+        parts.append(f"{'flat PPO' if cell[1] == MLP else f'K = {cell[2]}'} {len(firsts)}/{len(data[cell])}{at}")
     return ", ".join(parts)
 
 
-def render(args, page_dir):
+def render(args: str, page_dir: str) -> str:
     """The text a span's arguments give."""
     kind, name, filters, options = parse_args(args)
     if kind == "reach":
@@ -196,7 +198,7 @@ def render(args, page_dir):
     raise QuoteError(f"'quote {args}': unknown kind {kind!r}")
 
 
-def requote(text, page_dir):
+def requote(text: str, page_dir: str) -> tuple:
     """(the page with every span's TEXT rewritten, [(arguments, old TEXT, new TEXT)] of the spans that changed)."""
     changed = []
 
@@ -209,7 +211,7 @@ def requote(text, page_dir):
     return SPAN.sub(one, text), changed
 
 
-def main(argv=None):
+def main(argv: list | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=cli_description(__doc__))
     p.add_argument("pages", nargs="+", metavar="PAGE", help="Markdown pages")
     p.add_argument("--check", action="store_true", help="rewrite nothing; exit 1 if any quoted number is stale")

@@ -9,6 +9,7 @@ import json
 import math
 import os
 from collections import defaultdict
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -25,7 +26,7 @@ class PlotError(ValueError):
     pass
 
 
-def read_tidy(path, series, columns=_SERIES):
+def read_tidy(path: str, series: dict, columns: Sequence[str] = _SERIES) -> bool:
     """Add one tidy metrics.csv's columns to series {cell: {seed: {column: [(iteration, value)]}}}; False if not a
     sweep's."""
     with (gzip.open(path, "rt", newline="") if path.endswith(".gz") else open(path, newline="")) as f:
@@ -42,7 +43,7 @@ def read_tidy(path, series, columns=_SERIES):
     return True
 
 
-def load_sweep(sweep_dir, columns=_SERIES):
+def load_sweep(sweep_dir: str, columns: Sequence[str] = _SERIES) -> dict:
     """All tidy rows under sweep_dir (metrics*.csv, or gzipped as experiments/ keep them) ->
     {cell: {seed: {column: [T] in iteration order}}}, cell = (env, policy, K, (column, value)...); by default the
     columns env_steps, episode_return, episodes, eval_return, eval_failures (any of TIDY_METRICS can be asked for).
@@ -59,7 +60,7 @@ def load_sweep(sweep_dir, columns=_SERIES):
                    for seed, cols in seeds.items()} for cell, seeds in series.items()}
 
 
-def sweep_metas(sweep_dir):
+def sweep_metas(sweep_dir: str) -> list:
     """The contents of every sweep.json under sweep_dir (one per sweep; merged results may hold several)."""
     out = []
     for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True)):
@@ -68,7 +69,7 @@ def sweep_metas(sweep_dir):
     return out
 
 
-def group_settings(sweep_dir):
+def group_settings(sweep_dir: str) -> dict:
     """{(env, policy, critic): what makes its runs comparable (steps, hyperparameters, static config)} of a
     sweep; a sweep listing no value_targets trained with its [config] critic (default GAE)."""
     out = {}
@@ -84,12 +85,12 @@ def group_settings(sweep_dir):
     return out
 
 
-def lists_critics(cells):
+def lists_critics(cells: Iterable[tuple]) -> bool:
     """Whether any of the cells carries a critic column (its sweep listed value_targets)."""
     return any(c == "value_target" for cell in cells for c, _ in cell[3:])
 
 
-def with_critic(cell):
+def with_critic(cell: tuple) -> tuple:
     """A cell with ("value_target", "gae") among its settings when it has no critic column (after the
     sub-policy class, where sweeps write it): sweeps that list no value_targets trained with GAE."""
     if any(c == "value_target" for c, _ in cell[3:]):
@@ -98,7 +99,7 @@ def with_critic(cell):
     return cell[:i] + (("value_target", "gae"),) + cell[i:]
 
 
-def load_sweeps(dirs):
+def load_sweeps(dirs: Sequence[str]) -> dict:
     """load_sweep of every directory, merged; PlotError naming the difference when two hold the same
     group with other settings, or the same run twice. When one sweep lists critics (value_targets), the
     cells of those that do not get the GAE critic's column, so the two critics' cells meet."""
@@ -123,7 +124,7 @@ def load_sweeps(dirs):
     return data
 
 
-def load_failed(sweep_dir):
+def load_failed(sweep_dir: str) -> list:
     """Runs that stopped at a NaN/inf: sweep.json's 'failed_runs', or the workers' failed_runs.json."""
     failed = [f for meta in sweep_metas(sweep_dir) for f in meta.get("failed_runs", [])]
     if not failed:  # a sweep still running or stopped: the workers' own lists
@@ -133,14 +134,14 @@ def load_failed(sweep_dir):
     return failed
 
 
-def failed_cell(f):
+def failed_cell(f: dict) -> tuple:
     """The cell (env, policy, K, (column, value)...) of a failed run, as load_sweep keys them."""
     extras = [c for c in f if c not in ("run", "env", "policy", "K", "seed", "failed_at")]
     return (f["env"], f["policy"], int(f["K"])) + tuple(
         (f"hparam_{c}" if c in _METRIC_COLS else c, str(f[c])) for c in extras)
 
 
-def drop_failed(data, failed):
+def drop_failed(data: dict, failed: list) -> tuple:
     """(data without the failed runs, {cell: [(seed, failed_at)]}): failed runs are reported apart,
     never averaged into a cell (their series end early; a run failing at once has none)."""
     dropped = defaultdict(list)
@@ -153,7 +154,7 @@ def drop_failed(data, failed):
     return {c: s for c, s in data.items() if s}, dict(dropped)
 
 
-def cell_schedule(seeds):
+def cell_schedule(seeds: dict) -> np.ndarray:
     """[T] bool: the iterations a cell's runs were evaluated at. A group evaluates all its runs at once,
     so an evaluation that left one run without a return is still scheduled for that run."""
     mask = np.zeros(max(len(s["eval_return"]) for s in seeds.values()), bool)
@@ -163,7 +164,7 @@ def cell_schedule(seeds):
     return mask
 
 
-def unscored_runs(data):
+def unscored_runs(data: dict) -> dict:
     """{cell: [(seed, [iterations])]}: runs whose final score is NaN because one of their last scheduled
     evaluations has no return (tables written before failed evaluation episodes were counted)."""
     out = {}
@@ -175,7 +176,7 @@ def unscored_runs(data):
     return out
 
 
-def eval_failures(seeds):
+def eval_failures(seeds: dict) -> int | str:
     """Failed evaluation episodes over a cell's runs and evaluations (gsa_jax.algorithm.episodes); '' (unknown) for
     tables written before they were counted."""
     if not any(np.isfinite(s["eval_failures"]).any() for s in seeds.values()):
@@ -183,7 +184,7 @@ def eval_failures(seeds):
     return int(sum(np.nansum(s["eval_failures"]) for s in seeds.values()))
 
 
-def evaluation_scores(data):
+def evaluation_scores(data: dict) -> dict:
     """{cell: (scores [n], kind)}: each run's score from its training-time evaluations (stats.final_score over the
     cell's schedule: the mean of its last scheduled evaluations, a learning-curve statistic), seeds in order,
     without the runs unscored_runs lists; kind is 'deterministic' when every run has evaluations, else 'training'."""
@@ -199,7 +200,7 @@ def evaluation_scores(data):
     return out
 
 
-def final_scores(data):
+def final_scores(data: dict) -> dict:
     """{cell: (scores [n], kind)}: each run's score, seeds in order. Where every run of a cell has its committed
     controller's score (controller_score, gsa_jax.analysis.controller_scores: the final controller re-run in MuJoCo C
     from fixed start states) those, kind 'controller'; else evaluation_scores."""
@@ -211,7 +212,7 @@ def final_scores(data):
     return out
 
 
-def spec_multipliers(dirs):
+def spec_multipliers(dirs: Sequence[str]) -> dict:
     """{env: sorted cluster multipliers} of the sweeps that set K as multiples of the action dimension
     (cluster_multipliers), read from their sweep.json."""
     out = defaultdict(set)
@@ -221,7 +222,7 @@ def spec_multipliers(dirs):
     return {e: sorted(ms) for e, ms in out.items()}
 
 
-def action_dims_of(dirs, env_names):
+def action_dims_of(dirs: Sequence[str], env_names: Iterable[str]) -> dict:
     """{env: d_a}: as the sweeps' sweep.json recorded it for a task defined outside the package (`tasks`), so that
     reading results never imports a user's task code; else from the task registry (built-in tasks)."""
     recorded = {e: t["action_size"] for d in dirs for meta in sweep_metas(d)
@@ -234,12 +235,12 @@ def action_dims_of(dirs, env_names):
     return {e: recorded[e] for e in env_names}
 
 
-def setting_columns(data):
+def setting_columns(data: dict) -> list:
     """The columns that set cells apart beyond (env, policy, K): sub-policy class, critic, swept hyperparameters."""
     return list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))
 
 
-def backend_of(dirs, env_name):
+def backend_of(dirs: Sequence[str], env_name: str) -> str:
     """The physics backend the sweeps in dirs trained env_name with ([config] backend; 'mjx' when none says);
     'c' when they differ, since MuJoCo C steps every task and MJX not all."""
     named = {settings["config"].get("backend", "mjx") for d in dirs for (env, _, _), settings in group_settings(d).items()
@@ -247,7 +248,7 @@ def backend_of(dirs, env_name):
     return named.pop() if len(named) == 1 else "c" if named else "mjx"
 
 
-def random_returns_of(dirs, env_names, out_dir, log=print):
+def random_returns_of(dirs: Sequence[str], env_names: Iterable[str], out_dir: str, log: Callable = print) -> dict:
     """{env: random-policy return}: from the sweeps' random_returns.json, else from out_dir's (what an earlier
     invocation measured: tables redrawn from committed results normalize as they did), else measured (and
     saved in out_dir)."""
@@ -270,7 +271,7 @@ def random_returns_of(dirs, env_names, out_dir, log=print):
     return {e: found[e] for e in env_names}
 
 
-def read_csv(path):
+def read_csv(path: str) -> list:
     """Rows (dicts of strings) of a CSV file, gzipped if its name ends in .gz; [] if it does not exist."""
     if not os.path.exists(path):
         return []
@@ -278,7 +279,7 @@ def read_csv(path):
         return list(csv.DictReader(f))
 
 
-def write_csv(path, rows, columns=None):
+def write_csv(path: str, rows: list, columns: Sequence[str] | None = None) -> None:
     """rows (dicts) as a CSV file, written atomically; columns: their order (default: as first seen)."""
     from gsa_jax.running.checkpoint import write_atomic
 
@@ -289,7 +290,7 @@ def write_csv(path, rows, columns=None):
     write_atomic(path, buf.getvalue())
 
 
-def unscored_lines(rows):
+def unscored_lines(rows: list) -> list:
     """Lines naming the cells with unscored runs (final_returns.csv 'unscored_runs'); [] if none."""
     cells = [r for r in rows if r.get("unscored_runs")]
     if not cells:

@@ -5,6 +5,7 @@ Used by the experiments that compare simulators (experiments/solver_hopper/, exp
 
 import csv
 import os
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -13,6 +14,7 @@ import numpy as np
 import envs
 from envs.physics import Physics
 from gsa_jax.algorithm.episodes import step_episodes
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import schedule
 from gsa_jax.analysis.extraction import select, sweep_runs
@@ -22,20 +24,20 @@ from gsa_jax.deployment.inspection import last_iteration, load_run
 from gsa_jax.running.checkpoint import save_npz_atomic
 
 
-def load_cell(sweep_dir, env_name, policy, k):
+def load_cell(sweep_dir: str, env_name: str, policy: str, k: int) -> list:
     """Per seed (sorted): (trainer, params, obs_stats, hp, iteration, address) of one sweep cell."""
 
     seeds = sorted({int(r["seed"]) for _, _, _, r in sweep_runs(sweep_dir) if r["env"] == env_name
-                    and r["policy"] == policy and (policy == "mlp" or int(r["K"]) == k)})
+                    and r["policy"] == policy and (policy == MLP or int(r["K"]) == k)})
     out = []
     for seed in seeds:
-        address = select(sweep_dir, env_name, policy, k if policy == "mixture" else 1, seed)
+        address = select(sweep_dir, env_name, policy, k if policy == MIXTURE else 1, seed)
         trainer, params, obs_stats, hp, meta = load_run(address, require_mixture=False)
         out.append((seed, trainer, params, obs_stats, hp, last_iteration(meta), address))
     return out
 
 
-def make_eval(cfg, policy_obj, episodes, physics):
+def make_eval(cfg: Any, policy_obj: Any, episodes: int, physics: Physics | None) -> Callable:
     """jit(vmap over runs) of the returns [runs, episodes] of deterministic episodes in cfg's task with
     `physics` (envs.physics.Physics; None: the defaults); params are arguments, so one compile serves a
     whole cell."""
@@ -59,7 +61,7 @@ def make_eval(cfg, policy_obj, episodes, physics):
     return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None)))
 
 
-def evaluate_cell(cell, episodes, variants):
+def evaluate_cell(cell: list, episodes: int, variants: dict) -> dict:
     """{variant name: returns [seeds, episodes]} of a cell's deterministic controllers under each physics variant."""
 
     stack = lambda xs: jax.tree.map(lambda *a: jnp.stack(a), *xs)
@@ -70,7 +72,7 @@ def evaluate_cell(cell, episodes, variants):
             for name, physics in variants.items()}
 
 
-def qpos_drift(env_a, env_b, episodes=64, steps=(1, 10, 100), hopper=False):
+def qpos_drift(env_a: Any, env_b: Any, episodes: int = 64, steps: tuple = (1, 10, 100), hopper: bool = False) -> dict:
     """Max/mean |qpos difference| between two versions of one task from the same starts under the same
     random actions, after 1, 10, 100 env steps (no time limit, no reset); with hopper=True also of the torso
     height (qpos[1])."""
@@ -89,20 +91,20 @@ def qpos_drift(env_a, env_b, episodes=64, steps=(1, 10, 100), hopper=False):
     return res
 
 
-def score_sweep(sweep, env_name, clusters, episodes, variants, tmp, **tags):
+def score_sweep(sweep: str, env_name: str, clusters: int, episodes: int, variants: dict, tmp: str, **tags: Any) -> list:
     """Rows (tags, policy, K, seed, one mean return per physics variant {name: Physics or None}, and
     mujoco_c for the exported mixtures) for the flat PPO and K=`clusters` controllers of a sweep's task.
     tmp: a directory for the exported controllers."""
 
     rows = []
-    for policy in ("mlp", "mixture"):
+    for policy in (MLP, MIXTURE):
         cell = load_cell(sweep, env_name, policy, clusters)
         res = evaluate_cell(cell, episodes, variants)
         for i, c in enumerate(cell):
-            row = {**tags, "policy": policy, "K": clusters if policy == "mixture" else "", "seed": c[0]}
+            row = {**tags, "policy": policy, "K": clusters if policy == MIXTURE else "", "seed": c[0]}
             for name in variants:
                 row[name] = round(float(res[name][i].mean()), 1)
-            if policy == "mixture":
+            if policy == MIXTURE:
                 ctrl = os.path.join(tmp, os.path.basename(c[6]) + ".npz")
                 save_npz_atomic(ctrl, **controller_arrays(c[6]))
                 row["mujoco_c"] = round(run_mujoco_c(*load_controller(ctrl), episodes)["return_mean"], 1)
@@ -113,7 +115,7 @@ def score_sweep(sweep, env_name, clusters, episodes, variants, tmp, **tags):
     return rows
 
 
-def write_rows(path, rows):
+def write_rows(path: str, rows: list) -> None:
     """rows (dicts with the same keys) as a CSV file."""
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -121,13 +123,14 @@ def write_rows(path, rows):
         w.writerows(rows)
 
 
-def mean_ci(rows, cols):
+def mean_ci(rows: list, cols: Sequence[str]) -> dict:
     """{col: {mean, ci95}} over rows (seeds)."""
     return {col: {"mean": float(np.mean([r[col] for r in rows])),
                   "ci95": float(1.96 * np.std([r[col] for r in rows], ddof=1) / np.sqrt(len(rows)))} for col in cols}
 
 
-def random_policy_return(env_name, episodes=16, seed=0, episode_length=None, backend="mjx"):
+def random_policy_return(env_name: str, episodes: int = 16, seed: int = 0, episode_length: int | None = None,
+                         backend: str = "mjx") -> float:
     """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
     score that normalizes to 0), from the start states of PRNGKey(seed), stepped by `backend` ('mjx' or 'c':
     the one the sweep trained with, since MJX cannot step every task)."""

@@ -10,6 +10,7 @@ iterations (final_score says which).
 
 import math
 import warnings
+from typing import Callable
 
 import numpy as np
 
@@ -23,12 +24,12 @@ _T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2
         2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042]
 
 
-def t95(n):
+def t95(n: int) -> float:
     """The two-sided 95% t quantile for a mean over n values."""
     return _T95[n - 2] if 2 <= n <= 31 else 1.96
 
 
-def final_score(eval_returns, train_returns, scheduled=None):
+def final_score(eval_returns: np.ndarray, train_returns: np.ndarray, scheduled: np.ndarray | None = None) -> tuple:
     """(score, kind) of one run: the mean deterministic return of its last FINAL_EVALUATIONS scheduled
     evaluations ('deterministic'; NaN when one of those has no finite return, which evaluations that
     count their failed episodes never give), else the mean training return over the last 10% of
@@ -42,7 +43,7 @@ def final_score(eval_returns, train_returns, scheduled=None):
     return (float(np.nanmean(tail)) if np.any(np.isfinite(tail)) else math.nan), "training"
 
 
-def last_episodes_return(episode_returns, episodes, n=LAST_EPISODES):
+def last_episodes_return(episode_returns: np.ndarray, episodes: np.ndarray, n: int = LAST_EPISODES) -> float:
     """The mean return of a run's last n finished training episodes (CleanRL's and openrlbenchmark's
     score: the mean of the last 100 logged episodic returns), from per-iteration means (episode_returns
     [T], NaN where none ended) and counts (episodes [T]): the latest iterations' episodes in full and, from
@@ -57,7 +58,7 @@ def last_episodes_return(episode_returns, episodes, n=LAST_EPISODES):
     return float(np.sum(weight * np.nan_to_num(ret)) / total) if total > 0 else math.nan
 
 
-def unscored_evaluations(eval_returns, scheduled):
+def unscored_evaluations(eval_returns: np.ndarray, scheduled: np.ndarray) -> list:
     """The 1-based iterations among a run's last FINAL_EVALUATIONS scheduled evaluations that have no
     finite return (what makes final_score NaN)."""
     ev = np.asarray(eval_returns, float)
@@ -65,7 +66,7 @@ def unscored_evaluations(eval_returns, scheduled):
     return [int(i) + 1 for i in its if not np.isfinite(ev[i])]
 
 
-def curve_score(eval_returns):
+def curve_score(eval_returns: np.ndarray) -> float:
     """The mean of a run's finite deterministic returns over all its evaluations: the area under its
     learning curve per evaluation, which rewards learning early (NaN without evaluations)."""
     ev = np.asarray(eval_returns, float)
@@ -73,14 +74,14 @@ def curve_score(eval_returns):
     return float(np.mean(ev)) if len(ev) else math.nan
 
 
-def mean_ci(x):
+def mean_ci(x: np.ndarray) -> tuple:
     """(mean, 95% t half-width) of the values x [n] (half-width NaN for n < 2)."""
     x = np.asarray(x, float)
     n = len(x)
     return float(x.mean()), (float(t95(n) * x.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan)
 
 
-def iqm_ci(scores, seed=0, reps=REPS):
+def iqm_ci(scores: dict, seed: int = 0, reps: int = REPS) -> dict:
     """{name: (IQM, low, high)} of score matrices {name: [runs, tasks]}: the interquartile mean over all
     runs and tasks, with a 95% stratified bootstrap interval (rliable)."""
     from rliable import metrics
@@ -90,14 +91,14 @@ def iqm_ci(scores, seed=0, reps=REPS):
     return {k: (float(np.ravel(point[k])[0]), *(float(v) for v in np.ravel(interval[k])[:2])) for k in scores}
 
 
-def iqm(scores):
+def iqm(scores: np.ndarray) -> float:
     """The interquartile mean of scores [runs, tasks] (rliable's aggregate_iqm): a point, no interval."""
     from rliable import metrics
 
     return float(metrics.aggregate_iqm(np.asarray(scores, float)))
 
 
-def bootstrap(score_dict, func, seed, reps=REPS):
+def bootstrap(score_dict: dict, func: Callable, seed: int, reps: int = REPS) -> tuple:
     """rliable.library.get_interval_estimates (stratified bootstrap, 95% percentile intervals). rliable draws
     its resamples from NumPy's global RNG: it is seeded with `seed` for the call (reproducible tables) and
     restored afterwards."""
@@ -113,7 +114,7 @@ def bootstrap(score_dict, func, seed, reps=REPS):
         np.random.set_state(saved)
 
 
-def improvement_probability(pairs, seed=0, reps=REPS):
+def improvement_probability(pairs: dict, seed: int = 0, reps: int = REPS) -> dict:
     """{name: (P(X > Y), low, high)} for pairs {name: (X [runs, tasks], Y [runs, tasks])}: the probability
     that a run of X scores higher than a run of Y on the same task (ties count half), averaged over tasks,
     with a 95% stratified bootstrap interval (rliable)."""
@@ -125,7 +126,7 @@ def improvement_probability(pairs, seed=0, reps=REPS):
     return {k: (float(np.ravel(point[k])[0]), *(float(v) for v in np.ravel(interval[k])[:2])) for k in pairs}
 
 
-def iqm_curves(curves, points=20, seed=0, reps=CURVE_REPS):
+def iqm_curves(curves: dict, points: int = 20, seed: int = 0, reps: int = CURVE_REPS) -> dict:
     """{name: (index [P], IQM [P], low [P], high [P])} of learning curves {name: [runs, T]} at P points
     spread over T (every column where every run has a value); stratified bootstrap bands (rliable)."""
     out = {}
@@ -140,7 +141,7 @@ def iqm_curves(curves, points=20, seed=0, reps=CURVE_REPS):
     return out
 
 
-def performance_profiles(scores, taus, reps=REPS):
+def performance_profiles(scores: dict, taus: np.ndarray, reps: int = REPS) -> dict:
     """{name: (fraction [len(taus)], low, high)}: the fraction of runs (averaged over tasks) whose
     normalized score exceeds each tau, with 95% stratified bootstrap bands (rliable)."""
     from rliable import library as rly
@@ -150,7 +151,7 @@ def performance_profiles(scores, taus, reps=REPS):
     return {k: (np.asarray(dist[k]), np.asarray(cis[k][0]), np.asarray(cis[k][1])) for k in scores}
 
 
-def normalize(score, random_return, reference):
+def normalize(score: np.ndarray | float, random_return: float, reference: float) -> np.ndarray:
     """(score - random_return) / (reference - random_return): 0 = a random policy, 1 = the reference."""
     scale = reference - random_return
     return (np.asarray(score, float) - random_return) / (scale if abs(scale) > 1e-9 else 1.0)

@@ -3,14 +3,16 @@ normalized aggregates, smallest sufficient K, learning-curve bands."""
 
 import math
 from collections import defaultdict
+from typing import Iterable, Sequence
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats, verdict
 from gsa_jax.analysis.results import cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
 
 
-def smooth(y, window):
+def smooth(y: np.ndarray, window: int) -> np.ndarray:
     """Trailing mean over `window` iterations, ignoring NaN (iterations where no episode ended)."""
     if window <= 1:
         return y
@@ -24,29 +26,30 @@ def smooth(y, window):
         return np.where(cnt > 0, (c[idx] - c[lo]) / np.maximum(cnt, 1), np.nan)
 
 
-def cell_label(cell, action_dims):
+def cell_label(cell: tuple, action_dims: dict) -> str:
     env, policy, k = cell[:3]
     extra = "".join(f", {v}" if c == "subpolicy" else f", {c}={v}" for c, v in cell[3:] if v != "")
-    if policy == "mlp":
+    if policy == MLP:
         return "flat PPO (MLP 64x64)" + extra
     d_a = action_dims.get(env)
     mult = f" ({k / d_a:.3g} d_a)" if d_a else ""
     return f"K={k}{mult}" + extra
 
 
-def cell_order(cell):
-    return cell[0], cell[1] != "mlp", cell[2], cell[3:]
+def cell_order(cell: tuple) -> tuple:
+    return cell[0], cell[1] != MLP, cell[2], cell[3:]
 
 
-def flat_cell(cell, cells):
+def flat_cell(cell: tuple, cells: Iterable[tuple]) -> tuple | None:
     """The flat PPO cell a mixture cell is compared with: same env and swept settings (sub-policy aside)."""
     rest = tuple((c, v) for c, v in cell[3:] if c != "subpolicy")
-    flats = [c for c in cells if c[0] == cell[0] and c[1] == "mlp"]
+    flats = [c for c in cells if c[0] == cell[0] and c[1] == MLP]
     same = [c for c in flats if tuple((k, v) for k, v in c[3:] if k != "subpolicy") == rest]
     return (same or (flats if len(flats) == 1 else [None]))[0]
 
 
-def cell_row(cell, scores, kind, data, action_dims, versus, reps=stats.REPS):
+def cell_row(cell: tuple, scores: np.ndarray, kind: str, data: dict, action_dims: dict, versus: tuple | None,
+             reps: int = stats.REPS) -> dict:
     """One row of final_returns.csv (statistics of a cell's final scores)."""
     env, policy, k = cell[:3]
     n = len(scores)
@@ -59,8 +62,8 @@ def cell_row(cell, scores, kind, data, action_dims, versus, reps=stats.REPS):
     auc = stats.iqm_ci({"c": area[:, None]}, reps=reps)["c"] if len(area) else (math.nan,) * 3
     p = versus or (math.nan,) * 3
     r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
-    return {"env": env, "policy": policy, "K": k if policy == "mixture" else "",
-            "K_over_action_dim": round(k / action_dims[env], 3) if policy == "mixture" and env in action_dims else "",
+    return {"env": env, "policy": policy, "K": k if policy == MIXTURE else "",
+            "K_over_action_dim": round(k / action_dims[env], 3) if policy == MIXTURE and env in action_dims else "",
             **dict(cell[3:]), "seeds": n, "score": kind, "final_return_mean": r(mean), "ci95_halfwidth": r(half),
             "iqm": r(iqm[0]), "iqm_ci_low": r(iqm[1]), "iqm_ci_high": r(iqm[2]),
             "p_better_than_flat_ppo": r(p[0]), "p_ci_low": r(p[1]), "p_ci_high": r(p[2]),
@@ -69,7 +72,7 @@ def cell_row(cell, scores, kind, data, action_dims, versus, reps=stats.REPS):
             "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
 
 
-def critic_comparisons(scores, reps=stats.REPS):
+def critic_comparisons(scores: dict, reps: int = stats.REPS) -> dict:
     """{retrace cell: P(better than the same cell with GAE's critic) with its CI} for sweeps that list
     value_targets; {} otherwise."""
     pairs = {}
@@ -81,18 +84,18 @@ def critic_comparisons(scores, reps=stats.REPS):
     return stats.improvement_probability(pairs, reps=reps) if pairs else {}
 
 
-def final_table(data, action_dims, failed=None, reps=stats.REPS):
+def final_table(data: dict, action_dims: dict, failed: dict | None = None, reps: int = stats.REPS) -> list:
     """final_returns.csv rows: per cell, statistics of its final scores and P(better than flat PPO)."""
     failed = failed or {}
     scores = final_scores(data)
-    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == "mixture"
+    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == MIXTURE
              for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
     versus = stats.improvement_probability(pairs, reps=reps) if pairs else {}
     critics = critic_comparisons(scores, reps)
     unscored = unscored_runs(data)
     rows = []
     for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
-        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
+        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == MIXTURE else "", **dict(cell[3:]),
                      "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
     for cell in sorted(data, key=cell_order):
         row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell), reps)
@@ -106,7 +109,7 @@ def final_table(data, action_dims, failed=None, reps=stats.REPS):
     return rows
 
 
-def run_table(data):
+def run_table(data: dict) -> list:
     """per_run_scores.csv rows: per run (cells in table order, seeds in order) its committed controller's score
     (controller_score: the final controller re-run in MuJoCo C from fixed start states, what every verdict uses;
     '' where not scored), score_kind (which score the tables use: controller, deterministic or training), its
@@ -124,7 +127,7 @@ def run_table(data):
             score = stats.final_score(s["eval_return"] if evaluated else [], s["episode_return"], sched)[0]
             last = s["eval_return"][sched[: len(s["eval_return"])]][-1:]
             last_100 = stats.last_episodes_return(s["episode_return"], s["episodes"])
-            rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == "mixture" else "", **dict(cell[3:]),
+            rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == MIXTURE else "", **dict(cell[3:]),
                          "seed": seed, "controller_score": r(s.get("controller_score", math.nan)), "score_kind": kind,
                          "final_score": r(score), "last_eval_return": r(last[0]) if len(last) else "",
                          "eval_failures": eval_failures({seed: s}),
@@ -133,14 +136,14 @@ def run_table(data):
     return rows
 
 
-def config_keys(cell, action_dims, multipliers):
+def config_keys(cell: tuple, action_dims: dict, multipliers: dict) -> list:
     """The configurations across tasks a cell belongs to: flat PPO, or "K = m d_a" for every multiplier m
     of its sweep that gives its K (K = ceil(m d_a), as Figure 1 sets K: on a task with one action, K = 1
     is both 0.5 d_a and 1 d_a), or K / d_a when K was set directly; with the swept settings."""
     from gsa_jax.running.spec import cluster_count
 
     env, policy, k = cell[:3]
-    if policy == "mlp":
+    if policy == MLP:
         return [("flat PPO",) + tuple(cell[3:])]
     if env not in action_dims:
         return [(f"K = {k}",) + tuple(cell[3:])]
@@ -149,20 +152,20 @@ def config_keys(cell, action_dims, multipliers):
     return [(label,) + tuple(cell[3:]) for label in labels]
 
 
-def config_order(key):
+def config_order(key: tuple) -> tuple:
     """Sort key of a configuration: flat PPO first, then by K (or K / d_a), then the settings."""
     words = key[0].split()
     return (key[0] != "flat PPO", float(words[2]) if len(words) > 2 else 0.0, str(key[1:]))
 
 
-def normalized_scores(data, action_dims, random_returns, multipliers=None):
+def normalized_scores(data: dict, action_dims: dict, random_returns: dict, multipliers: dict | None = None) -> dict:
     """{config: [runs, tasks] normalized final scores} (0 = random policy, 1 = flat PPO's final IQM on the
     task); tasks without a flat PPO cell or a random-policy return are left out; runs cut to the fewest.
     multipliers: spec_multipliers of the sweeps (configs named by them, see config_keys)."""
     scores = final_scores(data)
     by_config = defaultdict(dict)
     for cell in data:
-        flat = flat_cell(cell, data) if cell[1] == "mixture" else cell
+        flat = flat_cell(cell, data) if cell[1] == MIXTURE else cell
         if flat is None or cell[0] not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
             continue
         ref = stats.iqm(scores[flat][0][:, None])  # the point only: no bootstrap per mixture cell
@@ -175,7 +178,7 @@ def normalized_scores(data, action_dims, random_returns, multipliers=None):
     return out
 
 
-def aggregate_table(normalized, reps=stats.REPS):
+def aggregate_table(normalized: dict, reps: int = stats.REPS) -> list:
     """aggregate.csv rows: per configuration, IQM of normalized scores over tasks and P(better than flat PPO)."""
     if not normalized:
         return []
@@ -198,7 +201,7 @@ def aggregate_table(normalized, reps=stats.REPS):
     return rows
 
 
-def cell_curves(data, column, window, reps=stats.CURVE_REPS):
+def cell_curves(data: dict, column: str, window: int, reps: int = stats.CURVE_REPS) -> dict:
     """{cell: (env_steps [P], IQM [P], low [P], high [P])}: IQM over seeds with bootstrap bands of the
     training return (smoothed over `window` iterations) or of the evaluations (where evaluated)."""
     curves, steps = {}, {}
@@ -217,23 +220,24 @@ def cell_curves(data, column, window, reps=stats.CURVE_REPS):
     return {c: (steps[c][idx], iqm, lo, hi) for c, (idx, iqm, lo, hi) in est.items()}
 
 
-def k_curves(rows, env_name, settings):
+def k_curves(rows: list, env_name: str, settings: Sequence[str]) -> dict:
     """{((column, value) of `settings`...): the task's mixture rows of final_returns.csv sorted by K}: one
     return-vs-K curve per sub-policy class, critic and other swept setting."""
     curves = defaultdict(list)
     for r in rows:
-        if r["env"] == env_name and r["policy"] == "mixture" and r["seeds"]:
+        if r["env"] == env_name and r["policy"] == MIXTURE and r["seeds"]:
             curves[tuple((c, r.get(c, "")) for c in settings)].append(r)
     return {k: sorted(pts, key=lambda r: r["K"]) for k, pts in curves.items()}
 
 
-def cell_setting(cell, settings):
+def cell_setting(cell: tuple, settings: Sequence[str]) -> tuple:
     """((column, value) of `settings`...) of a cell: which return-vs-K curve it belongs to."""
     extra = dict(cell[3:])
     return tuple((c, extra.get(c, "")) for c in settings)
 
 
-def verdict_table(scores, random_returns, settings=(), margins=None, looks=1, target=None, reps=verdict.REPS):
+def verdict_table(scores: dict, random_returns: dict, settings: Sequence[str] = (), margins: Sequence[float] | None = None,
+                  looks: int = 1, target: float | None = None, reps: int = verdict.REPS) -> list:
     """verdicts.csv rows: per task, setting, K and margin (verdict.MARGINS and the default) the gap of the mixture
     cell's IQM to flat PPO's (or to `target`) on the scale of flat PPO's gain over a random policy, its interval
     for a design of `looks` looks, the verdict, seeds and the seeds per cell likely to decide it. scores: {cell:
@@ -241,7 +245,7 @@ def verdict_table(scores, random_returns, settings=(), margins=None, looks=1, ta
     margins = sorted(set(margins or verdict.MARGINS) | {verdict.DEFAULT_MARGIN})
     r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 4)  # noqa: E731
     rows = []
-    for cell in sorted((c for c in scores if c[1] == "mixture" and len(scores[c][0])), key=cell_order):
+    for cell in sorted((c for c in scores if c[1] == MIXTURE and len(scores[c][0])), key=cell_order):
         flat = flat_cell(cell, scores)
         if cell[0] not in random_returns or (target is None and (flat is None or not len(scores[flat][0]))):
             continue
@@ -258,7 +262,7 @@ def verdict_table(scores, random_returns, settings=(), margins=None, looks=1, ta
     return rows
 
 
-def sufficient_k_table(verdict_rows, settings=()):
+def sufficient_k_table(verdict_rows: list, settings: Sequence[str] = ()) -> list:
     """sufficient_k.csv rows: per task, setting and margin the smallest K judged sufficient (verdict_table), ''
     where none is, with the smaller K still undecided and the answer in one sentence. The product's answer to
     "how many linear controllers does this task need?"."""
@@ -281,6 +285,6 @@ def sufficient_k_table(verdict_rows, settings=()):
     return out
 
 
-def sufficient_k_lines(table):
+def sufficient_k_lines(table: list) -> list:
     """One printed line per row of sufficient_k_table at the default margin."""
     return ["  " + r["answer"] for r in table if r["default_margin"]]

@@ -62,7 +62,8 @@ def resampled_iqms(scores: np.ndarray, reps: int, rng: np.random.Generator) -> n
     return iqm(x[rng.integers(0, len(x), size=(reps, len(x)))])
 
 
-def gap_samples(mixture, reference, random_return, target=None, reps=REPS, seed=0):
+def gap_samples(mixture: np.ndarray, reference: np.ndarray, random_return: float, target: float | None = None,
+                reps: int = REPS, seed: int = 0) -> tuple | None:
     """(point gap, bootstrap gaps [reps]) of a mixture cell against flat PPO's scores `reference` [n_f], or against
     the fixed score `target` (reference unused); None where the scale (reference IQM - random return) is <= 0."""
     rng = np.random.default_rng(seed)
@@ -97,7 +98,7 @@ def decide(low: float, high: float, margin: float) -> str:
     return UNDECIDED
 
 
-def seeds_to_decide(point, low, high, margin, n):
+def seeds_to_decide(point: float, low: float, high: float, margin: float, n: int) -> int | None:
     """Seeds per cell that would likely decide an undecided cell: its interval's half-width shrinking as
     1/sqrt(n) until it no longer reaches -margin from the point estimate (None if the point sits on -margin)."""
     distance, half = abs(point + margin), 0.5 * (high - low)
@@ -106,7 +107,8 @@ def seeds_to_decide(point, low, high, margin, n):
     return max(n + 1, int(math.ceil(n * (half / distance) ** 2)))
 
 
-def judge(mixture, reference, random_return, margin=DEFAULT_MARGIN, looks=1, target=None, reps=REPS, seed=0) -> Gap:
+def judge(mixture: np.ndarray, reference: np.ndarray, random_return: float, margin: float = DEFAULT_MARGIN, looks: int = 1,
+          target: float | None = None, reps: int = REPS, seed: int = 0) -> Gap:
     """The verdict of one mixture cell (scores [n]) against flat PPO's scores [n_f] (or `target`) at `margin`,
     with the interval of a design of `looks` looks (look_level)."""
     if not 0.0 < margin < 1.0:

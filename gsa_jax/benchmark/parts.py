@@ -38,6 +38,7 @@ import jax.numpy as jnp
 
 import envs
 from gsa_jax.algorithm import ppo
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import draw_noise
 
 PHYSICS_PARTS = ("mujoco_c", "host_other", "env_step_program")
@@ -236,7 +237,7 @@ def profile_parts(cfg, runs, K, repeats=5):
     timed = {name: time_call(programs[name], args[name], repeats, clock) for name in TIMED}
     flops = count_flops(p, programs, args)
     ops = op_seconds(programs["gradients"], args["gradients"])
-    prof = {"env": cfg.env, "policy": cfg.policy, "K": K if cfg.policy == "mixture" else None, "runs": runs,
+    prof = {"env": cfg.env, "policy": cfg.policy, "K": K if cfg.policy == MIXTURE else None, "runs": runs,
             "backend": cfg.backend, "repeats": repeats, "env_steps_per_iteration": runs * p.cfg.batch_size,
             "matmul_gflop_per_s": matmul_rate() / 1e9, "flops_per_iteration": flops,
             "timed": {k: dict(zip(("wall_s", "host_s", "mujoco_c_s"), v)) for k, v in timed.items()},

@@ -1,5 +1,7 @@
 """bench.png: env-steps/s against runs per sweep for every measured configuration, with MuJoCo C's rollout."""
 
+from gsa_jax.algorithm.kinds import MIXTURE
+
 _BACKEND_NAMES = {"mjx": "MJX", "c": "MuJoCo C in the program"}
 
 
@@ -24,7 +26,7 @@ def plot(results, raw, mujoco_c, path, mujoco_c_variant=None):
     ax = axes[0]
     ok = [r for r in results if "error" not in r and "solver" not in r]
     for (policy, procs, be), pts in _lines(ok, ("policy", "processes", "backend"), "runs").items():
-        ax.plot(*zip(*pts), ("o" if policy == "mixture" else "s") + ("-" if be == "mjx" else "--"),
+        ax.plot(*zip(*pts), ("o" if policy == MIXTURE else "s") + ("-" if be == "mjx" else "--"),
                 label=f"{policy}, {procs} process(es), {_BACKEND_NAMES[be]}")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("runs trained together (vmapped)")

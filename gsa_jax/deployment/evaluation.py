@@ -15,7 +15,7 @@ class DeployError(Exception):
     pass
 
 
-def summarize(returns, lengths):
+def summarize(returns: np.ndarray, lengths: np.ndarray) -> dict:
     r = np.asarray(returns, np.float64)
     half = 1.96 * r.std(ddof=1) / np.sqrt(len(r)) if len(r) > 1 else float("nan")
     return {"episodes": int(len(r)), "return_mean": float(r.mean()), "return_ci95": float(half),
@@ -23,7 +23,7 @@ def summarize(returns, lengths):
             "returns": [round(float(x), 3) for x in r]}
 
 
-def load_controller(controller_path, force=False):
+def load_controller(controller_path: str, force: bool = False) -> tuple:
     """(NumPy controller, its task name, its config) of an exported controller file, acting in [-1, 1] as our MuJoCo C
     tasks' step() takes (Controller.unit_actions); DeployError (one line) where it does not fit its task's definition
     as it is now (numpy_policy.check_task; force: only its observation size)."""
@@ -46,7 +46,7 @@ def load_controller(controller_path, force=False):
     return ctrl.unit_actions(), config["env"], config
 
 
-def has_mujoco_c(env_name):
+def has_mujoco_c(env_name: str) -> bool:
     """Whether plain MuJoCo C runs the controller's task (DeployError, one line, if its name does not resolve)."""
     try:
         return task_record(env_name).has_c
@@ -54,7 +54,8 @@ def has_mujoco_c(env_name):
         raise DeployError(f"the controller is for {env_name!r}: {' '.join(str(e).split())}") from None
 
 
-def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
+def run_mujoco_c(ctrl: numpy_policy.Controller, env_name: str, config: dict, episodes: int,
+                 episode_length: int | None = None, seed: int = 0) -> dict:
     """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
     from envs.mujoco_c import run_episodes
 
@@ -67,7 +68,7 @@ def run_mujoco_c(ctrl, env_name, config, episodes, episode_length=None, seed=0):
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
 
 
-def open_gymnasium(ctrl, env_name, env_id, seed=0):
+def open_gymnasium(ctrl: numpy_policy.Controller, env_name: str, env_id: str, seed: int = 0) -> tuple:
     """(gymnasium's env `env_id` for the controller, its options), checked (DeployError, one line, where there is no
     counterpart of the task or its layout or action space is not the controller's)."""
     from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym
@@ -80,7 +81,7 @@ def open_gymnasium(ctrl, env_name, env_id, seed=0):
     return env, options
 
 
-def run_gymnasium(ctrl, gym, env_id, episodes, seed=0):
+def run_gymnasium(ctrl: numpy_policy.Controller, gym: tuple, env_id: str, episodes: int, seed: int = 0) -> dict:
     """Summary of the controller in gymnasium's own task (its MJCF, reward, termination, time limit); gym: (env,
     options) of open_gymnasium."""
     from gsa_jax.deployment.gymnasium_task import run_episodes
@@ -91,7 +92,7 @@ def run_gymnasium(ctrl, gym, env_id, episodes, seed=0):
             "episode_length_limit": int(env.spec.max_episode_steps or 0)}
 
 
-def mujoco_c_label(env_name):
+def mujoco_c_label(env_name: str) -> str:
     """What runs a task in MuJoCo C, for report lines: our port of Brax's task (or of the Allegro hand), a built-in
     task definition, or the user's own."""
     record = task_record(env_name)
@@ -100,7 +101,7 @@ def mujoco_c_label(env_name):
     return "MuJoCo C" if record.builtin else "MuJoCo C (your task)"
 
 
-def run_mjx(run_dir, episodes, seed=0):
+def run_mjx(run_dir: str, episodes: int, seed: int = 0) -> tuple:
     """Summary of the same deterministic controller in the run's MJX environment (JAX)."""
     import jax
 
@@ -111,12 +112,12 @@ def run_mjx(run_dir, episodes, seed=0):
     return trainer.cfg.env, summarize(roll["reward"].sum(0), roll["alive"].sum(0))
 
 
-def report_line(env_name, where, s):
+def report_line(env_name: str, where: str, s: dict) -> str:
     return (f"{env_name}: {where:<22} deterministic controller, {s['episodes']} episodes: return "
             f"{s['return_mean']:.1f} +- {s['return_ci95']:.1f} (95% CI), episode length {s['length_mean']:.0f}")
 
 
-def compare_mjx(run_dir, env_name, episodes, seed):
+def compare_mjx(run_dir: str, env_name: str, episodes: int, seed: int) -> dict:
     from gsa_jax.deployment.inspection import InspectError
 
     try:

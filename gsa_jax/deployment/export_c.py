@@ -11,9 +11,12 @@ as act(obs, clip=False)), then gsa_act clamps each action to [gsa_action_low, gs
 """
 
 import json
+from typing import Mapping
 
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
 
 
@@ -37,13 +40,13 @@ def _float(x):
 
 def _layers(ctrl):
     """The MLP layers as evaluated: a mixture's last layer cut to the K active logits."""
-    if ctrl.kind != "mixture":
+    if ctrl.kind != MIXTURE:
         return list(ctrl.layers)
     k = ctrl.num_clusters
     return list(ctrl.layers[:-1]) + [(ctrl.layers[-1][0][:, :k], ctrl.layers[-1][1][:k])]
 
 
-def cost(arrays):
+def cost(arrays: Mapping) -> dict:
     """{'constants': floats stored, 'bytes', 'multiply_adds', 'tanh', 'compares'} of one gsa_act call."""
     ctrl = Controller(arrays)
     layers = _layers(ctrl)
@@ -52,10 +55,9 @@ def cost(arrays):
     madds = d_s + sum(w.size for w, _ in layers)  # normalize: one multiply-add (divide) per input
     tanh = sum(b.size for _, b in layers[:-1])
     compares = 2 * d_s + 2 * d_a  # the observation's clip and the action's bounds
-    if ctrl.kind == "mixture":
+    if ctrl.kind == MIXTURE:
         consts += ctrl.L.size + ctrl.b.size
-        d_phi = ctrl.L.shape[-1]
-        madds += d_a * d_phi + (d_phi - d_s if ctrl.subpolicy == "quadratic" else 0)
+        madds += d_a * ctrl.L.shape[-1] + subpolicies.SUBPOLICIES[ctrl.subpolicy].madds(d_s)
         compares += ctrl.num_clusters - 1
     return {"constants": int(consts), "bytes": int(4 * consts), "multiply_adds": int(madds), "tanh": int(tanh),
             "compares": int(compares)}
@@ -65,7 +67,7 @@ def _header_comment(ctrl, arrays, layout, c):
     meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
     cfg = meta.get("config", {})
     d_s = ctrl.obs_mean.shape[0]
-    if ctrl.kind == "mixture":
+    if ctrl.kind == MIXTURE:
         what = f"a mixture of K = {ctrl.num_clusters} {ctrl.subpolicy} controllers (most probable cluster, its mean action)"
     else:
         what = "a tanh MLP (mean action); cluster is always 0"
@@ -85,7 +87,7 @@ def _header_comment(ctrl, arrays, layout, c):
         lines += ["  The task maps the action onto its actuators' controls: ctrl = low + (action + 1) (high - low) / 2,",
                   f"  low = {np.round(ctrl.ctrl_range[0], 6).tolist()}, high = {np.round(ctrl.ctrl_range[1], 6).tolist()}."]
     lines += [
-              "cluster: index of the active linear piece." if ctrl.kind == "mixture" else "cluster: 0.", "",
+              "cluster: index of the active linear piece." if ctrl.kind == MIXTURE else "cluster: 0.", "",
               f"Constants: {c['constants']} floats ({c['bytes']} bytes). Per call: {c['multiply_adds']} multiply-adds, "
               f"{c['tanh']} tanhf, {c['compares']} compares.", "",
               "Use: every file may include this header; exactly one C file writes",
@@ -144,7 +146,7 @@ def _body(ctrl):
         last = int(i == len(layers) - 1)
         code.append(f"    gsa_layer({prev}, gsa_w{i}, gsa_b{i}, h{i}, {w.shape[0]}, {w.shape[1]}, {1 - last});")
         prev = f"h{i}"
-    if ctrl.kind == "mixture":
+    if ctrl.kind == MIXTURE:
         out += _mixture_constants(ctrl)
         code += _mixture_code(ctrl, prev)
     else:
@@ -183,13 +185,8 @@ def _mixture_code(ctrl, logits):
     code = ["    {", "        int c = 0, a, f;",
             f"        for (i = 1; i < {k}; ++i) if ({logits}[i] > {logits}[c]) c = i;  /* first maximum */",
             "        *cluster = c;"]
-    if ctrl.subpolicy == "quadratic":
-        code += [f"        float phi[{d_phi}];", "        int j, n = 0;",
-                 f"        for (i = 0; i < {d_s}; ++i) phi[n++] = z[i];",
-                 f"        for (i = 0; i < {d_s}; ++i) for (j = i; j < {d_s}; ++j) phi[n++] = z[i] * z[j];"]
-        feat = "phi"
-    else:
-        feat = "z"
+    lines, feat = subpolicies.SUBPOLICIES[ctrl.subpolicy].c(d_s)  # phi from z: the sub-policy class's statements
+    code += [f"        {line}" for line in lines]
     code += [f"        for (a = 0; a < {d_a}; ++a) {{", "            float s = 0.0f;"]
     if d_phi:
         code += [f"            const float *row = gsa_piece_L + (c * {d_a} + a) * {d_phi};",
@@ -200,7 +197,7 @@ def _mixture_code(ctrl, logits):
     return code
 
 
-def to_source(arrays, layout=None):
+def to_source(arrays: Mapping, layout: list | None = None) -> str:
     """The header's text."""
     ctrl = Controller(arrays)
     c = cost(arrays)

@@ -11,10 +11,16 @@ Needs the optional `deploy` extra (`pip install gsa_jax[deploy]`).
 """
 
 import json
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
+
+if TYPE_CHECKING:
+    import onnx
 
 OPSET = 17
 IR_VERSION = 8  # the IR of opset 17: readable by every onnxruntime that runs opset 17
@@ -53,17 +59,14 @@ def _normalize(nodes, ctrl):
 
 
 def _features(nodes, ctrl, z):
-    """phi(z) of the sub-policy class (linear: z; quadratic: [z, z_i z_j, i <= j])."""
+    """phi(z): the nodes of the sub-policy class's ONNX emitter (gsa_jax.algorithm.subpolicies); phi's name."""
     from onnx import helper
 
-    if ctrl.subpolicy == "linear":
-        return z
-    i, j = np.triu_indices(ctrl.obs_mean.shape[0])
-    nodes.append(helper.make_node("Gather", [z, _const(nodes, "quad_i", i.astype(np.int64))], ["z_i"], axis=1))
-    nodes.append(helper.make_node("Gather", [z, _const(nodes, "quad_j", j.astype(np.int64))], ["z_j"], axis=1))
-    nodes.append(helper.make_node("Mul", ["z_i", "z_j"], ["z_ij"]))
-    nodes.append(helper.make_node("Concat", [z, "z_ij"], ["phi"], axis=1))
-    return "phi"
+    def node(op, inputs, outputs, **attributes):
+        nodes.append(helper.make_node(op, inputs, outputs, **attributes))
+
+    emit = subpolicies.SUBPOLICIES[ctrl.subpolicy].onnx
+    return emit(node, lambda name, value: _const(nodes, name, value), z, ctrl.obs_mean.shape[0])
 
 
 def _mixture(nodes, ctrl, z):
@@ -96,7 +99,7 @@ def _bound(nodes, ctrl):
     nodes.append(helper.make_node("Min", ["above_low", _const(nodes, "action_high", high)], ["action"]))
 
 
-def build_model(arrays, layout=None):
+def build_model(arrays: Mapping, layout: list | None = None) -> "onnx.ModelProto":
     """onnx.ModelProto of the controller in `arrays` (the export's arrays, see numpy_policy)."""
     import onnx
     from onnx import TensorProto, helper
@@ -105,7 +108,7 @@ def build_model(arrays, layout=None):
     d_s, d_a = ctrl.obs_mean.shape[0], ctrl.action_size
     nodes = []
     z = _normalize(nodes, ctrl)
-    if ctrl.kind == "mixture":
+    if ctrl.kind == MIXTURE:
         _mixture(nodes, ctrl, z)
     else:
         out = _mlp(nodes, z, ctrl.layers, "mlp")
@@ -137,17 +140,18 @@ def build_model(arrays, layout=None):
     return model
 
 
-def describe(arrays):
+def describe(arrays: Mapping) -> str:
     """One line saying what the controller is."""
     meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
     cfg = meta.get("config", {})
     kind = str(arrays["kind"])
-    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {arrays['subpolicy'] if 'subpolicy' in arrays else 'linear'} "
-            "controllers (most probable cluster, mean action)" if kind == "mixture" else "tanh MLP (mean action)")
+    sub = arrays["subpolicy"] if "subpolicy" in arrays else subpolicies.DEFAULT
+    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {sub} "
+            "controllers (most probable cluster, mean action)" if kind == MIXTURE else "tanh MLP (mean action)")
     return (f"gsa_jax deterministic controller: {what}; task {cfg.get('env', '?')}, seed {meta.get('seed', '?')}, "
             f"commit {meta.get('git_commit') or '?'}")
 
 
-def to_bytes(arrays, layout=None):
+def to_bytes(arrays: Mapping, layout: list | None = None) -> bytes:
     """The serialized, checked ONNX model of the controller."""
     return build_model(arrays, layout).SerializeToString()

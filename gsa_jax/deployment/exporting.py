@@ -4,9 +4,11 @@ gsa_jax.export` is its command."""
 import json
 import os
 import zipfile
+from typing import Mapping
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.export_c import cost, to_source
 from gsa_jax.deployment.numpy_policy import action_bounds, map_actions, task_name
 from gsa_jax.running.checkpoint import save_npz_atomic
@@ -17,7 +19,7 @@ class ExportError(Exception):
     pass
 
 
-def with_bounds(arrays, source):
+def with_bounds(arrays: Mapping, source: str) -> dict:
     """The controller arrays with action_low / action_high [d_a] (numpy_policy.action_bounds: the stored ones, else
     the named task's), in the task's own action space (in_task_action_space) and with what it was trained on
     (identity_arrays); ExportError where there are no bounds."""
@@ -30,7 +32,7 @@ def with_bounds(arrays, source):
     return {**arrays, **identity_arrays(arrays)}
 
 
-def in_task_action_space(arrays):
+def in_task_action_space(arrays: dict) -> dict:
     """Where the task maps its actions in [-1, 1] onto its actuators' ctrlrange [ctrl_low, ctrl_high] (dm_control's
     quadruped), the controller with that map applied (numpy_policy.map_actions): its actions are the controls, in the
     task's own action space (dm_control's action_spec), marked action_space 'controls'; else unchanged."""
@@ -41,7 +43,7 @@ def in_task_action_space(arrays):
     return {**map_actions(arrays, half, low + half, low, high), "action_space": np.array("controls")}
 
 
-def identity_arrays(arrays):
+def identity_arrays(arrays: Mapping) -> dict:
     """{task, obs_size, task_sha256}: what the controller was trained on (numpy_policy.check_task compares them with
     the task as it is); task_sha256 as stored (a run's: its config.json's), else '' (a built-in task, or a file
     exported before it was stored)."""
@@ -49,7 +51,7 @@ def identity_arrays(arrays):
             "task_sha256": np.array(str(arrays["task_sha256"]) if "task_sha256" in arrays else "")}
 
 
-def control_range_arrays(task):
+def control_range_arrays(task: str) -> dict:
     """{ctrl_low, ctrl_high} where the task maps actions onto its actuators' ctrlrange (envs.control_range), else {}."""
     import envs
 
@@ -59,7 +61,7 @@ def control_range_arrays(task):
     return {} if ranges is None else {"ctrl_low": ranges[0], "ctrl_high": ranges[1]}
 
 
-def controller_arrays(address):
+def controller_arrays(address: str) -> dict:
     """The controller arrays (see numpy_policy) of a trained run: a run directory or SWEEP_DIR/<run label>
     (gsa_jax.running.trained), with its task's action bounds."""
     try:
@@ -69,7 +71,7 @@ def controller_arrays(address):
     meta, arrays = run.meta, run.params
     kind = meta["config"]["policy"]
     prefix = "['params']['policy']"
-    net = "partition" if kind == "mixture" else "mlp"
+    net = "partition" if kind == MIXTURE else "mlp"
     n_layers = 0
     while f"{prefix}['{net}'][{n_layers}]['w']" in arrays:
         n_layers += 1
@@ -88,7 +90,7 @@ def controller_arrays(address):
     for i in range(n_layers):
         out[f"w{i}"] = arrays[f"{prefix}['{net}'][{i}]['w']"]
         out[f"b{i}"] = arrays[f"{prefix}['{net}'][{i}]['b']"]
-    if kind == "mixture":
+    if kind == MIXTURE:
         out["subpolicy"] = np.array(meta["config"].get("subpolicy", "linear"))
         k = int(meta["hparams"]["K"])
         out["L"] = arrays[f"{prefix}['L']"][:k]
@@ -98,7 +100,7 @@ def controller_arrays(address):
     return with_bounds(out, address)
 
 
-def active_partition(arrays):
+def active_partition(arrays: dict) -> dict:
     """A mixture's arrays with the partition network's last layer cut to its K clusters' logits (training pads it to
     K_max; numpy_policy reads a padded file's first K)."""
     last, k = int(arrays["n_layers"]) - 1, int(np.shape(arrays["L"])[0])
@@ -108,7 +110,7 @@ def active_partition(arrays):
 SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}
 
 
-def load_arrays(source):
+def load_arrays(source: str) -> dict:
     """Controller arrays of a trained run (a run directory or SWEEP_DIR/<run label>) or of an exported
     controller .npz, with action bounds (a file exported before they were stored: its task's), what it was trained on
     (identity_arrays) and a mixture's partition cut to its K clusters (active_partition)."""
@@ -122,11 +124,11 @@ def load_arrays(source):
             raise ExportError(f"{source!r} is not an exported controller ({e})") from None
         if "kind" not in arrays or "obs_mean" not in arrays:
             raise ExportError(f"{source!r} is not an exported controller (no 'kind' / 'obs_mean' arrays)")
-        return with_bounds(active_partition(arrays) if str(arrays["kind"]) == "mixture" else arrays, source)
+        return with_bounds(active_partition(arrays) if str(arrays["kind"]) == MIXTURE else arrays, source)
     return controller_arrays(source)
 
 
-def task_layout(arrays):
+def task_layout(arrays: Mapping) -> list | None:
     """The task's observation layout (names), or None for an unknown task."""
     try:
         from envs.mujoco_c import observation_layout
@@ -137,7 +139,7 @@ def task_layout(arrays):
     return layout if len(layout) == np.asarray(arrays["obs_mean"]).shape[0] else None
 
 
-def write(arrays, fmt, out):
+def write(arrays: dict, fmt: str, out: str) -> list:
     """Write the controller in `fmt`; returns the lines to print."""
     from gsa_jax.running.checkpoint import write_atomic
 

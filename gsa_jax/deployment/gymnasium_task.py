@@ -10,6 +10,7 @@ refused with the reason. Needs the optional `deploy` extra (gymnasium[mujoco]); 
 """
 
 import re
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -33,7 +34,7 @@ class GymnasiumError(Exception):
     pass
 
 
-def parse_id(env_id):
+def parse_id(env_id: str) -> tuple:
     """'Hopper-v5' -> ('Hopper', 5)."""
     m = re.fullmatch(r"([A-Za-z0-9]+)-v(\d+)", env_id)
     if m is None:
@@ -41,7 +42,7 @@ def parse_id(env_id):
     return m.group(1), int(m.group(2))
 
 
-def make_gym(task, env_id, check_steps=50, seed=0):
+def make_gym(task: str, env_id: str, check_steps: int = 50, seed: int = 0) -> tuple:
     """gymnasium's env `env_id` for a controller of `task`, with GYM_OPTIONS[task]; raises GymnasiumError
     with a one-line reason if it is another task or its observation layout differs from ours."""
     name, _ = parse_id(env_id)
@@ -81,7 +82,7 @@ def _structure(m):
     return joints, actuated
 
 
-def check_layout(task, env, env_id, steps=50, seed=0):
+def check_layout(task: str, env: Any, env_id: str, steps: int = 50, seed: int = 0) -> None:
     """Raise GymnasiumError unless gymnasium's observation and action layout are our task's."""
     port = BRAX_PORTS[task]()
     u = env.unwrapped
@@ -115,7 +116,7 @@ def check_layout(task, env, env_id, steps=50, seed=0):
             obs, _ = env.reset(seed=seed + t + 1)
 
 
-def check_bounds(controller, env, env_id):
+def check_bounds(controller: Any, env: Any, env_id: str) -> None:
     """Raise GymnasiumError unless the controller's action bounds are gymnasium's action space."""
     low, high = controller.bounds()
     if not (np.array_equal(low, env.action_space.low) and np.array_equal(high, env.action_space.high)):
@@ -123,7 +124,7 @@ def check_bounds(controller, env, env_id):
                              f"controller's bounds [{low}, {high}]")
 
 
-def run_episodes(env, controller, episodes, seed=0):
+def run_episodes(env: Any, controller: Any, episodes: int, seed: int = 0) -> tuple:
     """Deterministic controller (gsa_jax.deployment.numpy_policy) in gymnasium's env, episodes ended by its own
     termination and time limit; its act() keeps actions inside the bounds (check_bounds). -> returns, lengths
     [episodes]."""

@@ -15,12 +15,15 @@ import argparse
 import json
 import os
 import sys
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.episodes import step_episodes
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import Config, make_env, make_hparams, make_train, schedule
@@ -32,7 +35,7 @@ class InspectError(Exception):
     pass
 
 
-def load_run(address, require_mixture=True):
+def load_run(address: str, require_mixture: bool = True) -> tuple:
     """(trainer, params, obs_stats, hparams, meta) of a finished or interrupted (mixture) run: a run directory
     or SWEEP_DIR/<run label> (gsa_jax.running.trained)."""
     try:
@@ -40,7 +43,7 @@ def load_run(address, require_mixture=True):
     except (RunNotFound, FormatError) as e:
         raise InspectError(str(e)) from None
     meta = run.meta
-    if require_mixture and meta["config"]["policy"] != "mixture":
+    if require_mixture and meta["config"]["policy"] != MIXTURE:
         raise InspectError(f"{address!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
     c = dict(meta["config"])
     c["hidden"] = tuple(c["hidden"])
@@ -51,7 +54,7 @@ def load_run(address, require_mixture=True):
     return trainer, loaded["params"], loaded["obs_stats"], hp, meta
 
 
-def unflatten_like(like, arrays, source):
+def unflatten_like(like: Any, arrays: dict, source: str) -> Any:
     """The arrays {key path: array} (gsa_jax.running.checkpoint.save_pytree's names) in the structure of `like`."""
     leaves, treedef = jax.tree_util.tree_flatten_with_path(like)
     out = []
@@ -63,12 +66,13 @@ def unflatten_like(like, arrays, source):
     return jax.tree_util.tree_unflatten(treedef, out)
 
 
-def last_iteration(meta):
+def last_iteration(meta: dict) -> int:
     """The iteration a run's saved params belong to (its schedules of eps and sigma_min depend on it)."""
     return int(meta.get("result", {}).get("iterations_done") or meta.get("iterations", 0))
 
 
-def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iteration):
+def rollout(trainer: Any, params: dict, obs_stats: dict, hp: Any, key: jax.Array, episodes: int, deterministic: bool,
+            iteration: int) -> dict:
     """Full episodes (no auto-reset) -> dict of arrays [T, episodes, ...] and alive mask."""
     cfg = trainer.cfg
     env = make_env(cfg, auto_reset=False)
@@ -92,7 +96,7 @@ def rollout(trainer, params, obs_stats, hp, key, episodes, deterministic, iterat
     return jax.device_get(fn(s0, draw_noise(k_run, (cfg.episode_length, episodes), env.action_size)))
 
 
-def cluster_stats(cluster, alive, k):
+def cluster_stats(cluster: np.ndarray, alive: np.ndarray, k: int) -> dict:
     """Usage fraction per cluster over alive steps, clusters used, mean dwell time (steps) and switches per episode."""
     mask = alive > 0.5
     used = cluster[mask]
@@ -114,23 +118,18 @@ def cluster_stats(cluster, alive, k):
     }
 
 
-def feature_names(subpolicy, obs_names):
-    """Names of the sub-policy features phi(z) (see gsa_jax.algorithm.policies.subpolicy_features)."""
-    if subpolicy == "constant":
-        return []
-    if subpolicy == "linear":
-        return list(obs_names)
-    i, j = np.triu_indices(len(obs_names))
-    return list(obs_names) + [f"{obs_names[a]}*{obs_names[b]}" for a, b in zip(i, j)]
+def feature_names(subpolicy: str, obs_names: list) -> list:
+    """Names of the sub-policy features phi(z) (the class's entry in gsa_jax.algorithm.subpolicies)."""
+    return subpolicies.get(subpolicy).names(obs_names)
 
 
-def controller_table(params, k, obs_names, act_names, subpolicy="linear", top=3):
+def controller_table(params: dict, k: int, obs_names: list, act_names: list, subpolicy: str = "linear",
+                     top: int = 3) -> str:
     L = np.asarray(params["policy"]["L"])[:k]
     b = np.asarray(params["policy"]["b"])[:k]
     names = feature_names(subpolicy, obs_names)
     shown = names[: len(obs_names)]  # quadratic: the table shows the linear terms; "strongest" ranks all
-    rule = {"constant": "a = b_c", "linear": "a = L_c z + b_c",
-            "quadratic": "a = L_c [z, z_i z_j (i <= j)] + b_c"}[subpolicy]
+    rule = subpolicies.get(subpolicy).rule
     lines = [f"# {subpolicy.capitalize()} controllers", "",
              f"{rule} on the normalized observation z = (obs - mean) / std (clipped to +-10), "
              "for the cluster c the partition network picks.", ""]
@@ -147,7 +146,7 @@ def controller_table(params, k, obs_names, act_names, subpolicy="linear", top=3)
     return "\n".join(lines)
 
 
-def plot_time(data, k, path, episode=0, n_state=6):
+def plot_time(data: dict, k: int, path: str, episode: int = 0, n_state: int = 6) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -174,7 +173,7 @@ def plot_time(data, k, path, episode=0, n_state=6):
     plt.close(fig)
 
 
-def plot_pca(data, k, path):
+def plot_pca(data: dict, k: int, path: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -201,14 +200,14 @@ def plot_pca(data, k, path):
     plt.close(fig)
 
 
-def default_out(address):
+def default_out(address: str) -> str:
     """<run dir>/inspect/, or SWEEP_DIR/inspect/<run label>/ for a sweep's run."""
     if os.path.exists(os.path.join(address, "config.json")):
         return os.path.join(address, "inspect")
     return os.path.join(os.path.dirname(os.path.normpath(address)), "inspect", os.path.basename(os.path.normpath(address)))
 
 
-def inspect_run(run_dir, out=None, episodes=8, seed=0):
+def inspect_run(run_dir: str, out: str | None = None, episodes: int = 8, seed: int = 0) -> tuple:
     trainer, params, obs_stats, hp, meta = load_run(run_dir)
     k = int(meta["hparams"]["K"])
     out = out or default_out(run_dir)
@@ -237,7 +236,7 @@ def inspect_run(run_dir, out=None, episodes=8, seed=0):
     return summary, out
 
 
-def main(argv=None):
+def main(argv: list | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m gsa_jax.inspect", description=cli_description(__doc__))
     p.add_argument("run_dir", metavar="RUN", help="a run directory (gsa_jax.train) or SWEEP_DIR/<run label>")
     p.add_argument("--out", default=None)

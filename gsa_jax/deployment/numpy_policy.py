@@ -2,8 +2,8 @@
 
 A mixture controller is piecewise simple: normalize the observation, pick the most probable
 cluster of the partition network (eps-uniform exploration does not change the argmax), apply
-that cluster's L_c phi(z) + b_c, where phi is the sub-policy class: [] (constant), z (linear),
-[z, z_i z_j for i <= j] (quadratic). An MLP controller applies its tanh MLP to the normalized observation.
+that cluster's L_c phi(z) + b_c, where phi is the sub-policy class (gsa_jax.algorithm.subpolicies): [] (constant),
+z (linear), [z, z_i z_j for i <= j] (quadratic). An MLP controller applies its tanh MLP to the normalized observation.
 `act` then clips that raw action to the task's action bounds (action_low, action_high: envs.action_bounds, what
 training clips to), so it can go straight into the task's step (gymnasium's v5 tasks charge their control cost on
 the action they are given); `act(obs, clip=False)` is the raw action, for analysis.
@@ -23,11 +23,15 @@ Files exported before the bounds were stored get their task's (`action_bounds`);
 
 import json
 import warnings
+from typing import Mapping
 
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 
-def task_name(arrays):
+
+def task_name(arrays: Mapping) -> str | None:
     """The task an exported controller was trained on (config_json's config.env), or None."""
     try:
         return str(json.loads(str(arrays["config_json"]))["config"]["env"])
@@ -35,14 +39,14 @@ def task_name(arrays):
         return None
 
 
-def action_size(arrays):
+def action_size(arrays: Mapping) -> int:
     """d_a of an exported controller's arrays."""
-    if str(arrays["kind"]) == "mixture":
+    if str(arrays["kind"]) == MIXTURE:
         return int(np.shape(arrays["b"])[-1])
     return int(np.shape(arrays[f"b{int(arrays['n_layers']) - 1}"])[-1])
 
 
-def action_bounds(arrays):
+def action_bounds(arrays: Mapping) -> tuple | None:
     """(low [d_a], high [d_a]) float32 of an exported controller: its own action_low / action_high, else (files
     exported before they were stored) those of the task it names (envs.action_bounds), else None."""
     if "action_low" in arrays:
@@ -61,12 +65,12 @@ class TaskMismatch(ValueError):
     """An exported controller that does not fit the task it is asked to run (one line)."""
 
 
-def stored_sha256(arrays):
+def stored_sha256(arrays: Mapping) -> str | None:
     """The sha256 of the task definition an exported controller was trained on, or None where it has none."""
     return str(arrays["task_sha256"]) or None if "task_sha256" in arrays else None
 
 
-def check_task(arrays, task, force=False, name="the controller"):
+def check_task(arrays: Mapping, task: str, force: bool = False, name: str = "the controller") -> None:
     """TaskMismatch (one line) unless the controller fits `task` (a task name) as its definition is now: the same
     observation size, and (unless force) the same task name and, where both are recorded, the same definition
     sha256 (envs.task_source, what `train --resume` compares)."""
@@ -90,7 +94,7 @@ def check_task(arrays, task, force=False, name="the controller"):
                            "run it anyway")
 
 
-def inward_float32(low, high):
+def inward_float32(low: np.ndarray, high: np.ndarray) -> tuple:
     """(low, high) as float32 inside [low, high]: a bound float32 rounds outward is moved one step in, so an action
     clipped to them is inside the float64 range too (dm_control checks actions against its action_spec's)."""
     lo, hi = np.asarray(low, np.float32), np.asarray(high, np.float32)
@@ -99,13 +103,13 @@ def inward_float32(low, high):
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
-def map_actions(arrays, scale, offset, low, high):
+def map_actions(arrays: Mapping, scale: np.ndarray, offset: np.ndarray, low: np.ndarray, high: np.ndarray) -> dict:
     """The controller arrays with every action a replaced by offset + scale * a (scale > 0, per action) and its bounds
     by [low, high]: the last affine step (a mixture's L, b; an MLP's last layer) absorbs the map, so the cluster
     choice is unchanged and, the map being increasing, clipping commutes with it."""
     scale, offset = np.asarray(scale, np.float64), np.asarray(offset, np.float64)
     out = dict(arrays)
-    if str(arrays["kind"]) == "mixture":
+    if str(arrays["kind"]) == MIXTURE:
         out["L"] = (np.asarray(arrays["L"], np.float64) * scale[:, None]).astype(np.float32)
         out["b"] = (offset + scale * np.asarray(arrays["b"], np.float64)).astype(np.float32)
     else:
@@ -125,13 +129,13 @@ class Controller:
         self.obs_clip = float(arrays["obs_clip"])
         n = int(arrays["n_layers"])
         self.layers = [(np.asarray(arrays[f"w{i}"], np.float32), np.asarray(arrays[f"b{i}"], np.float32)) for i in range(n)]
-        if self.kind == "mixture":
-            self.subpolicy = str(arrays["subpolicy"]) if "subpolicy" in arrays else "linear"
-            if self.subpolicy not in ("constant", "linear", "quadratic"):
+        if self.kind == MIXTURE:
+            self.subpolicy = str(arrays["subpolicy"]) if "subpolicy" in arrays else subpolicies.DEFAULT
+            if self.subpolicy not in subpolicies.SUBPOLICIES:
                 raise ValueError(f"unknown sub-policy class {self.subpolicy!r}")
             self.L = np.asarray(arrays["L"], np.float32)
             self.b = np.asarray(arrays["b"], np.float32)
-        elif self.kind != "mlp":
+        elif self.kind != MLP:
             raise ValueError(f"unknown controller kind {self.kind!r}")
         self.action_size = action_size(arrays)
         self.action_low, self.action_high = action_bounds(arrays) or (None, None)
@@ -144,7 +148,7 @@ class Controller:
         if self.action_low is None:
             warnings.warn(self.no_bounds, stacklevel=2)
 
-    def controls(self, action):
+    def controls(self, action: np.ndarray) -> np.ndarray:
         """The actuator controls of an action from act(): the action itself (also where its actions are the controls
         already, action_space 'controls'), or its map onto the task's ctrlrange (ctrl = low + (a + 1) (high - low) / 2)
         where the task has one (ctrl_low, ctrl_high)."""
@@ -153,7 +157,7 @@ class Controller:
         low, high = self.ctrl_range
         return low + (np.asarray(action, np.float64) + 1.0) * (0.5 * (high - low))
 
-    def unit_actions(self):
+    def unit_actions(self) -> "Controller":
         """This controller with actions in [-1, 1] (what training acts in, and our MuJoCo C tasks' step() takes):
         itself, or, for one whose actions are its task's controls (action_space 'controls'), the map
         ctrl = low + (a + 1) (high - low) / 2 undone, with low and high as its ctrl_range."""
@@ -165,16 +169,16 @@ class Controller:
         return Controller({k: v for k, v in arrays.items() if k != "action_space"})
 
     @property
-    def num_clusters(self):
-        return self.L.shape[0] if self.kind == "mixture" else 1
+    def num_clusters(self) -> int:
+        return self.L.shape[0] if self.kind == MIXTURE else 1
 
-    def bounds(self):
+    def bounds(self) -> tuple:
         """(action_low [d_a], action_high [d_a]); ValueError where the controller has none."""
         if self.action_low is None:
             raise ValueError(self.no_bounds)
         return self.action_low, self.action_high
 
-    def normalize(self, obs):
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
         return np.clip((np.asarray(obs, np.float32) - self.obs_mean) / self.obs_std, -self.obs_clip, self.obs_clip)
 
     def _mlp(self, x):
@@ -184,19 +188,14 @@ class Controller:
                 x = np.tanh(x)
         return x
 
-    def features(self, z):
-        """phi(z) [..., d_phi] of normalized observations z [..., d_s]."""
-        if self.subpolicy == "constant":
-            return z[..., :0]
-        if self.subpolicy == "linear":
-            return z
-        i, j = np.triu_indices(z.shape[-1])
-        return np.concatenate([z, z[..., i] * z[..., j]], axis=-1)
+    def features(self, z: np.ndarray) -> np.ndarray:
+        """phi(z) [..., d_phi] of normalized observations z [..., d_s] (the sub-policy class's features)."""
+        return subpolicies.SUBPOLICIES[self.subpolicy].features(z, np)
 
-    def cluster(self, obs):
+    def cluster(self, obs: np.ndarray) -> np.ndarray:
         """Active cluster for obs [..., d_s] -> int array [...] (0 for an MLP controller)."""
         z = self.normalize(obs)
-        if self.kind == "mlp":
+        if self.kind == MLP:
             return np.zeros(z.shape[:-1], np.int64)
         return np.argmax(self._mlp(z)[..., : self.num_clusters], axis=-1)
 
@@ -210,7 +209,7 @@ class Controller:
 
     def _raw_action(self, obs):
         z = self.normalize(obs)
-        if self.kind == "mlp":
+        if self.kind == MLP:
             return self._mlp(z)
         c = self.cluster(obs)
         if self.L.shape[-1] == 0:  # constant sub-policies (an empty contraction can come back uninitialized)

@@ -11,7 +11,7 @@ controller meets the same events.
 """
 
 import copy
-from typing import NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -28,7 +28,7 @@ class Event(NamedTuple):
     direction: tuple  # horizontal unit vector (x, y)
 
 
-def push_events(seed, per_episode, latest, planar, draw=0):
+def push_events(seed: int, per_episode: int, latest: int, planar: bool, draw: int = 0) -> list:
     """[Event] of one start: `per_episode` push times uniform in [0, latest] and directions (+-x for planar
     robots, any horizontal angle otherwise), drawn from `seed` alone (the same for every controller); draw > 0:
     another independent draw of them (0: the robustness experiment's)."""
@@ -38,7 +38,7 @@ def push_events(seed, per_episode, latest, planar, draw=0):
     return [(int(t), (float(np.cos(a)), float(np.sin(a)))) for t, a in zip(times, angle)]
 
 
-def window_outcomes(control_fall, branch_fall, time, length, windows):
+def window_outcomes(control_fall: int, branch_fall: int | None, time: int, length: int, windows: tuple) -> tuple:
     """(counted [W], fell [W]) of one push at env step `time` for each window W: counted where the control
     survives W steps from the push (control_fall, steps from the push to the control's termination, 1 = during
     the push's step, None = never) and time + W <= length; fell where counted and the pushed copy terminates
@@ -55,7 +55,7 @@ class Control(NamedTuple):
     snapshots: dict  # {(start, time): (task copy, observation)} at the event times
 
 
-def run_controls(ctrl, make_task, seeds, times, length):
+def run_controls(ctrl: Any, make_task: Callable, seeds: np.ndarray, times: dict, length: int) -> Control:
     """The controller's deterministic episodes from each start seed in fresh tasks make_task(), with copies
     of the task (its MjData) and observation taken before each step listed in times {start: set(step)}."""
     tasks = [make_task() for _ in seeds]
@@ -77,21 +77,21 @@ def run_controls(ctrl, make_task, seeds, times, length):
     return Control(rewards, fall, lengths, snaps)
 
 
-def act_each(ctrl, obs):
+def act_each(ctrl: Any, obs: np.ndarray) -> np.ndarray:
     """[B, d_a] the controller's actions for observations [B, d_s], each computed alone: a batched float32
     product rounds differently with the batch's size, and a pushed copy must differ from its control by
     the push only (deployment's episodes act one observation at a time too)."""
     return np.stack([ctrl.act(o.astype(np.float32)) for o in obs]).astype(np.float64)
 
 
-def copy_task(task):
+def copy_task(task: Any) -> Any:
     """A copy of a MuJoCo C task sharing its model, with its own copy of the whole MjData."""
     twin = copy.copy(task)
     twin.data = copy.copy(task.data)
     return twin
 
 
-def run_branches(ctrl, branches, limits):
+def run_branches(ctrl: Any, branches: list, limits: list) -> tuple:
     """Pushed copies stepped together: branches [(task, obs, force [2])], the force acting during the first
     step only, branch b for limits[b] steps at most -> (fall [B], steps from the push to termination or None;
     rewards [B, max(limits)], 0 after termination or the limit)."""
@@ -113,7 +113,8 @@ def run_branches(ctrl, branches, limits):
     return fall, rewards
 
 
-def event_row(control, e, t, branch_fall, branch_rewards, windows, length):
+def event_row(control: Control, e: int, t: int, branch_fall: np.ndarray, branch_rewards: np.ndarray, windows: tuple,
+              length: int) -> dict:
     """The outcome columns of one pushed copy: control_fall, branch_fall and, per window W, counted_W,
     fell_W and lost_W (the control's return over the window minus the copy's; blank where not counted)."""
     cf = int(control.fall[e]) - t + 1 if control.fall[e] >= 0 else None
@@ -125,7 +126,8 @@ def event_row(control, e, t, branch_fall, branch_rewards, windows, length):
     return row
 
 
-def push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, length, draw=0):
+def push_start(ctrl: Any, make_task: Callable, planar: bool, seed: int, sizes: tuple, windows: tuple, per_episode: int,
+               length: int, draw: int = 0) -> tuple:
     """(rows, control) of one start seed: the control episode, then every push event x size (push_events' draw)
     as a pushed copy of it (none where the control has ended or terminates at the push's step: a row never
     counted)."""
@@ -150,8 +152,9 @@ def push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, lengt
     return rows, control
 
 
-def evaluate_pushes(ctrl, env_name, seeds, sizes=PUSH_SIZES, windows=WINDOWS, per_episode=PER_EPISODE, length=1000,
-                    make_task=None, draw=0):
+def evaluate_pushes(ctrl: Any, env_name: str, seeds: np.ndarray, sizes: tuple = PUSH_SIZES, windows: tuple = WINDOWS,
+                    per_episode: int = PER_EPISODE, length: int = 1000, make_task: Callable | None = None,
+                    draw: int = 0) -> tuple:
     """(rows, nominal) of one controller: a row per push event x size (start_seed, event, time, size and
     event_row's columns) and its control episodes' {nominal_score, mean_length, full_length_fraction}.
     make_task: the task's MuJoCo C twin (default: env_name's, nominal physics); draw: which independent draw of

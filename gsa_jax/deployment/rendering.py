@@ -5,13 +5,14 @@ found. `python -m gsa_jax.render` is its command."""
 
 import ctypes.util
 import os
+from typing import Any
 
 import numpy as np
 
 import envs
 
 
-def pick_gl():
+def pick_gl() -> str | None:
     """The MUJOCO_GL backend to use when the user did not choose one: osmesa, else egl, else None."""
     if ctypes.util.find_library("OSMesa"):
         return "osmesa"
@@ -31,7 +32,7 @@ class RenderError(Exception):
     pass
 
 
-def make_renderer(mj_model, width, height):
+def make_renderer(mj_model: Any, width: int, height: int) -> Any:
     import mujoco
 
     mj_model.vis.global_.offwidth = max(mj_model.vis.global_.offwidth, width)
@@ -42,7 +43,7 @@ def make_renderer(mj_model, width, height):
         raise RenderError(f"no offscreen OpenGL with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} ({e}); {GL_HELP}") from e
 
 
-def render_qpos(renderer, mj_model, qpos_seq, camera):
+def render_qpos(renderer: Any, mj_model: Any, qpos_seq: np.ndarray, camera: str | int | None) -> np.ndarray:
     """RGB frames (T, H, W, 3) of the model at each qpos."""
     import mujoco
 
@@ -56,12 +57,13 @@ def render_qpos(renderer, mj_model, qpos_seq, camera):
     return np.stack(frames)
 
 
-def default_camera(mj_model):
+def default_camera(mj_model: Any) -> str | None:
     names = [mj_model.camera(i).name for i in range(mj_model.ncam)]
     return "front" if "front" in names else (names[0] if names else None)
 
 
-def render_scene(env_name, out, width=640, height=480, camera=None, seed=0):
+def render_scene(env_name: str, out: str, width: int = 640, height: int = 480, camera: str | None = None,
+                 seed: int = 0) -> str:
     """PNG of the task's start state (every camera of the model side by side when camera is None)."""
     import jax
     import matplotlib
@@ -80,7 +82,8 @@ def render_scene(env_name, out, width=640, height=480, camera=None, seed=0):
     return out
 
 
-def render_run(run_dir, out, episodes=1, width=480, height=360, camera=None, fps=50, seed=0):
+def render_run(run_dir: str, out: str, episodes: int = 1, width: int = 480, height: int = 360, camera: str | None = None,
+               fps: int = 50, seed: int = 0) -> tuple:
     """GIF (or MP4 when out ends in .mp4 and ffmpeg exists) of the deterministic controller of a run.
     Returns (path, returns of the rendered episodes)."""
     import jax
@@ -103,7 +106,7 @@ def render_run(run_dir, out, episodes=1, width=480, height=360, camera=None, fps
     return out, (roll["reward"].sum(0)).tolist()
 
 
-def write_video(frames, out, fps):
+def write_video(frames: np.ndarray, out: str, fps: int) -> None:
     """frames (T, H, W, 3) uint8 -> GIF (Pillow, shipped with matplotlib) or MP4 (matplotlib + ffmpeg)."""
     if out.endswith(".mp4"):
         import matplotlib

@@ -19,7 +19,7 @@ patched), and every episode starts from the same fixed start states as the nomin
                               variant (envs.mujoco_c ports), where their observation layouts match
 """
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import mujoco
 import numpy as np
@@ -37,7 +37,7 @@ class Shift(NamedTuple):
     level: float = 0.0
 
     @property
-    def name(self):
+    def name(self) -> str:
         return self.kind if self.kind in ("nominal", "simulator") else f"{self.kind} {self.level:g}"
 
 
@@ -46,14 +46,14 @@ DEFAULT_SHIFTS = (Shift("nominal"), Shift("simulator"), Shift("mass", 0.8), Shif
                   Shift("obs_noise", 0.1), Shift("action_delay", 1), Shift("push", 0.25))
 
 
-def applies(env_name, shift):
+def applies(env_name: str, shift: Shift) -> bool:
     """Whether a shift exists for the task (the other simulator only where the layouts match)."""
     if shift.kind not in KINDS:
         raise ValueError(f"unknown shift {shift.kind!r}; choose one of {', '.join(KINDS)}")
     return shift.kind != "simulator" or env_name in OTHER_SIMULATOR
 
 
-def shifted_task(env_name, shift):
+def shifted_task(env_name: str, shift: Shift) -> Any:
     """A fresh MuJoCo C task (envs.mujoco_c.make_c: reset(seed), step(action), .model, .data) of env_name
     with the shift's model change; derived constants recomputed (mj_setConst)."""
     task = make_c(OTHER_SIMULATOR[env_name] if shift.kind == "simulator" else env_name)
@@ -69,26 +69,26 @@ def shifted_task(env_name, shift):
     return task
 
 
-def push_schedule(rng, length, planar):
+def push_schedule(rng: np.random.Generator, length: int, planar: bool) -> np.ndarray:
     """[length, 2] horizontal push directions (unit vectors; zero where no push) of one episode."""
     hit = rng.random(length) < PUSH_RATE
     angle = np.where(rng.random(length) < 0.5, 0.0, np.pi) if planar else rng.uniform(0, 2 * np.pi, length)
     return hit[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
 
 
-def is_planar(task):
+def is_planar(task: Any) -> bool:
     """Whether a MuJoCo C task's robot moves in the x-z plane (pushes then act along +-x): its definition's
     `planar` (envs/task.py; False for a task without one)."""
     return bool(getattr(getattr(task, "task", None), "planar", False))
 
 
-def push_body(task):
+def push_body(task: Any) -> int:
     """The body a push acts on in a MuJoCo C task: its definition's push_body (envs/task.py), else body 1."""
     definition = getattr(task, "task", None)
     return definition.push_body_id() if definition is not None else 1
 
 
-def step_task(task, action, push_force):
+def step_task(task: Any, action: np.ndarray, push_force: np.ndarray) -> tuple:
     """One env step of a MuJoCo C task, with a horizontal force [2] on its push body during it (zero: none)."""
     if not push_force.any():
         return task.step(action)
@@ -100,12 +100,13 @@ def step_task(task, action, push_force):
         task.data.xfrc_applied[body, :2] = 0.0
 
 
-def task_step_seconds(task):
+def task_step_seconds(task: Any) -> float:
     """Simulated seconds per env step of a MuJoCo C task."""
     return task.model.opt.timestep * task.n_frames
 
 
-def run_shifted(ctrl, env_name, shift, seeds, length=1000, record=False):
+def run_shifted(ctrl: Any, env_name: str, shift: Shift, seeds: np.ndarray, length: int = 1000,
+                record: bool = False) -> tuple:
     """Deterministic episodes of the controller (gsa_jax.deployment.numpy_policy) under the shift, one per start seed,
     stepped together -> (returns [E], lengths [E], observations the controller saw [N, d_s] if record)."""
     tasks = [shifted_task(env_name, shift) for _ in seeds]

@@ -6,6 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.verify import falsify, roa, simulate, switching
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify.system import System, equilibrium_guess, state_scale, to_qpos, wrap
@@ -73,7 +74,7 @@ def local_analysis(system: System, qref, scale, hold) -> dict:
     """Every piece's fixed point near the hold and the equilibrium, and the closed loop's own fixed point: the one
     nearest the hold among those that lie in their own piece's region."""
     starts = np.stack([hold.x, np.zeros_like(hold.x)])
-    pieces = range(system.ctrl.num_clusters) if system.ctrl.kind == "mixture" else [None]
+    pieces = range(system.ctrl.num_clusters) if system.ctrl.kind == MIXTURE else [None]
     found = [local_piece(system, p, qref, scale, starts) for p in pieces]
     own = [p for p in found if p["fixed_point_found"] and p["own_region"]]
     fp = min(own, key=lambda p: p["distance_from_hold_scaled"]) if own else None

@@ -16,6 +16,8 @@ import mujoco
 import numpy as np
 
 from envs.task import TaskC
+from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.verify.system import to_qpos, to_tangent
 
 FD_EPS = 1e-6  # finite-difference step (tangent coordinates, SI units), central differences
@@ -28,7 +30,7 @@ def piece_jacobian(ctrl, obs: np.ndarray, piece: "int | None" = None) -> tuple:
     zraw = (obs - ctrl.obs_mean) / ctrl.obs_std
     dz = np.where(np.abs(zraw) < ctrl.obs_clip, 1.0 / ctrl.obs_std, 0.0)  # d z / d obs (diagonal)
     z = np.clip(zraw, -ctrl.obs_clip, ctrl.obs_clip)
-    if ctrl.kind == "mlp":
+    if ctrl.kind == MLP:
         raw, jz = _mlp_jacobian(ctrl.layers, z)
     else:
         c = int(ctrl.cluster(obs.astype(np.float32))) if piece is None else int(piece)
@@ -54,15 +56,10 @@ def _mlp_jacobian(layers, z):
 
 
 def _subpolicy_jacobian(ctrl, c, z):
+    """(L_c phi(z) + b_c [d_a], its Jacobian in z [d_a, d_s]) of piece c, phi the sub-policy class's features."""
     L, b = ctrl.L[c].astype(np.float64), ctrl.b[c].astype(np.float64)
-    if ctrl.subpolicy == "constant":
-        return b.copy(), np.zeros((len(b), len(z)))
-    if ctrl.subpolicy == "linear":
-        return L @ z + b, L
-    i, j = np.triu_indices(len(z))
-    eye = np.eye(len(z))
-    dphi = np.concatenate([eye, eye[i] * z[j][:, None] + eye[j] * z[i][:, None]])  # [d_phi, d_s]
-    return L @ np.concatenate([z, z[i] * z[j]]) + b, L @ dphi
+    sub = subpolicies.get(ctrl.subpolicy)
+    return L @ sub.features(z, np) + b, L @ sub.jacobian(z)
 
 
 def piece_policy(ctrl, piece: int):

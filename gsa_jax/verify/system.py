@@ -13,6 +13,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment import numpy_policy
 
 
@@ -79,7 +80,7 @@ def _task_definition(env):
 def controller_input_size(ctrl) -> int:
     """d_s the controller reads: its normalizer's size (and its L's input size for linear pieces)."""
     d = int(np.shape(ctrl.obs_mean)[-1])
-    if ctrl.kind == "mixture" and ctrl.subpolicy == "linear" and ctrl.L.shape[-1] != d:
+    if ctrl.kind == MIXTURE and ctrl.subpolicy == "linear" and ctrl.L.shape[-1] != d:
         return int(ctrl.L.shape[-1])
     return d
 

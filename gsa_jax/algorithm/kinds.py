@@ -1,0 +1,7 @@
+"""The policy kinds, named once: a mixture of simple controllers (MIXTURE) or the flat Gaussian MLP baseline (MLP).
+The strings are what configs, experiment files, results' `policy` column and exported controllers' `kind` hold.
+No JAX: the result readers and deployed controllers import it."""
+
+MIXTURE = "mixture"
+MLP = "mlp"
+POLICY_KINDS = (MIXTURE, MLP)

@@ -1,0 +1,24 @@
+"""The tidy rows of controllers under shifts (robustness.csv, nominal.csv): their columns, each controller's key
+and the rows grouped into cells; shared by the evaluation (retention_eval), its statistics (retention_stats),
+the paired pushes (paired) and the fair comparisons (fairness)."""
+
+from gsa_jax.deployment.shifts import Shift
+
+TIDY = ("env", "policy", "K", "seed", "shift", "level", "score", "nominal_score", "random_score", "retained_fraction")
+
+
+class RobustnessError(ValueError):
+    pass
+
+
+def controller_key(meta: dict) -> tuple:
+    return (meta["env"], meta["policy"], str(meta["K"]), str(meta["seed"]))
+
+
+def cells(rows: list) -> dict:
+    """{(env, policy, K, shift name): {seed: row}} of tidy rows (strings or numbers)."""
+    out = {}
+    for r in rows:
+        name = Shift(r["shift"], float(r["level"] or 0)).name
+        out.setdefault((r["env"], r["policy"], str(r["K"]), name), {})[str(r["seed"])] = r
+    return out
