@@ -88,6 +88,35 @@ def test_solver_variant_lines(tmp_path, monkeypatch):
     assert report["mujoco_c_solver_variant"]["env_steps_per_s"] == 40000 and (out / "bench.png").exists()
 
 
+def test_randomized_twins_and_their_ratio(tmp_path, monkeypatch):
+    """--randomize measures each sweep nominal and then randomized (the randomization reaching the workers' cell),
+    and records the randomized one's ratio_vs_nominal; a randomization the task cannot take is refused first."""
+    cells = []
+
+    def sweep(cell, repeats, log=print):
+        cells.append(cell)
+        return {"env": cell.env, "policy": cell.policy, "runs": cell.runs, "processes": cell.processes,
+                "randomize": cell.randomize, "env_steps_per_s": 900.0 if cell.randomize else 1000.0, "compile_s": 1.0,
+                "peak_rss_mib": 500.0}
+
+    monkeypatch.setattr(bench, "measure_sweep", sweep)
+    monkeypatch.setattr(bench, "measure_raw", lambda env, batch, processes, repeats, **kw: {
+        "env": env, "batch": batch, "processes": processes, "env_steps_per_s": 3000.0, "compile_s": 1.0})
+    monkeypatch.setattr(bench, "measure_mujoco_c", lambda env, solver=None, **kw: {
+        "env": env, "threads": 2, "batch": 256, "substeps_per_env_step": 4, "env_steps_per_s": 10000.0})
+    out = tmp_path / "b"
+    argv = ["--env", "Hopper-v5", "--physics", "c", "--sizes", "2,4", "--raw-batches", "8", "--processes", "2",
+            "--policies", "mixture", "--solver-variant", "none", "--randomize", "mass=0.9:1.1, delay=1", "--out", str(out)]
+    assert main(argv) == 0
+    assert [(c.runs, c.randomize) for c in cells] == [(2, ""), (2, "mass=0.9:1.1, delay=1"), (4, ""),
+                                                       (4, "mass=0.9:1.1, delay=1")]
+    assert "--randomize" in measure.worker_command(cells[1], 2, 0, 3)
+    sweeps = json.loads((out / "bench.json").read_text())["sweeps"]
+    assert [s.get("ratio_vs_nominal") for s in sweeps] == [None, pytest.approx(0.9), None, pytest.approx(0.9)]
+    with pytest.raises(ValueError, match="Ant-v5 takes no per-simulation model on backend 'c'"):
+        bench.make_plan(bench.build_parser().parse_args(["--env", "Ant-v5", "--physics", "c", "--randomize", "mass=2"]))
+
+
 def test_physics_backends_plan():
     """--physics mjx,c measures every raw batch and sweep on each backend; MJX's solver variant only on MJX;
     a backend that cannot run the task is refused before anything runs."""
