@@ -404,6 +404,15 @@ def check_randomize(name, randomize, episode_length=None, physics=None):
         return None
     record = task_record(name)
     check_model(spec, record.model(), episode_length)
+    if spec.registry:
+        from envs.registry import PlaygroundAdapted
+
+        if not isinstance(record, PlaygroundAdapted):
+            raise RandomizeError(f"randomize: 'playground' (a Playground environment's own randomizer) applies to "
+                                 f"playground:<Name> tasks, not {record.name!r}; give model scales instead")
+        from envs.playground_adapter import domain_randomizer
+
+        domain_randomizer(record.name)
     if spec.model_fields or spec.push:
         reason = _variant_reason(record, "mjx" if physics is None else physics.backend, spec)
         if reason:

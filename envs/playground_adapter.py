@@ -55,6 +55,45 @@ def load(name):
                          "environments whose assets Playground downloads need them on disk first") from None
 
 
+def domain_randomizer(name):
+    """Playground's own domain randomizer of 'playground:<Name>' (registry.get_domain_randomizer: (mjx model, keys
+    [n, 2]) -> (model with per-key fields, in_axes)); ValueError (one line) where its registry has none."""
+    reg = registry()
+    with contextlib.redirect_stdout(io.StringIO()):  # "Env ... does not have a domain randomizer" is printed
+        fn = reg.get_domain_randomizer(name[len(PREFIX):])
+    if fn is None:
+        raise ValueError(f"randomize: Playground's registry has no domain randomizer for {name!r} (its locomotion and "
+                         "manipulation environments have them); give model scales on a task definition instead")
+    return fn
+
+
+class ModelDraws:
+    """One episode's draw of a Playground randomizer: the model fields it randomizes (the leaves where its in_axes
+    is 0), drawn from one key, and the model they make (its other leaves the nominal model's)."""
+
+    def __init__(self, randomizer, model):
+        self.randomizer, self.model = randomizer, model
+        _, in_axes = randomizer(model, jnp.zeros((1, 2), jnp.uint32))  # run once: in_axes holds Python 0 / None
+        axes = jax.tree.leaves(in_axes, is_leaf=lambda x: x is None)
+        self.leaves, self.treedef = jax.tree.flatten(model)
+        if len(axes) != len(self.leaves):
+            raise ValueError("randomize: the randomizer's in_axes do not match the model's fields")
+        self.drawn = tuple(i for i, ax in enumerate(axes) if ax == 0)
+
+    def draw(self, key):
+        """The randomized leaves (a tuple, one per drawn field, without the batch axis) of one episode."""
+        model_v, _ = self.randomizer(self.model, key[None])
+        leaves = jax.tree.leaves(model_v)
+        return tuple(leaves[i][0] for i in self.drawn)
+
+    def model_of(self, drawn):
+        """The model with the drawn leaves in place."""
+        leaves = list(self.leaves)
+        for i, v in zip(self.drawn, drawn):
+            leaves[i] = v
+        return jax.tree.unflatten(self.treedef, leaves)
+
+
 class PlaygroundEnv(Env):
     """A Playground MjxEnv as a Brax Env: pipeline_state is Playground's State."""
 
@@ -70,6 +109,20 @@ class PlaygroundEnv(Env):
 
     def _obs(self, obs):
         return (obs[OBS_KEY] if isinstance(obs, dict) else obs).astype(jnp.float32)
+
+    def model_draws(self):
+        """ModelDraws of this environment's registry randomizer (domain_randomizer)."""
+        return ModelDraws(domain_randomizer(self.name), self.env.mjx_model)
+
+    @contextlib.contextmanager
+    def model_variant(self, model):
+        """Inside (while traced): the environment steps `model` (as Playground's own randomization wrapper swaps it)."""
+        old = self.env.unwrapped._mjx_model
+        self.env.unwrapped._mjx_model = model
+        try:
+            yield
+        finally:
+            self.env.unwrapped._mjx_model = old
 
     def reset(self, rng):
         s = self.env.reset(rng)

@@ -18,6 +18,8 @@ The text is a comma-separated list of `name=value` items (the same text in `--ra
   MuJoCo Playground's randomizers do (MJX has no mj_setConst), so the two backends differ slightly off nominal.
 - obs_noise=s    Gaussian noise of std s (in the observation's own units) added to every observation the policy sees
 - delay=D        each episode applies actions d steps late, d drawn uniformly in {0, ..., D} (zero actions first)
+- playground     a Playground environment's own domain randomizer (its registry's get_domain_randomizer), one
+                 draw per episode: `--env playground:Go1JoystickFlatTerrain --randomize playground`
 - push=L         at each step with probability push_rate (default 0.01) a horizontal force on the task's push body
                  (Task.push_body; body 1 otherwise) for one env step, of impulse L x the nominal total mass in a
                  random horizontal direction (+-x for planar robots): gsa_jax.robustness's push, at random times
@@ -34,6 +36,7 @@ import math
 ALIASES = {"mass": (("body_mass", None), ("body_inertia", None)), "friction": (("geom_friction", 0),),
            "gear": (("actuator_gear", 0),), "damping": (("dof_damping", None),)}
 OTHER_KEYS = ("obs_noise", "delay", "push", "push_rate")
+REGISTRY_KEY = "playground"  # the item that asks for a Playground environment's own registry randomizer
 DEFAULT_PUSH_RATE = 0.01
 
 
@@ -50,6 +53,7 @@ class Randomize:
     delay: int = 0
     push: float = 0.0
     push_rate: float = DEFAULT_PUSH_RATE
+    registry: bool = False  # a Playground environment's own randomizer (envs/playground_adapter.py), per episode
 
     @property
     def model_fields(self) -> tuple:
@@ -62,11 +66,13 @@ class Randomize:
     @property
     def is_nominal(self) -> bool:
         """Whether every draw is the nominal task's (nothing to apply)."""
-        return all(lo == hi == 1.0 for _, lo, hi in self.scales) and not (self.obs_noise or self.delay or self.push)
+        return (all(lo == hi == 1.0 for _, lo, hi in self.scales)
+                and not (self.obs_noise or self.delay or self.push or self.registry))
 
     def text(self) -> str:
         """The canonical text (parse(spec.text()) == spec)."""
-        items = [f"{n}={lo:g}" if lo == hi else f"{n}={lo:g}:{hi:g}" for n, lo, hi in self.scales]
+        items = [REGISTRY_KEY] * self.registry + [f"{n}={lo:g}" if lo == hi else f"{n}={lo:g}:{hi:g}"
+                                                  for n, lo, hi in self.scales]
         items += [f"obs_noise={self.obs_noise:g}"] * bool(self.obs_noise) + [f"delay={self.delay}"] * bool(self.delay)
         if self.push:
             items.append(f"push={self.push:g}")
@@ -76,7 +82,7 @@ class Randomize:
 
     def record(self) -> dict:
         """What config.json / sweep.json record of it: the text and each item spelled out."""
-        return {"text": self.text(), "scales": {n: [lo, hi] for n, lo, hi in self.scales},
+        return {"text": self.text(), "registry": self.registry, "scales": {n: [lo, hi] for n, lo, hi in self.scales},
                 "model_fields": [f if c is None else f"{f}[:, {c}]" for f, c, _ in self.model_fields],
                 "obs_noise": self.obs_noise, "delay_max": self.delay, "push": self.push, "push_rate": self.push_rate}
 
@@ -108,6 +114,9 @@ def _items(text):
         return [(str(k), str(v) if not isinstance(v, (list, tuple)) else ":".join(map(str, v))) for k, v in text.items()]
     out = []
     for item in filter(None, (s.strip() for s in str(text).split(","))):
+        if item == REGISTRY_KEY:
+            out.append((item, "1"))
+            continue
         name, sep, value = item.partition("=")
         if not sep or not name.strip() or not value.strip():
             raise RandomizeError(f"randomize: {item!r} is not name=value (e.g. mass=0.9:1.1, delay=1)")
@@ -126,7 +135,7 @@ def parse(text) -> Randomize:
         if name in seen:
             raise RandomizeError(f"randomize: {name} is given twice")
         seen.add(name)
-        if name in OTHER_KEYS:
+        if name in OTHER_KEYS or name == REGISTRY_KEY:
             other[name] = _number(name, value)
         else:
             scales.append((name, *_scale(name, value)))
@@ -139,7 +148,8 @@ def parse(text) -> Randomize:
     rate = other.get("push_rate", DEFAULT_PUSH_RATE)
     if not 0 <= rate <= 1:
         raise RandomizeError(f"randomize: push_rate is a probability per step, in [0, 1], got {rate:g}")
-    spec = Randomize(tuple(scales), other.get("obs_noise", 0.0), int(delay), other.get("push", 0.0), rate)
+    spec = Randomize(tuple(scales), other.get("obs_noise", 0.0), int(delay), other.get("push", 0.0), rate,
+                     bool(other.get(REGISTRY_KEY, 0)))
     _check_fields_unique(spec)
     return spec
 
@@ -159,7 +169,7 @@ def check_model(spec, model, episode_length=None):
     for field, col, _ in spec.model_fields:
         value = getattr(model, field, None)
         if not isinstance(value, np.ndarray) or value.dtype.kind != "f" or field.startswith(("opt", "stat")):
-            known = ", ".join(list(ALIASES) + list(OTHER_KEYS))
+            known = ", ".join(list(ALIASES) + list(OTHER_KEYS) + [REGISTRY_KEY])
             raise RandomizeError(f"randomize: unknown parameter {field!r}; use one of {known} or a float field of "
                                  "MjModel (body_mass, dof_armature, ...)")
         if col is not None and (value.ndim != 2 or value.shape[1] <= col):

@@ -86,6 +86,7 @@ class Randomized(Wrapper):
         self._force = spec.push * total_mass(base) / dt
         self._planar, self._body = is_planar(base), push_body_of(base)
         self._variant = self._variant_fn()
+        self._models = base.model_draws() if spec.registry else None  # a Playground randomizer's draws
 
     def _variant_fn(self):
         """variant(scales, push) -> context manager for the base's backend (envs.check_randomize has checked that
@@ -99,10 +100,23 @@ class Randomized(Wrapper):
         return lambda scales, push: mjx_variant(base, spec, scales, push, self._body)
 
     def _draw(self, key):
-        """(scales [P], delay) of a new episode."""
-        k_s, k_d = jax.random.split(key)
+        """{'randomize_scales' [P], 'randomize_delay', 'randomize_model' (a Playground randomizer's fields)} of a new
+        episode."""
+        k_s, k_d, k_m = jax.random.split(key, 3)
         scales = jax.random.uniform(k_s, self._lo.shape, minval=self._lo, maxval=self._hi)
-        return scales, jax.random.randint(k_d, (), 0, self.spec.delay + 1)
+        model = self._models.draw(k_m) if self._models else ()
+        return {"randomize_scales": scales, "randomize_delay": jax.random.randint(k_d, (), 0, self.spec.delay + 1),
+                "randomize_model": model}
+
+    @contextlib.contextmanager
+    def _physics(self, info, push):
+        """The episode's physics while the wrapped env is traced: its scales and push, or its registry model."""
+        with self._variant(info["randomize_scales"], push):
+            if self._models is None:
+                yield
+            else:
+                with self.base.model_variant(self._models.model_of(info["randomize_model"])):
+                    yield
 
     def _push(self, key):
         """The horizontal force [2] of this step (zero without a push), or None when the spec has no pushes."""
@@ -127,21 +141,23 @@ class Randomized(Wrapper):
     def reset(self, rng):
         # the wrapped env resets from rng itself, so that every draw at its nominal value is the nominal task
         k_draw, k_noise, key = jax.random.split(jax.random.fold_in(rng, RANDOMIZE_STREAM), 3)
-        state = self.env.reset(rng)
-        scales, delay = self._draw(k_draw)
-        state.info.update(randomize_key=key, randomize_scales=scales, randomize_delay=delay,
-                          randomize_queue=jnp.zeros((self.spec.delay, self.n_act), jnp.float32))
+        draw = self._draw(k_draw)
+        if self._models is None:
+            state = self.env.reset(rng)
+        else:  # the registry's randomizers may change what a reset computes (qpos0, keyframes): draw first
+            with self._physics(draw, None):
+                state = self.env.reset(rng)
+        state.info.update(randomize_key=key, randomize_queue=jnp.zeros((self.spec.delay, self.n_act), jnp.float32), **draw)
         return self._noisy(state, k_noise)
 
     def step(self, state, action):
         info = dict(state.info)  # this step's draw, before the wrapped env's step writes its info
         key, k_push, k_draw, k_noise = jax.random.split(info["randomize_key"], 4)
         history = jnp.concatenate([action[None].astype(jnp.float32), info["randomize_queue"]])
-        with self._variant(info["randomize_scales"], self._push(k_push)):
+        with self._physics(info, self._push(k_push)):
             state = self.env.step(state, history[info["randomize_delay"]])
         done = state.done > 0.5
-        scales, delay = self._draw(k_draw)
-        state.info.update(randomize_key=key, randomize_scales=jnp.where(done, scales, info["randomize_scales"]),
-                          randomize_delay=jnp.where(done, delay, info["randomize_delay"]),
-                          randomize_queue=jnp.where(done, 0.0, history[: self.spec.delay]))
+        draw = jax.tree.map(lambda new, old: jnp.where(done, new, old), self._draw(k_draw),
+                            {k: info[k] for k in ("randomize_scales", "randomize_delay", "randomize_model")})
+        state.info.update(randomize_key=key, randomize_queue=jnp.where(done, 0.0, history[: self.spec.delay]), **draw)
         return self._noisy(state, k_noise)

@@ -29,7 +29,7 @@ def rollout(env, actions, key=0):
 
     def step(s, a):
         s = jax.vmap(env.step)(s, a)
-        return s, (s.pipeline_state.qpos, s.obs, s.reward, s.done)
+        return s, (getattr(s.pipeline_state, "qpos", s.obs), s.obs, s.reward, s.done)
 
     return s0, jax.jit(lambda s: jax.lax.scan(step, s, actions))(s0)[1]
 
@@ -210,3 +210,38 @@ def test_randomized_run_resumes_bit_for_bit(tmp_path):
                     np.testing.assert_array_equal(a[k], b[k], err_msg=f"{name}:{k}")
     config = json.loads((whole / "config.json").read_text())["config"]
     assert config["randomize"] == "mass=0.8:1.25, damping=0.5:2, obs_noise=0.01, delay=1, push=0.2, push_rate=0.05"
+
+
+def doubled_masses(model, rng):
+    """A randomizer in Playground's protocol (registry.get_domain_randomizer): every body's mass x 2, one per key."""
+    in_axes = jax.tree.map(lambda _: None, model).tree_replace({"body_mass": 0})
+    masses = jnp.broadcast_to(model.body_mass * 2, (rng.shape[0],) + model.body_mass.shape)
+    return model.tree_replace({"body_mass": masses}), in_axes
+
+
+def test_playground_registry_randomizer_equals_playgrounds_own_wrapper(monkeypatch):
+    """--randomize playground draws a Playground environment's own randomizer per episode: with a randomizer of its
+    protocol, each env steps as Playground's BraxDomainRandomizationVmapWrapper steps it; a task it does not apply to,
+    or one whose registry has no randomizer, is one line."""
+    from mujoco_playground._src.wrapper import BraxDomainRandomizationVmapWrapper
+
+    from envs import playground_adapter
+
+    name = "playground:CartpoleBalance"
+    with pytest.raises(ValueError, match="has no domain randomizer for 'playground:CartpoleBalance'"):
+        envs.make(name, randomize="playground")
+    with pytest.raises(ValueError, match="applies to playground:<Name> tasks"):
+        Config(env="Hopper-v5", randomize="playground").validate()
+    reg = playground_adapter.registry()
+    monkeypatch.setattr(reg, "get_domain_randomizer", lambda n: doubled_masses if n == "CartpoleBalance" else None)
+    env = envs.make(name, episode_length=1000, randomize="playground")
+    acts = actions_for(env, 10)
+    _, (_, obs, _, _) = rollout(env, acts)
+    keys = jax.random.split(jax.random.PRNGKey(0), N_ENVS)
+    own = BraxDomainRandomizationVmapWrapper(playground_adapter.load(name), lambda m: doubled_masses(m, keys))
+    s = jax.jit(own.reset)(keys)
+    step = jax.jit(own.step)
+    for t in range(acts.shape[0]):
+        s = step(s, acts[t])
+        np.testing.assert_allclose(np.asarray(obs[t]), np.asarray(s.obs["state"] if isinstance(s.obs, dict) else s.obs),
+                                   rtol=1e-5, atol=1e-6)
