@@ -30,6 +30,8 @@ the same program on MJX. No JAX or MuJoCo import at module level.
 import dataclasses
 import math
 
+import numpy as np
+
 # scale name -> (MjModel fields it scales, the column it scales or None for every entry)
 ALIASES = {"mass": (("body_mass", None), ("body_inertia", None)), "friction": (("geom_friction", 0),),
            "gear": (("actuator_gear", 0),), "damping": (("dof_damping", None),)}
@@ -154,8 +156,6 @@ def _check_fields_unique(spec):
 def check_model(spec, model, episode_length=None):
     """RandomizeError (one line) for a name that is no float field of this MjModel, or a delay as long as the
     episode."""
-    import numpy as np
-
     for field, col, _ in spec.model_fields:
         value = getattr(model, field, None)
         if not isinstance(value, np.ndarray) or value.dtype.kind != "f" or field.startswith(("opt", "stat")):
@@ -170,8 +170,6 @@ def check_model(spec, model, episode_length=None):
 
 def scaled_values(nominal, col, scale):
     """The field's values [n, ...] for per-row scales [n] from its nominal values (NumPy, float64; the C backend)."""
-    import numpy as np
-
     out = np.broadcast_to(nominal, (len(scale),) + nominal.shape).copy()
     s = np.asarray(scale, np.float64).reshape((-1,) + (1,) * nominal.ndim)
     if col is None:
