@@ -5,10 +5,16 @@ says) and the checks that need a backend. Loads without JAX: the wrappers are im
 
 import contextlib
 import io
+from typing import TYPE_CHECKING, Any, Optional
 
 from envs import registry
 from envs.physics import Physics, applied, mj_model, record, substeps  # noqa: F401 - mj_model, substeps re-exported
-from envs.randomize import RandomizeError, check_model, parse
+from envs.randomize import Randomize, RandomizeError, check_model, parse
+from envs.registry import TaskLike
+
+if TYPE_CHECKING:  # annotations only: Brax and gymnasium load when an environment is made
+    import gymnasium
+    from brax.envs.base import Env
 
 
 def _wrappers():
@@ -19,14 +25,14 @@ def _wrappers():
     return wrappers, randomized
 
 
-def check_backend(name, physics) -> None:
+def check_backend(name: TaskLike, physics: Physics) -> None:
     """ValueError if `physics` (envs.physics.Physics) cannot step task `name`."""
     task = registry.resolve(name)
     physics.validate()
     task.check_physics(physics)
 
 
-def make_base(name, physics=None):
+def make_base(name: TaskLike, physics: Optional[Physics] = None) -> "Env":
     """The unwrapped task (no time limit, no auto-reset) `name` (a name or a TaskRecord), stepped as `physics`
     says (envs.physics.Physics; None: the defaults, MJX; backend 'c': MuJoCo C, envs/c_backend.py). An MJX
     task's reset and step run inside physics.applied, so the solver routing holds while they are traced and
@@ -61,12 +67,13 @@ def _applying(fn, physics, model):
     return traced
 
 
-def solver_settings(env):
+def solver_settings(env: "Env") -> dict:
     """Every physics option in force for a task made by make_base (envs.physics.record)."""
     return record(env.physics, mj_model(env))
 
 
-def make(name, episode_length=None, auto_reset=True, physics=None, reset_mode="first", randomize=None):
+def make(name: TaskLike, episode_length: Optional[int] = None, auto_reset: bool = True, physics: Optional[Physics] = None,
+         reset_mode: str = "first", randomize: Any = None) -> "Env":
     """Task `name` (a name or a TaskRecord) with a time limit of `episode_length` steps (default: the task's own,
     `default_episode_length(name)`) and (by default) auto-reset: an ended episode restarts from the env's first
     start state (reset_mode 'first', Brax's convention) or from a new draw of the task's start law ('fresh',
@@ -91,7 +98,8 @@ def make(name, episode_length=None, auto_reset=True, physics=None, reset_mode="f
     return randomized.Randomized(env, base, spec)
 
 
-def check_randomize(name, randomize, episode_length=None, physics=None):
+def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int] = None,
+                    physics: Optional[Physics] = None) -> Optional[Randomize]:
     """The Randomize of `randomize` (envs/randomize.py) checked against task `name`'s model and the backend of
     `physics` (None: MJX), or None for none; RandomizeError (one line) for an unknown parameter, a range out of
     bounds, a delay as long as the episode, or model scales or pushes the backend cannot apply (saying which can).
@@ -127,7 +135,7 @@ def _variant_reason(task, backend, spec):
     return None
 
 
-def as_gymnasium(task):
+def as_gymnasium(task: TaskLike) -> "gymnasium.Env":
     """A gymnasium.Env of `task` (a name, a Task subclass or instance) stepped by its MuJoCo C twin, with the task's
     start law, observation, reward, termination and time limit (envs/gymnasium_env.py); ValueError (one line) for a
     task MuJoCo C does not step. Needs gymnasium (the deploy extra)."""

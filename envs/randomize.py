@@ -29,6 +29,7 @@ the same program on MJX. No JAX or MuJoCo import at module level.
 
 import dataclasses
 import math
+from typing import Any, Optional
 
 import numpy as np
 
@@ -117,7 +118,7 @@ def _items(text):
     return out
 
 
-def parse(text) -> Randomize:
+def parse(text: "str | dict | Randomize | None") -> Randomize:
     """A Randomize from its text (module docstring), a {name: value} table, or a Randomize; '' or None: none.
     Raises RandomizeError (one line) for a malformed item or a value out of range; names that are not an alias
     or a key are taken as MjModel fields, checked against a model by check()."""
@@ -153,7 +154,7 @@ def _check_fields_unique(spec):
         raise RandomizeError(f"randomize: {', '.join(twice)} would be scaled twice (an alias already scales it)")
 
 
-def check_model(spec, model, episode_length=None):
+def check_model(spec: Randomize, model: Any, episode_length: Optional[int] = None) -> None:
     """RandomizeError (one line) for a name that is no float field of this MjModel, or a delay as long as the
     episode."""
     for field, col, _ in spec.model_fields:
@@ -168,7 +169,7 @@ def check_model(spec, model, episode_length=None):
         raise RandomizeError(f"randomize: delay={spec.delay} is not shorter than the episode ({episode_length} steps)")
 
 
-def scaled_values(nominal, col, scale):
+def scaled_values(nominal: np.ndarray, col: Optional[int], scale: np.ndarray) -> np.ndarray:
     """The field's values [n, ...] for per-row scales [n] from its nominal values (NumPy, float64; the C backend)."""
     out = np.broadcast_to(nominal, (len(scale),) + nominal.shape).copy()
     s = np.asarray(scale, np.float64).reshape((-1,) + (1,) * nominal.ndim)

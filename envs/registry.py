@@ -32,14 +32,22 @@ import sys
 import types
 import warnings
 from importlib import metadata
-from typing import Any, Callable, Optional
+from typing import TYPE_CHECKING, Any, Callable, Optional
 
 import numpy as np
 
 from envs import dmc
 from envs.names import ACTION_RANGE, BRAX_TASKS, DEFAULT_EPISODE_LENGTH, DMC_TASKS, GYM_V5_TASKS, NAMES
-from envs.physics import mj_model
+from envs.physics import Physics, mj_model
 from envs.randomize import parse as parse_randomize
+
+if TYPE_CHECKING:  # annotations only: MuJoCo and Brax load when a record is asked for them
+    import mujoco
+    from brax.envs.base import Env
+
+    from envs.definition import Task
+
+TaskLike = Any  # a task's name, its TaskRecord, or a Task instance or subclass (envs/task.py): what resolve() takes
 
 
 def _mujoco():
@@ -78,7 +86,7 @@ class TaskRecord:
         """check(), and whatever can be checked only with JAX (once per process, at the trainer's edge)."""
         self.check()
 
-    def check_physics(self, physics) -> None:
+    def check_physics(self, physics: Physics) -> None:
         """ValueError (one line) unless `physics` (envs.physics.Physics, validated) can step this task."""
         if physics.backend == "c" and not self.has_c:
             self.make_c_backend(physics)  # raises, saying why
@@ -86,15 +94,15 @@ class TaskRecord:
     def episode_length(self) -> int:
         return DEFAULT_EPISODE_LENGTH
 
-    def model(self):
+    def model(self) -> "mujoco.MjModel":
         """The MuJoCo C model (MjModel) with the solver options its MJX version steps with; no JAX, no MJX."""
         raise NotImplementedError
 
-    def make_mjx(self):
+    def make_mjx(self) -> "Env":
         """The unwrapped single-env Brax environment on MJX (envs.make_base adds the physics options)."""
         raise NotImplementedError
 
-    def mjx_env(self):
+    def mjx_env(self) -> "Env":
         """make_mjx() as envs.make_base builds it: without Brax's "not actively maintained" notice, and with
         jax.devices() naming this process's devices (envs/task_mjx.py's process_local_devices)."""
         with warnings.catch_warnings():
@@ -102,12 +110,12 @@ class TaskRecord:
             with _mjx().task_mjx.process_local_devices():
                 return self.make_mjx()
 
-    def make_c_backend(self, physics):
+    def make_c_backend(self, physics: Physics) -> "Env":
         """The unwrapped env stepped by MuJoCo C inside the program (envs/c_backend.py)."""
         raise ValueError(f"physics backend 'c' does not step {self.name!r} (it steps every task definition, Brax's "
                          "hopper, walker2d, halfcheetah and ant, and allegro_cylinder); it runs on backend 'mjx'")
 
-    def make_c(self):
+    def make_c(self) -> Any:
         """The task on one MjData in plain MuJoCo C: reset(seed) -> obs, step(action) -> (obs, reward, done)."""
         raise ValueError(f"no MuJoCo C version of {self.name!r}: MuJoCo C runs every task definition (envs/task.py), "
                          "Brax's hopper, walker2d, halfcheetah and ant, and allegro_cylinder")
@@ -150,36 +158,36 @@ class BraxVariant(TaskRecord):
     _port = None
 
     @property
-    def has_c(self):
+    def has_c(self) -> bool:
         return self.name in _mujoco().ports.BRAX_PORTS
 
-    def port(self):
+    def port(self) -> "Task":
         """A new instance of the task's MuJoCo C port, a task definition (envs/brax_ports.py's BRAX_PORTS)."""
         task = _mujoco().ports.BRAX_PORTS[self.name]()
         task.name = self.name
         return task
 
-    def model(self):
+    def model(self) -> "mujoco.MjModel":
         if self.has_c:
             if self._port is None:  # read only (sizes, records): one per record
                 self._port = self.port()
             return self._port.model
         return _mujoco().ports.brax_model(self.name)
 
-    def make_mjx(self):
+    def make_mjx(self) -> "Env":
         return _quiet_brax().get_environment(self.name, backend="mjx")
 
-    def make_c_backend(self, physics):
+    def make_c_backend(self, physics: Physics) -> "Env":
         if not self.has_c:
             return super().make_c_backend(physics)
         return _c_backend().TaskCEnv(self.name, physics, self.port())
 
-    def make_c(self):
+    def make_c(self) -> Any:
         if not self.has_c:
             return super().make_c()
         return _mujoco().task.TaskC(self.port())
 
-    def observation_layout(self):
+    def observation_layout(self) -> list:
         return self.port().observation_layout() if self.has_c else list(_mujoco().ports.IDP_LAYOUT)
 
 
@@ -189,22 +197,22 @@ class AllegroRecord(TaskRecord):
     family = "allegro"
     has_c = True
 
-    def episode_length(self):
+    def episode_length(self) -> int:
         return _mujoco().allegro.DEFAULT_EPISODE_LENGTH  # 2 s at 100 Hz
 
-    def model(self):
+    def model(self) -> "mujoco.MjModel":
         return _mujoco().allegro.load_mj_model()
 
-    def make_mjx(self):
+    def make_mjx(self) -> "Env":
         return _mjx().allegro.AllegroCylinder()
 
-    def make_c_backend(self, physics):
+    def make_c_backend(self, physics: Physics) -> "Env":
         return _c_backend().AllegroCTask(self.name, physics)
 
-    def make_c(self):
+    def make_c(self) -> Any:
         return _mujoco().allegro.AllegroC()
 
-    def observation_layout(self):
+    def observation_layout(self) -> list:
         return _mujoco().allegro.allegro_layout(self.model())
 
 
@@ -220,48 +228,48 @@ class Definition(TaskRecord):
         self.factory, self.builtin = factory, builtin
         self._task, self._traced = None, False
 
-    def task(self):
+    def task(self) -> "Task":
         """The Task instance read for sizes, layouts and records (made and validated on first use; TaskError in one
         line). Not to be stepped or changed: new() makes one for that."""
         if self._task is None:
             self._task = make_definition(self.name, self.factory)
         return self._task
 
-    def new(self):
+    def new(self) -> "Task":
         """A new Task instance with its own MjModel (the definition validated once, by task())."""
         self.task()
         task = self.factory()
         task.name = self.name
         return task
 
-    def check(self):
+    def check(self) -> None:
         if not self.builtin:  # a user's: loaded and validated when named; the built-in ones when used
             self.task()
 
-    def check_traced(self):
+    def check_traced(self) -> None:
         if not self.builtin and not self._traced:  # the v5 tasks are checked against gymnasium by the test suite
             _mujoco().task.check_jax_agrees(self.task(), f"task {self.name!r}")
             self._traced = True
 
-    def episode_length(self):
+    def episode_length(self) -> int:
         return int(self.task().episode_length)
 
-    def model(self):
+    def model(self) -> "mujoco.MjModel":
         return self.task().model
 
-    def make_mjx(self):
+    def make_mjx(self) -> "Env":
         return _mjx().task_mjx.TaskMjx(self.new())
 
-    def make_c_backend(self, physics):
+    def make_c_backend(self, physics: Physics) -> "Env":
         return _c_backend().TaskCEnv(self.name, physics, self.new())
 
-    def make_c(self):
+    def make_c(self) -> Any:
         return _mujoco().task.TaskC(self.new())
 
-    def observation_layout(self):
+    def observation_layout(self) -> list:
         return self.task().observation_layout()
 
-    def source(self):
+    def source(self) -> dict:
         if self.builtin:
             return super().source()
         task = self.task()
@@ -269,7 +277,7 @@ class Definition(TaskRecord):
                 "observation_size": int(task.observation_size)}
 
 
-def definition_record(task, name: str = "") -> "Definition":
+def definition_record(task: Any, name: str = "") -> "Definition":
     """The record of a task definition given as an object (a Task instance or subclass, envs/task.py) rather
     than a name: for library users who train a task without registering it (make_train(cfg, task)). name:
     what results call it (default: the class's name). Validated here (TaskError in one line)."""
@@ -285,7 +293,7 @@ def definition_record(task, name: str = "") -> "Definition":
     return record
 
 
-def make_definition(name, factory):
+def make_definition(name: str, factory: Callable[[], Any]) -> "Task":
     """factory() as a validated Task named `name` (TaskError in one line for anything else)."""
     Task, TaskError = _mujoco().task.Task, _mujoco().task.TaskError
     try:
@@ -314,23 +322,23 @@ class Adapted(TaskRecord):
         self.theirs = name.partition(":")[2]
         self._model = None
 
-    def model(self):
+    def model(self) -> "mujoco.MjModel":
         if self._model is None:
             self._model = mj_model(self.mjx_env())  # as envs.make_base(self) builds it (the default physics)
         return self._model
 
-    def observation_layout(self):
+    def observation_layout(self) -> list:
         return [f"obs[{i}]" for i in range(int(self.make_mjx().observation_size))]
 
-    def source(self):
+    def source(self) -> dict:
         return {"task": self.name, "builtin": False, "library": self.library, "name": self.theirs,
                 "action_size": int(self.model().nu), "version": _installed_version(self.version_of)}
 
-    def make_c_backend(self, physics):
+    def make_c_backend(self, physics: Physics) -> "Env":
         raise ValueError(f"physics backend 'c' does not step {self.name!r}: another library's environments step "
                          "in JAX only; use backend 'mjx'")
 
-    def make_c(self):
+    def make_c(self) -> Any:
         raise ValueError(f"no MuJoCo C version of {self.name!r}: another library's environments step in JAX only "
                          "(gsa_jax.deploy --compare-mjx RUN_DIR runs its controller in MJX)")
 
@@ -340,14 +348,14 @@ class BraxAdapted(Adapted):
 
     family, library, version_of = "brax_adapter", "brax", "brax"
 
-    def check(self):
+    def check(self) -> None:
         known = sorted(_quiet_brax()._envs)
         if self.theirs not in known:
             close = difflib.get_close_matches(self.theirs, known, n=3)
             raise ValueError(f"unknown env {self.name!r}: Brax registers {', '.join(known)}"
                              + (f"; did you mean {', '.join('brax:' + c for c in close)}?" if close else ""))
 
-    def make_mjx(self):
+    def make_mjx(self) -> "Env":
         return _quiet_brax().get_environment(self.theirs, backend="mjx")
 
 
@@ -356,19 +364,19 @@ class PlaygroundAdapted(Adapted):
 
     family, library, version_of = "playground", "playground", "playground"
 
-    def check(self):
+    def check(self) -> None:
         _playground().check_name(self.name)
 
-    def episode_length(self):
+    def episode_length(self) -> int:
         return int(_playground().registry().get_default_config(self.theirs).get("episode_length", DEFAULT_EPISODE_LENGTH))
 
-    def check_physics(self, physics):
+    def check_physics(self, physics: Physics) -> None:
         super().check_physics(physics)
         if physics.solver_iterations is not None or physics.ls_iterations is not None:
             raise ValueError(f"{self.name!r} runs with Playground's own solver settings; solver_iterations and "
                              "ls_iterations do not apply")
 
-    def make_mjx(self):
+    def make_mjx(self) -> "Env":
         return _playground().PlaygroundEnv(self.name)
 
 
@@ -385,17 +393,17 @@ class UserEnv(Adapted):
         self.theirs = f"{cls.__module__}.{cls.__qualname__}"
         self._length = None
 
-    def check(self):
+    def check(self) -> None:
         self.model()
 
-    def episode_length(self):
+    def episode_length(self) -> int:
         if self.library != "playground":
             return DEFAULT_EPISODE_LENGTH
         if self._length is None:  # building the env takes seconds: once per record
             self._length = int(self.make_mjx().episode_length)
         return self._length
 
-    def make_mjx(self):
+    def make_mjx(self) -> "Env":
         try:
             with contextlib.redirect_stdout(io.StringIO()):
                 if self.library == "playground":
@@ -410,7 +418,7 @@ class UserEnv(Adapted):
                              f"'mjx'); {self.theirs} has backend {getattr(env, 'backend', None)!r}")
         return env
 
-    def source(self):
+    def source(self) -> dict:
         return {**super().source(), **_mujoco().task.source_record(self.cls)}
 
 
@@ -430,7 +438,7 @@ def _make_playground(cls):
     return cls()
 
 
-def library_of(obj) -> Optional[str]:
+def library_of(obj: Any) -> Optional[str]:
     """'brax' for a brax.envs.Env subclass, 'playground' for a MuJoCo Playground MjxEnv subclass, else None (read
     from the class's bases, so nothing is imported)."""
     if not isinstance(obj, type):
@@ -443,7 +451,7 @@ def library_of(obj) -> Optional[str]:
     return None
 
 
-def user_record(name: str, factory) -> TaskRecord:
+def user_record(name: str, factory: Callable[..., Any]) -> TaskRecord:
     """The checked record of a user's task `name` made by `factory`: a task definition (envs/task.py), or a Brax or
     Playground environment class (UserEnv)."""
     library = library_of(factory)
@@ -499,7 +507,7 @@ def adapted_record(name: str) -> Optional[TaskRecord]:
 _REGISTERED = {}  # name -> factory (a Task subclass, or a callable returning a Task)
 
 
-def resolve(task: "str | TaskRecord | Any") -> TaskRecord:
+def resolve(task: TaskLike) -> TaskRecord:
     """The record of `task`: a name (resolved and checked once per process; ValueError in one line for a name that
     does not resolve), a TaskRecord (returned as it is), or a Task instance or subclass (envs/task.py: a record
     named for its class). The one way from a task's name to its record; everything else asks it."""
@@ -610,7 +618,7 @@ def _import_from_here(module_name):
 
 # What a task's name says, read from its record (no environment is built).
 
-def is_name(name: Any) -> bool:
+def is_name(name: TaskLike) -> bool:
     """Whether `name` names a task that resolves (no exception)."""
     try:
         check_name(name)
@@ -619,18 +627,18 @@ def is_name(name: Any) -> bool:
         return False
 
 
-def check_name(name: Any) -> None:
+def check_name(name: TaskLike) -> None:
     """ValueError (one line) unless `name` names a task; a task definition is loaded and checked once here."""
     resolve(name)
 
 
-def check_task(name: Any) -> None:
+def check_task(name: TaskLike) -> None:
     """check_name, and for a user's task definition its observation with jax.numpy equal to NumPy's (once per
     process; the trainer's edge: JAX is imported here)."""
     resolve(name).check_traced()
 
 
-def resolve_task(name: Any) -> Any:
+def resolve_task(name: TaskLike) -> Any:
     """A new instance of the task definition (envs/task.py's Task) behind `name`, checked once per process
     (TaskError)."""
     record = resolve(name)
@@ -639,23 +647,23 @@ def resolve_task(name: Any) -> Any:
     return record.new()
 
 
-def task_source(name: Any) -> dict:
+def task_source(name: TaskLike) -> dict:
     """What says which code defines task `name` (recorded in config.json and sweep.json): for a task defined
     outside this package, its module, file and the file's sha256; for another library's, its version."""
     return resolve(name).source()
 
 
-def has_c_backend(name: Any) -> bool:
+def has_c_backend(name: TaskLike) -> bool:
     """Whether MuJoCo C steps task `name` (backend 'c', deployment, evaluation and robustness)."""
     return resolve(name).has_c
 
 
-def default_episode_length(name: Any) -> int:
+def default_episode_length(name: TaskLike) -> int:
     """The task's own time limit (env steps)."""
     return int(resolve(name).episode_length())
 
 
-def task_model(name: Any) -> Any:
+def task_model(name: TaskLike) -> Any:
     """The MuJoCo C model (MjModel) of a task's MJCF with the solver options its MJX version steps with
     (Brax's for the gym tasks), loaded without JAX or MJX (but for another library's environment, built once):
     for sizes and physics records. The record's own, shared by every caller: read it, never change it (a task to
@@ -663,12 +671,12 @@ def task_model(name: Any) -> Any:
     return resolve(name).model()
 
 
-def action_size(name: Any) -> int:
+def action_size(name: TaskLike) -> int:
     """Actions of a task, read from its MJCF (no MJX environment is built, but for another library's environment)."""
     return int(task_model(name).nu)
 
 
-def observation_size(name: Any) -> int:
+def observation_size(name: TaskLike) -> int:
     """Observation values of task `name` as its definition is now (a task definition's observe(); else the length of
     its observation layout)."""
     record = resolve(name)
@@ -677,7 +685,7 @@ def observation_size(name: Any) -> int:
     return len(record.observation_layout())
 
 
-def action_bounds(name: Any, size: Optional[int] = None) -> tuple:
+def action_bounds(name: TaskLike, size: Optional[int] = None) -> tuple:
     """(low [d_a], high [d_a]) float32: the bounds of task `name`'s d_a actions (ACTION_RANGE for each); size: d_a
     (default: action_size(name), read from the MJCF). A task with ctrl_range 'model' maps these actions onto its
     actuators' ctrlrange (control_range())."""
@@ -686,7 +694,7 @@ def action_bounds(name: Any, size: Optional[int] = None) -> tuple:
     return np.full(size, ACTION_RANGE[0], np.float32), np.full(size, ACTION_RANGE[1], np.float32)
 
 
-def control_range(name: Any) -> Optional[tuple]:
+def control_range(name: TaskLike) -> Optional[tuple]:
     """(low [nu], high [nu]) float64 a task maps its actions in ACTION_RANGE onto (envs/task.py's ctrl_range 'model':
     ctrl = low + (a + 1) (high - low) / 2), or None where the actions are the controls."""
     record = resolve(name)
@@ -696,7 +704,7 @@ def control_range(name: Any) -> Optional[tuple]:
     return low.copy(), high.copy()
 
 
-def task_randomize(name: Any) -> str:
+def task_randomize(name: TaskLike) -> str:
     """The randomization a task definition declares (Task.randomize, envs/randomize.py's text); ValueError if none."""
     record = resolve(name)
     text = record.task().randomize if isinstance(record, Definition) else ""
