@@ -25,11 +25,12 @@ GL_FROM_USER = "MUJOCO_GL" in os.environ
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 from envs.build import (  # noqa: E402  (after MUJOCO_GL is set)
-    as_gymnasium, check_backend, check_randomize, make, make_base, mj_model, solver_settings, substeps,
+    as_gymnasium, check_backend, check_randomize, make, make_base, solver_settings,
 )
 from envs.names import (  # noqa: E402
     ACTION_RANGE, BRAX_TASKS, DEFAULT_EPISODE_LENGTH, DMC_TASKS, GYM_V5_TASKS, NAMES, RESET_MODES,
 )
+from envs.physics import mj_model, substeps  # noqa: E402
 from envs.registry import (  # noqa: E402
     action_bounds, action_size, check_name, check_task, control_range, default_episode_length, has_c_backend, is_name,
     observation_size, register, resolve, resolve_task, task_model, task_randomize, task_record, task_source, unregister,

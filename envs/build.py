@@ -8,7 +8,7 @@ import io
 from typing import TYPE_CHECKING, Any, Optional
 
 from envs import registry
-from envs.physics import Physics, applied, mj_model, record, substeps  # noqa: F401 - mj_model, substeps re-exported
+from envs.physics import Physics, applied, mj_model, record
 from envs.randomize import Randomize, RandomizeError, check_model, parse
 from envs.registry import TaskLike
 
