@@ -1,5 +1,6 @@
 """The allegro_cylinder task definition shared by the MJX environment (envs/allegro.py) and MuJoCo C
-(envs/mujoco_c.py): the MJCF, constants, and the task's step in plain MuJoCo C. No JAX here.
+(AllegroC here, as envs/mujoco_c.py's make_c gives it): the MJCF, constants, and the task's step in plain MuJoCo C.
+No JAX here.
 The task itself is described in envs/allegro.py.
 """
 
@@ -97,3 +98,39 @@ def tactile_from_sensordata(sensordata, slots):
         out.append(sensordata[..., start:start + 4 * n].reshape(*sensordata.shape[:-1], n, 4)[..., 1].sum(-1))
         start += 4 * n
     return np.stack(out, -1) / TAXELS
+
+
+class AllegroC:
+    """envs/allegro.py's allegro_cylinder in MuJoCo C (no termination; the time limit is the caller's)."""
+
+    def __init__(self):
+        self.model = load_mj_model()
+        self.data = mujoco.MjData(self.model)
+        self.dt = TIMESTEP * SUBSTEPS
+
+    @property
+    def action_size(self):
+        return self.model.nu
+
+    def reset(self, seed):
+        rng = np.random.default_rng(seed)
+        m, d = self.model, self.data
+        mujoco.mj_resetDataKeyframe(m, d, m.key("grasp").id)
+        lo, hi = m.actuator_ctrlrange.T
+        d.ctrl[:] = np.clip(d.ctrl + TARGET_NOISE * rng.normal(size=m.nu), lo, hi)
+        d.qpos[hinge_qpos(m)] = rng.uniform(-np.pi, np.pi)
+        mujoco.mj_forward(m, d)
+        return observe_mujoco(m, d)
+
+    def observe(self):
+        return observe_mujoco(self.model, self.data)
+
+    def step(self, action):
+        obs, reward = step_mujoco(self.model, self.data, action)
+        return obs, reward, False
+
+
+def allegro_layout(model):
+    """allegro_cylinder's observation layout: the finger joints' positions, then the two tactile means."""
+    joints = [model.joint(model.actuator_trnid[i, 0]).name for i in range(model.nu)]
+    return [f"{j} position" for j in joints] + ["index tactile (mean taxel force)", "thumb tactile (mean taxel force)"]

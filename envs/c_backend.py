@@ -11,7 +11,7 @@ batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjD
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
 
 Tasks: every task definition (envs/task.py: gymnasium's v5 tasks, envs/gym_v5.py; Brax's locomotion tasks,
-envs.mujoco_c.BRAX_PORTS; and a user's), whose observations, rewards and terminations are computed on the host
+envs.brax_ports.BRAX_PORTS; and a user's), whose observations, rewards and terminations are computed on the host
 in float64 by the task's own functions (for the v5 tasks, the ones checked against gymnasium); and
 allegro_cylinder, whose PD-target
 update, reward and tactile values (MuJoCo contact sensors on the fingertips, envs/allegro_task.py) are
@@ -22,6 +22,7 @@ import contextlib
 import threading
 import time
 import weakref
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import jax
@@ -31,12 +32,11 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import batch as mj_batch
 
-import envs
-from envs import allegro_task, mujoco_c
-from envs.task_mjx import task_start_noise
+from envs import allegro_task
 from envs.host_call import host_call
 from envs.physics import resolve_threads
 from envs.randomize import scaled_values
+from envs.task_mjx import task_start_noise
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 _HOSTS = weakref.WeakSet()  # this process's live hosts, read by host_seconds()
@@ -356,8 +356,6 @@ class PostConstraintHost:
             if self.threads <= 1 or n < 2:
                 return [fn(self._datas[0], i) for i in range(n)]
             if self._pool is None:
-                from concurrent.futures import ThreadPoolExecutor
-
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="mujoco_c")
             parts = np.array_split(np.arange(n), self.threads)
             chunks = self._pool.map(lambda k: [fn(self._datas[k], int(i)) for i in parts[k]], range(self.threads))
@@ -471,7 +469,7 @@ class AllegroCTask(CTask):
     draws from rng as the MJX task), action clipping, PD-target update, reward and observation."""
 
     def __init__(self, name, physics):
-        port = mujoco_c.AllegroC()
+        port = allegro_task.AllegroC()
         super().__init__(name, physics, port, AllegroHost(physics.threads))
         m = self.mj_model
         self.n_frames, self.dt = allegro_task.SUBSTEPS, allegro_task.TIMESTEP * allegro_task.SUBSTEPS
@@ -500,8 +498,8 @@ class TaskCEnv(CTask):
     """A task definition (envs/task.py) stepped by MuJoCo C: its start-state law drawn from rng; observation,
     reward and termination computed by its own functions in float64 on the host, then cast to float32."""
 
-    def __init__(self, name, physics, task=None):
-        task = task or envs.resolve_task(name)  # the Task instance (envs/task.py), or the one `name` resolves to
+    def __init__(self, name, physics, task):
+        """task: the Task instance (envs/task.py) the record of `name` made (envs/registry.py)."""
         host = (PostConstraintHost if task.post_constraint else TaskHost)(task, physics.threads)
         super().__init__(name, physics, task, host)
         self.n_frames, self.dt = task.frame_skip, task.dt

@@ -23,20 +23,19 @@ last Runge-Kutta stage's quantities), which mujoco.batch does not run: the C bac
 per thread instead (envs/c_backend.py).
 """
 
+import importlib.util
 import os
 
 import mujoco
 import numpy as np
 
-from envs.task import Task, coordinate_names
+from envs.definition import Task, coordinate_names
 
 EPISODE_LENGTH = 1000  # gymnasium's max_episode_steps for the five ids (a truncation, not a termination)
 
 
 def gym_asset(name):
     """Path of an MJCF shipped with the installed gymnasium package (found without importing it)."""
-    import importlib.util
-
     spec = importlib.util.find_spec("gymnasium")
     if spec is None or not spec.submodule_search_locations:
         raise FileNotFoundError("gymnasium is not installed (pip install 'gymnasium[mujoco]')")

@@ -85,7 +85,7 @@ def resolve_threads(threads):
 def exact_applies(mj_model):
     """Whether the solver cost along a line is piecewise quadratic for this MjModel: pyramidal cones and
     no friction loss (the exact line search's condition)."""
-    import mujoco
+    import mujoco  # this module loads without MuJoCo (it is read before `import envs` may load it)
 
     disabled = bool(mj_model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)
     frictionloss = (bool((mj_model.dof_frictionloss > 0).any()) or bool((mj_model.tendon_frictionloss > 0).any())) and not disabled
@@ -113,8 +113,18 @@ def record(physics, mj_model):
 def applied(physics, mj_model):
     """Inside this block MJX's solver and jax.scipy's Cholesky run as `physics` says for a task with this
     MjModel; the previous routing is restored on exit (blocks nest)."""
-    from envs import linalg, linesearch
+    from envs import linalg, linesearch  # JAX and MJX: this module loads without them
 
     mode = linesearch_in_force(physics, mj_model)
     with linalg.routed(physics.cholesky == "unrolled"), linesearch.routed(mode, physics.search_loop):
         yield
+
+
+def mj_model(env):
+    """The MuJoCo C model (MjModel) behind a task made by envs.make_base: ours or a Brax MJX env."""
+    return env.mj_model if hasattr(env, "mj_model") else env.sys.mj_model
+
+
+def substeps(env):
+    """Physics steps per env step of a task made by envs.make_base."""
+    return int(getattr(env, "n_frames", None) or getattr(env, "_n_frames", 1))

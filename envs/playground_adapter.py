@@ -26,7 +26,7 @@ def registry():
     """Playground's registry module; ValueError (one line) naming the pip install if it is missing."""
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            from mujoco_playground import registry as reg
+            from mujoco_playground import registry as reg  # MuJoCo Playground: an optional extra
     except ImportError as e:
         raise ValueError(f"MuJoCo Playground's environments need its package: pip install playground ({e})") from None
     return reg

@@ -31,6 +31,9 @@ the same program on MJX. No JAX or MuJoCo import at module level.
 
 import dataclasses
 import math
+from typing import Any, Optional
+
+import numpy as np
 
 # scale name -> (MjModel fields it scales, the column it scales or None for every entry)
 ALIASES = {"mass": (("body_mass", None), ("body_inertia", None)), "friction": (("geom_friction", 0),),
@@ -124,7 +127,7 @@ def _items(text):
     return out
 
 
-def parse(text) -> Randomize:
+def parse(text: "str | dict | Randomize | None") -> Randomize:
     """A Randomize from its text (module docstring), a {name: value} table, or a Randomize; '' or None: none.
     Raises RandomizeError (one line) for a malformed item or a value out of range; names that are not an alias
     or a key are taken as MjModel fields, checked against a model by check()."""
@@ -161,11 +164,9 @@ def _check_fields_unique(spec):
         raise RandomizeError(f"randomize: {', '.join(twice)} would be scaled twice (an alias already scales it)")
 
 
-def check_model(spec, model, episode_length=None):
+def check_model(spec: Randomize, model: Any, episode_length: Optional[int] = None) -> None:
     """RandomizeError (one line) for a name that is no float field of this MjModel, or a delay as long as the
     episode."""
-    import numpy as np
-
     for field, col, _ in spec.model_fields:
         value = getattr(model, field, None)
         if not isinstance(value, np.ndarray) or value.dtype.kind != "f" or field.startswith(("opt", "stat")):
@@ -178,10 +179,8 @@ def check_model(spec, model, episode_length=None):
         raise RandomizeError(f"randomize: delay={spec.delay} is not shorter than the episode ({episode_length} steps)")
 
 
-def scaled_values(nominal, col, scale):
+def scaled_values(nominal: np.ndarray, col: Optional[int], scale: np.ndarray) -> np.ndarray:
     """The field's values [n, ...] for per-row scales [n] from its nominal values (NumPy, float64; the C backend)."""
-    import numpy as np
-
     out = np.broadcast_to(nominal, (len(scale),) + nominal.shape).copy()
     s = np.asarray(scale, np.float64).reshape((-1,) + (1,) * nominal.ndim)
     if col is None:

@@ -12,10 +12,14 @@ start of a run under the nominal model.
 """
 
 import contextlib
+import dataclasses
 
 import jax
 import jax.numpy as jnp
 from brax.envs.base import Wrapper
+from mujoco import mjx
+
+from envs.physics import mj_model, substeps
 
 
 RANDOMIZE_STREAM = 0x52414E44  # folded into a reset's key: the randomization's own key sequence
@@ -66,9 +70,12 @@ def is_planar(base):
 
 
 def total_mass(base):
-    import envs
+    return float(mj_model(base).body_mass.sum())
 
-    return float(envs.mj_model(base).body_mass.sum())
+
+def mjx_model_fields():
+    """The names of MJX's model fields (model scales on MJX apply to these)."""
+    return {f.name for f in dataclasses.fields(mjx.Model)}
 
 
 class Randomized(Wrapper):
@@ -76,13 +83,11 @@ class Randomized(Wrapper):
 
     def __init__(self, env, base, spec):
         super().__init__(env)
-        import envs
-
         self.spec, self.base = spec, base
         self._lo = jnp.asarray([lo for _, lo, _ in spec.scales], jnp.float32)
         self._hi = jnp.asarray([hi for _, _, hi in spec.scales], jnp.float32)
-        self.n_act = int(envs.mj_model(base).nu)
-        dt = float(envs.mj_model(base).opt.timestep) * envs.substeps(base)
+        self.n_act = int(mj_model(base).nu)
+        dt = float(mj_model(base).opt.timestep) * substeps(base)
         self._force = spec.push * total_mass(base) / dt
         self._planar, self._body = is_planar(base), push_body_of(base)
         self._variant = self._variant_fn()

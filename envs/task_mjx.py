@@ -8,10 +8,13 @@ distance within float32 rounding of the geoms' margin can go the other way in MJ
 part after such an event (Ant-v5 from ~3 env steps on); from a shared state one env step agrees.
 """
 
+import contextlib
+import copy
 import functools
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
@@ -50,10 +53,6 @@ def step1(sys, data):
 def mjx_model(model):
     """The MjModel MJX steps: the task's, less its energy flag (dm_control's MJCFs enable it; it computes
     data.energy for display and changes no dynamics; MJX refuses it)."""
-    import copy
-
-    import mujoco
-
     energy = int(mujoco.mjtEnableBit.mjENBL_ENERGY)
     if not model.opt.enableflags & energy:
         return model
@@ -90,8 +89,6 @@ def host_start(task, seeds, needed):
     """(qpos [..., nq], qvel [..., nv], goal [..., goal_size]) float32 of task.initialize() from seeds [..., 2] where
     needed [...] (elsewhere qpos0, at rest: a placeholder the caller discards): the host side of an MJX reset whose
     start law is code."""
-    import mujoco
-
     m, lead = task.model, np.shape(needed)
     seeds, needed = np.asarray(seeds).reshape(-1, 2), np.asarray(needed).reshape(-1)
     out = [np.zeros((len(needed), k), np.float32) for k in (m.nq, m.nv, task.goal_size)]
@@ -109,8 +106,6 @@ class TaskMjx(PipelineEnv):
     (WithGoal)."""
 
     def __init__(self, task):
-        import mujoco
-
         self.task = task
         data = mujoco.MjData(task.model)
         self._shapes = {f: getattr(data, f).shape for f in task.derived}  # MuJoCo C's (xmat [nbody, 9], not [.., 3, 3])
@@ -162,3 +157,18 @@ class TaskMjx(PipelineEnv):
         return state.replace(pipeline_state=WithGoal(data, goal) if self.task.goal_size else data,
                              obs=obs[0].astype(jnp.float32), reward=reward[0].astype(jnp.float32),
                              done=terminated[0].astype(jnp.float32))
+
+
+@contextlib.contextmanager
+def process_local_devices():
+    """mjx.put_model places the model on jax.devices()[0], which in a multi-process (jax.distributed) run
+    is process 0's device; while an env is built, let jax.devices() name this process's devices."""
+    if jax.process_count() == 1:
+        yield
+        return
+    original = jax.devices
+    jax.devices = lambda backend=None: jax.local_devices(backend=backend)
+    try:
+        yield
+    finally:
+        jax.devices = original

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import Wrapper
 
-from envs import RESET_MODES
+from envs.names import RESET_MODES
 
 
 class EpisodeLimit(Wrapper):

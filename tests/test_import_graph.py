@@ -1,11 +1,14 @@
 """No import circle among the project's modules: the graph of which module imports which (read with ast, imports
-inside functions and `if` blocks counted) has no cycle."""
+inside functions and `if` blocks counted) has no cycle. And envs/ keeps its imports at module top but for a few, each
+for a heavy or optional dependency (JAX, MuJoCo, Brax, gymnasium, MuJoCo Playground, dm_control) that a module
+loading without it imports only when asked."""
 
 import ast
 import os
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
-PACKAGES = ("gsa_jax",)  # envs/ to follow once its circle is gone
+PACKAGES = ("gsa_jax", "envs")
+MAX_ENVS_LAZY_IMPORTS = 12  # imports inside functions in envs/ (each commented with the dependency it defers)
 
 
 def modules():
@@ -83,7 +86,8 @@ def cycles(edges):
 
 def test_no_import_circle():
     g = graph()
-    assert len(g) > 50 and "gsa_jax.analysis.retention" in g["gsa_jax.robustness"]
+    assert len(g) > 80 and "gsa_jax.analysis.retention" in g["gsa_jax.robustness"]
+    assert {"envs.registry", "envs.randomized"} <= g["envs.build"] and "envs.registry" in g["envs.task"]
     found = cycles(g)
     assert not found, "import circles: " + "; ".join(" <-> ".join(c) for c in found)
 
@@ -95,3 +99,34 @@ def test_the_check_sees_a_circle_and_imports_inside_functions():
     assert imported("from . import a\nfrom .c import x\n", "p.b", False, known) == {"p.a", "p.c"}
     assert cycles({"p.a": {"p.b"}, "p.b": {"p.c"}, "p.c": {"p.a"}, "p": {"p.a"}}) == [["p.a", "p.b", "p.c"]]
     assert cycles({"p.a": {"p.b"}, "p.b": set()}) == []
+
+
+def imports_in_functions(source):
+    """[line] of the import statements inside a function (at any depth) of a module's source."""
+    out = []
+
+    def visit(node, inside):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.Import, ast.ImportFrom)) and inside:
+                out.append(child.lineno)
+            visit(child, inside or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
+
+    visit(ast.parse(source), False)
+    return out
+
+
+def test_envs_imports_at_module_top_but_a_few():
+    found = {path: lines for m, path in modules().items() if m.split(".")[0] == "envs"
+             for lines in [imports_in_functions(open(path).read())] if lines}
+    places = [f"{os.path.relpath(p, ROOT)}:{n}" for p, lines in sorted(found.items()) for n in lines]
+    assert len(places) <= MAX_ENVS_LAZY_IMPORTS, f"{len(places)} imports inside functions in envs/: {', '.join(places)}"
+
+
+def test_no_module_of_envs_imports_the_envs_package_back():
+    back = sorted(m for m, deps in graph().items() if m.startswith("envs.") and "envs" in deps)
+    assert not back, f"modules of envs/ that import the envs package itself (import envs / from envs import <name>): {back}"
+
+
+def test_the_count_sees_imports_inside_functions():
+    source = "import os\n\ndef f():\n    import json\n\n    def g():\n        from x import y\n\nclass A:\n    import re\n"
+    assert imports_in_functions(source) == [4, 7]

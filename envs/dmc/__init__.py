@@ -3,6 +3,8 @@ own MJCFs, control timesteps, reset laws, observations (its dict flattened in it
 1000-step episodes, checked step for step against dm_control (tests/test_dmc.py). One module per domain;
 envs/dmc/base.py holds what they share. dm_control is an optional extra (envs.dmc.base.INSTALL)."""
 
+import importlib
+
 PREFIX = "dmc:"
 
 # name -> "module:Class" of envs/dmc
@@ -30,8 +32,6 @@ NAMES = tuple(PREFIX + name for name in TASKS)
 
 def task_class(name):
     """The Task subclass of 'dmc:<domain>-<task>' (ValueError listing the available ones in one line)."""
-    import importlib
-
     key = name[len(PREFIX):] if name.startswith(PREFIX) else name
     if key not in TASKS:
         raise ValueError(f"unknown DeepMind Control Suite task {name!r}; choose one of {', '.join(NAMES)}")

@@ -8,13 +8,14 @@ Its `suite.load` itself needs mujoco 3.17 (it fails under mujoco 4.0), so the st
 own environment (experiments/dmc_reference/record.py); the MJCFs load in mujoco 4.0 as they are.
 """
 
+import importlib.util
 import math
 import os
 
 import mujoco
 import numpy as np
 
-from envs.task import Task, TaskError, seed_words
+from envs.definition import Task, TaskError, seed_words
 
 DM_CONTROL_VERSION = "1.0.50"
 INSTALL = f"pip install 'dm_control=={DM_CONTROL_VERSION}' (or: pip install -e '.[dmc]'; make test installs it)"
@@ -22,8 +23,6 @@ INSTALL = f"pip install 'dm_control=={DM_CONTROL_VERSION}' (or: pip install -e '
 
 def suite_dir(where="a dmc task"):
     """The installed dm_control's suite/ folder (its MJCFs); TaskError in one line without dm_control."""
-    import importlib.util
-
     spec = importlib.util.find_spec("dm_control")
     if spec is None or not spec.submodule_search_locations:
         raise TaskError(f"{where} needs dm_control, which is not installed: {INSTALL}")

@@ -18,8 +18,8 @@ times move (linear from 1 at a forward torso velocity >= 0.5 to 0.5 at 0)."""
 import mujoco
 import numpy as np
 
-from envs.dmc.base import XMAT, DmcTask, tolerance
-from envs.task import TaskError
+from envs.definition import TaskError
+from envs.dmc.base import XMAT, DmcTask, suite_dir, tolerance
 
 WALK_SPEED, TIME_LIMIT = 0.5, 20.0
 MAX_ATTEMPTS = 10000
@@ -52,10 +52,8 @@ class Quadruped(DmcTask):
     def load_model(self):
         where = f"task {self.name or type(self).__name__!r}"
         try:
-            from dm_control.suite import common, quadruped
+            from dm_control.suite import common, quadruped  # dm_control: an optional extra (envs/dmc/)
         except ImportError:
-            from envs.dmc.base import suite_dir
-
             suite_dir(where)  # TaskError in one line without dm_control
             raise
         xml = quadruped.make_model(floor_size=self.floor_size, terrain=False, rangefinders=False, walls_and_ball=False)

@@ -35,10 +35,10 @@ def git_commit():
         return None
 
 
-def physics_record(cfg):
-    """Every physics option in force for a Config's task (envs.physics.record; no MJX env is built)."""
-
-    return record(cfg.physics, envs.task_model(cfg.env))
+def physics_record(cfg, task=None):
+    """Every physics option in force for a Config's task (envs.physics.record; no MJX env is built). task: its
+    record (envs.resolve(cfg.env), resolved here if not given)."""
+    return record(cfg.physics, envs.resolve(cfg.env if task is None else task).model())
 
 
 def run_metadata():

@@ -143,7 +143,8 @@ def run(plan, options):
                 check_resume_config(json.load(f), config, options.force)
             if os.path.exists(os.path.join(out, "DONE")):
                 return report_ended(out, log)
-        config.update(physics=physics_record(cfg), task=envs.task_source(cfg.env), **run_metadata())
+        task = envs.resolve(cfg.env)  # the task's record, read for both
+        config.update(physics=physics_record(cfg, task), task=task.source(), **run_metadata())
         write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
         write_atomic(config_path, json.dumps(config, indent=2))
         return train_run(plan, options, config, log)

@@ -123,11 +123,12 @@ def write_group_record(gdir, spec, cfg, runs, schedule):
     run's seed and full hyperparameters (gsa_jax.running.trained reads a run's settings from it), physics,
     versions and commit. schedule: (iterations, chunk, eval_every)."""
     iterations, chunk, eval_every = schedule
+    task = envs.resolve(cfg.env)  # the task's record, read for its physics and its source
     per_run = [{"seed": r["seed"], "hparams": {**HPARAM_DEFAULTS, **{n: r[n] for n in spec.run_hparam_names()}, "K": r["K"],
                                                "total_iterations": iterations}} for r in runs]
     record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, "eval_every": eval_every,
               "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
-              "physics": physics_record(cfg), "task": envs.task_source(cfg.env), **run_metadata()}
+              "physics": physics_record(cfg, task), "task": task.source(), **run_metadata()}
     write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
 
 
