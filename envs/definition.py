@@ -8,6 +8,8 @@ import hashlib
 import inspect
 import numbers
 import os
+import types
+from typing import Any, Sequence
 
 import mujoco
 import numpy as np
@@ -17,7 +19,7 @@ class TaskError(ValueError):
     """A task name or definition that cannot be used (one line)."""
 
 
-def load_model(xml, where="the task"):
+def load_model(xml: "str | os.PathLike | mujoco.MjSpec", where: str = "the task") -> mujoco.MjModel:
     """An MjModel from an MJCF path, an XML string or a mujoco.MjSpec; TaskError (one line) if it does not load."""
     try:
         if isinstance(xml, mujoco.MjSpec):
@@ -80,29 +82,29 @@ class Task:
         self.dt = self.model.opt.timestep * self.frame_skip
         self.start_qpos = np.array(self.model.qpos0 if self.init_qpos is None else self.init_qpos, np.float64)
 
-    def load_model(self):
+    def load_model(self) -> mujoco.MjModel:
         """The task's MjModel (default: from `xml`). Override to build it otherwise."""
         return load_model(self.xml, type(self).__name__)
 
     @property
-    def vel_scale(self):
+    def vel_scale(self) -> "float | np.ndarray":
         """The qvel start-noise scale (vel_noise, or noise when None)."""
         return self.noise if self.vel_noise is None else self.vel_noise
 
     @property
-    def observation_size(self):
+    def observation_size(self) -> int:
         zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
         zeros.update({"goal": np.zeros((1, self.goal_size))} if self.goal_size else {})
         return self.observe(self.start_qpos[None], np.zeros((1, self.model.nv)), zeros).shape[-1]
 
-    def controls(self, action, xp=np):
+    def controls(self, action: np.ndarray, xp: types.ModuleType = np) -> np.ndarray:
         """[n, nu] the controls of actions [n, nu] in [-1, 1] (ctrl_range); outcome() receives these as `action`."""
         if self.ctrl_range == "unit":
             return action
         lo, hi = self.model.actuator_ctrlrange.T
         return lo + (action + 1.0) * (0.5 * (hi - lo))
 
-    def initialize(self, data, rng):
+    def initialize(self, data: mujoco.MjData, rng: np.random.Generator) -> "np.ndarray | None":
         """The start law as code, for what the noise fields cannot say (dm_control's initialize_episode): set the state
         of `data` (an MjData just after mj_resetData) with draws from `rng` (a numpy Generator); it may step `data`
         (a settling phase) and redraw (rejection). Returns the goal [goal_size] (a target drawn at reset), or None
@@ -112,11 +114,11 @@ class Task:
         raise NotImplementedError
 
     @property
-    def has_initialize(self):
+    def has_initialize(self) -> bool:
         """Whether the task's start law is initialize() (rather than the noise fields)."""
         return type(self).initialize is not Task.initialize
 
-    def start(self, data, seed):
+    def start(self, data: mujoco.MjData, seed: "int | Sequence[int] | np.ndarray") -> np.ndarray:
         """initialize() on `data` from mj_resetData with a Generator seeded by `seed` (an int or a sequence of ints),
         then mj_forward -> goal [goal_size]."""
         mujoco.mj_resetData(self.model, data)
@@ -124,31 +126,31 @@ class Task:
         mujoco.mj_forward(self.model, data)
         return np.zeros(0) if goal is None else np.asarray(goal, np.float64).reshape(self.goal_size)
 
-    def before(self, qpos: np.ndarray, derived: dict, xp=np) -> np.ndarray:
+    def before(self, qpos: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         """[n, k] what the reward needs from before a step (default: nothing, k = 0)."""
         return qpos[:, :0] + 0.0
 
-    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp=np) -> np.ndarray:
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         """[n, d] observation of n simulations: qpos [n, nq], qvel [n, nv], derived {field: [n, ...]}."""
         raise NotImplementedError(f"{type(self).__name__} defines no observe()")
 
     def outcome(self, before: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
-                xp=np) -> tuple:
+                xp: types.ModuleType = np) -> tuple:
         """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
         raise NotImplementedError(f"{type(self).__name__} defines no outcome()")
 
-    def observation_layout(self):
+    def observation_layout(self) -> list[str]:
         """One short description per observation entry (exported controllers' docs)."""
         return [f"obs[{i}]" for i in range(self.observation_size)]
 
-    def push_body_id(self):
+    def push_body_id(self) -> int:
         """The index of the body robustness pushes act on (push_body)."""
         if isinstance(self.push_body, str):
             return mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, self.push_body)
         return int(self.push_body)
 
 
-def start_noise(task, rng):
+def start_noise(task: Task, rng: np.random.Generator) -> tuple:
     """(dq [nq], dv [nv]) of a reset, drawn from a NumPy Generator (qpos first, then qvel, as gymnasium draws)."""
     m = task.model
     if task.qpos_noise == "uniform":
@@ -160,7 +162,7 @@ def start_noise(task, rng):
     return dq, dv
 
 
-def seed_words(seed):
+def seed_words(seed: "int | Sequence[int] | np.ndarray") -> list[int]:
     """A numpy seed from an int or the uint32 words a program drew (a list of ints)."""
     return [int(w) for w in np.ravel(seed)]
 
@@ -177,11 +179,11 @@ class TaskC:
         self.goal = np.zeros(task.goal_size)
 
     @property
-    def action_size(self):
+    def action_size(self) -> int:
         return self.model.nu
 
     @property
-    def n_frames(self):
+    def n_frames(self) -> int:
         """Physics steps per env step (the task's frame_skip)."""
         return int(self.task.frame_skip)
 
@@ -189,7 +191,7 @@ class TaskC:
         derived = {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
         return {**derived, "goal": self.goal[None].copy()} if self.task.goal_size else derived
 
-    def set_start(self, qpos, qvel, goal=None):
+    def set_start(self, qpos: np.ndarray, qvel: np.ndarray, goal: "np.ndarray | None" = None) -> np.ndarray:
         """The start state (mj_resetData, qpos, qvel, mj_forward; the goal [goal_size] of a task that has one) -> obs."""
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
@@ -201,26 +203,26 @@ class TaskC:
         self.goal = np.zeros(self.task.goal_size) if goal is None else np.asarray(goal, np.float64)
         return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
 
-    def observe(self):
+    def observe(self) -> np.ndarray:
         """[d] the observation of the current state."""
         d = self.data
         return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
 
-    def reset(self, seed):
+    def reset(self, seed: "int | Sequence[int] | np.ndarray") -> np.ndarray:
         if self.task.has_initialize:
             self.goal = self.task.start(self.data, seed)
             return self.observe()
         dq, dv = start_noise(self.task, np.random.default_rng(seed))
         return self.set_start(self.task.start_qpos + dq, dv)
 
-    def step(self, action):
+    def step(self, action: np.ndarray) -> tuple:
         """One env step with an action in [-1, 1]^nu -> (obs, reward, terminated)."""
         a = np.asarray(action, np.float64)
         if a.shape != (self.model.nu,):
             raise ValueError(f"action has shape {a.shape}; {self.task.name or type(self.task).__name__} takes ({self.model.nu},)")
         return self.step_controls(self.task.controls(a[None])[0])
 
-    def step_controls(self, ctrl):
+    def step_controls(self, ctrl: np.ndarray) -> tuple:
         """One env step with the controls ctrl [nu] themselves (the task's controls() of an action) -> (obs, reward,
         terminated)."""
         m, d = self.model, self.data
@@ -240,7 +242,7 @@ DERIVED_AFTER = ("step", "step1")  # when derived fields are read (Task.derived_
 POST_CONSTRAINT_FIELDS = ("cacc", "cfrc_int", "cfrc_ext")  # MjData fields only mj_rnePostConstraint computes
 
 
-def validate(task, where):
+def validate(task: Task, where: str) -> None:
     """TaskError (one line, naming `where`) unless the definition can be stepped: actions, start noise shapes,
     the frame skip and episode length, derived fields, a finite first observation [d], and outcome's observation,
     reward and termination of the right shapes (NumPy only; check_jax_agrees adds jax.numpy). An error raised by
@@ -313,7 +315,7 @@ def _validate(task, where):
 KINDS = {"f": "a float array", "b": "a bool array (e.g. a comparison, or xp.zeros(n, bool))"}
 
 
-def check_rows(where, function, what, value, ndim, kind="f"):
+def check_rows(where: str, function: str, what: str, value: Any, ndim: int, kind: str = "f") -> np.ndarray:
     """`value` as an array [1, ...] of ndim dimensions (one row per simulation; here n = 1) of dtype kind 'f' (float)
     or 'b' (bool); else TaskError naming the function, its shape and its dtype."""
     a = np.asarray(value)
@@ -326,7 +328,7 @@ def check_rows(where, function, what, value, ndim, kind="f"):
     return a
 
 
-def check_jax_agrees(task, where):
+def check_jax_agrees(task: Task, where: str) -> None:
     """TaskError unless observe(), before() and outcome() trace with jax.numpy inside jax.jit (as both backends
     call them) and the first observation equals NumPy's (shape; values to float32 rounding)."""
     import jax  # JAX: this module loads without it (deployment steps tasks with no JAX)
@@ -353,7 +355,7 @@ def check_jax_agrees(task, where):
                         f"{got[0, worst]}); write it with xp (the module passed in) only")
 
 
-def coordinate_names(m):
+def coordinate_names(m: mujoco.MjModel) -> tuple:
     """Names of the qpos [nq] and qvel [nv] coordinates of a model, from its joint names."""
     qpos, qvel = [], []
     for j in range(m.njnt):
@@ -370,7 +372,7 @@ def coordinate_names(m):
     return qpos, qvel
 
 
-def source_record(cls):
+def source_record(cls: type) -> dict:
     """What says which code defined a task: its module, file and the file's sha256 (None where there is no file)."""
     path = inspect.getsourcefile(cls) or ""
     digest = None

@@ -13,29 +13,32 @@ re-exported here. Nothing here imports JAX; tests/test_mujoco_c.py checks the po
 environments.
 """
 
+from typing import Any
+
 import numpy as np
 
 from envs.allegro_task import AllegroC, allegro_layout  # noqa: F401 - re-exported
 from envs.brax_ports import (  # noqa: F401 - re-exported
     BRAX_PORTS, IDP_LAYOUT, AntC, BraxTask, HalfCheetahC, HopperC, Walker2dC, brax_asset,
 )
-from envs.registry import resolve
+from envs.registry import TaskLike, resolve
 
 C_TASKS = ("hopper", "walker2d", "halfcheetah", "ant", "allegro_cylinder")  # the MuJoCo C ports
 
 
-def make_c(name):
+def make_c(name: TaskLike) -> Any:
     """The task in plain MuJoCo C: reset(seed) -> obs, step(action) -> (obs, reward, done) (the task's record,
     envs/registry.py: a Brax port, AllegroC, or envs.task.TaskC over a task definition)."""
     return resolve(name).make_c()
 
 
-def observation_layout(name):
+def observation_layout(name: TaskLike) -> list:
     """One short description per observation entry of task `name` (for exported controllers' docs)."""
     return resolve(name).observation_layout()
 
 
-def run_episodes(task, controller, episodes, episode_length, seed=0):
+def run_episodes(task: Any, controller: Any, episodes: int, episode_length: int,
+                 seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Deterministic controller (gsa_jax.deployment.numpy_policy) in the C task: returns [episodes], lengths [episodes].
     Its act() keeps actions inside the task's bounds, as training clips them (envs.ACTION_RANGE)."""
     returns, lengths = [], []

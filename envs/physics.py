@@ -28,6 +28,10 @@ No JAX or MuJoCo import at module level.
 import contextlib
 import dataclasses
 import os
+from typing import TYPE_CHECKING, Any, Iterator
+
+if TYPE_CHECKING:  # annotations only: this module loads without MuJoCo
+    import mujoco
 
 BACKENDS = ("mjx", "c")
 LINESEARCHES = ("exact", "iterative")
@@ -49,7 +53,7 @@ class Physics:
     backend: str = "mjx"
     threads: int = 0
 
-    def validate(self):
+    def validate(self) -> "Physics":
         """Raise ValueError naming the bad field."""
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
@@ -68,7 +72,7 @@ class Physics:
         return self
 
 
-def resolve_threads(threads):
+def resolve_threads(threads: int) -> int:
     """MuJoCo C threads for backend 'c' in this process: `threads`, or for 0 this process's share of the
     cores it may run on -- divided among the worker processes a sweep or bench started on this host
     (LOCAL_WORKERS_ENV), so that workers do not oversubscribe the cores. Results are the same at any count."""
@@ -82,7 +86,7 @@ def resolve_threads(threads):
     return max(1, cores // workers)
 
 
-def exact_applies(mj_model):
+def exact_applies(mj_model: "mujoco.MjModel") -> bool:
     """Whether the solver cost along a line is piecewise quadratic for this MjModel: pyramidal cones and
     no friction loss (the exact line search's condition)."""
     import mujoco  # this module loads without MuJoCo (it is read before `import envs` may load it)
@@ -92,13 +96,13 @@ def exact_applies(mj_model):
     return int(mj_model.opt.cone) == int(mujoco.mjtCone.mjCONE_PYRAMIDAL) and not frictionloss
 
 
-def linesearch_in_force(physics, mj_model):
+def linesearch_in_force(physics: Physics, mj_model: "mujoco.MjModel") -> str:
     """'exact' or 'iterative': the line search a task with this MjModel steps with under `physics`."""
     exact = physics.linesearch == "exact" and physics.ls_iterations is None and exact_applies(mj_model)
     return "exact" if exact else "iterative"
 
 
-def record(physics, mj_model):
+def record(physics: Physics, mj_model: "mujoco.MjModel") -> dict:
     """Every physics option in force, as written to config.json / sweep.json: the options, the line
     search they resolve to for this model (MuJoCo C's own for backend 'c'), and the MJCF's own solver
     settings."""
@@ -110,7 +114,7 @@ def record(physics, mj_model):
 
 
 @contextlib.contextmanager
-def applied(physics, mj_model):
+def applied(physics: Physics, mj_model: "mujoco.MjModel") -> Iterator[None]:
     """Inside this block MJX's solver and jax.scipy's Cholesky run as `physics` says for a task with this
     MjModel; the previous routing is restored on exit (blocks nest)."""
     from envs import linalg, linesearch  # JAX and MJX: this module loads without them
@@ -120,11 +124,11 @@ def applied(physics, mj_model):
         yield
 
 
-def mj_model(env):
+def mj_model(env: Any) -> "mujoco.MjModel":
     """The MuJoCo C model (MjModel) behind a task made by envs.make_base: ours or a Brax MJX env."""
     return env.mj_model if hasattr(env, "mj_model") else env.sys.mj_model
 
 
-def substeps(env):
+def substeps(env: Any) -> int:
     """Physics steps per env step of a task made by envs.make_base."""
     return int(getattr(env, "n_frames", None) or getattr(env, "_n_frames", 1))

@@ -7,8 +7,10 @@ import os
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 MODULES = ("gsa_jax/algorithm/*.py", "gsa_jax/deployment/*.py", "gsa_jax/analysis/*.py", "gsa_jax/inspect/*.py",
-           "envs/__init__.py", "envs/registry.py", "envs/task.py", "envs/randomize.py", "envs/build.py", "envs/names.py")
-NOT_YET = ("gsa_jax/algorithm/ppo.py",)  # files of MODULES still to be annotated
+           "gsa_jax/running/spec.py", "gsa_jax/running/sweeps.py",
+           "envs/__init__.py", "envs/registry.py", "envs/task.py", "envs/randomize.py", "envs/build.py", "envs/names.py",
+           "envs/definition.py", "envs/physics.py", "envs/mujoco_c.py")
+NOT_YET = ()  # files of MODULES still to be annotated
 
 
 def files():

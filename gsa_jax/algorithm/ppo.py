@@ -20,7 +20,7 @@ by their factors every iteration.
 import dataclasses
 import functools
 import math
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -91,20 +91,20 @@ class Config:
                 raise
 
     @property
-    def batch_size(self):
+    def batch_size(self) -> int:
         return self.num_envs * self.unroll_length
 
     @property
-    def physics(self):
+    def physics(self) -> Physics:
         """The physics options of this config (envs.physics.Physics)."""
         return Physics(self.solver_iterations, self.ls_iterations, self.linesearch, self.search_loop, self.cholesky,
                        self.backend, self.physics_threads)
 
     @property
-    def minibatch_size(self):
+    def minibatch_size(self) -> int:
         return self.batch_size // self.num_minibatches
 
-    def validate(self, task=None):
+    def validate(self, task: Any = None) -> "Config":
         """Raise ValueError naming the first bad field (before anything is compiled). task: the task's record
         (envs/registry.py; default: self.env resolved), whose name must be self.env."""
         task = envs.task_record(self.env if task is None else task)
@@ -167,7 +167,7 @@ HPARAM_DEFAULTS = Hparams()._asdict()
 _INT_HPARAMS = ("K", "total_iterations")
 
 
-def make_hparams(**overrides) -> Hparams:
+def make_hparams(**overrides: Any) -> Hparams:
     """Hparams of array scalars (float32; K and total_iterations int32): the defaults with `overrides` (names of
     Hparams' fields; an unknown name is a ValueError)."""
     unknown = set(overrides) - set(HPARAM_DEFAULTS)
@@ -201,14 +201,14 @@ LR_GROUPS = {"partition": "lr_scale_partition", "L": "lr_scale_L", "b": "lr_scal
              "log_std": "lr_scale_log_std"}
 
 
-def allowed_range(name):
+def allowed_range(name: str) -> str:
     lo, hi, lo_in, hi_in = HPARAM_RANGES[name]
     if hi is None:
         return f">= {lo:g}" if lo_in else f"> {lo:g}"
     return f"in {'[' if lo_in else '('}{lo:g}, {hi:g}{']' if hi_in else ')'}"
 
 
-def check_hparam(name, value):
+def check_hparam(name: str, value: Any) -> None:
     """Raise ValueError '<name> must be <range>, got <value>' unless value is a finite number in range."""
     if name not in HPARAM_RANGES:
         raise ValueError(f"unknown hyperparameter {name!r}; known: {', '.join(HPARAM_RANGES)}")
@@ -222,7 +222,7 @@ def check_hparam(name, value):
         raise ValueError(f"{name} must be {kind}{allowed_range(name)}, got {value!r}")
 
 
-def validate_hparams(cfg, hp):
+def validate_hparams(cfg: Config | None, hp: Hparams | dict) -> None:
     """Every hyperparameter of an Hparams (or a dict of some of them) in range (HPARAM_RANGES) and K <= k_max:
     the one check of train, sweep and bench."""
     values = hp._asdict() if isinstance(hp, Hparams) else hp
@@ -234,7 +234,7 @@ def validate_hparams(cfg, hp):
         raise ValueError(f"clusters K must be in 1..k_max={cfg.k_max}, got {k}")
 
 
-def schedule(hp, iteration):
+def schedule(hp: Hparams, iteration: jax.Array) -> dict:
     """Exploration at iteration `iteration` (int32 scalar): K, epsilon, sigma_min."""
     t = iteration.astype(jnp.float32)
     return {
@@ -244,7 +244,8 @@ def schedule(hp, iteration):
     }
 
 
-def compute_gae(rewards, values, next_values, terminations, dones, gamma, lam):
+def compute_gae(rewards: jax.Array, values: jax.Array, next_values: jax.Array, terminations: jax.Array,
+                dones: jax.Array, gamma: jax.Array | float, lam: jax.Array | float) -> tuple:
     """GAE(lambda) over time-major arrays [T, ...].
 
     next_values[t] is V of the true observation after step t (before any auto-reset), so an
@@ -273,7 +274,7 @@ class Trainer(NamedTuple):
     evaluate: Callable
 
 
-def make_env(cfg, auto_reset=True, task=None, randomized=None):
+def make_env(cfg: Config, auto_reset: bool = True, task: Any = None, randomized: bool | None = None) -> Any:
     """The task (its record, default: cfg.env's) as a Config describes it: time limit, physics options and (where
     randomized, default auto_reset: the training env) its domain randomization."""
     randomized = auto_reset if randomized is None else randomized
@@ -294,12 +295,12 @@ class Parts(NamedTuple):
     v_probs: Callable
 
 
-def value(params, obs):
+def value(params: Any, obs: jax.Array) -> jax.Array:
     """V(obs) of the value MLP: [..., d_s] -> [...]."""
     return apply_mlp(params, obs)[..., 0]
 
 
-def norm_obs(cfg, stats, obs):
+def norm_obs(cfg: Config, stats: dict, obs: jax.Array) -> jax.Array:
     return normalize(stats, obs) if cfg.normalize_obs else obs
 
 
@@ -319,7 +320,7 @@ class TrainState(NamedTuple):
     buffer: dict | None = None  # value_target "retrace": the last iterations' samples (gsa_jax/algorithm/retrace.py); else None
 
 
-def init_state(p, key, hp):
+def init_state(p: Parts, key: jax.Array, hp: Hparams) -> TrainState:
     """The initial TrainState of one run."""
     k_pol, k_val, k_env, k_run = jax.random.split(key, 4)
     params = {
@@ -342,7 +343,7 @@ def init_state(p, key, hp):
     )
 
 
-def rollout(p, state, hp, sched, key):
+def rollout(p: Parts, state: TrainState, hp: Hparams, sched: dict, key: jax.Array) -> tuple:
     """cfg.unroll_length steps of cfg.num_envs envs -> (final carry, trajectory dict [T, N, ...]). The
     policy's random draws for all T x N steps come from one generator call before the loop."""
     params = state.params["policy"]
@@ -380,7 +381,7 @@ def rollout(p, state, hp, sched, key):
     return carry, traj
 
 
-def ppo_loss(p, params, mb, hp, sched):
+def ppo_loss(p: Parts, params: dict, mb: dict, hp: Hparams, sched: dict) -> tuple:
     """Clipped surrogate on the joint log-probability of (cluster, action) + vf_coef x value loss; (loss, aux)."""
     logp = p.v_log_prob(params["policy"], mb["obs"], mb["action"], mb["cluster"], sched)
     log_ratio = logp - mb["logp"]
@@ -398,7 +399,7 @@ def ppo_loss(p, params, mb, hp, sched):
     return pg_loss + hp.vf_coef * v_loss, aux
 
 
-def value_loss(params, mb):
+def value_loss(params: Any, mb: dict) -> jax.Array:
     """Half the mean squared error of V: on the minibatch's own samples (GAE targets), or, with Retrace,
     on v_obs [mb, N, d_s] / v_target [mb, N] of the buffer's slots, weighted by v_weight [mb, N] (0: empty)."""
     if "v_obs" not in mb:
@@ -407,7 +408,7 @@ def value_loss(params, mb):
     return 0.5 * jnp.sum(mb["v_weight"] * sq) / jnp.maximum(jnp.sum(mb["v_weight"]), 1.0)
 
 
-def shuffle(key, n):
+def shuffle(key: jax.Array, n: int) -> jax.Array:
     """A random permutation of range(n) [n] (int32): shuffle_by_sorts with the random bits that fit above
     the index bits of a uint32 key and enough rounds that a pair ties in every round with probability
     below 2^-10 / (n^2 / 2); beyond 2^24 items, jax.random.permutation."""
@@ -418,7 +419,7 @@ def shuffle(key, n):
     return shuffle_by_sorts(key, n, random_bits, -(-(2 * index_bits + 10) // random_bits))
 
 
-def shuffle_by_sorts(key, n, random_bits, rounds):
+def shuffle_by_sorts(key: jax.Array, n: int, random_bits: int, rounds: int) -> jax.Array:
     """A random permutation of range(n) [n] (int32) from `rounds` sorts of uint32 keys, each `random_bits`
     random bits above an item's position: XLA:CPU sorts one integer operand several times faster than
     argsort's (key, index) pairs. Items whose random bits tie keep the previous
@@ -435,7 +436,7 @@ def shuffle_by_sorts(key, n, random_bits, rounds):
     return perm.astype(jnp.int32)
 
 
-def group_learning_rates(params, hp, lr):
+def group_learning_rates(params: dict, hp: Hparams, lr: jax.Array) -> dict:
     """A pytree like params of each leaf's learning rate: lr x the lr_scale_* of its group (LR_GROUPS; the
     critic lr_scale_critic; flat PPO's MLP lr itself). A scale of 1 gives lr bit for bit."""
     policy = {name: jax.tree.map(lambda _, n=name: lr * getattr(hp, LR_GROUPS[n]) if n in LR_GROUPS else lr, sub)
@@ -443,25 +444,26 @@ def group_learning_rates(params, hp, lr):
     return {"policy": policy, "value": jax.tree.map(lambda _: lr * hp.lr_scale_critic, params["value"])}
 
 
-def minibatch_gradients(p, params, mb, hp, sched):
+def minibatch_gradients(p: Parts, params: dict, mb: dict, hp: Hparams, sched: dict) -> tuple:
     """(gradients of ppo_loss like params, its aux metrics) on one minibatch."""
     return jax.grad(lambda prm: ppo_loss(p, prm, mb, hp, sched), has_aux=True)(params)
 
 
-def apply_gradients(params, opt, grads, hp, lrs):
+def apply_gradients(params: dict, opt: dict, grads: dict, hp: Hparams, lrs: dict) -> tuple:
     """Global-norm clipping and one Adam step -> (params, opt, norm before clipping)."""
     grads, gnorm = clip_by_global_norm(grads, hp.max_grad_norm)
     params, opt = adam_step(params, grads, opt, lrs)
     return params, opt, gnorm
 
 
-def epoch_minibatches(p, batch, key):
+def epoch_minibatches(p: Parts, batch: dict, key: jax.Array) -> dict:
     """One epoch's minibatches: the batch [B, ...] shuffled (key) into [num_minibatches, minibatch_size, ...]."""
     perm = shuffle(key, p.cfg.batch_size)
     return jax.tree.map(lambda x: x[perm].reshape((p.cfg.num_minibatches, p.cfg.minibatch_size) + x.shape[1:]), batch)
 
 
-def sgd_update(p, params, opt, batch, hp, sched, lr, key):
+def sgd_update(p: Parts, params: dict, opt: dict, batch: dict, hp: Hparams, sched: dict, lr: jax.Array,
+               key: jax.Array) -> tuple:
     """cfg.num_epochs epochs of shuffled minibatch Adam steps (each parameter group at its own rate,
     group_learning_rates) -> (params, opt, mean stats)."""
     lrs = group_learning_rates(params, hp, lr)
@@ -479,7 +481,8 @@ def sgd_update(p, params, opt, batch, hp, sched, lr, key):
     return params, opt, jax.tree.map(jnp.mean, stats)
 
 
-def make_batch(p, state, traj, hp, sched, ret_scale):
+def make_batch(p: Parts, state: TrainState, traj: dict, hp: Hparams, sched: dict,
+               ret_scale: jax.Array | float) -> tuple:
     """The update's samples, flattened to [B, ...]: the iteration's own (obs, action, cluster, logp) with
     GAE(lambda) advantages, and the value function's targets: GAE's on the same samples, or Retrace's on
     every slot of the buffer (which first takes this iteration's samples). -> (batch, new buffer)."""
@@ -504,7 +507,8 @@ def make_batch(p, state, traj, hp, sched, ret_scale):
     return jax.tree.map(lambda x: x.reshape((p.cfg.batch_size,) + x.shape[2:]), batch), buffer
 
 
-def retrace_batch(p, state, buffer, hp, sched, ret_scale):
+def retrace_batch(p: Parts, state: TrainState, buffer: dict, hp: Hparams, sched: dict,
+                  ret_scale: jax.Array | float) -> dict:
     """Retrace targets of the buffer under the current policy: v_obs [T, E, N, d_s], v_target and v_weight
     [T, E, N] (slot axis after the sample axes, so minibatches take every slot of the samples they draw)."""
     obs, targets, _ = buffer_targets(
@@ -515,7 +519,7 @@ def retrace_batch(p, state, buffer, hp, sched, ret_scale):
     return {"v_obs": to_samples_first(obs), "v_target": to_samples_first(targets), "v_weight": to_samples_first(weight)}
 
 
-def ppo_iteration(p, state, hp):
+def ppo_iteration(p: Parts, state: TrainState, hp: Hparams) -> tuple:
     """One PPO iteration. Returns (new state, dict of scalar metrics)."""
     it = state.iteration
     sched = schedule(hp, it)
@@ -560,13 +564,13 @@ def ppo_iteration(p, state, hp):
     return new_state, metrics
 
 
-def run_chunk(p, state, hp, num_iterations):
+def run_chunk(p: Parts, state: TrainState, hp: Hparams, num_iterations: int) -> tuple:
     """num_iterations (static) PPO iterations in one lax.scan; metrics stacked [num_iterations]."""
     iteration = functools.partial(ppo_iteration, p)
     return jax.lax.scan(lambda s, _: guarded_iteration(iteration, s, hp), state, None, length=num_iterations)
 
 
-def evaluate(p, params, obs_stats, hp, key):
+def evaluate(p: Parts, params: dict, obs_stats: dict, hp: Hparams, key: jax.Array) -> tuple:
     """(mean return, failed episodes) of the deterministic controller (most probable cluster, mean action)
     over p.cfg.eval_envs full episodes from random starts. A failed episode (non-finite reward or
     observation while alive: gsa_jax.algorithm.episodes) ends at its last finite step; the count says how many."""
@@ -591,7 +595,7 @@ def evaluate(p, params, obs_stats, hp, key):
     return jnp.mean(ret), jnp.sum(failed).astype(jnp.int32)
 
 
-def make_parts(cfg, env, eval_env):
+def make_parts(cfg: Config, env: Any, eval_env: Any) -> Parts:
     """Parts of a run on the tasks env / eval_env (anything with reset, step, observation_size, action_size)."""
     policy = make_policy(cfg.policy, env.observation_size, env.action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale,
                          cfg.subpolicy)
@@ -600,7 +604,7 @@ def make_parts(cfg, env, eval_env):
                  jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
 
 
-def make_run_parts(cfg: Config, task=None) -> Parts:
+def make_run_parts(cfg: Config, task: Any = None) -> Parts:
     """The Parts of a run of cfg on `task` (as make_train takes it), validated; gsa_jax.benchmark.parts times them."""
     task = envs.task_record(cfg.env if task is None else task)
     if cfg.episode_length is None:
@@ -610,7 +614,7 @@ def make_run_parts(cfg: Config, task=None) -> Parts:
                       make_env(cfg, auto_reset=False, task=task, randomized=cfg.eval_randomized))
 
 
-def make_train(cfg: Config, task=None) -> Trainer:
+def make_train(cfg: Config, task: Any = None) -> Trainer:
     """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...).
 
     task: what to train, as Brax's train takes an environment: a task name, its record (envs.task_record) or a
@@ -621,11 +625,11 @@ def make_train(cfg: Config, task=None) -> Trainer:
     return Trainer(p.cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
 
 
-def all_finite(tree):
+def all_finite(tree: Any) -> jax.Array:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
 
 
-def guarded_iteration(iteration, state, hp):
+def guarded_iteration(iteration: Callable, state: TrainState, hp: Hparams) -> tuple:
     """iteration(state, hp), masked: a run whose loss or new parameters are non-finite keeps its last
     state (last finite parameters), records the failing iteration in state.failed_at and stays
     frozen from then on; metrics['failed_at'] says so per iteration (-1 while healthy). Inside the
@@ -638,7 +642,7 @@ def guarded_iteration(iteration, state, hp):
     return kept._replace(failed_at=failed_at), dict(metrics, failed_at=failed_at)
 
 
-def train(cfg, key, hp, num_iterations):
+def train(cfg: Config, key: jax.Array, hp: Hparams, num_iterations: int) -> tuple:
     """A whole run as one pure function: (final state, metrics stacked over iterations)."""
     trainer = make_train(cfg)
     return trainer.run_chunk(trainer.init(key, hp), hp, num_iterations)

@@ -13,7 +13,7 @@ import math
 import os
 import re
 import tomllib
-from typing import NamedTuple
+from typing import Callable, NamedTuple, NoReturn
 
 import envs
 from envs.randomize import parse as parse_randomize
@@ -57,7 +57,7 @@ class SweepSpec:
     eval_seed: int | None = None
     hparam_sets: tuple | None = None  # ({name: value}, ...): configurations, each run with every hparams combination
 
-    def to_json(self):
+    def to_json(self) -> dict:
         """The spec as sweep.json stores it: the file's fields (lists), absent ones left out."""
         out = {}
         for field in SPEC_FIELDS:
@@ -69,26 +69,26 @@ class SweepSpec:
             out["hparam_sets"] = [dict(c) for c in self.hparam_sets]
         return out
 
-    def set_names(self):
+    def set_names(self) -> list[str]:
         """The hyperparameters the hparam_sets give (each set gives all of them)."""
         return list(self.hparam_sets[0]) if self.hparam_sets else []
 
-    def run_hparam_names(self):
+    def run_hparam_names(self) -> list[str]:
         """Every hyperparameter a run row carries: the hparams table's and the sets'."""
         return list(self.hparams) + self.set_names()
 
-    def swept_names(self):
+    def swept_names(self) -> list[str]:
         """The hyperparameters with more than one value (a column each); with hparam_sets, 'hparam_set' (the
         set's index) and every name the sets give."""
         sets = ["hparam_set", *self.set_names()] if self.hparam_sets else []
         return [k for k, v in self.hparams.items() if len(v) > 1] + sets
 
-    def id_columns(self):
+    def id_columns(self) -> list[str]:
         """Columns that identify a run in runs.csv and the tidy metrics.csv."""
         axes = [column for field, column, _, _ in GROUP_AXES if getattr(self, field) is not None]
         return ["env", "policy", *axes, "K", "seed", "run", *self.swept_names()]
 
-    def cluster_counts(self, env_name):
+    def cluster_counts(self, env_name: str) -> list[int]:
         """K values of a mixture group: absolute, or ceil(m * action_dim) per multiplier (deduplicated, sorted)."""
         if self.clusters is not None:
             return sorted(set(self.clusters))
@@ -105,7 +105,7 @@ class Group(NamedTuple):
 
 
 # ----------------------------------------------------------------------------------------------- checking
-def load_spec(path):
+def load_spec(path: str) -> SweepSpec:
     """Read and check an experiment file (or a directory holding sweep.toml / <dir>.toml); errors name the
     file and the bad field."""
     if os.path.isdir(path):
@@ -114,7 +114,7 @@ def load_spec(path):
     return check_spec(read_toml(path, "experiment file"), source=path)
 
 
-def read_toml(path, what):
+def read_toml(path: str, what: str) -> dict:
     """A TOML file's contents; SpecError in one line if it does not exist or does not parse."""
     if not os.path.exists(path):
         raise SpecError(f"{path}: no such {what}")
@@ -125,7 +125,7 @@ def read_toml(path, what):
         raise SpecError(f"{path}: not valid TOML: {e}") from None
 
 
-def check_spec(raw, source="spec"):
+def check_spec(raw: dict, source: str = "spec") -> SweepSpec:
     """A SweepSpec from a parsed experiment file (or sweep.json's 'spec'); SpecError names the bad field."""
 
     def bad(field, msg):
@@ -152,7 +152,7 @@ def check_spec(raw, source="spec"):
     return SweepSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
 
 
-def randomize_text(table, spec, bad):
+def randomize_text(table: dict | str, spec: dict, bad: Callable[[str, str], NoReturn]) -> str:
     """The [randomize] table (envs/randomize.py: {name: value}, a range as "lo:hi" or [lo, hi]) as Config's
     canonical text; it goes to config.randomize, which the file must not also set."""
     if "randomize" in spec.get("config", {}):
@@ -165,7 +165,7 @@ def randomize_text(table, spec, bad):
         bad("randomize", str(e))
 
 
-def check_names(spec, bad):
+def check_names(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
     """envs and policies: non-empty lists of known names (a single name becomes a list), in place."""
     for field in ("envs", "policies"):
         if field not in spec:
@@ -184,7 +184,7 @@ def check_names(spec, bad):
             bad("policies", f"unknown policy {p!r}; choose from {', '.join(POLICY_KINDS)}")
 
 
-def check_seeds(seeds, bad):
+def check_seeds(seeds: int | list, bad: Callable[[str, str], NoReturn]) -> list[int]:
     """seeds: a count (0..n-1) or a list of distinct non-negative integers -> list."""
     if isinstance(seeds, int):
         if seeds < 1:
@@ -197,7 +197,7 @@ def check_seeds(seeds, bad):
     return seeds
 
 
-def check_counts(spec, bad):
+def check_counts(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
     """steps, chunk, eval_every, eval_seed: integers in range."""
     if not isinstance(spec.get("steps"), int) or spec["steps"] < 1:
         bad("steps", f"must be a positive integer, got {spec.get('steps')!r}")
@@ -208,7 +208,7 @@ def check_counts(spec, bad):
             bad(field, f"must be an integer >= 0, got {spec[field]!r}")
 
 
-def check_config_table(cfg, env_names, bad):
+def check_config_table(cfg: dict, env_names: list[str], bad: Callable[[str, str], NoReturn]) -> dict:
     """The [config] table: known static Config fields that every env's physics backend runs."""
     if not isinstance(cfg, dict):
         bad("config", "must be a table")
@@ -223,7 +223,7 @@ def check_config_table(cfg, env_names, bad):
     return cfg
 
 
-def check_cluster_fields(spec, bad):
+def check_cluster_fields(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
     """clusters / cluster_multipliers of a spec, normalized to lists in place."""
     if "mixture" in spec["policies"]:
         if ("clusters" in spec) == ("cluster_multipliers" in spec):
@@ -240,7 +240,7 @@ def check_cluster_fields(spec, bad):
             spec["cluster_multipliers"] = ms
 
 
-def check_group_axes(spec, bad):
+def check_group_axes(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
     """subpolicies / value_targets (GROUP_AXES) of a spec, normalized to lists in place; absent stays absent
     (a spec's identity, sweep.json, must not change)."""
     for field, column, policy, allowed in GROUP_AXES:
@@ -256,7 +256,7 @@ def check_group_axes(spec, bad):
         spec[field] = values
 
 
-def check_hparams_table(hps, bad):
+def check_hparams_table(hps: dict, bad: Callable[[str, str], NoReturn]) -> dict:
     """The [hparams] table: known names, numbers (or lists of numbers) in their ranges -> {name: (values)}."""
     if not isinstance(hps, dict):
         bad("hparams", "must be a table")
@@ -278,7 +278,7 @@ def check_hparams_table(hps, bad):
     return out
 
 
-def check_hparam_sets(sets, hparams, bad):
+def check_hparam_sets(sets: list, hparams: dict, bad: Callable[[str, str], NoReturn]) -> tuple:
     """hparam_sets: a non-empty list of tables, each giving the same hyperparameters (none of the hparams
     table's), numbers in range -> tuple of dicts."""
     if not isinstance(sets, list) or not sets or not all(isinstance(c, dict) and c for c in sets):
@@ -298,12 +298,12 @@ def check_hparam_sets(sets, hparams, bad):
 
 
 # ----------------------------------------------------------------------------------------------- the grid
-def cluster_count(multiplier, action_dim):
+def cluster_count(multiplier: float, action_dim: int) -> int:
     """K of a cluster multiplier m on a task with action_dim actions: ceil(m * action_dim), at least 1."""
     return max(1, math.ceil(multiplier * action_dim - 1e-9))
 
 
-def axis_values(spec, axis, policy):
+def axis_values(spec: SweepSpec, axis: tuple, policy: str) -> list:
     """A group axis's values for one policy: [None] (not in the spec: no column), the listed values,
     or [""] (listed, but it does not apply to this policy)."""
     field, _, applies_to, _ = axis
@@ -313,7 +313,7 @@ def axis_values(spec, axis, policy):
     return list(values) if applies_to in (None, policy) else [""]
 
 
-def build_grid(spec):
+def build_grid(spec: SweepSpec) -> list[Group]:
     """[Group]: every combination of K x swept hparams x seed exactly once, per group."""
     names = list(spec.hparams)
     sets = [{"hparam_set": i, **c} for i, c in enumerate(spec.hparam_sets)] if spec.hparam_sets else [{}]
@@ -334,20 +334,21 @@ def build_grid(spec):
     return groups
 
 
-def group_name(group):
+def group_name(group: Group) -> str:
     """The group's directory name: env-policy[-<axis value>...]."""
     first = group.runs[0] if group.runs else {}
     return f"{path_part(group.env)}-{group.policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
 
 
-def group_config(spec, group):
+def group_config(spec: SweepSpec, group: Group) -> Config:
     """The group's static Config (k_max: its largest K)."""
     static = {k: tuple(v) if isinstance(v, list) else v for k, v in spec.config.items()}
     static.update({c: group.runs[0][c] for _, c, _, _ in GROUP_AXES if group.runs[0].get(c)})
     return Config(env=group.env, policy=group.policy, k_max=max(r["K"] for r in group.runs), **static)
 
 
-def single_group(env, policy, K, seeds, backend, source="spec"):
+def single_group(env: str, policy: str, K: int, seeds: list[int], backend: str,
+                 source: str = "spec") -> tuple[Group, Config]:
     """(Group, Config) of the one group a sweep of `seeds` (a list) of one task, policy and K would train: its
     defaults, this physics backend (the benchmark's workers and gsa_jax.profile build their programs from it)."""
     spec = check_spec({"envs": [env], "policies": [policy], "clusters": [K], "seeds": seeds, "steps": 10**9,
@@ -356,17 +357,17 @@ def single_group(env, policy, K, seeds, backend, source="spec"):
     return group, group_config(spec, group)
 
 
-def default_chunk(spec, cfg):
+def default_chunk(spec: SweepSpec, cfg: Config) -> int:
     """PPO iterations per compiled chunk: the spec's, or ~1/20 of the run (at most 10)."""
     return spec.chunk or max(1, min(10, math.ceil(spec.steps / cfg.batch_size) // 20))
 
 
-def group_iterations(spec, cfg, chunk):
+def group_iterations(spec: SweepSpec, cfg: Config, chunk: int) -> int:
     """PPO iterations of every run of a group: the spec's steps rounded up to whole chunks."""
     iters = math.ceil(spec.steps / cfg.batch_size)
     return math.ceil(iters / chunk) * chunk
 
 
-def group_eval_every(spec, iterations):
+def group_eval_every(spec: SweepSpec, iterations: int) -> int:
     """Iterations between deterministic evaluations of a group's runs (0: none); default ~25 per run."""
     return spec.eval_every if spec.eval_every is not None else max(1, iterations // EVALUATIONS_PER_RUN)

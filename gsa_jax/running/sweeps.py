@@ -13,10 +13,10 @@ import jax
 import numpy as np
 
 import envs
-from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS
+from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
-from gsa_jax.running.driver import Plan, drive, rows_before_failure
+from gsa_jax.running.driver import Plan, Result, drive, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
 from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
@@ -30,7 +30,7 @@ EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
 
 
 # ----------------------------------------------------------------------------------------------- files
-def group_csv(runs, id_cols, metrics, upto):
+def group_csv(runs: list[dict], id_cols: list[str], metrics: dict, upto: int) -> tuple[str, list[str]]:
     """Tidy rows (run-major) of one group's metrics [R, iters] for the first `upto` iterations (a failed
     run's rows end before its failing iteration)."""
     lines = []
@@ -46,7 +46,7 @@ def group_csv(runs, id_cols, metrics, upto):
     return ",".join([tidy_name(c) for c in id_cols] + list(TIDY_METRICS)), lines
 
 
-def tidy_name(column):
+def tidy_name(column: str) -> str:
     """A swept hyperparameter's column in the tidy table: 'hparam_<name>' where a metric has its name (lr)."""
     return f"hparam_{column}" if column in TIDY_METRICS else column
 
@@ -86,7 +86,7 @@ class GroupContext(NamedTuple):
     on_chunk: Callable | None = None
 
 
-def run_group(spec, out, group, ctx):
+def run_group(spec: SweepSpec, out: str, group: Group, ctx: GroupContext) -> Result:
     """Train (or resume) one Group (this process's runs of it) with the run driver. Returns its driver Result."""
     name = group_name(group)
     gdir = os.path.join(out, "groups", name)
@@ -118,7 +118,7 @@ def run_group(spec, out, group, ctx):
     return result
 
 
-def write_group_record(gdir, spec, cfg, runs, schedule):
+def write_group_record(gdir: str, spec: SweepSpec, cfg: Config, runs: list[dict], schedule: tuple) -> None:
     """config.json of a group: what its runs compute -- the Config, iterations, chunk, evaluation schedule, each
     run's seed and full hyperparameters (gsa_jax.running.trained reads a run's settings from it), physics,
     versions and commit. schedule: (iterations, chunk, eval_every)."""
@@ -132,7 +132,7 @@ def write_group_record(gdir, spec, cfg, runs, schedule):
     write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
 
 
-def write_tidy(out, spec, results):
+def write_tidy(out: str, spec: SweepSpec, results: list[tuple]) -> None:
     """The tidy metrics.csv of out from [(runs, metrics [len(runs), iterations], done)] of its groups."""
     header, lines = None, []
     for runs, metrics, done in results:
@@ -142,7 +142,7 @@ def write_tidy(out, spec, results):
         write_atomic(os.path.join(out, "metrics.csv"), header + "\n" + "\n".join(lines) + ("\n" if lines else ""))
 
 
-def write_sweep_meta(root, spec, groups, options):
+def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: SweepOptions) -> None:
     """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
     spec, unless options.force)."""
     meta_path = os.path.join(root, "sweep.json")
@@ -206,7 +206,7 @@ def run_sweep(spec: SweepSpec, out: str, options: SweepOptions = SweepOptions())
     return complete
 
 
-def train_groups(spec, out, groups, ctx, results):
+def train_groups(spec: SweepSpec, out: str, groups: list[Group], ctx: GroupContext, results: list[tuple]) -> bool:
     """Train this process's share of every group in turn, appending (runs, metrics, done) to results and
     rewriting the tidy table after every chunk. Returns False if a group stopped before its end."""
     pid, nproc = ctx.options.process_id, ctx.options.num_processes
@@ -224,7 +224,7 @@ def train_groups(spec, out, groups, ctx, results):
     return True
 
 
-def eval_failure_lines(results):
+def eval_failure_lines(results: list[tuple]) -> list[str]:
     """Summary lines of the evaluation episodes that failed (non-finite reward or observation; each ended
     at its last finite step, gsa_jax.algorithm.episodes), per run, from [(runs, metrics, done)]; [] if none."""
     lines = []
@@ -241,7 +241,7 @@ def eval_failure_lines(results):
     return lines
 
 
-def report_failures(root, dirs, log=print):
+def report_failures(root: str, dirs: list[str], log: Callable = print) -> list[dict]:
     """Collect the workers' failed_runs.json into sweep.json ('failed_runs') and print the summary.
     Returns the failed runs."""
     failed = []
