@@ -8,7 +8,7 @@ import io
 from typing import TYPE_CHECKING, Any, Optional
 
 from envs import registry
-from envs.physics import Physics, applied, mj_model, record
+from envs.physics import C, Physics, applied, mj_model, record
 from envs.randomize import Randomize, RandomizeError, check_model, parse
 from envs.registry import TaskLike
 
@@ -45,7 +45,7 @@ def make_base(name: TaskLike, physics: Optional[Physics] = None) -> "Env":
     physics = physics or Physics()
     task = registry.resolve(name)
     check_backend(task, physics)
-    if physics.backend == "c":
+    if physics.backend == C:
         return task.make_c_backend(physics)
     env = task.mjx_env()
     override = {k: v for k, v in (("opt.iterations", physics.solver_iterations),
@@ -123,7 +123,7 @@ def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int
 
 def _variant_reason(task, backend, spec):
     """Why model scales or pushes cannot run for this task on this backend (None: they can)."""
-    if backend == "c":
+    if backend == C:
         definition = (task.task() if isinstance(task, registry.Definition)
                       else task.port() if isinstance(task, registry.BraxVariant) else None)
         if definition is None or definition.post_constraint:

@@ -33,7 +33,8 @@ from typing import TYPE_CHECKING, Any, Iterator
 if TYPE_CHECKING:  # annotations only: this module loads without MuJoCo
     import mujoco
 
-BACKENDS = ("mjx", "c")
+MJX, C = "mjx", "c"  # the physics backends, named once
+BACKENDS = (MJX, C)
 LINESEARCHES = ("exact", "iterative")
 SEARCH_LOOPS = ("while", "scan")
 CHOLESKYS = ("unrolled", "lapack")
@@ -59,7 +60,7 @@ class Physics:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 0:
             raise ValueError(f"threads must be an integer >= 0 (0: this process's share of the cores), got {self.threads!r}")
-        if self.backend == "c" and (self.solver_iterations is not None or self.ls_iterations is not None):
+        if self.backend == C and (self.solver_iterations is not None or self.ls_iterations is not None):
             raise ValueError("solver_iterations and ls_iterations change MJX's model only; backend 'c' steps the "
                              "task's own MJCF settings")
         for field in ("solver_iterations", "ls_iterations"):
@@ -107,7 +108,7 @@ def record(physics: Physics, mj_model: "mujoco.MjModel") -> dict:
     search they resolve to for this model (MuJoCo C's own for backend 'c'), and the MJCF's own solver
     settings."""
     own = mj_model.opt
-    search = linesearch_in_force(physics, mj_model) if physics.backend == "mjx" else "mujoco_c"
+    search = linesearch_in_force(physics, mj_model) if physics.backend == MJX else "mujoco_c"
     return {**dataclasses.asdict(physics), "linesearch_in_force": search,
             "iterations_in_force": physics.solver_iterations or int(own.iterations),
             "task_iterations": int(own.iterations), "task_ls_iterations": int(own.ls_iterations)}

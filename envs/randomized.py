@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from brax.envs.base import Wrapper
 from mujoco import mjx
 
-from envs.physics import mj_model, substeps
+from envs.physics import C, mj_model, substeps
 
 
 RANDOMIZE_STREAM = 0x52414E44  # folded into a reset's key: the randomization's own key sequence
@@ -99,7 +99,7 @@ class Randomized(Wrapper):
         spec, base = self.spec, self.base
         if not spec.model_fields and not spec.push:
             return lambda scales, push: contextlib.nullcontext()
-        if getattr(base, "backend", None) == "c":
+        if getattr(base, "backend", None) == C:
             base.enable_variants(spec, self._body)
             return base.variant
         return lambda scales, push: mjx_variant(base, spec, scales, push, self._body)

@@ -38,7 +38,7 @@ import numpy as np
 
 from envs import dmc
 from envs.names import ACTION_RANGE, BRAX_TASKS, DEFAULT_EPISODE_LENGTH, DMC_TASKS, GYM_V5_TASKS, NAMES
-from envs.physics import Physics, mj_model
+from envs.physics import C, Physics, mj_model
 from envs.randomize import parse as parse_randomize
 
 if TYPE_CHECKING:  # annotations only: MuJoCo and Brax load when a record is asked for them
@@ -88,7 +88,7 @@ class TaskRecord:
 
     def check_physics(self, physics: Physics) -> None:
         """ValueError (one line) unless `physics` (envs.physics.Physics, validated) can step this task."""
-        if physics.backend == "c" and not self.has_c:
+        if physics.backend == C and not self.has_c:
             self.make_c_backend(physics)  # raises, saying why
 
     def episode_length(self) -> int:

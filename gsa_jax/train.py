@@ -19,6 +19,8 @@ import sys
 import time
 
 import envs
+from envs.physics import BACKENDS
+from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, make_hparams, validate_hparams
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
@@ -48,7 +50,7 @@ def add_physics_flags(p):
                    help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
     p.add_argument("--cholesky", default=Config.cholesky, choices=("unrolled", "lapack"),
                    help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
-    p.add_argument("--physics", default=Config.backend, choices=("mjx", "c"),
+    p.add_argument("--physics", default=Config.backend, choices=BACKENDS,
                    help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
                         "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
     p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
@@ -138,19 +140,19 @@ def make_config(args, k_max):
 
 def resolve(args):
     """Check every argument and return the RunPlan. No compiling."""
-    if args.policy not in ("mixture", "mlp"):
+    if args.policy not in POLICY_KINDS:
         raise UsageError(f"unknown --policy {args.policy!r}; choose mixture or mlp")
     if args.steps <= 0:
         raise UsageError(f"--steps must be positive, got {args.steps}")
-    k = args.clusters if args.policy == "mixture" else 1
+    k = args.clusters if args.policy == MIXTURE else 1
     k_max = args.k_max if args.k_max is not None else k
-    if args.policy == "mixture" and k < 1:
+    if args.policy == MIXTURE and k < 1:
         raise UsageError(f"--clusters must be >= 1, got {k}")
-    if args.policy == "mixture" and k > k_max:
+    if args.policy == MIXTURE and k > k_max:
         raise UsageError(f"--clusters {k} exceeds --k-max {k_max}; use 1 <= K <= k_max")
     if args.subpolicy not in SUBPOLICY_KINDS:
         raise UsageError(f"unknown --subpolicy {args.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
-    if args.policy != "mixture" and args.subpolicy != "linear":
+    if args.policy != MIXTURE and args.subpolicy != "linear":
         raise UsageError("--subpolicy applies to --policy mixture only")
     cfg = make_config(args, k_max)
     iterations = math.ceil(args.steps / cfg.batch_size)
@@ -230,7 +232,7 @@ def typed(argv, *flags):
 
 def check_policy_options(args, argv):
     """UsageError (one line) for an option the chosen policy does not use (the mixture's, with --policy mlp)."""
-    if args.policy == "mlp":
+    if args.policy == MLP:
         spellings = {"--clusters": ("--clusters", "-K"), "--k-max": ("--k-max",)}
         given = [flag for flag, names in spellings.items() if typed(argv, *names)]
         if given:
@@ -239,8 +241,8 @@ def check_policy_options(args, argv):
 
 
 def default_out(cfg, hp, seed):
-    tag = f"{path_part(cfg.env)}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == "mixture" else "")
-    tag += f"-{cfg.subpolicy}" if cfg.policy == "mixture" and cfg.subpolicy != "linear" else ""
+    tag = f"{path_part(cfg.env)}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == MIXTURE else "")
+    tag += f"-{cfg.subpolicy}" if cfg.policy == MIXTURE and cfg.subpolicy != "linear" else ""
     tag += "-retrace" if cfg.value_target == "retrace" else ""
     return os.path.join("runs", f"{tag}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
 

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import envs
 from envs.physics import Physics
 from envs.randomize import parse as parse_randomize
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.nn import apply_mlp, init_mlp
 from gsa_jax.algorithm.normalize import init_stats, normalize, update_stats
@@ -42,7 +43,7 @@ class Config:
     32 minibatches of 64 -- the PPO paper's MuJoCo setting, with the batch spread over envs."""
 
     env: str = "inverted_double_pendulum"
-    policy: str = "mixture"
+    policy: str = MIXTURE
     subpolicy: str = "linear"  # mixture sub-policy class: constant | linear | quadratic
     k_max: int = 8
     num_envs: int = 32
@@ -230,7 +231,7 @@ def validate_hparams(cfg: Config | None, hp: Hparams | dict) -> None:
         if name in values:
             check_hparam(name, float(values[name]))
     k = int(values["K"]) if "K" in values else 1
-    if cfg is not None and cfg.policy == "mixture" and not 1 <= k <= cfg.k_max:
+    if cfg is not None and cfg.policy == MIXTURE and not 1 <= k <= cfg.k_max:
         raise ValueError(f"clusters K must be in 1..k_max={cfg.k_max}, got {k}")
 
 

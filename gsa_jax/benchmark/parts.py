@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from envs.physics import C
 from gsa_jax.algorithm import ppo
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import draw_noise
@@ -131,7 +132,7 @@ def update_parts(p):
 
 def host_clock(cfg):
     """The host clock of backend 'c' (envs.c_backend.host_seconds), or one that reads zero."""
-    if cfg.backend == "c":
+    if cfg.backend == C:
         from envs.c_backend import host_seconds
         return host_seconds
     return no_host_clock

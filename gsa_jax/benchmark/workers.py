@@ -11,7 +11,7 @@ import time
 import jax
 
 import envs
-from envs.physics import Physics
+from envs.physics import C, Physics
 from gsa_jax.benchmark.measure import RAW_UNROLL
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import write_atomic
@@ -77,7 +77,7 @@ def worker(args):
     _beat(args, {"chunk_s": time.perf_counter() - t1})
     _wait_barrier(args)
     clock = None
-    if args.physics == "c":  # where the chunks' time goes: MuJoCo C, the rest of the host calls, the program
+    if args.physics == C:  # where the chunks' time goes: MuJoCo C, the rest of the host calls, the program
         from envs.c_backend import host_seconds as clock
     times, host = _time_chunks(args, lambda st: jax.block_until_ready(run(st, hps)[0]), states, clock)
     steps = len(runs) * cfg.batch_size

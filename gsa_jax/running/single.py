@@ -17,7 +17,8 @@ import numpy as np
 
 import envs
 from envs import solver_settings
-from envs.physics import resolve_threads
+from envs.physics import C, resolve_threads
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.ppo import Config
 from gsa_jax.algorithm.retrace import buffer_bytes
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError, write_atomic
@@ -192,7 +193,7 @@ def train_run(plan, options, config, log):
     log(f"compiled in {time.perf_counter() - t0:.1f}s")
     store = run_store(plan, options, config)
     stop = None if options.stop_after is None else math.ceil(options.stop_after / plan.chunk)
-    drive_plan = Plan(plan.iterations, plan.chunk, cfg.batch_size, 1, plan.eval_every, mixture=cfg.policy == "mixture",
+    drive_plan = Plan(plan.iterations, plan.chunk, cfg.batch_size, 1, plan.eval_every, mixture=cfg.policy == MIXTURE,
                       stop_after_chunks=stop)
     result = drive(program, store, drive_plan, log, clock_start=t0)
     if not result.finished:  # stopped as asked or interrupted: the store recorded no result
@@ -247,14 +248,14 @@ def log_start(plan, trainer, out, log):
     """The run's first lines: task, policy, length; a changed MJX solver; the physics backend."""
     cfg, hp_py, iterations = plan.cfg, plan.hp, plan.iterations
     log(f"gsa_jax: {cfg.env} ({trainer.env.observation_size} obs, {trainer.env.action_size} actions), "
-        f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies)" if cfg.policy == "mixture" else "")
+        f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies)" if cfg.policy == MIXTURE else "")
         + f", {iterations} iterations x {cfg.batch_size} steps = {iterations * cfg.batch_size:,} env steps -> {out}")
     if cfg.solver_iterations is not None or cfg.ls_iterations is not None:
         sol = solver_settings(trainer.env.unwrapped)
         ls = "exact line search" if sol["linesearch_in_force"] == "exact" else f"{sol['ls_iterations'] or sol['task_ls_iterations']} line-search iterations"
         log(f"MJX solver: {sol['iterations_in_force']} iterations, {ls} (the task's own: "
             f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/solver_hopper/")
-    if cfg.backend == "c":
+    if cfg.backend == C:
         log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics_threads)} thread(s))")
 
 
@@ -265,7 +266,7 @@ def record_result(plan, out, config, ended):
     rows = metrics_to_rows(metrics, done)
     cfg, hp_py = plan.cfg, plan.hp
     if rows:
-        title = f"{cfg.env} - {cfg.policy}" + (f" K={hp_py['K']}" if cfg.policy == "mixture" else "") + f" - seed {plan.seed}"
+        title = f"{cfg.env} - {cfg.policy}" + (f" K={hp_py['K']}" if cfg.policy == MIXTURE else "") + f" - seed {plan.seed}"
         try:
             plot_curve(rows, os.path.join(out, "curve.png"), title)
         except OSError as e:  # a figure is not worth failing a run for (e.g. a full disk)

@@ -17,6 +17,7 @@ from typing import Callable, NamedTuple, NoReturn
 
 import envs
 from envs.randomize import parse as parse_randomize
+from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
@@ -28,7 +29,7 @@ SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clus
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
 # Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
 # the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
-GROUP_AXES = (("subpolicies", "subpolicy", "mixture", SUBPOLICY_KINDS), ("value_targets", "value_target", None, VALUE_TARGETS))
+GROUP_AXES = (("subpolicies", "subpolicy", MIXTURE, SUBPOLICY_KINDS), ("value_targets", "value_target", None, VALUE_TARGETS))
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
@@ -225,7 +226,7 @@ def check_config_table(cfg: dict, env_names: list[str], bad: Callable[[str, str]
 
 def check_cluster_fields(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
     """clusters / cluster_multipliers of a spec, normalized to lists in place."""
-    if "mixture" in spec["policies"]:
+    if MIXTURE in spec["policies"]:
         if ("clusters" in spec) == ("cluster_multipliers" in spec):
             bad("clusters", "a mixture sweep needs exactly one of 'clusters' (absolute K) or 'cluster_multipliers' (K / action_dim)")
         if "clusters" in spec:
@@ -321,7 +322,7 @@ def build_grid(spec: SweepSpec) -> list[Group]:
     groups = []
     for env_name in spec.envs:
         for policy in spec.policies:
-            ks = spec.cluster_counts(env_name) if policy == "mixture" else [1]
+            ks = spec.cluster_counts(env_name) if policy == MIXTURE else [1]
             for values in itertools.product(*(axis_values(spec, axis, policy) for axis in GROUP_AXES)):
                 axes = {axis[1]: v for axis, v in zip(GROUP_AXES, values) if v is not None}
                 runs = []

@@ -14,6 +14,7 @@ import os
 from typing import NamedTuple
 
 import numpy as np
+from gsa_jax.algorithm.kinds import MIXTURE
 
 LAYOUT_FILE = "runs.csv"  # what marks a group directory (a run directory of an older gsa_jax has none)
 
@@ -62,7 +63,7 @@ def run_label(row):
     env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...][-hparam_set=<i>]-s<seed>. The hyperparameters
     of a set (the columns after 'hparam_set') are named by the set's index alone: a file name stays short."""
     fixed = ("env", "policy", "K", "seed", "run")
-    parts = [path_part(row["env"]), row["policy"]] + ([f"K{row['K']}"] if row["policy"] == "mixture" else [])
+    parts = [path_part(row["env"]), row["policy"]] + ([f"K{row['K']}"] if row["policy"] == MIXTURE else [])
     for c, v in row.items():
         if c not in fixed and v not in ("", None):
             parts.append(f"{c}={v}" if c not in ("subpolicy", "value_target") else str(v))

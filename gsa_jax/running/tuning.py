@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 import envs
+from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, check_hparam
 from gsa_jax.running.spec import NAME_PATTERN, SpecError, check_config_table, cluster_count, read_toml
 
@@ -35,8 +36,8 @@ FIELDS = ("name", "env", "configurations", "draw_seed", "tuning_seeds", "tuning_
           "evaluation_steps", "config", "classes")
 CLASS_FIELDS = ("policy", "cluster_multiplier", "clusters", "knobs")
 # the hyperparameters that act on one policy only (a knob of the other policy's is refused: it would do nothing)
-ONLY = {"mlp": ("lr_scale_log_std", "init_log_std"),
-        "mixture": ("lr_scale_partition", "lr_scale_L", "lr_scale_b", "lr_scale_log_sigma", "eps_init", "eps_decay",
+ONLY = {MLP: ("lr_scale_log_std", "init_log_std"),
+        MIXTURE: ("lr_scale_partition", "lr_scale_L", "lr_scale_b", "lr_scale_log_sigma", "eps_init", "eps_decay",
                     "sigma_min_init", "sigma_min_decay", "sigma_init_scale")}
 NOT_KNOBS = ("K", "total_iterations")
 
@@ -114,7 +115,7 @@ def check_class(name, c, env_name, bad):
     policy = c.get("policy")
     if policy not in ONLY:
         bad(f"{where}.policy", f"must be one of {', '.join(ONLY)}, got {policy!r}")
-    k = class_clusters(c, env_name, f"{where}", bad) if policy == "mixture" else 1
+    k = class_clusters(c, env_name, f"{where}", bad) if policy == MIXTURE else 1
     knobs = c.get("knobs", {})
     if not isinstance(knobs, dict) or not knobs:
         bad(f"{where}.knobs", "must give at least one knob (knobs.<hyperparameter> = [low, high] or [low, high, \"log\"])")
@@ -208,7 +209,7 @@ def class_experiment(spec, class_name, phase, sets):
     seeds, steps = {"tuning": (spec.tuning_seeds, spec.tuning_steps),
                     "ranking": (spec.tuning_seeds, spec.evaluation_steps)}.get(phase, (spec.evaluation_seeds, spec.evaluation_steps))
     out = {"name": f"{spec.name}_{class_name}_{phase}", "envs": [spec.env], "policies": [c["policy"]]}
-    if c["policy"] == "mixture":
+    if c["policy"] == MIXTURE:
         out["clusters"] = [c["K"]]
     out.update(seeds=list(seeds), steps=steps, config=dict(spec.config))
     if phase == "evaluation":
