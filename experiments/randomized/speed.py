@@ -21,20 +21,34 @@ def rows_of(path):
     for s in report["sweeps"]:
         key = (s["backend"], s["policy"], s["runs"], s["processes"])
         if not s.get("randomize"):
-            nominal[key] = s["env_steps_per_s"]
+            nominal[key] = s
         elif key in nominal:
+            n = nominal[key]
             out.append({"machine": machine, "env": report["env"], "backend": key[0], "policy": key[1], "runs": key[2],
-                        "processes": key[3], "nominal_steps_per_s": round(nominal[key]),
+                        "processes": key[3], "nominal_steps_per_s": round(n["env_steps_per_s"]),
                         "randomized_steps_per_s": round(s["env_steps_per_s"]),
-                        "ratio": round(s["env_steps_per_s"] / nominal[key], 3), "randomize": s["randomize"],
-                        "timed_chunks": report["repeats"]})
+                        "ratio": round(s["env_steps_per_s"] / n["env_steps_per_s"], 3), **in_run(n, s),
+                        "randomize": s["randomize"], "timed_chunks": report["repeats"]})
+    return out
+
+
+def in_run(nominal, randomized):
+    """Backend 'c': each sweep's in-run split (MuJoCo C's microseconds per env step and worker, the other host calls'
+    and the program's shares of the time); empty on MJX."""
+    out = {}
+    for name, s in (("nominal", nominal), ("randomized", randomized)):
+        split = s.get("in_run")
+        if split:
+            out[f"{name}_mujoco_c_us"] = round(split["mujoco_c_us_per_env_step"], 1)
+            out[f"{name}_host_other_share"] = round(split["fractions"]["host_other"], 3)
+            out[f"{name}_program_share"] = round(split["fractions"]["program"], 3)
     return out
 
 
 def main():
     rows = [r for p in sorted(glob.glob(os.path.join(HERE, "results", "*", "*", "bench.json"))) for r in rows_of(p)]
     with open(os.path.join(HERE, "results", "speed.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         w.writeheader()
         w.writerows(rows)
     print(f"wrote results/speed.csv ({len(rows)} rows)")
