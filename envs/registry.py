@@ -482,7 +482,7 @@ def builtin_records() -> dict:
 
         return Definition(name, make, builtin=True)
 
-    def dmc(name):
+    def suite(name):
         def make():  # dm_control's MJCF is read when the task is first used (TaskError without dm_control)
             return dmc.task_class(name)()
 
@@ -491,7 +491,7 @@ def builtin_records() -> dict:
     table = {name: BraxVariant for name in BRAX_TASKS}
     table["allegro_cylinder"] = AllegroRecord
     table.update({name: v5 for name in GYM_V5_TASKS})
-    table.update({name: dmc for name in DMC_TASKS})
+    table.update({name: suite for name in DMC_TASKS})
     return table
 
 
