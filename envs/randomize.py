@@ -179,6 +179,13 @@ def check_model(spec: Randomize, model: Any, episode_length: Optional[int] = Non
         raise RandomizeError(f"randomize: delay={spec.delay} is not shorter than the episode ({episode_length} steps)")
 
 
+def push_force(level: float, model: Any, dt: float) -> float:
+    """The horizontal force of a push of size `level` (m/s) held for one env step dt: an impulse of level x the
+    model's total mass, the momentum of a `level` velocity change of the whole robot as one rigid body (the push of
+    the randomization and of gsa_jax.robustness alike)."""
+    return float(level) * float(np.sum(model.body_mass)) / float(dt)
+
+
 def scaled_values(nominal: np.ndarray, col: Optional[int], scale: np.ndarray) -> np.ndarray:
     """The field's values [n, ...] for per-row scales [n] from its nominal values (NumPy, float64; the C backend)."""
     out = np.broadcast_to(nominal, (len(scale),) + nominal.shape).copy()

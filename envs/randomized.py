@@ -20,6 +20,7 @@ from brax.envs.base import Wrapper
 from mujoco import mjx
 
 from envs.physics import C, mj_model, substeps
+from envs.randomize import push_force
 
 
 RANDOMIZE_STREAM = 0x52414E44  # folded into a reset's key: the randomization's own key sequence
@@ -69,10 +70,6 @@ def is_planar(base):
     return bool(getattr(task, "planar", False))
 
 
-def total_mass(base):
-    return float(mj_model(base).body_mass.sum())
-
-
 def mjx_model_fields():
     """The names of MJX's model fields (model scales on MJX apply to these)."""
     return {f.name for f in dataclasses.fields(mjx.Model)}
@@ -88,7 +85,7 @@ class Randomized(Wrapper):
         self._hi = jnp.asarray([hi for _, _, hi in spec.scales], jnp.float32)
         self.n_act = int(mj_model(base).nu)
         dt = float(mj_model(base).opt.timestep) * substeps(base)
-        self._force = spec.push * total_mass(base) / dt
+        self._force = push_force(spec.push, mj_model(base), dt)
         self._planar, self._body = is_planar(base), push_body_of(base)
         self._variant = self._variant_fn()
         self._models = base.model_draws() if spec.registry else None  # a Playground randomizer's draws

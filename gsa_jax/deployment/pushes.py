@@ -15,6 +15,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
+from envs.randomize import push_force
 from gsa_jax.deployment.shifts import Shift, is_planar, shifted_task, step_task, task_step_seconds
 
 PUSH_SIZES = (0.25, 0.5, 1.0)  # m/s: the velocity change of the whole robot each push gives
@@ -142,7 +143,7 @@ def push_start(ctrl: Any, make_task: Callable, planar: bool, seed: int, sizes: t
             live = task is not None and survives >= 1
             keys.append((j, t, size, len(branches) if live else None))
             if live:
-                impulse = size * float(np.sum(task.model.body_mass)) / task_step_seconds(task)
+                impulse = push_force(size, task.model, task_step_seconds(task))
                 branches.append((copy_task(task), obs.copy(), impulse * np.asarray(direction)))
                 limits.append(min(wmax, survives))
     fall, rew = run_branches(ctrl, branches, limits) if branches else ([], None)

@@ -25,8 +25,9 @@ import mujoco
 import numpy as np
 
 from envs.mujoco_c import make_c
+from envs.randomize import DEFAULT_PUSH_RATE, push_force
 
-PUSH_RATE = 0.01  # probability of a push at each env step (one every 100 steps on average)
+PUSH_RATE = DEFAULT_PUSH_RATE  # probability of a push at each env step (one every 100 steps on average)
 OTHER_SIMULATOR = {"Hopper-v5": "hopper", "Walker2d-v5": "walker2d", "HalfCheetah-v5": "halfcheetah",
                    "hopper": "Hopper-v5", "walker2d": "Walker2d-v5", "halfcheetah": "HalfCheetah-v5"}
 KINDS = ("nominal", "simulator", "mass", "friction", "gear", "obs_noise", "action_delay", "push")
@@ -114,7 +115,7 @@ def run_shifted(ctrl: Any, env_name: str, shift: Shift, seeds: np.ndarray, lengt
     rng = np.random.default_rng([int(s) for s in seeds] + [KINDS.index(shift.kind)])
     std = np.asarray(ctrl.obs_std, np.float64)
     pushes = np.stack([push_schedule(rng, length, is_planar(tasks[0])) for _ in seeds]) if shift.kind == "push" else None
-    impulse = shift.level * float(np.sum(tasks[0].model.body_mass)) / task_step_seconds(tasks[0])
+    impulse = push_force(shift.level, tasks[0].model, task_step_seconds(tasks[0]))
     alive, returns, lengths = np.ones(len(seeds), bool), np.zeros(len(seeds)), np.zeros(len(seeds), int)
     prev, seen = np.zeros((len(seeds), tasks[0].model.nu)), []
     for t in range(length):
