@@ -73,6 +73,48 @@ class Physics:
         return self
 
 
+# where records written before the physics options were one record (config.json, sweep.json, exported controllers,
+# experiment files) kept them: {flat Config field: Physics field}
+FLAT_CONFIG_FIELDS = {"solver_iterations": "solver_iterations", "ls_iterations": "ls_iterations",
+                      "linesearch": "linesearch", "search_loop": "search_loop", "cholesky": "cholesky",
+                      "backend": "backend", "physics_threads": "threads"}
+
+
+def make_physics(fields: dict) -> Physics:
+    """Physics from a dict of its fields (config.json's, an experiment file's [config.physics]); an unknown
+    field is a ValueError naming the allowed ones. Not validated (Physics.validate)."""
+    allowed = [f.name for f in dataclasses.fields(Physics)]
+    unknown = sorted(set(fields) - set(allowed))
+    if unknown:
+        raise ValueError(f"unknown physics option {unknown[0]!r}; allowed: {', '.join(allowed)}")
+    return Physics(**fields)
+
+
+def nest_physics(config: dict) -> dict:
+    """A config record with its physics options as one record, config['physics'] ({Physics field: value}): the
+    flat fields of records written before (FLAT_CONFIG_FIELDS) moved into it. A field set both ways is a
+    ValueError. The input is not changed."""
+    flat = {k: config[k] for k in FLAT_CONFIG_FIELDS if k in config}
+    nested = config.get("physics", {})
+    if isinstance(nested, Physics):
+        nested = dataclasses.asdict(nested)
+    if not isinstance(nested, dict):
+        raise ValueError(f"physics must be a table of physics options, got {nested!r}")
+    both = [k for k in flat if FLAT_CONFIG_FIELDS[k] in nested]
+    if both:
+        raise ValueError(f"{both[0]} is set both as a config field and as physics.{FLAT_CONFIG_FIELDS[both[0]]}; "
+                         "set it once, in physics")
+    out = {k: v for k, v in config.items() if k not in flat}
+    if flat or "physics" in config:
+        out["physics"] = {**nested, **{FLAT_CONFIG_FIELDS[k]: v for k, v in flat.items()}}
+    return out
+
+
+def record_backend(config: dict) -> str:
+    """The physics backend a config record names, in either layout (nest_physics); MJX where it names none."""
+    return nest_physics(config).get("physics", {}).get("backend", MJX)
+
+
 def resolve_threads(threads: int) -> int:
     """MuJoCo C threads for backend 'c' in this process: `threads`, or for 0 this process's share of the
     cores it may run on -- divided among the worker processes a sweep or bench started on this host

@@ -28,6 +28,7 @@ import shlex
 import subprocess
 import sys
 
+from envs.physics import record_backend
 from gsa_jax.analysis import verdict
 from gsa_jax.analysis.answering import FLAT, AnswerError, Setup, check_setup, collect_scores, run_answer
 from gsa_jax.running.runinfo import cli_description
@@ -76,7 +77,7 @@ def base_specs(args, env: str) -> dict:
     import envs
 
     backend = args.backend or ("c" if envs.has_c_backend(env) else "mjx")
-    default = {"steps": args.steps, "hparams": {}, "config": {"backend": backend}}
+    default = {"steps": args.steps, "hparams": {}, "config": {"physics": {"backend": backend}}}
     specs = {"mlp": dict(default), "mixture": dict(default)}
     specs.update(start_specs(args.start_from or []))
     return specs
@@ -120,7 +121,7 @@ def random_return(setup: Setup) -> float:
                     return float(found[setup.env])
     from gsa_jax.analysis.scoring import random_policy_return
 
-    return random_policy_return(setup.env, backend=setup.specs["mixture"]["config"].get("backend", "mjx"))
+    return random_policy_return(setup.env, backend=record_backend(setup.specs["mixture"]["config"]))
 
 
 def git_commit() -> str:

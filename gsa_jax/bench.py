@@ -167,7 +167,7 @@ def make_plan(args):
     for pol, be in itertools.product(policies, backends):  # the sweeps' own validation, before anything compiles
         randomize = {"randomize": args.randomize} if args.randomize else {}
         check_spec({"envs": [args.env], "policies": [pol], "clusters": [6], "steps": 1,
-                    "config": {"value_target": args.value_target, "backend": be, **randomize}}, source="bench")
+                    "config": {"value_target": args.value_target, "physics": {"backend": be}, **randomize}}, source="bench")
     plan = [(pol, n, k, None, be) for be in backends for pol in policies for n in sizes for k in procs if k <= n]
     raw_plan = [(b, k, None, be) for be in backends for b in batches for k in procs if k <= b]
     if args.quick and not args.processes:  # under 3 min: each size on as many processes as it can use

@@ -19,10 +19,10 @@ import sys
 import time
 
 import envs
-from envs.physics import BACKENDS
+from envs.physics import BACKENDS, Physics
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
-from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, make_hparams, validate_hparams
+from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, config_record, make_hparams, validate_hparams
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.runinfo import cli_description
@@ -46,14 +46,14 @@ def add_physics_flags(p):
                         "changed simulator -- see experiments/solver_hopper/")
     p.add_argument("--ls-iterations", type=int, default=None,
                    help="MJX line-search iterations per solver iteration (default: the task's own; hopper 50)")
-    p.add_argument("--linesearch", default=Config.linesearch, choices=("exact", "iterative"),
+    p.add_argument("--linesearch", default=Physics.linesearch, choices=("exact", "iterative"),
                    help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
-    p.add_argument("--cholesky", default=Config.cholesky, choices=("unrolled", "lapack"),
+    p.add_argument("--cholesky", default=Physics.cholesky, choices=("unrolled", "lapack"),
                    help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
-    p.add_argument("--physics", default=Config.backend, choices=BACKENDS,
+    p.add_argument("--physics", default=Physics.backend, choices=BACKENDS,
                    help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
                         "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
-    p.add_argument("--physics-threads", type=int, default=Config.physics_threads,
+    p.add_argument("--physics-threads", type=int, default=Physics.threads,
                    help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
     p.add_argument("--randomize", default=Config.randomize, metavar="TEXT",
                    help="domain randomization of the training episodes, e.g. 'mass=0.9:1.1, friction=0.75:1.25, "
@@ -121,9 +121,10 @@ def make_config(args, k_max):
         unroll_length=args.unroll_length, num_epochs=args.epochs, num_minibatches=args.minibatches,
         episode_length=args.episode_length, normalize_reward=not args.no_normalize_reward,
         b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
-        solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations, linesearch=args.linesearch,
-        cholesky=args.cholesky, value_target=args.value_target, retrace_iterations=args.retrace_iterations,
-        backend=args.physics, physics_threads=args.physics_threads, reset_mode=args.reset_mode,
+        physics=Physics(solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
+                        linesearch=args.linesearch, cholesky=args.cholesky, backend=args.physics,
+                        threads=args.physics_threads),
+        value_target=args.value_target, retrace_iterations=args.retrace_iterations, reset_mode=args.reset_mode,
         randomize=args.randomize, eval_randomized=args.eval_randomized, **getattr(args, "unflagged_config", {}),
     )
     try:
@@ -183,15 +184,15 @@ def saved_options(saved):
     """Option values (dest -> value) that give back a saved run's settings (its config.json): what
     `--resume --out DIR` continues with. Config fields a config.json written before they existed lacks ran at
     their defaults."""
-    c = {**{f.name: f.default for f in dataclasses.fields(Config)}, **saved["config"]}
-    hp = saved["hparams"]
+    c = config_record(saved["config"])
+    hp, ph = saved["hparams"], c["physics"]
     opts = {"env": c["env"], "policy": c["policy"], "clusters": hp["K"], "subpolicy": c["subpolicy"], "k_max": c["k_max"],
             "steps": saved["iterations"] * c["num_envs"] * c["unroll_length"], "seed": saved["seed"],
             "num_envs": c["num_envs"], "unroll_length": c["unroll_length"], "epochs": c["num_epochs"],
             "minibatches": c["num_minibatches"], "episode_length": c["episode_length"],
-            "solver_iterations": c["solver_iterations"], "ls_iterations": c["ls_iterations"],
-            "linesearch": c["linesearch"], "cholesky": c["cholesky"], "physics": c["backend"],
-            "physics_threads": c["physics_threads"], "randomize": c["randomize"],
+            "solver_iterations": ph["solver_iterations"], "ls_iterations": ph["ls_iterations"],
+            "linesearch": ph["linesearch"], "cholesky": ph["cholesky"], "physics": ph["backend"],
+            "physics_threads": ph["threads"], "randomize": c["randomize"],
             "eval_randomized": c["eval_randomized"], "value_target": c["value_target"], "reset_mode": c["reset_mode"],
             "retrace_iterations": c["retrace_iterations"], "b_init_scale": c["b_init_scale"],
             "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],

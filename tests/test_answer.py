@@ -110,7 +110,7 @@ def test_a_small_real_task_end_to_end(tmp_path):
     written; running the same command again changes nothing."""
     from gsa_jax.answer import finish
 
-    spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, backend="c")}
+    spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, physics={"backend": "c"})}
     setup = A.Setup("InvertedDoublePendulum-v5", (1, 2), 0.2, (2, 3), {"mlp": spec, "mixture": spec}, target=60.0)
     out = str(tmp_path / "answer")
     state = A.run_answer(out, setup, 1e9, lambda: 20.0, log=lambda m: None)

@@ -106,10 +106,11 @@ def test_batch_equals_each_env_alone_at_any_thread_count(hopper_batch):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"env": "inverted_double_pendulum", "backend": "c"}, "backend 'c' does not step 'inverted_double_pendulum'"),
-    ({"env": "hopper", "backend": "bullet"}, "backend must be one of mjx, c"),
-    ({"env": "hopper", "backend": "c", "physics_threads": -1}, "threads must be an integer >= 0"),
-    ({"env": "hopper", "backend": "c", "solver_iterations": 2}, "change MJX's model only"),
+    ({"env": "inverted_double_pendulum", "physics": {"backend": "c"}}, "backend 'c' does not step 'inverted_double_pendulum'"),
+    ({"env": "hopper", "physics": {"backend": "bullet"}}, "backend must be one of mjx, c"),
+    ({"env": "hopper", "physics": {"backend": "c", "threads": -1}}, "threads must be an integer >= 0"),
+    ({"env": "hopper", "physics": {"backend": "c", "solver_iterations": 2}}, "change MJX's model only"),
+    ({"env": "hopper", "physics": {"backed": "c"}}, "unknown physics option 'backed'"),
 ])
 def test_bad_physics_options_are_refused_before_compiling(kwargs, message):
     with pytest.raises(ValueError, match=message):
@@ -135,8 +136,9 @@ steps = 1024
 chunk = 2
 eval_every = 2
 [config]
-backend = "c"
 {chr(10).join(f"{k} = {v}" for k, v in SMALL.items())}
+[config.physics]
+backend = "c"
 """
 
 
@@ -184,7 +186,7 @@ def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(sweep, env, 
     physics = json.loads((out / "sweep.json").read_text())["physics"][f"{path_part(env)}-mixture"]
     assert physics["backend"] == "c" and physics["linesearch_in_force"] == "mujoco_c"
     rows = [r for r in read_rows(out / "metrics.csv") if r["K"] == "2" and r["seed"] == "1"]
-    tr = make_train(Config(env=env, policy="mixture", k_max=2, backend="c", **SMALL))
+    tr = make_train(Config(env=env, policy="mixture", k_max=2, physics=Physics(backend="c"), **SMALL))
     hp = make_hparams(K=2, total_iterations=4)
     _, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, 2)
     for col in ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl"):

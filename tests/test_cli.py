@@ -154,7 +154,7 @@ def test_resume_with_other_config_refused(full_run, capsys):
     assert main(["--eval-every", "1", "--out", str(full_run), "--resume"]) == 2
     assert "eval_every: 2 -> 1" in capsys.readouterr().err
     assert main(SMALL[:-1] + ["--solver-iterations", "1", "--out", str(full_run), "--resume"]) == 2
-    assert "config.solver_iterations: null -> 1" in capsys.readouterr().err
+    assert "config.physics.solver_iterations: null -> 1" in capsys.readouterr().err
 
 
 def test_resume_run_saved_before_solver_fields(full_run, tmp_path):

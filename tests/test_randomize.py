@@ -67,7 +67,7 @@ def test_parse_canonical_text_and_one_line_errors():
 def test_config_refuses_before_compiling(text, backend, message):
     env = "Ant-v5" if "Ant" in message else "Hopper-v5"
     with pytest.raises(ValueError, match=message) as e:
-        Config(env=env, backend=backend, randomize=text).validate()
+        Config(env=env, physics=Physics(backend=backend), randomize=text).validate()
     assert "\n" not in str(e.value)
 
 
@@ -82,11 +82,11 @@ def test_mjx_refuses_a_field_it_lacks_and_names_backend_c():
                    and isinstance(getattr(model, f), np.ndarray) and getattr(model, f).dtype.kind == "f")
     with pytest.raises(ValueError, match=f"MJX's model has no field {lacking}.*backend 'c'"):
         Config(env="Hopper-v5", randomize=f"{lacking}=0.9:1.1").validate()
-    Config(env="Hopper-v5", backend="c", randomize=f"{lacking}=0.9:1.1").validate()  # 'c' scales it
+    Config(env="Hopper-v5", physics=Physics(backend="c"), randomize=f"{lacking}=0.9:1.1").validate()  # 'c' scales it
 
 
 def test_spec_randomize_table_goes_to_config_text():
-    raw = {"envs": ["Hopper-v5"], "policies": ["mlp"], "steps": 1000, "config": {"backend": "c"},
+    raw = {"envs": ["Hopper-v5"], "policies": ["mlp"], "steps": 1000, "config": {"physics": {"backend": "c"}},
            "randomize": {"mass": [0.9, 1.125], "delay": 1}}
     spec = check_spec(raw)
     assert spec.config["randomize"] == "mass=0.9:1.125, delay=1"

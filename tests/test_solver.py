@@ -184,4 +184,4 @@ def test_solver_option_rejects_bad_values(bad):
     from gsa_jax.algorithm.ppo import Config
 
     with pytest.raises(ValueError, match="ls_iterations"):
-        Config(env="hopper", ls_iterations=bad).validate()
+        Config(env="hopper", physics=Physics(ls_iterations=bad)).validate()

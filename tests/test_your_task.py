@@ -199,7 +199,7 @@ def test_make_train_takes_a_task_object_and_trains_it_as_its_name_does():
     from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
 
     small = dict(policy="mixture", k_max=2, num_envs=4, unroll_length=8, num_minibatches=2, num_epochs=1,
-                 eval_envs=2, backend="c")
+                 eval_envs=2, physics=Physics(backend="c"))
     key, hp = jax.random.PRNGKey(0), make_hparams(K=2)
     runs = []
     for cfg, task in ((Config(env="Reacher", **small), Reacher), (Config(env=TASK, **small), None)):

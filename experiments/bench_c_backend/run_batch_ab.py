@@ -17,6 +17,7 @@ import time
 import jax
 import jax.numpy as jnp
 
+from envs.physics import Physics
 from gsa_jax.running.programs import make_group_program, stack_hparams
 from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.spec import build_grid, check_spec, group_config
@@ -47,7 +48,7 @@ def main():
                        "steps": 10**9})
     group = build_grid(spec)[0]
     runs = group.runs
-    cfg = dataclasses.replace(group_config(spec, group), backend="c", physics_threads=1)
+    cfg = dataclasses.replace(group_config(spec, group), physics=Physics(backend="c", threads=1))
     sizes = [int(s) for s in args.sizes.split(",")]
     progs = {s: list(compile_size(cfg, runs, s)) + [[]] for s in sizes}
     for _ in range(args.repeats):

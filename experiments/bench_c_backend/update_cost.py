@@ -22,6 +22,7 @@ from unittest import mock
 import jax
 import jax.numpy as jnp
 
+from envs.physics import Physics
 from gsa_jax.algorithm import ppo
 from gsa_jax.algorithm.nn import init_mlp
 from gsa_jax.algorithm.optim import init_adam
@@ -104,7 +105,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
-    cfg = ppo.Config(env=args.env, k_max=6, backend="c", physics_threads=1)
+    cfg = ppo.Config(env=args.env, k_max=6, physics=Physics(backend="c", threads=1))
     p = ppo.make_parts(cfg, ppo.make_env(cfg), ppo.make_env(cfg, auto_reset=False))
     hp = ppo.make_hparams(K=6)
     inputs = update_inputs(p, hp, args.runs, jax.random.PRNGKey(0))

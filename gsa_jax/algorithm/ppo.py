@@ -19,6 +19,7 @@ by their factors every iteration.
 
 import dataclasses
 import functools
+import json
 import math
 from typing import Any, Callable, NamedTuple
 
@@ -26,7 +27,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
-from envs.physics import Physics
+from envs.physics import Physics, make_physics, nest_physics
 from envs.randomize import parse as parse_randomize
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.episodes import step_episodes
@@ -63,24 +64,17 @@ class Config:
     # (the paper's critic: Retrace over the samples of the last retrace_iterations iterations, gsa_jax/algorithm/retrace.py)
     value_target: str = "gae"
     retrace_iterations: int = 4
-    # physics options (envs/physics.py): MJX solver iterations (None = the task's own MJCF settings; an int
-    # is faster but a changed simulator), the line search, its loop, and the Cholesky factorization
-    solver_iterations: int | None = Physics.solver_iterations
-    ls_iterations: int | None = Physics.ls_iterations
-    linesearch: str = Physics.linesearch
-    search_loop: str = Physics.search_loop
-    cholesky: str = Physics.cholesky
-    # the physics backend: 'mjx' (default) or 'c' (MuJoCo C inside the program, envs/c_backend.py) on
-    # physics_threads threads per process (0: the process's share of the cores); results are the same at any
-    # thread count
-    backend: str = Physics.backend
-    physics_threads: int = Physics.threads
+    # the physics options, one record (envs/physics.py: backend 'mjx' or 'c', MuJoCo C threads, MJX's solver and
+    # line-search settings); a dict of its fields is taken too (config.json, experiment files' [config.physics])
+    physics: Physics = Physics()
     # domain randomization of the training episodes (envs/randomize.py's text, e.g. "mass=0.9:1.1, delay=1"; '':
     # none); evaluation runs the nominal task unless eval_randomized
     randomize: str = ""
     eval_randomized: bool = False
 
     def __post_init__(self):
+        if isinstance(self.physics, dict):
+            object.__setattr__(self, "physics", make_physics(self.physics))
         if self.episode_length is None and envs.is_name(self.env):
             object.__setattr__(self, "episode_length", envs.default_episode_length(self.env))
         if self.randomize == "task" and envs.is_name(self.env):  # the task's own declared randomization
@@ -94,12 +88,6 @@ class Config:
     @property
     def batch_size(self) -> int:
         return self.num_envs * self.unroll_length
-
-    @property
-    def physics(self) -> Physics:
-        """The physics options of this config (envs.physics.Physics)."""
-        return Physics(self.solver_iterations, self.ls_iterations, self.linesearch, self.search_loop, self.cholesky,
-                       self.backend, self.physics_threads)
 
     @property
     def minibatch_size(self) -> int:
@@ -134,6 +122,22 @@ class Config:
                 f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"
             )
         return self
+
+
+def config_defaults() -> dict:
+    """Config's field defaults as config.json holds them (JSON types; physics a dict)."""
+    out = {}
+    for f in dataclasses.fields(Config):
+        out[f.name] = dataclasses.asdict(f.default) if dataclasses.is_dataclass(f.default) else f.default
+    return json.loads(json.dumps(out))
+
+
+def config_record(saved: dict) -> dict:
+    """A saved config record (config.json's 'config', sweep.json's, an exported controller's) in this version's
+    layout: the physics options one record (envs.physics.nest_physics moves the flat fields of records written
+    before), and the fields it lacks (written before they existed) at their defaults, which is how it ran."""
+    defaults, saved = config_defaults(), nest_physics(saved)
+    return {**defaults, **saved, "physics": {**defaults["physics"], **saved.get("physics", {})}}
 
 
 class Hparams(NamedTuple):

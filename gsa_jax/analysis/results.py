@@ -13,6 +13,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from envs.physics import nest_physics, record_backend
 from gsa_jax.analysis import stats
 from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.runinfo import describe_changes
@@ -75,7 +76,7 @@ def group_settings(sweep_dir: str) -> dict:
     out = {}
     for meta in sweep_metas(sweep_dir):
         spec = meta.get("spec", {})
-        config = spec.get("config") or {}
+        config = nest_physics(spec.get("config") or {})
         for critic in spec.get("value_targets") or [config.get("value_target", "gae")]:
             # retrace_iterations does not change a GAE run
             kept = {k: v for k, v in config.items() if k != "value_target" and (critic != "gae" or k != "retrace_iterations")}
@@ -243,7 +244,7 @@ def setting_columns(data: dict) -> list:
 def backend_of(dirs: Sequence[str], env_name: str) -> str:
     """The physics backend the sweeps in dirs trained env_name with ([config] backend; 'mjx' when none says);
     'c' when they differ, since MuJoCo C steps every task and MJX not all."""
-    named = {settings["config"].get("backend", "mjx") for d in dirs for (env, _, _), settings in group_settings(d).items()
+    named = {record_backend(settings["config"]) for d in dirs for (env, _, _), settings in group_settings(d).items()
              if env == env_name}
     return named.pop() if len(named) == 1 else "c" if named else "mjx"
 

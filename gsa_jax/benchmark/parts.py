@@ -132,7 +132,7 @@ def update_parts(p):
 
 def host_clock(cfg):
     """The host clock of backend 'c' (envs.c_backend.host_seconds), or one that reads zero."""
-    if cfg.backend == C:
+    if cfg.physics.backend == C:
         from envs.c_backend import host_seconds
         return host_seconds
     return no_host_clock
@@ -239,7 +239,7 @@ def profile_parts(cfg, runs, K, repeats=5):
     flops = count_flops(p, programs, args)
     ops = op_seconds(programs["gradients"], args["gradients"])
     prof = {"env": cfg.env, "policy": cfg.policy, "K": K if cfg.policy == MIXTURE else None, "runs": runs,
-            "backend": cfg.backend, "repeats": repeats, "env_steps_per_iteration": runs * p.cfg.batch_size,
+            "backend": cfg.physics.backend, "repeats": repeats, "env_steps_per_iteration": runs * p.cfg.batch_size,
             "matmul_gflop_per_s": matmul_rate() / 1e9, "flops_per_iteration": flops,
             "timed": {k: dict(zip(("wall_s", "host_s", "mujoco_c_s"), v)) for k, v in timed.items()},
             "gradients_ops_s": ops}

@@ -62,9 +62,9 @@ def worker(args):
                               args.physics)
     if args.epochs:
         cfg = dataclasses.replace(cfg, num_epochs=args.epochs)
-    cfg = dataclasses.replace(cfg, solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
-                              value_target=args.value_target, backend=args.physics, physics_threads=args.physics_threads,
-                              randomize=args.randomize or "")
+    physics = dataclasses.replace(cfg.physics, solver_iterations=args.solver_iterations,
+                                  ls_iterations=args.ls_iterations, backend=args.physics, threads=args.physics_threads)
+    cfg = dataclasses.replace(cfg, physics=physics, value_target=args.value_target, randomize=args.randomize or "")
     devices = jax.local_devices()[:1]
     t0 = time.perf_counter()
     runs = pad_runs(group.runs, len(devices))

@@ -26,7 +26,7 @@ from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
-from gsa_jax.algorithm.ppo import Config, make_env, make_hparams, make_train, schedule
+from gsa_jax.algorithm.ppo import Config, config_record, make_env, make_hparams, make_train, schedule
 from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
@@ -45,7 +45,7 @@ def load_run(address: str, require_mixture: bool = True) -> tuple:
     meta = run.meta
     if require_mixture and meta["config"]["policy"] != MIXTURE:
         raise InspectError(f"{address!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
-    c = dict(meta["config"])
+    c = config_record(meta["config"])
     c["hidden"] = tuple(c["hidden"])
     trainer = make_train(Config(**c))
     hp = make_hparams(**meta["hparams"])

@@ -19,7 +19,7 @@ import envs
 from envs import solver_settings
 from envs.physics import C, resolve_threads
 from gsa_jax.algorithm.kinds import MIXTURE
-from gsa_jax.algorithm.ppo import Config
+from gsa_jax.algorithm.ppo import Config, config_record
 from gsa_jax.algorithm.retrace import buffer_bytes
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError, write_atomic
 from gsa_jax.running.curve import plot_curve
@@ -82,8 +82,7 @@ def check_resume_config(old, config, force):
     theirs = {k: old.get(k) for k in RESUME_KEYS if k in old}
     if "task" in old:
         mine["task"], theirs["task"] = envs.task_source(config["config"]["env"]), old["task"]
-    defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(Config)}))
-    theirs["config"] = {**{k: defaults[k] for k in mine["config"] if k in defaults}, **(theirs["config"] or {})}
+    theirs["config"] = config_record(theirs["config"] or {})
     check_unchanged(theirs, mine, force, "--resume with a different run than the one in the output directory",
                     "pass --force to continue it with the new settings")
 
@@ -250,13 +249,13 @@ def log_start(plan, trainer, out, log):
     log(f"gsa_jax: {cfg.env} ({trainer.env.observation_size} obs, {trainer.env.action_size} actions), "
         f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies)" if cfg.policy == MIXTURE else "")
         + f", {iterations} iterations x {cfg.batch_size} steps = {iterations * cfg.batch_size:,} env steps -> {out}")
-    if cfg.solver_iterations is not None or cfg.ls_iterations is not None:
+    if cfg.physics.solver_iterations is not None or cfg.physics.ls_iterations is not None:
         sol = solver_settings(trainer.env.unwrapped)
         ls = "exact line search" if sol["linesearch_in_force"] == "exact" else f"{sol['ls_iterations'] or sol['task_ls_iterations']} line-search iterations"
         log(f"MJX solver: {sol['iterations_in_force']} iterations, {ls} (the task's own: "
             f"{sol['task_iterations']}, {sol['task_ls_iterations']}) -- a changed simulator, see experiments/solver_hopper/")
-    if cfg.backend == C:
-        log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics_threads)} thread(s))")
+    if cfg.physics.backend == C:
+        log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics.threads)} thread(s))")
 
 
 def record_result(plan, out, config, ended):

@@ -16,6 +16,7 @@ import tomllib
 from typing import Callable, NamedTuple, NoReturn
 
 import envs
+from envs.physics import FLAT_CONFIG_FIELDS, Physics, nest_physics
 from envs.randomize import parse as parse_randomize
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS
@@ -210,13 +211,16 @@ def check_counts(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
 
 
 def check_config_table(cfg: dict, env_names: list[str], bad: Callable[[str, str], NoReturn]) -> dict:
-    """The [config] table: known static Config fields that every env's physics backend runs."""
+    """The [config] table: known static Config fields that every env's physics backend runs, the physics options
+    one table ([config.physics]; the flat fields of files written before are moved into it: envs.physics.nest_physics)."""
     if not isinstance(cfg, dict):
         bad("config", "must be a table")
     for k in cfg:
-        if k not in _STATIC_FIELDS:
-            bad(f"config.{k}", f"unknown; allowed: {', '.join(sorted(_STATIC_FIELDS))}")
+        if k not in _STATIC_FIELDS and k not in FLAT_CONFIG_FIELDS:
+            bad(f"config.{k}", f"unknown; allowed: {', '.join(sorted(_STATIC_FIELDS))} (physics: a table of "
+                               f"{', '.join(f.name for f in dataclasses.fields(Physics))})")
     try:
+        cfg = nest_physics(cfg)
         for e in env_names:
             Config(env=e, **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
     except (ValueError, TypeError) as e:
@@ -353,7 +357,7 @@ def single_group(env: str, policy: str, K: int, seeds: list[int], backend: str,
     """(Group, Config) of the one group a sweep of `seeds` (a list) of one task, policy and K would train: its
     defaults, this physics backend (the benchmark's workers and gsa_jax.profile build their programs from it)."""
     spec = check_spec({"envs": [env], "policies": [policy], "clusters": [K], "seeds": seeds, "steps": 10**9,
-                       "config": {"backend": backend}}, source=source)
+                       "config": {"physics": {"backend": backend}}}, source=source)
     group = build_grid(spec)[0]
     return group, group_config(spec, group)
 

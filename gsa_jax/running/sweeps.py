@@ -21,7 +21,7 @@ from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
 from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
 from gsa_jax.running.spec import (
-    Group, SweepSpec, build_grid, default_chunk, group_config, group_eval_every, group_iterations, group_name,
+    Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_every, group_iterations, group_name,
 )
 from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
 from gsa_jax.running.trained import run_label
@@ -142,6 +142,15 @@ def write_tidy(out: str, spec: SweepSpec, results: list[tuple]) -> None:
         write_atomic(os.path.join(out, "metrics.csv"), header + "\n" + "\n".join(lines) + ("\n" if lines else ""))
 
 
+def recorded_spec(raw: dict) -> dict:
+    """sweep.json's spec as this version writes it (a sweep.json written before the physics options were one
+    record has them flat), for comparing with the experiment file; as recorded where it no longer checks."""
+    try:
+        return check_spec(raw).to_json()
+    except SpecError:
+        return raw
+
+
 def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: SweepOptions) -> None:
     """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
     spec, unless options.force)."""
@@ -150,7 +159,8 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
     if os.path.exists(meta_path):
         with open(meta_path) as f:
             old = json.load(f)
-        check_unchanged({"spec": old.get("spec", {}), "tasks": old.get("tasks", tasks)}, {"spec": spec.to_json(), "tasks": tasks},
+        check_unchanged({"spec": recorded_spec(old.get("spec", {})), "tasks": old.get("tasks", tasks)},
+                        {"spec": spec.to_json(), "tasks": tasks},
                         options.force, f"{root} holds a sweep with a different spec or task code",
                         "use another --out, or --force to continue it with the new spec")
     physics = {group_name(g): physics_record(group_config(spec, g)) for g in groups}

@@ -14,6 +14,8 @@ import os
 from typing import NamedTuple
 
 import numpy as np
+
+from envs.physics import nest_physics
 from gsa_jax.algorithm.kinds import MIXTURE
 
 LAYOUT_FILE = "runs.csv"  # what marks a group directory (a run directory of an older gsa_jax has none)
@@ -90,9 +92,12 @@ def finished_runs(sweep_dir):
 
 def group_meta(root, index):
     """The settings of run `index` of a group directory: its config.json with the run's own entry of
-    "runs" (seed, hparams) merged in, and its result (finished, or stopped at a NaN/inf: failed.json)."""
+    "runs" (seed, hparams) merged in, and its result (finished, or stopped at a NaN/inf: failed.json). The config
+    with its physics options as one record (envs.physics.nest_physics: runs written before kept them flat)."""
     with open(os.path.join(root, "config.json")) as f:
         meta = json.load(f)
+    if isinstance(meta.get("config"), dict):
+        meta["config"] = nest_physics(meta["config"])
     per_run = meta.pop("runs", None)
     if per_run is None:  # a run directory: config.json is the run's own
         return meta
