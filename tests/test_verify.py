@@ -66,6 +66,19 @@ def test_linear_task_eigenvalues_match_the_analytic_ones_and_its_roa_has_no_boun
     assert min(roa["radius"]) == roa["r_max"]
 
 
+def test_lqr_with_given_weights_is_the_analytic_design(tmp_path):
+    """--lqr-q/--lqr-r weights in the task's units: verify's LQR gain on PointMass (exactly linear) is scipy's
+    discrete LQR on the analytic step with those weights (Q = diag(10, 1), R = 1), and its weights are recorded."""
+    system = load_system(export(tmp_path / "lqr.npz", POINT_MASS, -lqr_gain()[None], [[0.0]]))
+    scale = analysis.state_scale(system.task)
+    summary, policy = analysis.lqr_design(system, analysis.equilibrium_guess(system.task), scale, np.zeros(2),
+                                          analysis.LqrWeights((10.0, 1.0), (1.0,)))
+    assert policy is not None and summary["weights"] == {"q": [10.0, 1.0], "r": [1.0]}
+    np.testing.assert_allclose(summary["gain"], lqr_gain(), rtol=1e-5)
+    default, _ = analysis.lqr_design(system, analysis.equilibrium_guess(system.task), scale, np.zeros(2))
+    assert default["weights"] == "Q = I on scaled states, R = I" and not np.allclose(default["gain"], lqr_gain())
+
+
 def quadrant_controller(path):
     """K = 2 on PointMass: piece 0 the LQR gain, piece 1 its opposite (diverges); the partition picks piece 1 where
     x > 0 and v > 0 (the quadrant), through tanh(50 z) units: logit 1 = h_x + h_v - 1.5."""
@@ -137,17 +150,21 @@ def rewrite_env(src, dst, env):
     ("npz_without_fields", "is not an exported controller"),
     ("no_twin", "has no MuJoCo C twin verify can step; these have one: gymnasium's v5 tasks"),
     ("obs_size", "takes observations of size 9 but its task 'dmc:cartpole-balance' observes 5"),
+    ("lqr_q_length", "--lqr-q needs 6 weights >= 0"),
+    ("lqr_r_alone", "--lqr-q and --lqr-r go together"),
 ])
 def test_one_line_errors(tmp_path, case, expect):
     """Bad input: exit code 2 and one line on stderr, no traceback."""
-    path = tmp_path / "c.npz"
-    if case == "not_npz":
+    path, extra = tmp_path / "c.npz", {"lqr_q_length": ["--lqr-q", "1,2", "--lqr-r", "1"], "lqr_r_alone": ["--lqr-r", "1"]}
+    if case in extra:
+        path = IDP
+    elif case == "not_npz":
         path.write_text("not a controller")
     elif case == "npz_without_fields":
         np.savez(path, x=np.zeros(3))
     else:
         rewrite_env(IDP, path, "inverted_double_pendulum" if case == "no_twin" else "dmc:cartpole-balance")
-    p = run_cli(str(path), "--out", str(tmp_path / "out"))
+    p = run_cli(str(path), "--out", str(tmp_path / "out"), *extra.get(case, []))
     assert p.returncode == 2 and expect in p.stderr, p.stderr
     assert p.stderr.count("\n") == 1 and "Traceback" not in p.stderr
 

@@ -87,9 +87,25 @@ def local_analysis(system: System, qref, scale, hold) -> dict:
 DRIFT_TOL = 1e-3  # scaled state change of one zero-action step at the equilibrium that still counts as one
 
 
-def lqr_design(system, qref, scale, x_eq):
-    """(summary, policy) of an LQR (Q = I on scaled states, R = I on actions) on the task's linearization at the
-    equilibrium with zero action, or (note, None) where that is not an equilibrium."""
+class LqrWeights(NamedTuple):
+    """The LQR's diagonal weights in the task's own units: q [2 nv] on the tangent state (positions, then
+    velocities), r [d_a] on the actions. None: Q = I on scaled states, R = I."""
+    q: tuple
+    r: tuple
+
+
+def lqr_weights(weights, scale, d_a):
+    """(Q, R, record) in scaled coordinates (x / scale) of LqrWeights, or the identities."""
+    if weights is None:
+        return np.eye(len(scale)), np.eye(d_a), "Q = I on scaled states, R = I"
+    q, r = np.asarray(weights.q, float), np.asarray(weights.r, float)
+    return np.diag(q * scale ** 2), np.diag(r), {"q": q.tolist(), "r": r.tolist()}
+
+
+def lqr_design(system, qref, scale, x_eq, weights=None):
+    """(summary, policy) of an LQR (weights: LqrWeights in the task's units, default Q = I on scaled states and
+    R = I on actions) on the task's linearization at the equilibrium with zero action, or (note, None) where that
+    is not an equilibrium."""
     task, ctrl = system.task, system.ctrl
     zero = lambda obs: (np.zeros(ctrl.action_size), np.zeros((ctrl.action_size, len(obs))))
     drift = float(np.linalg.norm((lin.closed_step(task, zero, qref, x_eq) - x_eq) / scale))
@@ -97,8 +113,9 @@ def lqr_design(system, qref, scale, x_eq):
         return {"note": f"zero action does not hold the equilibrium (drift {drift:.3g}); no LQR designed"}, None
     L = lin.linearize(task, zero, qref, x_eq)
     A, B = roa.scaled_system(L.A, L.B @ L.G, scale)
-    K, P = roa.lqr_gain(A, B)
-    summary = {"gain_scaled": K.tolist(), "eigenvalues": eig_list(A - B @ K), "drift": drift,
+    Q, R, record = lqr_weights(weights, scale, ctrl.action_size)
+    K, P = roa.lqr_gain(A, B, Q, R)
+    summary = {"weights": record, "gain_scaled": K.tolist(), "gain": (K / scale[None, :]).tolist(), "eigenvalues": eig_list(A - B @ K), "drift": drift,
                "spectral_radius": float(np.max(np.abs(np.linalg.eigvals(A - B @ K)))),
                "open_loop_eigenvalues": eig_list(A), "_a_cl": A - B @ K}
     bounds = (ctrl.action_low, ctrl.action_high) if ctrl.action_low is not None else None
@@ -153,7 +170,7 @@ def falsification(system, budget) -> dict:
     return out
 
 
-def equilibrium_part(system, budget, scale, qref, cost) -> dict:
+def equilibrium_part(system, budget, scale, qref, cost, weights=None) -> dict:
     """Local analysis, region of attraction and the LQR beside it, for a task with an equilibrium."""
     task, policy = system.task, simulate.controller_policy(system.ctrl)
     t0 = time.perf_counter()
@@ -165,7 +182,7 @@ def equilibrium_part(system, budget, scale, qref, cost) -> dict:
     out = {"local": local, "roa": roa_of(system, policy, qref, scale, budget, a_cl, hold)}
     cost["roa"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    lqr, lqr_policy = lqr_design(system, qref, scale, np.zeros(2 * task.model.nv))
+    lqr, lqr_policy = lqr_design(system, qref, scale, np.zeros(2 * task.model.nv), weights)
     if lqr_policy is not None:
         lqr["roa"] = roa_of(system, lqr_policy, qref, scale, budget, lqr["_a_cl"])
     out["lqr"] = lqr
@@ -173,8 +190,8 @@ def equilibrium_part(system, budget, scale, qref, cost) -> dict:
     return out
 
 
-def verify(system: System, budget: Budget) -> dict:
-    """Every analysis of one controller, with its cost in seconds."""
+def verify(system: System, budget: Budget, lqr: "LqrWeights | None" = None) -> dict:
+    """Every analysis of one controller, with its cost in seconds. lqr: the weights of the LQR beside it."""
     task, ctrl, cost = system.task, system.ctrl, {}
     scale = state_scale(task)
     t0 = time.perf_counter()
@@ -183,7 +200,7 @@ def verify(system: System, budget: Budget) -> dict:
     cost["nominal_and_switching"] = time.perf_counter() - t0
     qref = equilibrium_guess(task)
     if qref is not None:
-        result.update(equilibrium_part(system, budget, scale, qref, cost))
+        result.update(equilibrium_part(system, budget, scale, qref, cost, lqr))
     else:
         result["local"] = {"note": f"{system.env!r} declares no equilibrium (Task.equilibrium_qpos): no local "
                                    "analysis or region of attraction"}

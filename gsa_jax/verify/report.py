@@ -94,13 +94,22 @@ def falsification_lines(doc) -> list:
     return lines
 
 
+def lqr_weights_text(lqr: dict) -> str:
+    """How the LQR beside the controller weights states and actions, in words."""
+    w = lqr.get("weights", "Q = I on scaled states, R = I")
+    if isinstance(w, str):
+        return w
+    return f"Q = diag({', '.join(f'{x:g}' for x in w['q'])}), R = diag({', '.join(f'{x:g}' for x in w['r'])}) in the task's units"
+
+
 def write_markdown(path, doc) -> None:
     s = doc["switching"]
     lines = [f"# Verification of `{doc['controller']}`", "",
              f"{doc['env']}, {doc['kind']} ({doc['clusters']} pieces){', quick budget' if doc['quick'] else ''}.", "",
              "## Local analysis per piece", "", *local_lines(doc), "", "## Region of attraction", ""]
     if "roa" in doc:
-        lines += roa_lines("controller", doc["roa"]) + roa_lines("LQR on the same linearization", doc["lqr"].get("roa"))
+        lines += roa_lines("controller", doc["roa"]) + roa_lines(f"LQR on the same linearization ({lqr_weights_text(doc['lqr'])})",
+                                                                 doc["lqr"].get("roa"))
         lines += [f"- LQR: {doc['lqr']['note']}."] if "note" in doc["lqr"] else []
     else:
         lines.append("None: no equilibrium declared.")

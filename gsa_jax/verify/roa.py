@@ -123,10 +123,13 @@ def scaled_system(A, B, scale):
     return A * (1.0 / scale)[:, None] * scale[None, :], B / scale[:, None]
 
 
-def lqr_gain(A, B) -> tuple:
-    """(K [d_a, n], P) of the discrete LQR u = -K x with Q = I, R = I (scaled states, action units)."""
-    P = scipy.linalg.solve_discrete_are(A, B, np.eye(len(A)), np.eye(B.shape[1]))
-    K = np.linalg.solve(np.eye(B.shape[1]) + B.T @ P @ B, B.T @ P @ A)
+def lqr_gain(A, B, Q=None, R=None) -> tuple:
+    """(K [d_a, n], P) of the discrete LQR u = -K x minimizing sum x'Qx + u'Ru (default Q = I, R = I: scaled
+    states, action units)."""
+    Q = np.eye(len(A)) if Q is None else Q
+    R = np.eye(B.shape[1]) if R is None else R
+    P = scipy.linalg.solve_discrete_are(A, B, Q, R)
+    K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
     return K, P
 
 
