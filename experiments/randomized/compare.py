@@ -2,8 +2,9 @@
 
     .venv/bin/python experiments/randomized/compare.py NOMINAL_DIR RANDOMIZED_DIR --out DIR
 
-Both folders hold robustness.csv (per controller and shift: the score over the same 20 deterministic MuJoCo C
-episodes from seeds 10,000-10,019) and paired_pushes.csv. Writes to DIR:
+Both folders hold robustness.csv (per controller and shift: the score over the same deterministic MuJoCo C
+episodes from seeds 10,000 on, 20 by default: robustness.json says how many) and, where the task can fall,
+paired_pushes.csv. Writes to DIR:
 - by_training.csv: per configuration (flat PPO, each K) and shift, the IQM score of the nominal-trained and the
   randomized-trained controllers with 95% stratified-bootstrap intervals, and P(a randomized-trained run scores
   higher than a nominal-trained one) with its interval (rliable). The 'nominal' shift answers "does randomized
@@ -100,7 +101,18 @@ def write(path, rows):
         w.writerows(rows)
 
 
-def plot(rows, path):
+def episodes(folders):
+    """The episodes per controller and shift the robustness folders recorded (robustness.json), e.g. '20'."""
+    import json
+
+    found = set()
+    for folder in folders:
+        with open(os.path.join(folder, "robustness.json")) as f:
+            found.add(json.load(f)["episodes"])
+    return "/".join(str(e) for e in sorted(found))
+
+
+def plot(rows, path, n_episodes="20"):
     """IQM score per shift, nominal- vs randomized-trained, one panel per configuration."""
     import matplotlib
 
@@ -121,7 +133,7 @@ def plot(rows, path):
         ax.set_title("flat PPO" if policy == "mlp" else f"K = {k}")
         ax.set_yticks(y, shifts)
         ax.invert_yaxis()  # nominal on top
-        ax.set_xlabel("IQM score (20 episodes)")
+        ax.set_xlabel(f"IQM score ({n_episodes} episodes)")
     axes[0][0].legend(fontsize=8, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -139,9 +151,10 @@ def main(argv=None):
     rows = by_training(scores["nominal"], scores["randomized"], args.reps)
     write(os.path.join(args.out, "by_training.csv"), rows)
     write(os.path.join(args.out, "mixture_vs_flat.csv"), mixture_vs_flat(scores, args.reps))
-    write(os.path.join(args.out, "paired_pushes.csv"), paired_pushes({"nominal": args.nominal, "randomized": args.randomized}))
-    plot(rows, os.path.join(args.out, "comparison.png"))
-    print(f"wrote {args.out}: by_training.csv, mixture_vs_flat.csv, paired_pushes.csv, comparison.png")
+    pushes = paired_pushes({"nominal": args.nominal, "randomized": args.randomized})  # none where the task cannot fall
+    write(os.path.join(args.out, "paired_pushes.csv"), pushes)
+    plot(rows, os.path.join(args.out, "comparison.png"), episodes([args.nominal, args.randomized]))
+    print(f"wrote {args.out}: by_training.csv, mixture_vs_flat.csv, {'paired_pushes.csv, ' if pushes else ''}comparison.png")
 
 
 if __name__ == "__main__":
