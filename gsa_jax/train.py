@@ -11,10 +11,10 @@ Training runs as compiled chunks of iterations; between chunks the CLI logs, eva
 """
 
 import argparse
-import dataclasses
 import json
 import math
 import os
+import re
 import sys
 import time
 
@@ -114,29 +114,44 @@ def build_parser():
     return p
 
 
+# The Config fields (physics.<name>: its physics record's) a command-line option sets, with the option's dest: one
+# table for the Config of a command line, the options that give back a saved run, and the flags named in errors.
+# normalize_reward (--no-normalize-reward) is the one inverted; env and k_max are set by resolve.
+CONFIG_OPTIONS = {"policy": "policy", "subpolicy": "subpolicy", "num_envs": "num_envs", "unroll_length": "unroll_length",
+                  "num_epochs": "epochs", "num_minibatches": "minibatches", "episode_length": "episode_length",
+                  "b_init_scale": "b_init_scale", "eval_envs": "eval_envs", "value_target": "value_target",
+                  "retrace_iterations": "retrace_iterations", "reset_mode": "reset_mode", "randomize": "randomize",
+                  "eval_randomized": "eval_randomized", "physics.solver_iterations": "solver_iterations",
+                  "physics.ls_iterations": "ls_iterations", "physics.linesearch": "linesearch",
+                  "physics.cholesky": "cholesky", "physics.backend": "physics", "physics.threads": "physics_threads"}
+UNFLAGGED = ("hidden", "normalize_obs", "physics.search_loop")  # Config fields without a command-line option
+
+
+def config_fields(values: dict) -> dict:
+    """Config keyword arguments of {field or physics.<name>: value}."""
+    physics = {k.split(".", 1)[1]: v for k, v in values.items() if k.startswith("physics.")}
+    return {**{k: v for k, v in values.items() if not k.startswith("physics.")}, "physics": Physics(**physics)}
+
+
+def flag_names(msg: str) -> str:
+    """A Config error with each field an option sets named by its flag (where the two differ)."""
+    for field, dest in CONFIG_OPTIONS.items():
+        name = field.split(".")[-1]
+        if name != dest or "_" in name:
+            msg = re.sub(rf"\b{name}\b", "--" + dest.replace("_", "-"), msg)
+    return msg
+
+
 def make_config(args, k_max):
     """The run's validated Config; a bad field is a UsageError naming its flag."""
-    cfg = Config(
-        env=args.env, policy=args.policy, subpolicy=args.subpolicy, k_max=max(k_max, 1), num_envs=args.num_envs,
-        unroll_length=args.unroll_length, num_epochs=args.epochs, num_minibatches=args.minibatches,
-        episode_length=args.episode_length, normalize_reward=not args.no_normalize_reward,
-        b_init_scale=args.b_init_scale, eval_envs=args.eval_envs,
-        physics=Physics(solver_iterations=args.solver_iterations, ls_iterations=args.ls_iterations,
-                        linesearch=args.linesearch, cholesky=args.cholesky, backend=args.physics,
-                        threads=args.physics_threads),
-        value_target=args.value_target, retrace_iterations=args.retrace_iterations, reset_mode=args.reset_mode,
-        randomize=args.randomize, eval_randomized=args.eval_randomized, **getattr(args, "unflagged_config", {}),
-    )
+    values = {field: getattr(args, dest) for field, dest in CONFIG_OPTIONS.items()}
+    values.update(getattr(args, "unflagged", {}))
+    cfg = Config(env=args.env, k_max=max(k_max, 1), normalize_reward=not args.no_normalize_reward,
+                 **config_fields(values))
     try:
         return cfg.validate()
     except ValueError as e:
-        msg = str(e)
-        for field, flag in (("num_envs", "--num-envs"), ("num_minibatches", "--minibatches"),
-                            ("solver_iterations", "--solver-iterations"), ("ls_iterations", "--ls-iterations"),
-                            ("retrace_iterations", "--retrace-iterations"), ("value_target", "--value-target"), ("reset_mode", "--reset-mode"),
-                            ("backend", "--physics"), ("threads", "--physics-threads")):
-            msg = msg.replace(field, flag)
-        raise UsageError(msg) from None
+        raise UsageError(flag_names(str(e))) from None
 
 
 def resolve(args):
@@ -177,29 +192,25 @@ def resolve(args):
     return RunPlan(cfg, hp, iterations, chunk, eval_every, args.eval_seed, args.seed)
 
 
-UNFLAGGED_CONFIG = ("hidden", "normalize_obs", "search_loop")  # Config fields without a command-line option
-
-
 def saved_options(saved):
     """Option values (dest -> value) that give back a saved run's settings (its config.json): what
     `--resume --out DIR` continues with. Config fields a config.json written before they existed lacks ran at
     their defaults."""
     c = config_record(saved["config"])
-    hp, ph = saved["hparams"], c["physics"]
-    opts = {"env": c["env"], "policy": c["policy"], "clusters": hp["K"], "subpolicy": c["subpolicy"], "k_max": c["k_max"],
-            "steps": saved["iterations"] * c["num_envs"] * c["unroll_length"], "seed": saved["seed"],
-            "num_envs": c["num_envs"], "unroll_length": c["unroll_length"], "epochs": c["num_epochs"],
-            "minibatches": c["num_minibatches"], "episode_length": c["episode_length"],
-            "solver_iterations": ph["solver_iterations"], "ls_iterations": ph["ls_iterations"],
-            "linesearch": ph["linesearch"], "cholesky": ph["cholesky"], "physics": ph["backend"],
-            "physics_threads": ph["threads"], "randomize": c["randomize"],
-            "eval_randomized": c["eval_randomized"], "value_target": c["value_target"], "reset_mode": c["reset_mode"],
-            "retrace_iterations": c["retrace_iterations"], "b_init_scale": c["b_init_scale"],
-            "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],
-            "eval_every": saved.get("eval_every"), "eval_seed": saved.get("eval_seed", 0), "eval_envs": c["eval_envs"],
-            "chunk": saved["chunk"], "tensorboard": saved.get("tensorboard", True)}
+    hp = saved["hparams"]
+
+    def field(name):
+        v = c["physics"][name.split(".", 1)[1]] if name.startswith("physics.") else c[name]
+        return tuple(v) if isinstance(v, list) else v
+
+    opts = {dest: field(name) for name, dest in CONFIG_OPTIONS.items()}
+    opts.update({"env": c["env"], "clusters": hp["K"], "k_max": c["k_max"], "seed": saved["seed"],
+                 "steps": saved["iterations"] * c["num_envs"] * c["unroll_length"],
+                 "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],
+                 "eval_every": saved.get("eval_every"), "eval_seed": saved.get("eval_seed", 0),
+                 "chunk": saved["chunk"], "tensorboard": saved.get("tensorboard", True),
+                 "unflagged": {name: field(name) for name in UNFLAGGED}})
     opts.update({flag: hp[name] for flag, name in _HP_FLAGS.items() if name in hp})
-    opts["unflagged_config"] = {k: tuple(c[k]) if isinstance(c[k], list) else c[k] for k in UNFLAGGED_CONFIG}
     return opts
 
 

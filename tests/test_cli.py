@@ -158,14 +158,16 @@ def test_resume_with_other_config_refused(full_run, capsys):
 
 
 def test_resume_run_saved_before_solver_fields(full_run, tmp_path):
-    """A run whose config.json predates solver_iterations / ls_iterations (None by default) resumes."""
+    """A run whose config.json predates the physics record (its options flat Config fields) and, before that,
+    solver_iterations / ls_iterations (None by default) resumes."""
     import shutil
 
     old = tmp_path / "old"
     shutil.copytree(full_run, old)
     meta = json.loads((old / "config.json").read_text())
-    for k in ("solver_iterations", "ls_iterations"):
-        del meta["config"][k]
+    physics = meta["config"].pop("physics")
+    meta["config"].update({k: v for k, v in physics.items() if k not in ("solver_iterations", "ls_iterations", "threads")},
+                          physics_threads=physics["threads"])
     (old / "config.json").write_text(json.dumps(meta))
     assert main(SMALL + ["--out", str(old), "--resume"]) == 0
 
