@@ -37,7 +37,7 @@ def row(label, lqr):
 
 
 def main():
-    out = os.path.join(HERE, "results", "cartpole-balance_committed_lqr", NAME)
+    out = os.path.join(HERE, "results", "lqr_reference", "cartpole-balance", NAME)  # not one of summarize.py's groups
     verify_main([os.path.join(ROOT, CONTROLLER), "--quick", "--lqr-q", Q, "--lqr-r", R, "--out", out])
     with open(os.path.join(out, "verify.json")) as f:
         committed = json.load(f)["lqr"]
