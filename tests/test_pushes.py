@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gsa_jax.analysis.fairness import fair_rows, leave_out_residuals, partial_spearman, verdict
-from gsa_jax.analysis.paired import aggregate_pushes, per_controller
+from gsa_jax.analysis.paired import aggregate_pushes, crossed_interval, per_controller
 from gsa_jax.analysis.retention import cells
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.deployment.pushes import evaluate_pushes, push_events, window_outcomes
@@ -92,6 +92,56 @@ def test_known_fall_times_give_the_stated_probabilities():
     assert rows[("mixture", 20)]["fall_iqm"] == 0 and rows[("mlp", 20)]["fall_iqm"] == 1
     assert rows[("mixture", 20)]["p_falls_less_than_flat_ppo"] == 1 and rows[("mixture", 5)]["p_falls_less_than_flat_ppo"] == 0.5
     assert rows[("mixture", 20)]["lost_iqm"] == 0 and rows[("mlp", 20)]["lost_iqm"] == 10  # 10 of 20 rewards of 1 lost
+
+
+def event_matrix(fell):
+    """[n, E, 3] (counted, fell, lost) of n controllers over E counted events: fell [n, E] 0/1, lost = 5 per fall."""
+    fell = np.asarray(fell, float)
+    return np.stack([np.ones_like(fell), fell, 5 * fell], -1)
+
+
+def test_resampling_push_events_changes_nothing_where_the_events_do_not_differ():
+    """Every controller meets each event alike: the interval over 12 events equals the one over 1 event, i.e.
+    the controllers-only bootstrap (the event weights are drawn after the controllers)."""
+    rng = np.random.default_rng(3)
+    x, y = rng.random(8) < 0.3, rng.random(8) < 0.6
+    one = crossed_interval(event_matrix(x[:, None]), event_matrix(y[:, None]), reps=400)
+    many = crossed_interval(event_matrix(np.repeat(x[:, None], 12, 1)), event_matrix(np.repeat(y[:, None], 12, 1)), reps=400)
+    assert one == many and one[0] < one[1]
+
+
+def test_resampling_push_events_covers_other_draws_of_them():
+    """Controllers alike within each configuration, events of two kinds (the mixture falls after the 'left'
+    pushes, flat PPO after the 'right' ones): P varies only with how many of each kind a draw holds. A
+    controllers-only interval is one point; resampling the events too covers most independent draws' P."""
+    rng = np.random.default_rng(0)
+
+    def draw():
+        left = rng.random(20) < 0.5
+        return event_matrix(np.tile(left, (6, 1))), event_matrix(np.tile(~left, (6, 1)))
+
+    x, y = draw()
+    fall_low, fall_high, lost_low, lost_high = crossed_interval(x, y, reps=1000)
+    points = []
+    for _ in range(40):
+        a, b = draw()
+        pa, pb = a[0, :, 1].mean(), b[0, :, 1].mean()
+        points.append(float(pa < pb) + 0.5 * float(pa == pb))
+    inside = np.mean([fall_low <= p <= fall_high for p in points])
+    assert fall_low == 0.0 and fall_high == 1.0 and inside == 1.0 and (lost_low, lost_high) == (fall_low, fall_high)
+    p = {(r["policy"], r["window"]): r for r in aggregate_pushes(events_of(x, y), (5,), reps=200)}[("mixture", 5)]
+    assert p["p_fall_ci_low"] == p["p_fall_ci_high"] and p["p_fall_events_ci_low"] < p["p_fall_ci_low"] <= p["p_fall_events_ci_high"]
+
+
+def events_of(x, y):
+    """pushes.csv.gz rows of event matrices x (a K = 2 mixture's controllers) and y (flat PPO's), window 5."""
+    rows = []
+    for m, policy, k in ((x, "mixture", "2"), (y, "mlp", "")):
+        for seed, ctrl in enumerate(m):
+            for e, (counted, fell, lost) in enumerate(ctrl):
+                rows.append({"env": "T", "policy": policy, "K": k, "seed": str(seed), "start_seed": e // 5, "event": e % 5,
+                             "time": 10, "size": 0.5, "counted_W5": int(counted), "fell_W5": int(fell), "lost_W5": lost})
+    return rows
 
 
 def test_a_push_after_the_control_has_fallen_is_not_counted():

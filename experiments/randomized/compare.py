@@ -24,6 +24,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", ".."))
+from gsa_jax.analysis.results import write_csv  # noqa: E402
 from gsa_jax.analysis.stats import improvement_probability, iqm_ci  # noqa: E402
 
 TRAININGS = ("nominal", "randomized")
@@ -95,10 +96,7 @@ def paired_pushes(folders):
 def write(path, rows):
     if not rows:
         return
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(path, rows)  # every row's columns: one training's file may have columns the other's lacks
 
 
 def episodes(folders):

@@ -20,6 +20,8 @@ from gsa_jax.deployment.pushes import evaluate_pushes
 
 KEY = ("env", "policy", "K", "seed")
 NOMINAL = KEY + ("nominal_score", "mean_length", "full_length_fraction", "episodes")
+# P(falls less / loses less)'s interval with the push events resampled too (crossed_interval)
+EVENT_CI = ("p_fall_events_ci_low", "p_fall_events_ci_high", "p_lost_events_ci_low", "p_lost_events_ci_high")
 
 
 def event_columns(windows: Sequence[int]) -> tuple:
@@ -92,10 +94,73 @@ def group(per: dict, events: list, windows: Sequence[int]) -> dict:
     return out
 
 
+def event_table(events: list, windows: Sequence[int]) -> dict:
+    """{(env, size, W): {controller key: [E, 3] (counted, fell, lost)}}: every controller's outcome of each push
+    event, the events (start seed, event) in one order per task and size (every controller of a task meets the
+    same push times and directions, gsa_jax.deployment.pushes.push_events)."""
+    ids = {}
+    for r in events:
+        ids.setdefault((str(r["env"]), float(r["size"])), set()).add((int(r["start_seed"]), int(r["event"])))
+    order = {k: {e: i for i, e in enumerate(sorted(v))} for k, v in ids.items()}
+    out = {}
+    for r in events:
+        env, size = str(r["env"]), float(r["size"])
+        i = order[(env, size)][(int(r["start_seed"]), int(r["event"]))]
+        for w in windows:
+            counted = int(r[f"counted_W{w}"])
+            m = out.setdefault((env, size, int(w)), {}).setdefault(tuple(str(r[k]) for k in KEY),
+                                                                    np.zeros((len(order[(env, size)]), 3)))
+            m[i] = (counted, int(r[f"fell_W{w}"]) if counted else 0, float(r[f"lost_W{w}"]) if counted else 0.0)
+    return out
+
+
+def rates(m: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """m [n, E, 3] (counted, fell, lost) of n controllers, weights [R, E] (each event's multiplicity in R
+    resamples) -> [R, n, 2]: each controller's falls and return lost per counted push (NaN where none counted)."""
+    counted = weights @ m[..., 0].T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.stack([weights @ (m[..., 0] * m[..., 1]).T / counted,
+                         weights @ (m[..., 0] * m[..., 2]).T / counted], -1)
+
+
+def crossed_interval(x: np.ndarray, y: np.ndarray, reps: int = stats.REPS, seed: int = 0) -> tuple:
+    """x [nx, E, 3], y [ny, E, 3]: two configurations' controllers over the same E push events (event_table) ->
+    (fall low, fall high, lost low, high): the 95% percentile interval of P(x falls less / loses less per counted
+    push than y; ties half) when the controllers (within each configuration) and the push events (shared by all
+    controllers, as a fresh draw of pushes would be) are both resampled with replacement."""
+    rng = np.random.default_rng(seed)
+    ix, iy = rng.integers(0, len(x), (reps, len(x))), rng.integers(0, len(y), (reps, len(y)))
+    e = x.shape[1]
+    weights = np.stack([np.bincount(rng.integers(0, e, e), minlength=e) for _ in range(reps)]).astype(float)
+    rx = np.take_along_axis(rates(x, weights), ix[..., None], 1)
+    ry = np.take_along_axis(rates(y, weights), iy[..., None], 1)
+    a, b = rx[:, :, None, :], ry[:, None, :, :]
+    valid = np.isfinite(a) & np.isfinite(b)
+    wins = np.where(valid, (a < b) + 0.5 * (a == b), 0.0).sum((1, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = wins / valid.sum((1, 2))  # [R, 2]
+    low, high = np.nanpercentile(p, [2.5, 97.5], axis=0) if np.isfinite(p).any() else np.full((2, 2), math.nan)
+    return float(low[0]), float(high[0]), float(low[1]), float(high[1])
+
+
+def crossed_intervals(events: list, windows: Sequence[int], pairs: list, reps: int) -> dict:
+    """{str(cell): crossed_interval of the cell's mixture against flat PPO} for cells (env, mixture, K, size, W)
+    in pairs, over the controllers with a counted push."""
+    table = event_table(events, windows)
+    out = {}
+    for c in pairs:
+        mats = table[(c[0], c[3], c[4])]
+        pick = lambda policy, k: np.array([m for key, m in sorted(mats.items())  # noqa: E731
+                                           if key[1] == policy and key[2] == k and m[:, 0].any()])
+        out[str(c)] = crossed_interval(pick(MIXTURE, c[2]), pick(MLP, ""), reps)
+    return out
+
+
 def aggregate_pushes(events: list, windows: Sequence[int], reps: int = stats.REPS) -> list:
     """paired_pushes.csv rows: per task x configuration x push size x window, the controllers with a counted
     push, counted pushes per controller, IQM [CI] of the fall probability and of the return lost per push,
-    P(a mixture falls less / loses less than flat PPO) [CI] (ties count half: two that never fall tie)."""
+    P(a mixture falls less / loses less than flat PPO) [CI] (ties count half: two that never fall tie); that CI
+    resamples controllers under the one draw of push events, the EVENT_CI columns resample the events too."""
     cells = group(per_controller(events, windows), events, windows)
     col = lambda c, j: np.array([v[j] for v in cells[c].values()], float)  # noqa: E731
     fin = lambda x: x[np.isfinite(x)][:, None]  # noqa: E731
@@ -105,6 +170,7 @@ def aggregate_pushes(events: list, windows: Sequence[int], reps: int = stats.REP
     ok = [c for c in cells if c[1] == MIXTURE and flat(c) in cells and len(fin(col(c, 1))) and len(fin(col(flat(c), 1)))]
     p_fall = stats.improvement_probability({str(c): (-fin(col(c, 1)), -fin(col(flat(c), 1))) for c in ok}, reps=reps) if ok else {}
     p_lost = stats.improvement_probability({str(c): (-fin(col(c, 2)), -fin(col(flat(c), 2))) for c in ok}, reps=reps) if ok else {}
+    crossed = crossed_intervals(events, windows, ok, reps)
     r3 = lambda v: round(float(v), 4) if np.isfinite(v) else ""  # noqa: E731
     rows = []
     for c in sorted(cells, key=lambda c: (c[0], c[3], c[4], c[1] != MLP, int(c[2] or 0))):
@@ -116,7 +182,8 @@ def aggregate_pushes(events: list, windows: Sequence[int], reps: int = stats.REP
                      "fall_iqm": r3(f[0]), "fall_ci_low": r3(f[1]), "fall_ci_high": r3(f[2]),
                      "lost_iqm": r3(lo[0]), "lost_ci_low": r3(lo[1]), "lost_ci_high": r3(lo[2]),
                      "p_falls_less_than_flat_ppo": r3(pf[0]), "p_fall_ci_low": r3(pf[1]), "p_fall_ci_high": r3(pf[2]),
-                     "p_loses_less_than_flat_ppo": r3(pl[0]), "p_lost_ci_low": r3(pl[1]), "p_lost_ci_high": r3(pl[2])})
+                     "p_loses_less_than_flat_ppo": r3(pl[0]), "p_lost_ci_low": r3(pl[1]), "p_lost_ci_high": r3(pl[2]),
+                     **dict(zip(EVENT_CI, map(r3, crossed.get(str(c), (math.nan,) * 4))))})
     return rows
 
 
