@@ -64,6 +64,11 @@ def test_linear_task_eigenvalues_match_the_analytic_ones_and_its_roa_has_no_boun
     roa = result["roa"]
     assert roa["hold"]["holds"] and roa["no_boundary_in_range"] and roa["volume_fraction"] == 1.0
     assert min(roa["radius"]) == roa["r_max"]
+    # every sampled start converged: each coordinate's reach (the task's units) is its largest offset sampled
+    scale = analysis.state_scale(system.task)
+    dirs = analysis.roa.directions(analysis.QUICK.roa_directions, len(scale), analysis.QUICK.seed)
+    assert roa["scale"] == scale.tolist()
+    np.testing.assert_allclose(roa["reach"], np.abs(dirs * roa["r_max"] * scale).max(0), rtol=1e-12)
 
 
 def test_lqr_with_given_weights_is_the_analytic_design(tmp_path):

@@ -1,16 +1,20 @@
-"""Verify committed controllers: `.venv/bin/python experiments/verify/run.py [GROUP ...]` (default: every group).
+"""Verify committed controllers: `.venv/bin/python experiments/verify/run.py [--full] [--seeds 0-4] [--only mlp-,...]
+[GROUP ...]` (default: every group, every controller).
 
 Each controller goes through the same analyses as `python -m gsa_jax.verify CONTROLLER --quick` (the quick budget,
-equal for every controller), one after another in this process, and its verify.json, report.md and verify.png go to
-results/<group>/<controller name>/. A controller whose verify.json exists is skipped (the run resumes).
+equal for every controller; --full: the default budget, `python -m gsa_jax.verify CONTROLLER`), one after another in
+this process, and its verify.json, report.md and verify.png go to results/<group>/<controller name>/
+(results/full/<group>/... with --full). A controller whose verify.json exists is skipped (the run resumes).
 """
+
+import argparse
 
 import glob
 import os
 import sys
 import time
 
-from gsa_jax.verify.analysis import QUICK, verify
+from gsa_jax.verify.analysis import QUICK, Budget, verify
 from gsa_jax.verify.report import write_all
 from gsa_jax.verify.system import load_system
 
@@ -19,36 +23,52 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 FIG1 = "experiments/fig1_v5/results/fig1_v5_{0}/controllers/{0}-{1}-s{2}.npz"
 ATLAS = "experiments/atlas_dmc/results/{0}/{1}/controllers/dmc.{0}-{2}-s*.npz"
 REACHER = "experiments/your_task_reacher/results/controllers/examples.reacher.Reacher-{0}-s*.npz"
-# group -> controller globs: flat PPO against the mixture the task's study found best (or smallest on par); Hopper-v5
-# (the slowest, ~100 s a controller here) 5 seeds of each
+# group -> controller globs: flat PPO against the mixture the task's study found best (or smallest on par); on
+# InvertedDoublePendulum-v5 every committed controller (flat PPO, K = 1, 2, 4)
 GROUPS = {
-    "InvertedDoublePendulum-v5": [FIG1.format("InvertedDoublePendulum-v5", "mlp", "*"),
-                                  FIG1.format("InvertedDoublePendulum-v5", "mixture-K4", "*")],
+    "InvertedDoublePendulum-v5": [FIG1.format("InvertedDoublePendulum-v5", "mlp", "*")]
+    + [FIG1.format("InvertedDoublePendulum-v5", f"mixture-K{k}", "*") for k in (1, 2, 4)],
     "cartpole-balance": [ATLAS.format("cartpole-balance", "flat_ppo", "mlp"),
                          ATLAS.format("cartpole-balance", "mixture", "mixture-K2")],
     "pendulum-swingup": [ATLAS.format("pendulum-swingup", "flat_ppo", "mlp"),
                          ATLAS.format("pendulum-swingup", "mixture", "mixture-K4")],
-    "Hopper-v5": [FIG1.format("Hopper-v5", "mlp", "[0-4]"), FIG1.format("Hopper-v5", "mixture-K2", "[0-4]")],  # 5 seeds
+    "Hopper-v5": [FIG1.format("Hopper-v5", "mlp", "*"), FIG1.format("Hopper-v5", "mixture-K2", "*")],
     "reacher": [REACHER.format("mlp"), REACHER.format("mixture-K4")],
 }
 
 
-def controllers(group):
-    return [p for g in GROUPS[group] for p in sorted(glob.glob(os.path.join(ROOT, g)))]
+def controllers(group, seeds=None, only=None):
+    """The group's controller paths, of the seeds given and with one of the `only` strings in their names."""
+    paths = [p for g in GROUPS[group] for p in sorted(glob.glob(os.path.join(ROOT, g)))]
+    return [p for p in paths if (seeds is None or int(os.path.splitext(p)[0].rsplit("-s", 1)[1]) in seeds)
+            and (only is None or any(o in os.path.basename(p) for o in only))]
 
 
-def run_group(group):
-    for path in controllers(group):
-        out = os.path.join(HERE, "results", group, os.path.splitext(os.path.basename(path))[0])
+def run_group(group, full=False, seeds=None, only=None):
+    budget = Budget() if full else QUICK
+    for path in controllers(group, seeds, only):
+        out = os.path.join(HERE, "results", *(("full",) if full else ()), group, os.path.splitext(os.path.basename(path))[0])
         if os.path.exists(os.path.join(out, "verify.json")):
             continue
         t0 = time.perf_counter()
         system = load_system(os.path.relpath(path, ROOT))
-        write_all(out, system, verify(system, QUICK), QUICK, quick=True)
+        write_all(out, system, verify(system, budget), budget, quick=not full)
         print(f"{group}: {os.path.basename(path)} {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+def seed_range(text):
+    lo, _, hi = text.partition("-")
+    return set(range(int(lo), int(hi or lo) + 1))
 
 
 if __name__ == "__main__":
     os.chdir(ROOT)
-    for g in sys.argv[1:] or list(GROUPS):
-        run_group(g)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("groups", nargs="*", default=list(GROUPS), choices=list(GROUPS) + [[]], metavar="GROUP")
+    p.add_argument("--full", action="store_true", help="the default budget instead of --quick's (results/full/)")
+    p.add_argument("--seeds", type=seed_range, default=None, help="a seed range, e.g. 0-4 (default: every seed)")
+    p.add_argument("--only", type=lambda t: t.split(","), default=None,
+                   help="comma-separated parts of controller names to keep, e.g. mlp-,mixture-K4-")
+    args = p.parse_args()
+    for g in args.groups or list(GROUPS):
+        run_group(g, args.full, args.seeds, args.only)

@@ -137,7 +137,8 @@ def roa_of(system, policy, qref, scale, budget, a_cl=None, hold=None) -> dict:
     out.update({"radius": r.radius.tolist(), "radius_min": float(r.radius.min()),
                 "radius_median": float(np.median(r.radius)),
                 "no_boundary_in_range": bool(np.all(r.radius >= budget.roa_radius)),
-                "volume_fraction": roa.volume_fraction(r.radius, budget.roa_radius, dim)})
+                "volume_fraction": roa.volume_fraction(r.radius, budget.roa_radius, dim),
+                "scale": scale.tolist(), "reach": roa.reach(r, scale).tolist()})
     P = roa.lyapunov(a_cl, dim) if a_cl is not None else None
     out["lyapunov"] = roa.sublevel(P, r, budget.roa_radius) if P is not None else None
     return out

@@ -93,6 +93,14 @@ def search_radii(task, policy, qref, hold, scale, dirs, r_max, iters, horizon) -
     return Radii(lo, np.concatenate(samples), np.concatenate(oks))
 
 
+def reach(radii: Radii, scale) -> np.ndarray:
+    """[2 nv] in the task's own units (rad, m, rad/s, m/s): per coordinate, the largest offset from the hold among
+    the sampled starts that converged (0 where none did): how far each coordinate alone was seen to recover from,
+    comparable across tasks and controllers where the scaled radii are not (their unit is each task's start law)."""
+    off = np.abs(radii.samples * scale)[radii.ok]
+    return off.max(axis=0) if len(off) else np.zeros(len(scale))
+
+
 def volume_fraction(radius, r_max, dim) -> float:
     """The star-shaped set's share of the ball of radius r_max."""
     return float(np.mean((np.asarray(radius) / r_max) ** dim))
