@@ -26,7 +26,8 @@ the same episode without it, counted only where that episode survives the window
                     the robot fall within each window W, the return it cost
   nominal.csv       per controller: its control episodes' score, mean length, share reaching the time limit
   paired_pushes.csv per task x configuration x size x W: IQM [CI] of the fall probability per counted push
-                    and of the return lost, P(the mixture falls / loses less than flat PPO) [CI]
+                    and of the return lost, P(the mixture falls / loses less than flat PPO) [CI], and
+                    that P's CI with the push events resampled too (p_*_events_ci_*: another draw's variation)
   pushes.png        the fall probability (or return lost) against push size, per task and window
   fair.csv          per task x configuration x shift: the shifted score above the line the other
                     configurations' controllers set (shifted on nominal score), the retained fraction among
