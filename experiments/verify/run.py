@@ -23,8 +23,7 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 FIG1 = "experiments/fig1_v5/results/fig1_v5_{0}/controllers/{0}-{1}-s{2}.npz"
 ATLAS = "experiments/atlas_dmc/results/{0}/{1}/controllers/dmc.{0}-{2}-s*.npz"
 REACHER = "experiments/your_task_reacher/results/controllers/examples.reacher.Reacher-{0}-s*.npz"
-# group -> controller globs: flat PPO against the mixture the task's study found best (or smallest on par); on
-# InvertedDoublePendulum-v5, cartpole-balance and pendulum-swingup every committed controller (flat PPO, K = 1, 2, 4)
+# group -> controller globs: flat PPO and every committed K of the task
 GROUPS = {
     "InvertedDoublePendulum-v5": [FIG1.format("InvertedDoublePendulum-v5", "mlp", "*")]
     + [FIG1.format("InvertedDoublePendulum-v5", f"mixture-K{k}", "*") for k in (1, 2, 4)],
@@ -32,8 +31,8 @@ GROUPS = {
     + [ATLAS.format("cartpole-balance", "mixture", f"mixture-K{k}") for k in (1, 2, 4)],
     "pendulum-swingup": [ATLAS.format("pendulum-swingup", "flat_ppo", "mlp")]
     + [ATLAS.format("pendulum-swingup", "mixture", f"mixture-K{k}") for k in (1, 2, 4)],
-    "Hopper-v5": [FIG1.format("Hopper-v5", "mlp", "*"), FIG1.format("Hopper-v5", "mixture-K2", "*")],
-    "reacher": [REACHER.format("mlp"), REACHER.format("mixture-K4")],
+    "Hopper-v5": [FIG1.format("Hopper-v5", "mlp", "*")] + [FIG1.format("Hopper-v5", f"mixture-K{k}", "*") for k in (2, 3, 6, 12)],
+    "reacher": [REACHER.format("mlp")] + [REACHER.format(f"mixture-K{k}") for k in (1, 2, 4, 8)],
 }
 
 
