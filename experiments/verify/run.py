@@ -8,7 +8,6 @@ this process, and its verify.json, report.md and verify.png go to results/<group
 """
 
 import argparse
-
 import glob
 import os
 import sys
@@ -63,11 +62,13 @@ def seed_range(text):
 if __name__ == "__main__":
     os.chdir(ROOT)
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("groups", nargs="*", default=list(GROUPS), choices=list(GROUPS) + [[]], metavar="GROUP")
+    p.add_argument("groups", nargs="*", metavar="GROUP", help=f"default: all of {', '.join(GROUPS)}")
     p.add_argument("--full", action="store_true", help="the default budget instead of --quick's (results/full/)")
     p.add_argument("--seeds", type=seed_range, default=None, help="a seed range, e.g. 0-4 (default: every seed)")
     p.add_argument("--only", type=lambda t: t.split(","), default=None,
                    help="comma-separated parts of controller names to keep, e.g. mlp-,mixture-K4-")
     args = p.parse_args()
+    if set(args.groups) - set(GROUPS):
+        p.error(f"unknown group(s) {', '.join(sorted(set(args.groups) - set(GROUPS)))}; choose from {', '.join(GROUPS)}")
     for g in args.groups or list(GROUPS):
         run_group(g, args.full, args.seeds, args.only)

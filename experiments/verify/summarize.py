@@ -41,8 +41,9 @@ def row(group, doc):
                   "fixed_point": fp is not None,
                   "fixed_point_spectral_radius": "" if fp is None else fp["spectral_radius"],
                   "lqr_roa_volume": doc["lqr"].get("roa", {}).get("volume_fraction", "")})
-        reach = doc["roa"].get("reach") or []  # the task's units, per tangent coordinate (qpos offsets, then qvel)
-        r.update({f"reach_{'qv'[i >= len(reach) // 2]}{i % (len(reach) // 2)}": x for i, x in enumerate(reach)})
+        reach = doc["roa"].get("reach") or []  # the task's units, per tangent coordinate: qpos offsets, then qvel
+        nv = len(reach) // 2
+        r.update({f"reach_q{i}": x for i, x in enumerate(reach[:nv])} | {f"reach_v{i}": x for i, x in enumerate(reach[nv:])})
     return {**r, **{f"cost_{k}": v for k, v in doc["cost_seconds"].items()}}
 
 
