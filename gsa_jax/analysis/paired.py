@@ -64,36 +64,6 @@ def evaluate_all_pushes(controllers: list, settings: dict, seeds: np.ndarray, ou
     return events, nominal
 
 
-def per_controller(events: list, windows: Sequence[int]) -> dict:
-    """{(env, policy, K, seed, size, W): (counted pushes, fall probability, mean return lost)}: a controller's
-    falls per counted push (NaN where none counted) and the mean return a counted push cost it."""
-    acc = {}
-    for r in events:
-        for w in windows:
-            if not int(r[f"counted_W{w}"]):
-                continue
-            key = tuple(str(r[k]) for k in KEY) + (float(r["size"]), int(w))
-            a = acc.setdefault(key, [0, 0, 0.0])
-            a[0] += 1
-            a[1] += int(r[f"fell_W{w}"])
-            a[2] += float(r[f"lost_W{w}"])
-    return {k: (n, f / n, lost / n) for k, (n, f, lost) in acc.items()}
-
-
-def group(per: dict, events: list, windows: Sequence[int]) -> dict:
-    """{(env, policy, K, size, W): {seed: (counted, fall prob, lost)}}, every controller of the events
-    included (one with no counted push as (0, NaN, NaN))."""
-    out = {}
-    ctrls = sorted({tuple(str(r[k]) for k in KEY) for r in events})  # sorted: rliable's resamples follow the cells' order
-    sizes = sorted({float(r["size"]) for r in events})
-    for c in ctrls:
-        for size in sizes:
-            for w in windows:
-                cell = out.setdefault((c[0], c[1], c[2], size, int(w)), {})
-                cell[c[3]] = per.get(c + (size, int(w)), (0, math.nan, math.nan))
-    return out
-
-
 def event_table(events: list, windows: Sequence[int]) -> dict:
     """{(env, size, W): {controller key: [E, 3] (counted, fell, lost)}}: every controller's outcome of each push
     event, the events (start seed, event) in one order per task and size (every controller of a task meets the
@@ -111,6 +81,37 @@ def event_table(events: list, windows: Sequence[int]) -> dict:
             m = out.setdefault((env, size, int(w)), {}).setdefault(tuple(str(r[k]) for k in KEY),
                                                                     np.zeros((len(order[(env, size)]), 3)))
             m[i] = (counted, int(r[f"fell_W{w}"]) if counted else 0, float(r[f"lost_W{w}"]) if counted else 0.0)
+    return out
+
+
+def per_controller(events: list, windows: Sequence[int]) -> dict:
+    """{(env, policy, K, seed, size, W): (counted pushes, fall probability, mean return lost)}: a controller's
+    falls per counted push and the mean return a counted push cost it (only controllers with a counted push)."""
+    return controller_rates(event_table(events, windows))
+
+
+def controller_rates(table: dict) -> dict:
+    """per_controller of an event_table."""
+    out = {}
+    for (_, size, w), mats in table.items():
+        for key, m in mats.items():
+            n = int(m[:, 0].sum())
+            if n:
+                out[key + (size, w)] = (n, m[:, 1].sum() / n, m[:, 2].sum() / n)
+    return out
+
+
+def group(per: dict, events: list, windows: Sequence[int]) -> dict:
+    """{(env, policy, K, size, W): {seed: (counted, fall prob, lost)}}, every controller of the events
+    included (one with no counted push as (0, NaN, NaN))."""
+    out = {}
+    ctrls = sorted({tuple(str(r[k]) for k in KEY) for r in events})  # sorted: rliable's resamples follow the cells' order
+    sizes = sorted({float(r["size"]) for r in events})
+    for c in ctrls:
+        for size in sizes:
+            for w in windows:
+                cell = out.setdefault((c[0], c[1], c[2], size, int(w)), {})
+                cell[c[3]] = per.get(c + (size, int(w)), (0, math.nan, math.nan))
     return out
 
 
@@ -143,10 +144,9 @@ def crossed_interval(x: np.ndarray, y: np.ndarray, reps: int = stats.REPS, seed:
     return float(low[0]), float(high[0]), float(low[1]), float(high[1])
 
 
-def crossed_intervals(events: list, windows: Sequence[int], pairs: list, reps: int) -> dict:
+def crossed_intervals(table: dict, pairs: list, reps: int) -> dict:
     """{str(cell): crossed_interval of the cell's mixture against flat PPO} for cells (env, mixture, K, size, W)
-    in pairs, over the controllers with a counted push."""
-    table = event_table(events, windows)
+    in pairs, over the controllers with a counted push; table: event_table."""
     out = {}
     for c in pairs:
         mats = table[(c[0], c[3], c[4])]
@@ -161,7 +161,8 @@ def aggregate_pushes(events: list, windows: Sequence[int], reps: int = stats.REP
     push, counted pushes per controller, IQM [CI] of the fall probability and of the return lost per push,
     P(a mixture falls less / loses less than flat PPO) [CI] (ties count half: two that never fall tie); that CI
     resamples controllers under the one draw of push events, the EVENT_CI columns resample the events too."""
-    cells = group(per_controller(events, windows), events, windows)
+    table = event_table(events, windows)
+    cells = group(controller_rates(table), events, windows)
     col = lambda c, j: np.array([v[j] for v in cells[c].values()], float)  # noqa: E731
     fin = lambda x: x[np.isfinite(x)][:, None]  # noqa: E731
     fall = stats.iqm_ci({str(c): fin(col(c, 1)) for c in cells if np.isfinite(col(c, 1)).any()}, reps=reps)
@@ -170,7 +171,7 @@ def aggregate_pushes(events: list, windows: Sequence[int], reps: int = stats.REP
     ok = [c for c in cells if c[1] == MIXTURE and flat(c) in cells and len(fin(col(c, 1))) and len(fin(col(flat(c), 1)))]
     p_fall = stats.improvement_probability({str(c): (-fin(col(c, 1)), -fin(col(flat(c), 1))) for c in ok}, reps=reps) if ok else {}
     p_lost = stats.improvement_probability({str(c): (-fin(col(c, 2)), -fin(col(flat(c), 2))) for c in ok}, reps=reps) if ok else {}
-    crossed = crossed_intervals(events, windows, ok, reps)
+    crossed = crossed_intervals(table, ok, reps)
     r3 = lambda v: round(float(v), 4) if np.isfinite(v) else ""  # noqa: E731
     rows = []
     for c in sorted(cells, key=lambda c: (c[0], c[3], c[4], c[1] != MLP, int(c[2] or 0))):
