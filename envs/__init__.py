@@ -33,13 +33,13 @@ from envs.names import (  # noqa: E402
 from envs.physics import mj_model, substeps  # noqa: E402
 from envs.registry import (  # noqa: E402
     action_bounds, action_size, check_name, check_task, control_range, default_episode_length, has_c_backend, is_name,
-    observation_size, register, resolve, resolve_task, task_model, task_randomize, task_record, task_source, unregister,
+    max_return, observation_size, register, resolve, resolve_task, task_model, task_randomize, task_record, task_source, unregister,
 )
 
 __all__ = [
     "ACTION_RANGE", "BRAX_TASKS", "DEFAULT_EPISODE_LENGTH", "DMC_TASKS", "GL_FROM_USER", "GYM_V5_TASKS", "NAMES",
     "RESET_MODES", "action_bounds", "action_size", "as_gymnasium", "check_backend", "check_name", "check_randomize",
     "check_task", "control_range", "default_episode_length", "has_c_backend", "is_name", "make", "make_base",
-    "mj_model", "observation_size", "register", "resolve", "resolve_task", "solver_settings", "substeps",
+    "max_return", "mj_model", "observation_size", "register", "resolve", "resolve_task", "solver_settings", "substeps",
     "task_model", "task_randomize", "task_record", "task_source", "unregister",
 ]

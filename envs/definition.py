@@ -73,6 +73,9 @@ class Task:
     # the qpos of the state the task asks the controller to hold (an inverted pendulum's upright, at rest), where it
     # has one: python -m gsa_jax.verify analyses the closed loop there (None: no equilibrium, falsification only)
     equilibrium_qpos: "np.ndarray | None" = None
+    # the most an episode can return where rewards are bounded (dm_control's tasks: at most 1 a step), None where they
+    # are not (gymnasium's locomotion): gsa_jax.answer gives no answer where flat PPO does not learn a tenth of it
+    max_return: "float | None" = None
 
     def __init__(self):
         for field in ("noise", "vel_noise", "init_qpos"):  # lists as arrays (scalars stay scalars)

@@ -667,6 +667,13 @@ def default_episode_length(name: TaskLike) -> int:
     return int(resolve(name).episode_length())
 
 
+def max_return(name: TaskLike) -> float | None:
+    """The most an episode of task `name` can return where its definition declares it (Task.max_return), else None."""
+    record = resolve(name)
+    value = getattr(record.task(), "max_return", None) if isinstance(record, Definition) else None
+    return None if value is None else float(value)
+
+
 def task_model(name: TaskLike) -> Any:
     """The MuJoCo C model (MjModel) of a task's MJCF with the solver options its MJX version steps with
     (Brax's for the gym tasks), loaded without JAX or MJX (but for another library's environment, built once):

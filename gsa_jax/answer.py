@@ -1,23 +1,28 @@
 """How few linear controllers does a task need? One command trains, judges and adds seeds until it is decided:
 
-    python -m gsa_jax.answer --env TASK [--clusters 1,2,4] [--margin 0.1] [--target SCORE] [--looks 5,10,20,40]
+    python -m gsa_jax.answer --env TASK [--clusters 1,2,4] [--margin 0.1] [--target SCORE] [--looks 10,20,40]
                              [--steps 1000000] [--budget-minutes 120] [--start-from RESULTS_DIR ...] [--out DIR]
     make answer ENV=TASK
 
 Trains flat PPO and a mixture of K linear controllers for every K of the ladder (default K = ceil(m d_a), m in 0.5,
 1, 2, 4), scores every run by its exported controller in MuJoCo C from fixed start states, and judges each K
-sufficient, insufficient or undecided against flat PPO at the margin (gsa_jax.analysis.verdict: the IQM gap on the
-scale of flat PPO's gain over a random policy, a bootstrap interval, Bonferroni over the looks). Seeds are added,
-look by look, only to the undecided K below the smallest sufficient one (and to flat PPO), each round one vmapped
-program per class, until the smallest sufficient K is decided, the last look (the seed cap) is reached or the
-budget would run out. --target SCORE judges against a score your robot needs instead of flat PPO.
---start-from takes committed results (gsa_jax.extract --results; e.g. experiments/atlas_dmc/results/<task>/*):
-their runs are the first seeds and their sweep.json settings train the new ones.
+sufficient, insufficient or undecided at the margin (gsa_jax.analysis.verdict: the IQM gap on the scale of the
+reference's gain over a random policy measured over 128 episodes, Yuen's trimmed-mean t, no resampling). The
+reference is flat PPO where it is adequate, else the published or tuned PPO score it falls below
+(gsa_jax.analysis.baseline: --references); the report says which, and whether flat PPO still learns at --steps.
+Seeds are added, look by look, only to the undecided K below the smallest sufficient one (and to flat PPO), each
+round one vmapped program per class, until the smallest sufficient K is decided, the last look (the seed cap) is
+reached or the budget would run out. The design (an alpha-spending function over the looks, Holm over the K) keeps
+the chance that the answer names a K that is not within the margin at most 2.5% over all K and looks
+(gsa_jax.analysis.sequential). --target SCORE judges against a score your robot needs instead. --start-from takes
+committed results (gsa_jax.extract --results; e.g. experiments/atlas_dmc/results/<task>/*): their runs are the first
+seeds (judged at the same looks as a table of them) and their sweep.json settings train the new ones.
 
 Writes DIR (default runs/answers/<task>): answer.json (the state: the same command resumes it), report.md (the
-answer in one sentence, verdicts at the margin and at 0.05, 0.1, 0.2, score against K with the margin drawn, the
-seeds, the rounds' times, the command), verdicts.csv, score_vs_k.png, controller/controller.{npz,h,onnx} (the
-chosen K's best seed), results/<round>/ (what each round's sweeps commit: sweep.json, tidy metrics, controllers,
+answer in one sentence, the baseline's standing, the verdicts with the seeds each used, other margins as sensitivity,
+score against K with the margin drawn, the rounds' times, the command), verdicts.csv, score_vs_k.png,
+controller/controller.{npz,h,onnx} (the chosen K's best seed, re-scored on fresh start states),
+random_policy.json, results/<round>/ (what each round's sweeps commit: sweep.json, tidy metrics, controllers,
 controller_scores.csv). Exit status: 0 answered (decided or not), 2 bad input, 3 a sweep failed.
 """
 
@@ -28,9 +33,10 @@ import shlex
 import subprocess
 import sys
 
-from envs.physics import record_backend
-from gsa_jax.analysis import verdict
-from gsa_jax.analysis.answering import FLAT, AnswerError, Setup, check_setup, collect_scores, run_answer
+from gsa_jax.analysis import controller_scores, sequential, verdict
+from gsa_jax.analysis.answering import (
+    DEFAULT_LOOKS, DEFAULT_SPENDING, AnswerError, Setup, check_setup, run_answer,
+)
 from gsa_jax.running.runinfo import cli_description
 
 MULTIPLIERS = (0.5, 1, 2, 4)
@@ -102,26 +108,16 @@ def make_setup(args) -> Setup:
                           "MuJoCo C: give a gymnasium v5 task, a dmc: task or your own Task (envs/task.py)")
     ladder = parse_ints(args.clusters, "--clusters (the K ladder)") if args.clusters is not None else default_ladder(args.env)
     setup = Setup(args.env, tuple(sorted(set(ladder))), args.margin, parse_ints(args.looks, "--looks"),
-                  base_specs(args, args.env), args.target, tuple(args.start_from or ()))
+                  base_specs(args, args.env), args.target, tuple(args.start_from or ()), spending=args.spending,
+                  references=os.path.abspath(args.references) if args.references else None)
     check_setup(setup)
     return setup
 
 
-def random_return(setup: Setup) -> float:
-    """The random policy's return on the task: the one --start-from's plots used, else measured with the backend
-    the answer trains with (gsa_jax.analysis.scoring.random_policy_return)."""
-    import json
-
-    for d in setup.start_from:
-        for path in (os.path.join(d, "random_returns.json"), os.path.join(os.path.dirname(d.rstrip("/")), "random_returns.json")):
-            if os.path.exists(path):
-                with open(path) as f:
-                    found = json.load(f)
-                if setup.env in found:
-                    return float(found[setup.env])
-    from gsa_jax.analysis.scoring import random_policy_return
-
-    return random_policy_return(setup.env, backend=record_backend(setup.specs["mixture"]["config"]))
+def random_policy(out: str, setup: Setup) -> dict:
+    """The random policy's episodes on the task in MuJoCo C (controller_scores.random_policy: 128 episodes, kept in
+    out/random_policy.json)."""
+    return controller_scores.random_policy(out, setup.env)
 
 
 def git_commit() -> str:
@@ -136,22 +132,25 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
     import jax
     import mujoco
 
-    from gsa_jax.analysis.answer_report import export_choice, margin_verdicts, write_report
+    from gsa_jax.analysis.answer_report import export_choice, write_report
+    from gsa_jax.analysis.answering import collect_evidence
 
-    scores = collect_scores(out, setup)
+    evidence = collect_evidence(out, setup)
     verdicts = {int(k): r["verdict"] for k, r in state["judged"].items()}
-    versus = "flat PPO" if setup.target is None else f"the target score {setup.target:g}"
+    versus = (state.get("baseline") or {}).get("versus", "flat PPO")
     sentence = verdict.sentence(setup.env, verdicts, setup.margin, versus)
+    if verdicts and all(v == verdict.NO_SCALE for v in verdicts.values()) and state.get("baseline", {}).get("why"):
+        sentence = f"{setup.env}: no answer: {state['baseline']['why']}."
     chosen, _ = verdict.smallest_sufficient(verdicts)
     choice = None
     if chosen is not None:
-        choice = export_choice(out, list(setup.start_from) + [os.path.join(out, "results")], setup.env, chosen, scores)
+        choice = export_choice(out, list(setup.start_from) + [os.path.join(out, "results")], setup.env, chosen,
+                               evidence.scores)
         if choice:
             choice["K"] = chosen
-    rows = margin_verdicts(setup, scores, state["random_return"], state["frozen"], FLAT)
     command = "python -m gsa_jax.answer " + " ".join(shlex.quote(a) for a in argv)
     versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit()}
-    path = write_report(out, setup, state, scores, rows, sentence, choice, command, versions)
+    path = write_report(out, setup, state, evidence, sentence, choice, command, versions)
     print(f"wrote {path}")
     return sentence
 
@@ -163,7 +162,12 @@ def build_parser():
     p.add_argument("--margin", type=float, default=verdict.DEFAULT_MARGIN,
                    help="the margin delta, a fraction of flat PPO's gain over a random policy (default %(default)s)")
     p.add_argument("--target", type=float, default=None, help="judge against this score instead of flat PPO")
-    p.add_argument("--looks", default="5,10,20,40", help="seeds per cell at each look; the last is the seed cap (default %(default)s)")
+    p.add_argument("--looks", default=",".join(map(str, DEFAULT_LOOKS)),
+                   help=f"seeds per cell at each look (at least {sequential.MIN_SEEDS}); the last is the seed cap (default %(default)s)")
+    p.add_argument("--spending", choices=sequential.SPENDING, default=DEFAULT_SPENDING,
+                   help="how each K's error is spread over the looks (default %(default)s: Pocock-type, see docs/answer.md)")
+    p.add_argument("--references", default=None, metavar="CSV",
+                   help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/ppo_references.csv)")
     p.add_argument("--steps", type=int, default=1_000_000, help="env steps per run (default %(default)s)")
     p.add_argument("--backend", choices=("c", "mjx"), default=None, help="physics (default: c where the task has MuJoCo C)")
     p.add_argument("--budget-minutes", type=float, default=120.0, help="stop before a round that would run past it (default %(default)s)")
@@ -181,7 +185,7 @@ def main(argv=None):
         from gsa_jax.running.trained import path_part
 
         out = args.out or os.path.join("runs", "answers", path_part(setup.env))
-        state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_return(setup))
+        state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup))
         print(finish(out, setup, state, argv))
     except AnswerError as e:
         print(f"gsa_jax.answer: error: {e}", file=sys.stderr)

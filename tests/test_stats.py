@@ -117,7 +117,8 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
         assert (out / name).stat().st_size > 10_000, name
     with open(out / "sufficient_k.csv") as f:
         sufficient = {r["env"]: r for r in csv.DictReader(f)}
-    assert sufficient["hopper"]["smallest_sufficient_K"] == "2" and sufficient["walker2d"]["smallest_sufficient_K"] == ""
+    assert sufficient["hopper"]["smallest_sufficient_K"] == ""  # 4 seeds: below the design's first look
+    assert "too few seeds for a verdict (4 per cell; the first look needs 10)" in sufficient["hopper"]["answer"]
     with open(out / "per_run_scores.csv") as f:
         runs = list(csv.DictReader(f))
     assert len(runs) == 16 and {r["seed"] for r in runs} == {"0", "1", "2", "3"}
@@ -125,23 +126,31 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
 
 
 def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
-    """The product's answer per task, sub-policy class and margin: the smallest K whose gap interval lies above
-    -margin, with the smaller K still undecided named; none where no K is shown sufficient."""
+    """The product's answer per task, sub-policy class and margin, judged as gsa_jax.answer's first look: the smallest
+    K shown within the margin, with the smaller K still undecided named; none where no K is shown sufficient."""
     from gsa_jax.analysis.tables import sufficient_k_lines, sufficient_k_table, verdict_table
 
     spread = np.linspace(-1.0, 1.0, 10)
+
     def cell(policy, k, sub):
         return ("a", policy, k, ("subpolicy", sub))
 
-    scores = {cell("mlp", 1, ""): (1000.0 + 5 * spread, "controller"),       # random policy at 0: the scale is 1000
-              cell("mixture", 1, "linear"): (400.0 + 5 * spread, "controller"),   # gap -0.6: insufficient
-              cell("mixture", 2, "linear"): (930.0 + 300 * spread, "controller"),  # wide: undecided
-              cell("mixture", 4, "linear"): (990.0 + 5 * spread, "controller"),   # gap -0.01: sufficient at every margin
-              cell("mixture", 1, "constant"): (100.0 + 5 * spread, "controller")}
-    rows = verdict_table({c: (np.asarray(v), k) for c, (v, k) in scores.items()}, {"a": 0.0}, ["subpolicy"])
+    def runs(scores):  # per seed what verdict_table reads: the controller score and the training series
+        return {s: {"controller_score": float(v), "episode_return": np.array([v]), "episodes": np.array([1.0]),
+                    "env_steps": np.array([1000.0]), "eval_return": np.array([np.nan]), "eval_failures": np.array([np.nan])}
+                for s, v in enumerate(scores)}
+
+    data = {cell("mlp", 1, ""): runs(1000.0 + 5 * spread),          # random policy at 0: the scale is 1000
+            cell("mixture", 1, "linear"): runs(400.0 + 5 * spread),     # gap -0.6: insufficient
+            cell("mixture", 2, "linear"): runs(930.0 + 300 * spread),   # wide: undecided
+            cell("mixture", 4, "linear"): runs(990.0 + 5 * spread),     # gap -0.01: sufficient at every margin
+            cell("mixture", 1, "constant"): runs(100.0 + 5 * spread)}
+    random = {"a": {"returns": 0.0, "episodes": 0, "start_seed": ""}}
+    rows = verdict_table(data, random, {"a": 1000}, ["subpolicy"])
     by = {(r["subpolicy"], r["K"], r["margin"]): r["verdict"] for r in rows}
     assert by[("linear", 1, 0.1)] == "insufficient" and by[("linear", 2, 0.1)] == "undecided"
     assert by[("linear", 4, 0.05)] == "sufficient" and {r["margin"] for r in rows} == {0.05, 0.1, 0.2}
+    assert {r["role"] for r in rows if r["margin"] == 0.1} == {"answer"}
     table = sufficient_k_table(rows, ["subpolicy"])
     got = {(r["subpolicy"], r["margin"]): (r["smallest_sufficient_K"], r["undecided_below"]) for r in table}
     assert got[("linear", 0.1)] == (4, "2") and got[("constant", 0.1)] == ("", "")

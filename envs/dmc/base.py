@@ -159,6 +159,7 @@ class DmcTask(Task):
         self.frame_skip = 1 if self.control_timestep is None else sub_steps(self.control_timestep, timestep)
         self.dt = timestep * self.frame_skip
         self.episode_length = int(math.ceil(self.time_limit / self.dt - 1e-9))  # control.Environment's step limit
+        self.max_return = float(self.episode_length)  # every suite reward is in [0, 1] a step
 
     def load_model(self):
         path = os.path.join(suite_dir(f"task {self.name or type(self).__name__!r}"), f"{self.domain}.xml")

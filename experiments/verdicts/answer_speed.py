@@ -3,7 +3,7 @@
 Runs are deterministic in their seed (a sweep's runs train bit for bit the same alone or in any batch), so
 gsa_jax.answer's loop from scratch can be replayed on runs already trained: each round takes the planned seeds'
 committed controller scores instead of training them, and stops where it would need a seed nobody trained. Per task:
-the default design (looks at 5, 10, 20, 40 seeds), the runs it trains, the seeds per cell, the verdicts and the
+the default design (looks at 10, 20, 40 seeds), the runs it trains, the seeds per cell, the verdicts and the
 answer, beside the fixed grid (10 seeds per cell, one look); and the minutes those runs cost at the seconds per
 run that the task's own answer rounds measured (answers/<task>/answer.json, this machine, shared). Writes
 results/answer_speed.csv.
@@ -77,20 +77,22 @@ def replay(env, ladder, scores, random_return, looks):
     setup = A.Setup(env, ladder, verdict.DEFAULT_MARGIN, looks, {"mlp": spec, "mixture": spec})
     with tempfile.TemporaryDirectory() as out:
         try:
-            state = A.run_answer(out, setup, 1e12, lambda: random_return, log=lambda m: None, train=replay_trainer(env, scores))
+            state = A.run_answer(out, setup, 1e12, lambda: random_return, log=lambda m: None,
+                                 train=replay_trainer(env, scores))
         except NotTrained as e:
             return json.load(open(os.path.join(out, A.STATE))), f"needs runs nobody trained ({e})"
     return state, state["stopped"]
 
 
 def random_return_of(env, dirs):
+    """The random policy's record (episodes) that gsa_jax.plot measured for the task's committed tables."""
     for d in dirs:
-        for path in glob.glob(os.path.join(ROOT, d, "random_returns.json")):
+        for path in glob.glob(os.path.join(ROOT, d, "random_policy.json")):
             with open(path) as f:
                 found = json.load(f)
             if env in found:
-                return float(found[env])
-    raise FileNotFoundError(f"no random return for {env}")
+                return found[env]
+    raise FileNotFoundError(f"no random_policy.json for {env} (run experiments/verdicts/regenerate.sh)")
 
 
 def main():
@@ -98,7 +100,7 @@ def main():
     for env, (ladder, dirs) in TASKS.items():
         scores, rnd = pool(env, dirs), random_return_of(env, dirs)
         per_run = seconds_per_run(env)
-        for design, looks in (("fixed grid of 10 seeds", (10,)), ("gsa_jax.answer looks 5-10-20-40", (5, 10, 20, 40))):
+        for design, looks in (("fixed grid of 10 seeds", (10,)), ("gsa_jax.answer looks 10-20-40", (10, 20, 40))):
             state, stopped = replay(env, ladder, scores, rnd, looks)
             runs = sum(max(len(ks), 1) * len(got) for r in state["rounds"] if r["status"] == "done"
                        for ks, got in r["plan"].values())

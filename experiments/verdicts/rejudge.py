@@ -1,12 +1,12 @@
 """The published answers re-judged: `.venv/bin/python experiments/verdicts/rejudge.py` (after regenerate.sh).
 
-Reads the answers of the P-interval criterion (results/p_interval_criterion.csv: the smallest K whose P(mixture run >
-flat PPO run) 95% interval reaches 0.5, on the mean of each run's last three training-time evaluations; read from the
-sufficient_k.csv files at commit 39094e8) and the verdicts that gsa_jax.plot now writes (sufficient_k.csv per margin,
-on the committed controllers' MuJoCo C scores), and per run both scores (per_run_scores.csv). Writes
-results/rejudged.csv and results/rejudged.md: per task the old answer, the new smallest sufficient K at margins
-0.05 / 0.1 / 0.2, the smaller K still undecided, the verdict of every K, and what happened to the answer at 0.1
-(held, moved, undecided, no answer); and results/score_change.csv: per task how far the controller score lies from
+Reads the answers of the bootstrap rule (results/bootstrap_rule_rejudged.csv: this file's output at 48a94e1, before
+the sequential design: a 95% percentile-bootstrap interval per K, no correction over the K, a 16-episode random
+return taken as exact) and the verdicts that gsa_jax.plot now writes (sufficient_k.csv and verdicts.csv: each table
+judged as gsa_jax.answer's first look, against a baseline shown adequate), and per run both scores
+(per_run_scores.csv). Writes results/rejudged.csv and results/rejudged.md: per task the old answer, the new smallest
+sufficient K at margin 0.1 (0.05 and 0.2 as sensitivity), what it was judged against, flat PPO's standing against
+its reference and whether it still learns, and what happened to the answer (held, moved, undecided, no answer); and results/score_change.csv: per task how far the controller score lies from
 the training-time evaluation average; and results/episode_noise.csv: per cell the episode noise of a controller's
 score beside the spread over seeds, and flat PPO's interquartile range over seeds as a share of its gain; and
 results/answers.csv: the committed answers of gsa_jax.answer (answers/<task>/).
@@ -28,11 +28,20 @@ def new_answers():
     """{(family, env): {margin: sufficient_k row}} from the regenerated tables."""
     out = {}
     paths = [("v5", os.path.join(TASK_DIRS["v5"], "sufficient_k.csv"))]
-    paths += [("dmc", os.path.join(TASK_DIRS["dmc"], t, "sufficient_k.csv")) for t in sorted(os.listdir(TASK_DIRS["dmc"]))]
+    paths += [("dmc", os.path.join(TASK_DIRS["dmc"], t, "sufficient_k.csv")) for t in sorted(os.listdir(TASK_DIRS["dmc"]))
+              if os.path.exists(os.path.join(TASK_DIRS["dmc"], t, "sufficient_k.csv"))]
     for family, path in paths:
         for r in read_csv(path):
             out.setdefault((family, r["env"]), {})[float(r["margin"])] = r
     return out
+
+
+def baselines():
+    """{env: the default-margin verdicts.csv row's baseline columns} of the regenerated tables."""
+    paths = [os.path.join(TASK_DIRS["v5"], "verdicts.csv")]
+    paths += [os.path.join(TASK_DIRS["dmc"], t, "verdicts.csv") for t in sorted(os.listdir(TASK_DIRS["dmc"]))
+              if os.path.exists(os.path.join(TASK_DIRS["dmc"], t, "verdicts.csv"))]
+    return {r["env"]: r for p in paths for r in read_csv(p) if r["role"] == "answer"}
 
 
 def status(old, new, undecided, no_answer):
@@ -46,24 +55,42 @@ def status(old, new, undecided, no_answer):
     if new:
         return "moved (was none)"
     if undecided:
-        return "undecided"
+        return "undecided" + (f" (was K = {old})" if old else "")
     return "none sufficient" + (f" (was K = {old})" if old else " (held)")
 
 
+def standing(b):
+    """A task's baseline in a few words: what the verdicts judge against and why."""
+    if not b:
+        return ""
+    if b.get("binding_reference_score", "") == "":
+        return "flat PPO (no reference known)"
+    ratio = float(b["flat_gain_ratio_to_reference"])
+    where = "below" if b["flat_below_reference"] == "1" else "at or above (1 - margin of)"
+    return f"flat PPO {ratio:.2f} of the reference's gain: {where} {b['binding_reference'].split(' (')[0]} ({b['binding_reference_score']})"
+
+
 def rejudged_rows():
-    old = {(r["family"], r["env"]): r for r in read_csv(os.path.join(HERE, "results", "p_interval_criterion.csv"))}
-    no_answer = {r["task"]: r["no_answer"] for r in read_csv(os.path.join(ROOT, "atlas_dmc", "results", "atlas.csv"))}
+    """Per task: the answer under the bootstrap rule (the committed rejudged.csv before the sequential design), the
+    answer now, the baseline's standing and whether flat PPO still learns."""
+    old = {(r["family"], r["env"]): r for r in read_csv(os.path.join(HERE, "results", "bootstrap_rule_rejudged.csv"))}
+    bases = baselines()
     rows = []
     for (family, env), by_margin in sorted(new_answers().items()):
         d = by_margin[0.1]
-        verdicts = dict(v.split(":") for v in d["verdicts"].split())
-        why = no_answer.get(env, "") or ("flat PPO not above a random policy" if "no answer" in verdicts.values() else "")
-        o = old.get((family, env), {}).get("smallest_sufficient_K", "")
-        rows.append({"family": family, "env": env, "ks_tried": d["ks_tried"], "p_interval_K": o,
-                     "K_margin_0.05": by_margin[0.05]["smallest_sufficient_K"], "K_margin_0.1": d["smallest_sufficient_K"],
-                     "K_margin_0.2": by_margin[0.2]["smallest_sufficient_K"], "undecided_below_0.1": d["undecided_below"],
-                     "verdicts_0.1": d["verdicts"], "seeds": d["seeds"], "no_answer": why,
-                     "status": status(o, d["smallest_sufficient_K"], d["undecided_below"], why)})
+        why = d["answer"].split("no answer: ", 1)[1].rstrip(".") if "no answer" in d["answer"] else ""
+        o = old.get((family, env), {})
+        b = bases.get(env, {})
+        rows.append({"family": family, "env": env, "ks_tried": d["ks_tried"],
+                     "bootstrap_rule_K": o.get("K_margin_0.1", ""), "bootstrap_rule_verdicts": o.get("verdicts_0.1", ""),
+                     "K_margin_0.1": d["smallest_sufficient_K"], "versus": d["versus"],
+                     "K_margin_0.05_sensitivity": by_margin[0.05]["smallest_sufficient_K"],
+                     "K_margin_0.2_sensitivity": by_margin[0.2]["smallest_sufficient_K"],
+                     "undecided_below_0.1": d["undecided_below"], "verdicts_0.1": d["verdicts"], "seeds": d["seeds"],
+                     "baseline": standing(b), "flat_below_reference": b.get("flat_below_reference", ""),
+                     "last_fifth_gain": b.get("last_fifth_gain", ""), "last_fifth_gain_upper": b.get("last_fifth_gain_upper", ""),
+                     "stopped_learning": b.get("stopped_learning", ""), "no_answer": why,
+                     "status": status(o.get("K_margin_0.1", ""), d["smallest_sufficient_K"], d["undecided_below"], why)})
     return rows
 
 
@@ -144,13 +171,18 @@ def answer_rows():
 
 
 def markdown(rows):
-    head = ["family", "task", "K tried", "P-interval criterion", "margin 0.05", "margin 0.1", "margin 0.2",
-            "undecided below (0.1)", "verdicts at 0.1 (K:verdict)", "at 0.1"]
+    head = ["family", "task", "K tried", "bootstrap rule (before)", "now, margin 0.1", "judged against", "undecided below",
+            "verdicts now (K:verdict)", "flat PPO's standing", "still learning? (last fifth's gain, upper bound)",
+            "sensitivity: margin 0.05 / 0.2", "at 0.1"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        lines.append("| " + " | ".join([r["family"], r["env"], r["ks_tried"], r["p_interval_K"] or "none",
-                                        r["K_margin_0.05"] or "none", r["K_margin_0.1"] or "none", r["K_margin_0.2"] or "none",
-                                        r["undecided_below_0.1"], r["verdicts_0.1"],
+        learn = ("" if r["stopped_learning"] == "" else
+                 ("stopped" if r["stopped_learning"] == "1" else "not shown stopped")
+                 + f" ({float(r['last_fifth_gain']):+.2f}, {float(r['last_fifth_gain_upper']):+.2f})")
+        lines.append("| " + " | ".join([r["family"], r["env"], r["ks_tried"], r["bootstrap_rule_K"] or "none",
+                                        r["K_margin_0.1"] or "none", r["versus"], r["undecided_below_0.1"], r["verdicts_0.1"],
+                                        r["baseline"], learn,
+                                        f"{r['K_margin_0.05_sensitivity'] or 'none'} / {r['K_margin_0.2_sensitivity'] or 'none'}",
                                         r["status"] + (f": {r['no_answer']}" if r["no_answer"] else "")]) + " |")
     return "\n".join(lines + ["", summary(rows)]) + "\n"
 

@@ -1,46 +1,82 @@
-"""The report of `python -m gsa_jax.answer`: the answer in one sentence, the verdict table at the answer's margin and
-at verdict.MARGINS, score against K with the margin drawn, the seeds each cell got, the command that reproduces
-it, and the chosen controller exported (npz, C header, ONNX)."""
+"""The report of `python -m gsa_jax.answer`: the answer in one sentence, the baseline's standing (still learning? below
+a published or tuned PPO?), the verdicts with the seeds each interval used and the look that froze it, flat PPO's
+IQM, the seeds per cell for 80% power, other margins as sensitivity (not the answer), score against K with the
+margin drawn, the rounds, the command, and the chosen controller exported (npz, C header, ONNX) and re-scored on
+fresh start states."""
 
 import glob
+import math
 import os
 
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
-from gsa_jax.analysis import verdict
-from gsa_jax.analysis.answering import Setup
-from gsa_jax.analysis.controller_scores import EPISODES, START_SEED
+from gsa_jax.analysis import controller_scores, ladder, sequential, trimmed, verdict
+from gsa_jax.analysis.answering import FLAT, Evidence, Setup, reference_of
 from gsa_jax.analysis.results import write_csv
 from gsa_jax.running.checkpoint import write_atomic
 
 
-def margin_verdicts(setup: Setup, scores: dict, random_return: float, frozen: dict, flat_key: str = "flat") -> list:
-    """Rows per K and margin: the answer's margin takes the sequential design's (frozen) verdicts; the other
-    margins are judged once on all the seeds the answer trained, at the same per-look level."""
-    flat = None if setup.target is not None else [scores[flat_key][s] for s in sorted(scores.get(flat_key, {}))]
+def rounded(x, digits: int = 4):
+    return "" if x is None or (isinstance(x, float) and not math.isfinite(x)) else round(float(x), digits)
+
+
+def answer_rows(setup: Setup, state: dict) -> list:
+    """The answer's rows: per K its record as the sequential design left it (the look that decided or last judged it,
+    the seeds of the mixture and of the reference its interval used, the level, Holm's share)."""
     rows = []
-    for m in sorted(set(verdict.MARGINS) | {setup.margin}):
-        for k in setup.ladder:
-            mix = [scores[k][s] for s in sorted(scores.get(k, {}))]
-            if m == setup.margin and str(k) in frozen:
-                r = frozen[str(k)]
-                g = verdict.Gap(r["gap"], r["low"], r["high"], r["verdict"], m, r["level"], r["n"], r["seeds_to_decide"])
-            elif len(mix) < 2 or (flat is not None and len(flat) < 2):
-                continue
-            else:
-                g = verdict.judge(mix, flat, random_return, m, len(setup.looks), setup.target)
-            rows.append({"K": k, "margin": m, "answer_margin": int(m == setup.margin), "seeds": len(mix),
-                         "reference_seeds": len(flat) if flat else "", "iqm": round(float(verdict.iqm(mix)), 2) if mix else "",
-                         "gap": round(g.point, 4), "gap_low": round(g.low, 4), "gap_high": round(g.high, 4),
-                         "level": round(g.level, 4), "verdict": g.verdict,
-                         "seeds_to_decide": "" if g.seeds_to_decide is None else g.seeds_to_decide})
+    for k in setup.ladder:
+        r = state["judged"].get(str(k), {})
+        if "look" not in r:
+            rows.append({"role": "answer", "K": k, "margin": setup.margin, "verdict": r.get("verdict", "untrained"),
+                         "why": r.get("why", "")})
+            continue
+        decided = r["verdict"] in ladder.DECIDED
+        rows.append({"role": "answer", "K": k, "margin": setup.margin, "verdict": r["verdict"],
+                     "look": f"{r['look'] + 1} of {len(setup.looks)}", "frozen": "yes" if decided else "no",
+                     "seeds": r["seeds"], "reference_seeds": r["reference_seeds"] or "fixed",
+                     "gap": rounded(r["gap"]), "gap_low": rounded(r["low"]), "gap_high": rounded(r["high"]),
+                     "level": rounded(r["level"], 8), "share": rounded(r["share"], 6),
+                     "p_sufficient": rounded(r["p_sufficient"], 8), "p_insufficient": rounded(r["p_insufficient"], 8),
+                     "seeds_80pct_power_parity": "" if decided or r["seeds_parity"] is None else r["seeds_parity"],
+                     "seeds_80pct_power_observed": "" if decided or r["seeds_observed"] is None else r["seeds_observed"]})
     return rows
 
 
-def plot_answer(setup: Setup, scores: dict, random_return: float, path: str, flat_key: str = "flat") -> None:
-    """Score against K: every seed's controller score, each cell's IQM with its 95% bootstrap interval, flat PPO's
-    IQM (or the target) and the margin the mixtures must be shown above (dashed)."""
+def sensitivity_rows(setup: Setup, evidence: Evidence, state: dict) -> list:
+    """Other margins, each K judged once on all the seeds it has against all of the reference's, at the level of a
+    single look holding alpha / K: a sensitivity analysis, not the answer (the seeds were added for its margin)."""
+    base = state.get("baseline")
+    if not base or not base["learned"]:
+        return []
+    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    reference = reference_of(setup, evidence, base)
+    level = setup.alpha / len(setup.ladder)
+    rows = []
+    for m in sorted(set(verdict.MARGINS) - {setup.margin}):
+        for k in setup.ladder:
+            cell = values.get(k, {})
+            if len(cell) < 2:
+                continue
+            g = verdict.judge(ladder.first_seeds(cell, len(cell)), reference, state["random"]["returns"], m, level)
+            rows.append({"role": "sensitivity (not the answer)", "K": k, "margin": m, "verdict": g.verdict,
+                         "seeds": g.n, "reference_seeds": g.n_ref or "fixed", "gap": rounded(g.point),
+                         "gap_low": rounded(g.low), "gap_high": rounded(g.high), "level": rounded(level, 8)})
+    return rows
+
+
+def iqm_interval(values: list) -> tuple:
+    """(IQM, 95% interval) of a cell's values by Yuen's trimmed-mean t (what the verdicts use)."""
+    s = trimmed.trimmed(values)
+    if not math.isfinite(s.var) or s.var == 0:
+        return s.mean, s.mean, s.mean
+    half = trimmed.t_quantile(0.025, s.df) * math.sqrt(s.var)
+    return s.mean, s.mean - half, s.mean + half
+
+
+def plot_answer(setup: Setup, scores: dict, random_mean: float, path: str) -> None:
+    """Score against K: every seed's controller score, each cell's IQM with its 95% interval, flat PPO's IQM (or the
+    target) and the margin the mixtures must be shown above (dashed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -51,21 +87,21 @@ def plot_answer(setup: Setup, scores: dict, random_return: float, path: str, fla
     ks = [k for k in setup.ladder if scores.get(k)]
     for i, k in enumerate(ks):
         x = np.array([scores[k][s] for s in sorted(scores[k])])
-        lo, hi = np.quantile(verdict.resampled_iqms(x, 2000, rng), [0.025, 0.975])
+        mid, lo, hi = iqm_interval(x)
         ax.scatter(np.full(len(x), i) + rng.uniform(-0.12, 0.12, len(x)), x, s=10, color="tab:blue", alpha=0.5)
-        ax.errorbar(i, verdict.iqm(x), yerr=[[verdict.iqm(x) - lo], [hi - verdict.iqm(x)]], fmt="o", color="tab:blue",
-                    capsize=4, label="mixture: IQM (95% CI), dots = seeds" if i == 0 else None)
-    if setup.target is None and scores.get(flat_key):
-        flat = np.array([scores[flat_key][s] for s in sorted(scores[flat_key])])
+        ax.errorbar(i, mid, yerr=[[mid - lo], [hi - mid]], fmt="o", color="tab:blue", capsize=4,
+                    label="mixture: IQM (95% CI), dots = seeds" if i == 0 else None)
+    flat_tick = setup.target is None and bool(scores.get(FLAT))
+    if flat_tick:
+        flat = np.array([scores[FLAT][s] for s in sorted(scores[FLAT])])
         ref = float(verdict.iqm(flat))
         ax.scatter(np.full(len(flat), -1) + rng.uniform(-0.12, 0.12, len(flat)), flat, s=10, color="k", alpha=0.5)
         ax.axhline(ref, color="k", lw=1.5, label=f"flat PPO IQM ({len(flat)} seeds; dots at the left)")
     else:
         ref = float(setup.target)
         ax.axhline(ref, color="k", lw=1.5, label=f"target {ref:g}")
-    ax.axhline(ref - setup.margin * (ref - random_return), color="tab:red", ls="--",
-               label=f"margin: {setup.margin:g} of the gain over a random policy ({random_return:.0f})")
-    flat_tick = setup.target is None and bool(scores.get(flat_key))
+    ax.axhline(ref - setup.margin * (ref - random_mean), color="tab:red", ls="--",
+               label=f"margin: {setup.margin:g} of the gain over a random policy ({random_mean:.0f})")
     ax.set_xticks(([-1] if flat_tick else []) + list(range(len(ks))), (["flat PPO"] if flat_tick else []) + [str(k) for k in ks])
     ax.set(xlabel="K (linear controllers)", ylabel="controller score (MuJoCo C, fixed starts)", title=setup.env)
     ax.grid(alpha=0.3)
@@ -76,8 +112,9 @@ def plot_answer(setup: Setup, scores: dict, random_return: float, path: str, fla
 
 
 def export_choice(out: str, results_root: list, env: str, k: int, scores: dict) -> dict | None:
-    """The chosen K's best-scoring seed's controller written as out/controller/controller.{npz,h,onnx} ->
-    {seed, score, files}; None where its file is not found."""
+    """The chosen K's best-scoring seed's controller written as out/controller/controller.{npz,h,onnx} and re-scored
+    on FRESH_EPISODES fresh start states (not those it was picked on) -> {seed, score, fresh, source, files}; None
+    where its file is not found."""
     from gsa_jax.deployment.exporting import load_arrays, write
     from gsa_jax.running.trained import path_part
 
@@ -96,18 +133,32 @@ def export_choice(out: str, results_root: list, env: str, k: int, scores: dict) 
             files.append(path)
         except ImportError:  # ONNX needs the deploy extra
             continue
-    return {"seed": seed, "score": scores[k][seed], "source": hits[0], "files": files}
+    fresh = controller_scores.score_controller(files[0], controller_scores.FRESH_EPISODES, controller_scores.FRESH_START_SEED)
+    return {"seed": seed, "score": scores[k][seed], "fresh": fresh, "source": hits[0], "files": files}
 
 
-def table_text(rows: list) -> str:
-    """The verdict rows as a markdown table (K, margin, seeds, IQM, gap [interval], verdict, seeds likely to decide)."""
-    lines = ["| K | margin | seeds (flat PPO) | IQM | gap [interval] | verdict | seeds per cell likely to decide |",
-             "|---|---|---|---|---|---|---|"]
+def table_text(rows: list, flat: tuple | None) -> str:
+    """The answer's rows as a markdown table, flat PPO's IQM (95% interval) first where it is the reference."""
+    lines = ["| K | verdict | look (frozen?) | seeds: mixture (reference) | gap [interval at the look's level] | level | "
+             "seeds per cell for 80% power: at parity, at the observed gap |", "|---|---|---|---|---|---|---|"]
+    if flat is not None:
+        lines.append(f"| flat PPO | IQM {flat[0]:.1f} [{flat[1]:.1f}, {flat[2]:.1f}] (95%) |  | {flat[3]} |  |  |  |")
     for r in rows:
-        bold = "**" if r["answer_margin"] else ""
-        lines.append(f"| {r['K']} | {bold}{r['margin']:g}{bold} | {r['seeds']} ({r['reference_seeds']}) | {r['iqm']} | "
-                     f"{r['gap']:+.3f} [{r['gap_low']:+.3f}, {r['gap_high']:+.3f}] | {bold}{r['verdict']}{bold} | "
-                     f"{r['seeds_to_decide'] if r['verdict'] == verdict.UNDECIDED else ''} |")
+        if "look" not in r or r["gap"] == "":
+            lines.append(f"| {r['K']} | {r['verdict']} {r.get('why', '')} |  |  |  |  |  |")
+            continue
+        power = (f"{r['seeds_80pct_power_parity'] or '-'}, {r['seeds_80pct_power_observed'] or '-'}"
+                 if r["verdict"] == verdict.UNDECIDED else "")
+        lines.append(f"| {r['K']} | **{r['verdict']}** | {r['look']} ({'frozen' if r['frozen'] == 'yes' else 'open'}) | "
+                     f"{r['seeds']} ({r['reference_seeds']}) | {r['gap']:+.3f} [{r['gap_low']:+.3f}, {r['gap_high']:+.3f}] | "
+                     f"{r['level']:.2g} | {power} |")
+    return "\n".join(lines)
+
+
+def sensitivity_text(rows: list) -> str:
+    lines = ["| margin | K | verdict | seeds (reference) | gap [interval] |", "|---|---|---|---|---|"]
+    lines += [f"| {r['margin']:g} | {r['K']} | {r['verdict']} | {r['seeds']} ({r['reference_seeds']}) | "
+              f"{r['gap']:+.3f} [{r['gap_low']:+.3f}, {r['gap_high']:+.3f}] |" for r in rows if r["gap"] != ""]
     return "\n".join(lines)
 
 
@@ -125,43 +176,91 @@ def rounds_text(state: dict) -> tuple:
     return "\n".join(lines), (compile_s / total if total else float("nan"))
 
 
-def write_report(out: str, setup: Setup, state: dict, scores: dict, rows: list, sentence: str, choice: dict | None,
+def baseline_text(setup: Setup, state: dict) -> list:
+    """The baseline section: what the verdicts judge against and why; still learning; the references that apply."""
+    base, rand = state.get("baseline"), state["random"]
+    r = trimmed.plain(rand["returns"])
+    half = trimmed.t_quantile(0.025, r.df) * math.sqrt(r.var)
+    lines = [f"- Random policy: {r.mean:.2f} ± {half:.2f} (95%; {rand['episodes']} episodes in MuJoCo C from seed "
+             f"{rand['start_seed']}), in every test with its own uncertainty."]
+    if not base:
+        return lines + ["- No look reached: the baseline was not judged."]
+    if not base["learned"]:
+        lines.append(f"- **No answer**: {base['why']}.")
+    lines.append(f"- The verdicts judge against **{base['versus']}** (metric: {base['metric']}).")
+    learn = base.get("learning")
+    if learn:
+        state_word = "has stopped learning" if learn["stopped"] else "**is not shown to have stopped learning**"
+        lines.append(f"- Flat PPO {state_word} at {setup.steps():,} steps: the last fifth of training gained "
+                     f"{learn['gain']:+.3f} of its gain over the random policy (IQM over {learn['seeds']} seeds; one-sided "
+                     f"95% upper bound {learn['upper']:+.3f}; stopped when below the margin {setup.margin:g})"
+                     + ("" if learn["stopped"] else "; a longer --steps may move the answer") + ".")
+    for s in base.get("standings", []):
+        lines.append(f"- Reference {s['algorithm']} on {s['published_task']} at {s['steps']:,} steps ({s['metric']}, "
+                     f"{s['seeds'] or '?'} seeds): {s['score']:g}; flat PPO {s['ours']:g} on that metric, "
+                     f"{s['ratio']:.2f} of its gain over the random policy{' — **below it**' if s['below'] else ''}. "
+                     f"Source: {s['source']}.")
+    if setup.target is None and not base.get("standings"):
+        lines.append("- No published or tuned PPO score is known for this task at this budget: the verdicts rest on this "
+                     "flat PPO alone.")
+    return lines
+
+
+def design_text(setup: Setup) -> list:
+    d = setup.design()
+    levels = sequential.look_levels(d, d.alpha / len(setup.ladder))
+    return [f"- Gap of a cell: (IQM(mixture) - IQM(reference)) / (IQM(reference) - random return); Yuen's trimmed-mean "
+            f"t for the contrast, no resampling (the verdict does not depend on a seed). Margin {setup.margin:g}.",
+            f"- Looks at {', '.join(map(str, d.looks))} seeds per cell, {d.spending} alpha-spending of {d.alpha:.1%}, "
+            f"{d.multiplicity} over the {len(setup.ladder)} K: the answer names a K that is not within the margin at most "
+            f"{verdict.ALPHA:.1%} of the time over all K and looks (simulated: experiments/verdicts/error_rates.py; "
+            "exact for the default design only). Per-look levels of a K holding alpha / K: "
+            + ", ".join(f"{v:.2g}" for v in levels) + "; a K shown sufficient passes its share on (Holm).",
+            "- A decided cell is frozen at its look; seeds are added only to the undecided K below the smallest "
+            "sufficient K (and to flat PPO)."]
+
+
+def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, sentence: str, choice: dict | None,
                  command: str, versions: dict) -> str:
     """out/report.md (and verdicts.csv, score_vs_k.png) -> its path."""
-    plot_answer(setup, scores, state["random_return"], os.path.join(out, "score_vs_k.png"))
-    write_csv(os.path.join(out, "verdicts.csv"), rows)
+    rows, sens = answer_rows(setup, state), sensitivity_rows(setup, evidence, state)
+    plot_answer(setup, evidence.scores, float(np.mean(state["random"]["returns"])), os.path.join(out, "score_vs_k.png"))
+    write_csv(os.path.join(out, "verdicts.csv"), rows + sens)
+    flat = evidence.scores.get(FLAT, {})
+    flat_row = (*iqm_interval(list(flat.values())), len(flat)) if setup.target is None and len(flat) >= 2 else None
     rounds, share = rounds_text(state)
-    if not state["rounds"]:
-        rounds, share = "No round trained: every cell was judged on the runs of --start-from.", None
-    versus = "flat PPO" if setup.target is None else f"the target score {setup.target:g}"
-    seeds = ", ".join(f"{'flat PPO' if k == 'flat' else 'K = ' + str(k)}: {len(v)}" for k, v in scores.items())
     lines = [f"# How many linear controllers does {setup.env} need?", "", f"**{sentence}**", "",
              f"Stopped: {state['stopped']}. Scores are the committed controllers' deterministic returns in MuJoCo C from "
-             "fixed start states (controller_scores.csv beside each controllers/ folder).", "",
-             "## Design", "",
-             f"- Gap of a cell: (IQM(mixture) - IQM({versus})) / (IQM({versus}) - random return), random return "
-             f"{state['random_return']:.2f}; stratified bootstrap interval; margin {setup.margin:g} "
-             f"(sufficient: interval above -{setup.margin:g}; insufficient: below).",
-             f"- Looks at {', '.join(map(str, setup.looks))} seeds per cell; each look's interval has level "
-             f"{verdict.look_level(len(setup.looks)):.4f} (Bonferroni over {len(setup.looks)} looks: at most 2.5% chance "
-             "of calling sufficient a cell whose true gap is the margin); a decided cell is frozen; seeds are added "
-             "only to undecided cells below the smallest sufficient K (and to flat PPO).",
-             f"- Seeds per cell: {seeds}.", "",
-             f"![score against K](score_vs_k.png)", "", "## Verdicts", "",
-             table_text(rows), "",
-             "Other margins are judged once on the same seeds (the seeds were added for the answer's margin, bold).", "",
-             "## Rounds", "", rounds, ""]
-    if share is not None:
+             f"fixed start states ({controller_scores.EPISODES} from seed {controller_scores.START_SEED}; "
+             "controller_scores.csv beside each controllers/ folder).", "", "## Baseline", ""] + baseline_text(setup, state)
+    lines += ["", "## Design", ""] + design_text(setup) + ["", "![score against K](score_vs_k.png)", "", "## Verdicts", "",
+                                                           table_text(rows, flat_row), ""]
+    if sens:
+        lines += ["## Other margins (sensitivity, not the answer)", "",
+                  "Each K judged once on all its seeds at a single look's level (alpha / K): how the answer would read at "
+                  "another margin, not a second answer (the seeds were added for the answer's margin).", "",
+                  sensitivity_text(sens), ""]
+    lines += ["## Rounds", "", rounds if state["rounds"] else "No round trained: every cell was judged on the runs of "
+              "--start-from.", ""]
+    if state["rounds"] and share == share:
         lines += [f"Compiling or loading programs: {share:.0%} of the training time.", ""]
-    if choice:
-        lines += ["## The chosen controller", "",
-                  f"K = {choice.get('K')}, seed {choice['seed']} (the best of its seeds: {choice['score']:.1f}), from "
-                  f"`{choice['source']}`: " + ", ".join(f"`{os.path.relpath(f, out)}`" for f in choice["files"]), "",
-                  f"Re-score it: `python -m gsa_jax.deploy {os.path.join(out, 'controller', 'controller.npz')} "
-                  f"--episodes {EPISODES} --seed {START_SEED}`", ""]
-    lines += ["## Reproduce", "", f"    {command}", "",
-              "Versions: " + ", ".join(f"{k} {v}" for k, v in versions.items()), ""]
+    lines += choice_text(out, choice) + ["## Reproduce", "", f"    {command}", "",
+                                         "Versions: " + ", ".join(f"{k} {v}" for k, v in versions.items()), ""]
     path = os.path.join(out, "report.md")
     write_atomic(path, "\n".join(lines))
     return path
 
+
+def choice_text(out: str, choice: dict | None) -> list:
+    if not choice:
+        return []
+    fresh = choice["fresh"]
+    return ["## The chosen controller", "",
+            f"K = {choice.get('K')}, seed {choice['seed']}: the best of its seeds on the selection starts "
+            f"({choice['score']:.1f} over {controller_scores.EPISODES} episodes from seed {controller_scores.START_SEED}); "
+            f"on {fresh['episodes']} fresh starts from seed {fresh['start_seed']} it scores {fresh['controller_score']:.1f} "
+            f"(episode std {fresh['episode_std']:.1f}): the fresh score is what to expect, the selection score carries "
+            f"the best-of-seeds pick. From `{choice['source']}`: "
+            + ", ".join(f"`{os.path.relpath(f, out)}`" for f in choice["files"]), "",
+            f"Re-score it: `python -m gsa_jax.deploy {os.path.join(out, 'controller', 'controller.npz')} "
+            f"--episodes {fresh['episodes']} --seed {fresh['start_seed']}`", ""]

@@ -1,11 +1,13 @@
-"""The answer loop of `python -m gsa_jax.answer`: train flat PPO and a ladder of K in rounds, judge every cell
-(gsa_jax.analysis.verdict) and add seeds only where the smallest sufficient K is not decided yet.
+"""The answer loop of `python -m gsa_jax.answer`: train flat PPO and a ladder of K in rounds, judge every cell at the
+design's looks (gsa_jax.analysis.ladder: Yuen's trimmed-mean t, an alpha-spending function over the looks, Holm over
+the K) against a baseline shown adequate (gsa_jax.analysis.baseline), and add seeds only where the smallest
+sufficient K is not decided yet.
 
-A round trains, per policy class, one sweep (one vmapped program; gsa_jax.sweep in a subprocess, resumable,
-with the answer's shared compilation cache so a later round with the same shapes loads its program), exports
-every run's controller and scores it in MuJoCo C (gsa_jax.analysis.controller_scores). Cells are judged at
-the looks fixed in the setup (seeds per cell); a decided verdict is frozen at the look that decided it. The
-state (DIR/answer.json) is written after every step, so the same command resumes where it stopped.
+A round trains, per policy class, one sweep (one vmapped program; gsa_jax.sweep in a subprocess, resumable, with the
+answer's shared compilation cache so a later round with the same shapes loads its program), exports every run's
+controller and scores it in MuJoCo C (gsa_jax.analysis.controller_scores). The decisions are a pure function of the
+runs' values (decide), so experiments/verdicts/error_rates.py simulates this very loop. The state (DIR/answer.json)
+is written after every step, so the same command resumes where it stopped.
 """
 
 import dataclasses
@@ -16,16 +18,18 @@ import re
 import subprocess
 import sys
 import time
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import controller_scores, verdict
+from gsa_jax.analysis import baseline, controller_scores, ladder, sequential, trimmed, verdict
 from gsa_jax.analysis.extraction import collect_results
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, check_spec
 
 STATE = "answer.json"
 FLAT = "flat"  # the key of flat PPO's cell beside the K of the mixtures
+DEFAULT_LOOKS = (10, 20, 40)
+DEFAULT_SPENDING = "pocock"
 
 
 class AnswerError(Exception):
@@ -36,7 +40,8 @@ class AnswerError(Exception):
 class Setup:
     """What an answer computes (recorded in answer.json; a resumed answer must match it). specs: the base
     experiment spec per policy ('mlp', 'mixture': steps, hparams, config); looks: seeds per cell at each look;
-    start_from: results directories whose committed controllers are the first seeds."""
+    alpha, spending: the design (gsa_jax.analysis.sequential); start_from: results directories whose committed
+    controllers are the first seeds; references: the references table (None: the shipped one)."""
 
     env: str
     ladder: tuple
@@ -45,6 +50,16 @@ class Setup:
     specs: dict
     target: float | None = None
     start_from: tuple = ()
+    alpha: float = sequential.DESIGN_ALPHA
+    spending: str = DEFAULT_SPENDING
+    references: str | None = None
+    multiplicity: str = "holm"
+
+    def design(self) -> sequential.Design:
+        return sequential.Design(tuple(self.looks), self.alpha, self.spending, self.multiplicity)
+
+    def steps(self) -> int:
+        return int(self.specs[MLP if self.target is None else MIXTURE]["steps"])
 
     def to_json(self) -> dict:
         return {**dataclasses.asdict(self), "ladder": list(self.ladder), "looks": list(self.looks),
@@ -68,16 +83,43 @@ def check_setup(setup: Setup) -> None:
         raise AnswerError(f"every K must be >= 1, got {list(setup.ladder)}")
     if not 0.0 < setup.margin < 1.0:
         raise AnswerError(f"--margin must be in (0, 1), got {setup.margin}")
-    if not setup.looks or any(b <= a for a, b in zip(setup.looks, setup.looks[1:])) or setup.looks[0] < 2:
-        raise AnswerError(f"--looks must be increasing seed counts >= 2, got {list(setup.looks)}")
+    try:
+        sequential.check_design(setup.design())
+    except ValueError as e:
+        raise AnswerError(f"--looks: {e}" if "look" in str(e) else str(e)) from None
+    if setup.target is None:
+        try:
+            baseline.load_references(setup.references or baseline.REFERENCES)
+        except baseline.ReferenceError as e:
+            raise AnswerError(str(e)) from None
     for policy in (MLP, MIXTURE):
         if policy == MLP and setup.target is not None:
             continue
         try:
-            check_spec(sweep_spec(setup, policy, list(setup.ladder), list(range(setup.looks[0])), "answer_check"),
-                       source=f"the {policy} spec")
+            spec = check_spec(sweep_spec(setup, policy, list(setup.ladder), list(range(setup.looks[0])), "answer_check"),
+                              source=f"the {policy} spec")
         except SpecError as e:
             raise AnswerError(str(e)) from None
+        if policy == MLP:
+            check_evaluations(spec)
+
+
+MIN_EVALUATIONS = 10  # flat PPO's evaluations per run the still-learning test needs (baseline.learning)
+
+
+def check_evaluations(spec) -> None:
+    """AnswerError in one line where flat PPO's runs would have too few evaluations for the still-learning test."""
+    from gsa_jax.running.spec import build_grid, default_chunk, group_config, group_eval_every, group_iterations
+
+    group = build_grid(spec)[0]
+    cfg = group_config(spec, group)
+    iterations = group_iterations(spec, cfg, default_chunk(spec, cfg))
+    every = group_eval_every(spec, iterations)
+    evaluations = iterations // every if every else 0
+    if evaluations < MIN_EVALUATIONS:
+        need = MIN_EVALUATIONS * cfg.batch_size * (every if spec.eval_every else 1)
+        raise AnswerError(f"--steps {spec.steps} gives flat PPO {evaluations} evaluations per run; the still-learning "
+                          f"test needs at least {MIN_EVALUATIONS}: give --steps {need} or more")
 
 
 def to_toml(spec: dict) -> str:
@@ -103,11 +145,12 @@ def load_state(out: str, setup: Setup) -> dict:
     """The answer's state in `out` (new if none); AnswerError if `out` holds another answer's."""
     path = os.path.join(out, STATE)
     if not os.path.exists(path):
-        return {"setup": setup.to_json(), "rounds": [], "frozen": {}, "elapsed_s": 0.0}
+        return {"setup": setup.to_json(), "rounds": [], "records": {}, "elapsed_s": 0.0}
     with open(path) as f:
         state = json.load(f)
-    if state["setup"] != json.loads(json.dumps(setup.to_json())):
-        changed = sorted(k for k in state["setup"] if state["setup"][k] != json.loads(json.dumps(setup.to_json())).get(k))
+    mine = json.loads(json.dumps(setup.to_json()))
+    if state["setup"] != mine:
+        changed = sorted(k for k in set(state["setup"]) | set(mine) if state["setup"].get(k) != mine.get(k))
         raise AnswerError(f"{out} holds an answer with other settings ({', '.join(changed)}); use another --out")
     return state
 
@@ -116,10 +159,25 @@ def save_state(out: str, state: dict) -> None:
     write_atomic(os.path.join(out, STATE), json.dumps(state, indent=1))
 
 
-# ----------------------------------------------------------------------------------------------- scores
+# ----------------------------------------------------------------------------------------------- evidence
+class Evidence(NamedTuple):
+    """What the decisions read: per cell (FLAT or K) {seed: value} of the controller scores and of the mean return of
+    the last 100 training episodes, and flat PPO's learning curves {seed: (env_steps [T], eval_return [T])}."""
+
+    scores: dict
+    last100: dict
+    curves: dict
+
+
 def score_roots(out: str, setup: Setup) -> list:
     """The results directories whose controllers are this answer's runs: --start-from's and the rounds'."""
     return list(setup.start_from) + [os.path.join(out, "results")]
+
+
+def cell_key(setup: Setup, policy: str, k) -> object | None:
+    """FLAT, a K of the ladder, or None for a cell the answer does not judge."""
+    key = FLAT if policy == MLP else int(k)
+    return key if key == FLAT or key in setup.ladder else None
 
 
 def collect_scores(out: str, setup: Setup) -> dict:
@@ -128,45 +186,100 @@ def collect_scores(out: str, setup: Setup) -> dict:
     for root in score_roots(out, setup):
         for path in sorted(glob.glob(os.path.join(root, "**", controller_scores.FILE), recursive=True)):
             for row in controller_scores.read_scores(path).values():
-                if row["env"] != setup.env or row.get("controller_score", "") == "":
-                    continue
-                key = FLAT if row["policy"] == MLP else int(row["K"])
-                if key == FLAT or key in setup.ladder:
+                key = cell_key(setup, row["policy"], row["K"])
+                if row["env"] == setup.env and row.get("controller_score", "") != "" and key is not None:
                     found.setdefault(key, {})[int(row["seed"])] = float(row["controller_score"])
     return found
 
 
-def first_seeds(scores: dict, n: int) -> list:
-    """The scores of a cell's first n seeds (in seed order)."""
-    return [scores[s] for s in sorted(scores)[:n]]
+def collect_runs(out: str, setup: Setup) -> tuple:
+    """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}) from the
+    tidy metrics under score_roots."""
+    from gsa_jax.analysis.results import load_sweep
+    from gsa_jax.analysis.stats import last_episodes_return
 
-
-def judge_cells(setup: Setup, scores: dict, random_return: float, frozen: dict) -> dict:
-    """{K: verdict record} at the margin of the setup: a frozen (decided) record kept; every other cell judged
-    with all its seeds against all of flat PPO's, at the design's per-look level."""
-    out = {}
-    flat = None if setup.target is not None else first_seeds(scores.get(FLAT, {}), len(scores.get(FLAT, {})))
-    for k in setup.ladder:
-        if str(k) in frozen:
-            out[k] = frozen[str(k)]
+    last100, curves = {}, {}
+    dirs = sorted({os.path.dirname(p) for root in score_roots(out, setup)
+                   for p in glob.glob(os.path.join(root, "**", "sweep.json"), recursive=True)})
+    for d in dirs:
+        try:
+            cells = load_sweep(d)
+        except FileNotFoundError:
             continue
-        mix = first_seeds(scores.get(k, {}), len(scores.get(k, {})))
-        if len(mix) < setup.looks[0] or (flat is not None and len(flat) < setup.looks[0]):
-            out[k] = {"verdict": "untrained", "n": len(mix)}
-            continue
-        g = verdict.judge(mix, flat, random_return, setup.margin, len(setup.looks), setup.target)
-        out[k] = {"verdict": g.verdict, "n": g.n, "seeds": len(mix), "reference_seeds": len(flat) if flat else 0,
-                  "gap": g.point, "low": g.low, "high": g.high, "level": g.level, "seeds_to_decide": g.seeds_to_decide}
-    return out
+        for cell, seeds in cells.items():
+            key = cell_key(setup, cell[1], cell[2])
+            if cell[0] != setup.env or key is None:
+                continue
+            for seed, s in seeds.items():
+                last100.setdefault(key, {})[seed] = last_episodes_return(s["episode_return"], s["episodes"])
+                if key == FLAT:
+                    curves[seed] = (s["env_steps"], s["eval_return"])
+    return last100, curves
 
 
-def cells_to_extend(setup: Setup, judged: dict) -> list:
-    """The K that need more seeds: untrained ones, and the undecided ones below the smallest sufficient K (none
-    once flat PPO shows no gain over a random policy)."""
-    verdicts = {k: r["verdict"] for k, r in judged.items()}
+def collect_evidence(out: str, setup: Setup) -> Evidence:
+    last100, curves = collect_runs(out, setup)
+    return Evidence(collect_scores(out, setup), last100, curves)
+
+
+# ----------------------------------------------------------------------------------------------- decisions
+def random_summary(state: dict) -> trimmed.Summary:
+    return verdict.summarize_random(state["random"]["returns"])
+
+
+def choose_baseline(setup: Setup, evidence: Evidence, state: dict) -> dict:
+    """The baseline record (what the verdicts judge against, and why), decided once at the answer's first look from
+    flat PPO's first-look seeds: flat PPO, or the reference entry it falls below, or the user's target."""
+    if setup.target is not None:
+        return {"versus": f"the target score {setup.target:g}", "metric": "controller_score", "entry": None,
+                "standings": [], "learning": None, "learned": True}
+    n = setup.looks[0]
+    flat_ctrl = ladder.first_seeds(evidence.scores.get(FLAT, {}), n)
+    flat_last = ladder.first_seeds(evidence.last100.get(FLAT, {}), n)
+    curves = [evidence.curves[s] for s in sorted(evidence.curves)[:n]]
+    refs = baseline.load_references(setup.references or baseline.REFERENCES)
+    return baseline.choose(setup.env, setup.steps(), setup.margin, flat_ctrl, flat_last, curves,
+                           random_summary(state), refs, task_max_return(setup.env))
+
+
+def task_max_return(env: str) -> float | None:
+    """The task's declared maximum return (envs.max_return), None where it declares none or is not a task here."""
+    import envs
+
+    try:
+        return envs.max_return(env)
+    except (ValueError, ImportError):
+        return None
+
+
+def reference_of(setup: Setup, evidence: Evidence, base: dict):
+    """What judge_ladder compares with: flat PPO's values in seed order, a reference entry, or the target."""
+    if setup.target is not None:
+        return trimmed.fixed(setup.target)
+    if base["entry"] is not None:
+        return baseline.reference_summary(base["entry"])
+    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    return ladder.first_seeds(values.get(FLAT, {}), len(values.get(FLAT, {})))
+
+
+def judge_cells(setup: Setup, evidence: Evidence, state: dict) -> dict:
+    """{str(K): record} of every K at its looks (ladder.judge_ladder), against the state's baseline."""
+    base = state["baseline"]
+    if not base["learned"]:
+        return {str(k): {"verdict": verdict.NO_SCALE, "why": base["why"]} for k in setup.ladder}
+    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    cells = {k: values.get(k, {}) for k in setup.ladder}
+    return ladder.judge_ladder(setup.ladder, cells, reference_of(setup, evidence, base), state["random"]["returns"],
+                               setup.margin, setup.design(), state["records"])
+
+
+def cells_to_extend(setup: Setup, records: dict, scores: dict) -> list:
+    """The K that need more seeds: those not yet at the first look, and the undecided ones below the smallest
+    sufficient K (none once there is no answer)."""
+    verdicts = {k: records[str(k)]["verdict"] for k in setup.ladder if str(k) in records}
     if verdict.NO_SCALE in verdicts.values():
         return []
-    untrained = [k for k, v in verdicts.items() if v == "untrained"]
+    untrained = [k for k in setup.ladder if len(scores.get(k, {})) < setup.looks[0]]
     if untrained:
         return untrained
     chosen, below = verdict.smallest_sufficient(verdicts)
@@ -178,6 +291,37 @@ def next_look(setup: Setup, scores: dict, ks: list) -> int | None:
     at the seed cap."""
     have = max(len(scores.get(k, {})) for k in ks)
     return next((n for n in setup.looks if n > have), None)
+
+
+def plan_round(setup: Setup, scores: dict, ks: list, look: int) -> dict:
+    """{policy: (K list, seeds)} of the round that brings the cells `ks` (and flat PPO, compared with them) to
+    `look` seeds per cell: the seeds each lacks."""
+    have = max(len(scores.get(k, {})) for k in ks)
+    plan = {MIXTURE: (sorted(ks), list(range(have, look)))}
+    flat = len(scores.get(FLAT, {}))
+    if setup.target is None and flat < look:
+        plan[MLP] = ([], list(range(flat, look)))
+    return plan
+
+
+def decide(setup: Setup, evidence: Evidence, state: dict) -> tuple:
+    """(records, plan of the next round or None, why it stops or None), updating the state's baseline and records:
+    the whole decision of a round, a pure function of the runs' values."""
+    scores = evidence.scores
+    first_ready = all(len(scores.get(k, {})) >= setup.looks[0] for k in list(setup.ladder)
+                      + ([FLAT] if setup.target is None else []))
+    if first_ready and "baseline" not in state:
+        state["baseline"] = choose_baseline(setup, evidence, state)
+    if "baseline" in state:
+        state["records"] = judge_cells(setup, evidence, state)
+    ks = cells_to_extend(setup, state["records"], scores)
+    if not ks:
+        no = any(r["verdict"] == verdict.NO_SCALE for r in state["records"].values())
+        return state["records"], None, "no answer" if no else "decided"
+    look = next_look(setup, scores, ks)
+    if look is None:
+        return state["records"], None, f"seed cap ({setup.looks[-1]} seeds per cell)"
+    return state["records"], plan_round(setup, scores, ks, look), None
 
 
 # ----------------------------------------------------------------------------------------------- rounds
@@ -214,17 +358,6 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable) -> dict:
     collect_results(sweep_dir, results)
     controller_scores.score_directory(results, log=None)
     return {"seconds": round(time.monotonic() - t0, 1), "compile_s": round(compile_s, 1), "status": status}
-
-
-def plan_round(setup: Setup, scores: dict, ks: list, look: int) -> dict:
-    """{policy: (K list, seeds)} of the round that brings the cells `ks` (and flat PPO, compared with them) to
-    `look` seeds per cell: the seeds each lacks."""
-    have = max(len(scores.get(k, {})) for k in ks)
-    plan = {"mixture": (sorted(ks), list(range(have, look)))}
-    flat = len(scores.get(FLAT, {}))
-    if setup.target is None and flat < look:
-        plan["mlp"] = ([], list(range(flat, look)))
-    return plan
 
 
 def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, verdicts_before: dict | None = None,
@@ -265,7 +398,7 @@ def round_eta(state: dict, plan: dict) -> float:
 
 def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> str:
     """One line per round: the cells it trains and their seeds, the verdicts so far, its ETA."""
-    so_far = " ".join(f"K={k}:{r['verdict']}({r.get('seeds', r.get('n', 0))})" for k, r in sorted(judged.items()))
+    so_far = " ".join(f"K={k}:{r['verdict']}({r.get('seeds', 0)})" for k, r in sorted(judged.items(), key=lambda kv: int(kv[0])))
     if plan is None:
         return f"answer: verdicts {so_far}"
     cells = "; ".join(f"{'flat PPO' if p == MLP else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
@@ -275,31 +408,16 @@ def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> s
             f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts {so_far}")
 
 
-def decide_next(setup: Setup, state: dict, out: str, random_return: float) -> tuple:
-    """(judged cells, plan of the next round or None, why it stops or None), freezing decided cells."""
-    scores = collect_scores(out, setup)
-    judged = judge_cells(setup, scores, random_return, state["frozen"])
-    for k, r in judged.items():
-        if r["verdict"] in (verdict.SUFFICIENT, verdict.INSUFFICIENT) and str(k) not in state["frozen"]:
-            state["frozen"][str(k)] = r
-    ks = cells_to_extend(setup, judged)
-    if not ks:
-        return judged, None, "decided" if verdict.NO_SCALE not in {r["verdict"] for r in judged.values()} else "no scale"
-    look = next_look(setup, scores, ks)
-    if look is None:
-        return judged, None, f"seed cap ({setup.looks[-1]} seeds per cell)"
-    return judged, plan_round(setup, scores, ks, look), None
-
-
-def run_answer(out: str, setup: Setup, budget_s: float, random_return: float, log: Callable = print,
+def run_answer(out: str, setup: Setup, budget_s: float, random_policy: Callable, log: Callable = print,
                train: Callable | None = None) -> dict:
     """The answer loop (resumable): rounds until the smallest sufficient K is decided, the seed cap or the budget
-    -> the final state (with 'judged' and 'stopped'). random_return: a function measuring the random policy's
-    return (called once; the state keeps it); train: see run_round."""
+    -> the final state (with 'judged' and 'stopped'). random_policy: a function measuring the random policy's
+    episodes (controller_scores.score_random_policy's record; called once, the state keeps it); train: see
+    run_round."""
     os.makedirs(out, exist_ok=True)
     state = load_state(out, setup)
-    if "random_return" not in state:
-        state["random_return"] = float(random_return())
+    if "random" not in state:
+        state["random"] = dict(random_policy())
         save_state(out, state)
     t0, before = time.monotonic(), state["elapsed_s"]
     for d in controller_dirs_of(setup.start_from):
@@ -308,18 +426,18 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_return: float, lo
         if state["rounds"] and state["rounds"][-1]["status"] == "running":
             log(f"answer: resuming round {state['rounds'][-1]['round']}")
             run_round(out, setup, state, None, log, train=train)
-        judged, plan, stop = decide_next(setup, state, out, state["random_return"])
+        records, plan, stop = decide(setup, collect_evidence(out, setup), state)
         state["elapsed_s"] = round(before + time.monotonic() - t0, 1)
         eta = round_eta(state, plan) if plan else 0.0
         if plan and state["elapsed_s"] + eta > budget_s:
             stop = f"budget ({budget_s / 60:.0f} min; {state['elapsed_s'] / 60:.0f} used, next round ~{eta / 60:.0f})"
-        log(progress_line(state, judged, None if stop else plan, eta))
+        log(progress_line(state, records, None if stop else plan, eta))
         if stop:
-            state.update(judged={str(k): r for k, r in judged.items()}, stopped=stop)
+            state.update(judged=records, stopped=stop)
             save_state(out, state)
             return state
         save_state(out, state)
-        run_round(out, setup, state, plan, log, {str(k): r["verdict"] for k, r in judged.items()}, train)
+        run_round(out, setup, state, plan, log, {k: r["verdict"] for k, r in records.items()}, train)
 
 
 def controller_dirs_of(roots: Sequence[str]) -> list:

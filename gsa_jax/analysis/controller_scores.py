@@ -25,6 +25,8 @@ from gsa_jax.algorithm.kinds import MIXTURE
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
 START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
+FRESH_EPISODES = 50  # an answer's chosen controller re-scored on starts it was not picked on ...
+FRESH_START_SEED = 20_000  # ... from this seed
 FILE = "controller_scores.csv"
 COLUMNS = ("label", "env", "policy", "K", "seed", "sha256", "episodes", "start_seed", "controller_score",
            "episode_std", "length_mean", "simulator", "mujoco_version")
@@ -151,3 +153,70 @@ def attach(data: dict, roots: Sequence[str]) -> int:
             s["controller_score"] = scores.get(label, float("nan"))
             found += label in scores
     return found
+
+
+# ------------------------------------------------------------------------------------------- the random policy
+RANDOM_EPISODES = 128  # episodes of the uniformly random policy: the scale's zero, with its own uncertainty
+RANDOM_START_SEED = 30_000  # its start states (and each episode's action stream): apart from the controllers'
+RANDOM_FILE = "random_policy.json"
+
+
+class RandomActions:
+    """Uniformly random actions in [-1, 1] (the scale's zero: what a task scores with no control at all), drawn
+    from NumPy's generator seeded per episode, so every episode is reproducible alone."""
+
+    def __init__(self, size: int):
+        self.size, self.rng = size, np.random.default_rng(0)
+
+    def reseed(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, self.size)
+
+
+def score_random_policy(env_name: str, episodes: int = RANDOM_EPISODES, start_seed: int = RANDOM_START_SEED) -> dict:
+    """The random policy's episodes in MuJoCo C (the simulator every controller score comes from): the returns of
+    episodes start_seed .. start_seed + episodes - 1, each from that seed's start state with actions drawn from a
+    generator seeded with it -> {returns, mean, std, episodes, start_seed, simulator, mujoco_version}."""
+    import mujoco
+
+    from envs import default_episode_length, task_record
+
+    task = task_record(env_name).make_c()
+    actions, length = RandomActions(task.action_size), default_episode_length(env_name)
+    returns = []
+    for e in range(episodes):
+        obs, total = task.reset(start_seed + e), 0.0
+        actions.reseed(start_seed + e)
+        for _ in range(length):
+            obs, r, done = task.step(actions.act(obs))
+            total += r
+            if done:
+                break
+        returns.append(round(float(total), 4))
+    r = np.asarray(returns)
+    return {"returns": returns, "mean": round(float(r.mean()), 4), "std": round(float(r.std(ddof=1)), 4),
+            "episodes": episodes, "start_seed": start_seed, "simulator": "mujoco_c", "mujoco_version": mujoco.__version__}
+
+
+def random_policy(directory: str, env_name: str, episodes: int = RANDOM_EPISODES, start_seed: int = RANDOM_START_SEED,
+                  log: Callable | None = print) -> dict:
+    """The random policy's record of `env_name` kept in directory/random_policy.json (measured and added there when
+    it is missing or was measured with other episodes or start seed)."""
+    from gsa_jax.running.checkpoint import write_atomic
+
+    path = os.path.join(directory, RANDOM_FILE)
+    found = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            found = json.load(f)
+    kept = found.get(env_name)
+    if kept and kept.get("episodes") == episodes and kept.get("start_seed") == start_seed:
+        return kept
+    if log:
+        log(f"measuring the random policy's return on {env_name} ({episodes} episodes in MuJoCo C from seed {start_seed})")
+    found[env_name] = score_random_policy(env_name, episodes, start_seed)
+    os.makedirs(directory, exist_ok=True)
+    write_atomic(path, json.dumps(found, indent=1))
+    return found[env_name]

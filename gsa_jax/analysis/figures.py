@@ -10,7 +10,7 @@ import numpy as np
 from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis import controller_scores, stats, verdict
 from gsa_jax.analysis.results import (
-    action_dims_of, drop_failed, final_scores, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers,
+    action_dims_of, drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, spec_steps,
     unscored_lines, write_csv,
 )
 from gsa_jax.analysis.tables import (
@@ -138,27 +138,44 @@ def plot_profiles(normalized: dict, path: str, reps: int = stats.REPS, xlabel: s
     plt.close(fig)
 
 
-def write_verdicts(data: dict, random_returns: dict, settings: Sequence[str], out_dir: str, log: Callable = print,
-                   looks: int = 1, target: float | None = None) -> tuple:
-    """verdicts.csv and sufficient_k.csv of the cells' final scores (the committed controllers' where scored) ->
-    (verdict rows, sufficient_k rows); the answer at the default margin printed per task."""
-    verdicts = verdict_table(final_scores(data), random_returns, settings, looks=looks, target=target)
+def write_verdicts(data: dict, random_policies: dict, steps: dict, settings: Sequence[str], out_dir: str,
+                   log: Callable = print, target: float | None = None) -> tuple:
+    """verdicts.csv and sufficient_k.csv of the cells' final scores (the committed controllers' where scored), judged
+    as gsa_jax.answer's first look -> (verdict rows, sufficient_k rows); the answer at the default margin printed per
+    task."""
+    verdicts = verdict_table(data, random_policies, steps, settings, target=target)
     sufficient = sufficient_k_table(verdicts, settings)
     if verdicts:
         write_csv(os.path.join(out_dir, "verdicts.csv"), verdicts)
         write_csv(os.path.join(out_dir, "sufficient_k.csv"), sufficient)
-        log(f"How many linear controllers does each task need (margin {verdict.DEFAULT_MARGIN:g} of flat PPO's gain over a "
-            "random policy, 95% intervals)?")
+        log(f"How many linear controllers does each task need (margin {verdict.DEFAULT_MARGIN:g} of the reference's gain "
+            "over a random policy; docs/answer.md)?")
         for line in sufficient_k_lines(sufficient):
             log(line)
     return verdicts, sufficient
+
+
+def random_policies_of(env_names: Sequence[str], random_returns: dict, out_dir: str, log: Callable = print) -> dict:
+    """{env: random policy record}: measured in MuJoCo C (controller_scores.random_policy, kept in out_dir) where the
+    task has a MuJoCo C version, else the sweeps' scalar return taken as exact (its uncertainty unknown)."""
+    from envs import has_c_backend
+
+    out = {}
+    for env_name in env_names:
+        if has_c_backend(env_name):
+            out[env_name] = controller_scores.random_policy(out_dir, env_name, log=log)
+        elif env_name in random_returns:
+            out[env_name] = {"returns": float(random_returns[env_name]), "episodes": 0, "start_seed": ""}
+    return out
 
 
 def plot_sweep(sweep_dirs: Sequence[str], out_dir: str | None = None, action_dims: dict | None = None,
                random_returns: dict | None = None, log: Callable = print, reps: int = stats.REPS,
                curve_reps: int = stats.CURVE_REPS) -> tuple:
     """Every figure and table of the merged sweeps into out_dir (default: the first directory); reps /
-    curve_reps: bootstrap resamples of the tables' intervals / of each learning-curve point's band.
+    curve_reps: bootstrap resamples of the tables' intervals / of each learning-curve point's band; random_returns:
+    {env: return} taken as exact (default: the random policy measured over 128 episodes in MuJoCo C, kept in
+    out_dir/random_policy.json, where the task has a MuJoCo C version).
     Returns (figure.png path, final_returns.csv path, final_returns rows)."""
     dirs = [sweep_dirs] if isinstance(sweep_dirs, str) else list(sweep_dirs)
     out_dir = out_dir or dirs[0]
@@ -181,9 +198,14 @@ def plot_sweep(sweep_dirs: Sequence[str], out_dir: str | None = None, action_dim
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
     write_csv(os.path.join(out_dir, "per_run_scores.csv"), run_table(data))
-    if random_returns is None:
-        random_returns = random_returns_of(dirs, sorted({c[0] for c in data}), out_dir, log)
-    verdicts, sufficient = write_verdicts(data, random_returns, setting_columns(data), out_dir, log)
+    env_names = sorted({c[0] for c in data})
+    given = random_returns is not None
+    if not given:
+        random_returns = random_returns_of(dirs, env_names, out_dir, log)
+    policies = (random_policies_of(env_names, random_returns, out_dir, log) if not given else
+                {e: {"returns": float(v), "episodes": 0, "start_seed": ""} for e, v in random_returns.items()})
+    random_returns = {**random_returns, **{e: float(np.mean(p["returns"])) for e, p in policies.items()}}
+    verdicts, sufficient = write_verdicts(data, policies, spec_steps(dirs), setting_columns(data), out_dir, log)
     scored = [r for r in rows if r["seeds"]]
     plot_return_vs_k(scored, os.path.join(out_dir, "return_vs_k.png"), setting_columns(data), sufficient, verdicts)
     normalized = normalized_scores(data, action_dims, random_returns, spec_multipliers(dirs))

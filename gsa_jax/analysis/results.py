@@ -213,6 +213,16 @@ def final_scores(data: dict) -> dict:
     return out
 
 
+def spec_steps(dirs: Sequence[str]) -> dict:
+    """{env: env steps of its runs} from the sweeps' sweep.json (the largest where they differ)."""
+    out = {}
+    for d in dirs:
+        for meta in sweep_metas(d):
+            for env in meta["spec"]["envs"]:
+                out[env] = max(out.get(env, 0), int(meta["spec"]["steps"]))
+    return out
+
+
 def spec_multipliers(dirs: Sequence[str]) -> dict:
     """{env: sorted cluster multipliers} of the sweeps that set K as multiples of the action dimension
     (cluster_multipliers), read from their sweep.json."""

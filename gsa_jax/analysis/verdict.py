@@ -1,41 +1,45 @@
-"""Is K enough? A non-inferiority verdict per (task, K): `sufficient`, `insufficient` or `undecided`.
+"""Is K enough? A non-inferiority verdict per (task, K): `sufficient`, `insufficient`, `undecided` or `no answer`.
 
-The gap of a cell is the difference of IQMs (interquartile mean over seeds, rliable's aggregate_iqm: the
-mean of the middle half of the sorted scores) on the scale of flat PPO's gain over a random policy:
+The gap of a cell is the difference of interquartile means (IQM: the 25% trimmed mean over seeds, rliable's
+aggregate_iqm for one task) on the scale of the reference's gain over a uniformly random policy:
 
-    gap = (IQM(mixture) - IQM(flat PPO)) / (IQM(flat PPO) - random return)
+    gap = (IQM(mixture) - IQM(reference)) / (IQM(reference) - mean(random-policy episodes))
 
-so gap = -0.1 means the mixtures keep 90% of what flat PPO learned. With `target` (a score the user's robot
-needs) instead of flat PPO: gap = (IQM(mixture) - target) / (target - random return). The interval of the
-gap is a stratified percentile bootstrap (seeds resampled within each cell; the denominator resampled with
-flat PPO's seeds, so its uncertainty is in the interval). At margin delta:
+so gap = -0.1 means the mixtures keep 90% of what the reference learned. The reference is flat PPO's seeds, or a
+fixed score (a target a robot needs, or a published PPO score with its standard error: gsa_jax.analysis.baseline).
+"K is within delta" is the linear statement IQM(mix) - (1 - delta) IQM(ref) - delta R > 0, tested with Yuen's
+trimmed-mean t for a contrast (gsa_jax.analysis.trimmed): the random return's own uncertainty (its episodes) and a
+published reference's are in the test, and no resampling is involved, so a verdict does not depend on a seed. At
+margin delta and the look's one-sided level a (gsa_jax.analysis.sequential: the design's share for this K and look):
 
-    sufficient    the whole interval lies above -delta  (shown within delta of flat PPO, or better)
-    insufficient  the whole interval lies below -delta  (shown worse than the margin allows)
-    undecided     otherwise, with an estimate of the seeds per cell that would likely decide it
+    sufficient    p(gap <= -delta) < a   (shown within delta of the reference, or better)
+    insufficient  p(gap >= -delta) < a   (shown worse than the margin allows)
+    undecided     otherwise, with the seeds per cell for 80% power at parity and at the observed gap
+    no answer     the reference's gain over the random policy is not shown positive (one-sided p < GAIN_LEVEL)
 
-A cell is judged at looks fixed in advance (seeds per cell, e.g. 10, 20, 40). With L looks each uses a
-two-sided interval of level 1 - ALPHA / L (Bonferroni over the looks), so adding seeds until decided keeps
-the chance of calling a cell sufficient whose true gap is exactly -delta at most ALPHA / 2 (one side of the
-interval); tests/test_verdict.py checks it by simulation. A task whose flat PPO does not beat the random
-policy gets no verdict (the scale is undefined).
+The gap's interval [low, high] is the set of gaps no one-sided test at level a rejects (the test inverted, as
+Fieller's interval for a ratio): unbounded where the scale itself is uncertain.
 """
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
-ALPHA = 0.05  # 1 - the stated level: 95% intervals
-MARGINS = (0.05, 0.1, 0.2)  # the margins every answer reports
-DEFAULT_MARGIN = 0.1  # the answer's margin: keep at least 90% of flat PPO's gain over a random policy
-REPS = 4000  # bootstrap resamples of a verdict's interval
+from gsa_jax.analysis import trimmed
+
+ALPHA = 0.025  # the one-sided chance of wrongly calling some K sufficient, over the whole answer
+GAIN_LEVEL = 0.025  # the reference's gain over the random policy must be shown positive at this one-sided level
+POWER = 0.8  # the power the seed estimates aim at
+MARGINS = (0.05, 0.1, 0.2)  # the margins every answer reports (the others as sensitivity, not as the answer)
+DEFAULT_MARGIN = 0.1  # the answer's margin: keep at least 90% of the reference's gain over a random policy
 SUFFICIENT, INSUFFICIENT, UNDECIDED, NO_SCALE = "sufficient", "insufficient", "undecided", "no answer"
 
 
 class Gap(NamedTuple):
-    """A cell's gap (point, interval low, high), its verdict at `margin`, the seeds per cell, and the estimated
-    seeds per cell that would likely decide it (n itself where decided; None where no finite number would)."""
+    """A cell's gap (point, interval low/high at the look's level), its verdict at `margin`, the look's nominal
+    one-sided level, the seeds (mixture, reference: 0 for a fixed score), the two one-sided p-values, and the seeds
+    per cell for 80% power at parity (gap 0) and at the observed gap (None where no finite number would do)."""
 
     point: float
     low: float
@@ -44,7 +48,11 @@ class Gap(NamedTuple):
     margin: float
     level: float
     n: int
-    seeds_to_decide: int | None
+    n_ref: int
+    p_sufficient: float
+    p_insufficient: float
+    seeds_parity: int | None
+    seeds_observed: int | None
 
 
 def iqm(scores: np.ndarray) -> np.ndarray:
@@ -56,73 +64,80 @@ def iqm(scores: np.ndarray) -> np.ndarray:
     return x[..., cut: n - cut].mean(axis=-1)
 
 
-def resampled_iqms(scores: np.ndarray, reps: int, rng: np.random.Generator) -> np.ndarray:
-    """IQMs [reps] of `reps` bootstrap resamples (with replacement, same size) of one cell's scores [n]."""
-    x = np.asarray(scores, np.float64)
-    return iqm(x[rng.integers(0, len(x), size=(reps, len(x)))])
+def summarize_reference(reference) -> trimmed.Summary:
+    """A reference as a contrast group: flat PPO's scores [n] (their IQM), or a Summary (a fixed score)."""
+    return reference if isinstance(reference, trimmed.Summary) else trimmed.trimmed(reference)
 
 
-def gap_samples(mixture: np.ndarray, reference: np.ndarray, random_return: float, target: float | None = None,
-                reps: int = REPS, seed: int = 0) -> tuple | None:
-    """(point gap, bootstrap gaps [reps]) of a mixture cell against flat PPO's scores `reference` [n_f], or against
-    the fixed score `target` (reference unused); None where the scale (reference IQM - random return) is <= 0."""
-    rng = np.random.default_rng(seed)
-    mix = np.asarray(mixture, np.float64)
-    if target is not None:
-        scale = float(target) - random_return
-        if scale <= 0:
-            return None
-        return (float(iqm(mix)) - target) / scale, (resampled_iqms(mix, reps, rng) - target) / scale
-    ref = np.asarray(reference, np.float64)
-    scale = float(iqm(ref)) - random_return
-    if scale <= 0:
-        return None
-    boot_mix, boot_ref = resampled_iqms(mix, reps, rng), resampled_iqms(ref, reps, rng)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        boot = (boot_mix - boot_ref) / (boot_ref - random_return)
-    boot = np.where(boot_ref - random_return > 0, boot, -1e9)  # a resample where flat PPO learned nothing
-    return (float(iqm(mix)) - float(iqm(ref))) / scale, boot
+def summarize_random(random_returns) -> trimmed.Summary:
+    """The random policy as a contrast group: its episodes' returns [n] (their mean), or one number taken as exact."""
+    if np.ndim(random_returns) == 0:
+        return trimmed.fixed(float(random_returns))
+    return trimmed.plain(random_returns)
 
 
-def look_level(looks: int) -> float:
-    """The two-sided level of each look's interval when a cell may be judged at `looks` looks (Bonferroni)."""
-    return 1.0 - ALPHA / max(int(looks), 1)
+def margin_contrast(mix: trimmed.Summary, ref: trimmed.Summary, rand: trimmed.Summary, gap: float) -> trimmed.Contrast:
+    """IQM(mix) - (1 + gap) IQM(ref) + gap R: positive exactly when the cell's gap is above `gap`."""
+    return trimmed.contrast([(1.0, mix), (-(1.0 + gap), ref), (gap, rand)])
 
 
-def decide(low: float, high: float, margin: float) -> str:
-    """sufficient / insufficient / undecided of an interval [low, high] of the gap at margin delta."""
-    if low > -margin:
-        return SUFFICIENT
-    if high < -margin:
-        return INSUFFICIENT
-    return UNDECIDED
+def gain_shown(ref: trimmed.Summary, rand: trimmed.Summary) -> bool:
+    """Whether the reference's gain over the random policy is shown positive (one-sided p < GAIN_LEVEL)."""
+    return trimmed.p_above(trimmed.contrast([(1.0, ref), (-1.0, rand)])) < GAIN_LEVEL
 
 
-def seeds_to_decide(point: float, low: float, high: float, margin: float, n: int) -> int | None:
-    """Seeds per cell that would likely decide an undecided cell: its interval's half-width shrinking as
-    1/sqrt(n) until it no longer reaches -margin from the point estimate (None if the point sits on -margin)."""
-    distance, half = abs(point + margin), 0.5 * (high - low)
-    if not np.isfinite(half) or distance < 1e-12:
-        return None
-    return max(n + 1, int(math.ceil(n * (half / distance) ** 2)))
+def bound(mix, ref, rand, point: float, level: float, upper: bool) -> float:
+    """The gap at which the one-sided test at `level` stops rejecting: the interval's low (upper=False) or high end;
+    +-inf where no finite gap does (the scale is not shown positive at that level)."""
+
+    def rejects(g: float) -> bool:
+        c = margin_contrast(mix, ref, rand, g)
+        return (trimmed.p_below(c) if upper else trimmed.p_above(c)) < level
+
+    inside, step = point, max(abs(point), 1.0) * 0.5
+    outside = inside + (step if upper else -step)
+    while not rejects(outside):  # walk outwards until the test rejects
+        inside, outside, step = outside, outside + (step if upper else -step), step * 2.0
+        if abs(outside) > 1e6:
+            return math.inf if upper else -math.inf
+    for _ in range(40):  # then bisect between the last accepted and the first rejected gap
+        mid = 0.5 * (inside + outside)
+        inside, outside = (inside, mid) if rejects(mid) else (mid, outside)
+    return float(0.5 * (inside + outside))
 
 
-def judge(mixture: np.ndarray, reference: np.ndarray, random_return: float, margin: float = DEFAULT_MARGIN, looks: int = 1,
-          target: float | None = None, reps: int = REPS, seed: int = 0) -> Gap:
-    """The verdict of one mixture cell (scores [n]) against flat PPO's scores [n_f] (or `target`) at `margin`,
-    with the interval of a design of `looks` looks (look_level)."""
+def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float) -> int | None:
+    """Seeds per cell for POWER at a true distance (in score units) of the contrast from 0, the contrast's standard
+    error shrinking as 1/sqrt(n) (a normal approximation at the one-sided `level`)."""
+    from scipy import stats
+
+    if distance <= 0 or not math.isfinite(c.se) or c.se == 0:
+        return None if distance <= 0 or not math.isfinite(c.se) else n
+    need = (stats.norm.isf(level) + stats.norm.isf(1.0 - POWER)) * c.se / distance
+    return max(n, int(math.ceil(n * need * need)))
+
+
+def judge(mixture: Sequence[float], reference, random_returns, margin: float = DEFAULT_MARGIN, level: float = ALPHA,
+          final_level: float | None = None) -> Gap:
+    """The verdict of one mixture cell (scores [n]) against `reference` (flat PPO's scores [n_f] or a trimmed.Summary)
+    with the random policy's episode returns [n_r] (or one exact number), at `margin` and the look's one-sided
+    `level`; the power estimates aim at `final_level` (the design's last look; default `level`)."""
     if not 0.0 < margin < 1.0:
         raise ValueError(f"the margin must be in (0, 1), got {margin}")
-    n = len(mixture) if target is not None else min(len(mixture), len(reference))
-    level = look_level(looks)
-    sampled = gap_samples(mixture, reference, random_return, target, reps, seed)
-    if sampled is None:
-        return Gap(math.nan, math.nan, math.nan, NO_SCALE, margin, level, n, None)
-    point, boot = sampled
-    low, high = (float(v) for v in np.quantile(boot, [0.5 * (1 - level), 1 - 0.5 * (1 - level)]))
-    verdict = decide(low, high, margin)
-    more = n if verdict != UNDECIDED else seeds_to_decide(point, low, high, margin, n)
-    return Gap(point, low, high, verdict, margin, level, n, more)
+    mix, ref, rand = trimmed.trimmed(mixture), summarize_reference(reference), summarize_random(random_returns)
+    n, n_ref = len(mixture), ref.n
+    if not gain_shown(ref, rand):
+        return Gap(math.nan, math.nan, math.nan, NO_SCALE, margin, level, n, n_ref, math.nan, math.nan, None, None)
+    scale = ref.mean - rand.mean
+    point = (mix.mean - ref.mean) / scale
+    c = margin_contrast(mix, ref, rand, -margin)
+    p_s, p_i = trimmed.p_above(c), trimmed.p_below(c)
+    verdict = SUFFICIENT if p_s < level else INSUFFICIENT if p_i < level else UNDECIDED
+    low, high = bound(mix, ref, rand, point, level, False), bound(mix, ref, rand, point, level, True)
+    final = level if final_level is None else final_level
+    parity = seeds_for_power(c, n, margin * scale, final)
+    observed = seeds_for_power(c, n, abs(point + margin) * scale, final)
+    return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed)
 
 
 def smallest_sufficient(verdicts: dict) -> tuple:
@@ -134,11 +149,11 @@ def smallest_sufficient(verdicts: dict) -> tuple:
 
 
 def sentence(task: str, verdicts: dict, margin: float, versus: str) -> str:
-    """The answer in one sentence from {K: verdict} at `margin` (versus: 'flat PPO' or 'the target score S')."""
+    """The answer in one sentence from {K: verdict} at `margin` (versus: 'flat PPO', 'the target score S', ...)."""
     chosen, below = smallest_sufficient(verdicts)
     pct = f"{margin:.0%}"
-    if all(v == NO_SCALE for v in verdicts.values()):
-        return f"{task}: no answer: {versus} does not score above a random policy, so no margin can be set."
+    if verdicts and all(v == NO_SCALE for v in verdicts.values()):
+        return (f"{task}: no answer: {versus} is not shown to score above a random policy, so no margin can be set.")
     if chosen is None:
         undecided = [k for k, v in sorted(verdicts.items()) if v == UNDECIDED]
         if undecided:

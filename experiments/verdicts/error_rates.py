@@ -1,0 +1,133 @@
+"""The answer's error rate and power, simulated through gsa_jax.answer's own decisions:
+`.venv/bin/python experiments/verdicts/error_rates.py [--trials N] [--only error|power]`.
+
+Each trial draws every cell's seeds (flat PPO and K = 1, 2, 4, up to the last look) and 128 random-policy episodes from
+known laws, then runs gsa_jax.analysis.answering.decide round by round exactly as the answer loop does (the first
+look for every cell, then seeds only for the undecided K below the smallest sufficient one, and for flat PPO), until
+it stops. A cell's true gap is set by shifting flat PPO's law by gap x its IQM (the random policy's law has mean 0, so
+the scale is flat PPO's IQM). Laws of the seeds: normal (coefficient of variation 0.3, the issue's realistic spread),
+bimodal (half the seeds 0.6 apart, tight modes), right-skewed (exponential), and 'some fail' (a fifth of the seeds at
+a fifth of the return).
+
+- error rows: every K exactly at the margin (gap -0.1): the share of trials in which the answer calls some K
+  sufficient (the error the design must keep at or below 2.5%), per law and design;
+- power rows: scenarios with a truly sufficient K (parity or above) beside insufficient ones, monotone in K or not:
+  the share of trials whose answer is the smallest truly sufficient K, any false 'sufficient', and the seeds used.
+
+Designs: looks 10-20-40 with each spending function (O'Brien-Fleming-type, Pocock-type, Bonferroni over looks) and
+each rule over the K (Holm, Bonferroni, none). Writes results/error_rates.csv.
+"""
+
+import argparse
+import os
+
+import numpy as np
+
+from gsa_jax.analysis import answering, verdict
+from gsa_jax.analysis.results import write_csv
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+MARGIN, LOOKS, LADDER = 0.1, (10, 20, 40), (1, 2, 4)
+
+
+def normal(rng, n):
+    return 1.0 + 0.3 * rng.standard_normal(n)
+
+
+def bimodal(rng, n):
+    return 1.0 + np.where(rng.random(n) < 0.5, -0.3, 0.3) + 0.05 * rng.standard_normal(n)
+
+
+def skewed(rng, n):
+    return 0.6 + 0.4 * rng.exponential(1.0, n)
+
+
+def some_fail(rng, n):
+    return np.where(rng.random(n) < 0.2, 0.2 + 0.05 * rng.standard_normal(n), 1.0 + 0.1 * rng.standard_normal(n))
+
+
+LAWS = {"normal": normal, "bimodal": bimodal, "skewed": skewed, "some_fail": some_fail}
+SCENARIOS = {  # true gap per K
+    "every K at the margin": {1: -0.1, 2: -0.1, 4: -0.1},
+    "K = 2 at parity": {1: -0.5, 2: 0.0, 4: 0.0},
+    "K = 2 above (+0.1)": {1: -0.5, 2: 0.1, 4: 0.1},
+    "K = 2 at parity, K = 4 below": {1: -0.5, 2: 0.0, 4: -0.3},
+    "K = 1 at parity, K = 4 fails": {1: 0.0, 2: 0.0, 4: -0.5},
+}
+DESIGNS = [(s, m) for s in ("obf", "pocock", "bonferroni") for m in ("holm", "bonferroni", "none")]
+
+
+def law_iqm(draw) -> float:
+    return float(verdict.iqm(draw(np.random.default_rng(99), 2_000_000)))
+
+
+def run_trial(setup, cells: dict, random_returns: np.ndarray) -> tuple:
+    """(final records, seeds used) of one simulated answer: cells {FLAT or K: scores [last look]}."""
+    have = {key: setup.looks[0] for key in cells}
+    state = {"records": {}, "random": {"returns": list(random_returns)}, "rounds": []}
+    while True:
+        evidence = answering.Evidence({key: dict(enumerate(v[: have[key]])) for key, v in cells.items()}, {}, {})
+        records, plan, stop = answering.decide(setup, evidence, state)
+        if stop:
+            return records, sum(have.values())
+        for policy, (ks, seeds) in plan.items():
+            for key in (ks if ks else [answering.FLAT]):
+                have[key] = seeds[-1] + 1
+
+
+def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int, seed: int, references: str) -> dict:
+    """One row: the share of trials whose answer is the smallest truly sufficient K, calls some truly insufficient K
+    (gap <= -margin) sufficient, and the mean seeds trained (all cells)."""
+    draw, rng = LAWS[law], np.random.default_rng(seed)
+    scale = law_iqm(draw)
+    spec = {"steps": 1_000_000, "hparams": {}, "config": {}}
+    setup = answering.Setup("simulated", LADDER, MARGIN, LOOKS, {"mlp": spec, "mixture": spec}, spending=spending,
+                            multiplicity=multiplicity, references=references)
+    truth = min([k for k, g in gaps.items() if g > -MARGIN + 1e-12], default=None)
+    correct = wrong = seeds = 0
+    for _ in range(trials):
+        cells = {answering.FLAT: draw(rng, LOOKS[-1])}
+        cells.update({k: draw(rng, LOOKS[-1]) + g * scale for k, g in gaps.items()})
+        records, used = run_trial(setup, cells, 0.05 * scale * rng.standard_normal(128))
+        verdicts = {int(k): r["verdict"] for k, r in records.items()}
+        chosen, _ = verdict.smallest_sufficient(verdicts)
+        correct += chosen == truth
+        wrong += any(v == verdict.SUFFICIENT and gaps[k] <= -MARGIN + 1e-12 for k, v in verdicts.items())
+        seeds += used
+    return {"law": law, "spending": spending, "multiplicity": multiplicity, "trials": trials,
+            "answer_is_truth": round(correct / trials, 4), "some_K_wrongly_sufficient": round(wrong / trials, 4),
+            "mean_seeds_all_cells": round(seeds / trials, 1)}
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--trials", type=int, default=2000)
+    p.add_argument("--only", choices=("error", "power"), default=None)
+    p.add_argument("--designs", default=None, help="spending:multiplicity pairs, e.g. pocock:holm,obf:holm (default all)")
+    p.add_argument("--laws", default=None, help="laws of the seeds, e.g. normal,bimodal (default all)")
+    p.add_argument("--out", default=os.path.join(HERE, "results", "error_rates.csv"))
+    args = p.parse_args()
+    references = args.out + ".no_references.csv"
+    with open(references, "w") as f:
+        f.write("task,published_task,score,std,seeds,steps,metric,algorithm,source,note\n")
+    rows = []
+    for i, (scenario, gaps) in enumerate(SCENARIOS.items()):
+        kind = "error" if scenario == "every K at the margin" else "power"
+        if args.only and kind != args.only:
+            continue
+        laws = LAWS if kind == "error" else ("normal", "bimodal")
+        designs = [tuple(d.split(":")) for d in args.designs.split(",")] if args.designs else DESIGNS
+        for law in [w for w in laws if not args.laws or w in args.laws.split(",")]:
+            for spending, multiplicity in designs:
+                if kind == "power" and multiplicity == "none":
+                    continue
+                row = {"scenario": scenario, "kind": kind,
+                       **simulate(law, gaps, spending, multiplicity, args.trials, 1000 * i + 7, references)}
+                rows.append(row)
+                print(row, flush=True)
+                write_csv(args.out, rows)
+    os.remove(references)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,206 @@
+"""Is flat PPO an adequate baseline? Two checks before any verdict (docs/answer.md, "A baseline shown adequate"):
+
+1. **Has it stopped learning at the budget?** Per seed, the gain of its training-time deterministic evaluations over
+   the last fifth of training: the mean return of the evaluations in the last WINDOW of the steps minus that of the
+   evaluations in the WINDOW ending at 80% of the steps. Their interquartile mean over seeds, on the scale of flat
+   PPO's gain over the random policy, is shown below the margin (the one-sided 95% upper bound of Yuen's t under it)
+   or flat PPO is reported as still learning, with the estimate and the bound: train longer (--steps).
+2. **Does it reach the best reference known for the task at that budget?** A table of published PPO scores and the
+   project's own tuned flat PPO (ppo_references.csv beside this module; `--references FILE` takes another): each
+   entry with its source, task version, steps, seeds and metric. An entry applies when its steps are at most the
+   budget. It is compared on its own metric: 'training_last_100' (CleanRL's tables: each seed's mean over its last
+   100 training episodes, mean over seeds) against flat PPO's same statistic; 'deterministic' (a deterministic
+   policy's evaluation return: Stable-Baselines3's zoo, Tianshou's best test return, our tuned runs' controllers)
+   against flat PPO's controller scores (mean over seeds). Flat PPO is below an entry when its gain over the random
+   policy on that metric is under (1 - margin) of the entry's. The entry flat PPO stands lowest against binds; where
+   flat PPO is below it, the answer judges against that entry (a fixed score with its standard error over its
+   seeds) on that entry's metric, never against the weaker run.
+"""
+
+import csv
+import math
+import os
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from gsa_jax.analysis import trimmed
+
+REFERENCES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ppo_references.csv")
+COLUMNS = ("task", "published_task", "score", "std", "seeds", "steps", "metric", "algorithm", "source", "note")
+METRICS = {"training_last_100": "training_return_last_100_episodes", "deterministic": "controller_score"}
+WINDOW = 0.05  # the share of the steps each end of the last fifth averages its evaluations over
+LEARNING_LEVEL = 0.05  # one-sided: 'stopped learning' when the last fifth's gain is shown below the margin at this level
+
+
+class ReferenceError(ValueError):
+    pass
+
+
+def parse_reference(row: dict, where: str) -> dict:
+    """One checked entry of a references table (ReferenceError naming the line and the field)."""
+    missing = [c for c in ("task", "score", "steps", "metric", "source") if not (row.get(c) or "").strip()]
+    if missing:
+        raise ReferenceError(f"{where}: missing {', '.join(missing)}")
+    if row["metric"] not in METRICS:
+        raise ReferenceError(f"{where}: metric {row['metric']!r} is not one of {', '.join(METRICS)}")
+    try:
+        score, steps = float(row["score"]), int(float(row["steps"]))
+        std = float(row["std"]) if (row.get("std") or "").strip() else 0.0
+        seeds = int(row["seeds"]) if (row.get("seeds") or "").strip() else 0
+    except ValueError as e:
+        raise ReferenceError(f"{where}: {e}") from None
+    if not (math.isfinite(score) and steps > 0 and std >= 0 and seeds >= 0):
+        raise ReferenceError(f"{where}: score must be finite, steps > 0, std and seeds >= 0")
+    return {**{c: (row.get(c) or "").strip() for c in COLUMNS}, "score": score, "std": std, "seeds": seeds, "steps": steps}
+
+
+def load_references(path: str = REFERENCES) -> list:
+    """The checked entries of a references table (CSV with COLUMNS); ReferenceError in one line if it is malformed."""
+    if not os.path.exists(path):
+        raise ReferenceError(f"references table {path!r} does not exist")
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        absent = [c for c in ("task", "score", "steps", "metric", "source") if c not in (reader.fieldnames or [])]
+        if absent:
+            raise ReferenceError(f"references table {path!r} lacks the column(s) {', '.join(absent)}")
+        return [parse_reference(r, f"{path} line {i + 2}") for i, r in enumerate(reader)]
+
+
+def applicable(references: Sequence[dict], task: str, steps: int) -> list:
+    """The entries for `task` at no more than `steps` env steps."""
+    return [r for r in references if r["task"] == task and r["steps"] <= steps]
+
+
+class Standing(NamedTuple):
+    """Flat PPO against one reference entry on the entry's metric: ours (mean over seeds), the entry's score, the
+    ratio of the two gains over the random policy, and whether flat PPO is below the entry (ratio < 1 - margin)."""
+
+    reference: dict
+    ours: float
+    ratio: float
+    below: bool
+
+
+def stand(reference: dict, flat_values: dict, random_mean: float, margin: float) -> Standing | None:
+    """Flat PPO's standing against one entry; flat_values: {metric column: [per-seed values]}; None where flat PPO has
+    no value of the entry's metric."""
+    values = [v for v in flat_values.get(METRICS[reference["metric"]], []) if np.isfinite(v)]
+    if not values:
+        return None
+    ours = float(np.mean(values))
+    gain = reference["score"] - random_mean
+    ratio = (ours - random_mean) / gain if gain > 0 else math.inf
+    return Standing(reference, ours, ratio, bool(ratio < 1.0 - margin))
+
+
+def binding(standings: Sequence[Standing]) -> Standing | None:
+    """The entry flat PPO stands lowest against (None where there is none)."""
+    found = [s for s in standings if s is not None]
+    return min(found, key=lambda s: s.ratio) if found else None
+
+
+def reference_summary(reference: dict) -> trimmed.Summary:
+    """An entry as a fixed score with its standard error over its seeds (trimmed.fixed)."""
+    return trimmed.fixed(reference["score"], reference["std"], reference["seeds"])
+
+
+# ------------------------------------------------------------------------------------------- still learning?
+def window_mean(steps: np.ndarray, returns: np.ndarray, end: float, width: float) -> float:
+    """The mean of a run's evaluations in (end - width, end]; the last evaluation at or before `end` where none
+    falls inside (NaN if there is none)."""
+    ok = np.isfinite(returns)
+    s, r = np.asarray(steps)[ok], np.asarray(returns)[ok]
+    inside = (s > end - width) & (s <= end)
+    if inside.any():
+        return float(r[inside].mean())
+    before = s <= end
+    return float(r[before][-1]) if before.any() else math.nan
+
+
+def last_fifth_gains(curves: Sequence[tuple], at_step: float) -> np.ndarray:
+    """Per run the gain of its evaluations over the last fifth of `at_step` steps; curves: [(env_steps [T],
+    eval_return [T])] per seed."""
+    width = WINDOW * at_step
+    out = [window_mean(s, r, at_step, width) - window_mean(s, r, 0.8 * at_step, width) for s, r in curves]
+    return np.asarray([g for g in out if np.isfinite(g)], np.float64)
+
+
+class Learning(NamedTuple):
+    """Flat PPO over the last fifth of `steps`: its IQM gain over seeds as a fraction of its gain over the random
+    policy, the one-sided 95% upper bound of that fraction, and whether it is shown below the margin (stopped)."""
+
+    steps: float
+    gain: float
+    upper: float
+    stopped: bool
+    seeds: int
+
+
+def learning(curves: Sequence[tuple], at_step: float, scale: float, margin: float) -> Learning:
+    """Has flat PPO stopped learning at `at_step`? scale: its gain over the random policy (score units)."""
+    gains = last_fifth_gains(curves, at_step)
+    if len(gains) < 2 or not scale > 0:
+        return Learning(at_step, math.nan, math.nan, False, len(gains))
+    s = trimmed.trimmed(gains)
+    c = trimmed.contrast([(1.0, s)])
+    upper = s.mean + (trimmed.t_quantile(LEARNING_LEVEL, c.df) * c.se if c.se > 0 else 0.0)
+    return Learning(at_step, s.mean / scale, upper / scale, bool(upper / scale < margin), len(gains))
+
+
+def plateau_step(curves: Sequence[tuple], candidates: Sequence[float], scale: float, margin: float) -> float | None:
+    """The first of the candidate budgets (increasing env steps) at which flat PPO is shown to have stopped
+    learning (None if at none)."""
+    for at in candidates:
+        if learning(curves, at, scale, margin).stopped:
+            return float(at)
+    return None
+
+
+# ------------------------------------------------------------------------------------------- the choice
+LEARNED = 0.1  # where a task declares its maximum return: flat PPO must reach this share of the way from random to it
+
+
+def learned(flat_iqm: float, random_mean: float, max_return: float | None) -> tuple:
+    """(whether the task counts as learned by flat PPO at this budget, why not): where the task declares its maximum
+    return, flat PPO's IQM must reach LEARNED of the way from the random policy's return to it (else matching flat
+    PPO means matching a policy that has not learned the task)."""
+    if max_return is None or not np.isfinite(flat_iqm):
+        return True, ""
+    bar = random_mean + LEARNED * (max_return - random_mean)
+    if flat_iqm >= bar:
+        return True, ""
+    return False, (f"flat PPO does not learn the task at this budget (IQM {flat_iqm:.1f} < {bar:.1f}, {LEARNED:.0%} of "
+                   f"the way from the random policy's {random_mean:.1f} to the maximum {max_return:g})")
+
+
+def standing_record(s: Standing) -> dict:
+    """A Standing as answer.json and the reports keep it."""
+    r = s.reference
+    return {"source": r["source"], "algorithm": r["algorithm"], "published_task": r["published_task"],
+            "metric": r["metric"], "steps": r["steps"], "seeds": r["seeds"], "score": r["score"], "std": r["std"],
+            "ours": round(s.ours, 3), "ratio": round(s.ratio, 4), "below": s.below}
+
+
+def choose(task: str, steps: int, margin: float, flat_ctrl: Sequence[float], flat_last: Sequence[float],
+           curves: Sequence[tuple], rand: trimmed.Summary, references: Sequence[dict],
+           max_return: float | None = None) -> dict:
+    """The baseline record of an answer: flat PPO's standing against every entry that applies, whether it still
+    learns at the budget and learns the task at all, and what the verdicts judge against (flat PPO on controller
+    scores; the binding entry on its own metric where flat PPO is below it)."""
+    from gsa_jax.analysis.verdict import iqm
+
+    values = {"controller_score": list(flat_ctrl), "training_return_last_100_episodes": list(flat_last)}
+    standings = [s for s in (stand(r, values, rand.mean, margin) for r in applicable(references, task, steps)) if s]
+    bind = binding(standings)
+    flat_iqm = float(iqm(flat_ctrl)) if len(flat_ctrl) else float("nan")
+    learn = learning(curves, steps, flat_iqm - rand.mean, margin)
+    ok, why = learned(flat_iqm, rand.mean, max_return)
+    entry = bind.reference if bind is not None and bind.below else None
+    versus = "flat PPO" if entry is None else (f"{entry['algorithm']} on {entry['published_task']} ({entry['score']:g}, "
+                                              f"{entry['metric']})")
+    return {"versus": versus, "metric": METRICS[entry["metric"]] if entry else "controller_score", "entry": entry,
+            "standings": [standing_record(s) for s in standings],
+            "binding": standing_record(bind) if bind is not None else None,
+            "learning": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in learn._asdict().items()},
+            "learned": ok, "why": why, "max_return": max_return}
