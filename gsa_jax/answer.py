@@ -27,6 +27,7 @@ controller_scores.csv). Exit status: 0 answered (decided or not), 2 bad input, 3
 """
 
 import argparse
+import json
 import math
 import os
 import shlex
@@ -83,7 +84,13 @@ def base_specs(args, env: str) -> dict:
     import envs
 
     backend = args.backend or ("c" if envs.has_c_backend(env) else "mjx")
-    default = {"steps": args.steps, "hparams": {}, "config": {"physics": {"backend": backend}}}
+    try:
+        config = json.loads(args.config)
+    except json.JSONDecodeError as e:
+        raise AnswerError(f"--config must be a JSON object of config fields, e.g. '{{\"num_envs\": 16}}' ({e})") from None
+    if not isinstance(config, dict):
+        raise AnswerError(f"--config must be a JSON object of config fields, got {args.config!r}")
+    default = {"steps": args.steps, "hparams": {}, "config": {**config, "physics": {"backend": backend}}}
     specs = {"mlp": dict(default), "mixture": dict(default)}
     specs.update(start_specs(args.start_from or []))
     return specs
@@ -170,6 +177,8 @@ def build_parser():
                    help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/ppo_references.csv)")
     p.add_argument("--steps", type=int, default=1_000_000, help="env steps per run (default %(default)s)")
     p.add_argument("--backend", choices=("c", "mjx"), default=None, help="physics (default: c where the task has MuJoCo C)")
+    p.add_argument("--config", default="{}", metavar="JSON",
+                   help="the runs' config fields as a JSON object, e.g. '{\"num_envs\": 16}' (default: the defaults)")
     p.add_argument("--budget-minutes", type=float, default=120.0, help="stop before a round that would run past it (default %(default)s)")
     p.add_argument("--start-from", nargs="+", default=None, metavar="RESULTS_DIR",
                    help="committed results whose runs are the first seeds (their sweep.json settings train the rest)")

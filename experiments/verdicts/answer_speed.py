@@ -117,7 +117,8 @@ def main():
             rows.append({"env": env, "design": design, "runs_trained": runs, "stopped": stopped,
                          "seeds_per_cell": " ".join(f"{k}:{n}" for k, n in seeds.items()),
                          "verdicts": " ".join(f"{k}:{v}" for k, v in sorted(verdicts.items())),
-                         "answer": verdict.sentence(env, verdicts, verdict.DEFAULT_MARGIN, "flat PPO") if verdicts else "",
+                         "answer": verdict.sentence(env, verdicts, verdict.DEFAULT_MARGIN,
+                                                    state.get("baseline", {}).get("versus", "flat PPO")) if verdicts else "",
                          "seconds_per_run": round(per_run, 1) if per_run else "",
                          "minutes_on_this_machine": round(runs * per_run / 60, 1) if per_run else ""})
             print(rows[-1], flush=True)

@@ -84,8 +84,8 @@ def rejudged_rows():
         rows.append({"family": family, "env": env, "ks_tried": d["ks_tried"],
                      "bootstrap_rule_K": o.get("K_margin_0.1", ""), "bootstrap_rule_verdicts": o.get("verdicts_0.1", ""),
                      "K_margin_0.1": d["smallest_sufficient_K"], "versus": d["versus"],
-                     "K_margin_0.05_sensitivity": by_margin[0.05]["smallest_sufficient_K"],
-                     "K_margin_0.2_sensitivity": by_margin[0.2]["smallest_sufficient_K"],
+                     "K_margin_0.05_sensitivity": by_margin.get(0.05, {}).get("smallest_sufficient_K", ""),
+                     "K_margin_0.2_sensitivity": by_margin.get(0.2, {}).get("smallest_sufficient_K", ""),
                      "undecided_below_0.1": d["undecided_below"], "verdicts_0.1": d["verdicts"], "seeds": d["seeds"],
                      "baseline": standing(b), "flat_below_reference": b.get("flat_below_reference", ""),
                      "last_fifth_gain": b.get("last_fifth_gain", ""), "last_fifth_gain_upper": b.get("last_fifth_gain_upper", ""),
@@ -128,9 +128,9 @@ def noise_rows():
         scored = [r for p in glob.glob(os.path.join(os.path.dirname(d), os.path.basename(d) + "*", "**", "controller_scores.csv"),
                                        recursive=True) for r in read_csv(p)]
         randoms = {}
-        for p in glob.glob(os.path.join(d, "random_returns.json")):
+        for p in glob.glob(os.path.join(d, "random_policy.json")):
             with open(p) as f:
-                randoms = json.load(f)
+                randoms = {env: record["mean"] for env, record in json.load(f).items()}
         for (env, policy, k) in dict.fromkeys((r["env"], r["policy"], r["K"]) for r in scored):
             cell = [r for r in scored if (r["env"], r["policy"], r["K"]) == (env, policy, k)]
             scores = np.array([float(r["controller_score"]) for r in cell])
@@ -193,8 +193,15 @@ def summary(rows):
     return "At margin 0.1: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + f" (of {len(rows)} tasks)."
 
 
+def baseline_counts(rows):
+    """How many tasks have flat PPO below its binding reference, and not shown to have stopped learning."""
+    return [{"what": "below_reference", "tasks": sum(r["flat_below_reference"] == "1" for r in rows)},
+            {"what": "not_shown_stopped", "tasks": sum(r["stopped_learning"] == "0" for r in rows)}]
+
+
 def main():
     rows = rejudged_rows()
+    write_csv(os.path.join(HERE, "results", "baseline_counts.csv"), baseline_counts(rows))
     write_csv(os.path.join(HERE, "results", "rejudged.csv"), rows)
     with open(os.path.join(HERE, "results", "rejudged.md"), "w") as f:
         f.write(markdown(rows))

@@ -100,6 +100,12 @@ def binding(standings: Sequence[Standing]) -> Standing | None:
     return min(found, key=lambda s: s.ratio) if found else None
 
 
+def reference_name(reference: dict) -> str:
+    """A reference entry in a few words: 'the reference <algorithm> on <task> (<score>, <metric>)'."""
+    algorithm = reference["algorithm"].split(" (")[0].split(",")[0]
+    return f"the reference {algorithm} on {reference['published_task'].split(' (')[0]} ({reference['score']:g}, {reference['metric']})"
+
+
 def reference_summary(reference: dict) -> trimmed.Summary:
     """An entry as a fixed score with its standard error over its seeds (trimmed.fixed)."""
     return trimmed.fixed(reference["score"], reference["std"], reference["seeds"])
@@ -197,8 +203,7 @@ def choose(task: str, steps: int, margin: float, flat_ctrl: Sequence[float], fla
     learn = learning(curves, steps, flat_iqm - rand.mean, margin)
     ok, why = learned(flat_iqm, rand.mean, max_return)
     entry = bind.reference if bind is not None and bind.below else None
-    versus = "flat PPO" if entry is None else (f"{entry['algorithm']} on {entry['published_task']} ({entry['score']:g}, "
-                                              f"{entry['metric']})")
+    versus = "flat PPO" if entry is None else reference_name(entry)
     return {"versus": versus, "metric": METRICS[entry["metric"]] if entry else "controller_score", "entry": entry,
             "standings": [standing_record(s) for s in standings],
             "binding": standing_record(bind) if bind is not None else None,
