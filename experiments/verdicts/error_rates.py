@@ -24,8 +24,8 @@ import os
 
 import numpy as np
 
-from gsa_jax.analysis import answering, verdict
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis import answering, sequential, verdict
+from gsa_jax.analysis.results import read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MARGIN, LOOKS, LADDER = 0.1, (10, 20, 40), (1, 2, 4)
@@ -52,8 +52,8 @@ SCENARIOS = {  # true gap per K
     "every K at the margin": {1: -0.1, 2: -0.1, 4: -0.1},
     "K = 2 at parity": {1: -0.5, 2: 0.0, 4: 0.0},
     "K = 2 above (+0.1)": {1: -0.5, 2: 0.1, 4: 0.1},
-    "K = 2 at parity, K = 4 below": {1: -0.5, 2: 0.0, 4: -0.3},
-    "K = 1 at parity, K = 4 fails": {1: 0.0, 2: 0.0, 4: -0.5},
+    "K = 2 at parity; K = 4 below": {1: -0.5, 2: 0.0, 4: -0.3},
+    "K = 1 at parity; K = 4 fails": {1: 0.0, 2: 0.0, 4: -0.5},
 }
 DESIGNS = [("pocock", "holm"), ("obf", "holm"), ("bonferroni", "holm"), ("pocock", "bonferroni"), ("pocock", "none")]
 
@@ -76,14 +76,15 @@ def run_trial(setup, cells: dict, random_returns: np.ndarray) -> tuple:
                 have[key] = seeds[-1] + 1
 
 
-def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int, seed: int, references: str) -> dict:
+def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int, seed: int, references: str,
+             alpha: float = sequential.DESIGN_ALPHA) -> dict:
     """One row: the share of trials whose answer is the smallest truly sufficient K, calls some truly insufficient K
     (gap <= -margin) sufficient, and the mean seeds trained (all cells)."""
     draw, rng = LAWS[law], np.random.default_rng(seed)
     scale = law_iqm(draw)
     spec = {"steps": 1_000_000, "hparams": {}, "config": {}}
     setup = answering.Setup("simulated", LADDER, MARGIN, LOOKS, {"mlp": spec, "mixture": spec}, spending=spending,
-                            multiplicity=multiplicity, references=references)
+                            multiplicity=multiplicity, references=references, alpha=alpha)
     truth = min([k for k, g in gaps.items() if g > -MARGIN + 1e-12], default=None)
     correct = wrong = seeds = 0
     for _ in range(trials):
@@ -95,7 +96,7 @@ def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int
         correct += chosen == truth
         wrong += any(v == verdict.SUFFICIENT and gaps[k] <= -MARGIN + 1e-12 for k, v in verdicts.items())
         seeds += used
-    return {"law": law, "spending": spending, "multiplicity": multiplicity, "trials": trials,
+    return {"law": law, "spending": spending, "multiplicity": multiplicity, "alpha": alpha, "trials": trials,
             "answer_is_truth": round(correct / trials, 4), "some_K_wrongly_sufficient": round(wrong / trials, 4),
             "mean_seeds_all_cells": round(seeds / trials, 1)}
 
@@ -106,12 +107,15 @@ def main():
     p.add_argument("--only", choices=("error", "power"), default=None)
     p.add_argument("--designs", default=None, help="spending:multiplicity pairs, e.g. pocock:holm,obf:holm (default all)")
     p.add_argument("--laws", default=None, help="laws of the seeds, e.g. normal,bimodal (default all)")
+    p.add_argument("--alpha", type=float, default=sequential.DESIGN_ALPHA, help="the error each design spends")
     p.add_argument("--out", default=os.path.join(HERE, "results", "error_rates.csv"))
     args = p.parse_args()
     references = args.out + ".no_references.csv"
     with open(references, "w") as f:
         f.write("task,published_task,score,std,seeds,steps,metric,algorithm,source,note\n")
-    rows = []
+    rows = [r for r in read_csv(args.out) if args.only or args.designs or args.laws]  # a partial run keeps the others
+    for r in rows:
+        r["alpha"] = r.get("alpha") or sequential.DESIGN_ALPHA
     for i, (scenario, gaps) in enumerate(SCENARIOS.items()):
         kind = "error" if scenario == "every K at the margin" else "power"
         if args.only and kind != args.only:
@@ -124,8 +128,9 @@ def main():
                     continue
                 trials = args.trials if kind == "error" else args.trials // 3
                 row = {"scenario": scenario, "kind": kind,
-                       **simulate(law, gaps, spending, multiplicity, trials, 1000 * i + 7, references)}
-                rows.append(row)
+                       **simulate(law, gaps, spending, multiplicity, trials, 1000 * i + 7, references, args.alpha)}
+                key = lambda r: (r["scenario"], r["law"], r["spending"], r["multiplicity"], float(r.get("alpha") or sequential.DESIGN_ALPHA))  # noqa: E731
+                rows = [r for r in rows if key(r) != key(row)] + [row]
                 print(row, flush=True)
                 write_csv(args.out, rows)
     os.remove(references)

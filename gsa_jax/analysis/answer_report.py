@@ -17,7 +17,7 @@ from gsa_jax.analysis.results import write_csv
 from gsa_jax.running.checkpoint import write_atomic
 
 
-def rounded(x, digits: int = 4):
+def rounded(x: float | None, digits: int = 4) -> float | str:
     return "" if x is None or (isinstance(x, float) and not math.isfinite(x)) else round(float(x), digits)
 
 

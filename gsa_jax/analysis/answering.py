@@ -24,7 +24,7 @@ from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import baseline, controller_scores, ladder, sequential, trimmed, verdict
 from gsa_jax.analysis.extraction import collect_results
 from gsa_jax.running.checkpoint import write_atomic
-from gsa_jax.running.spec import SpecError, check_spec
+from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
 
 STATE = "answer.json"
 FLAT = "flat"  # the key of flat PPO's cell beside the K of the mixtures
@@ -107,7 +107,7 @@ def check_setup(setup: Setup) -> None:
 MIN_EVALUATIONS = 10  # flat PPO's evaluations per run the still-learning test needs (baseline.learning)
 
 
-def check_evaluations(spec) -> None:
+def check_evaluations(spec: SweepSpec) -> None:
     """AnswerError in one line where flat PPO's runs would have too few evaluations for the still-learning test."""
     from gsa_jax.running.spec import build_grid, default_chunk, group_config, group_eval_every, group_iterations
 
@@ -174,7 +174,7 @@ def score_roots(out: str, setup: Setup) -> list:
     return list(setup.start_from) + [os.path.join(out, "results")]
 
 
-def cell_key(setup: Setup, policy: str, k) -> object | None:
+def cell_key(setup: Setup, policy: str, k: int | str) -> int | str | None:
     """FLAT, a K of the ladder, or None for a cell the answer does not judge."""
     key = FLAT if policy == MLP else int(k)
     return key if key == FLAT or key in setup.ladder else None
@@ -252,7 +252,7 @@ def task_max_return(env: str) -> float | None:
         return None
 
 
-def reference_of(setup: Setup, evidence: Evidence, base: dict):
+def reference_of(setup: Setup, evidence: Evidence, base: dict) -> "list | trimmed.Summary":
     """What judge_ladder compares with: flat PPO's values in seed order, a reference entry, or the target."""
     if setup.target is not None:
         return trimmed.fixed(setup.target)

@@ -28,7 +28,7 @@ def judged_record(g: verdict.Gap, look: int, design: sequential.Design, share: f
             "looks": list(design.looks)}
 
 
-def judge_cell(scores: dict, reference, random_returns, margin: float, design: sequential.Design, look: int,
+def judge_cell(scores: dict, reference: "Sequence[float] | trimmed.Summary", random_returns: "Sequence[float] | float", margin: float, design: sequential.Design, look: int,
                share: float) -> dict:
     """One cell ({seed: score}) judged at design look `look` with one-sided share `share` of the answer's error: its
     first looks[look] seeds against the reference's first looks[look] (flat PPO had as many then), or a fixed score."""
@@ -54,7 +54,8 @@ def looks_due(ladder: Sequence[int], scores: dict, design: sequential.Design, hi
     return due
 
 
-def holm_pass(ladder: Sequence[int], scores: dict, reference, random_returns, margin: float,
+def holm_pass(ladder: Sequence[int], scores: dict, reference: "Sequence[float] | trimmed.Summary",
+              random_returns: "Sequence[float] | float", margin: float,
               design: sequential.Design, records: dict) -> None:
     """Holm's step-down: while another K is shown sufficient, every undecided K is compared again at its look with
     the larger share (in place)."""
@@ -69,7 +70,8 @@ def holm_pass(ladder: Sequence[int], scores: dict, reference, random_returns, ma
                 changed = changed or records[key]["verdict"] == verdict.SUFFICIENT
 
 
-def judge_ladder(ladder: Sequence[int], scores: dict, reference, random_returns, margin: float,
+def judge_ladder(ladder: Sequence[int], scores: dict, reference: "Sequence[float] | trimmed.Summary",
+                 random_returns: "Sequence[float] | float", margin: float,
                  design: sequential.Design, history: dict | None = None) -> dict:
     """{str(K): record} of every K with seeds at a look: look by look, the cells that reached it judged there, then
     Holm's step-down. scores: {K: {seed: score}}; reference: flat PPO's scores in seed order or a trimmed.Summary;

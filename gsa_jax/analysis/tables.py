@@ -236,7 +236,7 @@ def cell_setting(cell: tuple, settings: Sequence[str]) -> tuple:
     return tuple((c, extra.get(c, "")) for c in settings)
 
 
-def grid_evidence(data: dict, scores: dict, cells: list):
+def grid_evidence(data: dict, scores: dict, cells: list) -> tuple:
     """answering.Evidence of one task's fixed grid: flat PPO's and each K's scores (final_scores: the committed
     controllers' where scored), last-100-episode training returns and flat PPO's learning curves."""
     from gsa_jax.analysis.answering import FLAT, Evidence

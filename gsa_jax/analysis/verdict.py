@@ -64,12 +64,12 @@ def iqm(scores: np.ndarray) -> np.ndarray:
     return x[..., cut: n - cut].mean(axis=-1)
 
 
-def summarize_reference(reference) -> trimmed.Summary:
+def summarize_reference(reference: "Sequence[float] | trimmed.Summary") -> trimmed.Summary:
     """A reference as a contrast group: flat PPO's scores [n] (their IQM), or a Summary (a fixed score)."""
     return reference if isinstance(reference, trimmed.Summary) else trimmed.trimmed(reference)
 
 
-def summarize_random(random_returns) -> trimmed.Summary:
+def summarize_random(random_returns: "Sequence[float] | float") -> trimmed.Summary:
     """The random policy as a contrast group: its episodes' returns [n] (their mean), or one number taken as exact."""
     if np.ndim(random_returns) == 0:
         return trimmed.fixed(float(random_returns))
@@ -86,7 +86,8 @@ def gain_shown(ref: trimmed.Summary, rand: trimmed.Summary) -> bool:
     return trimmed.p_above(trimmed.contrast([(1.0, ref), (-1.0, rand)])) < GAIN_LEVEL
 
 
-def bound(mix, ref, rand, point: float, level: float, upper: bool) -> float:
+def bound(mix: trimmed.Summary, ref: trimmed.Summary, rand: trimmed.Summary, point: float, level: float,
+          upper: bool) -> float:
     """The gap at which the one-sided test at `level` stops rejecting: the interval's low (upper=False) or high end;
     +-inf where no finite gap does (the scale is not shown positive at that level)."""
 
@@ -117,7 +118,8 @@ def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float) 
     return max(n, int(math.ceil(n * need * need)))
 
 
-def judge(mixture: Sequence[float], reference, random_returns, margin: float = DEFAULT_MARGIN, level: float = ALPHA,
+def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summary", random_returns: "Sequence[float] | float",
+          margin: float = DEFAULT_MARGIN, level: float = ALPHA,
           final_level: float | None = None) -> Gap:
     """The verdict of one mixture cell (scores [n]) against `reference` (flat PPO's scores [n_f] or a trimmed.Summary)
     with the random policy's episode returns [n_r] (or one exact number), at `margin` and the look's one-sided
