@@ -35,7 +35,9 @@ def chosen_controllers():
 
 
 def answer_controllers():
-    for path in sorted(glob.glob(os.path.join(HERE, "answers", "*", "controller", "controller.npz"))):
+    paths = glob.glob(os.path.join(HERE, "answers", "*", "controller", "controller.npz"))
+    paths += glob.glob(os.path.join(HERE, "longer_budget", "answer", "controller", "controller.npz"))
+    for path in sorted(paths):
         row = C.score_controller(path)  # the selection score: the standard 10 starts
         yield "answer", row["env"], row["K"], row["seed"], float(row["controller_score"]), path
 

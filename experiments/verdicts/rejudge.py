@@ -154,15 +154,20 @@ def answer_rows():
     from gsa_jax.analysis import verdict
 
     rows = []
-    for path in sorted(glob.glob(os.path.join(HERE, "answers", "*", "answer.json"))):
+    paths = glob.glob(os.path.join(HERE, "answers", "*", "answer.json"))
+    paths += glob.glob(os.path.join(HERE, "longer_budget", "answer", "answer.json"))
+    for path in sorted(paths):
         with open(path) as f:
             state = json.load(f)
         setup, judged = state["setup"], state["judged"]
         verdicts = {int(k): r["verdict"] for k, r in judged.items()}
         minutes = sum(sw["seconds"] for r in state["rounds"] for sw in r["sweeps"].values()) / 60
         compile_min = sum(sw["compile_s"] for r in state["rounds"] for sw in r["sweeps"].values()) / 60
-        rows.append({"env": setup["env"], "margin": setup["margin"], "looks": " ".join(map(str, setup["looks"])),
-                     "answer": verdict.sentence(setup["env"], verdicts, setup["margin"], "flat PPO"),
+        rows.append({"env": setup["env"], "answer_dir": os.path.relpath(os.path.dirname(path), HERE),
+                     "steps": setup["specs"]["mlp"]["steps"], "margin": setup["margin"],
+                     "looks": " ".join(map(str, setup["looks"])), "design": "sequential" if "records" in state else "bootstrap rule",
+                     "answer": verdict.sentence(setup["env"], verdicts, setup["margin"],
+                                                state.get("baseline", {}).get("versus", "flat PPO")),
                      "stopped": state["stopped"], "verdicts": " ".join(f"{k}:{v}" for k, v in sorted(verdicts.items())),
                      "seeds": " ".join(f"{k}:{judged[str(k)].get('seeds', judged[str(k)].get('n'))}" for k in sorted(verdicts)),
                      "rounds": len(state["rounds"]), "training_minutes": round(minutes, 1),

@@ -164,7 +164,8 @@ def sensitivity_text(rows: list) -> str:
 
 def rounds_text(state: dict) -> tuple:
     """(markdown table of the rounds: what each trained and how long it took, compile share of the whole)."""
-    lines = ["| round | trained | seconds | of it compiling or loading programs |", "|---|---|---|---|"]
+    lines = ["| round | trained | seconds | compiling or loading programs (seconds summed over the sweeps' worker processes) |",
+             "|---|---|---|---|"]
     total = compile_s = 0.0
     for r in state["rounds"]:
         what = "; ".join(f"{'flat PPO' if p == MLP else 'K = ' + ', '.join(map(str, ks))}: seeds {seeds[0]}-{seeds[-1]}"
@@ -243,7 +244,8 @@ def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, senten
     lines += ["## Rounds", "", rounds if state["rounds"] else "No round trained: every cell was judged on the runs of "
               "--start-from.", ""]
     if state["rounds"] and share == share:
-        lines += [f"Compiling or loading programs: {share:.0%} of the training time.", ""]
+        lines += [f"Compiling or loading programs: {share:.0%} of the rounds' wall time, counted once per worker process "
+                  "(the workers compile side by side, so this can exceed 100%).", ""]
     lines += choice_text(out, choice) + ["## Reproduce", "", f"    {command}", "",
                                          "Versions: " + ", ".join(f"{k} {v}" for k, v in versions.items()), ""]
     path = os.path.join(out, "report.md")
