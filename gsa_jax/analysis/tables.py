@@ -303,8 +303,8 @@ def verdict_table(data: dict, random_policies: dict, steps: dict, settings: Sequ
                   target: float | None = None) -> list:
     """verdicts.csv rows: per task and setting, each K's verdict at the default margin as gsa_jax.answer's first look
     gives it (role 'answer'), the other margins as sensitivity, and the baseline's columns. random_policies: {env:
-    controller_scores.random_policy record}; steps: {env: env steps of its runs}; tasks without a random policy are
-    left out."""
+    controller_scores.random_policy record}; steps: {env: env steps of its runs} (default: the runs' last env_steps);
+    tasks without a random policy are left out."""
     scores, groups = final_scores(data), defaultdict(list)
     for cell in data:
         if cell[1] == MIXTURE and len(scores[cell][0]) == len(data[cell]):
@@ -318,8 +318,8 @@ def verdict_table(data: dict, random_policies: dict, steps: dict, settings: Sequ
             continue
         if env_name not in random_policies:
             continue
-        answer, sensitivity, base = grid_verdicts(env_name, cells, data, scores, random_policies[env_name],
-                                                  steps[env_name], target)
+        budget = steps.get(env_name) or max(float(np.nanmax(r["env_steps"])) for c in cells for r in data[c].values())
+        answer, sensitivity, base = grid_verdicts(env_name, cells, data, scores, random_policies[env_name], budget, target)
         ref = reference_value(cells, scores, base, target)
         common = {"env": env_name, **dict(setting), **baseline_columns(base), "score": scores[cells[0]][1],
                   "reference_iqm": "" if ref is None else round(ref, 4),
