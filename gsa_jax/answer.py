@@ -167,7 +167,7 @@ def build_parser():
     p.add_argument("--env", required=True, help="the task (any name gsa_jax.train takes, your own 'module:Class' too)")
     p.add_argument("--clusters", default=None, help="the K ladder, e.g. 1,2,4 (default: ceil(m d_a), m = 0.5, 1, 2, 4)")
     p.add_argument("--margin", type=float, default=verdict.DEFAULT_MARGIN,
-                   help="the margin delta, a fraction of flat PPO's gain over a random policy (default %(default)s)")
+                   help="the margin delta, a fraction of the reference's gain over a random policy (default %(default)s)")
     p.add_argument("--target", type=float, default=None, help="judge against this score instead of flat PPO")
     p.add_argument("--looks", default=",".join(map(str, DEFAULT_LOOKS)),
                    help=f"seeds per cell at each look (at least {sequential.MIN_SEEDS}); the last is the seed cap (default %(default)s)")
