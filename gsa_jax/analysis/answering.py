@@ -234,12 +234,12 @@ def choose_baseline(setup: Setup, evidence: Evidence, state: dict) -> dict:
         return {"versus": f"the target score {setup.target:g}", "metric": "controller_score", "entry": None,
                 "standings": [], "learning": None, "learned": True}
     n = setup.looks[0]
-    flat_ctrl = ladder.first_seeds(evidence.scores.get(FLAT, {}), n)
-    flat_last = ladder.first_seeds(evidence.last100.get(FLAT, {}), n)
-    curves = [evidence.curves[s] for s in sorted(evidence.curves)[:n]]
+    flat = baseline.FlatRuns(ladder.first_seeds(evidence.scores.get(FLAT, {}), n),
+                             ladder.first_seeds(evidence.last100.get(FLAT, {}), n),
+                             [evidence.curves[s] for s in sorted(evidence.curves)[:n]])
     refs = baseline.load_references(setup.references or baseline.REFERENCES)
-    return baseline.choose(setup.env, setup.steps(), setup.margin, flat_ctrl, flat_last, curves,
-                           random_summary(state), refs, task_max_return(setup.env))
+    return baseline.choose(setup.env, setup.steps(), setup.margin, flat, random_summary(state), refs,
+                           task_max_return(setup.env))
 
 
 def task_max_return(env: str) -> float | None:

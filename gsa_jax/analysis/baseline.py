@@ -188,19 +188,27 @@ def standing_record(s: Standing) -> dict:
             "ours": round(s.ours, 3), "ratio": round(s.ratio, 4), "below": s.below}
 
 
-def choose(task: str, steps: int, margin: float, flat_ctrl: Sequence[float], flat_last: Sequence[float],
-           curves: Sequence[tuple], rand: trimmed.Summary, references: Sequence[dict],
+class FlatRuns(NamedTuple):
+    """Flat PPO's runs as the baseline checks read them: per seed its controller score and its mean return over the
+    last 100 training episodes, and its learning curves [(env_steps [T], eval_return [T])]."""
+
+    controller: Sequence[float]
+    last100: Sequence[float]
+    curves: Sequence[tuple]
+
+
+def choose(task: str, steps: int, margin: float, flat: FlatRuns, rand: trimmed.Summary, references: Sequence[dict],
            max_return: float | None = None) -> dict:
     """The baseline record of an answer: flat PPO's standing against every entry that applies, whether it still
     learns at the budget and learns the task at all, and what the verdicts judge against (flat PPO on controller
     scores; the binding entry on its own metric where flat PPO is below it)."""
     from gsa_jax.analysis.verdict import iqm
 
-    values = {"controller_score": list(flat_ctrl), "training_return_last_100_episodes": list(flat_last)}
+    values = {"controller_score": list(flat.controller), "training_return_last_100_episodes": list(flat.last100)}
     standings = [s for s in (stand(r, values, rand.mean, margin) for r in applicable(references, task, steps)) if s]
     bind = binding(standings)
-    flat_iqm = float(iqm(flat_ctrl)) if len(flat_ctrl) else float("nan")
-    learn = learning(curves, steps, flat_iqm - rand.mean, margin)
+    flat_iqm = float(iqm(flat.controller)) if len(flat.controller) else float("nan")
+    learn = learning(flat.curves, steps, flat_iqm - rand.mean, margin)
     ok, why = learned(flat_iqm, rand.mean, max_return)
     entry = bind.reference if bind is not None and bind.below else None
     versus = "flat PPO" if entry is None else reference_name(entry)
