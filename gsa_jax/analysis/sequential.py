@@ -76,7 +76,11 @@ def spent(spending: str, t: np.ndarray, alpha: float, looks: int) -> np.ndarray:
     raise ValueError(f"unknown spending {spending!r}")
 
 
-GRID = 2001  # points of the density grid per look
+# points of the density grid per look. The tail sums are rectangle rules on this grid, which overstate a tail a
+# little: the levels of the second and later looks come out about 1% (relative) below the exact ones (an independent
+# check with scipy's multivariate normal: 0.00218 for 0.00220 at look 2 of 10-20-40 holding 0.02 / 3), so each look
+# tests slightly stricter than it spends; no committed verdict sits between the two.
+GRID = 2001
 
 
 def next_density(grid: np.ndarray, dens: np.ndarray, dt: float, t: float) -> tuple:
