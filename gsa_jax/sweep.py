@@ -49,7 +49,7 @@ Experiment file (TOML):
   [hparams]                               # scalars, or lists to sweep over (every combination)
   lr = 3e-4
   eps_decay = [0.99, 0.995]
-  [config]                                # static gsa_jax.algorithm.ppo.Config fields (num_envs, unroll_length, ...)
+  [config]                                # static gsa_jax.algorithm.config.Config fields (num_envs, unroll_length, ...)
   num_envs = 32
 """
 

@@ -20,9 +20,9 @@ import time
 
 import envs
 from envs.physics import BACKENDS, Physics
+from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, config_record, make_hparams, validate_hparams
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
-from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, config_record, make_hparams, validate_hparams
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.runinfo import cli_description

@@ -20,7 +20,8 @@ import envs
 from envs.c_backend import STATE_SPEC, float64_rows
 from envs.mujoco_c import C_TASKS, make_c
 from envs.physics import Physics
-from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+from gsa_jax.algorithm.config import Config, make_hparams
+from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running.spec import load_spec
 from gsa_jax.running.sweeps import SweepOptions, run_sweep
 

@@ -13,9 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from gsa_jax.algorithm.config import make_hparams
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import make_policy
-from gsa_jax.algorithm.ppo import make_hparams
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.export import main as export_main
 from gsa_jax.running.checkpoint import save_pytree

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from envs.physics import Physics, make_physics, nest_physics, record_backend
-from gsa_jax.algorithm.ppo import Config, config_defaults, config_record
+from gsa_jax.algorithm.config import Config, config_defaults, config_record
 from gsa_jax.running.runinfo import ResumeRefused
 from gsa_jax.running.single import check_resume_config
 from gsa_jax.running.spec import SpecError, check_spec

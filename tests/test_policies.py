@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from gsa_jax.algorithm.config import make_hparams
 from gsa_jax.algorithm.policies import bias_spread, component, draw_noise, feature_size, make_policy, partition_entropy
-from gsa_jax.algorithm.ppo import make_hparams
 
 D_S, D_A = 5, 3
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from gsa_jax import profile
+from gsa_jax.algorithm.config import Config
 from gsa_jax.algorithm.optim import init_adam
-from gsa_jax.algorithm.ppo import Config, TrainState, apply_gradients, epoch_minibatches, minibatch_gradients, schedule
+from gsa_jax.algorithm.ppo import TrainState, apply_gradients, epoch_minibatches, minibatch_gradients, schedule
 from gsa_jax.benchmark import parts as parts_module
 from gsa_jax.benchmark.parts import PARTS, PPO_PARTS, op_seconds, split_seconds, update_parts
 from tests.test_ppo_parts import HP, minibatch, toy_params, toy_parts

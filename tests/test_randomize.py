@@ -15,7 +15,7 @@ import envs
 from envs.c_backend import STATE_SPEC, float64_rows
 from envs.physics import Physics
 from envs.randomize import RandomizeError, parse
-from gsa_jax.algorithm.ppo import Config
+from gsa_jax.algorithm.config import Config
 from gsa_jax.running.spec import SpecError, check_spec
 from tests.verify_tasks import DAMPING, GEAR, MASS, TIMESTEP, PointMass
 

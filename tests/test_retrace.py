@@ -15,7 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.algorithm.ppo import Config, compute_gae, init_state, make_hparams, make_parts, run_chunk
+from gsa_jax.algorithm.config import Config, make_hparams
+from gsa_jax.algorithm.ppo import compute_gae, init_state, make_parts, run_chunk
 from gsa_jax.algorithm.retrace import buffer_targets, init_buffer, retrace_targets, store
 
 G, LAM = 0.9, 0.8

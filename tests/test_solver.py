@@ -181,7 +181,7 @@ def test_solver_option_rejects_bad_values(bad):
         Physics(solver_iterations=bad).validate()
     with pytest.raises(ValueError, match="ls_iterations must be an integer >= 1"):
         Physics(ls_iterations=bad).validate()
-    from gsa_jax.algorithm.ppo import Config
+    from gsa_jax.algorithm.config import Config
 
     with pytest.raises(ValueError, match="ls_iterations"):
         Config(env="hopper", physics=Physics(ls_iterations=bad)).validate()

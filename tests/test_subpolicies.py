@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.config import make_hparams
 from gsa_jax.algorithm.policies import feature_size, make_policy, subpolicy_features
-from gsa_jax.algorithm.ppo import make_hparams
 from gsa_jax.deployment import export_c, export_onnx, numpy_policy
 from gsa_jax.deployment.inspection import controller_table, feature_names
 from tests.test_export import assert_same_controller, run_c_header, test_observations

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from golden_runs import arrays_digest, check_fingerprint, summarize, table_digest
 
-from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+from gsa_jax.algorithm.config import Config, make_hparams
+from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
 from gsa_jax.running.sweeps import SweepOptions, run_sweep
 from gsa_jax.running.tuning import load_tuning

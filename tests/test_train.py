@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+from gsa_jax.algorithm.config import Config, make_hparams
+from gsa_jax.algorithm.ppo import make_train
 
 CHUNK = 10
 LEARN_ITERS = 30  # 30 x 2048 = 61,440 env steps

@@ -196,7 +196,8 @@ def test_make_train_takes_a_task_object_and_trains_it_as_its_name_does():
     bit for bit, the run of the same class named 'module:Class'; a Config naming another task is one line."""
     from examples.reacher import Reacher
 
-    from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+    from gsa_jax.algorithm.config import Config, make_hparams
+    from gsa_jax.algorithm.ppo import make_train
 
     small = dict(policy="mixture", k_max=2, num_envs=4, unroll_length=8, num_minibatches=2, num_epochs=1,
                  eval_envs=2, physics=Physics(backend="c"))
@@ -345,7 +346,7 @@ def test_reset_mode_fresh_starts_every_episode_from_a_new_draw_and_first_from_th
     assert len({t.tobytes() for t in all_targets}) == 28 and np.all(np.abs(all_targets) <= 0.14 + 1e-6)
     with pytest.raises(ValueError, match="reset mode must be one of first, fresh"):
         envs.make(TASK, reset_mode="again")
-    from gsa_jax.algorithm.ppo import Config
+    from gsa_jax.algorithm.config import Config
 
     with pytest.raises(ValueError, match="unknown reset_mode 'again'; choose one of first, fresh"):
         Config(env=TASK, reset_mode="again").validate()

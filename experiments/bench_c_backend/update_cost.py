@@ -24,6 +24,7 @@ import jax.numpy as jnp
 
 from envs.physics import Physics
 from gsa_jax.algorithm import ppo
+from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.nn import init_mlp
 from gsa_jax.algorithm.optim import init_adam
 from gsa_jax.running.runinfo import run_metadata
@@ -105,9 +106,9 @@ def main():
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
-    cfg = ppo.Config(env=args.env, k_max=6, physics=Physics(backend="c", threads=1))
+    cfg = Config(env=args.env, k_max=6, physics=Physics(backend="c", threads=1))
     p = ppo.make_parts(cfg, ppo.make_env(cfg), ppo.make_env(cfg, auto_reset=False))
-    hp = ppo.make_hparams(K=6)
+    hp = make_hparams(K=6)
     inputs = update_inputs(p, hp, args.runs, jax.random.PRNGKey(0))
     keys = jax.random.split(jax.random.PRNGKey(1), args.runs)
     variants = ("paper", "no_shuffle", "plain_sgd")

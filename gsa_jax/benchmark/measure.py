@@ -18,7 +18,7 @@ import numpy as np
 from mujoco import rollout
 
 import envs
-from gsa_jax.algorithm.ppo import Config
+from gsa_jax.algorithm.config import Config
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.supervise import worker_env
 

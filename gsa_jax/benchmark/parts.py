@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import envs
 from envs.physics import C
 from gsa_jax.algorithm import ppo
+from gsa_jax.algorithm.config import make_hparams
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import draw_noise
 
@@ -50,7 +51,7 @@ PARTS = PHYSICS_PARTS + PPO_PARTS
 def setup(cfg, runs, K, seed=0):
     """(Parts, TrainState [runs], Hparams [runs]) of `runs` runs of cfg, initialized as a sweep does."""
     p = ppo.make_run_parts(cfg)
-    hps = jax.tree.map(lambda *x: jnp.stack(x), *[ppo.make_hparams(K=K, total_iterations=1000) for _ in range(runs)])
+    hps = jax.tree.map(lambda *x: jnp.stack(x), *[make_hparams(K=K, total_iterations=1000) for _ in range(runs)])
     states = jax.jit(jax.vmap(functools.partial(ppo.init_state, p)))(jax.random.split(jax.random.PRNGKey(seed), runs), hps)
     return p, states, hps
 

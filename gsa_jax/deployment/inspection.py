@@ -22,11 +22,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm.config import Config, config_record, make_hparams
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
-from gsa_jax.algorithm.ppo import Config, config_record, make_env, make_hparams, make_train, schedule
+from gsa_jax.algorithm.ppo import make_env, make_train, schedule
 from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 

@@ -17,7 +17,8 @@ import numpy as np
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from gsa_jax.algorithm.ppo import Config, make_hparams, make_train
+from gsa_jax.algorithm.config import Config, make_hparams
+from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running import xla_cache
 from gsa_jax.running.driver import Program
 

@@ -18,8 +18,8 @@ import numpy as np
 import envs
 from envs import solver_settings
 from envs.physics import C, resolve_threads
+from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.kinds import MIXTURE
-from gsa_jax.algorithm.ppo import Config, config_record
 from gsa_jax.algorithm.retrace import buffer_bytes
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError, write_atomic
 from gsa_jax.running.curve import plot_curve

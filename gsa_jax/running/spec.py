@@ -18,9 +18,9 @@ from typing import Callable, NamedTuple, NoReturn
 import envs
 from envs.physics import FLAT_CONFIG_FIELDS, Physics, nest_physics
 from envs.randomize import parse as parse_randomize
+from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS
-from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.trained import path_part
@@ -41,7 +41,7 @@ class SpecError(ValueError):
 @dataclasses.dataclass(frozen=True)
 class SweepSpec:
     """A checked experiment. Lists are tuples; hparams {name: tuple of values}; config the static
-    gsa_jax.algorithm.ppo.Config fields as written. None: the field is absent from the file (its default applies)."""
+    gsa_jax.algorithm.config.Config fields as written. None: the field is absent from the file (its default applies)."""
 
     name: str
     envs: tuple

@@ -13,7 +13,7 @@ import jax
 import numpy as np
 
 import envs
-from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config
+from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
 from gsa_jax.running.driver import Plan, Result, drive, rows_before_failure

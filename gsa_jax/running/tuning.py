@@ -28,8 +28,8 @@ import math
 import numpy as np
 
 import envs
+from gsa_jax.algorithm.config import HPARAM_DEFAULTS, check_hparam
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, check_hparam
 from gsa_jax.running.spec import NAME_PATTERN, SpecError, check_config_table, cluster_count, read_toml
 
 FIELDS = ("name", "env", "configurations", "draw_seed", "tuning_seeds", "tuning_steps", "evaluation_seeds",
