@@ -44,15 +44,29 @@ LOCAL_WORKERS_ENV = "GSA_LOCAL_WORKERS"
 
 @dataclasses.dataclass(frozen=True)
 class Physics:
-    """Static physics options of a task (see the module docstring)."""
+    """Static physics options of a task (see the module docstring). A field's metadata names its command-line
+    option (gsa_jax/algorithm/config.py reads it)."""
 
-    solver_iterations: int | None = None
-    ls_iterations: int | None = None
-    linesearch: str = "exact"
+    solver_iterations: int | None = dataclasses.field(default=None, metadata={
+        "flag": "--solver-iterations", "help": "MJX constraint-solver iterations (default: the task's own; hopper 4). "
+        "Fewer is faster but a changed simulator -- see experiments/solver_hopper/"})
+    ls_iterations: int | None = dataclasses.field(default=None, metadata={
+        "flag": "--ls-iterations",
+        "help": "MJX line-search iterations per solver iteration (default: the task's own; hopper 50)"})
+    linesearch: str = dataclasses.field(default="exact", metadata={
+        "flag": "--linesearch", "choices": LINESEARCHES,
+        "help": "MJX solver line search: exact where the model allows it (default), or MJX's iterative one"})
     search_loop: str = "while"
-    cholesky: str = "unrolled"
-    backend: str = "mjx"
-    threads: int = 0
+    cholesky: str = dataclasses.field(default="unrolled", metadata={
+        "flag": "--cholesky", "choices": CHOLESKYS,
+        "help": "MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK"})
+    backend: str = dataclasses.field(default=MJX, metadata={
+        "flag": "--physics", "choices": BACKENDS,
+        "help": "physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the compiled "
+        "program (the CPU speed path; every task but Brax's inverted_double_pendulum)"})
+    threads: int = dataclasses.field(default=0, metadata={
+        "flag": "--physics-threads",
+        "help": "--physics c: MuJoCo C threads in this process (default 0: its share of the cores)"})
 
     def validate(self) -> "Physics":
         """Raise ValueError naming the bad field."""

@@ -14,66 +14,25 @@ import argparse
 import json
 import math
 import os
-import re
 import sys
 import time
 
 import envs
-from envs.physics import BACKENDS, Physics
-from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, config_record, make_hparams, validate_hparams
+from gsa_jax.algorithm.config import (
+    add_options, config_record, flag_names, make_hparams, options_config, options_hparams, saved_option_values,
+    validate_hparams,
+)
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
-from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.runlock import LockError, hold
 from gsa_jax.running.single import RunOptions, RunPlan, UsageError, run
 from gsa_jax.running.trained import path_part
 
-_HP_FLAGS = {  # CLI flag -> hparam name
-    "lr": "lr", "clip": "clip_eps", "gamma": "gamma", "gae_lambda": "gae_lambda", "vf_coef": "vf_coef",
-    "max_grad_norm": "max_grad_norm", "eps_init": "eps_init", "eps_decay": "eps_decay",
-    "sigma_min_init": "sigma_min_init", "sigma_min_decay": "sigma_min_decay", "sigma_init_scale": "sigma_init_scale",
-    **{n: n for n in ("lr_scale_partition", "lr_scale_L", "lr_scale_b", "lr_scale_log_sigma", "lr_scale_log_std",
-                      "lr_scale_critic", "init_log_std")},
-}
-
-
-def add_physics_flags(p):
-    """The physics options (envs/physics.py): backend, its threads, and MJX's solver settings."""
-    p.add_argument("--solver-iterations", type=int, default=None,
-                   help="MJX constraint-solver iterations (default: the task's own; hopper 4). Fewer is faster but a "
-                        "changed simulator -- see experiments/solver_hopper/")
-    p.add_argument("--ls-iterations", type=int, default=None,
-                   help="MJX line-search iterations per solver iteration (default: the task's own; hopper 50)")
-    p.add_argument("--linesearch", default=Physics.linesearch, choices=("exact", "iterative"),
-                   help="MJX solver line search: exact where the model allows it (default), or MJX's iterative one")
-    p.add_argument("--cholesky", default=Physics.cholesky, choices=("unrolled", "lapack"),
-                   help="MJX's small Cholesky factorizations: unrolled elementwise ops (default) or LAPACK")
-    p.add_argument("--physics", default=Physics.backend, choices=BACKENDS,
-                   help="physics backend: MJX (default; what accelerators run) or MuJoCo C stepped from inside the "
-                        "compiled program (the CPU speed path; every task but Brax's inverted_double_pendulum)")
-    p.add_argument("--physics-threads", type=int, default=Physics.threads,
-                   help="--physics c: MuJoCo C threads in this process (default 0: its share of the cores)")
-    p.add_argument("--randomize", default=Config.randomize, metavar="TEXT",
-                   help="domain randomization of the training episodes, e.g. 'mass=0.9:1.1, friction=0.75:1.25, "
-                        "gear=0.9:1.1, damping=0.8:1.2, obs_noise=0.01, delay=1, push=0.125' (docs/randomize.md), or "
-                        "'task': the task's own `randomize`; default none")
-    p.add_argument("--eval-randomized", action="store_true",
-                   help="evaluate under the training randomization (default: the nominal task)")
-
-
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=cli_description(__doc__))
-    p.add_argument("--env", default="inverted_double_pendulum",
-                   help=f"one of: {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' or "
-                        "'path/file.py:Class'; or another library's environment: 'brax:<name>' (Brax's registry) or "
-                        "'playground:<Name>' (MuJoCo Playground's registry) (docs/your_task.md)")
-    p.add_argument("--policy", default="mixture", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
-    p.add_argument("--clusters", "-K", type=int, default=4, help="K, number of linear controllers (mixture)")
-    p.add_argument("--subpolicy", default="linear",
-                   help="sub-policy class of a mixture: constant (one action per cluster), linear (default), quadratic")
-    p.add_argument("--k-max", type=int, default=None, help="pad the cluster axis to this size (default: K)")
+    add_options(p)
     p.add_argument("--steps", type=int, default=1_000_000, help="environment steps (rounded up to whole chunks)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="output directory (default: runs/<env>-<policy>-...)")
@@ -81,30 +40,10 @@ def build_parser():
                    help="continue the run saved in --out with its saved settings; an option given with it must "
                         "match the saved run's (or --force)")
     p.add_argument("--force", action="store_true", help="with --resume: continue with the options given even where they differ from the saved run's")
-    p.add_argument("--num-envs", type=int, default=Config.num_envs)
-    p.add_argument("--unroll-length", type=int, default=Config.unroll_length)
-    p.add_argument("--epochs", type=int, default=Config.num_epochs)
-    p.add_argument("--minibatches", type=int, default=Config.num_minibatches)
-    p.add_argument("--episode-length", type=int, default=None, help="time limit in steps (default: the task's own)")
-    add_physics_flags(p)
-    p.add_argument("--reset-mode", default=Config.reset_mode, choices=envs.RESET_MODES,
-                   help="first: an ended episode restarts from its env's first start (Brax's); fresh: a new draw")
-    p.add_argument("--value-target", default=Config.value_target,
-                   help=f"the value function's targets, one of {', '.join(VALUE_TARGETS)}: GAE(lambda) on each "
-                        "iteration's samples (default), or Retrace "
-                        "over the samples of the last --retrace-iterations iterations (the paper's critic)")
-    p.add_argument("--retrace-iterations", type=int, default=Config.retrace_iterations,
-                   help="iterations of samples the Retrace critic is fitted on (default %(default)s)")
-    p.add_argument("--b-init-scale", type=float, default=Config.b_init_scale, help="initial biases spread over [-s, s]^d_a")
-    for flag, name in _HP_FLAGS.items():
-        p.add_argument("--" + flag.replace("_", "-"), type=float, default=HPARAM_DEFAULTS[name], dest=flag)
-    p.add_argument("--no-anneal-lr", action="store_true", help="keep the learning rate constant")
-    p.add_argument("--no-normalize-reward", action="store_true", help="train on raw rewards")
     p.add_argument("--eval-every", type=int, default=None,
                    help="iterations between deterministic evaluations (0: none; default ~25 per run)")
     p.add_argument("--eval-seed", type=int, default=0,
                    help="evaluation start states: the same for every training seed (default 0)")
-    p.add_argument("--eval-envs", type=int, default=Config.eval_envs)
     p.add_argument("--chunk", type=int, default=None, help="PPO iterations per compiled chunk (default: auto)")
     p.add_argument("--stop-after", type=int, default=None,
                    help="stop (resumably) after this many iterations in this invocation; continue with --resume")
@@ -114,40 +53,9 @@ def build_parser():
     return p
 
 
-# The Config fields (physics.<name>: its physics record's) a command-line option sets, with the option's dest: one
-# table for the Config of a command line, the options that give back a saved run, and the flags named in errors.
-# normalize_reward (--no-normalize-reward) is the one inverted; env and k_max are set by resolve.
-CONFIG_OPTIONS = {"policy": "policy", "subpolicy": "subpolicy", "num_envs": "num_envs", "unroll_length": "unroll_length",
-                  "num_epochs": "epochs", "num_minibatches": "minibatches", "episode_length": "episode_length",
-                  "b_init_scale": "b_init_scale", "eval_envs": "eval_envs", "value_target": "value_target",
-                  "retrace_iterations": "retrace_iterations", "reset_mode": "reset_mode", "randomize": "randomize",
-                  "eval_randomized": "eval_randomized", "physics.solver_iterations": "solver_iterations",
-                  "physics.ls_iterations": "ls_iterations", "physics.linesearch": "linesearch",
-                  "physics.cholesky": "cholesky", "physics.backend": "physics", "physics.threads": "physics_threads"}
-UNFLAGGED = ("hidden", "normalize_obs", "physics.search_loop")  # Config fields without a command-line option
-
-
-def config_fields(values: dict) -> dict:
-    """Config keyword arguments of {field or physics.<name>: value}."""
-    physics = {k.split(".", 1)[1]: v for k, v in values.items() if k.startswith("physics.")}
-    return {**{k: v for k, v in values.items() if not k.startswith("physics.")}, "physics": Physics(**physics)}
-
-
-def flag_names(msg: str) -> str:
-    """A Config error with each field an option sets named by its flag (where the two differ)."""
-    for field, dest in CONFIG_OPTIONS.items():
-        name = field.split(".")[-1]
-        if name != dest or "_" in name:
-            msg = re.sub(rf"\b{name}\b", "--" + dest.replace("_", "-"), msg)
-    return msg
-
-
 def make_config(args, k_max):
     """The run's validated Config; a bad field is a UsageError naming its flag."""
-    values = {field: getattr(args, dest) for field, dest in CONFIG_OPTIONS.items()}
-    values.update(getattr(args, "unflagged", {}))
-    cfg = Config(env=args.env, k_max=max(k_max, 1), normalize_reward=not args.no_normalize_reward,
-                 **config_fields(values))
+    cfg = options_config(args, k_max=max(k_max, 1))
     try:
         return cfg.validate()
     except ValueError as e:
@@ -176,8 +84,7 @@ def resolve(args):
     if chunk < 1:
         raise UsageError(f"--chunk must be >= 1, got {chunk}")
     iterations = math.ceil(iterations / chunk) * chunk
-    hp = {name: getattr(args, flag) for flag, name in _HP_FLAGS.items()}
-    hp.update(K=k, total_iterations=iterations, anneal_lr=0.0 if args.no_anneal_lr else 1.0)
+    hp = {**options_hparams(args), "K": k, "total_iterations": iterations}
     try:
         validate_hparams(cfg, make_hparams(**hp))
     except ValueError as e:
@@ -196,21 +103,11 @@ def saved_options(saved):
     """Option values (dest -> value) that give back a saved run's settings (its config.json): what
     `--resume --out DIR` continues with. Config fields a config.json written before they existed lacks ran at
     their defaults."""
-    c = config_record(saved["config"])
-    hp = saved["hparams"]
-
-    def field(name):
-        v = c["physics"][name.split(".", 1)[1]] if name.startswith("physics.") else c[name]
-        return tuple(v) if isinstance(v, list) else v
-
-    opts = {dest: field(name) for name, dest in CONFIG_OPTIONS.items()}
-    opts.update({"env": c["env"], "clusters": hp["K"], "k_max": c["k_max"], "seed": saved["seed"],
-                 "steps": saved["iterations"] * c["num_envs"] * c["unroll_length"],
-                 "no_anneal_lr": hp.get("anneal_lr", 1.0) == 0, "no_normalize_reward": not c["normalize_reward"],
+    c, hp = config_record(saved["config"]), saved["hparams"]
+    opts = saved_option_values(c, hp)
+    opts.update({"seed": saved["seed"], "steps": saved["iterations"] * c["num_envs"] * c["unroll_length"],
                  "eval_every": saved.get("eval_every"), "eval_seed": saved.get("eval_seed", 0),
-                 "chunk": saved["chunk"], "tensorboard": saved.get("tensorboard", True),
-                 "unflagged": {name: field(name) for name in UNFLAGGED}})
-    opts.update({flag: hp[name] for flag, name in _HP_FLAGS.items() if name in hp})
+                 "chunk": saved["chunk"], "tensorboard": saved.get("tensorboard", True)})
     return opts
 
 

@@ -1,10 +1,15 @@
 """The configuration of a training run: the static `Config` (what changes shapes or program structure, one
 compile each) and the traced `Hparams` (array scalars a sweep varies and vmaps over), with their defaults, allowed
-ranges and checks, run before anything compiles."""
+ranges and checks, run before anything compiles; and their command-line options, declared by the fields (a Config
+or Physics field's metadata, HPARAM_FLAGS for Hparams): add_options adds them to a parser, options_config and
+options_hparams read a parsed command line, saved_option_values gives back a saved run's settings as option values."""
 
+import argparse
 import dataclasses
 import json
 import math
+import re
+import typing
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -16,39 +21,61 @@ from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 
+def _flag(value: Any, /, *names: str, **keywords: Any) -> Any:
+    """A Config field of default `value` with a command-line option: its spellings and argparse keywords beyond what
+    the field's type and default give (help, choices, metavar; a default where the command line's differs)."""
+    return dataclasses.field(default=value, metadata={"flag": names, **keywords})
+
+
 @dataclasses.dataclass(frozen=True)
 class Config:
     """Static configuration. Defaults: ~2048 samples per iteration (32 envs x 64 steps), 10 epochs,
-    32 minibatches of 64 -- the PPO paper's MuJoCo setting, with the batch spread over envs."""
+    32 minibatches of 64 -- the PPO paper's MuJoCo setting, with the batch spread over envs. A field's metadata
+    names its command-line option (see OPTIONS)."""
 
-    env: str = "inverted_double_pendulum"
-    policy: str = MIXTURE
-    subpolicy: str = "linear"  # mixture sub-policy class: constant | linear | quadratic
-    k_max: int = 8
-    num_envs: int = 32
-    unroll_length: int = 64
-    num_epochs: int = 10
-    num_minibatches: int = 32
+    env: str = _flag("inverted_double_pendulum", "--env", help=(
+        f"one of: {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' or 'path/file.py:Class'; or "
+        "another library's environment: 'brax:<name>' (Brax's registry) or 'playground:<Name>' (MuJoCo Playground's "
+        "registry) (docs/your_task.md)"))
+    policy: str = _flag(MIXTURE, "--policy", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
+    # mixture sub-policy class: constant | linear | quadratic
+    subpolicy: str = _flag("linear", "--subpolicy", help=(
+        "sub-policy class of a mixture: constant (one action per cluster), linear (default), quadratic"))
+    k_max: int = _flag(8, "--k-max", default=None, help="pad the cluster axis to this size (default: K)")
+    num_envs: int = _flag(32, "--num-envs")
+    unroll_length: int = _flag(64, "--unroll-length")
+    num_epochs: int = _flag(10, "--epochs")
+    num_minibatches: int = _flag(32, "--minibatches")
     hidden: tuple = (64, 64)
-    episode_length: int | None = None  # None: the task's own (envs.default_episode_length)
+    # None: the task's own (envs.default_episode_length)
+    episode_length: int | None = _flag(None, "--episode-length", help="time limit in steps (default: the task's own)")
     # where an ended training episode restarts: "first" (the env's first start state, Brax's convention) or
     # "fresh" (a new draw of the task's start law, as gymnasium and dm_control reset; envs/wrappers.py)
-    reset_mode: str = "first"
+    reset_mode: str = _flag("first", "--reset-mode", choices=envs.RESET_MODES, help=(
+        "first: an ended episode restarts from its env's first start (Brax's); fresh: a new draw"))
     normalize_obs: bool = True
-    normalize_reward: bool = True
-    b_init_scale: float = 1.0
-    eval_envs: int = 16
+    normalize_reward: bool = _flag(True, "--no-normalize-reward", help="train on raw rewards")
+    b_init_scale: float = _flag(1.0, "--b-init-scale", help="initial biases spread over [-s, s]^d_a")
+    eval_envs: int = _flag(16, "--eval-envs")
     # the value function's targets: "gae" (GAE(lambda) on the iteration's own samples) or "retrace"
     # (the paper's critic: Retrace over the samples of the last retrace_iterations iterations, gsa_jax/algorithm/retrace.py)
-    value_target: str = "gae"
-    retrace_iterations: int = 4
+    value_target: str = _flag("gae", "--value-target", help=(
+        f"the value function's targets, one of {', '.join(VALUE_TARGETS)}: GAE(lambda) on each iteration's samples "
+        "(default), or Retrace over the samples of the last --retrace-iterations iterations (the paper's critic)"))
+    retrace_iterations: int = _flag(4, "--retrace-iterations", help=(
+        "iterations of samples the Retrace critic is fitted on (default %(default)s)"))
     # the physics options, one record (envs/physics.py: backend 'mjx' or 'c', MuJoCo C threads, MJX's solver and
-    # line-search settings); a dict of its fields is taken too (config.json, experiment files' [config.physics])
+    # line-search settings; its fields' metadata name their options); a dict of its fields is taken too
+    # (config.json, experiment files' [config.physics])
     physics: Physics = Physics()
     # domain randomization of the training episodes (envs/randomize.py's text, e.g. "mass=0.9:1.1, delay=1"; '':
     # none); evaluation runs the nominal task unless eval_randomized
-    randomize: str = ""
-    eval_randomized: bool = False
+    randomize: str = _flag("", "--randomize", metavar="TEXT", help=(
+        "domain randomization of the training episodes, e.g. 'mass=0.9:1.1, friction=0.75:1.25, gear=0.9:1.1, "
+        "damping=0.8:1.2, obs_noise=0.01, delay=1, push=0.125' (docs/randomize.md), or 'task': the task's own "
+        "`randomize`; default none"))
+    eval_randomized: bool = _flag(False, "--eval-randomized", help=(
+        "evaluate under the training randomization (default: the nominal task)"))
 
     def __post_init__(self):
         if isinstance(self.physics, dict):
@@ -147,6 +174,17 @@ class Hparams(NamedTuple):
 
 
 HPARAM_DEFAULTS = Hparams()._asdict()
+# the command-line option of each Hparams field that has one (total_iterations follows from the steps asked for):
+# its spellings and argparse keywords, as a Config field's metadata holds them
+HPARAM_FLAGS = {
+    "K": {"flag": ("--clusters", "-K"), "help": "K, number of linear controllers (mixture)"},
+    "anneal_lr": {"flag": ("--no-anneal-lr",), "help": "keep the learning rate constant"},
+    "clip_eps": {"flag": ("--clip",)},
+    **{name: {"flag": ("--" + name.replace("_", "-"),)} for name in (
+        "lr", "gamma", "gae_lambda", "vf_coef", "max_grad_norm", "eps_init", "eps_decay", "sigma_min_init",
+        "sigma_min_decay", "sigma_init_scale", "lr_scale_partition", "lr_scale_L", "lr_scale_b", "lr_scale_log_sigma",
+        "lr_scale_log_std", "lr_scale_critic", "init_log_std")},
+}
 _INT_HPARAMS = ("K", "total_iterations")
 
 
@@ -215,3 +253,105 @@ def validate_hparams(cfg: Config | None, hp: Hparams | dict) -> None:
     k = int(values["K"]) if "K" in values else 1
     if cfg is not None and cfg.policy == MIXTURE and not 1 <= k <= cfg.k_max:
         raise ValueError(f"clusters K must be in 1..k_max={cfg.k_max}, got {k}")
+
+
+class Option(NamedTuple):
+    """The command-line option of one configuration field (a Config field, 'physics.<name>' for a field of its Physics
+    record, or an Hparams field). A bool field's option is a switch; one spelled '--no-...' (inverted) sets the
+    field off (False; 0.0 for a number) where given."""
+
+    field: str
+    names: tuple  # its spellings, e.g. ('--clusters', '-K'); the first gives the dest
+    kind: type  # the field's type, None removed (int | None -> int)
+    inverted: bool
+    keywords: dict  # argparse's
+
+    @property
+    def dest(self) -> str:
+        return self.names[0].lstrip("-").replace("-", "_")
+
+
+def _option(field: str, annotation: Any, default: Any, metadata: Any) -> Option:
+    """The Option a field's metadata ({'flag': spellings, argparse keywords}) declares."""
+    names = (metadata["flag"],) if isinstance(metadata["flag"], str) else tuple(metadata["flag"])
+    kind = next(t for t in typing.get_args(annotation) or (annotation,) if t is not type(None))
+    inverted = names[0].startswith("--no-")
+    keywords = {k: v for k, v in metadata.items() if k != "flag"}
+    if inverted or kind is bool:
+        keywords = {"action": "store_true", **keywords}
+    else:
+        keywords = {"default": default, **({} if kind is str else {"type": kind}), **keywords}
+    return Option(field, names, kind, inverted, keywords)
+
+
+def _record_fields(record: type, prefix: str = "") -> list:
+    """[(name, dataclass field)] of a dataclass's fields, those of a nested record (Config.physics) as
+    '<field>.<name>' in its place."""
+    out = []
+    for f in dataclasses.fields(record):
+        if dataclasses.is_dataclass(f.default):
+            out += _record_fields(type(f.default), f"{prefix}{f.name}.")
+        else:
+            out.append((prefix + f.name, f))
+    return out
+
+
+CONFIG_OPTIONS = tuple(_option(name, f.type, f.default, f.metadata) for name, f in _record_fields(Config)
+                       if "flag" in f.metadata)
+HPARAM_OPTIONS = tuple(_option(name, Hparams.__annotations__[name], HPARAM_DEFAULTS[name], HPARAM_FLAGS[name])
+                       for name in Hparams._fields if name in HPARAM_FLAGS)
+UNFLAGGED = tuple(name for name, f in _record_fields(Config) if "flag" not in f.metadata)  # Config fields without one
+
+
+def add_options(parser: argparse.ArgumentParser) -> None:
+    """Add the option of every flagged field: Config's (its Physics record's in its place), then Hparams', each in
+    field order."""
+    for o in CONFIG_OPTIONS + HPARAM_OPTIONS:
+        parser.add_argument(*o.names, dest=o.dest, **o.keywords)
+
+
+def _field_value(o: Option, given: Any) -> Any:
+    """The field's value of an option's parsed value (an inverted switch turns it off)."""
+    return o.kind(not given) if o.inverted else given
+
+
+def _option_value(o: Option, value: Any) -> Any:
+    """The option's parsed value that gives a field's value back (_field_value's inverse)."""
+    return not value if o.inverted else value
+
+
+def options_config(args: argparse.Namespace, **fields: Any) -> Config:
+    """The Config a parsed command line sets (not validated): every option's field, the unflagged ones from
+    args.unflagged where set (a saved run's, see saved_option_values) else their defaults, and `fields` over them."""
+    values = {o.field: _field_value(o, getattr(args, o.dest)) for o in CONFIG_OPTIONS}
+    values.update(getattr(args, "unflagged", {}), **fields)
+    physics = {k.split(".", 1)[1]: v for k, v in values.items() if k.startswith("physics.")}
+    return Config(**{k: v for k, v in values.items() if not k.startswith("physics.")}, physics=Physics(**physics))
+
+
+def options_hparams(args: argparse.Namespace) -> dict:
+    """{Hparams field: value} of the hyperparameters a parsed command line sets (Python numbers)."""
+    return {o.field: _field_value(o, getattr(args, o.dest)) for o in HPARAM_OPTIONS}
+
+
+def saved_option_values(config: dict, hparams: dict) -> dict:
+    """{option dest: value} that give back a saved run's Config record (config_record's layout) and hyperparameters
+    (those it holds), with 'unflagged': {field: value} of the Config fields no option sets (options_config reads
+    it back)."""
+
+    def value(name: str) -> Any:
+        v = config["physics"][name.split(".", 1)[1]] if name.startswith("physics.") else config[name]
+        return tuple(v) if isinstance(v, list) else v
+
+    opts = {o.dest: _option_value(o, value(o.field)) for o in CONFIG_OPTIONS}
+    opts.update({o.dest: _option_value(o, hparams[o.field]) for o in HPARAM_OPTIONS if o.field in hparams})
+    return {**opts, "unflagged": {name: value(name) for name in UNFLAGGED}}
+
+
+def flag_names(msg: str) -> str:
+    """A Config error message with each field an option sets named by its flag (where the two differ)."""
+    for o in CONFIG_OPTIONS:
+        name = o.field.split(".")[-1]
+        if o.names[0] != "--" + name:
+            msg = re.sub(rf"\b{name}\b", o.names[0], msg)
+    return msg
