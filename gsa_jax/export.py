@@ -12,6 +12,7 @@ import argparse
 import os
 import sys
 
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.deployment.exporting import SUFFIXES, ExportError, load_arrays, write
 from gsa_jax.running.runinfo import cli_description
 
@@ -40,7 +41,7 @@ def main(argv=None):
         print(f"gsa_jax.export: error: {e}", file=sys.stderr)
         return 2
     k = arrays["L"].shape[0] if "L" in arrays else None
-    sub = str(arrays["subpolicy"]) if "subpolicy" in arrays else "linear"
+    sub = str(arrays["subpolicy"]) if "subpolicy" in arrays else subpolicies.DEFAULT
     print(f"wrote {out} ({fmt}): {arrays['kind']} controller" + (f" with {k} {sub} pieces" if k else ""))
     for line in lines:
         print(line)

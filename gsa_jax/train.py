@@ -18,6 +18,7 @@ import sys
 import time
 
 import envs
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.config import (
     add_options, config_record, flag_names, make_hparams, options_config, options_hparams, saved_option_values,
     validate_hparams,
@@ -76,7 +77,7 @@ def resolve(args):
         raise UsageError(f"--clusters {k} exceeds --k-max {k_max}; use 1 <= K <= k_max")
     if args.subpolicy not in SUBPOLICY_KINDS:
         raise UsageError(f"unknown --subpolicy {args.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
-    if args.policy != MIXTURE and args.subpolicy != "linear":
+    if args.policy != MIXTURE and args.subpolicy != subpolicies.DEFAULT:
         raise UsageError("--subpolicy applies to --policy mixture only")
     cfg = make_config(args, k_max)
     iterations = math.ceil(args.steps / cfg.batch_size)
@@ -151,7 +152,7 @@ def check_policy_options(args, argv):
 
 def default_out(cfg, hp, seed):
     tag = f"{path_part(cfg.env)}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == MIXTURE else "")
-    tag += f"-{cfg.subpolicy}" if cfg.policy == MIXTURE and cfg.subpolicy != "linear" else ""
+    tag += f"-{cfg.subpolicy}" if cfg.policy == MIXTURE and cfg.subpolicy != subpolicies.DEFAULT else ""
     tag += "-retrace" if cfg.value_target == "retrace" else ""
     return os.path.join("runs", f"{tag}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
 

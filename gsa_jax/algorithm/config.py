@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import envs
 from envs.physics import Physics, make_physics, nest_physics
 from envs.randomize import parse as parse_randomize
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
@@ -39,7 +40,7 @@ class Config:
         "registry) (docs/your_task.md)"))
     policy: str = _flag(MIXTURE, "--policy", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
     # mixture sub-policy class: constant | linear | quadratic
-    subpolicy: str = _flag("linear", "--subpolicy", help=(
+    subpolicy: str = _flag(subpolicies.DEFAULT, "--subpolicy", help=(
         "sub-policy class of a mixture: constant (one action per cluster), linear (default), quadratic"))
     k_max: int = _flag(8, "--k-max", default=None, help="pad the cluster axis to this size (default: K)")
     num_envs: int = _flag(32, "--num-envs")

@@ -106,7 +106,7 @@ def component(params: dict, phi: jax.Array, c: jax.Array, sigma_min: jax.Array) 
 
 
 def make_mixture_policy(obs_size: int, action_size: int, k_max: int, hidden: tuple = (64, 64), b_init_scale: float = 1.0,
-                        subpolicy: str = "linear") -> Policy:
+                        subpolicy: str = subpolicies.DEFAULT) -> Policy:
     bias_init = jnp.asarray(bias_spread(k_max, action_size, b_init_scale))
     d_phi = feature_size(subpolicy, obs_size)
 
@@ -192,7 +192,7 @@ def make_mlp_policy(obs_size: int, action_size: int, hidden: tuple = (64, 64)) -
 
 
 def make_policy(kind: str, obs_size: int, action_size: int, k_max: int = 1, hidden: tuple = (64, 64),
-                b_init_scale: float = 1.0, subpolicy: str = "linear") -> Policy:
+                b_init_scale: float = 1.0, subpolicy: str = subpolicies.DEFAULT) -> Policy:
     if kind == MIXTURE:
         return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale, subpolicy)
     if kind == MLP:

@@ -124,7 +124,7 @@ def feature_names(subpolicy: str, obs_names: list) -> list:
     return subpolicies.get(subpolicy).names(obs_names)
 
 
-def controller_table(params: dict, k: int, obs_names: list, act_names: list, subpolicy: str = "linear",
+def controller_table(params: dict, k: int, obs_names: list, act_names: list, subpolicy: str = subpolicies.DEFAULT,
                      top: int = 3) -> str:
     L = np.asarray(params["policy"]["L"])[:k]
     b = np.asarray(params["policy"]["b"])[:k]

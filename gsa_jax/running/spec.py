@@ -19,8 +19,8 @@ import envs
 from envs.physics import FLAT_CONFIG_FIELDS, Physics, nest_physics
 from envs.randomize import parse as parse_randomize
 from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam
-from gsa_jax.algorithm.kinds import MIXTURE
-from gsa_jax.algorithm.policies import POLICY_KINDS, SUBPOLICY_KINDS
+from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
+from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.trained import path_part

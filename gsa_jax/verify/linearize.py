@@ -62,13 +62,6 @@ def _subpolicy_jacobian(ctrl, c, z):
     return L @ sub.features(z, np) + b, L @ sub.jacobian(z)
 
 
-def piece_policy(ctrl, piece: int):
-    """A simulate.Policy applying piece `piece` of a mixture everywhere (its partition ignored)."""
-    def act(obs, qpos, qvel):
-        return np.stack([piece_jacobian(ctrl, o, piece)[0] for o in np.asarray(obs, np.float64)])
-    return act
-
-
 class Linearization(NamedTuple):
     A: np.ndarray  # [n, n] the task's control step, n = 2 nv
     B: np.ndarray  # [n, nu] d x' / d ctrl

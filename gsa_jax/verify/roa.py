@@ -143,7 +143,6 @@ def lqr_gain(A, B, Q=None, R=None) -> tuple:
 
 def lqr_policy(task, qref, x_eq, a_eq, K, scale, bounds):
     """simulate.Policy a = clip(a_eq - K (x - x_eq) / scale) of an LQR gain on scaled tangent states."""
-    nv = task.model.nv
 
     def act(obs, qpos, qvel):
         x = np.concatenate([to_tangent(task.model, qref, qpos), qvel], axis=1)

@@ -13,6 +13,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment import numpy_policy
 
@@ -77,12 +78,14 @@ def _task_definition(env):
     return envs.resolve_task(env)
 
 
-def controller_input_size(ctrl) -> int:
-    """d_s the controller reads: its normalizer's size (and its L's input size for linear pieces)."""
+def controller_input_size(ctrl: numpy_policy.Controller) -> int:
+    """d_s the controller reads: its normalizer's size, or where a mixture's pieces take the features of another
+    size, that size's (the d_s whose features, by the sub-policy class's entry, are as wide as L [K, d_a, d_phi])."""
     d = int(np.shape(ctrl.obs_mean)[-1])
-    if ctrl.kind == MIXTURE and ctrl.subpolicy == "linear" and ctrl.L.shape[-1] != d:
-        return int(ctrl.L.shape[-1])
-    return d
+    if ctrl.kind != MIXTURE:
+        return d
+    size, d_phi = subpolicies.get(ctrl.subpolicy).size, int(ctrl.L.shape[-1])
+    return next((n for n in (d, *range(1, d_phi + 1)) if size(n) == d_phi), d)
 
 
 def start_spread(task) -> tuple:
