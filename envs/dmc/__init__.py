@@ -30,7 +30,7 @@ TASKS = {
 NAMES = tuple(PREFIX + name for name in TASKS)
 
 
-def task_class(name):
+def task_class(name: str) -> type:
     """The Task subclass of 'dmc:<domain>-<task>' (ValueError listing the available ones in one line)."""
     key = name[len(PREFIX):] if name.startswith(PREFIX) else name
     if key not in TASKS:

@@ -4,6 +4,8 @@ Observation: position qpos [cup x, cup z, ball x, ball z] (4), velocity qvel (4)
 centre (xpos) lies within the cup's 'target' box site shrunk by the ball's radius in x and z (|target - ball| <
 target half-size - ball radius, both coordinates), else 0."""
 
+import types
+
 import mujoco
 import numpy as np
 
@@ -20,7 +22,7 @@ class Catch(DmcTask):
     observation_keys = (("position", 4), ("velocity", 4))
     push_body, planar = "cup", True
 
-    def initialize(self, data, rng):
+    def initialize(self, data: mujoco.MjData, rng: np.random.Generator) -> "np.ndarray | None":
         x, z = (self.model.jnt_qposadr[self.id("joint", name)] for name in ("ball_x", "ball_z"))
         while True:
             data.qpos[x] = rng.uniform(-0.2, 0.2)
@@ -29,10 +31,11 @@ class Catch(DmcTask):
             if data.ncon == 0:
                 return None
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         return xp.concatenate([qpos, qvel], axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         target = derived["site_xpos"][:, self.id("site", "target")][:, 0::2]
         ball = derived["xpos"][:, self.id("body", "ball")][:, 0::2]
         room = self.model.site_size[self.id("site", "target")][0::2] - self.model.geom_size[self.id("geom", "ball"), 0]

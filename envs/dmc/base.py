@@ -11,6 +11,8 @@ own environment (experiments/dmc_reference/record.py); the MJCFs load in mujoco 
 import importlib.util
 import math
 import os
+import types
+from typing import Sequence
 
 import mujoco
 import numpy as np
@@ -21,7 +23,7 @@ DM_CONTROL_VERSION = "1.0.50"
 INSTALL = f"pip install 'dm_control=={DM_CONTROL_VERSION}' (or: pip install -e '.[dmc]'; make test installs it)"
 
 
-def suite_dir(where="a dmc task"):
+def suite_dir(where: str = "a dmc task") -> str:
     """The installed dm_control's suite/ folder (its MJCFs); TaskError in one line without dm_control."""
     spec = importlib.util.find_spec("dm_control")
     if spec is None or not spec.submodule_search_locations:
@@ -54,7 +56,8 @@ def _sigmoid(x, value_at_1, sigmoid, xp):
     raise ValueError(f"unknown sigmoid {sigmoid!r}")
 
 
-def tolerance(x, bounds=(0.0, 0.0), margin=0.0, sigmoid="gaussian", value_at_margin=0.1, xp=np):
+def tolerance(x: np.ndarray, bounds: tuple = (0.0, 0.0), margin: float = 0.0, sigmoid: str = "gaussian",
+              value_at_margin: float = 0.1, xp: types.ModuleType = np) -> np.ndarray:
     """dm_control's rewards.tolerance over arrays for NumPy and jax.numpy: 1 inside [lower, upper], falling off
     with the distance to the nearest bound over `margin` (0 outside the bounds when margin is 0)."""
     lower, upper = bounds
@@ -65,7 +68,7 @@ def tolerance(x, bounds=(0.0, 0.0), margin=0.0, sigmoid="gaussian", value_at_mar
     return xp.where(in_bounds, 1.0, _sigmoid(d, value_at_margin, sigmoid, xp))
 
 
-def joint_start_law(model):
+def joint_start_law(model: mujoco.MjModel) -> tuple:
     """(center [nq], half-width [nq]) of dm_control's randomize_limited_and_rotational_joints as a uniform law: a
     limited hinge or slide uniform in its range, an unlimited hinge uniform in [-pi, pi], other coordinates at
     qpos0. TaskError for ball and free joints (their quaternions are not a per-coordinate uniform law)."""
@@ -82,7 +85,7 @@ def joint_start_law(model):
     return center, half
 
 
-def randomize_joints(model, data, rng):
+def randomize_joints(model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
     """dm_control's randomizers.randomize_limited_and_rotational_joints on `data` with a numpy Generator: limited hinges
     and slides uniform in their ranges, unlimited hinges uniform in [-pi, pi], unlimited ball joints a normalized
     N(0, I) quaternion, free joints' orientation a normalized U[0, 1)^4 quaternion (dm_control's own choice);
@@ -105,7 +108,7 @@ def randomize_joints(model, data, rng):
             data.qpos[adr + 3: adr + 7] = quat / np.linalg.norm(quat)
 
 
-def legacy_step(model, data, nstep=1):
+def legacy_step(model: mujoco.MjModel, data: mujoco.MjData, nstep: int = 1) -> None:
     """dm_control's Physics.step (legacy_step): mj_step2 on the stages already computed, nstep - 1 mj_steps, then
     mj_step1 (RK4: nstep mj_steps, then mj_step1). From a state set after the last forward pass, the first
     substep uses that pass's position stage, as dm_control's settling steps at reset do."""
@@ -118,7 +121,7 @@ def legacy_step(model, data, nstep=1):
     mujoco.mj_step1(model, data)
 
 
-def forward_without_actuation(model, data):
+def forward_without_actuation(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     """mj_forward with the actuation flag disabled, as dm_control's Physics.reset and after_reset run it."""
     flag = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
     saved = model.opt.disableflags
@@ -129,7 +132,7 @@ def forward_without_actuation(model, data):
         model.opt.disableflags = saved
 
 
-def sub_steps(control_timestep, timestep):
+def sub_steps(control_timestep: float, timestep: float) -> int:
     """dm_control's control.compute_n_steps: physics steps per control step (ValueError unless a whole number)."""
     n = control_timestep / timestep
     if abs(n - round(n)) > 1e-8:
@@ -161,11 +164,11 @@ class DmcTask(Task):
         self.episode_length = int(math.ceil(self.time_limit / self.dt - 1e-9))  # control.Environment's step limit
         self.max_return = float(self.episode_length)  # every suite reward is in [0, 1] a step
 
-    def load_model(self):
+    def load_model(self) -> mujoco.MjModel:
         path = os.path.join(suite_dir(f"task {self.name or type(self).__name__!r}"), f"{self.domain}.xml")
         return mujoco.MjModel.from_xml_path(path)
 
-    def start(self, data, seed):
+    def start(self, data: mujoco.MjData, seed: "int | Sequence[int] | np.ndarray") -> np.ndarray:
         """As dm_control's reset: mj_resetData and a forward pass (Physics.reset), initialize(), a forward pass (both
         with actuation disabled, as dm_control's)."""
         mujoco.mj_resetData(self.model, data)
@@ -174,23 +177,25 @@ class DmcTask(Task):
         forward_without_actuation(self.model, data)  # Physics.after_reset
         return np.zeros(0) if goal is None else np.asarray(goal, np.float64).reshape(self.goal_size)
 
-    def id(self, kind, name):
+    def id(self, kind: str, name: str) -> int:
         """The index of a named body / joint / site / geom / sensor (kind: 'body', 'joint', ...)."""
         return mujoco.mj_name2id(self.model, getattr(mujoco.mjtObj, f"mjOBJ_{kind.upper()}"), name)
 
-    def sensor(self, sensordata, name):
+    def sensor(self, sensordata: np.ndarray, name: str) -> np.ndarray:
         """[n, dim] the named sensor's values of sensordata [n, nsensordata]."""
         s = self.model.sensor(name)
         return sensordata[:, s.adr[0]: s.adr[0] + s.dim[0]]
 
-    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+    def outcome(self, before: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+                xp: types.ModuleType = np) -> tuple:
         obs = self.observe(qpos, qvel, derived, xp)
         return obs, self.reward(qpos, qvel, derived, action, xp), xp.zeros(qpos.shape[:1], bool)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         """[n] dm_control's get_reward after a step (action: the control as set, physics.control())."""
         raise NotImplementedError
 
-    def observation_layout(self):
+    def observation_layout(self) -> list[str]:
         names = [f"{key}[{i}]" if size > 1 else key for key, size in self.observation_keys for i in range(size)]
         return names if len(names) == self.observation_size else super().observation_layout()

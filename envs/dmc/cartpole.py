@@ -3,6 +3,8 @@
 Observation: position [cart x, pole xmat zz, pole xmat xz] (3), velocity qvel (2). Reward (smooth): the pole's
 upright cosine mapped to [0, 1] x small control x small angular velocity x centred cart."""
 
+import types
+
 import numpy as np
 
 from envs.dmc.base import XMAT, DmcTask, tolerance
@@ -16,11 +18,12 @@ class Cartpole(DmcTask):
     push_body = "cart"
     equilibrium_qpos = (0.0, 0.0)  # cart centred, pole upright
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         pole = derived["xmat"][:, 2]
         return xp.concatenate([qpos[:, :1], pole[:, XMAT["zz"], None], pole[:, XMAT["xz"], None], qvel], axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         upright = (derived["xmat"][:, 2, XMAT["zz"]] + 1) / 2
         centered = (1 + tolerance(qpos[:, 0], margin=2, xp=xp)) / 2
         small_control = (4 + tolerance(action[:, 0], margin=1, value_at_margin=0, sigmoid="quadratic", xp=xp)) / 5

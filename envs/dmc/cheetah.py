@@ -2,6 +2,9 @@
 (forward), tolerance(bounds (10, inf), margin 10, linear, 0 at the margin). Observation: position qpos[1:] (8),
 velocity (9)."""
 
+import types
+
+import mujoco
 import numpy as np
 
 from envs.dmc.base import DmcTask, legacy_step, tolerance
@@ -18,7 +21,7 @@ class Run(DmcTask):
     observation_keys = (("position", 8), ("velocity", 9))
     push_body, planar = "torso", True
 
-    def initialize(self, data, rng):
+    def initialize(self, data: mujoco.MjData, rng: np.random.Generator) -> "np.ndarray | None":
         m = self.model
         limited = m.jnt_limited == 1
         lower, upper = m.jnt_range[limited].T
@@ -26,10 +29,11 @@ class Run(DmcTask):
         legacy_step(m, data, 200)
         data.time = 0.0
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         return xp.concatenate([qpos[:, 1:], qvel], axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         speed = self.sensor(derived["sensordata"], "torso_subtreelinvel")[:, 0]
         return tolerance(speed, bounds=(RUN_SPEED, float("inf")), margin=RUN_SPEED, value_at_margin=0, sigmoid="linear",
                          xp=xp)

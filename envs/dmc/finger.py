@@ -9,6 +9,8 @@ dm_control's Spin.initialize_episode sets the hinge's damping to 0.03 (the MJCF 
 model never changes afterwards, so here load_model() sets it once. (Its site_rgba changes are cosmetic: skipped.)
 dist_to_target and target_position belong to finger-turn's observation, not to spin's."""
 
+import types
+
 import mujoco
 import numpy as np
 
@@ -30,13 +32,13 @@ class Spin(DmcTask):
     observation_keys = (("position", 4), ("velocity", 3), ("touch", 2))
     push_body, planar = "proximal", True
 
-    def load_model(self):
+    def load_model(self) -> mujoco.MjModel:
         model = super().load_model()
         hinge = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "hinge")
         model.dof_damping[model.jnt_dofadr[hinge]] = HINGE_DAMPING
         return model
 
-    def initialize(self, data, rng):
+    def initialize(self, data: mujoco.MjData, rng: np.random.Generator) -> "np.ndarray | None":
         for _ in range(MAX_ATTEMPTS):
             randomize_joints(self.model, data, rng)
             mujoco.mj_forward(self.model, data)  # physics.after_reset() (actuation off: ctrl is 0 here anyway)
@@ -44,17 +46,18 @@ class Spin(DmcTask):
                 return None
         raise TaskError(f"finger-spin: could not find a collision-free state after {MAX_ATTEMPTS} attempts")
 
-    def relative_xz(self, s, name):
+    def relative_xz(self, s: np.ndarray, name: str) -> np.ndarray:
         """[n, 2] the x, z of a framepos sensor relative to the spinner's."""
         return self.sensor(s, name)[:, 0::2] - self.sensor(s, "spinner")[:, 0::2]
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         s = derived["sensordata"]
         position = [self.sensor(s, "proximal"), self.sensor(s, "distal"), self.relative_xz(s, "tip")]
         velocity = [self.sensor(s, f"{j}_velocity") for j in ("proximal", "distal", "hinge")]
         touch = [xp.log1p(self.sensor(s, "touchtop")), xp.log1p(self.sensor(s, "touchbottom"))]
         return xp.concatenate(position + velocity + touch, axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         hinge_velocity = self.sensor(derived["sensordata"], "hinge_velocity")[:, 0]
         return xp.where(hinge_velocity <= -SPIN_VELOCITY, 1.0, 0.0)

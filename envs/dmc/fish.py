@@ -12,6 +12,9 @@ Observation: joint_angles (7), upright (torso xmat zz, 1), target (mouth to targ
 in_target = tolerance(|mouth to target|, (0, r), margin 2 r), r = the mouth's and the target's radii, and
 upright' = (1 + torso zz) / 2."""
 
+import types
+
+import mujoco
 import numpy as np
 
 from envs.dmc.base import XMAT, DmcTask, tolerance
@@ -31,28 +34,29 @@ class Swim(DmcTask):
         self.joint_qpos = np.array([self.model.jnt_qposadr[self.id("joint", j)] for j in JOINTS])
         self.root_quat = int(self.model.jnt_qposadr[self.id("joint", "root")]) + 3
 
-    def initialize(self, data, rng):
+    def initialize(self, data: mujoco.MjData, rng: np.random.Generator) -> "np.ndarray | None":
         quat = rng.standard_normal(4)
         data.qpos[self.root_quat: self.root_quat + 4] = quat / np.linalg.norm(quat)
         for adr in self.joint_qpos:
             data.qpos[adr] = rng.uniform(-0.2, 0.2)
         return np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), rng.uniform(0.1, 0.3)])
 
-    def upright(self, derived):
+    def upright(self, derived: dict) -> np.ndarray:
         return derived["xmat"][:, self.id("body", "torso"), XMAT["zz"]]
 
-    def mouth_to_target(self, derived, xp):
+    def mouth_to_target(self, derived: dict, xp: types.ModuleType) -> np.ndarray:
         """[n, 3] (target - mouth) in the mouth geom's frame: dm_control's vector . geom_xmat (row vector times R)."""
         mouth = self.id("geom", "mouth")
         d = derived["goal"] - derived["geom_xpos"][:, mouth]
         r = derived["geom_xmat"][:, mouth].reshape(-1, 3, 3)
         return xp.stack([d[:, 0] * r[:, 0, j] + d[:, 1] * r[:, 1, j] + d[:, 2] * r[:, 2, j] for j in range(3)], axis=1)
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         return xp.concatenate([qpos[:, self.joint_qpos], self.upright(derived)[:, None],
                                self.mouth_to_target(derived, xp), qvel], axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         radii = float(self.model.geom_size[[self.id("geom", "mouth"), self.id("geom", "target")], 0].sum())
         distance = xp.linalg.norm(self.mouth_to_target(derived, xp), axis=-1)
         in_target = tolerance(distance, bounds=(0, radii), margin=2 * radii, xp=xp)

@@ -3,6 +3,8 @@
 Observation: position qpos[1:] (6), velocity (7), touch log1p(toe, heel touch sensors) (2). Reward: standing
 (torso above foot by 0.6-2, xipos z) times small control (stand) or the hop speed above 2 (hop)."""
 
+import types
+
 import numpy as np
 
 from envs.dmc.base import DmcTask, joint_start_law, tolerance
@@ -24,12 +26,13 @@ class Hopper(DmcTask):
         super().__init__()
         self.start_qpos, self.noise = joint_start_law(self.model)
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         s = derived["sensordata"]
         touch = xp.log1p(xp.concatenate([self.sensor(s, "touch_toe"), self.sensor(s, "touch_heel")], axis=1))
         return xp.concatenate([qpos[:, 1:], qvel, touch], axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         xipos = derived["xipos"]
         height = xipos[:, self.id("body", "torso"), 2] - xipos[:, self.id("body", "foot"), 2]
         standing = tolerance(height, (STAND_HEIGHT, 2), xp=xp)

@@ -2,6 +2,8 @@
 (tolerance(distance, (0, target size), margin target size)) x small control. Observation: position (2),
 velocity (2)."""
 
+import types
+
 import numpy as np
 
 from envs.dmc.base import DmcTask, joint_start_law, tolerance
@@ -20,10 +22,11 @@ class Easy(DmcTask):
         super().__init__()
         self.start_qpos, self.noise = joint_start_law(self.model)
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         return xp.concatenate([qpos, qvel], axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         geoms = derived["geom_xpos"]
         dist = xp.linalg.norm(geoms[:, self.id("geom", "target")] - geoms[:, self.id("geom", "pointmass")], axis=-1)
         size = float(self.model.geom_size[self.id("geom", "target"), 0])

@@ -15,6 +15,8 @@ torso_upright (torso xmat zz, 1), imu (accelerometer and gyro, in sensor order, 
 toes' force and torque sensors, in sensor order, 24). Reward: upright (linear from 1 at zz >= 1 to 0 at zz = -1)
 times move (linear from 1 at a forward torso velocity >= 0.5 to 0.5 at 0)."""
 
+import types
+
 import mujoco
 import numpy as np
 
@@ -49,7 +51,7 @@ class Quadruped(DmcTask):
         self.imu_columns = columns(mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtSensor.mjSENS_ACCELEROMETER)
         self.force_torque_columns = columns(mujoco.mjtSensor.mjSENS_FORCE, mujoco.mjtSensor.mjSENS_TORQUE)
 
-    def load_model(self):
+    def load_model(self) -> mujoco.MjModel:
         where = f"task {self.name or type(self).__name__!r}"
         try:
             from dm_control.suite import common, quadruped  # dm_control: an optional extra (envs/dmc/)
@@ -59,13 +61,14 @@ class Quadruped(DmcTask):
         xml = quadruped.make_model(floor_size=self.floor_size, terrain=False, rangefinders=False, walls_and_ball=False)
         return mujoco.MjModel.from_xml_string(xml.decode() if isinstance(xml, bytes) else xml, assets=common.ASSETS)
 
-    def initialize(self, data, rng):
+    def initialize(self, data: mujoco.MjData, rng: np.random.Generator) -> "np.ndarray | None":
         orientation = rng.standard_normal(4)
         orientation /= np.linalg.norm(orientation)
         self.find_non_contacting_height(data, orientation)
         return None
 
-    def find_non_contacting_height(self, data, orientation, x_pos=0.0, y_pos=0.0):
+    def find_non_contacting_height(self, data: mujoco.MjData, orientation: np.ndarray, x_pos: float = 0.0,
+                                   y_pos: float = 0.0) -> None:
         """dm_control's _find_non_contacting_height: up from z = 0 in 1 cm steps until the forward pass finds no
         contact, each try from mj_resetData as its physics.reset_context() does."""
         m, root = self.model, self.root
@@ -82,24 +85,25 @@ class Quadruped(DmcTask):
             if num_attempts > MAX_ATTEMPTS:
                 raise TaskError("Failed to find a non-contacting configuration.")
 
-    def upright(self, derived):
+    def upright(self, derived: dict) -> np.ndarray:
         return derived["xmat"][:, self.id("body", "torso"), XMAT["zz"]]
 
-    def torso_velocity(self, derived):
+    def torso_velocity(self, derived: dict) -> np.ndarray:
         return self.sensor(derived["sensordata"], "velocimeter")
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         s = derived["sensordata"]
         return xp.concatenate([qpos[:, self.hinge_qpos], qvel[:, self.hinge_qvel], derived["act"],
                                self.torso_velocity(derived), self.upright(derived)[:, None], s[:, self.imu_columns],
                                xp.arcsinh(s[:, self.force_torque_columns])], axis=1)
 
-    def upright_reward(self, derived, xp, deviation_angle=0):
+    def upright_reward(self, derived: dict, xp: types.ModuleType, deviation_angle: float = 0) -> np.ndarray:
         deviation = np.cos(np.deg2rad(deviation_angle))
         return tolerance(self.upright(derived), bounds=(deviation, float("inf")), sigmoid="linear",
                          margin=1 + deviation, value_at_margin=0, xp=xp)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         move = tolerance(self.torso_velocity(derived)[:, 0], bounds=(self.desired_speed, float("inf")),
                          margin=self.desired_speed, value_at_margin=0.5, sigmoid="linear", xp=xp)
         return self.upright_reward(derived, xp) * move

@@ -4,6 +4,8 @@ Observation: orientations [xmat xx, xz of every body but the world] (14), height
 Reward: standing (torso height >= 1.2, margin 0.6) and upright, times the move reward above a speed (walk 1,
 run 8) from the torso's subtree linear velocity sensor."""
 
+import types
+
 import numpy as np
 
 from envs.dmc.base import XMAT, DmcTask, joint_start_law, tolerance
@@ -25,14 +27,15 @@ class PlanarWalker(DmcTask):
         super().__init__()
         self.start_qpos, self.noise = joint_start_law(self.model)
 
-    def observe(self, qpos, qvel, derived, xp=np):
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
         xmat = derived["xmat"][:, 1:]
         n = xmat.shape[0]
         orientations = xp.stack([xmat[:, :, XMAT["xx"]], xmat[:, :, XMAT["xz"]]], axis=2).reshape(n, -1)
         height = derived["xpos"][:, self.id("body", "torso"), 2:3]
         return xp.concatenate([orientations, height, qvel], axis=1)
 
-    def reward(self, qpos, qvel, derived, action, xp=np):
+    def reward(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+               xp: types.ModuleType = np) -> np.ndarray:
         torso = self.id("body", "torso")
         standing = tolerance(derived["xpos"][:, torso, 2], bounds=(STAND_HEIGHT, float("inf")), margin=STAND_HEIGHT / 2,
                              xp=xp)

@@ -11,7 +11,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import mujoco
 import numpy as np
@@ -33,7 +33,8 @@ class BenchError(Exception):
     pass
 
 
-def run_workers(cmds, compile_limit_s=900, retries=1, log=print, compile_each=False):
+def run_workers(cmds: list, compile_limit_s: float = 900, retries: int = 1, log: Callable = print,
+                compile_each: bool = False) -> list:
     """Start one worker per command (they meet at a barrier), collect their JSON lines (compile_each: every
     worker compiles its program itself instead of loading worker 0's). A worker that
     fails, or stops beating (no heartbeat for compile_limit_s before its first chunk, or 60 s + 10x its
@@ -84,7 +85,7 @@ def _solver_args(solver):
     return ["--solver-iterations", str(solver[0]), "--ls-iterations", str(solver[1])] if solver else []
 
 
-def solver_field(solver):
+def solver_field(solver: "tuple | None") -> dict:
     return {"solver": {"iterations": solver[0], "ls_iterations": solver[1]}} if solver else {}
 
 
@@ -115,7 +116,7 @@ class SweepCell(NamedTuple):
     randomize: str = ""  # the runs' domain randomization (envs/randomize.py's text; '': none)
 
 
-def worker_command(cell, runs, seed0, repeats):
+def worker_command(cell: SweepCell, runs: int, seed0: int, repeats: int) -> list:
     """The command line of one bench worker training `runs` runs of the cell from seed seed0."""
     return ([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", cell.env, "--policy", cell.policy,
              "--clusters", str(cell.clusters), "--runs", str(runs), "--seed0", str(seed0), "--repeats", str(repeats)]
@@ -125,7 +126,7 @@ def worker_command(cell, runs, seed0, repeats):
             + (["--randomize", cell.randomize] if cell.randomize else []))
 
 
-def measure_sweep(cell, repeats, log=print, compile_each=False):
+def measure_sweep(cell: SweepCell, repeats: int, log: Callable = print, compile_each: bool = False) -> dict:
     """Throughput of a SweepCell, its workers measured together; compile_each: see run_workers."""
     cmds, seed0 = [], 0
     for n in _split(cell.runs, cell.processes):
@@ -146,7 +147,7 @@ def measure_sweep(cell, repeats, log=print, compile_each=False):
     }
 
 
-def in_run_split(results):
+def in_run_split(results: list) -> "dict | None":
     """Where the time of a backend-'c' sweep's chunks went, from its workers' host_chunks: per worker the
     medians over its chunks of the seconds inside MuJoCo C, in the rest of the host calls (state copies, the
     task's derived values) and in the rest of the program (policy, GAE, PPO update, the host calls'
@@ -164,7 +165,7 @@ def in_run_split(results):
     return {"per_process": per_process, "fractions": fractions}
 
 
-def in_run_ceiling(split, mujoco_c):
+def in_run_ceiling(split: dict, mujoco_c: dict) -> dict:
     """The ceiling of a sweep from its own split: each worker's chunk with its host calls (MuJoCo C and the
     copies around it) costing what MuJoCo C's rollout costs per env step on one thread (c = its env-steps/s /
     threads) and the rest of the program as it ran: sum_i steps_i / (steps_i / c + program_i), over MuJoCo
@@ -185,7 +186,8 @@ def in_run_ceiling(split, mujoco_c):
             "rollout_us_per_env_step": 1e6 / c}
 
 
-def measure_raw(env, batch, processes, repeats, solver=None, log=print, backend="mjx", physics_threads=0):
+def measure_raw(env: str, batch: int, processes: int, repeats: int, solver: "tuple | None" = None,
+                log: Callable = print, backend: str = "mjx", physics_threads: int = 0) -> dict:
     """Raw stepping throughput (physics backend `backend`) of `batch` envs split over `processes` workers."""
     cmds = [[sys.executable, "-m", "gsa_jax.bench", "--raw-worker", "--env", env, "--batch", str(b), "--seed0", str(i),
              "--repeats", str(repeats), "--physics", backend, "--physics-threads", str(physics_threads)] + _solver_args(solver)
@@ -197,7 +199,8 @@ def measure_raw(env, batch, processes, repeats, solver=None, log=print, backend=
             "compile_s": max(r["compile_s"] for r in results), **_compile_fields(results), "chunk_s": [r["chunk_s"] for r in results]}
 
 
-def time_profile(env, policy, runs, repeats, run_batch=RUN_BATCH, log=print, backend="mjx", processes=1):
+def time_profile(env: str, policy: str, runs: int, repeats: int, run_batch: int = RUN_BATCH, log: Callable = print,
+                 backend: str = "mjx", processes: int = 1) -> dict:
     """Where one PPO iteration's time goes (`runs` runs split over `processes` workers, each in sub-batches
     of `run_batch`, 0 = all at once): t(E epochs) = t_collect + E t_epoch, measured at E = 1 and the
     default E; physics = the same number of env steps stepped raw, each worker stepping the envs one
@@ -226,7 +229,8 @@ def time_profile(env, policy, runs, repeats, run_batch=RUN_BATCH, log=print, bac
             "train_env_steps_per_s_1_epoch": one["env_steps_per_s"]}
 
 
-def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, solver=None):
+def measure_mujoco_c(env_name: str, batch: int = 256, steps: int = 200, repeats: int = 3, threads: "int | None" = None,
+                     solver: "tuple | None" = None) -> dict:
     """Env-steps/s of MuJoCo C (`mujoco.rollout`) on the env's own MJCF: random controls, the env's
     substeps (n_frames) per env step, one MjData per thread. Models with a start keyframe (allegro)
     start there and random-walk their PD targets as the env's actions do (contacts stay active).
@@ -270,7 +274,7 @@ def measure_mujoco_c(env_name, batch=256, steps=200, repeats=3, threads=None, so
             "env_steps_per_s": batch * steps / med, "physics_steps_per_s": batch * steps * n_frames / med, "times_s": times}
 
 
-def ratio_ceiling(prof, mujoco_c):
+def ratio_ceiling(prof: dict, mujoco_c: dict) -> dict:
     """The best ours / MuJoCo C a trainer with this profile's policy and PPO cost could reach if its
     physics cost what MuJoCo C's does: per core and env step, 1/c (MuJoCo C: c = its env-steps/s per
     thread) plus what the profile measures outside physics, r (rollout rest + update; wall seconds per env

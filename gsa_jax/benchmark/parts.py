@@ -32,6 +32,7 @@ import os
 import statistics
 import tempfile
 import time
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -39,7 +40,7 @@ import jax.numpy as jnp
 import envs
 from envs.physics import C
 from gsa_jax.algorithm import ppo
-from gsa_jax.algorithm.config import make_hparams
+from gsa_jax.algorithm.config import Config, Hparams, make_hparams
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import draw_noise
 
@@ -48,7 +49,7 @@ PPO_PARTS = ("rollout_policy", "rollout_rest", "targets", "shuffle_gather", "gra
 PARTS = PHYSICS_PARTS + PPO_PARTS
 
 
-def setup(cfg, runs, K, seed=0):
+def setup(cfg: Config, runs: int, K: int, seed: int = 0) -> tuple:
     """(Parts, TrainState [runs], Hparams [runs]) of `runs` runs of cfg, initialized as a sweep does."""
     p = ppo.make_run_parts(cfg)
     hps = jax.tree.map(lambda *x: jnp.stack(x), *[make_hparams(K=K, total_iterations=1000) for _ in range(runs)])
@@ -56,7 +57,7 @@ def setup(cfg, runs, K, seed=0):
     return p, states, hps
 
 
-def whole_programs(p):
+def whole_programs(p: ppo.Parts) -> dict:
     """The whole pieces, vmapped over runs: iteration (as run_chunk runs one), rollout, targets, update."""
     def iteration(s, h):
         return ppo.run_chunk(p, s, h, 1)
@@ -73,7 +74,7 @@ def whole_programs(p):
     return {"iteration": iteration, "rollout": rollout, "targets": targets, "update": update}
 
 
-def rollout_parts(p):
+def rollout_parts(p: ppo.Parts) -> dict:
     """The rollout's physics (its actions replayed from the rollout's start) and policy (sampling on its observations)."""
     def physics(s, actions):
         def step(env_state, a):
@@ -89,7 +90,7 @@ def rollout_parts(p):
     return {"physics": physics, "rollout_policy": policy}
 
 
-def policy_step(p, s, sched, raw_obs, noise):
+def policy_step(p: ppo.Parts, s: ppo.TrainState, sched: dict, raw_obs: jax.Array, noise: dict) -> tuple:
     """One rollout step's policy work: normalize [N, d_s] observations, sample (action, cluster, logp)."""
     return p.v_sample(s.params["policy"], ppo.norm_obs(p.cfg, s.obs_stats, raw_obs), noise, sched)
 
@@ -97,7 +98,7 @@ def policy_step(p, s, sched, raw_obs, noise):
 NUDGE = 1e-30  # the size of the stand-in parameter step of the gradients part (update_parts)
 
 
-def update_parts(p):
+def update_parts(p: ppo.Parts) -> dict:
     """The update's parts over all num_epochs x num_minibatches steps: shuffles and gathers; gradients, each at
     the parameters the step before left (moved by NUDGE x the gradients: as in the update, parameter-only work
     cannot be hoisted out of the loop, which made a fixed-parameter loop 2.4x faster than the update's on
@@ -131,7 +132,7 @@ def update_parts(p):
             "grad_one": grad_one, "opt_one": opt_one}
 
 
-def host_clock(cfg):
+def host_clock(cfg: Config) -> Callable:
     """The host clock of backend 'c' (envs.c_backend.host_seconds), or one that reads zero."""
     if cfg.physics.backend == C:
         from envs.c_backend import host_seconds
@@ -139,12 +140,12 @@ def host_clock(cfg):
     return no_host_clock
 
 
-def no_host_clock():
+def no_host_clock() -> dict:
     """The clock of a program without host calls: always zero."""
     return {"host_s": 0.0, "mujoco_c_s": 0.0}
 
 
-def time_call(fn, args, repeats, clock):
+def time_call(fn: Callable, args: tuple, repeats: int, clock: Callable) -> tuple:
     """(median wall seconds, median host seconds, median MuJoCo C seconds) of fn(*args) after one untimed call."""
     jax.block_until_ready(fn(*args))
     walls, hosts, cs = [], [], []
@@ -158,21 +159,21 @@ def time_call(fn, args, repeats, clock):
     return statistics.median(walls), statistics.median(hosts), statistics.median(cs)
 
 
-def flops_of(fn, args):
+def flops_of(fn: Callable, args: tuple) -> float:
     """XLA's count of floating-point operations of the compiled fn(*args) (loop bodies counted once)."""
     cost = jax.jit(fn).lower(*args).compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     return float(cost.get("flops", 0.0))
 
 
-def matmul_rate(repeats=10, n=1024):
+def matmul_rate(repeats: int = 10, n: int = 1024) -> float:
     """FLOP/s of an n x n float32 matmul in this process (the reference for how well a part uses the cores)."""
     a = jnp.ones((n, n), jnp.float32)
     t, _, _ = time_call(jax.jit(lambda x: x @ x), (a,), repeats, no_host_clock)
     return 2 * n**3 / t
 
 
-def inputs(p, states, hps, programs):
+def inputs(p: ppo.Parts, states: ppo.TrainState, hps: Hparams, programs: dict) -> dict:
     """Every part's arguments, made by running the pieces before it once: the rollout's trajectory, the batch,
     the minibatches and one minibatch's gradients."""
     traj = programs["rollout"](states, hps)[1]
@@ -188,7 +189,7 @@ def inputs(p, states, hps, programs):
             "policy_one": (states, hps, traj["raw_obs"][:, 0])}
 
 
-def programs_of(p):
+def programs_of(p: ppo.Parts) -> dict:
     """Every timed or counted piece, jit(vmap(...)) over runs."""
     def policy_one(s, h, raw_obs):
         noise = draw_noise(s.key, (p.cfg.num_envs,), p.env.action_size)
@@ -201,7 +202,7 @@ def programs_of(p):
 TIMED = ("iteration", "rollout", "targets", "update", "physics", "rollout_policy", "shuffle_gather", "gradients", "optimizer")
 
 
-def split_seconds(t):
+def split_seconds(t: dict) -> dict:
     """Seconds per iteration of every part from the timed pieces t[name] = (wall, host, mujoco_c). MuJoCo C and
     the host calls are the iteration's own (its clock); the program's side of a piece with host calls is its wall
     less its host time, so the residual parts (rollout_rest, update_loop, rest: differences of measured wholes,
@@ -221,7 +222,7 @@ def split_seconds(t):
     }
 
 
-def count_flops(p, programs, args):
+def count_flops(p: ppo.Parts, programs: dict, args: dict) -> dict:
     """Floating-point operations per iteration of all the runs, per part that does arithmetic."""
     steps = p.cfg.num_epochs * p.cfg.num_minibatches
     one = lambda name: flops_of(programs[name], args[name])  # noqa: E731
@@ -229,7 +230,7 @@ def count_flops(p, programs, args):
             "gradients": one("grad_one") * steps, "optimizer": one("opt_one") * steps}
 
 
-def profile_parts(cfg, runs, K, repeats=5):
+def profile_parts(cfg: Config, runs: int, K: int, repeats: int = 5) -> dict:
     """The profile of one PPO iteration of `runs` runs of cfg (mixture with K clusters): a dict with each part's
     seconds per iteration, us per env step, share, FLOPs per env step and rate, and the wholes as timed."""
     p, states, hps = setup(cfg, runs, K)
@@ -247,7 +248,7 @@ def profile_parts(cfg, runs, K, repeats=5):
     return {**prof, **summarize(prof)}
 
 
-def summarize(prof):
+def summarize(prof: dict) -> dict:
     """A profile's derived figures from what it measured (timed pieces {name: {wall_s, host_s, mujoco_c_s}},
     flops_per_iteration, env_steps_per_iteration, matmul_gflop_per_s): the iteration's, PPO's own program's and the
     program's (the iteration less its host calls) seconds; the gradients' matrix products in seconds (their share of
@@ -269,7 +270,7 @@ def summarize(prof):
             "matrix_products_s": matrix_products_s, "parts": rows}
 
 
-def op_seconds(fn, args, repeats=3):
+def op_seconds(fn: Callable, args: tuple, repeats: int = 3) -> dict:
     """{'matrix_products', 'other_ops'}: seconds per call of fn(*args) inside XLA:CPU's matrix-product ops (dots,
     YNNPACK fusions) and inside its other ops, from a jax.profiler trace of `repeats` calls (each executed op is
     one complete event; loops and runtime bookkeeping are not ops)."""

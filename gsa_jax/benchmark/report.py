@@ -14,7 +14,7 @@ def _lines(rows, keys, x):
     return {k: sorted(v) for k, v in sorted(lines.items())}
 
 
-def plot(results, raw, mujoco_c, path, mujoco_c_variant=None):
+def plot(results: list, raw: list, mujoco_c: dict, path: str, mujoco_c_variant: "dict | None" = None) -> None:
     """Left: training throughput vs runs (a line per policy and process count); right: raw stepping vs
     batch. Measurements with a changed solver are separate markers (stars), with their MuJoCo C line."""
     import matplotlib

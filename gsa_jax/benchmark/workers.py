@@ -1,6 +1,7 @@
 """The benchmark's worker processes (`python -m gsa_jax.bench --worker` / `--raw-worker`): compile, then
 time chunks together with the other workers and report the medians as one JSON line."""
 
+import argparse
 import dataclasses
 import json
 import os
@@ -54,7 +55,7 @@ def _share(args):
     return cache, args.worker_id == 0
 
 
-def worker(args):
+def worker(args: argparse.Namespace) -> None:
     """One process: compile the group program for args.runs runs, wait at the barrier, time chunks of
     one PPO iteration."""
 
@@ -89,7 +90,7 @@ def worker(args):
     }), flush=True)
 
 
-def raw_worker(args):
+def raw_worker(args: argparse.Namespace) -> None:
     """One process: the task alone (no policy, no learning) -- args.batch envs stepped by a vmapped
     env.step with uniform random actions, with the training loop's time limit and auto-reset,
     in scans of RAW_UNROLL steps."""

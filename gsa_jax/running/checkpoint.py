@@ -11,6 +11,7 @@ import io
 import os
 import re
 import zipfile
+from typing import Any, Callable
 
 import jax
 import numpy as np
@@ -28,7 +29,7 @@ class DiskFullError(OSError):
         super().__init__(errno.ENOSPC, f"no space left writing {path}")
         self.path, self.needed = path, needed
 
-    def describe(self, last_intact):
+    def describe(self, last_intact: str) -> str:
         """One line for the user: directory, space needed, last intact checkpoint ('iteration N ...'), what to do."""
         need = max(self.needed, 1) / 2**20
         return (f"disk full: writing {os.path.dirname(os.path.abspath(self.path))} needs about {need:.1f} MiB more "
@@ -48,13 +49,13 @@ def _write_file(path, data, mode):
         os.fsync(f.fileno())
 
 
-def previous_path(path):
+def previous_path(path: str) -> str:
     """state.npz -> state.prev.npz: where a checkpoint keeps the version before the current one."""
     root, ext = os.path.splitext(path)
     return root + ".prev" + ext
 
 
-def write_atomic(path, data, mode="w", keep_previous=False):
+def write_atomic(path: str, data: "str | bytes", mode: str = "w", keep_previous: bool = False) -> None:
     """Write text or bytes to a temp file in the same directory, fsync, then rename over `path`
     (keep_previous: first rename the current file to previous_path(path); renames only, so a kill
     at any point leaves an intact current or previous file). A full disk raises DiskFullError; the
@@ -76,7 +77,7 @@ def write_atomic(path, data, mode="w", keep_previous=False):
 UNREADABLE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
 
 
-def read_with_fallback(path, read, log=print):
+def read_with_fallback(path: str, read: Callable, log: Callable = print) -> tuple:
     """read(p) of `path`, or of its previous version if `path` is missing or unreadable (one line says
     which and why). Returns (value, path read). Raises CheckpointError if neither can be read."""
     prev = previous_path(path)
@@ -97,17 +98,17 @@ def read_with_fallback(path, read, log=print):
                           + "; delete the directory to start over")
 
 
-def npz_bytes(**arrays):
+def npz_bytes(**arrays: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return buf.getvalue()
 
 
-def save_npz_atomic(path, keep_previous=False, **arrays):
+def save_npz_atomic(path: str, keep_previous: bool = False, **arrays: np.ndarray) -> None:
     write_atomic(path, npz_bytes(**arrays), "wb", keep_previous)
 
 
-def save_pytree(path, tree, keep_previous=False, **extra):
+def save_pytree(path: str, tree: Any, keep_previous: bool = False, **extra: np.ndarray) -> None:
     """Save every leaf under its key path (e.g. "['policy']['L']"); extra arrays are stored as given.
     keep_previous: keep the file it replaces as previous_path(path) (checkpoints)."""
     arrays, _ = _flat(tree)
@@ -115,13 +116,13 @@ def save_pytree(path, tree, keep_previous=False, **extra):
     save_npz_atomic(path, keep_previous, **arrays)
 
 
-def dict_spelling(key):
+def dict_spelling(key: str) -> str:
     """A NamedTuple field's key path ".name[...]" spelled as a dict's: "['name'][...]"."""
     m = re.match(r"\.(\w+)(.*)", key)
     return f"['{m.group(1)}']{m.group(2)}" if m else key
 
 
-def load_pytree(path, like):
+def load_pytree(path: str, like: Any) -> Any:
     """Load arrays saved by save_pytree into the structure of `like` (shapes and dtypes must match)."""
     with np.load(path) as data:
         leaves, treedef = jax.tree_util.tree_flatten_with_path(like)

@@ -5,7 +5,7 @@ import: selecting its non-interactive backend is process-wide, which importing t
 import math
 
 
-def plot_curve(rows, path, title=""):
+def plot_curve(rows: list, path: str, title: str = "") -> None:
     """A single run's learning curve: rows are metrics.csv rows as dicts. Training return per iteration
     (with a trailing mean), deterministic evaluation returns as markers."""
     import matplotlib

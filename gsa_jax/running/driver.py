@@ -17,7 +17,7 @@ compiled program's ITERATION_METRICS and failed_at, plus eval_return, eval_failu
 
 import math
 import time
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import jax
 import numpy as np
@@ -72,26 +72,27 @@ class Result(NamedTuple):
     intact: int = 0
 
     @property
-    def finished(self):
+    def finished(self) -> bool:
         """Nothing left to train: every iteration done, or every run failed."""
         return self.done >= self.iterations or self.status == "failed"
 
 
-def empty_metrics(runs, iterations):
+def empty_metrics(runs: int, iterations: int) -> dict:
     return {k: np.full((runs, iterations), np.nan, np.float64) for k in HOST_METRICS}
 
 
-def failed_mask(metrics, done):
+def failed_mask(metrics: dict, done: int) -> np.ndarray:
     """[R] bool: runs frozen at a NaN/inf by iteration `done`."""
     return metrics["failed_at"][:, done - 1] >= 0 if done else np.zeros(metrics["failed_at"].shape[0], bool)
 
 
-def eval_due(plan, it):
+def eval_due(plan: Plan, it: int) -> bool:
     """Whether the deterministic controller is evaluated after the chunk that ends at iteration `it`."""
     return bool(plan.eval_every) and (it % plan.eval_every < plan.chunk or it == plan.iterations)
 
 
-def drive(program, store, plan, log=print, heartbeat=None, clock_start=None):
+def drive(program: Program, store: Any, plan: Plan, log: Callable = print, heartbeat: "Callable | None" = None,
+          clock_start: "float | None" = None) -> Result:
     """Train (or resume) the program's runs as the plan says; checkpoint through the store. Returns a
     Result. A KeyboardInterrupt ends it with status 'interrupted' (everything saved stays saved); a
     DiskFullError propagates with `.last_intact` naming the last intact iteration."""
@@ -117,7 +118,7 @@ def drive(program, store, plan, log=print, heartbeat=None, clock_start=None):
     return Result(loop["done"], plan.iterations, metrics, status, timing, loop["intact"])
 
 
-def resume(program, store, plan, log):
+def resume(program: Program, store: Any, plan: Plan, log: Callable) -> tuple:
     """(state, metrics [R, iterations], done): the store's last intact checkpoint, or the fresh program."""
     metrics = empty_metrics(program.runs, plan.iterations)
     saved = store.load(program.state)
@@ -130,11 +131,12 @@ def resume(program, store, plan, log):
     return program.place(state), metrics, done
 
 
-def prefix(plan):
+def prefix(plan: Plan) -> str:
     return f"[{plan.tag}] " if plan.tag else ""
 
 
-def chunk_loop(program, store, plan, metrics, loop, log, heartbeat):
+def chunk_loop(program: Program, store: Any, plan: Plan, metrics: dict, loop: dict, log: Callable,
+               heartbeat: "Callable | None") -> str:
     """Chunks until done, stopped as asked, or every run failed; returns the status."""
     while loop["done"] < plan.iterations:
         tc = time.perf_counter()
@@ -153,7 +155,7 @@ def chunk_loop(program, store, plan, metrics, loop, log, heartbeat):
     return "finished"
 
 
-def record_chunk(program, plan, metrics, loop, m):
+def record_chunk(program: Program, plan: Plan, metrics: dict, loop: dict, m: dict) -> int:
     """A chunk's metrics into the host arrays, its evaluation when due, steps and clocks. Returns done."""
     m = jax.device_get(m)
     done, chunk, runs = loop["done"], plan.chunk, program.runs
@@ -174,13 +176,13 @@ def record_chunk(program, plan, metrics, loop, m):
     return it
 
 
-def rows_before_failure(metrics, i, upto):
+def rows_before_failure(metrics: dict, i: int, upto: int) -> int:
     """Iterations of run i that count: up to `upto`, ending before the iteration where it failed."""
     failed_at = int(metrics["failed_at"][i, upto - 1]) if upto else -1
     return upto if failed_at < 0 else min(upto, failed_at - 1)
 
 
-def progress_line(plan, metrics, done, sps, chunk_s):
+def progress_line(plan: Plan, metrics: dict, done: int, sps: float, chunk_s: float) -> str:
     """One line after a chunk: iteration, return (a single run: its mean over the chunk and its last
     evaluation; a group: best and median run), throughput, ETA."""
     runs = plan.real_runs
@@ -203,10 +205,10 @@ def progress_line(plan, metrics, done, sps, chunk_s):
             + (f" | {failed} run(s) failed (NaN/inf)" if failed else "") + f" | chunk {chunk_s:.1f}s")
 
 
-def fmt(x, spec):
+def fmt(x: "float | None", spec: str) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
-def duration(s):
+def duration(s: float) -> str:
     s = int(max(0, s))
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"

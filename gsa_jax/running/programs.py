@@ -9,7 +9,7 @@ sharded over them (shard_map). Used by gsa_jax.sweep and gsa_jax.bench.
     states, metrics = run(states, hps)          # metrics [R, chunk]
 """
 
-from typing import NamedTuple
+from typing import Any, Callable, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -17,13 +17,13 @@ import numpy as np
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from gsa_jax.algorithm.config import Config, make_hparams
+from gsa_jax.algorithm.config import Config, Hparams, make_hparams
 from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running import xla_cache
 from gsa_jax.running.driver import Program
 
 
-def stack_hparams(runs, names, iterations):
+def stack_hparams(runs: list, names: Sequence[str], iterations: int) -> Hparams:
     """The runs' hyperparameters stacked along the run axis: Hparams of [R] arrays (make_hparams per run)."""
 
     per_run = [make_hparams(K=r["K"], total_iterations=iterations, **{n: r[n] for n in names}) for r in runs]
@@ -33,7 +33,7 @@ def stack_hparams(runs, names, iterations):
 RUN_BATCH = 8  # runs per sub-batch (make_group_program); measured in experiments/bench_run_batch/
 
 
-def sub_batched(fn, size):
+def sub_batched(fn: Callable, size: int) -> Callable:
     """fn (vmapped over a leading run axis R) applied to sequential slices of `size` runs in a lax.scan,
     when size divides R and is smaller; else fn itself. (Explicit shapes: jax.lax.map(batch_size=) fails
     on MJX's zero-size arrays.)"""
@@ -48,7 +48,7 @@ def sub_batched(fn, size):
     return run
 
 
-def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
+def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = RUN_BATCH) -> tuple:
     """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
     vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
     run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
@@ -71,7 +71,7 @@ def make_group_program(cfg, chunk, devices, run_batch=RUN_BATCH):
     return trainer, jax.jit(init), jax.jit(run, donate_argnums=0), place
 
 
-def make_group_evaluate(cfg, run_batch=RUN_BATCH):
+def make_group_evaluate(cfg: Config, run_batch: int = RUN_BATCH) -> Callable:
     """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed
     episodes), vmapped over runs in
     sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one)."""
@@ -79,7 +79,7 @@ def make_group_evaluate(cfg, run_batch=RUN_BATCH):
     return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch))
 
 
-def pad_runs(runs, multiple, at_least=0):
+def pad_runs(runs: list, multiple: int, at_least: int = 0) -> list:
     """Pad with copies of the last run to at least `at_least` runs and a multiple of `multiple` (the
     devices), so the run axis splits evenly (copies are dropped later)."""
     n = max(len(runs), at_least)
@@ -110,7 +110,7 @@ _COMPILED = {}  # kind -> {key: compiled}, most recent last: reused within a pro
 _KEEP = {"single": 8}  # programs kept per kind (default 1: a group program holds its runs' device buffers)
 
 
-def cached(kind, key, build):
+def cached(kind: str, key: Any, build: Callable) -> Any:
     """The one compile cache: build() once per process for `key`; the last _KEEP[kind] keys of each kind
     are kept (a resumed group, a second run of the same shapes and the tests reuse them)."""
     programs = _COMPILED.setdefault(kind, {})
@@ -122,14 +122,14 @@ def cached(kind, key, build):
     return programs[key]
 
 
-def stacked_inputs(group, place):
+def stacked_inputs(group: GroupRuns, place: Callable) -> tuple:
     """(keys [R], hps [R]) of a group's runs, placed on its devices."""
     hps = place(stack_hparams(group.runs, group.hparam_names, group.iterations))
     keys = place(jnp.stack([jax.random.PRNGKey(r["seed"]) for r in group.runs]))
     return keys, hps
 
 
-def compile_group(shape, group, share=None, log=print):
+def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = None, log: Callable = print) -> tuple:
     """The group program for `group`, compiled, and its initial state.
     share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
     inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
@@ -148,7 +148,7 @@ def compile_group(shape, group, share=None, log=print):
     return init(keys, hps), run, hps, place, how[0]
 
 
-def compile_single(cfg, chunk, evaluate=True):
+def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
     """(trainer, jitted init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
     vmapped: train.py's program), compiled once per process for these shapes; evaluate is compiled with them
     (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only)."""
@@ -167,16 +167,16 @@ def compile_single(cfg, chunk, evaluate=True):
     return cached("single", (cfg, chunk, evaluate), build)
 
 
-def with_run_axis(tree):
+def with_run_axis(tree: Any) -> Any:
     """A leading run axis of one on every leaf: one run as a group of one."""
     return jax.tree.map(lambda x: x[None], tree)
 
 
-def first_run(tree):
+def first_run(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[0], tree)
 
 
-def single_program(cfg, chunk, seed, hp_py, eval_seed=0, evaluate=True):
+def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: int = 0, evaluate: bool = True) -> tuple:
     """(Program of one run, its trainer). The run is a group of one: its state and metrics carry a leading run
     axis of 1 (what the group store saves), around the un-vmapped compiled run_chunk. The deterministic
     evaluation after iteration `it` starts its episodes from fold_in(PRNGKey(eval_seed), it): the same starts
@@ -197,7 +197,8 @@ def single_program(cfg, chunk, seed, hp_py, eval_seed=0, evaluate=True):
     return Program(1, state, hp, run, evaluate_state, lambda tree: tree), trainer
 
 
-def compile_group_evaluate(shape, states, hps, place, share=None, log=print):
+def compile_group_evaluate(shape: GroupShape, states: Any, hps: Hparams, place: Callable, share: "tuple | None" = None,
+                           log: Callable = print) -> Callable:
     """The compiled evaluation of a group's runs: (states, hps, key) -> ([R] mean deterministic returns,
     [R] failed episodes), every run from the same eval_envs start states (drawn from `key`)."""
     runs = jax.tree.leaves(hps)[0].shape[0]
@@ -215,7 +216,8 @@ def compile_group_evaluate(shape, states, hps, place, share=None, log=print):
     return evaluate
 
 
-def group_program(shape, group, eval_seed=None, share=None, log=print):
+def group_program(shape: GroupShape, group: GroupRuns, eval_seed: "int | None" = None, share: "tuple | None" = None,
+                  log: Callable = print) -> Program:
     """compile_group as a driver Program of len(group.runs) (padded) runs; with an eval_seed, its deterministic
     evaluation after iteration `it` starts every run's episodes from fold_in(PRNGKey(eval_seed), it)."""
     states, run, hps, place, how = compile_group(shape, group, share, log)

@@ -8,9 +8,13 @@ import shlex
 import subprocess
 import sys
 from importlib import metadata
+from typing import TYPE_CHECKING, Any
 
 import envs
 from envs.physics import record
+
+if TYPE_CHECKING:  # annotations only: this module loads without JAX
+    from gsa_jax.algorithm.config import Config
 
 
 def _version(dist):
@@ -20,7 +24,7 @@ def _version(dist):
         return None
 
 
-def git_commit():
+def git_commit() -> "str | None":
     """HEAD of the repository this package lives in, with '-dirty' if the tree has uncommitted changes."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     try:
@@ -35,13 +39,13 @@ def git_commit():
         return None
 
 
-def physics_record(cfg, task=None):
+def physics_record(cfg: "Config", task: Any = None) -> dict:
     """Every physics option in force for a Config's task (envs.physics.record; no MJX env is built). task: its
     record (envs.resolve(cfg.env), resolved here if not given)."""
     return record(cfg.physics, envs.resolve(cfg.env if task is None else task).model())
 
 
-def run_metadata():
+def run_metadata() -> dict:
     import jax
 
     return {
@@ -62,7 +66,7 @@ def run_metadata():
     }
 
 
-def describe_changes(old, new, prefix=""):
+def describe_changes(old: Any, new: Any, prefix: str = "") -> str:
     """'a.b: old -> new; ...' for every leaf that differs between two JSON-like dicts ('' if none)."""
     changes = []
     for k in sorted(set(old) | set(new), key=str):
@@ -80,7 +84,7 @@ class ResumeRefused(ValueError):
     """A saved run or sweep differs from the one asked to continue it."""
 
 
-def check_unchanged(old, new, force, what, remedy):
+def check_unchanged(old: dict, new: dict, force: bool, what: str, remedy: str) -> None:
     """The one resume check of runs and sweeps: raise ResumeRefused('<what> (<one-line diff>); <remedy>')
     if the saved record `old` differs from `new` (JSON-like dicts), unless force."""
     diff = describe_changes(old, json.loads(json.dumps(new)))
@@ -88,7 +92,7 @@ def check_unchanged(old, new, force, what, remedy):
         raise ResumeRefused(f"{what} ({diff}); {remedy}")
 
 
-def resume_command(module, *flags):
+def resume_command(module: str, *flags: str) -> str:
     """The shell command `<this interpreter> -m <module> <flags>` that continues a run or sweep with its saved
     settings; the interpreter relative to the working directory when it lies under it (e.g. .venv/bin/python)."""
     python = sys.executable
@@ -98,7 +102,7 @@ def resume_command(module, *flags):
     return shlex.join([python, "-m", module, *flags])
 
 
-def cli_description(doc):
+def cli_description(doc: str) -> str:
     """A command's --help description: the first paragraph of its module docstring, whole (a closing ':' that
     introduces the usage block below it becomes '.')."""
     text = " ".join(doc.split("\n\n")[0].split())

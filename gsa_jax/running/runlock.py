@@ -12,6 +12,7 @@ import os
 import socket
 import time
 from contextlib import contextmanager
+from typing import Callable, Iterator
 
 LOCK_NAME = "LOCK"
 
@@ -38,7 +39,7 @@ def _read(path):
         return None
 
 
-def acquire(directory, what, log=print):
+def acquire(directory: str, what: str, log: Callable = print) -> str:
     """Create directory/LOCK for this process, or raise LockError naming the holder."""
     path = os.path.join(directory, LOCK_NAME)
     me = {"pid": os.getpid(), "host": socket.gethostname(), "what": what, "since": time.strftime("%Y-%m-%d %H:%M:%S")}
@@ -61,14 +62,14 @@ def acquire(directory, what, log=print):
     raise LockError(f"could not lock {directory}")
 
 
-def release(path):
+def release(path: str) -> None:
     owner = _read(path)
     if owner and owner.get("pid") == os.getpid() and os.path.exists(path):
         os.unlink(path)
 
 
 @contextmanager
-def hold(directory, what, log=print):
+def hold(directory: str, what: str, log: Callable = print) -> Iterator[str]:
     path = acquire(directory, what, log)
     try:
         yield path

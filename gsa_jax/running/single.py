@@ -11,7 +11,7 @@ import math
 import os
 import sys
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -20,10 +20,11 @@ from envs import solver_settings
 from envs.physics import C, resolve_threads
 from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.algorithm.ppo import Trainer
 from gsa_jax.algorithm.retrace import buffer_bytes
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError, write_atomic
 from gsa_jax.running.curve import plot_curve
-from gsa_jax.running.driver import Plan, drive, duration, failed_mask, fmt, rows_before_failure
+from gsa_jax.running.driver import Plan, Result, drive, duration, failed_mask, fmt, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS
 from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.programs import single_program
@@ -63,7 +64,7 @@ class RunOptions(NamedTuple):
     tensorboard: bool = True
 
 
-def rows_to_csv(rows):
+def rows_to_csv(rows: list) -> str:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
     w.writeheader()
@@ -74,7 +75,7 @@ def rows_to_csv(rows):
 RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk", "eval_every", "eval_seed")
 
 
-def check_resume_config(old, config, force):
+def check_resume_config(old: dict, config: dict, force: bool) -> None:
     """Refuse (ResumeRefused, one line) to resume a saved run whose settings or task code (the sha256 of the file
     that defines a task of the user's) differ, unless force. A config field the saved run's config.json lacks (it
     was written before the field existed) ran at its default; a setting it lacks is not compared."""
@@ -90,12 +91,12 @@ def check_resume_config(old, config, force):
 RUN_ID_COLUMNS = ("env", "policy", "K", "seed")  # a run directory's runs.csv
 
 
-def run_row(plan):
+def run_row(plan: RunPlan) -> dict:
     """The run's row in runs.csv."""
     return {"env": plan.cfg.env, "policy": plan.cfg.policy, "K": plan.hp["K"], "seed": plan.seed}
 
 
-def run_store(plan, options, config):
+def run_store(plan: RunPlan, options: RunOptions, config: dict) -> GroupStore:
     """The run's GroupStore (a group of one) in options.out; after every chunk it rewrites metrics.csv from
     the metrics, at the end it records the result in config.json."""
     metrics_csv = os.path.join(options.out, "metrics.csv")
@@ -111,7 +112,7 @@ def run_store(plan, options, config):
     return GroupStore(options.out, [run_row(plan)], plan.iterations, write_table, board, write_result)
 
 
-def metrics_to_rows(metrics, done):
+def metrics_to_rows(metrics: dict, done: int) -> list:
     """metrics.csv rows (dicts) of the single run in the driver's metrics {name: [1, iterations]}: the
     first `done` iterations, ending before a failing iteration; NaN as an empty cell."""
     rows = []
@@ -124,7 +125,7 @@ def metrics_to_rows(metrics, done):
     return rows
 
 
-def run(plan, options):
+def run(plan: RunPlan, options: RunOptions) -> int:
     """Train (or resume) one run into options.out. Returns the exit status: 0, 1 (NaN/inf), 2 (bad resume),
     4 (disk full), 130 (interrupted)."""
     cfg, out = plan.cfg, options.out
@@ -157,7 +158,7 @@ def run(plan, options):
         return 4
 
 
-def report_ended(out, log):
+def report_ended(out: str, log: Callable) -> int:
     """--resume of a run that has ended: nothing to train. Exit 0 for a finished run; a run stopped by a
     NaN/inf is a UsageError."""
     with open(os.path.join(out, "failed.json")) as f:
@@ -168,7 +169,7 @@ def report_ended(out, log):
     return 0
 
 
-def saved_iteration(out):
+def saved_iteration(out: str) -> int:
     """The iteration of the newest readable checkpoint in out (0 if none)."""
     for name in ("state.npz", "state.prev.npz"):
         try:
@@ -179,7 +180,7 @@ def saved_iteration(out):
     return 0
 
 
-def train_run(plan, options, config, log):
+def train_run(plan: RunPlan, options: RunOptions, config: dict, log: Callable) -> int:
     """Compile (or reuse) the run's program and drive it with its store; then finish. Returns the exit status."""
     cfg, out = plan.cfg, options.out
     t0 = time.perf_counter()
@@ -200,7 +201,7 @@ def train_run(plan, options, config, log):
     return report_end(result, config, out, log)
 
 
-def report_end(result, config, out, log):
+def report_end(result: Result, config: dict, out: str, log: Callable) -> int:
     """The closing lines of this invocation. Returns the exit status: 0, 1 (NaN/inf), 130 (interrupted)."""
     timing, res = config["timing"], config["result"]
     if result.status == "failed":
@@ -220,13 +221,13 @@ def report_end(result, config, out, log):
     return 0
 
 
-def returned(result, key):
+def returned(result: dict, key: str) -> str:
     """A result's return with the iteration it is from ('-' where there is none)."""
     it = result.get(f"{key}_iteration")
     return fmt(result[key], ".1f") + (f" (iteration {it})" if it is not None else "")
 
 
-def failure_line(metrics, done, out):
+def failure_line(metrics: dict, done: int, out: str) -> str:
     """What stopped a run at a NaN/inf, from its metrics [1, iterations] up to `done`: the task's reward where an
     episode that ended in the failing iteration returned a non-finite total, else the loss or parameters."""
     failed_at = int(metrics["failed_at"][0, done - 1])
@@ -243,7 +244,7 @@ def failure_line(metrics, done, out):
             f"{os.path.join(out, 'params.npz')}")
 
 
-def log_start(plan, trainer, out, log):
+def log_start(plan: RunPlan, trainer: Trainer, out: str, log: Callable) -> None:
     """The run's first lines: task, policy, length; a changed MJX solver; the physics backend."""
     cfg, hp_py, iterations = plan.cfg, plan.hp, plan.iterations
     log(f"gsa_jax: {cfg.env} ({trainer.env.observation_size} obs, {trainer.env.action_size} actions), "
@@ -258,7 +259,7 @@ def log_start(plan, trainer, out, log):
         log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics.threads)} thread(s))")
 
 
-def record_result(plan, out, config, ended):
+def record_result(plan: RunPlan, out: str, config: dict, ended: tuple) -> None:
     """The learning curve, and the timings and result into config.json. ended: (metrics [1, iterations], done,
     driver timing, status: 'finished', 'nan' or 'interrupted')."""
     metrics, done, timing, status = ended

@@ -15,6 +15,7 @@ gsa_jax.running.checkpoint (atomic, previous version kept); a file of another fo
 import json
 import os
 import sys
+from typing import Any, Callable, Sequence
 
 import jax
 import numpy as np
@@ -31,24 +32,24 @@ TRACKED = TIDY_METRICS + ("failed_at", "wall_s")
 STATE_FILES = ("state.npz", "state.prev.npz")
 
 
-def warn(msg):
+def warn(msg: str) -> None:
     """A line the user must see even with --quiet (stderr)."""
     print(msg, file=sys.stderr, flush=True)
 
 
-def write_runs_table(root, runs, columns):
+def write_runs_table(root: str, runs: list, columns: Sequence[str]) -> None:
     """runs.csv: the id columns of every run, in run-axis order."""
     write_atomic(os.path.join(root, LAYOUT_FILE), "\n".join(
         [",".join(columns)] + [",".join(str(r[c]) for c in columns) for r in runs]) + "\n")
 
 
-def failed_runs(runs, metrics, upto):
+def failed_runs(runs: list, metrics: dict, upto: int) -> list:
     """[run dict + failed_at] of the runs that stopped at a NaN/inf."""
     failed = failed_mask(metrics, upto)
     return [{**r, "failed_at": int(metrics["failed_at"][i, upto - 1])} for i, r in enumerate(runs) if failed[i]]
 
 
-def check_format(path, names):
+def check_format(path: str, names: Sequence[str]) -> None:
     """Refuse (one line) a metrics file written by a gsa_jax that tracked fewer metrics."""
     missing = [k for k in TRACKED if k not in names]
     if missing:
@@ -56,7 +57,7 @@ def check_format(path, names):
                           "commit in its sweep.json or config.json (git_commit), or start over in another --out")
 
 
-def load_group_checkpoint(root, states, iterations, log):
+def load_group_checkpoint(root: str, states: Any, iterations: int, log: Callable) -> tuple:
     """(states, metrics arrays [R, iterations], done) of a group's last intact checkpoint: state.npz
     (or state.prev.npz) and the metrics covering its iteration (metrics.npz or metrics.prev.npz)."""
     def read_state(p):
@@ -80,13 +81,13 @@ def load_group_checkpoint(root, states, iterations, log):
     return states, metrics, done
 
 
-def save_params(root, states, runs):
+def save_params(root: str, states: Any, runs: int) -> None:
     """params.npz: the first `runs` runs' parameters and observation statistics (a failed run's last finite ones)."""
     params = jax.device_get({"params": states.params, "obs_stats": states.obs_stats})
     save_pytree(os.path.join(root, "params.npz"), jax.tree.map(lambda x: x[:runs], params))
 
 
-def finished_group(root, iterations):
+def finished_group(root: str, iterations: int) -> Result:
     """The driver Result of a group whose DONE marker exists, from its metrics.npz."""
     with np.load(os.path.join(root, "metrics.npz")) as m:
         check_format(os.path.join(root, "metrics.npz"), m.files)
@@ -107,22 +108,22 @@ class GroupStore:
         self.on_chunk, self.on_finish = on_chunk, on_finish
         self.board = Board(*board) if board and board[0] else None
 
-    def path(self, name):
+    def path(self, name: str) -> str:
         return os.path.join(self.root, name)
 
-    def has_checkpoint(self):
+    def has_checkpoint(self) -> bool:
         return any(os.path.exists(self.path(n)) for n in STATE_FILES)
 
-    def load(self, template):
+    def load(self, template: Any) -> "tuple | None":
         """(state, metrics [R, done], done) of the checkpoint in root, or None if there is nothing to resume;
         the event files restart from it."""
         return follow(self.board, self.load_checkpoint(template) if self.has_checkpoint() else None)
 
-    def load_checkpoint(self, template):
+    def load_checkpoint(self, template: Any) -> tuple:
         check_layout(self.root)
         return load_group_checkpoint(self.root, template, self.iterations, warn)
 
-    def save(self, states, metrics, done):
+    def save(self, states: Any, metrics: dict, done: int) -> None:
         """Metrics (keeping its previous version), parameters, the views, then the state (keeping its previous
         version; it records `done`): a write that fails leaves the previous checkpoint whole."""
         save_npz_atomic(self.path("metrics.npz"), True, __done__=np.array(done),
@@ -134,7 +135,7 @@ class GroupStore:
             self.on_chunk(self.runs, {k: v[: len(self.runs)] for k, v in metrics.items()}, done)
         save_pytree(self.path("state.npz"), states, True, __done__=np.array(done))
 
-    def finish(self, states, metrics, done, timing):
+    def finish(self, states: Any, metrics: dict, done: int, timing: dict) -> None:
         """Final parameters, failed.json, on_finish, DONE; drop the resume state (only needed to resume)."""
         save_params(self.root, states, len(self.runs))
         write_atomic(self.path("failed.json"), json.dumps(failed_runs(self.runs, metrics, done)))

@@ -12,6 +12,7 @@ import signal
 import statistics
 import subprocess
 import time
+from typing import Callable
 
 from envs.physics import LOCAL_WORKERS_ENV
 from gsa_jax.running.checkpoint import write_atomic
@@ -19,7 +20,7 @@ from gsa_jax.running.checkpoint import write_atomic
 SINGLE_THREAD_EIGEN = "--xla_cpu_multi_thread_eigen=false"
 
 
-def worker_env(processes):
+def worker_env(processes: int) -> dict:
     """Environment of `processes` local worker processes. With a worker on every core, XLA's Eigen ops
     run single-threaded in each (their thread pools would only compete with the other workers; 256
     hopper runs on 2 cores: 1.05-1.12x, experiments/bench_eigen_threads/), unless XLA_FLAGS already sets it;
@@ -30,7 +31,7 @@ def worker_env(processes):
     return env
 
 
-def heartbeat_writer(directory):
+def heartbeat_writer(directory: str) -> Callable:
     """A function a worker calls after every chunk with the chunk's duration: rewrites
     directory/heartbeat.json atomically."""
     beats = {"count": 0, "durations": []}
@@ -43,7 +44,7 @@ def heartbeat_writer(directory):
     return beat
 
 
-def start_worker(cmd, heartbeat_dir, processes, restarts=0):
+def start_worker(cmd: list, heartbeat_dir: str, processes: int, restarts: int = 0) -> dict:
     """Start one worker command (its own session, so a kill takes its children too) with a fresh heartbeat."""
     hb = os.path.join(heartbeat_dir, "heartbeat.json")
     if os.path.exists(hb):
@@ -52,7 +53,7 @@ def start_worker(cmd, heartbeat_dir, processes, restarts=0):
     return {"proc": proc, "hb": hb, "seen": None, "last": time.time(), "durations": [], "restarts": restarts}
 
 
-def stall_limit(worker, watchdog_min_s):
+def stall_limit(worker: dict, watchdog_min_s: float) -> float:
     """Seconds without a new heartbeat after which a worker counts as hung: max(watchdog_min_s, 10 x its
     median chunk time); before its first chunk (compiling, minutes for big groups) max(3 x that, 600)."""
     if worker["durations"]:
@@ -60,7 +61,7 @@ def stall_limit(worker, watchdog_min_s):
     return max(3 * watchdog_min_s, 600.0)
 
 
-def read_heartbeat(worker):
+def read_heartbeat(worker: dict) -> None:
     """Note a new heartbeat of the worker (count changed) with its time."""
     try:
         with open(worker["hb"]) as f:
@@ -71,12 +72,13 @@ def read_heartbeat(worker):
         pass
 
 
-def kill(worker):
+def kill(worker: dict) -> None:
     os.killpg(worker["proc"].pid, signal.SIGKILL)
     worker["proc"].wait()
 
 
-def supervise(worker_cmds, heartbeat_dirs, watchdog_min_s, max_restarts, log=print):
+def supervise(worker_cmds: list, heartbeat_dirs: list, watchdog_min_s: float, max_restarts: int,
+              log: Callable = print) -> int:
     """Run one worker process per command; kill and restart (from its last checkpoint) any worker whose
     heartbeat stalls (stall_limit). Returns the first non-zero exit status (3: a worker hung more than
     max_restarts times), or 0; 130 when interrupted."""

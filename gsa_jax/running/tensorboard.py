@@ -30,7 +30,7 @@ SECTIONS = {"episode_return": "returns", "eval_return": "returns", "eval_failure
 SCALARS = tuple(m for m in TIDY_METRICS if m not in ("iteration", "env_steps"))
 
 
-def tag(metric):
+def tag(metric: str) -> str:
     """The TensorBoard tag of a metric, e.g. 'returns/eval_return', 'ppo/value_loss'."""
     return f"{SECTIONS.get(metric, 'ppo')}/{metric}"
 
@@ -42,7 +42,7 @@ class _AppendingWriter(RecordWriter):
         self.path, self._writer = path, open(path, "ab")
 
 
-def row_events(metrics, run, start, stop, wall_time):
+def row_events(metrics: dict, run: int, start: int, stop: int, wall_time: float) -> list:
     """Serialized events [bytes] of run `run`'s iterations start..stop-1 of metrics {name: [R, iterations]}."""
     out = []
     for i in range(start, stop):
@@ -56,7 +56,7 @@ def row_events(metrics, run, start, stop, wall_time):
     return out
 
 
-def follow(board, saved):
+def follow(board: "Board | None", saved: "tuple | None") -> "tuple | None":
     """The store's load result `saved` ((state, metrics, done) or None), after restarting `board` (or None)
     from it: the event files start where the checkpoint does."""
     if board is not None:
@@ -73,7 +73,7 @@ class Board:
         self.paths = [os.path.join(logdir, label, FILE_NAME) for label in labels]
         self.done = 0
 
-    def restart(self, metrics, done):
+    def restart(self, metrics: dict, done: int) -> None:
         for run, path in enumerate(self.paths):
             os.makedirs(os.path.dirname(path), exist_ok=True)
             tmp = path + ".tmp"
@@ -85,7 +85,7 @@ class Board:
             os.replace(tmp, path)
         self.done = done
 
-    def append(self, metrics, done):
+    def append(self, metrics: dict, done: int) -> None:
         for run, path in enumerate(self.paths):
             w = _AppendingWriter(path)
             for data in row_events(metrics, run, self.done, done, time.time()):
@@ -94,7 +94,7 @@ class Board:
         self.done = done
 
 
-def read_scalars(path):
+def read_scalars(path: str) -> dict:
     """{tag: [(step, value)]} of an event file, in file order (to check what was written; TensorBoard's own
     reader needs the tensorboard package)."""
     with open(path, "rb") as f:

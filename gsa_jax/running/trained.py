@@ -40,7 +40,7 @@ class TrainedRun(NamedTuple):
     params: dict
 
 
-def check_layout(root):
+def check_layout(root: str) -> None:
     """Refuse (one line) a run directory written before runs were stored as groups of one."""
     if os.path.exists(os.path.join(root, "config.json")) and not os.path.exists(os.path.join(root, LAYOUT_FILE)):
         raise FormatError(f"{root} holds a run of an older gsa_jax (metrics.csv and params.npz without a run axis, "
@@ -48,19 +48,19 @@ def check_layout(root):
                           "it again")
 
 
-def read_rows(root):
+def read_rows(root: str) -> list:
     """The runs.csv rows of a group directory (dicts of strings), in run-axis order."""
     with open(os.path.join(root, LAYOUT_FILE)) as f:
         return list(csv.DictReader(f))
 
 
-def path_part(name):
+def path_part(name: str) -> str:
     """A task name as one part of a file name on any system: a task named 'module:Class' or 'dir/file.py:Class'
     without ':' or separators ('module.Class', 'dir_file.py.Class')."""
     return str(name).replace(":", ".").replace("/", "_").replace("\\", "_")
 
 
-def run_label(row):
+def run_label(row: dict) -> str:
     """A run's name in file, TensorBoard and address names, from its grid row or runs.csv row (the same name):
     env-policy[-K<k>][-<sub-policy>][-<critic>][-<hparam>=<value>...][-hparam_set=<i>]-s<seed>. The hyperparameters
     of a set (the columns after 'hparam_set') are named by the set's index alone: a file name stays short."""
@@ -74,7 +74,7 @@ def run_label(row):
     return "-".join(parts + [f"s{row['seed']}"])
 
 
-def finished_runs(sweep_dir):
+def finished_runs(sweep_dir: str) -> list:
     """[(label, group dir, index on the run axis, runs.csv row)] of every run of a sweep whose group finished
     (DONE), in group order."""
     if not os.path.exists(os.path.join(sweep_dir, "sweep.json")):
@@ -90,7 +90,7 @@ def finished_runs(sweep_dir):
     return out
 
 
-def group_meta(root, index):
+def group_meta(root: str, index: int) -> dict:
     """The settings of run `index` of a group directory: its config.json with the run's own entry of
     "runs" (seed, hparams) merged in, and its result (finished, or stopped at a NaN/inf: failed.json). The config
     with its physics options as one record (envs.physics.nest_physics: runs written before kept them flat)."""
@@ -111,13 +111,13 @@ def group_meta(root, index):
     return meta
 
 
-def read_params(root, index):
+def read_params(root: str, index: int) -> dict:
     """params.npz's entries of run `index`, without the run axis."""
     with np.load(os.path.join(root, "params.npz")) as p:
         return {k: p[k][index] for k in p.files}
 
 
-def locate(address):
+def locate(address: str) -> tuple:
     """(group directory, index) of a run directory or of SWEEP_DIR/<run label>."""
     address = os.path.normpath(address)
     if os.path.isdir(address) and os.path.exists(os.path.join(address, "config.json")):
@@ -134,7 +134,7 @@ def locate(address):
     raise RunNotFound(f"{address!r} is not a gsa_jax run: neither a run directory (config.json) nor SWEEP_DIR/<run label>")
 
 
-def read_run(address):
+def read_run(address: str) -> TrainedRun:
     """The TrainedRun at `address`: a run directory, or SWEEP_DIR/<run label>."""
     root, index = locate(address)
     if not os.path.exists(os.path.join(root, "params.npz")):

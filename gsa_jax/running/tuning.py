@@ -24,6 +24,7 @@ A tuning file (TOML):
 
 import dataclasses
 import math
+from typing import Any, Callable
 
 import numpy as np
 
@@ -56,12 +57,12 @@ class TuningSpec:
     classes: dict  # {class name: {"policy", "K", "knobs": {name: (low, high, log)}}}
 
 
-def load_tuning(path):
+def load_tuning(path: str) -> TuningSpec:
     """Read and check a tuning file; TuningSpec, or SpecError naming the file and the bad field."""
     return check_tuning(read_toml(path, "tuning file"), path)
 
 
-def check_tuning(raw, source="tuning"):
+def check_tuning(raw: dict, source: str = "tuning") -> TuningSpec:
     """A TuningSpec from a parsed tuning file; SpecError (one line) before anything compiles."""
 
     def bad(field, msg):
@@ -94,7 +95,7 @@ def check_tuning(raw, source="tuning"):
                       evaluation, raw["evaluation_steps"], config, classes)
 
 
-def check_seed_list(seeds, field, bad):
+def check_seed_list(seeds: Any, field: str, bad: Callable) -> tuple:
     if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds):
         bad(field, f"must be a non-empty list of integers >= 0, got {seeds!r}")
     if len(set(seeds)) != len(seeds):
@@ -102,7 +103,7 @@ def check_seed_list(seeds, field, bad):
     return tuple(seeds)
 
 
-def check_class(name, c, env_name, bad):
+def check_class(name: str, c: dict, env_name: str, bad: Callable) -> dict:
     """One [classes.<name>] table -> {"policy", "K", "knobs": {knob: (low, high, log)}}."""
     where = f"classes.{name}"
     if not NAME_PATTERN.fullmatch(name):
@@ -122,7 +123,7 @@ def check_class(name, c, env_name, bad):
     return {"policy": policy, "K": k, "knobs": {n: check_knob(n, v, policy, f"{where}.knobs.{n}", bad) for n, v in knobs.items()}}
 
 
-def class_clusters(c, env_name, where, bad):
+def class_clusters(c: dict, env_name: str, where: str, bad: Callable) -> int:
     """K of a mixture class: clusters, or ceil(cluster_multiplier d_a)."""
     if ("clusters" in c) == ("cluster_multiplier" in c):
         bad(where, "a mixture class gives exactly one of clusters (K) or cluster_multiplier (K = ceil(m d_a))")
@@ -136,7 +137,7 @@ def class_clusters(c, env_name, where, bad):
     return cluster_count(m, envs.action_size(env_name))
 
 
-def check_knob(name, value, policy, where, bad):
+def check_knob(name: str, value: Any, policy: str, where: str, bad: Callable) -> tuple:
     """knobs.<name> = [low, high] or [low, high, "log"] -> (low, high, log), both ends in the hyperparameter's range."""
     if name not in HPARAM_DEFAULTS or name in NOT_KNOBS:
         bad(where, f"unknown knob; known: {', '.join(n for n in HPARAM_DEFAULTS if n not in NOT_KNOBS)}")
@@ -160,7 +161,7 @@ def check_knob(name, value, policy, where, bad):
     return low, high, log
 
 
-def draw_configurations(spec, class_name):
+def draw_configurations(spec: TuningSpec, class_name: str) -> list:
     """[{knob: value}] of one class: spec.configurations sets, the first the defaults, the others drawn
     (uniform or log-uniform, 4 significant digits) from a stream of draw_seed and the class's name alone."""
     knobs = spec.classes[class_name]["knobs"]
@@ -176,7 +177,7 @@ def draw_configurations(spec, class_name):
     return sets
 
 
-def toml_value(v):
+def toml_value(v: Any) -> str:
     """A TOML literal of a string, bool, number or list of them."""
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -189,7 +190,7 @@ def toml_value(v):
     raise TypeError(f"no TOML literal for {v!r}")
 
 
-def to_toml(experiment, comment):
+def to_toml(experiment: dict, comment: str) -> str:
     """An experiment file's text: top-level fields, [config], then [[hparam_sets]] (if any)."""
     lines = [f"# {comment}"]
     lines += [f"{k} = {toml_value(v)}" for k, v in experiment.items() if k not in ("config", "hparam_sets", "hparams")]
@@ -201,7 +202,7 @@ def to_toml(experiment, comment):
     return "\n".join(lines) + "\n"
 
 
-def class_experiment(spec, class_name, phase, sets):
+def class_experiment(spec: TuningSpec, class_name: str, phase: str, sets: list) -> dict:
     """The experiment file (a dict, gsa_jax.running.spec's format) of one class's tuning sweep (every set on the
     tuning seeds), evaluation sweep (the chosen set on the evaluation seeds) or ranking sweep (the given sets on
     the tuning seeds for the evaluation's env steps: does the short tuning's ranking hold?)."""

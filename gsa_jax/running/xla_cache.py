@@ -19,6 +19,7 @@ import re
 import sys
 import tempfile
 import time
+from typing import Callable, Iterator
 
 import jax
 from jax.experimental.compilation_cache import compilation_cache
@@ -40,7 +41,7 @@ def _set(values):
     compilation_cache.reset_cache()  # JAX reads the options once, at its first compile
 
 
-def enable(cache_dir, min_compile_s=1.0):
+def enable(cache_dir: str, min_compile_s: float = 1.0) -> None:
     """Use `cache_dir` as JAX's persistent compilation cache for programs that take at least
     `min_compile_s` to compile (not the many small eager ops, whose loads XLA:CPU would log as errors)."""
     os.makedirs(cache_dir, exist_ok=True)
@@ -48,7 +49,7 @@ def enable(cache_dir, min_compile_s=1.0):
 
 
 @contextlib.contextmanager
-def enabled(default_dir):
+def enabled(default_dir: str) -> Iterator[None]:
     """A persistent compilation cache for every program inside the block: the one the user configured
     (JAX_COMPILATION_CACHE_DIR), else `default_dir`. JAX's previous cache settings after it."""
     before = tuple(getattr(jax.config, name) for name in _OPTIONS)
@@ -60,7 +61,7 @@ def enabled(default_dir):
 
 
 @contextlib.contextmanager
-def quiet_aot_loader():
+def quiet_aot_loader() -> Iterator[None]:
     """Drop XLA:CPU's spurious cache-load errors (AOT_LOADER_NOISE) from stderr; pass every other line on.
     Works on file descriptor 2, where XLA's C++ logging writes."""
     sys.stderr.flush()
@@ -80,12 +81,13 @@ def quiet_aot_loader():
                 sys.stderr.flush()
 
 
-def program_hash(lowered):
+def program_hash(lowered: jax.stages.Lowered) -> str:
     """Short hash of a lowered program's text (StableHLO): equal programs, equal hashes."""
     return hashlib.sha256(lowered.as_text().encode()).hexdigest()[:20]
 
 
-def compile_shared(lowered, mark_dir, leader, grace_s=120.0, max_wait_s=3600.0, log=None):
+def compile_shared(lowered: jax.stages.Lowered, mark_dir: str, leader: bool, grace_s: float = 120.0,
+                   max_wait_s: float = 3600.0, log: "Callable | None" = None) -> tuple:
     """lowered.compile(), once for all processes sharing `mark_dir` (with enable() on the same cache dir).
 
     leader: True in exactly one process (worker 0). The leader announces `<hash>.compiling`, compiles
@@ -118,13 +120,13 @@ def compile_shared(lowered, mark_dir, leader, grace_s=120.0, max_wait_s=3600.0, 
         return lowered.compile(), f"loaded after waiting {waited:.0f} s"
 
 
-def has_host_callbacks(lowered):
+def has_host_callbacks(lowered: jax.stages.Lowered) -> bool:
     """Whether a lowered program calls back into Python (physics backend 'c'). JAX never writes such a
     program to the persistent cache (the callbacks are baked into the executable), so it cannot be shared."""
     return "python_cpu_callback" in lowered.as_text()
 
 
-def compile_with(lowered, share=None, log=None):
+def compile_with(lowered: jax.stages.Lowered, share: "tuple | None" = None, log: "Callable | None" = None) -> tuple:
     """(compiled, how): lowered.compile() alone (share None, or a program with host callbacks: every
     process compiles its own) or compile_shared(lowered, *share) with share = (mark_dir, leader)."""
     if share is None:

@@ -25,7 +25,7 @@ def parse_weights(text: str, flag: str) -> tuple:
         raise VerifyError(f"{flag} takes comma-separated numbers, got {text!r}") from None
 
 
-def lqr_weights_of(args, system: System) -> "LqrWeights | None":
+def lqr_weights_of(args: argparse.Namespace, system: System) -> "LqrWeights | None":
     """The LQR's weights of --lqr-q / --lqr-r (both or neither), checked against the task: q one per tangent
     state coordinate (2 nv) and >= 0, r one per action and > 0."""
     if args.lqr_q is None and args.lqr_r is None:
@@ -43,7 +43,7 @@ def lqr_weights_of(args, system: System) -> "LqrWeights | None":
     return LqrWeights(q, r)
 
 
-def main(argv=None) -> int:
+def main(argv: "list[str] | None" = None) -> int:
     p = argparse.ArgumentParser(prog="python -m gsa_jax.verify", description=__doc__.split("\n")[0])
     p.add_argument("controller", help="an exported controller .npz (python -m gsa_jax.export)")
     p.add_argument("--out", default=None, help="output folder (default: verify_<controller name>)")

@@ -2,11 +2,13 @@
 sublevel set and an LQR beside it), falsification and switching -> the dict verify.json holds."""
 
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
+from envs.task import Task
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.verify import falsify, roa, simulate, switching
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify.system import System, equilibrium_guess, state_scale, to_qpos, wrap
@@ -26,20 +28,20 @@ class Budget(NamedTuple):
 QUICK = Budget(nominal_episodes=16, roa_directions=16, roa_bisections=4, population=24, iterations=4)
 
 
-def eig_list(a) -> list:
+def eig_list(a: np.ndarray) -> list:
     return [[float(e.real), float(e.imag)] for e in sorted(np.linalg.eigvals(a), key=lambda e: -abs(e))]
 
 
-def piece_jac(ctrl, piece):
+def piece_jac(ctrl: Controller, piece: "int | None") -> Callable:
     return lambda obs: lin.piece_jacobian(ctrl, obs, piece)
 
 
-def state_dict(task, qref, x) -> dict:
+def state_dict(task: Task, qref: np.ndarray, x: np.ndarray) -> dict:
     nv = task.model.nv
     return {"qpos": [float(q) for q in to_qpos(task.model, qref, x[:nv])[0]], "qvel": [float(v) for v in x[nv:]]}
 
 
-def local_piece(system: System, piece, qref, scale, starts) -> dict:
+def local_piece(system: System, piece: "int | None", qref: np.ndarray, scale: np.ndarray, starts: np.ndarray) -> dict:
     """One piece's fixed point (Newton from each of starts [S, 2 nv]; the converged one nearest the first start),
     whether the partition picks that piece there, and the closed loop's eigenvalues there (piece None: flat PPO's
     network)."""
@@ -63,14 +65,14 @@ def local_piece(system: System, piece, qref, scale, starts) -> dict:
             "distance_from_hold_scaled": distance(x), "_a_cl": a_cl}
 
 
-def saturated(ctrl, action) -> bool:
+def saturated(ctrl: Controller, action: np.ndarray) -> bool:
     """Whether an action lies on the controller's bounds (its Jacobian is zero there)."""
     if ctrl.action_low is None:
         return False
     return bool(np.any(np.isclose(action, ctrl.action_low) | np.isclose(action, ctrl.action_high)))
 
 
-def local_analysis(system: System, qref, scale, hold) -> dict:
+def local_analysis(system: System, qref: np.ndarray, scale: np.ndarray, hold: roa.Hold) -> dict:
     """Every piece's fixed point near the hold and the equilibrium, and the closed loop's own fixed point: the one
     nearest the hold among those that lie in their own piece's region."""
     starts = np.stack([hold.x, np.zeros_like(hold.x)])
@@ -94,7 +96,7 @@ class LqrWeights(NamedTuple):
     r: tuple
 
 
-def lqr_weights(weights, scale, d_a):
+def lqr_weights(weights: "LqrWeights | None", scale: np.ndarray, d_a: int) -> tuple:
     """(Q, R, record) in scaled coordinates (x / scale) of LqrWeights, or the identities."""
     if weights is None:
         return np.eye(len(scale)), np.eye(d_a), "Q = I on scaled states, R = I"
@@ -102,7 +104,8 @@ def lqr_weights(weights, scale, d_a):
     return np.diag(q * scale ** 2), np.diag(r), {"q": q.tolist(), "r": r.tolist()}
 
 
-def lqr_design(system, qref, scale, x_eq, weights=None):
+def lqr_design(system: System, qref: np.ndarray, scale: np.ndarray, x_eq: np.ndarray,
+               weights: "LqrWeights | None" = None) -> tuple:
     """(summary, policy) of an LQR (weights: LqrWeights in the task's units, default Q = I on scaled states and
     R = I on actions) on the task's linearization at the equilibrium with zero action, or (note, None) where that
     is not an equilibrium."""
@@ -122,7 +125,8 @@ def lqr_design(system, qref, scale, x_eq, weights=None):
     return summary, roa.lqr_policy(task, qref, x_eq, np.zeros(ctrl.action_size), K, scale, bounds)
 
 
-def roa_of(system, policy, qref, scale, budget, a_cl=None, hold=None) -> dict:
+def roa_of(system: System, policy: simulate.Policy, qref: np.ndarray, scale: np.ndarray, budget: Budget,
+           a_cl: "np.ndarray | None" = None, hold: "roa.Hold | None" = None) -> dict:
     """The region of attraction of policy's hold (found here unless given), with the Lyapunov sublevel set of a_cl
     (scaled coordinates; None: none)."""
     task = system.task
@@ -144,7 +148,7 @@ def roa_of(system, policy, qref, scale, budget, a_cl=None, hold=None) -> dict:
     return out
 
 
-def nominal(system, budget) -> tuple:
+def nominal(system: System, budget: Budget) -> tuple:
     task = system.task
     qpos, qvel = falsify.start_law_states(task, budget.nominal_episodes, 10_000 + budget.seed)
     ep = simulate.run(task, simulate.controller_policy(system.ctrl), qpos, qvel, int(task.episode_length), record=True)
@@ -156,7 +160,7 @@ def nominal(system, budget) -> tuple:
 SEARCHES = (("start_law", 1.0, False), ("twice_the_spread", 2.0, False), ("start_law_and_pushes", 1.0, True))
 
 
-def falsification(system, budget) -> dict:
+def falsification(system: System, budget: Budget) -> dict:
     """The three searches (start law; starts up to twice its spread; start law and pushes), each population x
     iterations episodes, with their counterexamples."""
     task, ctrl = system.task, system.ctrl
@@ -171,7 +175,8 @@ def falsification(system, budget) -> dict:
     return out
 
 
-def equilibrium_part(system, budget, scale, qref, cost, weights=None) -> dict:
+def equilibrium_part(system: System, budget: Budget, scale: np.ndarray, qref: np.ndarray, cost: dict,
+                     weights: "LqrWeights | None" = None) -> dict:
     """Local analysis, region of attraction and the LQR beside it, for a task with an equilibrium."""
     task, policy = system.task, simulate.controller_policy(system.ctrl)
     t0 = time.perf_counter()

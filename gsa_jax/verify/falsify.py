@@ -18,7 +18,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from envs.task import TaskC
+from envs.task import Task, TaskC
+from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.deployment.pushes import PUSH_SIZES
 from gsa_jax.deployment.shifts import step_task
 from gsa_jax.verify import simulate
@@ -33,7 +34,7 @@ class Search(NamedTuple):
     best: np.ndarray  # [iterations] the lowest return so far after each iteration
 
 
-def decode(task, u: np.ndarray, horizon: int, push: bool, spread: float) -> tuple:
+def decode(task: Task, u: np.ndarray, horizon: int, push: bool, spread: float) -> tuple:
     """(qpos [B, nq], qvel [B, nv], simulate.Push or None) of points u [B, p] in the search box (spread: f)."""
     m, nv = task.model, task.model.nv
     sq, sv = start_spread(task)
@@ -48,7 +49,8 @@ def decode(task, u: np.ndarray, horizon: int, push: bool, spread: float) -> tupl
     return qpos, v, simulate.Push(step, simulate.push_impulse(task, 1.0) * dv)
 
 
-def cem(task, policy, horizon, push, population, iterations, seed, spread=1.0, elite_frac=0.125) -> Search:
+def cem(task: Task, policy: simulate.Policy, horizon: int, push: bool, population: int, iterations: int, seed: int,
+        spread: float = 1.0, elite_frac: float = 0.125) -> Search:
     """The cross-entropy search (see the module docstring)."""
     p = 2 * task.model.nv + (3 if push else 0)
     rng = np.random.default_rng(seed)
@@ -67,7 +69,8 @@ def cem(task, policy, horizon, push, population, iterations, seed, spread=1.0, e
     return Search(np.array(rets), np.array(pars), np.array(best))
 
 
-def replay(task, ctrl, qpos, qvel, push, horizon) -> tuple:
+def replay(task: Task, ctrl: Controller, qpos: np.ndarray, qvel: np.ndarray, push: "dict | None",
+           horizon: int) -> tuple:
     """(return, steps) of one episode in plain MuJoCo C from (qpos, qvel) with push None or
     {"step", "force"}: the counterexample's own check."""
     tc = TaskC(task)
@@ -82,7 +85,8 @@ def replay(task, ctrl, qpos, qvel, push, horizon) -> tuple:
     return total, t
 
 
-def counterexamples(task, ctrl, search: Search, horizon, push, spread, count) -> list:
+def counterexamples(task: Task, ctrl: Controller, search: Search, horizon: int, push: bool, spread: float,
+                    count: int) -> list:
     """The `count` lowest-return distinct episodes of a search, replayed in plain MuJoCo C."""
     flat_r, flat_u = search.returns.ravel(), search.params.reshape(-1, search.params.shape[-1])
     order = np.argsort(flat_r)
@@ -101,7 +105,7 @@ def counterexamples(task, ctrl, search: Search, horizon, push, spread, count) ->
     return out
 
 
-def start_law_states(task, episodes, seed) -> tuple:
+def start_law_states(task: Task, episodes: int, seed: int) -> tuple:
     """(qpos [E, nq], qvel [E, nv]) drawn by the task's own reset (TaskC.reset(seed + e))."""
     tc = TaskC(task)
     qs, vs = [], []

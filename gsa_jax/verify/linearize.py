@@ -15,15 +15,16 @@ from typing import Callable, NamedTuple
 import mujoco
 import numpy as np
 
-from envs.task import TaskC
+from envs.task import Task, TaskC
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MLP
+from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.verify.system import to_qpos, to_tangent
 
 FD_EPS = 1e-6  # finite-difference step (tangent coordinates, SI units), central differences
 
 
-def piece_jacobian(ctrl, obs: np.ndarray, piece: "int | None" = None) -> tuple:
+def piece_jacobian(ctrl: Controller, obs: np.ndarray, piece: "int | None" = None) -> tuple:
     """(action [d_a] as act() clips it, d action / d obs [d_a, d_s]) of the controller at obs [d_s]: piece `piece`
     of a mixture (None: the piece its partition picks there), or the flat network."""
     obs = np.asarray(obs, np.float64)
@@ -76,12 +77,12 @@ class Linearization(NamedTuple):
         return self.A + self.B @ self.G @ self.K @ self.C
 
 
-def observe_at(task, qpos, qvel) -> np.ndarray:
+def observe_at(task: Task, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
     """[d_s] the task's observation of a state (mj_forward there)."""
     return np.asarray(TaskC(task).set_start(qpos, qvel), np.float64)
 
 
-def observation_jacobian(task, qref, x) -> np.ndarray:
+def observation_jacobian(task: Task, qref: np.ndarray, x: np.ndarray) -> np.ndarray:
     """[d_s, 2 nv] d obs / d x at tangent state x (central differences)."""
     nv = task.model.nv
     cols = []
@@ -93,7 +94,7 @@ def observation_jacobian(task, qref, x) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def step_jacobians(task, qpos, qvel, ctrl_u) -> tuple:
+def step_jacobians(task: Task, qpos: np.ndarray, qvel: np.ndarray, ctrl_u: np.ndarray) -> tuple:
     """(A [2nv, 2nv], B [2nv, nu]) of one control step from (qpos, qvel) with controls ctrl_u: composed over the
     frame skip from mjd_transitionFD at each substep, or (RK4, which mjd_transitionFD does not support) central
     differences of the whole control step."""
@@ -135,7 +136,7 @@ def _step_differences(task, qpos, qvel, ctrl_u):
     return cols[:, :2 * nv], cols[:, 2 * nv:]
 
 
-def controls_jacobian(task, d_a) -> np.ndarray:
+def controls_jacobian(task: Task, d_a: int) -> np.ndarray:
     """[nu, d_a] d controls / d action (identity, or the map onto the actuators' ctrlrange)."""
     if task.ctrl_range == "unit":
         return np.eye(task.model.nu, d_a)
@@ -143,7 +144,7 @@ def controls_jacobian(task, d_a) -> np.ndarray:
     return np.diag(0.5 * (hi - lo))
 
 
-def linearize(task, jac: Callable, qref, x) -> Linearization:
+def linearize(task: Task, jac: Callable, qref: np.ndarray, x: np.ndarray) -> Linearization:
     """The closed loop at tangent state x [2 nv] around qref; jac(obs) -> (action, d action / d obs)."""
     nv = task.model.nv
     qpos = to_qpos(task.model, qref, x[:nv])[0]
@@ -155,7 +156,7 @@ def linearize(task, jac: Callable, qref, x) -> Linearization:
     return Linearization(A, B, observation_jacobian(task, qref, x), G, K, np.asarray(action))
 
 
-def closed_step(task, jac: Callable, qref, x) -> np.ndarray:
+def closed_step(task: Task, jac: Callable, qref: np.ndarray, x: np.ndarray) -> np.ndarray:
     """[2 nv] the tangent state after one closed-loop control step from x (TaskC's step)."""
     nv = task.model.nv
     tc = TaskC(task)
@@ -171,7 +172,8 @@ class FixedPoint(NamedTuple):
     converged: bool
 
 
-def fixed_point(task, jac: Callable, qref, x0, scale, iters: int = 40, tol: float = 1e-8,
+def fixed_point(task: Task, jac: Callable, qref: np.ndarray, x0: np.ndarray, scale: np.ndarray, iters: int = 40,
+                tol: float = 1e-8,
                 max_step: float = 1.0) -> FixedPoint:
     """x with f(x) = x for the closed loop of jac, by Newton's method from x0 (least squares where J - I is
     singular, e.g. coordinates the controller does not move), each step at most max_step scale units per coordinate,

@@ -2,13 +2,17 @@
 
 import json
 import os
+from typing import Any
 
 import numpy as np
+
+from gsa_jax.verify.analysis import Budget
+from gsa_jax.verify.system import System
 
 SCHEMA = 1
 
 
-def public(obj):
+def public(obj: Any) -> Any:
     """obj without the private entries (keys starting with '_') the analyses pass between themselves."""
     if isinstance(obj, dict):
         return {k: public(v) for k, v in obj.items() if not str(k).startswith("_")}
@@ -17,7 +21,7 @@ def public(obj):
     return obj
 
 
-def write_json(path, system, result, budget, quick) -> dict:
+def write_json(path: str, system: System, result: dict, budget: Budget, quick: bool) -> dict:
     import mujoco
 
     doc = {"schema": SCHEMA, "controller": system.path, "env": system.env, "kind": system.ctrl.kind,
@@ -32,7 +36,7 @@ def _fmt(x, digits=3):
     return f"{x:.{digits}g}" if isinstance(x, float) else str(x)
 
 
-def local_lines(doc) -> list:
+def local_lines(doc: dict) -> list:
     local = doc.get("local", {})
     if "note" in local:
         return [f"No local analysis: {local['note']}."]
@@ -49,7 +53,7 @@ def local_lines(doc) -> list:
     return lines + ["", f"Verdict: {fixed_point_verdict(local)}."]
 
 
-def fixed_point_verdict(local) -> str:
+def fixed_point_verdict(local: dict) -> str:
     fp = local["closed_loop_fixed_point"]
     if fp is None:
         return ("no piece's fixed point lies where the partition picks that piece: the closed loop has no fixed point "
@@ -60,7 +64,7 @@ def fixed_point_verdict(local) -> str:
             f"{stable} (spectral radius {fp['spectral_radius']:.4f})")
 
 
-def roa_lines(name, r) -> list:
+def roa_lines(name: str, r: "dict | None") -> list:
     if r is None:
         return []
     if "note" in r:
@@ -75,13 +79,13 @@ def roa_lines(name, r) -> list:
             f"{', no boundary in range' if r['no_boundary_in_range'] else ''}{ly}."]
 
 
-def push_text(push) -> str:
+def push_text(push: "dict | None") -> str:
     if push is None:
         return "no push"
     return f"push {np.round(push['velocity_change'], 2).tolist()} m/s at step {push['step']}"
 
 
-def falsification_lines(doc) -> list:
+def falsification_lines(doc: dict) -> list:
     n = doc["nominal"]
     lines = [f"Nominal (start law, {n['episodes']} episodes): mean return {n['return_mean']:.1f}, "
              f"5th percentile {n['return_p05']:.1f}, worst {n['return_min']:.1f}.", ""]
@@ -102,7 +106,7 @@ def lqr_weights_text(lqr: dict) -> str:
     return f"Q = diag({', '.join(f'{x:g}' for x in w['q'])}), R = diag({', '.join(f'{x:g}' for x in w['r'])}) in the task's units"
 
 
-def write_markdown(path, doc) -> None:
+def write_markdown(path: str, doc: dict) -> None:
     s = doc["switching"]
     lines = [f"# Verification of `{doc['controller']}`", "",
              f"{doc['env']}, {doc['kind']} ({doc['clusters']} pieces){', quick budget' if doc['quick'] else ''}.", "",
@@ -123,7 +127,7 @@ def write_markdown(path, doc) -> None:
         f.write("\n".join(lines))
 
 
-def write_figure(path, doc) -> None:
+def write_figure(path: str, doc: dict) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -159,7 +163,7 @@ def write_figure(path, doc) -> None:
     plt.close(fig)
 
 
-def write_all(out_dir, system, result, budget, quick) -> dict:
+def write_all(out_dir: str, system: System, result: dict, budget: Budget, quick: bool) -> dict:
     os.makedirs(out_dir, exist_ok=True)
     doc = write_json(os.path.join(out_dir, "verify.json"), system, result, budget, quick)
     write_markdown(os.path.join(out_dir, "report.md"), doc)

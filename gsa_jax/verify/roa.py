@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
+from envs.task import Task
 from gsa_jax.verify import simulate
 from gsa_jax.verify.system import periodic_dofs, to_qpos, to_tangent, wrap
 
@@ -29,20 +30,21 @@ class Hold(NamedTuple):
     holds: bool  # the run from the equilibrium goes on, its positions stay within one scale unit, its angles upright
 
 
-def tangent_states(task, qref, ep) -> np.ndarray:
+def tangent_states(task: Task, qref: np.ndarray, ep: simulate.Episodes) -> np.ndarray:
     """[T, B, 2 nv] tangent states of recorded episodes (simulate.Episodes), unlimited hinges' angles wrapped."""
     T, B = ep.qpos.shape[:2]
     dq = to_tangent(task.model, qref, ep.qpos.reshape(T * B, -1)).reshape(T, B, -1)
     return wrap(task.model, np.concatenate([dq, ep.qvel], axis=-1))
 
 
-def run_from(task, policy, qref, xs, horizon, record=False):
+def run_from(task: Task, policy: simulate.Policy, qref: np.ndarray, xs: np.ndarray, horizon: int,
+             record: bool = False) -> simulate.Episodes:
     """Episodes from tangent states xs [B, 2 nv] around qref."""
     nv = task.model.nv
     return simulate.run(task, policy, to_qpos(task.model, qref, xs[:, :nv]), xs[:, nv:], horizon, record=record)
 
 
-def find_hold(task, policy, qref, scale, horizon) -> Hold:
+def find_hold(task: Task, policy: simulate.Policy, qref: np.ndarray, scale: np.ndarray, horizon: int) -> Hold:
     ep = run_from(task, policy, qref, np.zeros((1, 2 * task.model.nv)), horizon, record=True)
     tail = tangent_states(task, qref, ep)[-max(1, horizon // 10):, 0]
     mean = tail.mean(0)
@@ -53,7 +55,8 @@ def find_hold(task, policy, qref, scale, horizon) -> Hold:
     return Hold(mean, exc, bool(not ep.terminated[0] and ep.lengths[0] == horizon and still and upright))
 
 
-def converged(task, policy, qref, hold, scale, xs, horizon) -> np.ndarray:
+def converged(task: Task, policy: simulate.Policy, qref: np.ndarray, hold: Hold, scale: np.ndarray, xs: np.ndarray,
+              horizon: int) -> np.ndarray:
     """[B] whether each start xs [B, 2 nv] reaches and stays near the hold."""
     ep = run_from(task, policy, qref, xs, horizon, record=True)
     tail = tangent_states(task, qref, ep)[-max(1, horizon // 10):]
@@ -62,7 +65,7 @@ def converged(task, policy, qref, hold, scale, xs, horizon) -> np.ndarray:
     return near & ~ep.terminated & (ep.lengths == horizon)
 
 
-def directions(n_dirs, dim, seed) -> np.ndarray:
+def directions(n_dirs: int, dim: int, seed: int) -> np.ndarray:
     """[n_dirs, dim] unit vectors uniform on the sphere."""
     d = np.random.default_rng(seed).standard_normal((n_dirs, dim))
     return d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -74,7 +77,8 @@ class Radii(NamedTuple):
     ok: np.ndarray  # [S] whether each converged
 
 
-def search_radii(task, policy, qref, hold, scale, dirs, r_max, iters, horizon) -> Radii:
+def search_radii(task: Task, policy: simulate.Policy, qref: np.ndarray, hold: Hold, scale: np.ndarray,
+                 dirs: np.ndarray, r_max: float, iters: int, horizon: int) -> Radii:
     """Bisection on the radius along each direction, every open direction's episodes run as one batch."""
     def test(d, r):
         offsets = d * r[:, None]
@@ -93,7 +97,7 @@ def search_radii(task, policy, qref, hold, scale, dirs, r_max, iters, horizon) -
     return Radii(lo, np.concatenate(samples), np.concatenate(oks))
 
 
-def reach(radii: Radii, scale) -> np.ndarray:
+def reach(radii: Radii, scale: np.ndarray) -> np.ndarray:
     """[2 nv] in the task's own units (rad, m, rad/s, m/s): per coordinate, the largest offset from the hold among
     the sampled starts that converged (0 where none did): how far each coordinate alone was seen to recover from,
     comparable across tasks and controllers where the scaled radii are not (their unit is each task's start law)."""
@@ -101,19 +105,19 @@ def reach(radii: Radii, scale) -> np.ndarray:
     return off.max(axis=0) if len(off) else np.zeros(len(scale))
 
 
-def volume_fraction(radius, r_max, dim) -> float:
+def volume_fraction(radius: np.ndarray, r_max: float, dim: int) -> float:
     """The star-shaped set's share of the ball of radius r_max."""
     return float(np.mean((np.asarray(radius) / r_max) ** dim))
 
 
-def lyapunov(a_cl, dim) -> "np.ndarray | None":
+def lyapunov(a_cl: np.ndarray, dim: int) -> "np.ndarray | None":
     """P with a_cl' P a_cl - P = -I (scaled coordinates), or None unless a_cl is stable."""
     if np.max(np.abs(np.linalg.eigvals(a_cl))) >= 1.0:
         return None
     return scipy.linalg.solve_discrete_lyapunov(a_cl.T, np.eye(dim))
 
 
-def sublevel(P, radii: Radii, r_max) -> dict:
+def sublevel(P: np.ndarray, radii: Radii, r_max: float) -> dict:
     """The largest level c of V(x) = x' P x (scaled coordinates) with every sampled start below it converged and its
     ellipsoid inside the sampled ball (c <= lambda_min(P) r_max^2), and the ellipsoid's share of that ball."""
     v = np.einsum("si,ij,sj->s", radii.samples, P, radii.samples)
@@ -126,12 +130,12 @@ def sublevel(P, radii: Radii, r_max) -> dict:
             "ball_share": share, "samples": int(len(v)), "failed_samples": int(len(failed))}
 
 
-def scaled_system(A, B, scale):
+def scaled_system(A: np.ndarray, B: np.ndarray, scale: np.ndarray) -> tuple:
     """(A, B) of x' = A x + B u in scaled coordinates x / scale."""
     return A * (1.0 / scale)[:, None] * scale[None, :], B / scale[:, None]
 
 
-def lqr_gain(A, B, Q=None, R=None) -> tuple:
+def lqr_gain(A: np.ndarray, B: np.ndarray, Q: "np.ndarray | None" = None, R: "np.ndarray | None" = None) -> tuple:
     """(K [d_a, n], P) of the discrete LQR u = -K x minimizing sum x'Qx + u'Ru (default Q = I, R = I: scaled
     states, action units)."""
     Q = np.eye(len(A)) if Q is None else Q
@@ -141,7 +145,8 @@ def lqr_gain(A, B, Q=None, R=None) -> tuple:
     return K, P
 
 
-def lqr_policy(task, qref, x_eq, a_eq, K, scale, bounds):
+def lqr_policy(task: Task, qref: np.ndarray, x_eq: np.ndarray, a_eq: np.ndarray, K: np.ndarray, scale: np.ndarray,
+               bounds: "tuple | None") -> simulate.Policy:
     """simulate.Policy a = clip(a_eq - K (x - x_eq) / scale) of an LQR gain on scaled tangent states."""
 
     def act(obs, qpos, qvel):

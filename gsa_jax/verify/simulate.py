@@ -13,6 +13,8 @@ import mujoco
 import numpy as np
 from mujoco import batch as mj_batch
 
+from envs.task import Task
+from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.deployment.pushes import act_each
 
 Policy = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -32,13 +34,13 @@ class Episodes(NamedTuple):
     obs: np.ndarray  # [T + 1, B, d_s] observations (likewise)
 
 
-def controller_policy(ctrl) -> Policy:
+def controller_policy(ctrl: Controller) -> Policy:
     """The exported controller's deterministic action (clipped to its bounds), computed for each observation alone
     as deployment computes it (gsa_jax.deployment.pushes.act_each: a batched float32 product rounds differently)."""
     return lambda obs, qpos, qvel: act_each(ctrl, obs)
 
 
-def push_impulse(task, velocity: float) -> float:
+def push_impulse(task: Task, velocity: float) -> float:
     """The force (N) over one env step that changes the whole robot's velocity by `velocity` m/s."""
     return velocity * float(np.sum(task.model.body_mass)) / (task.model.opt.timestep * task.frame_skip)
 
@@ -57,7 +59,7 @@ def _start(task, qpos, qvel, threads):
     return b, task.observe(b.qpos, b.qvel, _derived(task, b))
 
 
-def run(task, policy: Policy, qpos: np.ndarray, qvel: np.ndarray, steps: int, push: Optional[Push] = None,
+def run(task: Task, policy: Policy, qpos: np.ndarray, qvel: np.ndarray, steps: int, push: Optional[Push] = None,
         record: bool = False, threads: int = 1) -> Episodes:
     """B closed-loop episodes from qpos [B, nq], qvel [B, nv] for `steps` env steps at most."""
     b, obs = _start(task, np.asarray(qpos, np.float64), np.asarray(qvel, np.float64), threads)

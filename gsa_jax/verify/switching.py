@@ -4,8 +4,10 @@ holds), and between which pieces it crosses the partition's boundaries."""
 
 import numpy as np
 
+from gsa_jax.deployment.numpy_policy import Controller
 
-def piece_sequence(ctrl, obs: np.ndarray) -> np.ndarray:
+
+def piece_sequence(ctrl: Controller, obs: np.ndarray) -> np.ndarray:
     """[T, B] the piece the partition picks at each recorded observation obs [T, B, d_s] (0 for flat PPO)."""
     return ctrl.cluster(obs.astype(np.float32))
 
@@ -17,7 +19,7 @@ def dwell_times(seq: np.ndarray) -> np.ndarray:
     return np.diff(edges)
 
 
-def switching_stats(ctrl, obs, lengths, dt) -> dict:
+def switching_stats(ctrl: Controller, obs: np.ndarray, lengths: np.ndarray, dt: float) -> dict:
     """Switches per second (all steps; second half), dwell times, pieces' shares and the crossings' counts, over
     episodes obs [T + 1, B, d_s] that last lengths [B] steps."""
     seq = piece_sequence(ctrl, obs)

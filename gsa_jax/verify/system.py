@@ -13,6 +13,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from envs.task import Task
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment import numpy_policy
@@ -88,7 +89,7 @@ def controller_input_size(ctrl: numpy_policy.Controller) -> int:
     return next((n for n in (d, *range(1, d_phi + 1)) if size(n) == d_phi), d)
 
 
-def start_spread(task) -> tuple:
+def start_spread(task: Task) -> tuple:
     """(qpos half-widths [nv], qvel half-widths [nv]) of the start law: uniform half-width or normal std per
     coordinate (tangent coordinates: hinge and slide joints map one to one)."""
     m = task.model
@@ -99,13 +100,13 @@ def start_spread(task) -> tuple:
     return np.array(q, np.float64), np.array(v, np.float64)
 
 
-def state_scale(task) -> np.ndarray:
+def state_scale(task: Task) -> np.ndarray:
     """[2 nv] the scale of each state coordinate: its start-law spread, 1 where that is 0 or above 1."""
     s = np.concatenate(start_spread(task))
     return np.where((s > 0) & (s <= 1.0), s, 1.0)
 
 
-def to_qpos(model, qref, dq) -> np.ndarray:
+def to_qpos(model: mujoco.MjModel, qref: np.ndarray, dq: np.ndarray) -> np.ndarray:
     """[..., nq] qpos of tangent displacements dq [..., nv] from qref [nq]."""
     dq = np.atleast_2d(dq)
     out = np.tile(qref, (len(dq), 1)).astype(np.float64)
@@ -114,7 +115,7 @@ def to_qpos(model, qref, dq) -> np.ndarray:
     return out
 
 
-def to_tangent(model, qref, qpos) -> np.ndarray:
+def to_tangent(model: mujoco.MjModel, qref: np.ndarray, qpos: np.ndarray) -> np.ndarray:
     """[..., nv] tangent displacements of qpos [..., nq] from qref [nq]."""
     qpos = np.atleast_2d(qpos)
     out = np.zeros((len(qpos), model.nv))
@@ -123,7 +124,7 @@ def to_tangent(model, qref, qpos) -> np.ndarray:
     return out
 
 
-def periodic_dofs(model) -> np.ndarray:
+def periodic_dofs(model: mujoco.MjModel) -> np.ndarray:
     """[nv] bool: the degrees of freedom of unlimited hinge joints (an angle and that angle + 2 pi are one state)."""
     mask = np.zeros(model.nv, bool)
     for j in range(model.njnt):
@@ -132,7 +133,7 @@ def periodic_dofs(model) -> np.ndarray:
     return mask
 
 
-def wrap(model, x) -> np.ndarray:
+def wrap(model: mujoco.MjModel, x: np.ndarray) -> np.ndarray:
     """Tangent states x [..., 2 nv] with the periodic coordinates' displacements wrapped into [-pi, pi)."""
     x = np.array(x, np.float64)
     dq = x[..., : model.nv]
@@ -141,7 +142,7 @@ def wrap(model, x) -> np.ndarray:
     return x
 
 
-def equilibrium_guess(task) -> "np.ndarray | None":
+def equilibrium_guess(task: Task) -> "np.ndarray | None":
     """[nq] the task's declared equilibrium qpos (Task.equilibrium_qpos: the upright of a pendulum), or None."""
     q = getattr(task, "equilibrium_qpos", None)
     return None if q is None else np.asarray(q, np.float64).reshape(task.model.nq)
