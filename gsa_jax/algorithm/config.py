@@ -22,6 +22,7 @@ from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 
+
 def _flag(value: Any, /, *names: str, **keywords: Any) -> Any:
     """A Config field of default `value` with a command-line option: its spellings and argparse keywords beyond what
     the field's type and default give (help, choices, metavar; a default where the command line's differs)."""
@@ -32,7 +33,7 @@ def _flag(value: Any, /, *names: str, **keywords: Any) -> Any:
 class Config:
     """Static configuration. Defaults: ~2048 samples per iteration (32 envs x 64 steps), 10 epochs,
     32 minibatches of 64 -- the PPO paper's MuJoCo setting, with the batch spread over envs. A field's metadata
-    names its command-line option (see OPTIONS)."""
+    names its command-line option (CONFIG_OPTIONS)."""
 
     env: str = _flag("inverted_double_pendulum", "--env", help=(
         f"one of: {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' or 'path/file.py:Class'; or "
@@ -224,6 +225,7 @@ LR_GROUPS = {"partition": "lr_scale_partition", "L": "lr_scale_L", "b": "lr_scal
 
 
 def allowed_range(name: str) -> str:
+    """A hyperparameter's allowed range as error messages write it, e.g. '>= 1', 'in [0, 1)'."""
     lo, hi, lo_in, hi_in = HPARAM_RANGES[name]
     if hi is None:
         return f">= {lo:g}" if lo_in else f"> {lo:g}"
