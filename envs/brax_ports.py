@@ -1,7 +1,7 @@
 """MuJoCo C ports of Brax's MJX locomotion tasks (hopper, walker2d, halfcheetah, ant: their defaults on backend
 'mjx') as task definitions (envs/definition.py): the same MJCF and solver options, reset noise, observation, reward
 and termination, so both backends and plain MuJoCo C step them as they step every task definition. Brax's records
-(envs/registry.py's BraxVariant) read BRAX_PORTS; tests/test_mujoco_c.py checks the ports step for step against the
+(envs/families/brax_variant.py) read BRAX_PORTS; tests/test_mujoco_c.py checks the ports step for step against the
 MJX environments. Nothing here imports JAX (brax's MJCFs are found without importing brax).
 """
 

@@ -110,9 +110,6 @@ def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int
     task = registry.resolve(name)
     check_model(spec, task.model(), episode_length)
     if spec.registry:
-        if not isinstance(task, registry.PlaygroundAdapted):
-            raise RandomizeError(f"randomize: 'playground' (a Playground environment's own randomizer) applies to "
-                                 f"playground:<Name> tasks, not {task.name!r}; give model scales instead")
         task.check_randomizer()
     if spec.model_fields or spec.push:
         reason = _variant_reason(task, "mjx" if physics is None else physics.backend, spec)
@@ -124,14 +121,13 @@ def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int
 def _variant_reason(task, backend, spec):
     """Why model scales or pushes cannot run for this task on this backend (None: they can)."""
     if backend == C:
-        definition = (task.task() if isinstance(task, registry.Definition)
-                      else task.port() if isinstance(task, registry.BraxVariant) else None)
+        definition = task.c_definition()
         if definition is None or definition.post_constraint:
             why = "its steps run mj_rnePostConstraint outside mujoco.batch" if definition else "its host steps no variants"
             return (f"{task.name} takes no per-simulation model on backend 'c' ({why}); its model scales and pushes "
                     "run on MJX (--physics mjx)")
         return None
-    if isinstance(task, (registry.PlaygroundAdapted, registry.UserEnv)):
+    if not task.mjx_variants:
         return f"{task.name} is not a Brax PipelineEnv; model scales and pushes apply to task definitions and Brax's envs"
     have = _wrappers()[1].mjx_model_fields()
     missing = [f for f, _, _ in spec.model_fields if f not in have]

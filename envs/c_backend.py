@@ -2,7 +2,7 @@
 
     env = envs.make("hopper", physics=Physics(backend="c"))     # a Brax-style env, like the MJX one
 
-The classes are built by the tasks' records (envs/registry.py): TaskCEnv, AllegroCTask.
+The classes are built by the tasks' records (envs/families/): TaskCEnv, AllegroCTask.
 
 Each env's simulation state is its float64 mjSTATE_INTEGRATION row (time, qpos, qvel, act, solver
 warmstart, ctrl, ...) followed by what the task carries to its next step (n_carry values: its `before`), carried through the JAX program bit for bit as uint32 pairs (the program runs

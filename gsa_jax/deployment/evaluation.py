@@ -95,10 +95,7 @@ def run_gymnasium(ctrl: numpy_policy.Controller, gym: tuple, env_id: str, episod
 def mujoco_c_label(env_name: str) -> str:
     """What runs a task in MuJoCo C, for report lines: our port of Brax's task (or of the Allegro hand), a built-in
     task definition, or the user's own."""
-    record = task_record(env_name)
-    if record.family in ("brax", "allegro"):
-        return "MuJoCo C (our port)"
-    return "MuJoCo C" if record.builtin else "MuJoCo C (your task)"
+    return task_record(env_name).mujoco_c_label()
 
 
 def run_mjx(run_dir: str, episodes: int, seed: int = 0) -> tuple:
