@@ -1,5 +1,5 @@
 """MuJoCo C ports of Brax's MJX locomotion tasks (hopper, walker2d, halfcheetah, ant: their defaults on backend
-'mjx') as task definitions (envs/definition.py): the same MJCF and solver options, reset noise, observation, reward
+'mjx') as task definitions (envs/task.py): the same MJCF and solver options, reset noise, observation, reward
 and termination, so both backends and plain MuJoCo C step them as they step every task definition. Brax's records
 (envs/families/brax_variant.py) read BRAX_PORTS; tests/test_mujoco_c.py checks the ports step for step against the
 MJX environments. Nothing here imports JAX (brax's MJCFs are found without importing brax).
@@ -11,7 +11,7 @@ import os
 import mujoco
 import numpy as np
 
-from envs.definition import Task, coordinate_names
+from envs.task import Task, coordinate_names
 
 
 def brax_asset(name):
@@ -23,7 +23,7 @@ def brax_asset(name):
 
 
 class BraxTask(Task):
-    """A Brax locomotion task (its defaults, backend 'mjx') as a task definition (envs/definition.py): the same MJCF and
+    """A Brax locomotion task (its defaults, backend 'mjx') as a task definition (envs/task.py): the same MJCF and
     solver options, reset noise, observation, reward and termination, so both backends and plain MuJoCo C step it
     as they step every task definition. Subclasses set the task's constants and `observe_state` /
     `healthy_state`, written over (qpos [..., nq], qvel [..., nv], torso position [..., 3]) for NumPy and

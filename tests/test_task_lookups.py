@@ -38,7 +38,6 @@ ALLOWED = {
     "gsa_jax/verify/system.py": "an exported controller names its task (config.json)",
     "gsa_jax/deployment/shifts.py": "the 'simulator' shift maps a task's name to another task's (OTHER_SIMULATOR)",
     "gsa_jax/deployment/gymnasium_task.py": "gymnasium's env ids are checked against our ports by name (BRAX_PORTS)",
-    "envs/task.py": "TaskC takes a task's name (until task/definition are one module)",
     "gsa_jax/analysis/controller_scores.py": "result rows name their task",
     "gsa_jax/analysis/answering.py": "result rows name their task",
     "gsa_jax/analysis/retention_eval.py": "result rows name their task",

@@ -18,7 +18,7 @@ times move (linear from 1 at a forward torso velocity >= 0.5 to 0.5 at 0)."""
 import mujoco
 import numpy as np
 
-from envs.definition import TaskError
+from envs.task import TaskError
 from envs.dmc.base import XMAT, DmcTask, suite_dir, tolerance
 
 WALK_SPEED, TIME_LIMIT = 0.5, 20.0

@@ -23,15 +23,15 @@ if TYPE_CHECKING:  # annotations only: MuJoCo and Brax load when a record is ask
     import mujoco
     from brax.envs.base import Env
 
-    from envs.definition import Task
+    from envs.task import Task
 
 
 def mujoco_side() -> types.SimpleNamespace:
-    """The records' MuJoCo C side: envs/definition.py (Task, TaskC, validate), envs/brax_ports.py,
+    """The records' MuJoCo C side: envs/task.py (Task, TaskC, validate), envs/brax_ports.py,
     envs/allegro_task.py and envs/gym_v5.py."""
-    from envs import allegro_task, brax_ports, definition, gym_v5  # MuJoCo: `import envs` loads none
+    from envs import allegro_task, brax_ports, gym_v5, task  # MuJoCo: `import envs` loads none
 
-    return types.SimpleNamespace(allegro=allegro_task, ports=brax_ports, task=definition, v5=gym_v5)
+    return types.SimpleNamespace(allegro=allegro_task, ports=brax_ports, task=task, v5=gym_v5)
 
 
 def mjx_side() -> types.SimpleNamespace:

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     import mujoco
     from brax.envs.base import Env
 
-    from envs.definition import Task
+    from envs.task import Task
 
 
 class Definition(TaskRecord):
