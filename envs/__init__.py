@@ -5,7 +5,7 @@ here read it.
 
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
 `allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and every task
-definition (envs/task.py): gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/gym_v5.py), the
+definition (envs/task.py): gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/v5_tasks.py), the
 DeepMind Control Suite's (DMC_TASKS, 'dmc:<domain>-<task>': envs/dmc/, with dm_control installed), the
 tasks registered with `register(name, factory)`, and a user's task named by where it is defined,
 'my_pkg.my_module:MyTask' or 'path/to/file.py:MyTask'. A task definition runs on both backends (MJX:

@@ -28,7 +28,7 @@ class BraxTask(Task):
     as they step every task definition. Subclasses set the task's constants and `observe_state` /
     `healthy_state`, written over (qpos [..., nq], qvel [..., nv], torso position [..., 3]) for NumPy and
     jax.numpy alike, batched or not; `observation(m, d)` reads them from one MjData, so they also apply to another
-    simulator's model of the same robot (gsa_jax.deployment.gymnasium_task checks layouts with them).
+    simulator's model of the same robot (gsa_jax.deployment.gymnasium_rollout checks layouts with them).
 
     The torso is body 1 (Brax's x.pos[0]), read as mj_step leaves it (before the step's last substep, as MJX
     holds it); the forward reward is its x velocity over the env step."""

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, Optional
 
 from envs import registry
 from envs.physics import C, Physics, applied, mj_model, record
-from envs.randomize import Randomize, RandomizeError, check_model, parse
+from envs.randomization import Randomize, RandomizeError, check_model, parse
 from envs.registry import TaskLike
 
 if TYPE_CHECKING:  # annotations only: Brax and gymnasium load when an environment is made
@@ -18,11 +18,11 @@ if TYPE_CHECKING:  # annotations only: Brax and gymnasium load when an environme
 
 
 def _wrappers():
-    """envs/wrappers.py and envs/randomized.py (quietly: mujoco.mjx's "Failed to import warp" notice)."""
+    """envs/wrappers.py and envs/randomized_env.py (quietly: mujoco.mjx's "Failed to import warp" notice)."""
     with contextlib.redirect_stdout(io.StringIO()):
-        from envs import randomized, wrappers  # JAX and Brax: imported when an environment is first made
+        from envs import randomized_env, wrappers  # JAX and Brax: imported when an environment is first made
 
-    return wrappers, randomized
+    return wrappers, randomized_env
 
 
 def check_backend(name: TaskLike, physics: Physics) -> None:
@@ -78,13 +78,13 @@ def make(name: TaskLike, episode_length: Optional[int] = None, auto_reset: bool 
     `default_episode_length(name)`) and (by default) auto-reset: an ended episode restarts from the env's first
     start state (reset_mode 'first', Brax's convention) or from a new draw of the task's start law ('fresh',
     as gymnasium and dm_control reset; envs/wrappers.py). physics: see make_base. randomize: a domain
-    randomization (envs/randomize.py: its text, a table or a Randomize; None or '': none) drawn per episode
-    (envs/randomized.py); RandomizeError (one line) where the task or backend cannot apply it.
+    randomization (envs/randomization.py: its text, a table or a Randomize; None or '': none) drawn per episode
+    (envs/randomized_env.py); RandomizeError (one line) where the task or backend cannot apply it.
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
     """
-    wrappers, randomized = _wrappers()
+    wrappers, randomized_env = _wrappers()
     if episode_length is None:
         episode_length = registry.default_episode_length(name)
     if episode_length < 1:
@@ -95,12 +95,12 @@ def make(name: TaskLike, episode_length: Optional[int] = None, auto_reset: bool 
     env = wrappers.AutoReset(env, reset_mode) if auto_reset else env
     if spec is None:
         return env
-    return randomized.Randomized(env, base, spec)
+    return randomized_env.Randomized(env, base, spec)
 
 
 def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int] = None,
                     physics: Optional[Physics] = None) -> Optional[Randomize]:
-    """The Randomize of `randomize` (envs/randomize.py) checked against task `name`'s model and the backend of
+    """The Randomize of `randomize` (envs/randomization.py) checked against task `name`'s model and the backend of
     `physics` (None: MJX), or None for none; RandomizeError (one line) for an unknown parameter, a range out of
     bounds, a delay as long as the episode, or model scales or pushes the backend cannot apply (saying which can).
     Builds no environment."""
@@ -138,12 +138,12 @@ def _variant_reason(task, backend, spec):
 
 def as_gymnasium(task: TaskLike) -> "gymnasium.Env":
     """A gymnasium.Env of `task` (a name, a Task subclass or instance) stepped by its MuJoCo C twin, with the task's
-    start law, observation, reward, termination and time limit (envs/gymnasium_env.py); ValueError (one line) for a
+    start law, observation, reward, termination and time limit (envs/gymnasium_wrapper.py); ValueError (one line) for a
     task MuJoCo C does not step. Needs gymnasium (the deploy extra)."""
     found = registry.resolve(task)
     if not found.has_c:
         raise ValueError(f"task {found.name!r} has no MuJoCo C version, so no gymnasium environment: MuJoCo C runs "
                          "every task definition, Brax's hopper, walker2d, halfcheetah and ant, and allegro_cylinder")
-    from envs.gymnasium_env import TaskEnv  # gymnasium: an optional extra (deploy)
+    from envs.gymnasium_wrapper import TaskEnv  # gymnasium: an optional extra (deploy)
 
     return TaskEnv(found)

@@ -28,7 +28,7 @@ from envs.families.task_definition import Definition, definition_record
 from envs.families.record import TaskRecord, mujoco_side
 from envs.families.user_env import UserEnv, library_of
 from envs.names import NAMES
-from envs.randomize import parse as parse_randomize
+from envs.randomization import parse as parse_randomize
 
 TaskLike = Any  # a task's name, its TaskRecord, or a Task instance or subclass (envs/task.py): what resolve() takes
 
@@ -252,7 +252,7 @@ def control_range(name: TaskLike) -> Optional[tuple]:
 
 
 def task_randomize(name: TaskLike) -> str:
-    """The randomization a task definition declares (Task.randomize, envs/randomize.py's text); ValueError if none."""
+    """The randomization a task definition declares (Task.randomize, envs/randomization.py's text); ValueError if none."""
     record = resolve(name)
     text = record.declared_randomize()
     if not text:

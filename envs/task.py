@@ -26,7 +26,7 @@ state itself is the same either way.
 Observation, reward and termination are written once over batches (a leading axis of simulations) for NumPy and
 jax.numpy (`xp`): backend 'c' (envs/c_backend.py) evaluates them in float64 on MuJoCo C's arrays inside the
 compiled trainer, MJX (envs/task_mjx.py) with jax.numpy on MJX's data, and TaskC here (plain MuJoCo C, no JAX)
-steps one MjData for deployment, evaluation and robustness. gymnasium's v5 tasks (envs/gym_v5.py) are
+steps one MjData for deployment, evaluation and robustness. gymnasium's v5 tasks (envs/v5_tasks.py) are
 instances. A step: `before` reads what the reward needs from the state before it, ctrl = controls(action) (the action,
 already clipped to [-1, 1], or with ctrl_range 'model' its map onto the actuators' ctrlrange), mj_step frame_skip times (and mj_rnePostConstraint if post_constraint), then
 `outcome`. validate() checks a definition in one line before anything compiles.
@@ -98,7 +98,7 @@ class Task:
     # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
     push_body: "int | str" = 1
     planar: bool = False
-    # the domain randomization this task is trained under with --randomize task (envs/randomize.py's text or a
+    # the domain randomization this task is trained under with --randomize task (envs/randomization.py's text or a
     # {name: value} table; '': none declared)
     randomize: "str | dict" = ""
     # the qpos of the state the task asks the controller to hold (an inverted pendulum's upright, at rest), where it

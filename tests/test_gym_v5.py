@@ -1,4 +1,4 @@
-"""gymnasium's v5 tasks (envs/gym_v5.py): MuJoCo C and the trainer's backend 'c' against gymnasium.make(id),
+"""gymnasium's v5 tasks (envs/v5_tasks.py): MuJoCo C and the trainer's backend 'c' against gymnasium.make(id),
 step for step over whole episodes from gymnasium's reset states with the same random actions (out-of-range
 ones included); the reset noise law; MJX (envs/task_mjx.py) against MuJoCo C within a tolerance.
 
@@ -14,7 +14,7 @@ from scipy import stats as sps
 
 import envs
 from envs.c_backend import STATE_SPEC, SimState
-from envs.gym_v5 import V5_TASKS
+from envs.v5_tasks import V5_TASKS
 from envs.physics import Physics
 from mjx_vs_c import assert_mjx_follows_mujoco_c
 

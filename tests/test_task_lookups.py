@@ -26,7 +26,7 @@ ALLOWED = {
     "envs/build.py": "envs.make / make_base / check_randomize / as_gymnasium take a name or a record (library API; "
                      "resolve() returns a record as it is)",
     "envs/mujoco_c.py": "make_c(name) and observation_layout(name): plain MuJoCo C by name (library API)",
-    "envs/gymnasium_env.py": "sizes read through the name helpers on the record it is given",
+    "envs/gymnasium_wrapper.py": "sizes read through the name helpers on the record it is given",
     "gsa_jax/running/spec.py": "a sweep's spec holds task names (sweep.json); its checks resolve them",
     "gsa_jax/running/single.py": "single.run resolves cfg.env for the run's records",
     "gsa_jax/running/sweeps.py": "a sweep's group resolves its cfg.env for the group's records",
@@ -37,7 +37,7 @@ ALLOWED = {
     "gsa_jax/deployment/exporting.py": "an exported controller names its task (config.json)",
     "gsa_jax/verify/system.py": "an exported controller names its task (config.json)",
     "gsa_jax/deployment/shifts.py": "the 'simulator' shift maps a task's name to another task's (OTHER_SIMULATOR)",
-    "gsa_jax/deployment/gymnasium_task.py": "gymnasium's env ids are checked against our ports by name (BRAX_PORTS)",
+    "gsa_jax/deployment/gymnasium_rollout.py": "gymnasium's env ids are checked against our ports by name (BRAX_PORTS)",
     "gsa_jax/analysis/controller_scores.py": "result rows name their task",
     "gsa_jax/analysis/answering.py": "result rows name their task",
     "gsa_jax/analysis/retention_eval.py": "result rows name their task",

@@ -17,7 +17,7 @@ import numpy as np
 
 from envs.names import ACTION_RANGE, DEFAULT_EPISODE_LENGTH
 from envs.physics import C, Physics
-from envs.randomize import RandomizeError
+from envs.randomization import RandomizeError
 
 if TYPE_CHECKING:  # annotations only: MuJoCo and Brax load when a record is asked for them
     import mujoco
@@ -28,10 +28,10 @@ if TYPE_CHECKING:  # annotations only: MuJoCo and Brax load when a record is ask
 
 def mujoco_side() -> types.SimpleNamespace:
     """The records' MuJoCo C side: envs/task.py (Task, TaskC, validate), envs/brax_ports.py,
-    envs/allegro_task.py and envs/gym_v5.py."""
-    from envs import allegro_task, brax_ports, gym_v5, task  # MuJoCo: `import envs` loads none
+    envs/allegro_task.py and envs/v5_tasks.py."""
+    from envs import allegro_task, brax_ports, task, v5_tasks  # MuJoCo: `import envs` loads none
 
-    return types.SimpleNamespace(allegro=allegro_task, ports=brax_ports, task=task, v5=gym_v5)
+    return types.SimpleNamespace(allegro=allegro_task, ports=brax_ports, task=task, v5=v5_tasks)
 
 
 def mjx_side() -> types.SimpleNamespace:
@@ -124,7 +124,7 @@ class TaskRecord:
         return None
 
     def declared_randomize(self) -> str:
-        """The domain randomization the task declares (envs/randomize.py's text; '' for none)."""
+        """The domain randomization the task declares (envs/randomization.py's text; '' for none)."""
         return ""
 
     def check_randomizer(self) -> None:

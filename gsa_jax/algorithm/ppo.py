@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 import envs
 from envs.physics import Physics, make_physics, nest_physics
-from envs.randomize import parse as parse_randomize
+from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.nn import apply_mlp, init_mlp

@@ -112,7 +112,7 @@ class SweepCell(NamedTuple):
     value_target: str = "gae"
     backend: str = "mjx"
     physics_threads: int = 0
-    randomize: str = ""  # the runs' domain randomization (envs/randomize.py's text; '': none)
+    randomize: str = ""  # the runs' domain randomization (envs/randomization.py's text; '': none)
 
 
 def worker_command(cell, runs, seed0, repeats):

@@ -71,7 +71,7 @@ def run_mujoco_c(ctrl: numpy_policy.Controller, env_name: str, config: dict, epi
 def open_gymnasium(ctrl: numpy_policy.Controller, env_name: str, env_id: str, seed: int = 0) -> tuple:
     """(gymnasium's env `env_id` for the controller, its options), checked (DeployError, one line, where there is no
     counterpart of the task or its layout or action space is not the controller's)."""
-    from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym
+    from gsa_jax.deployment.gymnasium_rollout import GymnasiumError, check_bounds, make_gym
 
     try:
         env, options = make_gym(env_name, env_id, seed=seed)
@@ -84,7 +84,7 @@ def open_gymnasium(ctrl: numpy_policy.Controller, env_name: str, env_id: str, se
 def run_gymnasium(ctrl: numpy_policy.Controller, gym: tuple, env_id: str, episodes: int, seed: int = 0) -> dict:
     """Summary of the controller in gymnasium's own task (its MJCF, reward, termination, time limit); gym: (env,
     options) of open_gymnasium."""
-    from gsa_jax.deployment.gymnasium_task import run_episodes
+    from gsa_jax.deployment.gymnasium_rollout import run_episodes
 
     env, options = gym
     returns, lengths = run_episodes(env, ctrl, episodes, seed)
