@@ -75,7 +75,7 @@ def solver_settings(env: "Env") -> dict:
 def make(name: TaskLike, episode_length: Optional[int] = None, auto_reset: bool = True, physics: Optional[Physics] = None,
          reset_mode: str = "first", randomize: Any = None) -> "Env":
     """Task `name` (a name or a TaskRecord) with a time limit of `episode_length` steps (default: the task's own,
-    `default_episode_length(name)`) and (by default) auto-reset: an ended episode restarts from the env's first
+    `resolve(name).episode_length()`) and (by default) auto-reset: an ended episode restarts from the env's first
     start state (reset_mode 'first', Brax's convention) or from a new draw of the task's start law ('fresh',
     as gymnasium and dm_control reset; envs/wrappers.py). physics: see make_base. randomize: a domain
     randomization (envs/randomization.py: its text, a table or a Randomize; None or '': none) drawn per episode
@@ -85,12 +85,13 @@ def make(name: TaskLike, episode_length: Optional[int] = None, auto_reset: bool 
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
     """
     wrappers, randomized_env = _wrappers()
+    task = registry.resolve(name)
     if episode_length is None:
-        episode_length = registry.default_episode_length(name)
+        episode_length = int(task.episode_length())
     if episode_length < 1:
         raise ValueError(f"episode_length must be >= 1, got {episode_length}")
-    spec = check_randomize(name, randomize, episode_length, physics)
-    base = make_base(name, physics)
+    spec = check_randomize(task, randomize, episode_length, physics)
+    base = make_base(task, physics)
     env = wrappers.EpisodeLimit(base, episode_length)
     env = wrappers.AutoReset(env, reset_mode) if auto_reset else env
     if spec is None:

@@ -7,7 +7,7 @@ import zipfile
 
 import numpy as np
 
-from envs import default_episode_length, task_record
+from envs import task_record
 from gsa_jax.deployment import numpy_policy
 
 
@@ -60,8 +60,9 @@ def run_mujoco_c(ctrl: numpy_policy.Controller, env_name: str, config: dict, epi
     from envs.mujoco_c import run_episodes
 
     try:  # a task defined outside the package is imported here: its errors in one line
-        task = task_record(env_name).make_c()
-        length = episode_length or config.get("episode_length") or default_episode_length(env_name)
+        record = task_record(env_name)
+        task = record.make_c()
+        length = episode_length or config.get("episode_length") or record.episode_length()
     except ValueError as e:
         raise DeployError(f"the controller is for {env_name!r}: {e}") from None
     returns, lengths = run_episodes(task, ctrl, episodes, int(length), seed)
