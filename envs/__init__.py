@@ -12,8 +12,8 @@ tasks registered with `register(name, factory)`, and a user's task named by wher
 envs/task_mjx.py; MuJoCo C in the program: envs/c_backend.py) and in plain MuJoCo C (envs.task.TaskC).
 
 This module only re-exports: the names and shared constants live in envs/names.py, name resolution and what a
-name says (sizes, bounds, time limit, source) in envs/registry.py, building environments in envs/build.py. No
-module of envs/ imports this one back.
+name says (sizes, bounds, time limit, source) in envs/registry.py, the families' records in envs/families/, building
+environments in envs/build.py. No module of envs/ imports this one back.
 """
 
 import os
