@@ -252,7 +252,8 @@ def control_range(name: TaskLike) -> Optional[tuple]:
 
 
 def task_randomize(name: TaskLike) -> str:
-    """The randomization a task definition declares (Task.randomize, envs/randomization.py's text); ValueError if none."""
+    """The randomization a task definition declares (Task.randomize, envs/randomization.py's text); ValueError if
+    none."""
     record = resolve(name)
     text = record.declared_randomize()
     if not text:
