@@ -5,15 +5,15 @@ here read it.
 
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
 `allegro_cylinder`, our MJX port of the paper's Allegro-hand tactile task (envs/allegro.py), and every task
-definition (envs/task.py): gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/gym_v5.py), the
+definition (envs/task.py): gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/v5_tasks.py), the
 DeepMind Control Suite's (DMC_TASKS, 'dmc:<domain>-<task>': envs/dmc/, with dm_control installed), the
 tasks registered with `register(name, factory)`, and a user's task named by where it is defined,
 'my_pkg.my_module:MyTask' or 'path/to/file.py:MyTask'. A task definition runs on both backends (MJX:
 envs/task_mjx.py; MuJoCo C in the program: envs/c_backend.py) and in plain MuJoCo C (envs.task.TaskC).
 
 This module only re-exports: the names and shared constants live in envs/names.py, name resolution and what a
-name says (sizes, bounds, time limit, source) in envs/registry.py, building environments in envs/build.py. No
-module of envs/ imports this one back.
+name says (sizes, bounds, time limit, source) in envs/registry.py, the families' records in envs/families/, building
+environments in envs/build.py. No module of envs/ imports this one back.
 """
 
 import os

@@ -15,7 +15,7 @@ fingertip's total normal force / 18 (the taxels tile the pad; a single contact l
 Reward: the cylinder's mean angular velocity over the control step (rad/s, counter-clockwise
 positive) minus ACTION_COST * |a|^2.
 Start: the keyframe "grasp" (index and thumb touching the cylinder from opposite sides, PD targets
-2 mm inside it; envs/allegro_grasp.py), with the PD targets jittered by N(0, TARGET_NOISE^2) rad
+2 mm inside it; experiments/fig3_allegro/allegro_grasp.py), with the PD targets jittered by N(0, TARGET_NOISE^2) rad
 and the cylinder's angle uniform (it is symmetric, so only the angle the reward never sees changes).
 There is no termination (the cylinder cannot fall off its hinge); the time limit is
 DEFAULT_EPISODE_LENGTH steps (2 s), set by envs.make.

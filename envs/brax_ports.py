@@ -1,7 +1,7 @@
 """MuJoCo C ports of Brax's MJX locomotion tasks (hopper, walker2d, halfcheetah, ant: their defaults on backend
-'mjx') as task definitions (envs/definition.py): the same MJCF and solver options, reset noise, observation, reward
+'mjx') as task definitions (envs/task.py): the same MJCF and solver options, reset noise, observation, reward
 and termination, so both backends and plain MuJoCo C step them as they step every task definition. Brax's records
-(envs/registry.py's BraxVariant) read BRAX_PORTS; tests/test_mujoco_c.py checks the ports step for step against the
+(envs/families/brax_variant.py) read BRAX_PORTS; tests/test_mujoco_c.py checks the ports step for step against the
 MJX environments. Nothing here imports JAX (brax's MJCFs are found without importing brax).
 """
 
@@ -11,7 +11,7 @@ import os
 import mujoco
 import numpy as np
 
-from envs.definition import Task, coordinate_names
+from envs.task import Task, coordinate_names
 
 
 def brax_asset(name):
@@ -23,12 +23,12 @@ def brax_asset(name):
 
 
 class BraxTask(Task):
-    """A Brax locomotion task (its defaults, backend 'mjx') as a task definition (envs/definition.py): the same MJCF and
+    """A Brax locomotion task (its defaults, backend 'mjx') as a task definition (envs/task.py): the same MJCF and
     solver options, reset noise, observation, reward and termination, so both backends and plain MuJoCo C step it
     as they step every task definition. Subclasses set the task's constants and `observe_state` /
     `healthy_state`, written over (qpos [..., nq], qvel [..., nv], torso position [..., 3]) for NumPy and
     jax.numpy alike, batched or not; `observation(m, d)` reads them from one MjData, so they also apply to another
-    simulator's model of the same robot (gsa_jax.deployment.gymnasium_task checks layouts with them).
+    simulator's model of the same robot (gsa_jax.deployment.gymnasium_rollout checks layouts with them).
 
     The torso is body 1 (Brax's x.pos[0]), read as mj_step leaves it (before the step's last substep, as MJX
     holds it); the forward reward is its x velocity over the env step."""

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, Optional
 
 from envs import registry
 from envs.physics import C, Physics, applied, mj_model, record
-from envs.randomize import Randomize, RandomizeError, check_model, parse
+from envs.randomization import Randomize, RandomizeError, check_model, parse
 from envs.registry import TaskLike
 
 if TYPE_CHECKING:  # annotations only: Brax and gymnasium load when an environment is made
@@ -18,11 +18,11 @@ if TYPE_CHECKING:  # annotations only: Brax and gymnasium load when an environme
 
 
 def _wrappers():
-    """envs/wrappers.py and envs/randomized.py (quietly: mujoco.mjx's "Failed to import warp" notice)."""
+    """envs/wrappers.py and envs/randomized_env.py (quietly: mujoco.mjx's "Failed to import warp" notice)."""
     with contextlib.redirect_stdout(io.StringIO()):
-        from envs import randomized, wrappers  # JAX and Brax: imported when an environment is first made
+        from envs import randomized_env, wrappers  # JAX and Brax: imported when an environment is first made
 
-    return wrappers, randomized
+    return wrappers, randomized_env
 
 
 def check_backend(name: TaskLike, physics: Physics) -> None:
@@ -75,32 +75,33 @@ def solver_settings(env: "Env") -> dict:
 def make(name: TaskLike, episode_length: Optional[int] = None, auto_reset: bool = True, physics: Optional[Physics] = None,
          reset_mode: str = "first", randomize: Any = None) -> "Env":
     """Task `name` (a name or a TaskRecord) with a time limit of `episode_length` steps (default: the task's own,
-    `default_episode_length(name)`) and (by default) auto-reset: an ended episode restarts from the env's first
+    `resolve(name).episode_length()`) and (by default) auto-reset: an ended episode restarts from the env's first
     start state (reset_mode 'first', Brax's convention) or from a new draw of the task's start law ('fresh',
     as gymnasium and dm_control reset; envs/wrappers.py). physics: see make_base. randomize: a domain
-    randomization (envs/randomize.py: its text, a table or a Randomize; None or '': none) drawn per episode
-    (envs/randomized.py); RandomizeError (one line) where the task or backend cannot apply it.
+    randomization (envs/randomization.py: its text, a table or a Randomize; None or '': none) drawn per episode
+    (envs/randomized_env.py); RandomizeError (one line) where the task or backend cannot apply it.
 
     state.info: 'steps', 'truncation' (1 when the time limit, not a termination, ended the
     episode), and with auto_reset 'final_obs' (the true last observation of the step).
     """
-    wrappers, randomized = _wrappers()
+    wrappers, randomized_env = _wrappers()
+    task = registry.resolve(name)
     if episode_length is None:
-        episode_length = registry.default_episode_length(name)
+        episode_length = int(task.episode_length())
     if episode_length < 1:
         raise ValueError(f"episode_length must be >= 1, got {episode_length}")
-    spec = check_randomize(name, randomize, episode_length, physics)
-    base = make_base(name, physics)
+    spec = check_randomize(task, randomize, episode_length, physics)
+    base = make_base(task, physics)
     env = wrappers.EpisodeLimit(base, episode_length)
     env = wrappers.AutoReset(env, reset_mode) if auto_reset else env
     if spec is None:
         return env
-    return randomized.Randomized(env, base, spec)
+    return randomized_env.Randomized(env, base, spec)
 
 
 def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int] = None,
                     physics: Optional[Physics] = None) -> Optional[Randomize]:
-    """The Randomize of `randomize` (envs/randomize.py) checked against task `name`'s model and the backend of
+    """The Randomize of `randomize` (envs/randomization.py) checked against task `name`'s model and the backend of
     `physics` (None: MJX), or None for none; RandomizeError (one line) for an unknown parameter, a range out of
     bounds, a delay as long as the episode, or model scales or pushes the backend cannot apply (saying which can).
     Builds no environment."""
@@ -110,9 +111,6 @@ def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int
     task = registry.resolve(name)
     check_model(spec, task.model(), episode_length)
     if spec.registry:
-        if not isinstance(task, registry.PlaygroundAdapted):
-            raise RandomizeError(f"randomize: 'playground' (a Playground environment's own randomizer) applies to "
-                                 f"playground:<Name> tasks, not {task.name!r}; give model scales instead")
         task.check_randomizer()
     if spec.model_fields or spec.push:
         reason = _variant_reason(task, "mjx" if physics is None else physics.backend, spec)
@@ -124,14 +122,13 @@ def check_randomize(name: TaskLike, randomize: Any, episode_length: Optional[int
 def _variant_reason(task, backend, spec):
     """Why model scales or pushes cannot run for this task on this backend (None: they can)."""
     if backend == C:
-        definition = (task.task() if isinstance(task, registry.Definition)
-                      else task.port() if isinstance(task, registry.BraxVariant) else None)
+        definition = task.c_definition()
         if definition is None or definition.post_constraint:
             why = "its steps run mj_rnePostConstraint outside mujoco.batch" if definition else "its host steps no variants"
             return (f"{task.name} takes no per-simulation model on backend 'c' ({why}); its model scales and pushes "
                     "run on MJX (--physics mjx)")
         return None
-    if isinstance(task, (registry.PlaygroundAdapted, registry.UserEnv)):
+    if not task.mjx_variants:
         return f"{task.name} is not a Brax PipelineEnv; model scales and pushes apply to task definitions and Brax's envs"
     have = _wrappers()[1].mjx_model_fields()
     missing = [f for f, _, _ in spec.model_fields if f not in have]
@@ -142,12 +139,12 @@ def _variant_reason(task, backend, spec):
 
 def as_gymnasium(task: TaskLike) -> "gymnasium.Env":
     """A gymnasium.Env of `task` (a name, a Task subclass or instance) stepped by its MuJoCo C twin, with the task's
-    start law, observation, reward, termination and time limit (envs/gymnasium_env.py); ValueError (one line) for a
+    start law, observation, reward, termination and time limit (envs/gymnasium_wrapper.py); ValueError (one line) for a
     task MuJoCo C does not step. Needs gymnasium (the deploy extra)."""
     found = registry.resolve(task)
     if not found.has_c:
         raise ValueError(f"task {found.name!r} has no MuJoCo C version, so no gymnasium environment: MuJoCo C runs "
                          "every task definition, Brax's hopper, walker2d, halfcheetah and ant, and allegro_cylinder")
-    from envs.gymnasium_env import TaskEnv  # gymnasium: an optional extra (deploy)
+    from envs.gymnasium_wrapper import TaskEnv  # gymnasium: an optional extra (deploy)
 
     return TaskEnv(found)

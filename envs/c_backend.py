@@ -2,7 +2,7 @@
 
     env = envs.make("hopper", physics=Physics(backend="c"))     # a Brax-style env, like the MJX one
 
-The classes are built by the tasks' records (envs/registry.py): TaskCEnv, AllegroCTask.
+The classes are built by the tasks' records (envs/families/): TaskCEnv, AllegroCTask.
 
 Each env's simulation state is its float64 mjSTATE_INTEGRATION row (time, qpos, qvel, act, solver
 warmstart, ctrl, ...) followed by what the task carries to its next step (n_carry values: its `before`), carried through the JAX program bit for bit as uint32 pairs (the program runs
@@ -10,7 +10,7 @@ float32). A step is one host call (envs/host_call.py) into mujoco.batch.Batch, w
 batch (runs x envs) on a thread pool, bit-identical to mujoco.mj_step on one MjData per env. The state
 never leaves the program, so runs stay pure, vmappable, checkpointable and resumable.
 
-Tasks: every task definition (envs/task.py: gymnasium's v5 tasks, envs/gym_v5.py; Brax's locomotion tasks,
+Tasks: every task definition (envs/task.py: gymnasium's v5 tasks, envs/v5_tasks.py; Brax's locomotion tasks,
 envs.brax_ports.BRAX_PORTS; and a user's), whose observations, rewards and terminations are computed on the host
 in float64 by the task's own functions (for the v5 tasks, the ones checked against gymnasium); and
 allegro_cylinder, whose PD-target
@@ -35,7 +35,7 @@ from mujoco import batch as mj_batch
 from envs import allegro_task
 from envs.host_call import host_call
 from envs.physics import resolve_threads
-from envs.randomize import scaled_values
+from envs.randomization import scaled_values
 from envs.task_mjx import task_start_noise
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -100,7 +100,7 @@ class HostBatches:
     push_body = None  # the body a step's push acts on (None: no pushes)
 
     def enable_variants(self, spec, push_body):
-        """Step each simulation with its own model fields (envs/randomize.py's spec.model_fields scaled by the
+        """Step each simulation with its own model fields (envs/randomization.py's spec.model_fields scaled by the
         scales a call passes) and pushes on push_body: per-simulation fields of the batch (Batch.expand), written
         only for the simulations whose scales changed, then mj_setConst for them where a field feeds it."""
         self.variant_fields, self.n_scales = spec.model_fields, len(spec.scales)
@@ -508,7 +508,7 @@ class TaskCEnv(CTask):
         self._active = None  # (scales, push) while variant() is open
 
     def enable_variants(self, spec, push_body):
-        """Step with per-simulation model fields and pushes (envs/randomized.py); see TaskHost.enable_variants."""
+        """Step with per-simulation model fields and pushes (envs/randomized_env.py); see TaskHost.enable_variants."""
         self.host.enable_variants(spec, push_body)
         self._nominal = (jnp.ones(len(spec.scales), jnp.float32), jnp.zeros(2, jnp.float32))
 

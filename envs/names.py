@@ -1,14 +1,14 @@
 """The built-in tasks' names and the constants every task shares (no JAX, no MuJoCo).
 
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
-`allegro_cylinder` (envs/allegro.py), gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/gym_v5.py) and
+`allegro_cylinder` (envs/allegro.py), gymnasium's own v5 tasks (GYM_V5_TASKS, gymnasium's ids: envs/v5_tasks.py) and
 the DeepMind Control Suite's (DMC_TASKS, 'dmc:<domain>-<task>': envs/dmc/). envs/registry.py makes each a record.
 """
 
 from envs.dmc import NAMES as DMC_TASKS
 
 BRAX_TASKS = ("inverted_double_pendulum", "hopper", "halfcheetah", "walker2d", "ant")  # Brax's MJX variants
-GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "InvertedDoublePendulum-v5")  # gymnasium's own: envs/gym_v5.py
+GYM_V5_TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "InvertedDoublePendulum-v5")  # gymnasium's own: envs/v5_tasks.py
 
 NAMES = BRAX_TASKS + ("allegro_cylinder",) + GYM_V5_TASKS + DMC_TASKS
 DEFAULT_EPISODE_LENGTH = 1000

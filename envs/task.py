@@ -26,27 +26,394 @@ state itself is the same either way.
 Observation, reward and termination are written once over batches (a leading axis of simulations) for NumPy and
 jax.numpy (`xp`): backend 'c' (envs/c_backend.py) evaluates them in float64 on MuJoCo C's arrays inside the
 compiled trainer, MJX (envs/task_mjx.py) with jax.numpy on MJX's data, and TaskC here (plain MuJoCo C, no JAX)
-steps one MjData for deployment, evaluation and robustness. gymnasium's v5 tasks (envs/gym_v5.py) are
+steps one MjData for deployment, evaluation and robustness. gymnasium's v5 tasks (envs/v5_tasks.py) are
 instances. A step: `before` reads what the reward needs from the state before it, ctrl = controls(action) (the action,
 already clipped to [-1, 1], or with ctrl_range 'model' its map onto the actuators' ctrlrange), mj_step frame_skip times (and mj_rnePostConstraint if post_constraint), then
 `outcome`. validate() checks a definition in one line before anything compiles.
 
-Task, its checks and TaskC's stepping are defined in envs/definition.py (below the task registry, which builds every
-task from them); this module is where a user imports them, and its TaskC also takes a task's name.
+The task registry (envs/registry.py, envs/families/task_definition.py) builds every task definition from this module;
+a task's name gives its plain MuJoCo C twin as envs.resolve(name).make_c().
 """
 
-from envs import definition
-from envs.definition import (  # noqa: F401 - re-exported: what a task's author imports
-    DERIVED_AFTER, KINDS, POST_CONSTRAINT_FIELDS, Task, TaskError, check_jax_agrees, check_rows, coordinate_names,
-    load_model, seed_words, source_record, start_noise, validate,
-)
-from envs.registry import resolve_task
+import hashlib
+import inspect
+import numbers
+import os
+import types
+from typing import Any, Sequence
+
+import mujoco
+import numpy as np
 
 
-class TaskC(definition.TaskC):
+class TaskError(ValueError):
+    """A task name or definition that cannot be used (one line)."""
+
+
+def load_model(xml: "str | os.PathLike | mujoco.MjSpec", where: str = "the task") -> mujoco.MjModel:
+    """An MjModel from an MJCF path, an XML string or a mujoco.MjSpec; TaskError (one line) if it does not load."""
+    try:
+        if isinstance(xml, mujoco.MjSpec):
+            return xml.compile()
+        if isinstance(xml, str) and xml.lstrip().startswith("<"):
+            return mujoco.MjModel.from_xml_string(xml)
+        if isinstance(xml, (str, os.PathLike)):
+            if not os.path.exists(xml):
+                raise TaskError(f"{where}: MJCF file {os.fspath(xml)!r} does not exist")
+            return mujoco.MjModel.from_xml_path(os.fspath(xml))
+    except (ValueError, TypeError) as e:
+        if isinstance(e, TaskError):
+            raise
+        raise TaskError(f"{where}: the MJCF does not load: {' '.join(str(e).split())}") from None
+    raise TaskError(f"{where}: xml must be an MJCF path, an XML string or a mujoco.MjSpec, got {type(xml).__name__}")
+
+
+class Task:
+    """A MuJoCo task: its model, control frame skip, episode length, start-state law, and its observation,
+    reward and termination over batches for NumPy and jax.numpy (subclass it; see the module docstring).
+
+    Start state: qpos ~ init_qpos + U(-noise, noise) (qpos_noise 'uniform') or init_qpos + noise * N(0, 1)
+    ('normal'); qvel ~ U(-vel_noise, vel_noise) (qvel_noise 'uniform') or vel_noise * N(0, 1) ('normal'); noise
+    and vel_noise are scalars or per-coordinate arrays [nq] / [nv] (vel_noise None: noise). init_qpos None: the
+    model's qpos0."""
+
+    name: str = ""  # set by the registry: the name the task was asked for
+    xml: "str | os.PathLike | mujoco.MjSpec | None" = None
+    frame_skip: int = 1
+    episode_length: int = 1000
+    init_qpos: "np.ndarray | None" = None
+    noise: "float | np.ndarray" = 0.0
+    vel_noise: "float | np.ndarray | None" = None
+    qpos_noise: str = "uniform"
+    qvel_noise: str = "uniform"
+    derived: tuple = ()  # MjData fields read after a call, as mj_step leaves them (one substep behind the state)
+    # "step": derived fields as mj_step leaves them (gymnasium); "step1": mj_step1 after the step (dm_control)
+    derived_after: str = "step"
+    goal_size: int = 0  # values initialize() returns, read back by observe/outcome as derived["goal"] [n, goal_size]
+    # "unit": every actuator's ctrlrange is [-1, 1] and ctrl = action; "model": action a in [-1, 1] is mapped onto
+    # the MJCF's ctrlrange, ctrl = lo + (a + 1) (hi - lo) / 2 (controls())
+    ctrl_range: str = "unit"
+    post_constraint: bool = False  # whether a derived field needs mj_rnePostConstraint after the step
+    # robustness pushes (gsa_jax.robustness): the body they act on (a name, or an index: 1 is the first body below
+    # the world, a locomotion robot's torso) and whether the robot moves in the x-z plane (pushes along +-x)
+    push_body: "int | str" = 1
+    planar: bool = False
+    # the domain randomization this task is trained under with --randomize task (envs/randomization.py's text or a
+    # {name: value} table; '': none declared)
+    randomize: "str | dict" = ""
+    # the qpos of the state the task asks the controller to hold (an inverted pendulum's upright, at rest), where it
+    # has one: python -m gsa_jax.verify analyses the closed loop there (None: no equilibrium, falsification only)
+    equilibrium_qpos: "np.ndarray | None" = None
+    # the most an episode can return where rewards are bounded (dm_control's tasks: at most 1 a step), None where they
+    # are not (gymnasium's locomotion): gsa_jax.answer gives no answer where flat PPO does not learn a tenth of it
+    max_return: "float | None" = None
+
+    def __init__(self):
+        for field in ("noise", "vel_noise", "init_qpos"):  # lists as arrays (scalars stay scalars)
+            if isinstance(getattr(self, field), (list, tuple)):
+                setattr(self, field, np.asarray(getattr(self, field), np.float64))
+        self.model = self.load_model()
+        self.dt = self.model.opt.timestep * self.frame_skip
+        self.start_qpos = np.array(self.model.qpos0 if self.init_qpos is None else self.init_qpos, np.float64)
+
+    def load_model(self) -> mujoco.MjModel:
+        """The task's MjModel (default: from `xml`). Override to build it otherwise."""
+        return load_model(self.xml, type(self).__name__)
+
+    @property
+    def vel_scale(self) -> "float | np.ndarray":
+        """The qvel start-noise scale (vel_noise, or noise when None)."""
+        return self.noise if self.vel_noise is None else self.vel_noise
+
+    @property
+    def observation_size(self) -> int:
+        zeros = {f: np.zeros((1,) + getattr(mujoco.MjData(self.model), f).shape) for f in self.derived}
+        zeros.update({"goal": np.zeros((1, self.goal_size))} if self.goal_size else {})
+        return self.observe(self.start_qpos[None], np.zeros((1, self.model.nv)), zeros).shape[-1]
+
+    def controls(self, action: np.ndarray, xp: types.ModuleType = np) -> np.ndarray:
+        """[n, nu] the controls of actions [n, nu] in [-1, 1] (ctrl_range); outcome() receives these as `action`."""
+        if self.ctrl_range == "unit":
+            return action
+        lo, hi = self.model.actuator_ctrlrange.T
+        return lo + (action + 1.0) * (0.5 * (hi - lo))
+
+    def initialize(self, data: mujoco.MjData, rng: np.random.Generator) -> "np.ndarray | None":
+        """The start law as code, for what the noise fields cannot say (dm_control's initialize_episode): set the state
+        of `data` (an MjData just after mj_resetData) with draws from `rng` (a numpy Generator); it may step `data`
+        (a settling phase) and redraw (rejection). Returns the goal [goal_size] (a target drawn at reset), or None
+        when goal_size is 0. mj_forward follows. Backend 'c' and TaskC run it on the host, MJX through a host
+        callback. It must not change the model (one model serves every env; MJX never sees such a change): draw what
+        differs per episode as the goal. Not overridden: the noise law above, drawn in the program."""
+        raise NotImplementedError
+
+    @property
+    def has_initialize(self) -> bool:
+        """Whether the task's start law is initialize() (rather than the noise fields)."""
+        return type(self).initialize is not Task.initialize
+
+    def start(self, data: mujoco.MjData, seed: "int | Sequence[int] | np.ndarray") -> np.ndarray:
+        """initialize() on `data` from mj_resetData with a Generator seeded by `seed` (an int or a sequence of ints),
+        then mj_forward -> goal [goal_size]."""
+        mujoco.mj_resetData(self.model, data)
+        goal = self.initialize(data, np.random.default_rng(seed_words(seed)))
+        mujoco.mj_forward(self.model, data)
+        return np.zeros(0) if goal is None else np.asarray(goal, np.float64).reshape(self.goal_size)
+
+    def before(self, qpos: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
+        """[n, k] what the reward needs from before a step (default: nothing, k = 0)."""
+        return qpos[:, :0] + 0.0
+
+    def observe(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict, xp: types.ModuleType = np) -> np.ndarray:
+        """[n, d] observation of n simulations: qpos [n, nq], qvel [n, nv], derived {field: [n, ...]}."""
+        raise NotImplementedError(f"{type(self).__name__} defines no observe()")
+
+    def outcome(self, before: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, derived: dict, action: np.ndarray,
+                xp: types.ModuleType = np) -> tuple:
+        """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
+        raise NotImplementedError(f"{type(self).__name__} defines no outcome()")
+
+    def observation_layout(self) -> list[str]:
+        """One short description per observation entry (exported controllers' docs)."""
+        return [f"obs[{i}]" for i in range(self.observation_size)]
+
+    def push_body_id(self) -> int:
+        """The index of the body robustness pushes act on (push_body)."""
+        if isinstance(self.push_body, str):
+            return mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, self.push_body)
+        return int(self.push_body)
+
+
+def start_noise(task: Task, rng: np.random.Generator) -> tuple:
+    """(dq [nq], dv [nv]) of a reset, drawn from a NumPy Generator (qpos first, then qvel, as gymnasium draws)."""
+    m = task.model
+    if task.qpos_noise == "uniform":
+        dq = rng.uniform(low=-task.noise, high=task.noise, size=m.nq)
+    else:
+        dq = task.noise * rng.standard_normal(m.nq)
+    scale = task.vel_scale
+    dv = rng.uniform(low=-scale, high=scale, size=m.nv) if task.qvel_noise == "uniform" else scale * rng.standard_normal(m.nv)
+    return dq, dv
+
+
+def seed_words(seed: "int | Sequence[int] | np.ndarray") -> list[int]:
+    """A numpy seed from an int or the uint32 words a program drew (a list of ints)."""
+    return [int(w) for w in np.ravel(seed)]
+
+
+class TaskC:
     """One task on one MjData in plain MuJoCo C (no JAX), stepped as the trainer's backends step it
     (ctrl = action, mj_step frame_skip times, mj_rnePostConstraint), reading obs, reward and termination
-    from the Task. task: a Task, or a task's name (its definition, resolved by envs/registry.py)."""
+    from the Task. task: a Task (by a task's name: envs.resolve(name).make_c())."""
 
-    def __init__(self, task: "Task | str"):
-        super().__init__(resolve_task(task) if isinstance(task, str) else task)
+    def __init__(self, task):
+        self.task = task
+        self.model = self.task.model
+        self.data = mujoco.MjData(self.model)
+        self.goal = np.zeros(task.goal_size)
+
+    @property
+    def action_size(self) -> int:
+        return self.model.nu
+
+    @property
+    def n_frames(self) -> int:
+        """Physics steps per env step (the task's frame_skip)."""
+        return int(self.task.frame_skip)
+
+    def _derived(self):
+        derived = {f: getattr(self.data, f)[None].copy() for f in self.task.derived}
+        return {**derived, "goal": self.goal[None].copy()} if self.task.goal_size else derived
+
+    def set_start(self, qpos: np.ndarray, qvel: np.ndarray, goal: "np.ndarray | None" = None) -> np.ndarray:
+        """The start state (mj_resetData, qpos, qvel, mj_forward; the goal [goal_size] of a task that has one) -> obs."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = qpos, qvel
+        mujoco.mj_forward(m, d)
+        if goal is None and self.task.goal_size:
+            raise ValueError(f"{self.task.name or type(self.task).__name__} draws a goal at reset: give set_start its goal "
+                             f"[{self.task.goal_size}]")
+        self.goal = np.zeros(self.task.goal_size) if goal is None else np.asarray(goal, np.float64)
+        return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
+
+    def observe(self) -> np.ndarray:
+        """[d] the observation of the current state."""
+        d = self.data
+        return self.task.observe(d.qpos[None], d.qvel[None], self._derived())[0]
+
+    def reset(self, seed: "int | Sequence[int] | np.ndarray") -> np.ndarray:
+        if self.task.has_initialize:
+            self.goal = self.task.start(self.data, seed)
+            return self.observe()
+        dq, dv = start_noise(self.task, np.random.default_rng(seed))
+        return self.set_start(self.task.start_qpos + dq, dv)
+
+    def step(self, action: np.ndarray) -> tuple:
+        """One env step with an action in [-1, 1]^nu -> (obs, reward, terminated)."""
+        a = np.asarray(action, np.float64)
+        if a.shape != (self.model.nu,):
+            raise ValueError(f"action has shape {a.shape}; {self.task.name or type(self.task).__name__} takes ({self.model.nu},)")
+        return self.step_controls(self.task.controls(a[None])[0])
+
+    def step_controls(self, ctrl: np.ndarray) -> tuple:
+        """One env step with the controls ctrl [nu] themselves (the task's controls() of an action) -> (obs, reward,
+        terminated)."""
+        m, d = self.model, self.data
+        a = np.asarray(ctrl, np.float64)
+        before = self.task.before(d.qpos[None], self._derived())
+        d.ctrl[:] = a
+        mujoco.mj_step(m, d, nstep=self.task.frame_skip)
+        if self.task.post_constraint:
+            mujoco.mj_rnePostConstraint(m, d)
+        if self.task.derived_after == "step1":
+            mujoco.mj_step1(m, d)
+        obs, reward, terminated = self.task.outcome(before, d.qpos[None], d.qvel[None], self._derived(), a[None])
+        return obs[0], float(reward[0]), bool(terminated[0])
+
+
+DERIVED_AFTER = ("step", "step1")  # when derived fields are read (Task.derived_after)
+POST_CONSTRAINT_FIELDS = ("cacc", "cfrc_int", "cfrc_ext")  # MjData fields only mj_rnePostConstraint computes
+
+
+def validate(task: Task, where: str) -> None:
+    """TaskError (one line, naming `where`) unless the definition can be stepped: actions, start noise shapes,
+    the frame skip and episode length, derived fields, a finite first observation [d], and outcome's observation,
+    reward and termination of the right shapes (NumPy only; check_jax_agrees adds jax.numpy). An error raised by
+    the task's own functions is reported in one line too."""
+    try:
+        _validate(task, where)
+    except TaskError:
+        raise
+    except Exception as e:
+        raise TaskError(f"{where}: stepping it failed: {type(e).__name__}: {' '.join(str(e).split())}") from None
+
+
+def _validate(task, where):
+    m = task.model
+    unknown = [f for f in task.derived if not hasattr(mujoco.MjData(m), f)]
+    if unknown:
+        raise TaskError(f"{where}: derived names {unknown}, which are not MjData fields")
+    needs = [f for f in task.derived if f in POST_CONSTRAINT_FIELDS]
+    if needs and not task.post_constraint:
+        raise TaskError(f"{where}: derived {needs} are computed by mj_rnePostConstraint: set post_constraint = True")
+    if m.nu < 1:
+        raise TaskError(f"{where}: the model has no actuators (action size 0); a task needs at least one")
+    if task.ctrl_range not in ("unit", "model"):
+        raise TaskError(f"{where}: ctrl_range must be 'unit' or 'model', got {task.ctrl_range!r}")
+    unlimited = np.flatnonzero(~m.actuator_ctrllimited.astype(bool))
+    if task.ctrl_range == "model" and len(unlimited):
+        raise TaskError(f"{where}: ctrl_range 'model' maps actions onto each actuator's ctrlrange, but actuator "
+                        f"{m.actuator(int(unlimited[0])).name or int(unlimited[0])} has none (ctrllimited false)")
+    limited = np.flatnonzero(m.actuator_ctrllimited.astype(bool) & np.any(m.actuator_ctrlrange != [-1.0, 1.0], axis=1))
+    if task.ctrl_range == "unit" and len(limited):
+        raise TaskError(f"{where}: actuator {m.actuator(int(limited[0])).name or int(limited[0])} has ctrlrange "
+                        f"{m.actuator_ctrlrange[limited[0]].tolist()}; the policy's actions lie in [-1, 1]: give every "
+                        "actuator ctrlrange=\"-1 1\" and scale it with gear")
+    body = task.push_body
+    if not ((isinstance(body, str) and mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body) >= 0)
+            or (isinstance(body, numbers.Integral) and 0 < body < m.nbody)):
+        raise TaskError(f"{where}: push_body {task.push_body!r} is not a body of the model (a name, or an index in 1 .. "
+                        f"{m.nbody - 1})")
+    for field, size in (("noise", m.nq), ("vel_noise", m.nv), ("init_qpos", m.nq)):
+        v = getattr(task, field)
+        if v is not None and np.ndim(v) > 0 and np.shape(v) != (size,):
+            raise TaskError(f"{where}: {field} has shape {np.shape(v)}; use a scalar or [{size}]")
+    for field in ("qpos_noise", "qvel_noise"):
+        if getattr(task, field) not in ("uniform", "normal"):
+            raise TaskError(f"{where}: {field} must be 'uniform' or 'normal', got {getattr(task, field)!r}")
+    if task.derived_after not in DERIVED_AFTER:
+        raise TaskError(f"{where}: derived_after must be one of {DERIVED_AFTER}, got {task.derived_after!r}")
+    if task.post_constraint and (task.derived_after == "step1" or task.has_initialize or task.goal_size):
+        raise TaskError(f"{where}: post_constraint cannot be combined with derived_after 'step1', initialize() or a goal")
+    if task.goal_size and not task.has_initialize:
+        raise TaskError(f"{where}: goal_size {task.goal_size} needs an initialize() that returns the goal")
+    if int(task.frame_skip) < 1 or int(task.episode_length) < 1:
+        raise TaskError(f"{where}: frame_skip and episode_length must be >= 1")
+    c = TaskC(task)
+    c.reset(0)
+    d = c.data
+    obs = check_rows(where, "observe()", "observation", task.observe(d.qpos[None], d.qvel[None], c._derived()), 2)[0]
+    if not np.all(np.isfinite(obs)):
+        raise TaskError(f"{where}: the first observation must be finite; it has non-finite entries at "
+                        f"{np.flatnonzero(~np.isfinite(obs)).tolist()}")
+    after, reward, terminated = task.outcome(task.before(d.qpos[None], c._derived()), d.qpos[None], d.qvel[None],
+                                             c._derived(), np.zeros((1, m.nu)))
+    if np.shape(after) != (1,) + obs.shape:
+        raise TaskError(f"{where}: outcome() must return obs [n, {obs.size}] (as observe()); got shape "
+                        f"{np.shape(after)} for n = 1")
+    check_rows(where, "outcome()", "reward", reward, 1)
+    check_rows(where, "outcome()", "terminated", terminated, 1, kind="b")
+
+
+KINDS = {"f": "a float array", "b": "a bool array (e.g. a comparison, or xp.zeros(n, bool))"}
+
+
+def check_rows(where: str, function: str, what: str, value: Any, ndim: int, kind: str = "f") -> np.ndarray:
+    """`value` as an array [1, ...] of ndim dimensions (one row per simulation; here n = 1) of dtype kind 'f' (float)
+    or 'b' (bool); else TaskError naming the function, its shape and its dtype."""
+    a = np.asarray(value)
+    shape = "[n, d]" if ndim == 2 else "[n]"
+    if a.ndim != ndim or a.shape[0] != 1:
+        raise TaskError(f"{where}: {function} must return the {what} as {shape}, one row per simulation; got shape "
+                        f"{a.shape} ({a.dtype}) for n = 1" + (" -- a single [d] vector?" if a.ndim == ndim - 1 else ""))
+    if a.dtype.kind != kind and not (kind == "f" and a.dtype.kind in "iu"):
+        raise TaskError(f"{where}: {function} must return the {what} as {KINDS[kind]}; got {a.dtype} {list(a.shape)}")
+    return a
+
+
+def check_jax_agrees(task: Task, where: str) -> None:
+    """TaskError unless observe(), before() and outcome() trace with jax.numpy inside jax.jit (as both backends
+    call them) and the first observation equals NumPy's (shape; values to float32 rounding)."""
+    import jax  # JAX: this module loads without it (deployment steps tasks with no JAX)
+
+    jnp = jax.numpy
+    c = TaskC(task)
+    obs = np.asarray(c.reset(0))
+    d = c.data
+    qpos, qvel = jnp.asarray(d.qpos[None], jnp.float32), jnp.asarray(d.qvel[None], jnp.float32)
+    derived = {f: jnp.asarray(v, jnp.float32) for f, v in c._derived().items()}
+    action = jnp.zeros((1, task.model.nu), jnp.float32)
+    try:
+        got = np.asarray(jax.jit(lambda q, v, x: task.observe(q, v, x, jnp))(qpos, qvel, derived))
+        jax.eval_shape(lambda q, v, x, a: task.outcome(task.before(q, x, jnp), q, v, x, a, jnp), qpos, qvel, derived, action)
+    except Exception as e:
+        raise TaskError(f"{where}: its functions do not run with jax.numpy under jax.jit ({type(e).__name__}: "
+                        f"{' '.join(str(e).split())[:200]}); write them with xp (the module passed in) only") from None
+    if got.shape != (1,) + obs.shape:
+        raise TaskError(f"{where}: observe() gives shape {got.shape[1:]} with jax.numpy but {obs.shape} with NumPy; "
+                        "write it with xp (the module passed in) only")
+    if not np.allclose(got[0], obs, rtol=1e-4, atol=1e-4):
+        worst = int(np.argmax(np.abs(got[0] - obs)))
+        raise TaskError(f"{where}: observe() differs between NumPy and jax.numpy at entry {worst} ({obs[worst]} vs "
+                        f"{got[0, worst]}); write it with xp (the module passed in) only")
+
+
+def coordinate_names(m: mujoco.MjModel) -> tuple:
+    """Names of the qpos [nq] and qvel [nv] coordinates of a model, from its joint names."""
+    qpos, qvel = [], []
+    for j in range(m.njnt):
+        name, kind = m.joint(j).name or f"joint{j}", m.jnt_type[j]
+        if kind == mujoco.mjtJoint.mjJNT_FREE:
+            qpos += [f"{name}.{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+            qvel += [f"{name}.{c}" for c in ("vx", "vy", "vz", "wx", "wy", "wz")]
+        elif kind == mujoco.mjtJoint.mjJNT_BALL:
+            qpos += [f"{name}.{c}" for c in ("qw", "qx", "qy", "qz")]
+            qvel += [f"{name}.{c}" for c in ("wx", "wy", "wz")]
+        else:
+            qpos.append(name)
+            qvel.append(name)
+    return qpos, qvel
+
+
+def source_record(cls: type) -> dict:
+    """What says which code defined a task: its module, file and the file's sha256 (None where there is no file)."""
+    path = inspect.getsourcefile(cls) or ""
+    digest = None
+    if path and os.path.exists(path):
+        with open(path, "rb") as f:
+            digest = hashlib.sha256(f.read()).hexdigest()
+    if path:
+        rel = os.path.relpath(os.path.abspath(path))
+        path = rel if not rel.startswith("..") else os.path.abspath(path)  # relative to where it ran, when below it
+    return {"module": cls.__module__, "class": cls.__qualname__, "file": path or None, "sha256": digest}

@@ -124,8 +124,8 @@ def build_parser():
     p.add_argument("--physics-threads", type=int, default=0,
                    help="MuJoCo C threads per worker process for --physics c (default 0: its share of the cores)")
     p.add_argument("--randomize", default=None, metavar="TEXT",
-                   help="also measure every sweep trained under this domain randomization (envs/randomize.py's text), "
-                        "right after its nominal twin; bench.json gives each one's ratio_vs_nominal")
+                   help="also measure every sweep trained under this domain randomization (envs/randomization.py's "
+                        "text), right after its nominal twin; bench.json gives each one's ratio_vs_nominal")
     # worker-only arguments
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)

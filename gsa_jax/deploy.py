@@ -8,7 +8,7 @@ edited since) is refused in one line (--force runs it where the sizes agree). Pr
 episodes) and episode length of the deterministic controller in MuJoCo C (the MJCF it was trained on: our port of
 Brax's task, or the task's own definition; every task with a MuJoCo C version, envs/registry.py);
 with --gymnasium ENV_ID also in gymnasium's own task (its MJCF, reward, termination and time limit;
-refused with the reason where its observation layout is not ours, gsa_jax.deployment.gymnasium_task); with
+refused with the reason where its observation layout is not ours, gsa_jax.deployment.gymnasium_rollout); with
 --compare-mjx RUN_DIR also in the MJX environment it was trained in (this part uses JAX).
 """
 

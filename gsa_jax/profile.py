@@ -16,7 +16,6 @@ import sys
 import time
 
 import envs
-from envs.registry import Definition
 from envs.task import TaskError
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.benchmark.parts import profile_parts
@@ -60,9 +59,7 @@ def pin_cores(cores):
 def sweep_config(env, policy, K, runs, backend):
     """The static Config a sweep of these runs would train with (its defaults, this backend); a task defined in
     Python is made here, so that a missing dependency (dm_control for dmc: tasks) is refused before any profiling."""
-    record = envs.task_record(env)
-    if isinstance(record, Definition):
-        record.task()
+    envs.task_record(env).load()
     return single_group(env, policy, K, list(range(runs)), backend, source="gsa_jax.profile")[1]
 
 

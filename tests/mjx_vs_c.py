@@ -5,14 +5,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from envs.task import TaskC
 
 
 def assert_mjx_follows_mujoco_c(name, horizon, obs_tol, reward_tol, key=0, terminations=False):
     """MJX's task `name` from its reset (PRNGKey(key)) and MuJoCo C from the same state (and goal) under the same
     U(-1, 1) actions: the first observation within 1e-5, then observations within obs_tol and rewards within reward_tol
     for `horizon` env steps (and the same terminations if `terminations`)."""
-    env, c = envs.make_base(name), TaskC(name)
+    env, c = envs.make_base(name), envs.resolve(name).make_c()
     s = jax.jit(env.reset)(jax.random.PRNGKey(key))
     step = jax.jit(env.step)
     ps = s.pipeline_state

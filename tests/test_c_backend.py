@@ -164,7 +164,7 @@ def c_sweep(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def v5_sweep(tmp_path_factory):
-    """gymnasium's Hopper-v5 (envs/gym_v5.py) in the same sweep."""
+    """gymnasium's Hopper-v5 (envs/v5_tasks.py) in the same sweep."""
     return tiny_sweep(tmp_path_factory, "Hopper-v5")
 
 

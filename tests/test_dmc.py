@@ -22,7 +22,6 @@ from scipy import stats as sps
 import envs
 from envs.c_backend import STATE_SPEC, float64_rows
 from envs.physics import Physics
-from envs.task import TaskC
 from mjx_vs_c import assert_mjx_follows_mujoco_c
 
 pytest.importorskip("dm_control")  # the MJCFs' source (the extra make test installs)
@@ -60,7 +59,7 @@ def replay(c, f, i):
 def test_whole_episodes_equal_dm_controls(name):
     """Every step of whole episodes (dm_control's 1000, no termination: every discount 1): observations in
     dm_control's key order and sizes, and rewards, to float64 rounding (contact tasks: over CONTACT_HORIZON steps)."""
-    f, c = fixture(name), TaskC(f"dmc:{name}")
+    f, c = fixture(name), envs.resolve(f"dmc:{name}").make_c()
     layout = c.task.observation_layout()
     assert [(k, int(s)) for k, s in zip(f["obs_keys"], f["obs_sizes"])] == list(c.task.observation_keys)
     assert len(layout) == int(f["obs_sizes"].sum()) and c.task.frame_skip == int(f["n_sub_steps"])
@@ -77,7 +76,7 @@ def test_whole_episodes_equal_dm_controls(name):
 def test_every_single_step_from_dm_controls_state(name):
     """From dm_control's state before each step of an episode (qpos, qvel, qacc_warmstart): one step with its action
     gives its next observation and reward to STEP_TOL (mujoco 4.0 stepping what mujoco 3.17 recorded)."""
-    f, c = fixture(name), TaskC(f"dmc:{name}")
+    f, c = fixture(name), envs.resolve(f"dmc:{name}").make_c()
     m = c.model
     worst = 0.0
     for t, (state, a) in enumerate(zip(f["ep0_states"], f["ep0_actions"])):
@@ -123,7 +122,7 @@ def test_backend_c_steps_as_mujoco_c_rounded_to_float32():
         for i in range(3):
             sim, _ = start_state(env.env, f[f"ep{i}_qpos0"], f[f"ep{i}_qvel0"])
             sims.append(sim)
-            obs, rew = replay(TaskC(f"dmc:{name}"), f, i)
+            obs, rew = replay(envs.resolve(f"dmc:{name}").make_c(), f, i)
             ref_obs.append(obs[1:])
             ref_rew.append(rew)
         s0 = jax.tree.map(lambda x: jnp.stack([x] * 3), env.reset(jax.random.PRNGKey(0)))
@@ -146,7 +145,7 @@ def test_actions_map_onto_a_models_ctrlrange_alike_on_backend_c_and_in_mujoco_c(
     from a reset of its own gives TaskC's observations and rewards rounded to float32 for 30 steps of random actions,
     and the extreme actions reach the ends of every ctrlrange."""
     name = "dmc:quadruped-walk"
-    env, c = envs.make(name, auto_reset=False, physics=Physics(backend="c")), TaskC(name)
+    env, c = envs.make(name, auto_reset=False, physics=Physics(backend="c")), envs.resolve(name).make_c()
     s = jax.jit(env.reset)(jax.random.PRNGKey(4))
     host = env.env.host
     mujoco.mj_setState(c.model, c.data, float64_rows(s.pipeline_state.rows)[: host.n_mj], STATE_SPEC)
@@ -186,7 +185,7 @@ def test_a_goal_drawn_at_reset_is_carried_and_redrawn_only_when_an_episode_resta
     its goal through an episode and gets a new one exactly when its episode restarts (5-step episodes here); the
     observation's to_target is goal - finger xy throughout."""
     env = envs.make("dmc:reacher-easy", physics=Physics(backend=backend), reset_mode="fresh", episode_length=5)
-    c = TaskC("dmc:reacher-easy")
+    c = envs.resolve("dmc:reacher-easy").make_c()
     s = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(2), 3))
     step = jax.jit(jax.vmap(env.step))
 

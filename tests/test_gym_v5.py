@@ -1,4 +1,4 @@
-"""gymnasium's v5 tasks (envs/gym_v5.py): MuJoCo C and the trainer's backend 'c' against gymnasium.make(id),
+"""gymnasium's v5 tasks (envs/v5_tasks.py): MuJoCo C and the trainer's backend 'c' against gymnasium.make(id),
 step for step over whole episodes from gymnasium's reset states with the same random actions (out-of-range
 ones included); the reset noise law; MJX (envs/task_mjx.py) against MuJoCo C within a tolerance.
 
@@ -14,8 +14,7 @@ from scipy import stats as sps
 
 import envs
 from envs.c_backend import STATE_SPEC, SimState
-from envs.gym_v5 import V5_TASKS
-from envs.task import TaskC
+from envs.v5_tasks import V5_TASKS
 from envs.physics import Physics
 from mjx_vs_c import assert_mjx_follows_mujoco_c
 
@@ -53,7 +52,7 @@ def test_mujoco_c_task_equals_gymnasium_exactly(env_id):
     """TaskC, stepping one MjData with the task's own observation, reward and termination functions, gives
     gymnasium's values bit for bit (largest difference 0.0)."""
     for seed in range(SEEDS):
-        _, worst = gym_episode(env_id, seed, TaskC(env_id))
+        _, worst = gym_episode(env_id, seed, envs.resolve(env_id).make_c())
         assert worst == 0.0, (env_id, seed, worst)
 
 
@@ -203,12 +202,12 @@ def test_ant_on_mjx_steps_like_mujoco_c_from_shared_states():
 
     env = envs.make_base("Ant-v5")
     init, step = jax.jit(env.pipeline_init), jax.jit(env.step)
-    traj, rng, diffs = TaskC("Ant-v5"), np.random.default_rng(0), []
+    traj, rng, diffs = envs.resolve("Ant-v5").make_c(), np.random.default_rng(0), []
     traj.reset(0)
     for t in range(200):
         a = rng.uniform(-1, 1, 8)
         if t % 10 == 5:
-            c = TaskC("Ant-v5")
+            c = envs.resolve("Ant-v5").make_c()
             c.set_start(traj.data.qpos, traj.data.qvel)
             data = init(jnp.asarray(traj.data.qpos, jnp.float32), jnp.asarray(traj.data.qvel, jnp.float32))
             zero = jnp.zeros((), jnp.float32)

@@ -1,4 +1,4 @@
-"""gymnasium's own MuJoCo tasks for exported controllers (gsa_jax.deployment.gymnasium_task, deploy --gymnasium):
+"""gymnasium's own MuJoCo tasks for exported controllers (gsa_jax.deployment.gymnasium_rollout, deploy --gymnasium):
 layouts checked, not assumed; mismatches refused with a reason. And a task of ours as a gymnasium env
 (envs.as_gymnasium): checked by gymnasium, its episodes its MuJoCo C twin's."""
 
@@ -12,7 +12,7 @@ import pytest
 gymnasium = pytest.importorskip("gymnasium")
 
 from envs.mujoco_c import BRAX_PORTS  # noqa: E402
-from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_layout, make_gym
+from gsa_jax.deployment.gymnasium_rollout import GymnasiumError, check_layout, make_gym
 
 
 @pytest.mark.parametrize("task, env_id", [("hopper", "Hopper-v5"), ("walker2d", "Walker2d-v5"),
@@ -110,7 +110,7 @@ def test_a_task_as_a_gymnasium_env_passes_check_env_and_steps_as_its_mujoco_c_tw
 
 
 def test_a_controller_scores_in_the_gymnasium_env_what_deploy_scores_in_mujoco_c():
-    """The committed reacher controller, run by gymnasium_task.run_episodes in envs.as_gymnasium, returns what
+    """The committed reacher controller, run by gymnasium_rollout.run_episodes in envs.as_gymnasium, returns what
     mujoco_c.run_episodes (deploy's MuJoCo C episodes) returns for the same start seeds."""
     import glob
     import os
@@ -119,7 +119,7 @@ def test_a_controller_scores_in_the_gymnasium_env_what_deploy_scores_in_mujoco_c
     from envs.mujoco_c import make_c
     from envs.mujoco_c import run_episodes as c_episodes
     from gsa_jax.deployment import numpy_policy
-    from gsa_jax.deployment.gymnasium_task import run_episodes
+    from gsa_jax.deployment.gymnasium_rollout import run_episodes
 
     root = os.path.join(os.path.dirname(__file__), "..", "experiments", "your_task_reacher", "results", "controllers")
     ctrl = numpy_policy.load(sorted(glob.glob(os.path.join(root, "*K2-s0.npz")))[0])

@@ -11,7 +11,7 @@ import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
 LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
-JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
+JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.stats", "analysis.results", "analysis.tables", "analysis.figures",
             "analysis.retention", "analysis.retention_eval", "analysis.retention_stats", "analysis.retention_plots",

@@ -1,5 +1,5 @@
-"""Domain randomization (envs/randomize.py, envs/randomized.py): every draw at its nominal value is the nominal task
-(bit for bit on 'c', the same numbers on MJX); a doubled mass steps as MuJoCo C with that mass (step for step); the
+"""Domain randomization (envs/randomization.py, envs/randomized_env.py): every draw at its nominal value is the nominal
+task (bit for bit on 'c', the same numbers on MJX); a doubled mass steps as MuJoCo C with that mass (step for step); the
 scales, the push and the delay do exactly what their definitions say, on a task whose dynamics are exactly linear;
 a stopped and resumed randomized run equals an uninterrupted one; bad input is one line before anything compiles."""
 
@@ -14,7 +14,7 @@ import pytest
 import envs
 from envs.c_backend import STATE_SPEC, float64_rows
 from envs.physics import Physics
-from envs.randomize import RandomizeError, parse
+from envs.randomization import RandomizeError, parse
 from gsa_jax.algorithm.config import Config
 from gsa_jax.running.spec import SpecError, check_spec
 from tests.verify_tasks import DAMPING, GEAR, MASS, TIMESTEP, PointMass

@@ -17,7 +17,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from envs.definition import Task, TaskError, seed_words
+from envs.task import Task, TaskError, seed_words
 
 DM_CONTROL_VERSION = "1.0.50"
 INSTALL = f"pip install 'dm_control=={DM_CONTROL_VERSION}' (or: pip install -e '.[dmc]'; make test installs it)"

@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from envs.dmc.base import DmcTask, randomize_joints
-from envs.definition import TaskError
+from envs.task import TaskError
 
 SPIN_VELOCITY = 15.0
 HINGE_DAMPING = 0.03  # Spin.initialize_episode: physics.named.model.dof_damping['hinge'] = .03

@@ -20,7 +20,7 @@ import types
 import mujoco
 import numpy as np
 
-from envs.definition import TaskError
+from envs.task import TaskError
 from envs.dmc.base import XMAT, DmcTask, suite_dir, tolerance
 
 WALK_SPEED, TIME_LIMIT = 0.5, 20.0

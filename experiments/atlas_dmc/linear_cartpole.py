@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import scipy.linalg as sla
 
-from envs.task import TaskC
+import envs
 from gsa_jax.analysis.results import write_csv
 
 Q, R, EPS, RESETS = np.diag([1.0, 10.0, 0.1, 0.1]), np.eye(1) * 0.1, 1e-6, 20
@@ -36,7 +36,7 @@ def linearize(m):
 
 
 def main():
-    c = TaskC("dmc:cartpole-balance")
+    c = envs.resolve("dmc:cartpole-balance").make_c()
     A, B = linearize(c.model)
     P = sla.solve_discrete_are(A, B, Q, R)
     K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)

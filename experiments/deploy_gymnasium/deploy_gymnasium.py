@@ -90,7 +90,7 @@ def model_differences(env_name):
     import gymnasium
 
     from envs.mujoco_c import make_c
-    from gsa_jax.deployment.gymnasium_task import GYM_OPTIONS
+    from gsa_jax.deployment.gymnasium_rollout import GYM_OPTIONS
 
     ours = make_c(env_name)
     gym_env = gymnasium.make(GYM_IDS[env_name], **GYM_OPTIONS.get(env_name, {})).unwrapped

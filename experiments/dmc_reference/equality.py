@@ -12,7 +12,6 @@ import os
 import numpy as np
 
 import envs
-from envs.task import TaskC
 from gsa_jax.analysis.results import write_csv
 
 GOLDEN = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "tests", "golden", "dmc")
@@ -52,7 +51,7 @@ def single_steps(c, f):
 def main():
     rows = []
     for name in envs.DMC_TASKS:
-        f, c = np.load(os.path.join(GOLDEN, f"{name.removeprefix('dmc:')}.npz")), TaskC(name)
+        f, c = np.load(os.path.join(GOLDEN, f"{name.removeprefix('dmc:')}.npz")), envs.resolve(name).make_c()
         obs, rew, first = whole_episodes(c, f)
         step_obs, step_rew = single_steps(c, f)
         rows.append({"task": name, "episode_obs_diff": f"{obs:.1e}", "episode_reward_diff": f"{rew:.1e}",

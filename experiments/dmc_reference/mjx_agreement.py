@@ -15,14 +15,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from envs.task import TaskC
 from gsa_jax.analysis.results import write_csv
 
 HORIZONS = (10, 50)
 
 
 def agreement(name, key=0):
-    env, c = envs.make_base(name), TaskC(name)
+    env, c = envs.make_base(name), envs.resolve(name).make_c()
     t0 = time.perf_counter()
     s = jax.jit(env.reset)(jax.random.PRNGKey(key))
     step = jax.jit(env.step)

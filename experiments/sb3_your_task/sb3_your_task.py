@@ -10,7 +10,7 @@ train_cpu_s: the CPU seconds the training used, compile included, which a machin
 less than wall time). Both
 final policies are then scored the same way: the deterministic action (gsa_jax: the exported
 controller, numpy_policy; SB3: predict(deterministic=True)) over EPISODES episodes of envs.as_gymnasium(TASK) from the
-start seeds EVAL_SEED.. (gsa_jax.deployment.gymnasium_task.run_episodes). Writes runs.csv (one row per tool and seed)
+start seeds EVAL_SEED.. (gsa_jax.deployment.gymnasium_rollout.run_episodes). Writes runs.csv (one row per tool and seed)
 and meta.json (versions, commit, command) under --out, after every run.
 """
 
@@ -35,7 +35,7 @@ COLUMNS = ("tool", "seed", "env_steps", "train_wall_s", "compile_s", "env_steps_
 def score(policy):
     """(mean, std) of the deterministic policy's returns over EPISODES episodes of envs.as_gymnasium(TASK)."""
     import envs
-    from gsa_jax.deployment.gymnasium_task import run_episodes
+    from gsa_jax.deployment.gymnasium_rollout import run_episodes
 
     returns, _ = run_episodes(envs.as_gymnasium(TASK), policy, EPISODES, seed=EVAL_SEED)
     return float(np.mean(returns)), float(np.std(returns))
@@ -71,7 +71,7 @@ def children_cpu_s():
 
 
 class Deterministic:
-    """An SB3 model's deterministic action as act(obs) (what gymnasium_task.run_episodes calls)."""
+    """An SB3 model's deterministic action as act(obs) (what gymnasium_rollout.run_episodes calls)."""
 
     def __init__(self, model):
         self.model = model

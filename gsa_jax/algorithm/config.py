@@ -16,7 +16,7 @@ import jax.numpy as jnp
 
 import envs
 from envs.physics import Physics, make_physics, nest_physics
-from envs.randomize import parse as parse_randomize
+from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
@@ -70,7 +70,7 @@ class Config:
     # line-search settings; its fields' metadata name their options); a dict of its fields is taken too
     # (config.json, experiment files' [config.physics])
     physics: Physics = Physics()
-    # domain randomization of the training episodes (envs/randomize.py's text, e.g. "mass=0.9:1.1, delay=1"; '':
+    # domain randomization of the training episodes (envs/randomization.py's text, e.g. "mass=0.9:1.1, delay=1"; '':
     # none); evaluation runs the nominal task unless eval_randomized
     randomize: str = _flag("", "--randomize", metavar="TEXT", help=(
         "domain randomization of the training episodes, e.g. 'mass=0.9:1.1, friction=0.75:1.25, gear=0.9:1.1, "

@@ -113,7 +113,7 @@ class SweepCell(NamedTuple):
     value_target: str = "gae"
     backend: str = "mjx"
     physics_threads: int = 0
-    randomize: str = ""  # the runs' domain randomization (envs/randomize.py's text; '': none)
+    randomize: str = ""  # the runs' domain randomization (envs/randomization.py's text; '': none)
 
 
 def worker_command(cell: SweepCell, runs: int, seed0: int, repeats: int) -> list:

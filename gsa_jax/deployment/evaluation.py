@@ -7,7 +7,7 @@ import zipfile
 
 import numpy as np
 
-from envs import default_episode_length, task_record
+from envs import task_record
 from gsa_jax.deployment import numpy_policy
 
 
@@ -60,8 +60,9 @@ def run_mujoco_c(ctrl: numpy_policy.Controller, env_name: str, config: dict, epi
     from envs.mujoco_c import run_episodes
 
     try:  # a task defined outside the package is imported here: its errors in one line
-        task = task_record(env_name).make_c()
-        length = episode_length or config.get("episode_length") or default_episode_length(env_name)
+        record = task_record(env_name)
+        task = record.make_c()
+        length = episode_length or config.get("episode_length") or record.episode_length()
     except ValueError as e:
         raise DeployError(f"the controller is for {env_name!r}: {e}") from None
     returns, lengths = run_episodes(task, ctrl, episodes, int(length), seed)
@@ -71,7 +72,7 @@ def run_mujoco_c(ctrl: numpy_policy.Controller, env_name: str, config: dict, epi
 def open_gymnasium(ctrl: numpy_policy.Controller, env_name: str, env_id: str, seed: int = 0) -> tuple:
     """(gymnasium's env `env_id` for the controller, its options), checked (DeployError, one line, where there is no
     counterpart of the task or its layout or action space is not the controller's)."""
-    from gsa_jax.deployment.gymnasium_task import GymnasiumError, check_bounds, make_gym
+    from gsa_jax.deployment.gymnasium_rollout import GymnasiumError, check_bounds, make_gym
 
     try:
         env, options = make_gym(env_name, env_id, seed=seed)
@@ -84,7 +85,7 @@ def open_gymnasium(ctrl: numpy_policy.Controller, env_name: str, env_id: str, se
 def run_gymnasium(ctrl: numpy_policy.Controller, gym: tuple, env_id: str, episodes: int, seed: int = 0) -> dict:
     """Summary of the controller in gymnasium's own task (its MJCF, reward, termination, time limit); gym: (env,
     options) of open_gymnasium."""
-    from gsa_jax.deployment.gymnasium_task import run_episodes
+    from gsa_jax.deployment.gymnasium_rollout import run_episodes
 
     env, options = gym
     returns, lengths = run_episodes(env, ctrl, episodes, seed)
@@ -95,10 +96,7 @@ def run_gymnasium(ctrl: numpy_policy.Controller, gym: tuple, env_id: str, episod
 def mujoco_c_label(env_name: str) -> str:
     """What runs a task in MuJoCo C, for report lines: our port of Brax's task (or of the Allegro hand), a built-in
     task definition, or the user's own."""
-    record = task_record(env_name)
-    if record.family in ("brax", "allegro"):
-        return "MuJoCo C (our port)"
-    return "MuJoCo C" if record.builtin else "MuJoCo C (your task)"
+    return task_record(env_name).mujoco_c_label()
 
 
 def run_mjx(run_dir: str, episodes: int, seed: int = 0) -> tuple:

@@ -15,7 +15,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from envs.randomize import push_force
+from envs.randomization import push_force
 from gsa_jax.deployment.shifts import Shift, is_planar, shifted_task, step_task, task_step_seconds
 
 PUSH_SIZES = (0.25, 0.5, 1.0)  # m/s: the velocity change of the whole robot each push gives

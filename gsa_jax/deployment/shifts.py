@@ -25,7 +25,7 @@ import mujoco
 import numpy as np
 
 from envs.mujoco_c import make_c
-from envs.randomize import DEFAULT_PUSH_RATE, push_force
+from envs.randomization import DEFAULT_PUSH_RATE, push_force
 
 PUSH_RATE = DEFAULT_PUSH_RATE  # probability of a push at each env step (one every 100 steps on average)
 OTHER_SIMULATOR = {"Hopper-v5": "hopper", "Walker2d-v5": "walker2d", "HalfCheetah-v5": "halfcheetah",

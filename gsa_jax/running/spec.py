@@ -17,7 +17,7 @@ from typing import Callable, NamedTuple, NoReturn
 
 import envs
 from envs.physics import FLAT_CONFIG_FIELDS, Physics, nest_physics
-from envs.randomize import parse as parse_randomize
+from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
@@ -155,7 +155,7 @@ def check_spec(raw: dict, source: str = "spec") -> SweepSpec:
 
 
 def randomize_text(table: dict | str, spec: dict, bad: Callable[[str, str], NoReturn]) -> str:
-    """The [randomize] table (envs/randomize.py: {name: value}, a range as "lo:hi" or [lo, hi]) as Config's
+    """The [randomize] table (envs/randomization.py: {name: value}, a range as "lo:hi" or [lo, hi]) as Config's
     canonical text; it goes to config.randomize, which the file must not also set."""
     if "randomize" in spec.get("config", {}):
         bad("randomize", "set it either as a [randomize] table or as config.randomize, not both")

@@ -67,16 +67,15 @@ def _load_controller(path):
 
 def _task_definition(env):
     import envs
-    from envs.registry import Definition
 
     try:
         record = envs.task_record(env)
     except (ValueError, ImportError) as e:
         raise VerifyError(f"the controller is for {env!r}: {' '.join(str(e).split())}") from None
-    if not record.has_c or not isinstance(record, Definition):
+    if not record.verifiable:
         raise VerifyError(f"the controller is for {env!r}, which has no MuJoCo C twin verify can step; "
                           f"these have one: {C_TWINS}")
-    return envs.resolve_task(env)
+    return record.new()
 
 
 def controller_input_size(ctrl: numpy_policy.Controller) -> int:

@@ -17,7 +17,6 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.names import ACTION_RANGE
-from envs.registry import action_size, observation_size
 
 SEED_RANGE = 2**31 - 1  # start seeds drawn from np_random when reset() is given none
 
@@ -31,9 +30,9 @@ class TaskEnv(gymnasium.Env):
         self.task_name = record.name
         self.twin = record.make_c()
         self.max_episode_steps = int(record.episode_length())
-        self.action_space = spaces.Box(ACTION_RANGE[0], ACTION_RANGE[1], shape=(action_size(record),),
+        self.action_space = spaces.Box(ACTION_RANGE[0], ACTION_RANGE[1], shape=(record.action_size(),),
                                        dtype=np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(observation_size(record),), dtype=np.float64)
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(record.observation_size(),), dtype=np.float64)
         self.steps = 0
 
     def reset(self, *, seed=None, options=None):

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from envs import GYM_V5_TASKS
-from envs.mujoco_c import BRAX_PORTS, observation_layout
+from envs.mujoco_c import BRAX_PORTS
 
 GYM_NAMES = {"hopper": "Hopper", "walker2d": "Walker2d", "halfcheetah": "HalfCheetah", "ant": "Ant",
              "inverted_double_pendulum": "InvertedDoublePendulum"}
@@ -92,7 +92,7 @@ def check_layout(task: str, env: Any, env_id: str, steps: int = 50, seed: int = 
     lo, hi = env.action_space.low, env.action_space.high
     if not (np.allclose(lo, port.model.actuator_ctrlrange[:, 0]) and np.allclose(hi, port.model.actuator_ctrlrange[:, 1])):
         raise GymnasiumError(f"{env_id}'s action range [{lo}, {hi}] is not our {task}'s")
-    names = observation_layout(task)
+    names = port.observation_layout()
     obs, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     current = mujoco.MjData(u.model)

@@ -1,4 +1,4 @@
-"""A task trained under domain randomization (envs/randomize.py says what is drawn): a Brax wrapper above the
+"""A task trained under domain randomization (envs/randomization.py says what is drawn): a Brax wrapper above the
 time limit and auto-reset, and the model variants each backend steps.
 
     env = Randomized(envs.make(name, physics=physics), base, spec)   # envs.make(..., randomize=spec) does this
@@ -20,7 +20,7 @@ from brax.envs.base import Wrapper
 from mujoco import mjx
 
 from envs.physics import C, mj_model, substeps
-from envs.randomize import push_force
+from envs.randomization import push_force
 
 
 RANDOMIZE_STREAM = 0x52414E44  # folded into a reset's key: the randomization's own key sequence

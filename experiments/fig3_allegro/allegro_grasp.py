@@ -1,7 +1,7 @@
 """Find the start pose of the Allegro cylinder task and write it into envs/assets/allegro_cylinder.xml.
 
-    python -m envs.allegro_grasp [--seed 0]
-    python -m envs.allegro_grasp --pairs      # which geoms can touch: the basis of the MJCF's <contact> pairs
+    python experiments/fig3_allegro/allegro_grasp.py [--seed 0]
+    python experiments/fig3_allegro/allegro_grasp.py --pairs   # which geoms can touch: the MJCF's <contact> pairs
 
 How the asset's object placement and keyframe "grasp" were made (run once; the result is committed):
 1. sample index-finger and thumb configurations (middle 70% of each joint range), pair them, and keep
@@ -21,7 +21,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-ASSET = Path(__file__).parent / "assets" / "allegro_cylinder.xml"
+ASSET = Path(__file__).resolve().parents[2] / "envs" / "assets" / "allegro_cylinder.xml"
 R_OBJ, R_TIP = 0.025, 0.012
 SQUEEZE = 0.002
 FINGERS = {"ff": ("ff_j0", "ff_j1", "ff_j2", "ff_j3"), "th": ("th_j0", "th_j1", "th_j2", "th_j3")}
@@ -159,7 +159,8 @@ def _set_keyframe(xml, qpos, ctrl):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m envs.allegro_grasp", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python experiments/fig3_allegro/allegro_grasp.py",
+                                description=__doc__.split("\n")[0])
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--pairs", action="store_true", help="report which geoms can touch (nothing is written)")
     args = p.parse_args(argv)

@@ -1,6 +1,6 @@
 """gymnasium's MuJoCo v5 tasks (gymnasium 1.4's defaults for those ids) on MuJoCo C, with no JAX.
 
-    task = TaskC("Hopper-v5")                 # envs.task.TaskC: one MjData in MuJoCo C
+    task = envs.resolve("Hopper-v5").make_c()  # envs.task.TaskC: one MjData in MuJoCo C
     obs = task.reset(seed)                    # or task.set_start(qpos, qvel)
     obs, reward, terminated = task.step(action)
 
@@ -29,7 +29,7 @@ import os
 import mujoco
 import numpy as np
 
-from envs.definition import Task, coordinate_names
+from envs.task import Task, coordinate_names
 
 EPISODE_LENGTH = 1000  # gymnasium's max_episode_steps for the five ids (a truncation, not a termination)
 
