@@ -25,8 +25,8 @@ import sys
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, to_toml

@@ -13,14 +13,15 @@ ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
 LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
 JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
-            "running.tensorboard", "analysis.stats", "analysis.results", "analysis.tables", "analysis.figures",
-            "analysis.retention", "analysis.retention_eval", "analysis.retention_stats", "analysis.retention_plots",
-            "analysis.shift_rows", "analysis.paired", "analysis.fairness", "running.trained", "plot", "robustness", "deploy")
+            "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
+            "analysis.sweeps.figures", "analysis.robustness.retention", "analysis.robustness.retention_eval",
+            "analysis.robustness.retention_stats", "analysis.robustness.retention_plots", "analysis.robustness.shift_rows",
+            "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained", "plot", "robustness", "deploy")
 
 
 def modules():
-    """{dotted name below gsa_jax: path} of every module, commands (top level and inspect/) included."""
-    paths = glob.glob(os.path.join(ROOT, "*.py")) + glob.glob(os.path.join(ROOT, "*", "*.py"))
+    """{dotted name below gsa_jax: path} of every module at any depth, commands (top level and inspect/) included."""
+    paths = glob.glob(os.path.join(ROOT, "**", "*.py"), recursive=True)
     found = {}
     for p in paths:
         rel = os.path.relpath(p, ROOT)[:-3].replace(os.sep, ".")

@@ -1,4 +1,4 @@
-"""gsa_jax.analysis.stats against NumPy / SciPy references, and gsa_jax.plot merging sweeps (fabricated tables:
+"""gsa_jax.analysis.sweeps.stats against NumPy / SciPy references, and gsa_jax.plot merging sweeps (fabricated tables:
 nothing to compile)."""
 
 import csv
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.figures import plot_sweep
-from gsa_jax.analysis.results import PlotError
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.figures import plot_sweep
+from gsa_jax.analysis.sweeps.results import PlotError
 from gsa_jax.plot import main as plot_main
 
 FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples: enough for the checks, cheap
@@ -50,7 +50,7 @@ def test_probability_of_improvement_is_mann_whitney():
 
 def test_critics_compared_cell_by_cell():
     """A sweep listing value_targets: P(Retrace's run beats GAE's) for each retrace cell, nothing for others."""
-    from gsa_jax.analysis.tables import critic_comparisons
+    from gsa_jax.analysis.sweeps.tables import critic_comparisons
 
     gae, rt = np.array([1.0, 4.0, 6.0, 8.0]), np.array([3.0, 5.0, 7.0])
     cell = lambda env, target: (env, "mixture", 6, ("value_target", target))  # noqa: E731
@@ -128,7 +128,7 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
 def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
     """The product's answer per task, sub-policy class and margin, judged as gsa_jax.answer's first look: the smallest
     K shown within the margin, with the smaller K still undecided named; none where no K is shown sufficient."""
-    from gsa_jax.analysis.tables import sufficient_k_lines, sufficient_k_table, verdict_table
+    from gsa_jax.analysis.sweeps.tables import sufficient_k_lines, sufficient_k_table, verdict_table
 
     spread = np.linspace(-1.0, 1.0, 10)
 
@@ -162,8 +162,8 @@ def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
 def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):
     """Figure 1 sets K = ceil(m d_a): hopper's K = 2 is the 0.5 d_a configuration (not 0.667 d_a), and on a
     one-action task K = 1 is both 0.5 d_a and 1 d_a; K set directly is named K / d_a."""
-    from gsa_jax.analysis.results import spec_multipliers
-    from gsa_jax.analysis.tables import config_keys
+    from gsa_jax.analysis.sweeps.results import spec_multipliers
+    from gsa_jax.analysis.sweeps.tables import config_keys
 
     d = tmp_path / "fig1"
     d.mkdir()
@@ -191,8 +191,8 @@ def test_sweeps_with_other_settings_are_not_merged(tmp_path):
 def test_a_critic_sweep_merges_with_a_sweep_that_lists_none(tmp_path):
     """A sweep of Retrace runs alone, merged with a sweep that lists no critics (GAE): the latter's cells
     become the GAE cells the Retrace ones are compared with; the same runs with other settings are refused."""
-    from gsa_jax.analysis.results import final_scores, load_sweeps
-    from gsa_jax.analysis.tables import critic_comparisons
+    from gsa_jax.analysis.sweeps.results import final_scores, load_sweeps
+    from gsa_jax.analysis.sweeps.tables import critic_comparisons
 
     gae = write_sweep(tmp_path / "fig1", "hopper")
     rt = write_sweep(tmp_path / "retrace", "hopper", final={"mixture": 130.0}, critic="retrace")
@@ -219,8 +219,8 @@ def test_failed_evaluation_episodes_are_counted_and_unreturned_evaluations_repor
     before failures were counted, with a scheduled final evaluation left blank in one run: that run is
     listed in unscored_runs and a printed line, and left out of the statistics -- not scored from an
     earlier evaluation."""
-    from gsa_jax.analysis.results import load_sweep, unscored_lines
-    from gsa_jax.analysis.tables import final_table
+    from gsa_jax.analysis.sweeps.results import load_sweep, unscored_lines
+    from gsa_jax.analysis.sweeps.tables import final_table
 
     counted, legacy = tmp_path / "counted", tmp_path / "legacy"
     for d, with_count in ((counted, True), (legacy, False)):
@@ -271,8 +271,8 @@ def test_last_episodes_return_weights_iterations_by_their_episodes():
 def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
     """per_run_scores.csv: a run's final score (mean of its last 3 evaluations), not its last evaluation;
     its training returns; the cell table's mean is the mean of these scores."""
-    from gsa_jax.analysis.results import load_sweep
-    from gsa_jax.analysis.tables import final_table, run_table
+    from gsa_jax.analysis.sweeps.results import load_sweep
+    from gsa_jax.analysis.sweeps.tables import final_table, run_table
 
     d = tmp_path / "sweep"
     d.mkdir()
@@ -302,7 +302,7 @@ def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
 def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_them(tmp_path):
     """Tables redrawn from committed results normalize by the random-policy return an earlier invocation
     measured and saved in OUT, not by a new measurement; a sweep's own value takes precedence."""
-    from gsa_jax.analysis.results import random_returns_of
+    from gsa_jax.analysis.sweeps.results import random_returns_of
 
     a = write_sweep(tmp_path / "a", "hopper")
     out = tmp_path / "out"
@@ -316,8 +316,8 @@ def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_the
 def test_random_returns_are_measured_with_the_backend_the_sweep_trained_with(tmp_path, monkeypatch):
     """A task MJX cannot step (dmc:fish-swim) trains with backend 'c': its random-policy return is measured
     with 'c' too, with MJX where the sweep names no backend, and with 'c' where two sweeps disagree."""
-    from gsa_jax.analysis import scoring
-    from gsa_jax.analysis.results import random_returns_of
+    from gsa_jax.analysis.sweeps import scoring
+    from gsa_jax.analysis.sweeps.results import random_returns_of
 
     asked = []
     monkeypatch.setattr(scoring, "random_policy_return", lambda env, backend="mjx": asked.append((env, backend)) or 1.0)

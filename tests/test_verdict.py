@@ -1,12 +1,12 @@
-"""The non-inferiority verdict (gsa_jax.analysis.verdict, .trimmed, .sequential, .ladder) on score sets whose truth is
+"""The non-inferiority verdict (gsa_jax.analysis.verdicts.verdict, .trimmed, .sequential, .ladder) on score sets whose truth is
 known: Yuen's test against SciPy's, the group-sequential boundaries against a simulated Brownian motion, and the whole
 answer's error rate by simulation of gsa_jax.answer's own decisions."""
 
 import numpy as np
 import pytest
 
-from gsa_jax.analysis import answering, ladder, sequential, trimmed
-from gsa_jax.analysis import verdict as V
+from gsa_jax.analysis.verdicts import answering, ladder, sequential, trimmed
+from gsa_jax.analysis.verdicts import verdict as V
 
 
 def noisy(center, spread, n, seed):

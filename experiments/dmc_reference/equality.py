@@ -13,7 +13,7 @@ import numpy as np
 
 import envs
 from envs.task import TaskC
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis.sweeps.results import write_csv
 
 GOLDEN = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "tests", "golden", "dmc")
 

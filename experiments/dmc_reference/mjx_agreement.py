@@ -16,7 +16,7 @@ import numpy as np
 
 import envs
 from envs.task import TaskC
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis.sweeps.results import write_csv
 
 HORIZONS = (10, 50)
 

@@ -74,7 +74,7 @@ def drift(env_name="hopper"):
     given explicitly for the iterative one)."""
     import envs
     from envs.physics import Physics
-    from gsa_jax.analysis.scoring import qpos_drift
+    from gsa_jax.analysis.sweeps.scoring import qpos_drift
 
     exact, iterative = envs.make_base(env_name), envs.make_base(env_name, Physics(linesearch="iterative"))
     assert [envs.solver_settings(e)["linesearch_in_force"] for e in (exact, iterative)] == ["exact", "iterative"]
@@ -90,7 +90,7 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     from envs.physics import Physics
-    from gsa_jax.analysis.scoring import mean_ci, score_sweep, write_rows
+    from gsa_jax.analysis.sweeps.scoring import mean_ci, score_sweep, write_rows
     from gsa_jax.running.runinfo import run_metadata
 
     os.makedirs(args.out, exist_ok=True)

@@ -17,7 +17,7 @@ from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import schedule
-from gsa_jax.analysis.extraction import select, sweep_runs
+from gsa_jax.analysis.sweeps.extraction import select, sweep_runs
 from gsa_jax.deployment.evaluation import load_controller, run_mujoco_c
 from gsa_jax.deployment.exporting import controller_arrays
 from gsa_jax.deployment.inspection import last_iteration, load_run

@@ -14,7 +14,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from envs.physics import nest_physics, record_backend
-from gsa_jax.analysis import stats
+from gsa_jax.analysis.sweeps import stats
 from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.runinfo import describe_changes
 
@@ -203,7 +203,7 @@ def evaluation_scores(data: dict) -> dict:
 
 def final_scores(data: dict) -> dict:
     """{cell: (scores [n], kind)}: each run's score, seeds in order. Where every run of a cell has its committed
-    controller's score (controller_score, gsa_jax.analysis.controller_scores: the final controller re-run in MuJoCo C
+    controller's score (controller_score, gsa_jax.analysis.sweeps.controller_scores: the final controller re-run in MuJoCo C
     from fixed start states) those, kind 'controller'; else evaluation_scores."""
     out = evaluation_scores(data)
     for cell, seeds in data.items():
@@ -271,7 +271,7 @@ def random_returns_of(dirs: Sequence[str], env_names: Iterable[str], out_dir: st
                 found.update(json.load(f))  # the sweeps' own, read last, take precedence
     missing = [e for e in env_names if e not in found]
     if missing:
-        from gsa_jax.analysis.scoring import random_policy_return
+        from gsa_jax.analysis.sweeps.scoring import random_policy_return
 
         for env_name in missing:
             backend = backend_of(dirs, env_name)

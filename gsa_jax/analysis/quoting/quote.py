@@ -1,5 +1,5 @@
 """Numbers in Markdown pages quoted from the committed tables, so that they cannot drift from them:
-`python -m gsa_jax.analysis.quote PAGE.md [PAGE.md ...] [--check]`.
+`python -m gsa_jax.analysis.quoting.quote PAGE.md [PAGE.md ...] [--check]`.
 
 Each span `<!-- quote KIND FILE [column=value ...] [option=value ...] -->TEXT<!-- /quote -->` has its
 TEXT rewritten from FILE (a CSV path relative to the page: final_returns.csv, per_run_scores.csv,
@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis.results import read_csv
+from gsa_jax.analysis.sweeps.results import read_csv
 from gsa_jax.running.runinfo import cli_description
 
 SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
@@ -137,8 +137,8 @@ def reach(dirs: Sequence[str], filters: dict, threshold: float) -> str:
     """'flat PPO 10/10 at 358k, K = 2 8/10 at 532k, ...': per cell of the sweeps' tidy metrics (cells whose
     columns hold the filters' values), the runs whose deterministic return reached `threshold` at an
     evaluation, and the median env step of their first such evaluation."""
-    from gsa_jax.analysis.results import drop_failed, load_failed, load_sweeps
-    from gsa_jax.analysis.tables import cell_order
+    from gsa_jax.analysis.sweeps.results import drop_failed, load_failed, load_sweeps
+    from gsa_jax.analysis.sweeps.tables import cell_order
 
     data, _ = drop_failed(load_sweeps(dirs), [f for d in dirs for f in load_failed(d)])
     names = {"env": 0, "policy": 1, "K": 2}
@@ -212,7 +212,7 @@ def requote(text: str, page_dir: str) -> tuple:
 
 
 def main(argv: list | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=cli_description(__doc__))
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quoting.quote", description=cli_description(__doc__))
     p.add_argument("pages", nargs="+", metavar="PAGE", help="Markdown pages")
     p.add_argument("--check", action="store_true", help="rewrite nothing; exit 1 if any quoted number is stale")
     args = p.parse_args(argv)
@@ -222,7 +222,7 @@ def main(argv: list | None = None) -> int:
             with open(page) as f:
                 text, changed = requote(f.read(), os.path.dirname(page) or ".")
         except (OSError, QuoteError) as e:
-            print(f"gsa_jax.analysis.quote: error: {page}: {e}", file=sys.stderr)
+            print(f"gsa_jax.analysis.quoting.quote: error: {page}: {e}", file=sys.stderr)
             return 2
         for spec, old, new in changed:
             print(f"{page}: quote {spec}: {old.strip()[:80]!r} -> {new.strip()[:80]!r}")

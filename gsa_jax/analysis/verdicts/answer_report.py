@@ -11,9 +11,10 @@ import os
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
-from gsa_jax.analysis import controller_scores, ladder, sequential, trimmed, verdict
-from gsa_jax.analysis.answering import FLAT, Evidence, Setup, reference_of
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis.sweeps import controller_scores
+from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax.analysis.verdicts import ladder, sequential, trimmed, verdict
+from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, reference_of
 from gsa_jax.running.checkpoint import write_atomic
 
 

@@ -24,7 +24,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from gsa_jax.analysis import trimmed
+from gsa_jax.analysis.verdicts import trimmed
 
 REFERENCES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ppo_references.csv")
 COLUMNS = ("task", "published_task", "score", "std", "seeds", "steps", "metric", "algorithm", "source", "note")
@@ -202,7 +202,7 @@ def choose(task: str, steps: int, margin: float, flat: FlatRuns, rand: trimmed.S
     """The baseline record of an answer: flat PPO's standing against every entry that applies, whether it still
     learns at the budget and learns the task at all, and what the verdicts judge against (flat PPO on controller
     scores; the binding entry on its own metric where flat PPO is below it)."""
-    from gsa_jax.analysis.verdict import iqm
+    from gsa_jax.analysis.verdicts.verdict import iqm
 
     values = {"controller_score": list(flat.controller), "training_return_last_100_episodes": list(flat.last100)}
     standings = [s for s in (stand(r, values, rand.mean, margin) for r in applicable(references, task, steps)) if s]

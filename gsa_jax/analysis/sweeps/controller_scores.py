@@ -22,7 +22,6 @@ import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
 
-
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
 START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
 FRESH_EPISODES = 50  # an answer's chosen controller re-scored on starts it was not picked on ...

@@ -1,11 +1,11 @@
 """The answer loop of `python -m gsa_jax.answer`: train flat PPO and a ladder of K in rounds, judge every cell at the
-design's looks (gsa_jax.analysis.ladder: Yuen's trimmed-mean t, an alpha-spending function over the looks, Holm over
-the K) against a baseline shown adequate (gsa_jax.analysis.baseline), and add seeds only where the smallest
+design's looks (gsa_jax.analysis.verdicts.ladder: Yuen's trimmed-mean t, an alpha-spending function over the looks, Holm over
+the K) against a baseline shown adequate (gsa_jax.analysis.verdicts.baseline), and add seeds only where the smallest
 sufficient K is not decided yet.
 
 A round trains, per policy class, one sweep (one vmapped program; gsa_jax.sweep in a subprocess, resumable, with the
 answer's shared compilation cache so a later round with the same shapes loads its program), exports every run's
-controller and scores it in MuJoCo C (gsa_jax.analysis.controller_scores). The decisions are a pure function of the
+controller and scores it in MuJoCo C (gsa_jax.analysis.sweeps.controller_scores). The decisions are a pure function of the
 runs' values (decide), so experiments/verdicts/error_rates.py simulates this very loop. The state (DIR/answer.json)
 is written after every step, so the same command resumes where it stopped.
 """
@@ -21,8 +21,9 @@ import time
 from typing import Callable, NamedTuple, Sequence
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import baseline, controller_scores, ladder, sequential, trimmed, verdict
-from gsa_jax.analysis.extraction import collect_results
+from gsa_jax.analysis.sweeps import controller_scores
+from gsa_jax.analysis.sweeps.extraction import collect_results
+from gsa_jax.analysis.verdicts import baseline, ladder, sequential, trimmed, verdict
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
 
@@ -40,7 +41,7 @@ class AnswerError(Exception):
 class Setup:
     """What an answer computes (recorded in answer.json; a resumed answer must match it). specs: the base
     experiment spec per policy ('mlp', 'mixture': steps, hparams, config); looks: seeds per cell at each look;
-    alpha, spending: the design (gsa_jax.analysis.sequential); start_from: results directories whose committed
+    alpha, spending: the design (gsa_jax.analysis.verdicts.sequential); start_from: results directories whose committed
     controllers are the first seeds; references: the references table (None: the shipped one)."""
 
     env: str
@@ -195,8 +196,8 @@ def collect_scores(out: str, setup: Setup) -> dict:
 def collect_runs(out: str, setup: Setup) -> tuple:
     """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}) from the
     tidy metrics under score_roots."""
-    from gsa_jax.analysis.results import load_sweep
-    from gsa_jax.analysis.stats import last_episodes_return
+    from gsa_jax.analysis.sweeps.results import load_sweep
+    from gsa_jax.analysis.sweeps.stats import last_episodes_return
 
     last100, curves = {}, {}
     dirs = sorted({os.path.dirname(p) for root in score_roots(out, setup)

@@ -1,4 +1,4 @@
-"""The statistics tables of a sweep's results (rliable via gsa_jax.analysis.stats): final scores per cell,
+"""The statistics tables of a sweep's results (rliable via gsa_jax.analysis.sweeps.stats): final scores per cell,
 normalized aggregates, smallest sufficient K, learning-curve bands."""
 
 import math
@@ -8,8 +8,9 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import stats, verdict
-from gsa_jax.analysis.results import cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
+from gsa_jax.analysis.verdicts import verdict
 
 
 def smooth(y: np.ndarray, window: int) -> np.ndarray:
@@ -239,7 +240,7 @@ def cell_setting(cell: tuple, settings: Sequence[str]) -> tuple:
 def grid_evidence(data: dict, scores: dict, cells: list) -> tuple:
     """answering.Evidence of one task's fixed grid: flat PPO's and each K's scores (final_scores: the committed
     controllers' where scored), last-100-episode training returns and flat PPO's learning curves."""
-    from gsa_jax.analysis.answering import FLAT, Evidence
+    from gsa_jax.analysis.verdicts.answering import FLAT, Evidence
 
     values, last100, curves = {}, {}, {}
     for cell in cells:
@@ -256,8 +257,8 @@ def grid_verdicts(env_name: str, cells: list, data: dict, scores: dict, random_p
                   target: float | None = None) -> tuple:
     """(answer rows, sensitivity rows, baseline record) of one task's fixed grid, judged exactly as gsa_jax.answer
     judges its first look (answering.decide with the default design): a table of n seeds is the look n reaches."""
-    from gsa_jax.analysis.answer_report import answer_rows, sensitivity_rows
-    from gsa_jax.analysis.answering import DEFAULT_LOOKS, Setup, decide
+    from gsa_jax.analysis.verdicts.answer_report import answer_rows, sensitivity_rows
+    from gsa_jax.analysis.verdicts.answering import DEFAULT_LOOKS, Setup, decide
 
     ladder = tuple(sorted(c[2] for c in cells if c[1] == MIXTURE))
     spec = {"steps": int(steps), "hparams": {}, "config": {}}

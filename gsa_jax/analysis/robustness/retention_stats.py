@@ -8,9 +8,9 @@ from typing import Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.fairness import partial_spearman
-from gsa_jax.analysis.shift_rows import cells, controller_key
+from gsa_jax.analysis.robustness.fairness import partial_spearman
+from gsa_jax.analysis.robustness.shift_rows import cells, controller_key
+from gsa_jax.analysis.sweeps import stats
 
 MULTIPLIERS = (0.5, 1, 2, 4)
 

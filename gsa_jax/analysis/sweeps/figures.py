@@ -8,15 +8,33 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
-from gsa_jax.analysis import controller_scores, stats, verdict
-from gsa_jax.analysis.results import (
-    action_dims_of, drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, spec_steps,
-    unscored_lines, write_csv,
+from gsa_jax.analysis.sweeps import controller_scores, stats
+from gsa_jax.analysis.sweeps.results import (
+    action_dims_of,
+    drop_failed,
+    load_failed,
+    load_sweeps,
+    random_returns_of,
+    setting_columns,
+    spec_multipliers,
+    spec_steps,
+    unscored_lines,
+    write_csv,
 )
-from gsa_jax.analysis.tables import (
-    aggregate_table, cell_curves, cell_label, cell_order, final_table, k_curves, normalized_scores, run_table,
-    sufficient_k_lines, sufficient_k_table, verdict_table,
+from gsa_jax.analysis.sweeps.tables import (
+    aggregate_table,
+    cell_curves,
+    cell_label,
+    cell_order,
+    final_table,
+    k_curves,
+    normalized_scores,
+    run_table,
+    sufficient_k_lines,
+    sufficient_k_table,
+    verdict_table,
 )
+from gsa_jax.analysis.verdicts import verdict
 
 
 def plot_curves(data: dict, action_dims: dict, failed: dict, column: str, path: str, title: str,
