@@ -110,8 +110,8 @@ def halfwidth(x: float | str) -> str:
     return fmt(x, 1 if x != "" and abs(float(x)) < 10 else 0)
 
 
-def cell_table(rows: list) -> str:
-    """Figure 1's per-task table of final_returns.csv rows (one task)."""
+def cell_markdown(rows: list) -> str:
+    """Figure 1's per-task Markdown table of final_returns.csv rows (one task)."""
     mixture = [r for r in rows if r["policy"] == MIXTURE and r.get("K_over_action_dim", "") != ""]
     d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0]['K_over_action_dim']))})" if mixture else ""
     lines = [f"| {rows[0]['env']}{d_a} | deterministic: mean ± 95% CI | IQM [95% CI] | P(> flat PPO) [95% CI] "
@@ -124,8 +124,8 @@ def cell_table(rows: list) -> str:
     return "\n".join(lines)
 
 
-def aggregate_table(rows: list) -> str:
-    """The normalized-score table of aggregate.csv rows."""
+def aggregate_markdown(rows: list) -> str:
+    """The Markdown table of aggregate.csv rows (normalized IQM and P(> flat PPO) per configuration)."""
     lines = ["| configuration | normalized IQM [95% CI] | P(> flat PPO) [95% CI] |", "|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['config']} | {interval(r, 'normalized_iqm', 'iqm_ci_low', 'iqm_ci_high', 2)} "
@@ -168,7 +168,7 @@ def render(args: str, page_dir: str) -> str:
     if kind in ("table", "aggregate"):
         if not rows:
             raise QuoteError(f"{path}: no row matches")
-        return "\n\n" + (cell_table(rows) if kind == "table" else aggregate_table(rows)) + "\n\n"
+        return "\n\n" + (cell_markdown(rows) if kind == "table" else aggregate_markdown(rows)) + "\n\n"
     if kind == "text":  # one row's column as it is written ('none' where empty): verdicts, K lists
         col = options.get("col", "final_score")
         if len(rows) != 1 or col not in rows[0]:
