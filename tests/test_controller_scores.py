@@ -57,7 +57,7 @@ def test_scores_are_kept_while_the_file_is_unchanged(one_controller, monkeypatch
 def test_plot_tables_use_the_controller_scores(tmp_path):
     """The committed IDP-v5 sweep with its controllers scored: per_run_scores.csv carries controller_score, and
     final_returns.csv's IQM is the controller scores' (score kind 'controller')."""
-    from gsa_jax.analysis.verdicts.verdict import iqm
+    from gsa_jax.analysis.sweeps.stats import iqm
     from gsa_jax.plot import main as plot
 
     src = os.path.join(COMMITTED, "..")

@@ -5,6 +5,7 @@ answer's error rate by simulation of gsa_jax.answer's own decisions."""
 import numpy as np
 import pytest
 
+from gsa_jax.analysis.sweeps.stats import iqm
 from gsa_jax.analysis.verdicts import answering, ladder, sequential, trimmed
 from gsa_jax.analysis.verdicts import verdict as V
 
@@ -13,13 +14,14 @@ def noisy(center, spread, n, seed):
     return center + spread * np.random.default_rng(seed).standard_normal(n)
 
 
-def test_iqm_is_rliables():
+def test_the_verdicts_trimmed_mean_is_the_one_iqm_rliables_to_the_bit():
     from rliable import metrics
 
-    x = np.random.default_rng(0).standard_normal((7, 1)) * 100
-    for n in (1, 2, 3, 4, 5, 7):
-        assert V.iqm(x[:n, 0]) == pytest.approx(metrics.aggregate_iqm(x[:n]), abs=1e-9)
-        assert trimmed.trimmed(x[:n, 0]).mean == pytest.approx(V.iqm(x[:n, 0]), abs=1e-12)
+    x = np.random.default_rng(0).standard_normal((41, 1)) * 100
+    for n in (1, 2, 3, 4, 5, 7, 10, 17, 40, 41):
+        assert iqm(x[:n]) == metrics.aggregate_iqm(x[:n]) == iqm(x[:n, 0])
+        assert trimmed.trimmed(x[:n, 0]).mean == iqm(x[:n, 0])
+    assert iqm([1.0, 2.0, 3.0, 4.0, 100.0, -50.0, 5.0, 6.0]) == 3.5  # sorted: -50 1 | 2 3 4 5 | 6 100
 
 
 @pytest.mark.parametrize("n1, n2", [(10, 10), (7, 13), (40, 20), (5, 9)])

@@ -25,6 +25,7 @@ import os
 
 import numpy as np
 
+from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.analysis.verdicts import answering, sequential, verdict
 
@@ -61,7 +62,7 @@ DESIGNS = [("pocock", "holm"), ("obf", "holm"), ("bonferroni", "holm"), ("pocock
 
 
 def law_iqm(draw) -> float:
-    return float(verdict.iqm(draw(np.random.default_rng(99), 2_000_000)))
+    return stats.iqm(draw(np.random.default_rng(99), 2_000_000))
 
 
 def run_trial(setup, cells: dict, random_returns: np.ndarray) -> tuple:

@@ -1,6 +1,8 @@
 """Statistics over runs with rliable (Agarwal et al., "Deep RL at the edge of the statistical precipice"):
 IQM with stratified bootstrap confidence intervals, probability of improvement, performance profiles.
-Plain NumPy in, plain NumPy out; gsa_jax.plot draws and tabulates them.
+Plain NumPy in, plain NumPy out; gsa_jax.plot draws and tabulates them. The package's one IQM (iqm) and one
+stratified bootstrap (bootstrap); robustness.paired.crossed_interval resamples the push events that all controllers
+share as well, which a bootstrap stratified by configuration cannot.
 
 A run's final score is the mean deterministic return of its last FINAL_EVALUATIONS scheduled evaluations
 (gsa_jax.running.metrics; an evaluation's failed episodes count up to their last finite step, gsa_jax.algorithm.episodes);
@@ -92,7 +94,9 @@ def iqm_ci(scores: dict, seed: int = 0, reps: int = REPS) -> dict:
 
 
 def iqm(scores: np.ndarray) -> float:
-    """The interquartile mean of scores [runs, tasks] (rliable's aggregate_iqm): a point, no interval."""
+    """The interquartile mean of scores [runs, tasks] or [runs] (rliable's aggregate_iqm): a point, no interval. The
+    one IQM of the package: tables, the baseline and reports call it; the verdict's test (verdicts.trimmed) computes
+    the same number with its standard error."""
     from rliable import metrics
 
     return float(metrics.aggregate_iqm(np.asarray(scores, float)))

@@ -297,7 +297,7 @@ def reference_value(cells: list, scores: dict, base: dict | None, target: float 
         return None
     if base["entry"] is not None:
         return float(base["entry"]["score"])
-    return float(verdict.iqm(scores[cells[0]][0]))
+    return stats.iqm(scores[cells[0]][0])
 
 
 def verdict_table(data: dict, random_policies: dict, steps: dict, settings: Sequence[str] = (),

@@ -24,6 +24,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.verdicts import trimmed
 
 REFERENCES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ppo_references.csv")
@@ -202,12 +203,11 @@ def choose(task: str, steps: int, margin: float, flat: FlatRuns, rand: trimmed.S
     """The baseline record of an answer: flat PPO's standing against every entry that applies, whether it still
     learns at the budget and learns the task at all, and what the verdicts judge against (flat PPO on controller
     scores; the binding entry on its own metric where flat PPO is below it)."""
-    from gsa_jax.analysis.verdicts.verdict import iqm
 
     values = {"controller_score": list(flat.controller), "training_return_last_100_episodes": list(flat.last100)}
     standings = [s for s in (stand(r, values, rand.mean, margin) for r in applicable(references, task, steps)) if s]
     bind = binding(standings)
-    flat_iqm = float(iqm(flat.controller)) if len(flat.controller) else float("nan")
+    flat_iqm = stats.iqm(flat.controller) if len(flat.controller) else float("nan")
     learn = learning(flat.curves, steps, flat_iqm - rand.mean, margin)
     ok, why = learned(flat_iqm, rand.mean, max_return)
     entry = bind.reference if bind is not None and bind.below else None

@@ -55,15 +55,6 @@ class Gap(NamedTuple):
     seeds_observed: int | None
 
 
-def iqm(scores: np.ndarray) -> np.ndarray:
-    """The interquartile mean along the last axis of scores [..., n] (scipy.stats.trim_mean(x, 0.25), which
-    rliable's aggregate_iqm is for one task): the mean of the sorted values int(n/4) .. n - int(n/4) - 1."""
-    x = np.sort(np.asarray(scores, np.float64), axis=-1)
-    n = x.shape[-1]
-    cut = int(0.25 * n)
-    return x[..., cut: n - cut].mean(axis=-1)
-
-
 def summarize_reference(reference: "Sequence[float] | trimmed.Summary") -> trimmed.Summary:
     """A reference as a contrast group: flat PPO's scores [n] (their IQM), or a Summary (a fixed score)."""
     return reference if isinstance(reference, trimmed.Summary) else trimmed.trimmed(reference)
