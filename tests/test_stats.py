@@ -316,11 +316,11 @@ def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_the
 def test_random_returns_are_measured_with_the_backend_the_sweep_trained_with(tmp_path, monkeypatch):
     """A task MJX cannot step (dmc:fish-swim) trains with backend 'c': its random-policy return is measured
     with 'c' too, with MJX where the sweep names no backend, and with 'c' where two sweeps disagree."""
-    from gsa_jax.analysis.sweeps import scoring
+    from gsa_jax.analysis.sweeps import random_return
     from gsa_jax.analysis.sweeps.results import random_returns_of
 
     asked = []
-    monkeypatch.setattr(scoring, "random_policy_return", lambda env, backend="mjx": asked.append((env, backend)) or 1.0)
+    monkeypatch.setattr(random_return, "random_policy_return", lambda env, backend="mjx": asked.append((env, backend)) or 1.0)
     a = write_sweep(tmp_path / "a", "dmc:fish-swim")
     meta = json.loads((a / "sweep.json").read_text())
     meta["spec"]["config"] = {"backend": "c"}

@@ -271,7 +271,7 @@ def random_returns_of(dirs: Sequence[str], env_names: Iterable[str], out_dir: st
                 found.update(json.load(f))  # the sweeps' own, read last, take precedence
     missing = [e for e in env_names if e not in found]
     if missing:
-        from gsa_jax.analysis.sweeps.scoring import random_policy_return
+        from gsa_jax.analysis.sweeps.random_return import random_policy_return
 
         for env_name in missing:
             backend = backend_of(dirs, env_name)
