@@ -14,9 +14,10 @@ LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "comman
 JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_task",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
-            "analysis.sweeps.figures", "analysis.robustness.retention", "analysis.robustness.retention_eval",
-            "analysis.robustness.retention_stats", "analysis.robustness.retention_plots", "analysis.robustness.shift_rows",
-            "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained", "plot", "robustness", "deploy")
+            "analysis.sweeps.figures", "analysis.verdicts.grid", "analysis.robustness.retention",
+            "analysis.robustness.retention_eval", "analysis.robustness.retention_stats", "analysis.robustness.retention_plots",
+            "analysis.robustness.shift_rows", "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained",
+            "plot", "robustness", "deploy")
 
 
 def modules():

@@ -128,7 +128,7 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
 def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
     """The product's answer per task, sub-policy class and margin, judged as gsa_jax.answer's first look: the smallest
     K shown within the margin, with the smaller K still undecided named; none where no K is shown sufficient."""
-    from gsa_jax.analysis.sweeps.tables import sufficient_k_lines, sufficient_k_table, verdict_table
+    from gsa_jax.analysis.verdicts.grid import sufficient_k_lines, sufficient_k_table, verdict_table
 
     spread = np.linspace(-1.0, 1.0, 10)
 

@@ -10,31 +10,13 @@ import numpy as np
 from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis.sweeps import controller_scores, stats
 from gsa_jax.analysis.sweeps.results import (
-    action_dims_of,
-    drop_failed,
-    load_failed,
-    load_sweeps,
-    random_returns_of,
-    setting_columns,
-    spec_multipliers,
-    spec_steps,
-    unscored_lines,
-    write_csv,
+    action_dims_of, drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, spec_steps,
+    unscored_lines, write_csv,
 )
 from gsa_jax.analysis.sweeps.tables import (
-    aggregate_table,
-    cell_curves,
-    cell_label,
-    cell_order,
-    final_table,
-    k_curves,
-    normalized_scores,
-    run_table,
-    sufficient_k_lines,
-    sufficient_k_table,
-    verdict_table,
+    aggregate_table, cell_curves, cell_label, cell_order, final_table, k_curves, normalized_scores, run_table,
 )
-from gsa_jax.analysis.verdicts import verdict
+from gsa_jax.analysis.verdicts.grid import write_verdicts
 
 
 def plot_curves(data: dict, action_dims: dict, failed: dict, column: str, path: str, title: str,
@@ -154,23 +136,6 @@ def plot_profiles(normalized: dict, path: str, reps: int = stats.REPS, xlabel: s
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def write_verdicts(data: dict, random_policies: dict, steps: dict, settings: Sequence[str], out_dir: str,
-                   log: Callable = print, target: float | None = None) -> tuple:
-    """verdicts.csv and sufficient_k.csv of the cells' final scores (the committed controllers' where scored), judged
-    as gsa_jax.answer's first look -> (verdict rows, sufficient_k rows); the answer at the default margin printed per
-    task."""
-    verdicts = verdict_table(data, random_policies, steps, settings, target=target)
-    sufficient = sufficient_k_table(verdicts, settings)
-    if verdicts:
-        write_csv(os.path.join(out_dir, "verdicts.csv"), verdicts)
-        write_csv(os.path.join(out_dir, "sufficient_k.csv"), sufficient)
-        log(f"How many linear controllers does each task need (margin {verdict.DEFAULT_MARGIN:g} of the reference's gain "
-            "over a random policy; docs/answer.md)?")
-        for line in sufficient_k_lines(sufficient):
-            log(line)
-    return verdicts, sufficient
 
 
 def random_policies_of(env_names: Sequence[str], random_returns: dict, out_dir: str, log: Callable = print) -> dict:
