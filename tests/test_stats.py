@@ -12,7 +12,7 @@ from scipy import stats as sps
 
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.figures import plot_sweep
-from gsa_jax.analysis.sweeps.results import PlotError
+from gsa_jax.analysis.sweeps.results import Cell, PlotError
 from gsa_jax.plot import main as plot_main
 
 FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples: enough for the checks, cheap
@@ -53,12 +53,12 @@ def test_critics_compared_cell_by_cell():
     from gsa_jax.analysis.sweeps.tables import critic_comparisons
 
     gae, rt = np.array([1.0, 4.0, 6.0, 8.0]), np.array([3.0, 5.0, 7.0])
-    cell = lambda env, target: (env, "mixture", 6, ("value_target", target))  # noqa: E731
+    cell = lambda env, target: Cell(env, "mixture", 6, (("value_target", target),))  # noqa: E731
     scores = {cell("hopper", "gae"): (gae, "deterministic"), cell("hopper", "retrace"): (rt, "deterministic"),
               cell("walker2d", "retrace"): (rt, "deterministic")}  # no GAE cell to compare with
     got = critic_comparisons(scores)
     assert list(got) == [cell("hopper", "retrace")] and got[cell("hopper", "retrace")][0] == pytest.approx(0.5)
-    assert critic_comparisons({("hopper", "mixture", 6): (rt, "deterministic")}) == {}
+    assert critic_comparisons({Cell("hopper", "mixture", 6): (rt, "deterministic")}) == {}
 
 
 def test_normalize_and_profiles():
@@ -133,7 +133,7 @@ def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
     spread = np.linspace(-1.0, 1.0, 10)
 
     def cell(policy, k, sub):
-        return ("a", policy, k, ("subpolicy", sub))
+        return Cell("a", policy, k, (("subpolicy", sub),))
 
     def runs(scores):  # per seed what verdict_table reads: the controller score and the training series
         return {s: {"controller_score": float(v), "episode_return": np.array([v]), "episodes": np.array([1.0]),
@@ -172,11 +172,11 @@ def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):
     mult = spec_multipliers([str(d)])
     dims = {"hopper": 3, "inverted_double_pendulum": 1}
     assert mult == {"hopper": [0.5, 1, 2], "inverted_double_pendulum": [0.5, 1, 2]}
-    assert config_keys(("hopper", "mixture", 2), dims, mult) == [("K = 0.5 d_a",)]
-    assert config_keys(("hopper", "mixture", 6, ("subpolicy", "linear")), dims, mult) == [("K = 2 d_a", ("subpolicy", "linear"))]
-    assert config_keys(("inverted_double_pendulum", "mixture", 1), dims, mult) == [("K = 0.5 d_a",), ("K = 1 d_a",)]
-    assert config_keys(("hopper", "mixture", 5), dims, {}) == [("K = 1.67 d_a",)]
-    assert config_keys(("hopper", "mlp", 1), dims, mult) == [("flat PPO",)]
+    assert config_keys(Cell("hopper", "mixture", 2), dims, mult) == [("K = 0.5 d_a",)]
+    assert config_keys(Cell("hopper", "mixture", 6, (("subpolicy", "linear"),)), dims, mult) == [("K = 2 d_a", ("subpolicy", "linear"))]
+    assert config_keys(Cell("inverted_double_pendulum", "mixture", 1), dims, mult) == [("K = 0.5 d_a",), ("K = 1 d_a",)]
+    assert config_keys(Cell("hopper", "mixture", 5), dims, {}) == [("K = 1.67 d_a",)]
+    assert config_keys(Cell("hopper", "mlp", 1), dims, mult) == [("flat PPO",)]
 
 
 def test_sweeps_with_other_settings_are_not_merged(tmp_path):
@@ -197,7 +197,7 @@ def test_a_critic_sweep_merges_with_a_sweep_that_lists_none(tmp_path):
     gae = write_sweep(tmp_path / "fig1", "hopper")
     rt = write_sweep(tmp_path / "retrace", "hopper", final={"mixture": 130.0}, critic="retrace")
     data = load_sweeps([str(gae), str(rt)])
-    cell = lambda policy, k, critic: ("hopper", policy, k, ("value_target", critic))  # noqa: E731
+    cell = lambda policy, k, critic: Cell("hopper", policy, k, (("value_target", critic),))  # noqa: E731
     assert sorted(data) == [cell("mixture", 2, "gae"), cell("mixture", 2, "retrace"), cell("mlp", 1, "gae")]
     assert critic_comparisons(final_scores(data))[cell("mixture", 2, "retrace")][0] == 1.0  # 130..139 vs 120..129
     other = write_sweep(tmp_path / "other", "hopper", steps=200, final={"mixture": 1.0})
@@ -294,7 +294,7 @@ def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
     cell = final_table(data, {"hopper": 3}, reps=20)[0]
     assert cell["final_return_mean"] == pytest.approx(np.mean([r["final_score"] for r in rows]), abs=1e-3)
     # other tidy columns on request, in iteration order; one the table lacks is NaN throughout
-    asked = load_sweep(str(d), ("iteration", "episodes", "approx_kl"))[("hopper", "mixture", 2)][1]
+    asked = load_sweep(str(d), ("iteration", "episodes", "approx_kl"))[Cell("hopper", "mixture", 2)][1]
     assert list(asked["iteration"]) == list(range(1, 21)) and set(asked["episodes"]) == {30.0}
     assert set(asked) == {"iteration", "episodes", "approx_kl"} and np.isnan(asked["approx_kl"]).all()
 

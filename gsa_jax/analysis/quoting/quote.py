@@ -141,9 +141,8 @@ def reach(dirs: Sequence[str], filters: dict, threshold: float) -> str:
     from gsa_jax.analysis.sweeps.tables import cell_order
 
     data, _ = drop_failed(load_sweeps(dirs), [f for d in dirs for f in load_failed(d)])
-    names = {"env": 0, "policy": 1, "K": 2}
     keep = [c for c in sorted(data, key=cell_order)
-            if all(str(c[names[k]] if k in names else dict(c[3:]).get(k, "")) in v for k, v in filters.items())]
+            if all(str(c.columns().get(k, "")) in v for k, v in filters.items())]
     if not keep:
         raise QuoteError(f"{', '.join(dirs)}: no cell matches")
     parts = []
@@ -151,7 +150,7 @@ def reach(dirs: Sequence[str], filters: dict, threshold: float) -> str:
         firsts = [s["env_steps"][np.flatnonzero(s["eval_return"] >= threshold)[0]] for s in data[cell].values()
                   if np.any(s["eval_return"] >= threshold)]
         at = f" at {round(float(np.median(firsts)) / 1000)}k" if firsts else ""
-        parts.append(f"{'flat PPO' if cell[1] == MLP else f'K = {cell[2]}'} {len(firsts)}/{len(data[cell])}{at}")
+        parts.append(f"{'flat PPO' if cell.policy == MLP else f'K = {cell.k}'} {len(firsts)}/{len(data[cell])}{at}")
     return ", ".join(parts)
 
 

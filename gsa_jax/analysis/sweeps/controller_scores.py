@@ -148,7 +148,7 @@ def attach(data: dict, roots: Sequence[str]) -> int:
     scores, found = label_scores(roots), 0
     for cell, seeds in data.items():
         for seed, s in seeds.items():
-            label = run_label({"env": cell[0], "policy": cell[1], "K": cell[2], **dict(cell[3:]), "seed": seed})
+            label = run_label({**cell.columns(), "seed": seed})
             s["controller_score"] = scores.get(label, float("nan"))
             found += label in scores
     return found

@@ -29,14 +29,14 @@ def plot_curves(data: dict, action_dims: dict, failed: dict, column: str, path: 
 
     window = max(1, min(len(s["episode_return"]) for seeds in data.values() for s in seeds.values()) // 50)
     curves = cell_curves(data, column, window, reps)
-    env_names = list(dict.fromkeys(c[0] for c in sorted(data)))
+    env_names = list(dict.fromkeys(c.env for c in sorted(data)))
     ncols = min(3, len(env_names))
     fig, axes = plt.subplots(math.ceil(len(env_names) / ncols), ncols, figsize=(max(7.0, 5.2 * ncols), 3.9 * math.ceil(len(env_names) / ncols) + 0.3), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
-        cells = sorted((c for c in data if c[0] == env_name), key=cell_order)
+        cells = sorted((c for c in data if c.env == env_name), key=cell_order)
         for i, cell in enumerate(c for c in cells if c in curves):
             xs, iqm, lo, hi = curves[cell]
-            style = dict(color="black", lw=2.0) if cell[1] == MLP else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
+            style = dict(color="black", lw=2.0) if cell.policy == MLP else dict(color=plt.cm.viridis(i / max(1, len(cells) - 1) * 0.9), lw=1.6)
             n_failed = f", {len(failed[cell])} failed (NaN/inf), not shown" if cell in failed else ""
             ax.plot(xs, iqm, marker="o" if column == "eval_return" else None, ms=3,
                     label=f"{cell_label(cell, action_dims)} (n={len(data[cell])}{n_failed})", **style)
@@ -167,7 +167,7 @@ def plot_sweep(sweep_dirs: Sequence[str], out_dir: str | None = None, action_dim
     data, failed = drop_failed(load_sweeps(dirs), failed_runs)
     controller_scores.attach(data, dirs)
     if action_dims is None:
-        action_dims = action_dims_of(dirs, sorted({c[0] for c in data}))
+        action_dims = action_dims_of(dirs, sorted({c.env for c in data}))
     evaluated = any(np.isfinite(s["eval_return"]).any() for seeds in data.values() for s in seeds.values())
     png = os.path.join(out_dir, "figure.png")
     plot_curves(data, action_dims, failed, "eval_return" if evaluated else "episode_return", png,
@@ -181,7 +181,7 @@ def plot_sweep(sweep_dirs: Sequence[str], out_dir: str | None = None, action_dim
     table = os.path.join(out_dir, "final_returns.csv")
     write_csv(table, rows)
     write_csv(os.path.join(out_dir, "per_run_scores.csv"), run_table(data))
-    env_names = sorted({c[0] for c in data})
+    env_names = sorted({c.env for c in data})
     given = random_returns is not None
     if not given:
         random_returns = random_returns_of(dirs, env_names, out_dir, log)

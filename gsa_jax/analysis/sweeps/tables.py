@@ -9,7 +9,7 @@ import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.sweeps import stats
-from gsa_jax.analysis.sweeps.results import cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
+from gsa_jax.analysis.sweeps.results import Cell, cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
 
 
 def smooth(y: np.ndarray, window: int) -> np.ndarray:
@@ -26,32 +26,37 @@ def smooth(y: np.ndarray, window: int) -> np.ndarray:
         return np.where(cnt > 0, (c[idx] - c[lo]) / np.maximum(cnt, 1), np.nan)
 
 
-def cell_label(cell: tuple, action_dims: dict) -> str:
-    env, policy, k = cell[:3]
-    extra = "".join(f", {v}" if c == "subpolicy" else f", {c}={v}" for c, v in cell[3:] if v != "")
-    if policy == MLP:
+def cell_label(cell: Cell, action_dims: dict) -> str:
+    """A cell's name in figures: flat PPO or K (with K / d_a), and its settings."""
+    extra = "".join(f", {v}" if c == "subpolicy" else f", {c}={v}" for c, v in cell.settings if v != "")
+    if cell.policy == MLP:
         return "flat PPO (MLP 64x64)" + extra
-    d_a = action_dims.get(env)
-    mult = f" ({k / d_a:.3g} d_a)" if d_a else ""
-    return f"K={k}{mult}" + extra
+    d_a = action_dims.get(cell.env)
+    mult = f" ({cell.k / d_a:.3g} d_a)" if d_a else ""
+    return f"K={cell.k}{mult}" + extra
 
 
-def cell_order(cell: tuple) -> tuple:
-    return cell[0], cell[1] != MLP, cell[2], cell[3:]
+def cell_order(cell: Cell) -> tuple:
+    """Sort key of cells: by task, flat PPO first, then by K and settings."""
+    return cell.env, cell.policy != MLP, cell.k, cell.settings
 
 
-def flat_cell(cell: tuple, cells: Iterable[tuple]) -> tuple | None:
+def other_settings(cell: Cell) -> tuple:
+    """A cell's settings but its sub-policy class: what a mixture cell shares with the flat PPO cell it is compared with."""
+    return tuple((c, v) for c, v in cell.settings if c != "subpolicy")
+
+
+def flat_cell(cell: Cell, cells: Iterable[Cell]) -> Cell | None:
     """The flat PPO cell a mixture cell is compared with: same env and swept settings (sub-policy aside)."""
-    rest = tuple((c, v) for c, v in cell[3:] if c != "subpolicy")
-    flats = [c for c in cells if c[0] == cell[0] and c[1] == MLP]
-    same = [c for c in flats if tuple((k, v) for k, v in c[3:] if k != "subpolicy") == rest]
+    flats = [c for c in cells if c.env == cell.env and c.policy == MLP]
+    same = [c for c in flats if other_settings(c) == other_settings(cell)]
     return (same or (flats if len(flats) == 1 else [None]))[0]
 
 
-def cell_row(cell: tuple, scores: np.ndarray, kind: str, data: dict, action_dims: dict, versus: tuple | None,
+def cell_row(cell: Cell, scores: np.ndarray, kind: str, data: dict, action_dims: dict, versus: tuple | None,
              reps: int = stats.REPS) -> dict:
     """One row of final_returns.csv (statistics of a cell's final scores)."""
-    env, policy, k = cell[:3]
+    env, policy, k = cell.env, cell.policy, cell.k
     n = len(scores)
     mean, half = stats.mean_ci(scores) if n else (math.nan, math.nan)
     iqm = stats.iqm_ci({"c": scores[:, None]}, reps=reps)["c"] if n else (math.nan,) * 3
@@ -64,7 +69,7 @@ def cell_row(cell: tuple, scores: np.ndarray, kind: str, data: dict, action_dims
     r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
     return {"env": env, "policy": policy, "K": k if policy == MIXTURE else "",
             "K_over_action_dim": round(k / action_dims[env], 3) if policy == MIXTURE and env in action_dims else "",
-            **dict(cell[3:]), "seeds": n, "score": kind, "final_return_mean": r(mean), "ci95_halfwidth": r(half),
+            **dict(cell.settings), "seeds": n, "score": kind, "final_return_mean": r(mean), "ci95_halfwidth": r(half),
             "iqm": r(iqm[0]), "iqm_ci_low": r(iqm[1]), "iqm_ci_high": r(iqm[2]),
             "p_better_than_flat_ppo": r(p[0]), "p_ci_low": r(p[1]), "p_ci_high": r(p[2]),
             "training_return_mean": r(t_mean), "training_ci95_halfwidth": r(t_half),
@@ -77,8 +82,8 @@ def critic_comparisons(scores: dict, reps: int = stats.REPS) -> dict:
     value_targets; {} otherwise."""
     pairs = {}
     for cell, (sc, _) in scores.items():
-        if ("value_target", "retrace") in cell[3:]:
-            gae = cell[:3] + tuple((c, "gae" if c == "value_target" else v) for c, v in cell[3:])
+        if ("value_target", "retrace") in cell.settings:
+            gae = cell._replace(settings=tuple((c, "gae" if c == "value_target" else v) for c, v in cell.settings))
             if gae in scores and len(sc) and len(scores[gae][0]):
                 pairs[cell] = (sc[:, None], scores[gae][0][:, None])
     return stats.improvement_probability(pairs, reps=reps) if pairs else {}
@@ -88,15 +93,15 @@ def final_table(data: dict, action_dims: dict, failed: dict | None = None, reps:
     """final_returns.csv rows: per cell, statistics of its final scores and P(better than flat PPO)."""
     failed = failed or {}
     scores = final_scores(data)
-    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c[1] == MIXTURE
+    pairs = {c: (scores[c][0][:, None], scores[f][0][:, None]) for c in data if c.policy == MIXTURE
              for f in [flat_cell(c, data)] if f is not None and len(scores[c][0]) and len(scores[f][0])}
     versus = stats.improvement_probability(pairs, reps=reps) if pairs else {}
     critics = critic_comparisons(scores, reps)
     unscored = unscored_runs(data)
     rows = []
     for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
-        rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == MIXTURE else "", **dict(cell[3:]),
-                     "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
+        rows.append({"env": cell.env, "policy": cell.policy, "K": cell.k if cell.policy == MIXTURE else "",
+                     **dict(cell.settings), "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
     for cell in sorted(data, key=cell_order):
         row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell), reps)
         if critics:
@@ -127,8 +132,8 @@ def run_table(data: dict) -> list:
             score = stats.final_score(s["eval_return"] if evaluated else [], s["episode_return"], sched)[0]
             last = s["eval_return"][sched[: len(s["eval_return"])]][-1:]
             last_100 = stats.last_episodes_return(s["episode_return"], s["episodes"])
-            rows.append({"env": cell[0], "policy": cell[1], "K": cell[2] if cell[1] == MIXTURE else "", **dict(cell[3:]),
-                         "seed": seed, "controller_score": r(s.get("controller_score", math.nan)), "score_kind": kind,
+            rows.append({"env": cell.env, "policy": cell.policy, "K": cell.k if cell.policy == MIXTURE else "",
+                         **dict(cell.settings), "seed": seed, "controller_score": r(s.get("controller_score", math.nan)), "score_kind": kind,
                          "final_score": r(score), "last_eval_return": r(last[0]) if len(last) else "",
                          "eval_failures": eval_failures({seed: s}),
                          "training_return": r(stats.final_score([], s["episode_return"])[0]),
@@ -136,20 +141,20 @@ def run_table(data: dict) -> list:
     return rows
 
 
-def config_keys(cell: tuple, action_dims: dict, multipliers: dict) -> list:
+def config_keys(cell: Cell, action_dims: dict, multipliers: dict) -> list:
     """The configurations across tasks a cell belongs to: flat PPO, or "K = m d_a" for every multiplier m
     of its sweep that gives its K (K = ceil(m d_a), as Figure 1 sets K: on a task with one action, K = 1
     is both 0.5 d_a and 1 d_a), or K / d_a when K was set directly; with the swept settings."""
     from gsa_jax.running.spec import cluster_count
 
-    env, policy, k = cell[:3]
-    if policy == MLP:
-        return [("flat PPO",) + tuple(cell[3:])]
+    env, k = cell.env, cell.k
+    if cell.policy == MLP:
+        return [("flat PPO",) + cell.settings]
     if env not in action_dims:
-        return [(f"K = {k}",) + tuple(cell[3:])]
+        return [(f"K = {k}",) + cell.settings]
     ms = [m for m in multipliers.get(env, []) if cluster_count(m, action_dims[env]) == k]
     labels = [f"K = {m:g} d_a" for m in ms] or [f"K = {k / action_dims[env]:.3g} d_a"]
-    return [(label,) + tuple(cell[3:]) for label in labels]
+    return [(label,) + cell.settings for label in labels]
 
 
 def config_order(key: tuple) -> tuple:
@@ -165,12 +170,12 @@ def normalized_scores(data: dict, action_dims: dict, random_returns: dict, multi
     scores = final_scores(data)
     by_config = defaultdict(dict)
     for cell in data:
-        flat = flat_cell(cell, data) if cell[1] == MIXTURE else cell
-        if flat is None or cell[0] not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
+        flat = flat_cell(cell, data) if cell.policy == MIXTURE else cell
+        if flat is None or cell.env not in random_returns or not len(scores[cell][0]) or not len(scores[flat][0]):
             continue
         ref = stats.iqm(scores[flat][0][:, None])  # the point only: no bootstrap per mixture cell
         for key in config_keys(cell, action_dims, multipliers or {}):
-            by_config[key][cell[0]] = stats.normalize(scores[cell][0], random_returns[cell[0]], ref)
+            by_config[key][cell.env] = stats.normalize(scores[cell][0], random_returns[cell.env], ref)
     out = {}
     for config, tasks in sorted(by_config.items(), key=lambda kv: config_order(kv[0])):
         n = min(len(v) for v in tasks.values())

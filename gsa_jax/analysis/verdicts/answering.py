@@ -208,8 +208,8 @@ def collect_runs(out: str, setup: Setup) -> tuple:
         except FileNotFoundError:
             continue
         for cell, seeds in cells.items():
-            key = cell_key(setup, cell[1], cell[2])
-            if cell[0] != setup.env or key is None:
+            key = cell_key(setup, cell.policy, cell.k)
+            if cell.env != setup.env or key is None:
                 continue
             for seed, s in seeds.items():
                 last100.setdefault(key, {})[seed] = last_episodes_return(s["episode_return"], s["episodes"])

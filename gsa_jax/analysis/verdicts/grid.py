@@ -10,14 +10,14 @@ import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.sweeps import stats
-from gsa_jax.analysis.sweeps.results import final_scores, write_csv
+from gsa_jax.analysis.sweeps.results import Cell, final_scores, write_csv
 from gsa_jax.analysis.sweeps.tables import flat_cell
 from gsa_jax.analysis.verdicts import verdict
 
 
-def cell_setting(cell: tuple, settings: Sequence[str]) -> tuple:
+def cell_setting(cell: Cell, settings: Sequence[str]) -> tuple:
     """((column, value) of `settings`...) of a cell: which return-vs-K curve it belongs to."""
-    extra = dict(cell[3:])
+    extra = dict(cell.settings)
     return tuple((c, extra.get(c, "")) for c in settings)
 
 
@@ -28,11 +28,11 @@ def grid_evidence(data: dict, scores: dict, cells: list) -> tuple:
 
     values, last100, curves = {}, {}, {}
     for cell in cells:
-        key = FLAT if cell[1] == MLP else cell[2]
+        key = FLAT if cell.policy == MLP else cell.k
         seeds = sorted(data[cell])
         values[key] = dict(zip(seeds, (float(v) for v in scores[cell][0])))
         last100[key] = {s: stats.last_episodes_return(data[cell][s]["episode_return"], data[cell][s]["episodes"]) for s in seeds}
-        if cell[1] == MLP:
+        if cell.policy == MLP:
             curves = {s: (data[cell][s]["env_steps"], data[cell][s]["eval_return"]) for s in seeds}
     return Evidence(values, last100, curves)
 
@@ -44,7 +44,7 @@ def grid_verdicts(env_name: str, cells: list, data: dict, scores: dict, random_p
     from gsa_jax.analysis.verdicts.answer_report import answer_rows, sensitivity_rows
     from gsa_jax.analysis.verdicts.answering import DEFAULT_LOOKS, Setup, decide
 
-    ladder = tuple(sorted(c[2] for c in cells if c[1] == MIXTURE))
+    ladder = tuple(sorted(c.k for c in cells if c.policy == MIXTURE))
     spec = {"steps": int(steps), "hparams": {}, "config": {}}
     setup = Setup(env_name, ladder, verdict.DEFAULT_MARGIN, DEFAULT_LOOKS, {"mlp": spec, "mixture": spec}, target)
     evidence = grid_evidence(data, scores, cells)
@@ -92,8 +92,8 @@ def verdict_table(data: dict, random_policies: dict, steps: dict, settings: Sequ
     tasks without a random policy are left out."""
     scores, groups = final_scores(data), defaultdict(list)
     for cell in data:
-        if cell[1] == MIXTURE and len(scores[cell][0]) == len(data[cell]):
-            groups[(cell[0], cell_setting(cell, settings))].append(cell)
+        if cell.policy == MIXTURE and len(scores[cell][0]) == len(data[cell]):
+            groups[(cell.env, cell_setting(cell, settings))].append(cell)
     rows = []
     for (env_name, setting), cells in sorted(groups.items()):
         flat = flat_cell(cells[0], data)
