@@ -15,6 +15,7 @@ import sys
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
 
@@ -39,8 +40,8 @@ def compare(reference: list, runs: list) -> list:
                 continue
             mine = [r for r in runs if r["env"] == env and r["policy"] == MLP]
             num = lambda r, c: float(r[c]) if r[c] != "" else np.nan  # noqa: E731
-            last_mean, last_std = spread([num(r, "training_return_last_100_episodes") for r in mine])
-            det_mean, det_std = spread([num(r, "final_score") for r in mine])
+            last_mean, last_std = spread([num(r, C.LAST_EPISODES_RETURN) for r in mine])
+            det_mean, det_std = spread([num(r, C.FINAL_SCORE) for r in mine])
             out.append({"env": env, "seeds": len(mine), "last_100_episodes_mean": last_mean,
                         "last_100_episodes_std": last_std, "deterministic_mean": det_mean, "deterministic_std": det_std,
                         "published_env": ref["env"], "published_mean": ref["mean"], "published_std": ref["std"],

@@ -33,6 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps.results import read_csv
 from gsa_jax.running.runinfo import cli_description
 
@@ -101,7 +102,7 @@ def cell_name(row: dict) -> str:
     """A final_returns.csv row's configuration: flat PPO, or K with its ratio to the action dimension."""
     if row["policy"] == MLP:
         return "flat PPO (MLP 64x64)"
-    ratio = float(row["K_over_action_dim"]) if row.get("K_over_action_dim", "") != "" else math.nan
+    ratio = float(row[C.K_OVER_ACTION_DIM]) if row.get(C.K_OVER_ACTION_DIM, "") != "" else math.nan
     return f"K = {row['K']}" + (f" ({round(ratio, 2):g} d_a)" if math.isfinite(ratio) else "")
 
 
@@ -112,15 +113,14 @@ def halfwidth(x: float | str) -> str:
 
 def cell_markdown(rows: list) -> str:
     """Figure 1's per-task Markdown table of final_returns.csv rows (one task)."""
-    mixture = [r for r in rows if r["policy"] == MIXTURE and r.get("K_over_action_dim", "") != ""]
-    d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0]['K_over_action_dim']))})" if mixture else ""
+    mixture = [r for r in rows if r["policy"] == MIXTURE and r.get(C.K_OVER_ACTION_DIM, "") != ""]
+    d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0][C.K_OVER_ACTION_DIM]))})" if mixture else ""
     lines = [f"| {rows[0]['env']}{d_a} | deterministic: mean ± 95% CI | IQM [95% CI] | P(> flat PPO) [95% CI] "
              "| training return | learning speed IQM |", "|---|---|---|---|---|---|"]
     for r in rows:
-        p = interval(r, "p_better_than_flat_ppo", "p_ci_low", "p_ci_high", 2)
-        lines.append(f"| {cell_name(r)} | {fmt(r['final_return_mean'])} ± {halfwidth(r['ci95_halfwidth'])} "
-                     f"| {interval(r, 'iqm', 'iqm_ci_low', 'iqm_ci_high')} | {p} "
-                     f"| {fmt(r['training_return_mean'])} ± {halfwidth(r['training_ci95_halfwidth'])} | {fmt(r['curve_iqm'])} |")
+        (mean, half), (train, train_half) = ((r[c] for c in cols) for cols in (C.MEAN_CI, C.TRAINING_CI))
+        lines.append(f"| {cell_name(r)} | {fmt(mean)} ± {halfwidth(half)} | {interval(r, *C.IQM_CI)} "
+                     f"| {interval(r, *C.P_FLAT_CI, 2)} | {fmt(train)} ± {halfwidth(train_half)} | {fmt(r[C.CURVE_CI[0]])} |")
     return "\n".join(lines)
 
 
@@ -128,8 +128,7 @@ def aggregate_markdown(rows: list) -> str:
     """The Markdown table of aggregate.csv rows (normalized IQM and P(> flat PPO) per configuration)."""
     lines = ["| configuration | normalized IQM [95% CI] | P(> flat PPO) [95% CI] |", "|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['config']} | {interval(r, 'normalized_iqm', 'iqm_ci_low', 'iqm_ci_high', 2)} "
-                     f"| {interval(r, 'p_better_than_flat_ppo', 'p_ci_low', 'p_ci_high', 2)} |")
+        lines.append(f"| {r['config']} | {interval(r, *C.NORMALIZED_IQM_CI, 2)} | {interval(r, *C.P_FLAT_CI, 2)} |")
     return "\n".join(lines)
 
 

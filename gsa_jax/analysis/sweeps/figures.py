@@ -8,6 +8,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores, stats
 from gsa_jax.analysis.sweeps.results import (
     action_dims_of, drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, spec_steps,
@@ -82,6 +83,7 @@ def plot_return_vs_k(rows: list, path: str, settings: Sequence[str] = (), suffic
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in rows))
+    point, low, high = C.IQM_CI
     fig, axes = plt.subplots(1, len(env_names), figsize=(max(6.5, 4.6 * len(env_names)), 4.0), squeeze=False)
     for ax, env_name in zip(axes.flat, env_names):
         mark_sufficient_k(ax, sufficient, env_name)
@@ -89,8 +91,8 @@ def plot_return_vs_k(rows: list, path: str, settings: Sequence[str] = (), suffic
         curves = k_curves(rows, env_name, settings)
         all_ks = sorted({r["K"] for pts in curves.values() for r in pts})
         for extra, pts in curves.items():
-            iqm = np.array([r["iqm"] for r in pts], float)
-            err = np.array([[r["iqm"] - r["iqm_ci_low"], r["iqm_ci_high"] - r["iqm"]] for r in pts], float).T
+            iqm = np.array([r[point] for r in pts], float)
+            err = np.array([[r[point] - r[low], r[high] - r[point]] for r in pts], float).T
             sub = dict(extra).get("subpolicy") or "linear"
             rest = "".join(f", {c}={v}" for c, v in extra if c != "subpolicy")
             ax.errorbar([r["K"] for r in pts], iqm, yerr=err, fmt="o-", capsize=3, label=f"mixture of K {sub} controllers{rest}")
@@ -98,9 +100,9 @@ def plot_return_vs_k(rows: list, path: str, settings: Sequence[str] = (), suffic
             ax.set_xscale("log", base=2)
             ax.set_xticks(all_ks, [f"{int(k)}" for k in all_ks])
         for r in rows:
-            if r["env"] == env_name and r["policy"] == MLP and r["seeds"]:
-                ax.axhspan(r["iqm_ci_low"], r["iqm_ci_high"], color="k", alpha=0.15, lw=0)
-                ax.axhline(r["iqm"], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
+            if r["env"] == env_name and r["policy"] == MLP and r[C.SEEDS]:
+                ax.axhspan(r[low], r[high], color="k", alpha=0.15, lw=0)
+                ax.axhline(r[point], color="k", lw=1.5, label="flat PPO (MLP 64x64)")
         ax.set(title=env_name, xlabel="K (number of clusters / sub-policies)", ylabel=f"final score ({rows[0].get('score', '')})")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
@@ -189,7 +191,7 @@ def plot_sweep(sweep_dirs: Sequence[str], out_dir: str | None = None, action_dim
                 {e: {"returns": float(v), "episodes": 0, "start_seed": ""} for e, v in random_returns.items()})
     random_returns = {**random_returns, **{e: float(np.mean(p["returns"])) for e, p in policies.items()}}
     verdicts, sufficient = write_verdicts(data, policies, spec_steps(dirs), setting_columns(data), out_dir, log)
-    scored = [r for r in rows if r["seeds"]]
+    scored = [r for r in rows if r[C.SEEDS]]
     plot_return_vs_k(scored, os.path.join(out_dir, "return_vs_k.png"), setting_columns(data), sufficient, verdicts)
     normalized = normalized_scores(data, action_dims, random_returns, spec_multipliers(dirs))
     if normalized:

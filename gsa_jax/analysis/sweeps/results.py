@@ -14,6 +14,7 @@ from typing import Callable, Iterable, NamedTuple, Sequence
 import numpy as np
 
 from envs.physics import nest_physics, record_backend
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.runinfo import describe_changes
@@ -221,7 +222,7 @@ def final_scores(data: dict) -> dict:
     from fixed start states) those, kind 'controller'; else evaluation_scores."""
     out = evaluation_scores(data)
     for cell, seeds in data.items():
-        got = np.array([s.get("controller_score", math.nan) for _, s in sorted(seeds.items())], float)
+        got = np.array([s.get(C.CONTROLLER_SCORE, math.nan) for _, s in sorted(seeds.items())], float)
         if len(got) and np.isfinite(got).all():
             out[cell] = (got, "controller")
     return out

@@ -8,6 +8,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import Cell, cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
 
@@ -53,6 +54,11 @@ def flat_cell(cell: Cell, cells: Iterable[Cell]) -> Cell | None:
     return (same or (flats if len(flats) == 1 else [None]))[0]
 
 
+def rounded(columns: Sequence[str], values: Sequence[float | None]) -> dict:
+    """{column: value to 3 decimals ('' where None or not finite)} of a group of columns (sweeps.columns)."""
+    return {c: "" if v is None or not np.isfinite(v) else round(float(v), 3) for c, v in zip(columns, values)}
+
+
 def cell_row(cell: Cell, scores: np.ndarray, kind: str, data: dict, action_dims: dict, versus: tuple | None,
              reps: int = stats.REPS) -> dict:
     """One row of final_returns.csv (statistics of a cell's final scores)."""
@@ -66,15 +72,11 @@ def cell_row(cell: Cell, scores: np.ndarray, kind: str, data: dict, action_dims:
     area = area[np.isfinite(area)]
     auc = stats.iqm_ci({"c": area[:, None]}, reps=reps)["c"] if len(area) else (math.nan,) * 3
     p = versus or (math.nan,) * 3
-    r = lambda x: "" if x is None or not np.isfinite(x) else round(float(x), 3)  # noqa: E731
     return {"env": env, "policy": policy, "K": k if policy == MIXTURE else "",
-            "K_over_action_dim": round(k / action_dims[env], 3) if policy == MIXTURE and env in action_dims else "",
-            **dict(cell.settings), "seeds": n, "score": kind, "final_return_mean": r(mean), "ci95_halfwidth": r(half),
-            "iqm": r(iqm[0]), "iqm_ci_low": r(iqm[1]), "iqm_ci_high": r(iqm[2]),
-            "p_better_than_flat_ppo": r(p[0]), "p_ci_low": r(p[1]), "p_ci_high": r(p[2]),
-            "training_return_mean": r(t_mean), "training_ci95_halfwidth": r(t_half),
-            "curve_iqm": r(auc[0]), "curve_ci_low": r(auc[1]), "curve_ci_high": r(auc[2]),
-            "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
+            C.K_OVER_ACTION_DIM: round(k / action_dims[env], 3) if policy == MIXTURE and env in action_dims else "",
+            **dict(cell.settings), C.SEEDS: n, C.SCORE_KIND: kind, **rounded(C.MEAN_CI, (mean, half)),
+            **rounded(C.IQM_CI, iqm), **rounded(C.P_FLAT_CI, p), **rounded(C.TRAINING_CI, (t_mean, t_half)),
+            **rounded(C.CURVE_CI, auc), "env_steps": int(next(iter(data[cell].values()))["env_steps"][-1])}
 
 
 def critic_comparisons(scores: dict, reps: int = stats.REPS) -> dict:
@@ -101,13 +103,12 @@ def final_table(data: dict, action_dims: dict, failed: dict | None = None, reps:
     rows = []
     for cell in sorted(set(failed) - set(data), key=cell_order):  # every seed failed
         rows.append({"env": cell.env, "policy": cell.policy, "K": cell.k if cell.policy == MIXTURE else "",
-                     **dict(cell.settings), "seeds": 0, "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
+                     **dict(cell.settings), C.SEEDS: 0,
+                     "failed_runs": " ".join(f"{s}@{it}" for s, it in sorted(failed[cell]))})
     for cell in sorted(data, key=cell_order):
         row = cell_row(cell, scores[cell][0], scores[cell][1], data, action_dims, versus.get(cell), reps)
         if critics:
-            p = critics.get(cell, (math.nan,) * 3)
-            row.update({k: "" if not np.isfinite(v) else round(float(v), 3)
-                        for k, v in zip(("p_better_than_gae", "p_gae_ci_low", "p_gae_ci_high"), p)})
+            row.update(rounded(C.P_GAE_CI, critics.get(cell, (math.nan,) * 3)))
         rows.append(dict(row, failed_runs=" ".join(f"{s}@{it}" for s, it in sorted(failed.get(cell, []))),
                          eval_failures=eval_failures(data[cell]),
                          unscored_runs=" ".join(f"{s}@{'+'.join(map(str, its))}" for s, its in unscored.get(cell, []))))
@@ -133,11 +134,11 @@ def run_table(data: dict) -> list:
             last = s["eval_return"][sched[: len(s["eval_return"])]][-1:]
             last_100 = stats.last_episodes_return(s["episode_return"], s["episodes"])
             rows.append({"env": cell.env, "policy": cell.policy, "K": cell.k if cell.policy == MIXTURE else "",
-                         **dict(cell.settings), "seed": seed, "controller_score": r(s.get("controller_score", math.nan)), "score_kind": kind,
-                         "final_score": r(score), "last_eval_return": r(last[0]) if len(last) else "",
+                         **dict(cell.settings), "seed": seed, C.CONTROLLER_SCORE: r(s.get(C.CONTROLLER_SCORE, math.nan)),
+                         "score_kind": kind, C.FINAL_SCORE: r(score), "last_eval_return": r(last[0]) if len(last) else "",
                          "eval_failures": eval_failures({seed: s}),
                          "training_return": r(stats.final_score([], s["episode_return"])[0]),
-                         f"training_return_last_{stats.LAST_EPISODES}_episodes": r(last_100)})
+                         C.LAST_EPISODES_RETURN: r(last_100)})
     return rows
 
 
@@ -198,11 +199,9 @@ def aggregate_table(normalized: dict, reps: int = stats.REPS) -> list:
     better = stats.improvement_probability(pairs, reps=reps) if pairs else {}
     rows = []
     for k, (tasks, m) in normalized.items():
-        p = better.get(str(k), ("",) * 3)
+        p = better.get(str(k), (None,) * 3)
         rows.append({"config": k[0], **dict(k[1:]), "tasks": " ".join(tasks), "runs_per_task": m.shape[0],
-                     "normalized_iqm": round(iqm[str(k)][0], 3), "iqm_ci_low": round(iqm[str(k)][1], 3),
-                     "iqm_ci_high": round(iqm[str(k)][2], 3), "p_better_than_flat_ppo": p[0] if p[0] == "" else round(p[0], 3),
-                     "p_ci_low": p[1] if p[1] == "" else round(p[1], 3), "p_ci_high": p[2] if p[2] == "" else round(p[2], 3)})
+                     **rounded(C.NORMALIZED_IQM_CI, iqm[str(k)]), **rounded(C.P_FLAT_CI, p)})
     return rows
 
 
@@ -230,6 +229,6 @@ def k_curves(rows: list, env_name: str, settings: Sequence[str]) -> dict:
     return-vs-K curve per sub-policy class, critic and other swept setting."""
     curves = defaultdict(list)
     for r in rows:
-        if r["env"] == env_name and r["policy"] == MIXTURE and r["seeds"]:
+        if r["env"] == env_name and r["policy"] == MIXTURE and r[C.SEEDS]:
             curves[tuple((c, r.get(c, "")) for c in settings)].append(r)
     return {k: sorted(pts, key=lambda r: r["K"]) for k, pts in curves.items()}

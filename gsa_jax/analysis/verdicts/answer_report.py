@@ -11,6 +11,7 @@ import os
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores, stats
 from gsa_jax.analysis.sweeps.results import write_csv
 from gsa_jax.analysis.verdicts import ladder, sequential, trimmed, verdict
@@ -50,7 +51,7 @@ def sensitivity_rows(setup: Setup, evidence: Evidence, state: dict) -> list:
     base = state.get("baseline")
     if not base or not base["learned"]:
         return []
-    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    values = evidence.scores if base["metric"] == C.CONTROLLER_SCORE else evidence.last100
     reference = reference_of(setup, evidence, base)
     level = setup.alpha / len(setup.ladder)
     rows = []

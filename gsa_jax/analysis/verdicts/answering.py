@@ -21,6 +21,7 @@ import time
 from typing import Callable, NamedTuple, Sequence
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.sweeps.extraction import collect_results
 from gsa_jax.analysis.verdicts import baseline, ladder, sequential, trimmed, verdict
@@ -188,8 +189,8 @@ def collect_scores(out: str, setup: Setup) -> dict:
         for path in sorted(glob.glob(os.path.join(root, "**", controller_scores.FILE), recursive=True)):
             for row in controller_scores.read_scores(path).values():
                 key = cell_key(setup, row["policy"], row["K"])
-                if row["env"] == setup.env and row.get("controller_score", "") != "" and key is not None:
-                    found.setdefault(key, {})[int(row["seed"])] = float(row["controller_score"])
+                if row["env"] == setup.env and row.get(C.CONTROLLER_SCORE, "") != "" and key is not None:
+                    found.setdefault(key, {})[int(row["seed"])] = float(row[C.CONTROLLER_SCORE])
     return found
 
 
@@ -232,7 +233,7 @@ def choose_baseline(setup: Setup, evidence: Evidence, state: dict) -> dict:
     """The baseline record (what the verdicts judge against, and why), decided once at the answer's first look from
     flat PPO's first-look seeds: flat PPO, or the reference entry it falls below, or the user's target."""
     if setup.target is not None:
-        return {"versus": f"the target score {setup.target:g}", "metric": "controller_score", "entry": None,
+        return {"versus": f"the target score {setup.target:g}", "metric": C.CONTROLLER_SCORE, "entry": None,
                 "standings": [], "learning": None, "learned": True}
     n = setup.looks[0]
     flat = baseline.FlatRuns(ladder.first_seeds(evidence.scores.get(FLAT, {}), n),
@@ -259,7 +260,7 @@ def reference_of(setup: Setup, evidence: Evidence, base: dict) -> "list | trimme
         return trimmed.fixed(setup.target)
     if base["entry"] is not None:
         return baseline.reference_summary(base["entry"])
-    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    values = evidence.scores if base["metric"] == C.CONTROLLER_SCORE else evidence.last100
     return ladder.first_seeds(values.get(FLAT, {}), len(values.get(FLAT, {})))
 
 
@@ -268,7 +269,7 @@ def judge_cells(setup: Setup, evidence: Evidence, state: dict) -> dict:
     base = state["baseline"]
     if not base["learned"]:
         return {str(k): {"verdict": verdict.NO_SCALE, "why": base["why"]} for k in setup.ladder}
-    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    values = evidence.scores if base["metric"] == C.CONTROLLER_SCORE else evidence.last100
     cells = {k: values.get(k, {}) for k in setup.ladder}
     return ladder.judge_ladder(setup.ladder, cells, reference_of(setup, evidence, base), state["random"]["returns"],
                                setup.margin, setup.design(), state["records"])

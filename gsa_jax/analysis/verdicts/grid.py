@@ -9,6 +9,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import Cell, final_scores, write_csv
 from gsa_jax.analysis.sweeps.tables import flat_cell
@@ -77,7 +78,7 @@ def reference_value(cells: list, scores: dict, base: dict | None, target: float 
     verdicts judge against a reference on another metric, or there is no baseline)."""
     if target is not None:
         return float(target)
-    if not base or base["metric"] != "controller_score":
+    if not base or base["metric"] != C.CONTROLLER_SCORE:
         return None
     if base["entry"] is not None:
         return float(base["entry"]["score"])
