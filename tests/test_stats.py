@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
+from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.figures import plot_sweep
 from gsa_jax.analysis.sweeps.results import Cell, PlotError
@@ -105,6 +106,8 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
         rows = [{k: (float(v) if k not in ("env", "policy", "score") and v != "" else v) for k, v in r.items()}
                 for r in csv.DictReader(f)]
     by = {(r["env"], r["policy"]): r for r in rows}
+    groups = (C.MEAN_CI, C.IQM_CI, C.P_FLAT_CI, C.TRAINING_CI, C.CURVE_CI)  # the declared columns, in the file's order
+    assert [c for c in rows[0] if any(c in g for g in groups)] == [c for g in groups for c in g]
     assert by[("hopper", "mixture")]["score"] == "deterministic" and by[("hopper", "mixture")]["seeds"] == 4
     assert by[("hopper", "mixture")]["final_return_mean"] == pytest.approx(120.0 + 4.5)  # evaluated, not training
     assert by[("hopper", "mixture")]["curve_iqm"] == pytest.approx(124.5)  # IQM of 120, 123, 126, 129: (123 + 126) / 2
