@@ -30,8 +30,8 @@ only in tables written before failed evaluation episodes were counted).
 import argparse
 import sys
 
+from gsa_jax.analysis.sweep_report import plot_sweep
 from gsa_jax.analysis.sweeps import stats
-from gsa_jax.analysis.sweeps.figures import plot_sweep
 from gsa_jax.analysis.sweeps.results import PlotError
 from gsa_jax.running.runinfo import cli_description
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
+from gsa_jax.analysis.sweep_report import plot_sweep
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
-from gsa_jax.analysis.sweeps.figures import plot_sweep
 from gsa_jax.analysis.sweeps.results import Cell, PlotError
 from gsa_jax.plot import main as plot_main
 

@@ -90,7 +90,7 @@ def test_grid_with_value_targets():
 def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
     """plot_sweep on an evaluated tidy table with a subpolicy column: final scores per (class, K), flat PPO
     separate; return-vs-K draws one curve per class, its points in K order."""
-    from gsa_jax.analysis.sweeps.figures import plot_sweep
+    from gsa_jax.analysis.sweep_report import plot_sweep
     from gsa_jax.analysis.sweeps.results import load_sweeps, setting_columns
     from gsa_jax.analysis.sweeps.tables import k_curves
 
@@ -417,7 +417,7 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
     assert len(merged) == 8 * ITERS and {r["seed"] for r in merged} == {"0", "1", "2", "3"}
     # other runs beside them in each vmapped batch: float tolerance
     assert_same_results([r for r in merged if r["seed"] in ("0", "1")], read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
-    from gsa_jax.analysis.sweeps.figures import plot_sweep
+    from gsa_jax.analysis.sweep_report import plot_sweep
 
     png, table, rows = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     assert os.path.getsize(png) > 10_000 and [r["K"] for r in rows] == [1, 3] and all(r["seeds"] == 4 for r in rows)
@@ -515,7 +515,7 @@ def test_nan_run_is_frozen_listed_and_the_others_train_on(tiny_spec_file, inproc
     assert healthy == ref  # the same strings: bit for bit
     with np.load(out / "groups" / "inverted_double_pendulum-mixture" / "params.npz") as p:
         assert all(np.all(np.isfinite(p[k])) for k in p.files)
-    from gsa_jax.analysis.sweeps.figures import plot_sweep
+    from gsa_jax.analysis.sweep_report import plot_sweep
 
     _, _, table = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     by_cell = {(r["K"], float(r["hparam_lr"])): r for r in table}
