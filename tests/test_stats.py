@@ -69,6 +69,14 @@ def test_normalize_and_profiles():
     assert np.all(lo <= frac) and np.all(frac <= hi)
 
 
+def test_profile_bands_are_drawn_from_their_seed_and_leave_the_global_rng_alone():
+    scores, taus = {"a": np.random.default_rng(1).normal(size=(10, 1))}, np.linspace(-2.0, 2.0, 9)
+    before = np.random.get_state()[1].copy()
+    a, b, c = (stats.performance_profiles(scores, taus, reps=50, seed=s)["a"] for s in (0, 0, 1))
+    assert all(np.array_equal(x, y) for x, y in zip(a, b)) and not all(np.array_equal(x, y) for x, y in zip(a, c))
+    assert np.array_equal(np.random.get_state()[1], before)
+
+
 def write_sweep(d, env, steps=100, final=None, seeds=4, evaluated=True, critic=None):
     """A fabricated sweep directory: tidy metrics.csv (flat PPO and K=2) and its sweep.json; `critic`: the
     one entry of its value_targets (a value_target column), None for a sweep that lists none."""
