@@ -6,15 +6,15 @@
 
 Trains flat PPO and a mixture of K linear controllers for every K of the ladder (default K = ceil(m d_a), m in 0.5,
 1, 2, 4), scores every run by its exported controller in MuJoCo C from fixed start states, and judges each K
-sufficient, insufficient or undecided at the margin (gsa_jax.analysis.verdict: the IQM gap on the scale of the
+sufficient, insufficient or undecided at the margin (gsa_jax.analysis.verdicts.verdict: the IQM gap on the scale of the
 reference's gain over a random policy measured over 128 episodes, Yuen's trimmed-mean t, no resampling). The
 reference is flat PPO where it is adequate, else the published or tuned PPO score it falls below
-(gsa_jax.analysis.baseline: --references); the report says which, and whether flat PPO still learns at --steps.
+(gsa_jax.analysis.verdicts.baseline: --references); the report says which, and whether flat PPO still learns at --steps.
 Seeds are added, look by look, only to the undecided K below the smallest sufficient one (and to flat PPO), each
 round one vmapped program per class, until the smallest sufficient K is decided, the last look (the seed cap) is
 reached or the budget would run out. The design (an alpha-spending function over the looks, Holm over the K) keeps
 the chance that the answer names a K that is not within the margin at most 2.5% over all K and looks
-(gsa_jax.analysis.sequential). --target SCORE judges against a score your robot needs instead. --start-from takes
+(gsa_jax.analysis.verdicts.sequential). --target SCORE judges against a score your robot needs instead. --start-from takes
 committed results (gsa_jax.extract --results; e.g. experiments/atlas_dmc/results/<task>/*): their runs are the first
 seeds (judged at the same looks as a table of them) and their sweep.json settings train the new ones.
 
@@ -34,8 +34,9 @@ import shlex
 import subprocess
 import sys
 
-from gsa_jax.analysis import controller_scores, sequential, verdict
-from gsa_jax.analysis.answering import (
+from gsa_jax.analysis.sweeps import controller_scores
+from gsa_jax.analysis.verdicts import sequential, verdict
+from gsa_jax.analysis.verdicts.answering import (
     DEFAULT_LOOKS, DEFAULT_SPENDING, AnswerError, Setup, check_setup, run_answer,
 )
 from gsa_jax.running.runinfo import cli_description
@@ -64,7 +65,7 @@ def default_ladder(env: str) -> tuple:
 
 def start_specs(dirs: list) -> dict:
     """{policy: base spec} from the sweep.json of each --start-from directory (their settings train new seeds)."""
-    from gsa_jax.analysis.results import sweep_metas
+    from gsa_jax.analysis.sweeps.results import sweep_metas
 
     specs = {}
     for d in dirs:
@@ -139,8 +140,8 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
     import jax
     import mujoco
 
-    from gsa_jax.analysis.answer_report import export_choice, write_report
-    from gsa_jax.analysis.answering import collect_evidence
+    from gsa_jax.analysis.verdicts.answer_report import export_choice, write_report
+    from gsa_jax.analysis.verdicts.answering import collect_evidence
 
     evidence = collect_evidence(out, setup)
     verdicts = {int(k): r["verdict"] for k, r in state["judged"].items()}
@@ -174,7 +175,7 @@ def build_parser():
     p.add_argument("--spending", choices=sequential.SPENDING, default=DEFAULT_SPENDING,
                    help="how each K's error is spread over the looks (default %(default)s: Pocock-type, see docs/answer.md)")
     p.add_argument("--references", default=None, metavar="CSV",
-                   help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/ppo_references.csv)")
+                   help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/verdicts/ppo_references.csv)")
     p.add_argument("--steps", type=int, default=1_000_000, help="env steps per run (default %(default)s)")
     p.add_argument("--backend", choices=("c", "mjx"), default=None, help="physics (default: c where the task has MuJoCo C)")
     p.add_argument("--config", default="{}", metavar="JSON",

@@ -14,7 +14,7 @@ import argparse
 import os
 import sys
 
-from gsa_jax.analysis.extraction import ExtractError, collect_results, export_controllers, sweep_runs
+from gsa_jax.analysis.sweeps.extraction import ExtractError, collect_results, export_controllers, sweep_runs
 from gsa_jax.running.runinfo import cli_description
 
 

@@ -4,7 +4,7 @@ curve: gsa_jax.running.curve).
 Merges every tidy metrics.csv under the directories (one per worker process, host, or separately run
 sweep: a task's sweep may run on another day or machine; sweeps that hold the same group with other
 steps, hyperparameters or settings are refused with the difference). Statistics with rliable
-(gsa_jax/analysis/stats.py): a run's final score is the mean deterministic return of its last 3 scheduled
+(gsa_jax/analysis/sweeps/stats.py): a run's final score is the mean deterministic return of its last 3 scheduled
 evaluations (the training return over the last 10% of iterations for sweeps without evaluations); a
 failed evaluation episode (non-finite physics) counts up to its last finite step and is counted in
 eval_failures. Writes to OUT
@@ -30,9 +30,9 @@ only in tables written before failed evaluation episodes were counted).
 import argparse
 import sys
 
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.figures import plot_sweep
-from gsa_jax.analysis.results import PlotError
+from gsa_jax.analysis.sweep_report import plot_sweep
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import PlotError
 from gsa_jax.running.runinfo import cli_description
 
 

@@ -32,7 +32,7 @@ the same episode without it, counted only where that episode survives the window
   fair.csv          per task x configuration x shift: the shifted score above the line the other
                     configurations' controllers set (shifted on nominal score), the retained fraction among
                     controllers whose nominal episodes all reach the time limit, and each one's verdict next
-                    to the retained fraction's (gsa_jax.analysis.fairness)
+                    to the retained fraction's (gsa_jax.analysis.robustness.fairness)
 correlation.csv also gives the partial rank correlation controlling for nominal score.
 """
 
@@ -43,11 +43,11 @@ import sys
 
 import numpy as np
 
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.paired import evaluate_all_pushes
-from gsa_jax.analysis.retention import analyse
-from gsa_jax.analysis.retention_eval import START_SEED, evaluate_all, load_controllers, write_settings
-from gsa_jax.analysis.shift_rows import RobustnessError
+from gsa_jax.analysis.robustness.paired import evaluate_all_pushes
+from gsa_jax.analysis.robustness.retention import analyse
+from gsa_jax.analysis.robustness.retention_eval import START_SEED, evaluate_all, load_controllers, write_settings
+from gsa_jax.analysis.robustness.shift_rows import RobustnessError
+from gsa_jax.analysis.sweeps import stats
 from gsa_jax.deployment.pushes import PER_EPISODE, PUSH_SIZES, WINDOWS
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
 from gsa_jax.running.runinfo import cli_description

@@ -3,7 +3,7 @@ directories, in plain MuJoCo C, over a fixed set of start states.
 
     python -m gsa_jax.score DIR [DIR ...] [--episodes 10] [--start-seed 10000]
 
-Writes DIR/.../controller_scores.csv beside each controllers/ folder (gsa_jax.analysis.controller_scores):
+Writes DIR/.../controller_scores.csv beside each controllers/ folder (gsa_jax.analysis.sweeps.controller_scores):
 per controller its file's sha256, the start seeds and its mean deterministic return (`controller_score`),
 which gsa_jax.plot puts in per_run_scores.csv and every verdict uses. Controllers already scored with the
 same file, episodes and start seed are kept; an interrupted scoring resumes where it stopped.
@@ -13,7 +13,7 @@ import argparse
 import os
 import sys
 
-from gsa_jax.analysis.controller_scores import EPISODES, START_SEED, ScoreError, controller_dirs, score_directory
+from gsa_jax.analysis.sweeps.controller_scores import EPISODES, START_SEED, ScoreError, controller_dirs, score_directory
 from gsa_jax.running.runinfo import cli_description
 
 

@@ -25,8 +25,8 @@ import sys
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import Cell, final_scores, load_sweep, load_sweeps, read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, to_toml
@@ -64,7 +64,7 @@ def cell_scores(sweep_dir):
     """{hparam_set (int, or None without sets): [final scores in seed order]} of a one-cell-per-set sweep."""
     out = {}
     for cell, (scores, _) in final_scores(load_sweep(sweep_dir)).items():
-        cols = dict(cell[3:])
+        cols = dict(cell.settings)
         out[int(cols["hparam_set"]) if "hparam_set" in cols else None] = list(scores)
     return out
 
@@ -85,8 +85,8 @@ def baseline_scores(dirs, env_name, classes):
     if not dirs:
         return {}
     scores = final_scores(load_sweeps(dirs))
-    return {cls: list(scores[(env_name, c["policy"], c["K"])][0]) for cls, c in classes.items()
-            if (env_name, c["policy"], c["K"]) in scores}
+    return {cls: list(scores[Cell(env_name, c["policy"], c["K"])][0]) for cls, c in classes.items()
+            if Cell(env_name, c["policy"], c["K"]) in scores}
 
 
 def report(spec, out, chosen, baseline, reps=stats.REPS):

@@ -7,8 +7,9 @@ import os
 import numpy as np
 import pytest
 
-from gsa_jax.analysis import controller_scores, verdict
-from gsa_jax.analysis import answering as A
+from gsa_jax.analysis.sweeps import controller_scores
+from gsa_jax.analysis.verdicts import answering as A
+from gsa_jax.analysis.verdicts import verdict
 
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
 
@@ -118,7 +119,7 @@ def test_a_small_real_task_end_to_end(tmp_path):
     """One look of K = 1, 2 against a target on InvertedDoublePendulum-v5 (a few iterations each): every run trained,
     exported and scored in MuJoCo C, the random policy measured there; the verdicts follow from those scores; the
     report and the chosen controller written; running the same command again changes nothing."""
-    from gsa_jax.analysis import ladder, trimmed
+    from gsa_jax.analysis.verdicts import ladder, trimmed
     from gsa_jax.answer import finish
 
     spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, physics={"backend": "c"})}

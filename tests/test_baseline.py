@@ -1,4 +1,4 @@
-"""Is flat PPO an adequate baseline (gsa_jax.analysis.baseline)? The references table read and refused in one line,
+"""Is flat PPO an adequate baseline (gsa_jax.analysis.verdicts.baseline)? The references table read and refused in one line,
 flat PPO's standing against an entry on the entry's own metric, the still-learning test on learning curves whose
 plateau is known, and the answer judging against a reference flat PPO falls below."""
 
@@ -7,9 +7,9 @@ import os
 import numpy as np
 import pytest
 
-from gsa_jax.analysis import answering as A
-from gsa_jax.analysis import baseline as B
-from gsa_jax.analysis import trimmed, verdict
+from gsa_jax.analysis.verdicts import answering as A
+from gsa_jax.analysis.verdicts import baseline as B
+from gsa_jax.analysis.verdicts import trimmed, verdict
 
 HEADER = "task,published_task,score,std,seeds,steps,metric,algorithm,source,note\n"
 

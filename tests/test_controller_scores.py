@@ -8,7 +8,7 @@ import shutil
 
 import pytest
 
-from gsa_jax.analysis import controller_scores as cs
+from gsa_jax.analysis.sweeps import controller_scores as cs
 
 COMMITTED = os.path.join(os.path.dirname(__file__), "..", "experiments", "fig1_v5", "results",
                          "fig1_v5_InvertedDoublePendulum-v5", "controllers")
@@ -25,7 +25,6 @@ def one_controller(tmp_path):
 
 def test_controller_score_is_deploys_return_from_the_same_starts(one_controller, tmp_path):
     from gsa_jax.deploy import main as deploy
-
     from gsa_jax.score import main as score
 
     assert score([str(one_controller), "--episodes", "3"]) == 0
@@ -58,7 +57,7 @@ def test_scores_are_kept_while_the_file_is_unchanged(one_controller, monkeypatch
 def test_plot_tables_use_the_controller_scores(tmp_path):
     """The committed IDP-v5 sweep with its controllers scored: per_run_scores.csv carries controller_score, and
     final_returns.csv's IQM is the controller scores' (score kind 'controller')."""
-    from gsa_jax.analysis.verdict import iqm
+    from gsa_jax.analysis.sweeps.stats import iqm
     from gsa_jax.plot import main as plot
 
     src = os.path.join(COMMITTED, "..")

@@ -39,9 +39,9 @@ def test_link_check_sees_a_broken_link(tmp_path):
 
 
 def test_every_quoted_number_is_what_the_committed_tables_give():
-    """Per-run and per-cell numbers in the pages are quoted from the committed tables (gsa_jax.analysis.quote):
+    """Per-run and per-cell numbers in the pages are quoted from the committed tables (gsa_jax.analysis.quoting.quote):
     none has drifted from them."""
-    from gsa_jax.analysis.quote import requote
+    from gsa_jax.analysis.quoting.quote import requote
 
     pages = [os.path.join(ROOT, "README.md")] + sorted(glob.glob(os.path.join(ROOT, "docs", "*.md"))) + sorted(
         glob.glob(os.path.join(ROOT, "experiments", "*", "README.md")))

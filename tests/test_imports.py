@@ -13,14 +13,16 @@ ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
 LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
 JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
-            "running.tensorboard", "analysis.stats", "analysis.results", "analysis.tables", "analysis.figures",
-            "analysis.retention", "analysis.retention_eval", "analysis.retention_stats", "analysis.retention_plots",
-            "analysis.shift_rows", "analysis.paired", "analysis.fairness", "running.trained", "plot", "robustness", "deploy")
+            "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
+            "analysis.sweeps.figures", "analysis.sweep_report", "analysis.verdicts.grid", "analysis.robustness.retention",
+            "analysis.robustness.retention_eval", "analysis.robustness.retention_stats", "analysis.robustness.retention_plots",
+            "analysis.robustness.shift_rows", "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained",
+            "plot", "robustness", "deploy")
 
 
 def modules():
-    """{dotted name below gsa_jax: path} of every module, commands (top level and inspect/) included."""
-    paths = glob.glob(os.path.join(ROOT, "*.py")) + glob.glob(os.path.join(ROOT, "*", "*.py"))
+    """{dotted name below gsa_jax: path} of every module at any depth, commands (top level and inspect/) included."""
+    paths = glob.glob(os.path.join(ROOT, "**", "*.py"), recursive=True)
     found = {}
     for p in paths:
         rel = os.path.relpath(p, ROOT)[:-3].replace(os.sep, ".")
@@ -58,6 +60,19 @@ def test_every_module_lives_in_a_layer_folder_and_imports_only_downward():
     unknown = sorted(d for p in mods.values() for d in gsa_imports(p)
                      if d not in mods and d not in LAYERS and d.rsplit(".", 1)[0] not in mods)
     assert not unknown, f"imports of modules that do not exist: {unknown}"
+
+
+def test_analysis_folders_import_only_sweeps_and_nothing_imports_the_sweep_report():
+    """analysis/: sweeps/ (results and their statistics) at the bottom imports no other folder of analysis/; verdicts/,
+    robustness/ and quoting/ import sweeps/ and not each other; sweep_report (every table and figure of a sweep) sits
+    above them all."""
+    mods = modules()
+    folder = lambda name: name.split(".")[1] if name.startswith("analysis.") else None  # noqa: E731
+    allowed = {"sweeps": set(), "verdicts": {"sweeps"}, "robustness": {"sweeps"}, "quoting": {"sweeps"}}
+    wrong = [f"{m} imports {d}" for m, p in sorted(mods.items()) if folder(m) in allowed
+             for d in sorted(gsa_imports(p)) if folder(d) not in (None, folder(m)) and folder(d) not in allowed[folder(m)]]
+    assert not wrong, "; ".join(wrong)
+    assert set(allowed) == {folder(m) for m in mods if m.count(".") == 2 and folder(m)}, "a folder of analysis/ not placed"
 
 
 def test_reading_and_deployment_modules_import_without_jax():

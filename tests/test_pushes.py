@@ -1,5 +1,5 @@
-"""Paired pushes (gsa_jax.deployment.pushes, gsa_jax.analysis.paired) and the fair comparisons under persistent
-shifts (gsa_jax.analysis.fairness): which pushes count, known fall times give the stated probabilities, a pushed
+"""Paired pushes (gsa_jax.deployment.pushes, gsa_jax.analysis.robustness.paired) and the fair comparisons under persistent
+shifts (gsa_jax.analysis.robustness.fairness): which pushes count, known fall times give the stated probabilities, a pushed
 copy differs from its control by the push only, the line and the partial correlation against references."""
 
 import csv
@@ -9,9 +9,9 @@ import types
 import numpy as np
 import pytest
 
-from gsa_jax.analysis.fairness import fair_rows, leave_out_residuals, partial_spearman, verdict
-from gsa_jax.analysis.paired import aggregate_pushes, crossed_interval, per_controller
-from gsa_jax.analysis.retention import cells
+from gsa_jax.analysis.robustness.fairness import fair_rows, leave_out_residuals, partial_spearman, verdict
+from gsa_jax.analysis.robustness.paired import aggregate_pushes, crossed_interval, per_controller
+from gsa_jax.analysis.robustness.shift_rows import cells
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.deployment.pushes import evaluate_pushes, push_events, window_outcomes
 from gsa_jax.robustness import main
@@ -230,9 +230,8 @@ def test_cli_adds_paired_pushes_to_an_evaluation_made_without_them(tmp_path, cap
 def test_a_push_acts_on_the_body_the_task_names():
     """step_task pushes the task definition's push_body (envs/task.py; here the example's forearm, by name) during
     the step only; a task's `planar` decides the directions (the example: any horizontal angle)."""
-    from examples.reacher import Reacher
-
     from envs.task import TaskC
+    from examples.reacher import Reacher
     from gsa_jax.deployment.shifts import is_planar, step_task
 
     class Forearm(Reacher):

@@ -1,11 +1,11 @@
-"""gsa_jax.analysis.quote (numbers in pages rewritten from the tables) and gsa_jax.analysis.published (flat
+"""gsa_jax.analysis.quoting.quote (numbers in pages rewritten from the tables) and gsa_jax.analysis.quoting.published (flat
 PPO against a published table, scored as it is), on fabricated tables: nothing to compile."""
 
 import csv
 
 import pytest
 
-from gsa_jax.analysis import published, quote
+from gsa_jax.analysis.quoting import published, quote
 
 RUNS = [("mlp", "", 0, 3952.6, 1500.0), ("mlp", "", 1, 1176.4, 2500.0), ("mixture", "3", 0, 4575.5, 4000.0),
         ("mixture", "3", 1, 4840.0, 4200.0), ("mixture", "24", 0, 3165.2, 2900.0)]
@@ -76,7 +76,7 @@ def test_a_quote_that_matches_nothing_or_names_no_file_is_an_error(results, caps
                  "scores results/missing.csv", "min results/per_run_scores.csv col=nope", "mean results/per_run_scores.csv"):
         page.write_text(f"<!-- quote {span} -->x<!-- /quote -->")
         assert quote.main([str(page)]) == 2
-        assert capsys.readouterr().err.startswith("gsa_jax.analysis.quote: error: ")
+        assert capsys.readouterr().err.startswith("gsa_jax.analysis.quoting.quote: error: ")
         assert page.read_text().endswith("x<!-- /quote -->")  # nothing written
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from envs.mujoco_c import make_c, run_episodes
-from gsa_jax.analysis.retention import action_jacobian_norms
+from gsa_jax.analysis.robustness.retention_eval import action_jacobian_norms
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, Shift, run_shifted, shifted_task
 from gsa_jax.robustness import main

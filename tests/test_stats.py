@@ -1,4 +1,4 @@
-"""gsa_jax.analysis.stats against NumPy / SciPy references, and gsa_jax.plot merging sweeps (fabricated tables:
+"""gsa_jax.analysis.sweeps.stats against NumPy / SciPy references, and gsa_jax.plot merging sweeps (fabricated tables:
 nothing to compile)."""
 
 import csv
@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.figures import plot_sweep
-from gsa_jax.analysis.results import PlotError
+from gsa_jax.analysis.sweep_report import plot_sweep
+from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import Cell, PlotError
 from gsa_jax.plot import main as plot_main
 
 FEW = {"reps": 50, "curve_reps": 20}  # bootstrap resamples: enough for the checks, cheap
@@ -50,15 +51,15 @@ def test_probability_of_improvement_is_mann_whitney():
 
 def test_critics_compared_cell_by_cell():
     """A sweep listing value_targets: P(Retrace's run beats GAE's) for each retrace cell, nothing for others."""
-    from gsa_jax.analysis.tables import critic_comparisons
+    from gsa_jax.analysis.sweeps.tables import critic_comparisons
 
     gae, rt = np.array([1.0, 4.0, 6.0, 8.0]), np.array([3.0, 5.0, 7.0])
-    cell = lambda env, target: (env, "mixture", 6, ("value_target", target))  # noqa: E731
+    cell = lambda env, target: Cell(env, "mixture", 6, (("value_target", target),))  # noqa: E731
     scores = {cell("hopper", "gae"): (gae, "deterministic"), cell("hopper", "retrace"): (rt, "deterministic"),
               cell("walker2d", "retrace"): (rt, "deterministic")}  # no GAE cell to compare with
     got = critic_comparisons(scores)
     assert list(got) == [cell("hopper", "retrace")] and got[cell("hopper", "retrace")][0] == pytest.approx(0.5)
-    assert critic_comparisons({("hopper", "mixture", 6): (rt, "deterministic")}) == {}
+    assert critic_comparisons({Cell("hopper", "mixture", 6): (rt, "deterministic")}) == {}
 
 
 def test_normalize_and_profiles():
@@ -66,6 +67,14 @@ def test_normalize_and_profiles():
     frac, lo, hi = stats.performance_profiles({"a": np.array([[0.2], [0.6], [1.2]])}, [0.0, 0.5, 1.0, 2.0])["a"]
     np.testing.assert_allclose(frac, [1.0, 2 / 3, 1 / 3, 0.0])
     assert np.all(lo <= frac) and np.all(frac <= hi)
+
+
+def test_profile_bands_are_drawn_from_their_seed_and_leave_the_global_rng_alone():
+    scores, taus = {"a": np.random.default_rng(1).normal(size=(10, 1))}, np.linspace(-2.0, 2.0, 9)
+    before = np.random.get_state()[1].copy()
+    a, b, c = (stats.performance_profiles(scores, taus, reps=50, seed=s)["a"] for s in (0, 0, 1))
+    assert all(np.array_equal(x, y) for x, y in zip(a, b)) and not all(np.array_equal(x, y) for x, y in zip(a, c))
+    assert np.array_equal(np.random.get_state()[1], before)
 
 
 def write_sweep(d, env, steps=100, final=None, seeds=4, evaluated=True, critic=None):
@@ -105,6 +114,8 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
         rows = [{k: (float(v) if k not in ("env", "policy", "score") and v != "" else v) for k, v in r.items()}
                 for r in csv.DictReader(f)]
     by = {(r["env"], r["policy"]): r for r in rows}
+    groups = (C.MEAN_CI, C.IQM_CI, C.P_FLAT_CI, C.TRAINING_CI, C.CURVE_CI)  # the declared columns, in the file's order
+    assert [c for c in rows[0] if any(c in g for g in groups)] == [c for g in groups for c in g]
     assert by[("hopper", "mixture")]["score"] == "deterministic" and by[("hopper", "mixture")]["seeds"] == 4
     assert by[("hopper", "mixture")]["final_return_mean"] == pytest.approx(120.0 + 4.5)  # evaluated, not training
     assert by[("hopper", "mixture")]["curve_iqm"] == pytest.approx(124.5)  # IQM of 120, 123, 126, 129: (123 + 126) / 2
@@ -128,12 +139,12 @@ def test_merged_sweeps_count_together_and_score_the_controllers(tmp_path):
 def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
     """The product's answer per task, sub-policy class and margin, judged as gsa_jax.answer's first look: the smallest
     K shown within the margin, with the smaller K still undecided named; none where no K is shown sufficient."""
-    from gsa_jax.analysis.tables import sufficient_k_lines, sufficient_k_table, verdict_table
+    from gsa_jax.analysis.verdicts.grid import sufficient_k_lines, sufficient_k_table, verdict_table
 
     spread = np.linspace(-1.0, 1.0, 10)
 
     def cell(policy, k, sub):
-        return ("a", policy, k, ("subpolicy", sub))
+        return Cell("a", policy, k, (("subpolicy", sub),))
 
     def runs(scores):  # per seed what verdict_table reads: the controller score and the training series
         return {s: {"controller_score": float(v), "episode_return": np.array([v]), "episodes": np.array([1.0]),
@@ -162,8 +173,8 @@ def test_smallest_sufficient_k_is_the_smallest_k_judged_sufficient():
 def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):
     """Figure 1 sets K = ceil(m d_a): hopper's K = 2 is the 0.5 d_a configuration (not 0.667 d_a), and on a
     one-action task K = 1 is both 0.5 d_a and 1 d_a; K set directly is named K / d_a."""
-    from gsa_jax.analysis.results import spec_multipliers
-    from gsa_jax.analysis.tables import config_keys
+    from gsa_jax.analysis.sweeps.results import spec_multipliers
+    from gsa_jax.analysis.sweeps.tables import config_keys
 
     d = tmp_path / "fig1"
     d.mkdir()
@@ -172,11 +183,11 @@ def test_configs_across_tasks_are_named_by_the_spec_multiplier(tmp_path):
     mult = spec_multipliers([str(d)])
     dims = {"hopper": 3, "inverted_double_pendulum": 1}
     assert mult == {"hopper": [0.5, 1, 2], "inverted_double_pendulum": [0.5, 1, 2]}
-    assert config_keys(("hopper", "mixture", 2), dims, mult) == [("K = 0.5 d_a",)]
-    assert config_keys(("hopper", "mixture", 6, ("subpolicy", "linear")), dims, mult) == [("K = 2 d_a", ("subpolicy", "linear"))]
-    assert config_keys(("inverted_double_pendulum", "mixture", 1), dims, mult) == [("K = 0.5 d_a",), ("K = 1 d_a",)]
-    assert config_keys(("hopper", "mixture", 5), dims, {}) == [("K = 1.67 d_a",)]
-    assert config_keys(("hopper", "mlp", 1), dims, mult) == [("flat PPO",)]
+    assert config_keys(Cell("hopper", "mixture", 2), dims, mult) == [("K = 0.5 d_a",)]
+    assert config_keys(Cell("hopper", "mixture", 6, (("subpolicy", "linear"),)), dims, mult) == [("K = 2 d_a", ("subpolicy", "linear"))]
+    assert config_keys(Cell("inverted_double_pendulum", "mixture", 1), dims, mult) == [("K = 0.5 d_a",), ("K = 1 d_a",)]
+    assert config_keys(Cell("hopper", "mixture", 5), dims, {}) == [("K = 1.67 d_a",)]
+    assert config_keys(Cell("hopper", "mlp", 1), dims, mult) == [("flat PPO",)]
 
 
 def test_sweeps_with_other_settings_are_not_merged(tmp_path):
@@ -191,13 +202,13 @@ def test_sweeps_with_other_settings_are_not_merged(tmp_path):
 def test_a_critic_sweep_merges_with_a_sweep_that_lists_none(tmp_path):
     """A sweep of Retrace runs alone, merged with a sweep that lists no critics (GAE): the latter's cells
     become the GAE cells the Retrace ones are compared with; the same runs with other settings are refused."""
-    from gsa_jax.analysis.results import final_scores, load_sweeps
-    from gsa_jax.analysis.tables import critic_comparisons
+    from gsa_jax.analysis.sweeps.results import final_scores, load_sweeps
+    from gsa_jax.analysis.sweeps.tables import critic_comparisons
 
     gae = write_sweep(tmp_path / "fig1", "hopper")
     rt = write_sweep(tmp_path / "retrace", "hopper", final={"mixture": 130.0}, critic="retrace")
     data = load_sweeps([str(gae), str(rt)])
-    cell = lambda policy, k, critic: ("hopper", policy, k, ("value_target", critic))  # noqa: E731
+    cell = lambda policy, k, critic: Cell("hopper", policy, k, (("value_target", critic),))  # noqa: E731
     assert sorted(data) == [cell("mixture", 2, "gae"), cell("mixture", 2, "retrace"), cell("mlp", 1, "gae")]
     assert critic_comparisons(final_scores(data))[cell("mixture", 2, "retrace")][0] == 1.0  # 130..139 vs 120..129
     other = write_sweep(tmp_path / "other", "hopper", steps=200, final={"mixture": 1.0})
@@ -219,8 +230,8 @@ def test_failed_evaluation_episodes_are_counted_and_unreturned_evaluations_repor
     before failures were counted, with a scheduled final evaluation left blank in one run: that run is
     listed in unscored_runs and a printed line, and left out of the statistics -- not scored from an
     earlier evaluation."""
-    from gsa_jax.analysis.results import load_sweep, unscored_lines
-    from gsa_jax.analysis.tables import final_table
+    from gsa_jax.analysis.sweeps.results import load_sweep, unscored_lines
+    from gsa_jax.analysis.sweeps.tables import final_table
 
     counted, legacy = tmp_path / "counted", tmp_path / "legacy"
     for d, with_count in ((counted, True), (legacy, False)):
@@ -271,8 +282,8 @@ def test_last_episodes_return_weights_iterations_by_their_episodes():
 def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
     """per_run_scores.csv: a run's final score (mean of its last 3 evaluations), not its last evaluation;
     its training returns; the cell table's mean is the mean of these scores."""
-    from gsa_jax.analysis.results import load_sweep
-    from gsa_jax.analysis.tables import final_table, run_table
+    from gsa_jax.analysis.sweeps.results import load_sweep
+    from gsa_jax.analysis.sweeps.tables import final_table, run_table
 
     d = tmp_path / "sweep"
     d.mkdir()
@@ -294,7 +305,7 @@ def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
     cell = final_table(data, {"hopper": 3}, reps=20)[0]
     assert cell["final_return_mean"] == pytest.approx(np.mean([r["final_score"] for r in rows]), abs=1e-3)
     # other tidy columns on request, in iteration order; one the table lacks is NaN throughout
-    asked = load_sweep(str(d), ("iteration", "episodes", "approx_kl"))[("hopper", "mixture", 2)][1]
+    asked = load_sweep(str(d), ("iteration", "episodes", "approx_kl"))[Cell("hopper", "mixture", 2)][1]
     assert list(asked["iteration"]) == list(range(1, 21)) and set(asked["episodes"]) == {30.0}
     assert set(asked) == {"iteration", "episodes", "approx_kl"} and np.isnan(asked["approx_kl"]).all()
 
@@ -302,7 +313,7 @@ def test_per_run_table_scores_each_run_as_the_cell_table_does(tmp_path):
 def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_them(tmp_path):
     """Tables redrawn from committed results normalize by the random-policy return an earlier invocation
     measured and saved in OUT, not by a new measurement; a sweep's own value takes precedence."""
-    from gsa_jax.analysis.results import random_returns_of
+    from gsa_jax.analysis.sweeps.results import random_returns_of
 
     a = write_sweep(tmp_path / "a", "hopper")
     out = tmp_path / "out"
@@ -316,11 +327,11 @@ def test_random_returns_are_read_from_the_output_directory_when_no_sweep_has_the
 def test_random_returns_are_measured_with_the_backend_the_sweep_trained_with(tmp_path, monkeypatch):
     """A task MJX cannot step (dmc:fish-swim) trains with backend 'c': its random-policy return is measured
     with 'c' too, with MJX where the sweep names no backend, and with 'c' where two sweeps disagree."""
-    from gsa_jax.analysis import scoring
-    from gsa_jax.analysis.results import random_returns_of
+    from gsa_jax.analysis.sweeps import random_return
+    from gsa_jax.analysis.sweeps.results import random_returns_of
 
     asked = []
-    monkeypatch.setattr(scoring, "random_policy_return", lambda env, backend="mjx": asked.append((env, backend)) or 1.0)
+    monkeypatch.setattr(random_return, "random_policy_return", lambda env, backend="mjx": asked.append((env, backend)) or 1.0)
     a = write_sweep(tmp_path / "a", "dmc:fish-swim")
     meta = json.loads((a / "sweep.json").read_text())
     meta["spec"]["config"] = {"backend": "c"}

@@ -91,9 +91,9 @@ def test_grid_with_value_targets():
 def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
     """plot_sweep on an evaluated tidy table with a subpolicy column: final scores per (class, K), flat PPO
     separate; return-vs-K draws one curve per class, its points in K order."""
-    from gsa_jax.analysis.figures import plot_sweep
-    from gsa_jax.analysis.results import load_sweeps, setting_columns
-    from gsa_jax.analysis.tables import k_curves
+    from gsa_jax.analysis.sweep_report import plot_sweep
+    from gsa_jax.analysis.sweeps.results import load_sweeps, setting_columns
+    from gsa_jax.analysis.sweeps.tables import k_curves
 
     lines = ["env,policy,subpolicy,K,seed,run,iteration,env_steps,episode_return,eval_return"]
     final = {("mlp", "", 1): 50.0, ("mixture", "constant", 2): 10.0, ("mixture", "constant", 4): 20.0,
@@ -231,7 +231,7 @@ def test_every_finished_runs_controller_exported(inprocess, tmp_path):
     assert extract_main([str(inprocess), "--results", str(res)]) == 0
     assert {p.name for p in res.iterdir()} == {"sweep.json", "metrics.csv.gz", "failed_runs.json", "controllers"}
     assert len(list((res / "controllers").iterdir())) == 4 and not list(res.glob("**/state.npz"))
-    from gsa_jax.analysis.results import load_sweep
+    from gsa_jax.analysis.sweeps.results import load_sweep
 
     ours, theirs = load_sweep(str(res)), load_sweep(str(inprocess))
     assert ours.keys() == theirs.keys()
@@ -418,7 +418,7 @@ def test_two_processes_with_jax_distributed_match_one_process(tiny_spec_file, in
     assert len(merged) == 8 * ITERS and {r["seed"] for r in merged} == {"0", "1", "2", "3"}
     # other runs beside them in each vmapped batch: float tolerance
     assert_same_results([r for r in merged if r["seed"] in ("0", "1")], read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
-    from gsa_jax.analysis.figures import plot_sweep
+    from gsa_jax.analysis.sweep_report import plot_sweep
 
     png, table, rows = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     assert os.path.getsize(png) > 10_000 and [r["K"] for r in rows] == [1, 3] and all(r["seeds"] == 4 for r in rows)
@@ -516,7 +516,7 @@ def test_nan_run_is_frozen_listed_and_the_others_train_on(tiny_spec_file, inproc
     assert healthy == ref  # the same strings: bit for bit
     with np.load(out / "groups" / "inverted_double_pendulum-mixture" / "params.npz") as p:
         assert all(np.all(np.isfinite(p[k])) for k in p.files)
-    from gsa_jax.analysis.figures import plot_sweep
+    from gsa_jax.analysis.sweep_report import plot_sweep
 
     _, _, table = plot_sweep(str(out), random_returns={"inverted_double_pendulum": 50.0}, **FEW)
     by_cell = {(r["K"], float(r["hparam_lr"])): r for r in table}

@@ -1,25 +1,27 @@
-"""The non-inferiority verdict (gsa_jax.analysis.verdict, .trimmed, .sequential, .ladder) on score sets whose truth is
+"""The non-inferiority verdict (gsa_jax.analysis.verdicts.verdict, .trimmed, .sequential, .ladder) on score sets whose truth is
 known: Yuen's test against SciPy's, the group-sequential boundaries against a simulated Brownian motion, and the whole
 answer's error rate by simulation of gsa_jax.answer's own decisions."""
 
 import numpy as np
 import pytest
 
-from gsa_jax.analysis import answering, ladder, sequential, trimmed
-from gsa_jax.analysis import verdict as V
+from gsa_jax.analysis.sweeps.stats import iqm
+from gsa_jax.analysis.verdicts import answering, ladder, sequential, trimmed
+from gsa_jax.analysis.verdicts import verdict as V
 
 
 def noisy(center, spread, n, seed):
     return center + spread * np.random.default_rng(seed).standard_normal(n)
 
 
-def test_iqm_is_rliables():
+def test_the_verdicts_trimmed_mean_is_the_one_iqm_rliables_to_the_bit():
     from rliable import metrics
 
-    x = np.random.default_rng(0).standard_normal((7, 1)) * 100
-    for n in (1, 2, 3, 4, 5, 7):
-        assert V.iqm(x[:n, 0]) == pytest.approx(metrics.aggregate_iqm(x[:n]), abs=1e-9)
-        assert trimmed.trimmed(x[:n, 0]).mean == pytest.approx(V.iqm(x[:n, 0]), abs=1e-12)
+    x = np.random.default_rng(0).standard_normal((41, 1)) * 100
+    for n in (1, 2, 3, 4, 5, 7, 10, 17, 40, 41):
+        assert iqm(x[:n]) == metrics.aggregate_iqm(x[:n]) == iqm(x[:n, 0])
+        assert trimmed.trimmed(x[:n, 0]).mean == iqm(x[:n, 0])
+    assert iqm([1.0, 2.0, 3.0, 4.0, 100.0, -50.0, 5.0, 6.0]) == 3.5  # sorted: -50 1 | 2 3 4 5 | 6 100
 
 
 @pytest.mark.parametrize("n1, n2", [(10, 10), (7, 13), (40, 20), (5, 9)])

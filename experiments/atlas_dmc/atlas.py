@@ -6,7 +6,7 @@ paper's settings and Brax-style resets, marked apart). Writes results/atlas.csv 
 IQM, the best mixture's K, IQM and P(> flat PPO), the smallest sufficient K as gsa_jax judges it (the answer's first
 look; what it was judged against: flat PPO, or the reference flat PPO falls below), flat PPO's last-100-episode
 training return next to CleanRL's published PPO on the same task at 8M steps (the 1M entries are in
-gsa_jax/analysis/ppo_references.csv and verdicts.csv), the random policy's return (128 episodes in MuJoCo C,
+gsa_jax/analysis/verdicts/ppo_references.csv and verdicts.csv), the random policy's return (128 episodes in MuJoCo C,
 random_policy.json), and no_answer: why gsa_jax gives no answer (flat PPO does not learn the task at this budget, or
 its gain over the random policy is not shown positive); such rows are marked in the table and figure),
 results/atlas.md (the same as a Markdown table) and results/atlas.png.
@@ -15,8 +15,8 @@ results/atlas.md (the same as a Markdown table) and results/atlas.png.
 import json
 import os
 
-from gsa_jax.analysis.results import read_csv, write_csv
-from gsa_jax.analysis.verdict import MARGINS
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax.analysis.verdicts.verdict import MARGINS
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")

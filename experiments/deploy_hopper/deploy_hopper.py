@@ -24,7 +24,7 @@ def main(argv=None):
     p.add_argument("--out", default="experiments/deploy_hopper/results")
     args = p.parse_args(argv)
 
-    from gsa_jax.analysis.extraction import select, sweep_runs
+    from gsa_jax.analysis.sweeps.extraction import select, sweep_runs
     from gsa_jax.deployment.evaluation import load_controller, run_mjx, run_mujoco_c
     from gsa_jax.deployment.exporting import controller_arrays
     from gsa_jax.running.checkpoint import save_npz_atomic

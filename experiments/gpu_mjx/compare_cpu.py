@@ -16,8 +16,8 @@ import subprocess
 
 import numpy as np
 
-from gsa_jax.analysis.results import read_csv, write_csv
-from gsa_jax.analysis.stats import improvement_probability, iqm_ci
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax.analysis.sweeps.stats import improvement_probability, iqm_ci
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))

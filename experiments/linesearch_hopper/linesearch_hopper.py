@@ -21,6 +21,7 @@ import tempfile
 
 import numpy as np
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "solver_hopper"))  # rescoring.py
 
 def one_step(states=4096, seed=0):
     """MJX (each line search) vs MuJoCo C over one physics step from states MuJoCo C visits."""
@@ -70,11 +71,11 @@ def one_step(states=4096, seed=0):
 
 
 def drift(env_name="hopper"):
-    """|qpos| between the two line searches (solver_hopper.qpos_drift; the task's own solver settings,
+    """|qpos| between the two line searches (rescoring.qpos_drift; the task's own solver settings,
     given explicitly for the iterative one)."""
     import envs
     from envs.physics import Physics
-    from gsa_jax.analysis.scoring import qpos_drift
+    from rescoring import qpos_drift
 
     exact, iterative = envs.make_base(env_name), envs.make_base(env_name, Physics(linesearch="iterative"))
     assert [envs.solver_settings(e)["linesearch_in_force"] for e in (exact, iterative)] == ["exact", "iterative"]
@@ -90,8 +91,8 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     from envs.physics import Physics
-    from gsa_jax.analysis.scoring import mean_ci, score_sweep, write_rows
     from gsa_jax.running.runinfo import run_metadata
+    from rescoring import mean_ci, score_sweep, write_rows
 
     os.makedirs(args.out, exist_ok=True)
     step = one_step()

@@ -10,7 +10,7 @@ import glob
 import json
 import os
 
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis.sweeps.results import write_csv
 from gsa_jax.benchmark.parts import summarize
 from gsa_jax.profile import table
 

@@ -10,7 +10,7 @@ the K given and flat PPO, 10 seeds each; start states as the robustness experime
 events per start, pushes of --size m/s, its windows (20, 50, 100 steps: the push times are drawn below the episode
 length minus the longest), falls counted over --window steps (gsa_jax.deployment.pushes.evaluate_pushes with
 draw=d; draw 0 is the robustness experiment's own). Per draw: the fall-probability IQM of both configurations
-and P(the mixture falls less) with its 95% CI (gsa_jax.analysis.paired.aggregate_pushes). Writes draws.csv and
+and P(the mixture falls less) with its 95% CI (gsa_jax.analysis.robustness.paired.aggregate_pushes). Writes draws.csv and
 meta.json beside this file's results/ after every draw.
 """
 
@@ -22,9 +22,9 @@ import subprocess
 
 import numpy as np
 
-from gsa_jax.analysis.paired import aggregate_pushes
-from gsa_jax.analysis.results import write_csv
-from gsa_jax.analysis.retention_eval import START_SEED, load_controllers
+from gsa_jax.analysis.robustness.paired import aggregate_pushes
+from gsa_jax.analysis.robustness.retention_eval import START_SEED, load_controllers
+from gsa_jax.analysis.sweeps.results import write_csv
 from gsa_jax.deployment.pushes import PER_EPISODE, WINDOWS, evaluate_pushes
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -2,7 +2,7 @@
 robustness experiment's nominal-trained controllers and the randomized experiment's randomized-trained ones), each
 mixture configuration's P(falls less / loses less than flat PPO) against two 95% intervals: the controllers-only one
 (rliable, under the one committed draw of push events) and the one that resamples the push events too
-(gsa_jax.analysis.paired.crossed_interval: columns p_*_events_ci_*). A verdict is "less" where an interval lies
+(gsa_jax.analysis.robustness.paired.crossed_interval: columns p_*_events_ci_*). A verdict is "less" where an interval lies
 above 0.5, "more" where below, "not shown" otherwise; it survives where both intervals give the same verdict.
 
     .venv/bin/python experiments/push_draws/verdicts.py
@@ -14,7 +14,7 @@ and how many of them survive).
 
 import os
 
-from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))

@@ -24,8 +24,8 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", ".."))
-from gsa_jax.analysis.results import write_csv  # noqa: E402
-from gsa_jax.analysis.stats import improvement_probability, iqm_ci  # noqa: E402
+from gsa_jax.analysis.sweeps.results import write_csv  # noqa: E402
+from gsa_jax.analysis.sweeps.stats import improvement_probability, iqm_ci  # noqa: E402
 
 TRAININGS = ("nominal", "randomized")
 

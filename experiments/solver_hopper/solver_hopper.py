@@ -18,7 +18,7 @@ def drift():
     """The task's own solver vs solver 1/4 (qpos_drift)."""
     import envs
     from envs.physics import Physics
-    from gsa_jax.analysis.scoring import qpos_drift
+    from rescoring import qpos_drift
 
     return qpos_drift(envs.make_base("hopper"), envs.make_base("hopper", Physics(1, 4)), hopper=True)
 
@@ -33,8 +33,8 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     from envs.physics import Physics
-    from gsa_jax.analysis.scoring import mean_ci, score_sweep, write_rows
     from gsa_jax.running.runinfo import run_metadata
+    from rescoring import mean_ci, score_sweep, write_rows
 
     os.makedirs(args.out, exist_ok=True)
     solvers = {"mjx_task_solver": Physics(), "mjx_fast_solver": Physics(1, 4)}

@@ -14,9 +14,10 @@ import json
 import os
 import tempfile
 
-from gsa_jax.analysis import controller_scores, verdict
-from gsa_jax.analysis.results import write_csv
-from gsa_jax.analysis import answering as A
+from gsa_jax.analysis.sweeps import controller_scores
+from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax.analysis.verdicts import answering as A
+from gsa_jax.analysis.verdicts import verdict
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.join(HERE, "..")

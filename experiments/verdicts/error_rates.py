@@ -2,7 +2,7 @@
 `.venv/bin/python experiments/verdicts/error_rates.py [--trials N] [--only error|power]`.
 
 Each trial draws every cell's seeds (flat PPO and K = 1, 2, 4, up to the last look) and 128 random-policy episodes from
-known laws, then runs gsa_jax.analysis.answering.decide round by round exactly as the answer loop does (the first
+known laws, then runs gsa_jax.analysis.verdicts.answering.decide round by round exactly as the answer loop does (the first
 look for every cell, then seeds only for the undecided K below the smallest sufficient one, and for flat PPO), until
 it stops. A cell's true gap is set by shifting flat PPO's law by gap x its IQM (the random policy's law has mean 0, so
 the scale is flat PPO's IQM). Laws of the seeds: normal (coefficient of variation 0.3, the issue's realistic spread),
@@ -25,8 +25,9 @@ import os
 
 import numpy as np
 
-from gsa_jax.analysis import answering, sequential, verdict
-from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax.analysis.verdicts import answering, sequential, verdict
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MARGIN, LOOKS, LADDER = 0.1, (10, 20, 40), (1, 2, 4)
@@ -61,7 +62,7 @@ DESIGNS = [("pocock", "holm"), ("obf", "holm"), ("bonferroni", "holm"), ("pocock
 
 
 def law_iqm(draw) -> float:
-    return float(verdict.iqm(draw(np.random.default_rng(99), 2_000_000)))
+    return stats.iqm(draw(np.random.default_rng(99), 2_000_000))
 
 
 def run_trial(setup, cells: dict, random_returns: np.ndarray) -> tuple:

@@ -10,8 +10,8 @@ gsa_jax.answer now does for its own. Writes results/fresh_scores.csv: selection 
 import glob
 import os
 
-from gsa_jax.analysis import controller_scores as C
-from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.sweeps import controller_scores as C
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.join(HERE, "..")

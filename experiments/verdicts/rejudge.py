@@ -17,7 +17,7 @@ from collections import Counter
 
 import numpy as np
 
-from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.join(HERE, "..")
@@ -120,7 +120,7 @@ def noise_rows():
     import glob
     import json
 
-    from gsa_jax.analysis.verdict import iqm
+    from gsa_jax.analysis.sweeps.stats import iqm
 
     rows = []
     for d in [os.path.join(ROOT, "fig1_v5", "results", n) for n in sorted(os.listdir(os.path.join(ROOT, "fig1_v5", "results")))
@@ -151,7 +151,7 @@ def answer_rows():
     import glob
     import json
 
-    from gsa_jax.analysis import verdict
+    from gsa_jax.analysis.verdicts import verdict
 
     rows = []
     paths = glob.glob(os.path.join(HERE, "answers", "*", "answer.json"))

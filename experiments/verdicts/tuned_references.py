@@ -2,7 +2,7 @@
 
 Reads the controller scores of experiments/tuning's tuned flat PPO (each task's chosen configuration trained on seeds
 0-9 for 1M steps; controller_scores.csv from `gsa_jax.score experiments/tuning/results/<task>/flat_ppo/evaluation`)
-and writes one 'deterministic' entry per task into gsa_jax/analysis/ppo_references.csv (replacing an earlier one of
+and writes one 'deterministic' entry per task into gsa_jax/analysis/verdicts/ppo_references.csv (replacing an earlier one of
 the same source): the mean and std (ddof 0) over seeds of the controller score, the score every verdict uses.
 """
 
@@ -12,8 +12,8 @@ import os
 
 import numpy as np
 
-from gsa_jax.analysis import baseline
-from gsa_jax.analysis.results import read_csv
+from gsa_jax.analysis.sweeps.results import read_csv
+from gsa_jax.analysis.verdicts import baseline
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TUNING = os.path.join(HERE, "..", "tuning", "results")

@@ -2,7 +2,7 @@
 
 results/per_controller.csv: one row per verified controller (its verify.json's numbers). results/summary.csv: per
 task, mixture K and metric, flat PPO's and the mixture's IQM with 95% stratified-bootstrap CIs and P(mixture > flat PPO)
-(rliable, gsa_jax.analysis.stats). results/confound.csv: per task and K, the rank correlation of nominal return and ROA
+(rliable, gsa_jax.analysis.sweeps.stats). results/confound.csv: per task and K, the rank correlation of nominal return and ROA
 volume over both classes' controllers, and P(mixture > flat PPO) on the ROA volume left after a linear fit on the
 nominal return (pooled over both classes): the comparison at equal nominal score. results/cost.csv: each part's
 mean seconds per controller (empty: the task has no such part). results/fixed_points.csv: per task and configuration,
@@ -19,8 +19,8 @@ import os
 import numpy as np
 import scipy.stats
 
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 METRICS = ("nominal_mean", "nominal_p05", "worst_start_law", "worst_twice_the_spread", "worst_with_pushes",

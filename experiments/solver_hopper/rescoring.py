@@ -1,6 +1,7 @@
-"""Scoring trained controllers outside training: a sweep's cells evaluated deterministically under
-chosen physics options (MJX) and in MuJoCo C, and how far two physics variants of a task drift apart.
-Used by the experiments that compare simulators (experiments/solver_hopper/, experiments/linesearch_hopper/).
+"""Trained controllers re-scored outside training: a sweep's cells evaluated deterministically under chosen physics
+options (MJX) and in MuJoCo C, and how far two physics variants of a task drift apart. Used by the experiments that
+compare simulators: solver_hopper.py beside it, and experiments/linesearch_hopper/ (which puts this folder on its
+path).
 """
 
 import csv
@@ -17,7 +18,7 @@ from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import schedule
-from gsa_jax.analysis.extraction import select, sweep_runs
+from gsa_jax.analysis.sweeps.extraction import select, sweep_runs
 from gsa_jax.deployment.evaluation import load_controller, run_mujoco_c
 from gsa_jax.deployment.exporting import controller_arrays
 from gsa_jax.deployment.inspection import last_iteration, load_run
@@ -127,28 +128,3 @@ def mean_ci(rows: list, cols: Sequence[str]) -> dict:
     """{col: {mean, ci95}} over rows (seeds)."""
     return {col: {"mean": float(np.mean([r[col] for r in rows])),
                   "ci95": float(1.96 * np.std([r[col] for r in rows], ddof=1) / np.sqrt(len(rows)))} for col in cols}
-
-
-def random_policy_return(env_name: str, episodes: int = 16, seed: int = 0, episode_length: int | None = None,
-                         backend: str = "mjx") -> float:
-    """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
-    score that normalizes to 0), from the start states of PRNGKey(seed), stepped by `backend` ('mjx' or 'c':
-    the one the sweep trained with, since MJX cannot step every task)."""
-    env = envs.make(env_name, episode_length, auto_reset=False, physics=Physics(backend=backend))
-    length = episode_length or envs.default_episode_length(env_name)
-
-    def run(key):
-        k_reset, k_act = jax.random.split(key)
-        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
-
-        def step(carry, k):
-            s, ret, alive = carry
-            a = jax.random.uniform(k, (episodes, env.action_size), minval=-1.0, maxval=1.0)
-            s, reward, alive, _ = step_episodes(env, s, a, alive)
-            return (s, ret + reward, alive), None
-
-        zeros = jnp.zeros((episodes,))
-        (_, ret, _), _ = jax.lax.scan(step, (s0, zeros, zeros + 1.0), jax.random.split(k_act, length))
-        return jnp.mean(ret)
-
-    return float(jax.jit(run)(jax.random.PRNGKey(seed)))

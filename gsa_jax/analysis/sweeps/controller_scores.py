@@ -21,14 +21,14 @@ from typing import Callable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
-
+from gsa_jax.analysis.sweeps import columns as C
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
 START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
 FRESH_EPISODES = 50  # an answer's chosen controller re-scored on starts it was not picked on ...
 FRESH_START_SEED = 20_000  # ... from this seed
 FILE = "controller_scores.csv"
-COLUMNS = ("label", "env", "policy", "K", "seed", "sha256", "episodes", "start_seed", "controller_score",
+COLUMNS = ("label", "env", "policy", "K", "seed", "sha256", "episodes", "start_seed", C.CONTROLLER_SCORE,
            "episode_std", "length_mean", "simulator", "mujoco_version")
 
 
@@ -81,7 +81,7 @@ def score_controller(path: str, episodes: int = EPISODES, start_seed: int = STAR
         seed = json.loads(str(f["config_json"])).get("seed", "")
     return {"label": os.path.basename(path)[: -len(".npz")], "env": env_name, "policy": ctrl.kind,
             "K": k, "seed": seed, "sha256": file_sha256(path), "episodes": episodes, "start_seed": start_seed,
-            "controller_score": round(summary["return_mean"], 4),
+            C.CONTROLLER_SCORE: round(summary["return_mean"], 4),
             "episode_std": round(float(np.std(summary["returns"], ddof=1)) if episodes > 1 else 0.0, 4),
             "length_mean": round(summary["length_mean"], 2), "simulator": "mujoco_c", "mujoco_version": mujoco.__version__}
 
@@ -98,7 +98,7 @@ def controller_dirs(roots: Sequence[str]) -> list:
 def is_current(row: dict, sha: str, episodes: int, start_seed: int) -> bool:
     """Whether a stored row scores this very file with these episodes and start seed."""
     return (row.get("sha256") == sha and str(row.get("episodes")) == str(episodes)
-            and str(row.get("start_seed")) == str(start_seed) and row.get("controller_score", "") != "")
+            and str(row.get("start_seed")) == str(start_seed) and row.get(C.CONTROLLER_SCORE, "") != "")
 
 
 def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int = START_SEED,
@@ -136,8 +136,8 @@ def label_scores(roots: Sequence[str]) -> dict:
     for root in roots:
         for path in glob.glob(os.path.join(root, "**", FILE), recursive=True):
             for label, row in read_scores(path).items():
-                if row.get("controller_score", "") != "":
-                    out[label] = float(row["controller_score"])
+                if row.get(C.CONTROLLER_SCORE, "") != "":
+                    out[label] = float(row[C.CONTROLLER_SCORE])
     return out
 
 
@@ -149,8 +149,8 @@ def attach(data: dict, roots: Sequence[str]) -> int:
     scores, found = label_scores(roots), 0
     for cell, seeds in data.items():
         for seed, s in seeds.items():
-            label = run_label({"env": cell[0], "policy": cell[1], "K": cell[2], **dict(cell[3:]), "seed": seed})
-            s["controller_score"] = scores.get(label, float("nan"))
+            label = run_label({**cell.columns(), "seed": seed})
+            s[C.CONTROLLER_SCORE] = scores.get(label, float("nan"))
             found += label in scores
     return found
 

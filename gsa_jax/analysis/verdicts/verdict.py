@@ -6,11 +6,11 @@ aggregate_iqm for one task) on the scale of the reference's gain over a uniforml
     gap = (IQM(mixture) - IQM(reference)) / (IQM(reference) - mean(random-policy episodes))
 
 so gap = -0.1 means the mixtures keep 90% of what the reference learned. The reference is flat PPO's seeds, or a
-fixed score (a target a robot needs, or a published PPO score with its standard error: gsa_jax.analysis.baseline).
+fixed score (a target a robot needs, or a published PPO score with its standard error: gsa_jax.analysis.verdicts.baseline).
 "K is within delta" is the linear statement IQM(mix) - (1 - delta) IQM(ref) - delta R > 0, tested with Yuen's
-trimmed-mean t for a contrast (gsa_jax.analysis.trimmed): the random return's own uncertainty (its episodes) and a
+trimmed-mean t for a contrast (gsa_jax.analysis.verdicts.trimmed): the random return's own uncertainty (its episodes) and a
 published reference's are in the test, and no resampling is involved, so a verdict does not depend on a seed. At
-margin delta and the look's one-sided level a (gsa_jax.analysis.sequential: the design's share for this K and look):
+margin delta and the look's one-sided level a (gsa_jax.analysis.verdicts.sequential: the design's share for this K and look):
 
     sufficient    p(gap <= -delta) < a   (shown within delta of the reference, or better)
     insufficient  p(gap >= -delta) < a   (shown worse than the margin allows)
@@ -26,7 +26,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from gsa_jax.analysis import trimmed
+from gsa_jax.analysis.verdicts import trimmed
 
 ALPHA = 0.025  # the one-sided chance of wrongly calling some K sufficient, over the whole answer
 GAIN_LEVEL = 0.025  # the reference's gain over the random policy must be shown positive at this one-sided level
@@ -53,15 +53,6 @@ class Gap(NamedTuple):
     p_insufficient: float
     seeds_parity: int | None
     seeds_observed: int | None
-
-
-def iqm(scores: np.ndarray) -> np.ndarray:
-    """The interquartile mean along the last axis of scores [..., n] (scipy.stats.trim_mean(x, 0.25), which
-    rliable's aggregate_iqm is for one task): the mean of the sorted values int(n/4) .. n - int(n/4) - 1."""
-    x = np.sort(np.asarray(scores, np.float64), axis=-1)
-    n = x.shape[-1]
-    cut = int(0.25 * n)
-    return x[..., cut: n - cut].mean(axis=-1)
 
 
 def summarize_reference(reference: "Sequence[float] | trimmed.Summary") -> trimmed.Summary:

@@ -1,11 +1,11 @@
 """The answer loop of `python -m gsa_jax.answer`: train flat PPO and a ladder of K in rounds, judge every cell at the
-design's looks (gsa_jax.analysis.ladder: Yuen's trimmed-mean t, an alpha-spending function over the looks, Holm over
-the K) against a baseline shown adequate (gsa_jax.analysis.baseline), and add seeds only where the smallest
+design's looks (gsa_jax.analysis.verdicts.ladder: Yuen's trimmed-mean t, an alpha-spending function over the looks, Holm over
+the K) against a baseline shown adequate (gsa_jax.analysis.verdicts.baseline), and add seeds only where the smallest
 sufficient K is not decided yet.
 
 A round trains, per policy class, one sweep (one vmapped program; gsa_jax.sweep in a subprocess, resumable, with the
 answer's shared compilation cache so a later round with the same shapes loads its program), exports every run's
-controller and scores it in MuJoCo C (gsa_jax.analysis.controller_scores). The decisions are a pure function of the
+controller and scores it in MuJoCo C (gsa_jax.analysis.sweeps.controller_scores). The decisions are a pure function of the
 runs' values (decide), so experiments/verdicts/error_rates.py simulates this very loop. The state (DIR/answer.json)
 is written after every step, so the same command resumes where it stopped.
 """
@@ -21,8 +21,10 @@ import time
 from typing import Callable, NamedTuple, Sequence
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import baseline, controller_scores, ladder, sequential, trimmed, verdict
-from gsa_jax.analysis.extraction import collect_results
+from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.analysis.sweeps import controller_scores
+from gsa_jax.analysis.sweeps.extraction import collect_results
+from gsa_jax.analysis.verdicts import baseline, ladder, sequential, trimmed, verdict
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
 
@@ -40,7 +42,7 @@ class AnswerError(Exception):
 class Setup:
     """What an answer computes (recorded in answer.json; a resumed answer must match it). specs: the base
     experiment spec per policy ('mlp', 'mixture': steps, hparams, config); looks: seeds per cell at each look;
-    alpha, spending: the design (gsa_jax.analysis.sequential); start_from: results directories whose committed
+    alpha, spending: the design (gsa_jax.analysis.verdicts.sequential); start_from: results directories whose committed
     controllers are the first seeds; references: the references table (None: the shipped one)."""
 
     env: str
@@ -187,16 +189,16 @@ def collect_scores(out: str, setup: Setup) -> dict:
         for path in sorted(glob.glob(os.path.join(root, "**", controller_scores.FILE), recursive=True)):
             for row in controller_scores.read_scores(path).values():
                 key = cell_key(setup, row["policy"], row["K"])
-                if row["env"] == setup.env and row.get("controller_score", "") != "" and key is not None:
-                    found.setdefault(key, {})[int(row["seed"])] = float(row["controller_score"])
+                if row["env"] == setup.env and row.get(C.CONTROLLER_SCORE, "") != "" and key is not None:
+                    found.setdefault(key, {})[int(row["seed"])] = float(row[C.CONTROLLER_SCORE])
     return found
 
 
 def collect_runs(out: str, setup: Setup) -> tuple:
     """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}) from the
     tidy metrics under score_roots."""
-    from gsa_jax.analysis.results import load_sweep
-    from gsa_jax.analysis.stats import last_episodes_return
+    from gsa_jax.analysis.sweeps.results import load_sweep
+    from gsa_jax.analysis.sweeps.stats import last_episodes_return
 
     last100, curves = {}, {}
     dirs = sorted({os.path.dirname(p) for root in score_roots(out, setup)
@@ -207,8 +209,8 @@ def collect_runs(out: str, setup: Setup) -> tuple:
         except FileNotFoundError:
             continue
         for cell, seeds in cells.items():
-            key = cell_key(setup, cell[1], cell[2])
-            if cell[0] != setup.env or key is None:
+            key = cell_key(setup, cell.policy, cell.k)
+            if cell.env != setup.env or key is None:
                 continue
             for seed, s in seeds.items():
                 last100.setdefault(key, {})[seed] = last_episodes_return(s["episode_return"], s["episodes"])
@@ -231,7 +233,7 @@ def choose_baseline(setup: Setup, evidence: Evidence, state: dict) -> dict:
     """The baseline record (what the verdicts judge against, and why), decided once at the answer's first look from
     flat PPO's first-look seeds: flat PPO, or the reference entry it falls below, or the user's target."""
     if setup.target is not None:
-        return {"versus": f"the target score {setup.target:g}", "metric": "controller_score", "entry": None,
+        return {"versus": f"the target score {setup.target:g}", "metric": C.CONTROLLER_SCORE, "entry": None,
                 "standings": [], "learning": None, "learned": True}
     n = setup.looks[0]
     flat = baseline.FlatRuns(ladder.first_seeds(evidence.scores.get(FLAT, {}), n),
@@ -258,7 +260,7 @@ def reference_of(setup: Setup, evidence: Evidence, base: dict) -> "list | trimme
         return trimmed.fixed(setup.target)
     if base["entry"] is not None:
         return baseline.reference_summary(base["entry"])
-    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    values = evidence.scores if base["metric"] == C.CONTROLLER_SCORE else evidence.last100
     return ladder.first_seeds(values.get(FLAT, {}), len(values.get(FLAT, {})))
 
 
@@ -267,7 +269,7 @@ def judge_cells(setup: Setup, evidence: Evidence, state: dict) -> dict:
     base = state["baseline"]
     if not base["learned"]:
         return {str(k): {"verdict": verdict.NO_SCALE, "why": base["why"]} for k in setup.ladder}
-    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    values = evidence.scores if base["metric"] == C.CONTROLLER_SCORE else evidence.last100
     cells = {k: values.get(k, {}) for k in setup.ladder}
     return ladder.judge_ladder(setup.ladder, cells, reference_of(setup, evidence, base), state["random"]["returns"],
                                setup.margin, setup.design(), state["records"])

@@ -8,9 +8,9 @@ from typing import Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.fairness import partial_spearman
-from gsa_jax.analysis.shift_rows import cells, controller_key
+from gsa_jax.analysis.robustness.fairness import partial_spearman
+from gsa_jax.analysis.robustness.shift_rows import RETAINED_CI, cells, controller_key
+from gsa_jax.analysis.sweeps import stats
 
 MULTIPLIERS = (0.5, 1, 2, 4)
 
@@ -40,8 +40,7 @@ def aggregate(rows: list, reps: int = stats.REPS) -> list:
         p = better.get(str(c), (math.nan,) * 3)
         r3 = lambda v: round(float(v), 3) if np.isfinite(v) else ""  # noqa: E731
         out.append({"env": c[0], "policy": c[1], "K": c[2], "shift": c[3], "runs": len(by[c]),
-                    "retained_iqm": r3(iqm_r[str(c)][0]), "retained_ci_low": r3(iqm_r[str(c)][1]),
-                    "retained_ci_high": r3(iqm_r[str(c)][2]), "score_iqm": r3(iqm_s[str(c)][0]),
+                    **{col: r3(v) for col, v in zip(RETAINED_CI, iqm_r[str(c)])}, "score_iqm": r3(iqm_s[str(c)][0]),
                     "score_ci_low": r3(iqm_s[str(c)][1]), "score_ci_high": r3(iqm_s[str(c)][2]),
                     "p_retains_more_than_flat_ppo": r3(p[0]), "p_ci_low": r3(p[1]), "p_ci_high": r3(p[2])})
     return out

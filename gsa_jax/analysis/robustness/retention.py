@@ -7,18 +7,14 @@ import os
 from typing import Callable, Sequence
 
 import envs
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.fairness import fair_rows
-from gsa_jax.analysis.figures import plot_profiles
-from gsa_jax.analysis.paired import aggregate_pushes, plot_pushes
-from gsa_jax.analysis.results import write_csv
-from gsa_jax.analysis.retention_plots import plot_robustness
-from gsa_jax.analysis.retention_stats import aggregate, correlations, profile_scores
-from gsa_jax.analysis.shift_rows import controller_key
-# importable from here as before
-from gsa_jax.analysis.retention_eval import (START_SEED, action_jacobian_norms, evaluate_all,  # noqa: F401
-                                             load_controllers, write_settings)
-from gsa_jax.analysis.shift_rows import TIDY, RobustnessError, cells  # noqa: F401
+from gsa_jax.analysis.robustness.fairness import fair_rows
+from gsa_jax.analysis.robustness.paired import aggregate_pushes, plot_pushes
+from gsa_jax.analysis.robustness.retention_plots import plot_robustness
+from gsa_jax.analysis.robustness.retention_stats import aggregate, correlations, profile_scores
+from gsa_jax.analysis.robustness.shift_rows import controller_key
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.figures import plot_profiles
+from gsa_jax.analysis.sweeps.results import write_csv
 
 EARLY_PUSHES = 300  # env steps: paired_pushes_early.csv's pushes
 
@@ -49,7 +45,7 @@ def analyse_pairs(rows: list, out: str, reps: int, events: Sequence, nominal: Se
                   log: Callable) -> None:
     """paired_pushes.csv (and paired_pushes_early.csv: pushes before step EARLY_PUSHES only, where the counted
     pushes of controllers that fall early and of those that do not come from the same part of the episode),
-    pushes.png, fair.csv (gsa_jax.analysis.paired, .fairness), and how far the paired pushes' control
+    pushes.png, fair.csv (gsa_jax.analysis.robustness.paired, .fairness), and how far the paired pushes' control
     episodes' scores are from the nominal scores of the shifts' evaluation."""
     pushes = aggregate_pushes(events, windows, reps)
     write_csv(os.path.join(out, "paired_pushes.csv"), pushes)

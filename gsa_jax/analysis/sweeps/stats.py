@@ -1,6 +1,8 @@
 """Statistics over runs with rliable (Agarwal et al., "Deep RL at the edge of the statistical precipice"):
 IQM with stratified bootstrap confidence intervals, probability of improvement, performance profiles.
-Plain NumPy in, plain NumPy out; gsa_jax.plot draws and tabulates them.
+Plain NumPy in, plain NumPy out; gsa_jax.plot draws and tabulates them. The package's one IQM (iqm) and one
+stratified bootstrap (bootstrap); robustness.paired.crossed_interval resamples the push events that all controllers
+share as well, which a bootstrap stratified by configuration cannot.
 
 A run's final score is the mean deterministic return of its last FINAL_EVALUATIONS scheduled evaluations
 (gsa_jax.running.metrics; an evaluation's failed episodes count up to their last finite step, gsa_jax.algorithm.episodes);
@@ -8,9 +10,10 @@ runs of a sweep without evaluations fall back to the mean training return over t
 iterations (final_score says which).
 """
 
+import contextlib
 import math
 import warnings
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -92,26 +95,35 @@ def iqm_ci(scores: dict, seed: int = 0, reps: int = REPS) -> dict:
 
 
 def iqm(scores: np.ndarray) -> float:
-    """The interquartile mean of scores [runs, tasks] (rliable's aggregate_iqm): a point, no interval."""
+    """The interquartile mean of scores [runs, tasks] or [runs] (rliable's aggregate_iqm): a point, no interval. The
+    one IQM of the package: tables, the baseline and reports call it; the verdict's test (verdicts.trimmed) computes
+    the same number with its standard error."""
     from rliable import metrics
 
     return float(metrics.aggregate_iqm(np.asarray(scores, float)))
 
 
-def bootstrap(score_dict: dict, func: Callable, seed: int, reps: int = REPS) -> tuple:
-    """rliable.library.get_interval_estimates (stratified bootstrap, 95% percentile intervals). rliable draws
-    its resamples from NumPy's global RNG: it is seeded with `seed` for the call (reproducible tables) and
-    restored afterwards."""
-    from rliable import library as rly
-
+@contextlib.contextmanager
+def seeded(seed: int) -> Iterator[None]:
+    """NumPy's global RNG, from which rliable draws its resamples, seeded with `seed` inside the block (reproducible
+    tables and figures) and restored after it."""
     saved = np.random.get_state()
     np.random.seed(seed)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FutureWarning)  # arch: "random_state is deprecated"
-            return rly.get_interval_estimates(score_dict, func, reps=reps)
+            yield
     finally:
         np.random.set_state(saved)
+
+
+def bootstrap(score_dict: dict, func: Callable, seed: int, reps: int = REPS) -> tuple:
+    """rliable.library.get_interval_estimates (stratified bootstrap, 95% percentile intervals), its resamples drawn
+    from `seed`."""
+    from rliable import library as rly
+
+    with seeded(seed):
+        return rly.get_interval_estimates(score_dict, func, reps=reps)
 
 
 def improvement_probability(pairs: dict, seed: int = 0, reps: int = REPS) -> dict:
@@ -141,13 +153,14 @@ def iqm_curves(curves: dict, points: int = 20, seed: int = 0, reps: int = CURVE_
     return out
 
 
-def performance_profiles(scores: dict, taus: np.ndarray, reps: int = REPS) -> dict:
+def performance_profiles(scores: dict, taus: np.ndarray, reps: int = REPS, seed: int = 0) -> dict:
     """{name: (fraction [len(taus)], low, high)}: the fraction of runs (averaged over tasks) whose
-    normalized score exceeds each tau, with 95% stratified bootstrap bands (rliable)."""
+    normalized score exceeds each tau, with 95% stratified bootstrap bands (rliable; resamples drawn from `seed`)."""
     from rliable import library as rly
 
-    dist, cis = rly.create_performance_profile({k: np.asarray(v, float) for k, v in scores.items()}, np.asarray(taus),
-                                               reps=reps)
+    with seeded(seed):
+        dist, cis = rly.create_performance_profile({k: np.asarray(v, float) for k, v in scores.items()},
+                                                   np.asarray(taus), reps=reps)
     return {k: (np.asarray(dist[k]), np.asarray(cis[k][0]), np.asarray(cis[k][1])) for k in scores}
 
 

@@ -1,10 +1,12 @@
-"""The tidy rows of controllers under shifts (robustness.csv, nominal.csv): their columns, each controller's key
-and the rows grouped into cells; shared by the evaluation (retention_eval), its statistics (retention_stats),
+"""The tidy rows of controllers under shifts (robustness.csv, nominal.csv): their columns (and aggregate.csv's
+retained fraction, which retention_stats writes and retention_plots reads), each controller's key and the rows grouped
+into cells; shared by the evaluation (retention_eval), its statistics (retention_stats),
 the paired pushes (paired) and the fair comparisons (fairness)."""
 
 from gsa_jax.deployment.shifts import Shift
 
 TIDY = ("env", "policy", "K", "seed", "shift", "level", "score", "nominal_score", "random_score", "retained_fraction")
+RETAINED_CI = ("retained_iqm", "retained_ci_low", "retained_ci_high")  # aggregate.csv: IQM [95% CI] of the fraction
 
 
 class RobustnessError(ValueError):

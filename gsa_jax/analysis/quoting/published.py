@@ -1,5 +1,5 @@
 """Flat PPO against published PPO scores, computed the way the published table computes them:
-`python -m gsa_jax.analysis.published REFERENCE.csv PER_RUN.csv [PER_RUN.csv ...] --out OUT.csv`.
+`python -m gsa_jax.analysis.quoting.published REFERENCE.csv PER_RUN.csv [PER_RUN.csv ...] --out OUT.csv`.
 
 REFERENCE.csv: one published score per task (columns env, mean, std, source; e.g. CleanRL's PPO table,
 whose entries are the mean ± std (ddof 0) over seeds of each run's mean return over its last 100 training
@@ -15,7 +15,8 @@ import sys
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
-from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.running.runinfo import cli_description
 
 
@@ -39,8 +40,8 @@ def compare(reference: list, runs: list) -> list:
                 continue
             mine = [r for r in runs if r["env"] == env and r["policy"] == MLP]
             num = lambda r, c: float(r[c]) if r[c] != "" else np.nan  # noqa: E731
-            last_mean, last_std = spread([num(r, "training_return_last_100_episodes") for r in mine])
-            det_mean, det_std = spread([num(r, "final_score") for r in mine])
+            last_mean, last_std = spread([num(r, C.LAST_EPISODES_RETURN) for r in mine])
+            det_mean, det_std = spread([num(r, C.FINAL_SCORE) for r in mine])
             out.append({"env": env, "seeds": len(mine), "last_100_episodes_mean": last_mean,
                         "last_100_episodes_std": last_std, "deterministic_mean": det_mean, "deterministic_std": det_std,
                         "published_env": ref["env"], "published_mean": ref["mean"], "published_std": ref["std"],
@@ -49,7 +50,7 @@ def compare(reference: list, runs: list) -> list:
 
 
 def main(argv: list | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.published", description=cli_description(__doc__))
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quoting.published", description=cli_description(__doc__))
     p.add_argument("reference", help="CSV of published scores: env, mean, std, source")
     p.add_argument("per_run", nargs="+", help="per_run_scores.csv files of gsa_jax.plot")
     p.add_argument("--out", required=True, help="the comparison CSV to write")
@@ -57,10 +58,10 @@ def main(argv: list | None = None) -> int:
     try:
         rows = compare(read_csv(args.reference), [r for path in args.per_run for r in read_csv(path)])
     except (OSError, KeyError) as e:
-        print(f"gsa_jax.analysis.published: error: {e}", file=sys.stderr)
+        print(f"gsa_jax.analysis.quoting.published: error: {e}", file=sys.stderr)
         return 2
     if not rows:
-        print("gsa_jax.analysis.published: error: no flat PPO task matches a published one", file=sys.stderr)
+        print("gsa_jax.analysis.quoting.published: error: no flat PPO task matches a published one", file=sys.stderr)
         return 2
     write_csv(args.out, rows)
     for r in rows:

@@ -24,11 +24,13 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from gsa_jax.analysis import trimmed
+from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.verdicts import trimmed
 
 REFERENCES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ppo_references.csv")
 COLUMNS = ("task", "published_task", "score", "std", "seeds", "steps", "metric", "algorithm", "source", "note")
-METRICS = {"training_last_100": "training_return_last_100_episodes", "deterministic": "controller_score"}
+METRICS = {"training_last_100": C.LAST_EPISODES_RETURN, "deterministic": C.CONTROLLER_SCORE}
 WINDOW = 0.05  # the share of the steps each end of the last fifth averages its evaluations over
 LEARNING_LEVEL = 0.05  # one-sided: 'stopped learning' when the last fifth's gain is shown below the margin at this level
 
@@ -202,17 +204,16 @@ def choose(task: str, steps: int, margin: float, flat: FlatRuns, rand: trimmed.S
     """The baseline record of an answer: flat PPO's standing against every entry that applies, whether it still
     learns at the budget and learns the task at all, and what the verdicts judge against (flat PPO on controller
     scores; the binding entry on its own metric where flat PPO is below it)."""
-    from gsa_jax.analysis.verdict import iqm
 
-    values = {"controller_score": list(flat.controller), "training_return_last_100_episodes": list(flat.last100)}
+    values = {C.CONTROLLER_SCORE: list(flat.controller), C.LAST_EPISODES_RETURN: list(flat.last100)}
     standings = [s for s in (stand(r, values, rand.mean, margin) for r in applicable(references, task, steps)) if s]
     bind = binding(standings)
-    flat_iqm = float(iqm(flat.controller)) if len(flat.controller) else float("nan")
+    flat_iqm = stats.iqm(flat.controller) if len(flat.controller) else float("nan")
     learn = learning(flat.curves, steps, flat_iqm - rand.mean, margin)
     ok, why = learned(flat_iqm, rand.mean, max_return)
     entry = bind.reference if bind is not None and bind.below else None
     versus = "flat PPO" if entry is None else reference_name(entry)
-    return {"versus": versus, "metric": METRICS[entry["metric"]] if entry else "controller_score", "entry": entry,
+    return {"versus": versus, "metric": METRICS[entry["metric"]] if entry else C.CONTROLLER_SCORE, "entry": entry,
             "standings": [standing_record(s) for s in standings],
             "binding": standing_record(bind) if bind is not None else None,
             "learning": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in learn._asdict().items()},

@@ -9,12 +9,13 @@ import json
 import math
 import os
 from collections import defaultdict
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
 from envs.physics import nest_physics, record_backend
-from gsa_jax.analysis import stats
+from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.analysis.sweeps import stats
 from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.runinfo import describe_changes
 
@@ -27,6 +28,21 @@ class PlotError(ValueError):
     pass
 
 
+class Cell(NamedTuple):
+    """A sweep's cell, the runs its statistics pool: the task, the policy kind, K (as the tidy table writes it for
+    flat PPO too) and the settings that set it apart beyond those: ((column, value), ...) of the sub-policy class,
+    critic and swept hyperparameters, in the table's column order."""
+
+    env: str
+    policy: str
+    k: int
+    settings: tuple = ()
+
+    def columns(self) -> dict:
+        """The cell as the tidy table's columns: {env, policy, K, setting column: value, ...}."""
+        return {"env": self.env, "policy": self.policy, "K": self.k, **dict(self.settings)}
+
+
 def read_tidy(path: str, series: dict, columns: Sequence[str] = _SERIES) -> bool:
     """Add one tidy metrics.csv's columns to series {cell: {seed: {column: [(iteration, value)]}}}; False if not a
     sweep's."""
@@ -36,7 +52,7 @@ def read_tidy(path: str, series: dict, columns: Sequence[str] = _SERIES) -> bool
             return False  # a single run's metrics.csv (train.py) or a foreign file
         extra = [c for c in reader.fieldnames if c not in _ID_COLS and c not in _METRIC_COLS]
         for r in reader:
-            cell = (r["env"], r["policy"], int(r["K"])) + tuple((c, r[c]) for c in extra)
+            cell = Cell(r["env"], r["policy"], int(r["K"]), tuple((c, r[c]) for c in extra))
             run = series[cell][int(r["seed"])]
             for c in columns:
                 v = r.get(c, "")
@@ -46,7 +62,7 @@ def read_tidy(path: str, series: dict, columns: Sequence[str] = _SERIES) -> bool
 
 def load_sweep(sweep_dir: str, columns: Sequence[str] = _SERIES) -> dict:
     """All tidy rows under sweep_dir (metrics*.csv, or gzipped as experiments/ keep them) ->
-    {cell: {seed: {column: [T] in iteration order}}}, cell = (env, policy, K, (column, value)...); by default the
+    {Cell: {seed: {column: [T] in iteration order}}}; by default the
     columns env_steps, episode_return, episodes, eval_return, eval_failures (any of TIDY_METRICS can be asked for).
     A column a table does not carry (eval_failures before it was recorded) is NaN throughout."""
     plain = glob.glob(os.path.join(sweep_dir, "**", "metrics*.csv"), recursive=True)
@@ -88,16 +104,16 @@ def group_settings(sweep_dir: str) -> dict:
 
 def lists_critics(cells: Iterable[tuple]) -> bool:
     """Whether any of the cells carries a critic column (its sweep listed value_targets)."""
-    return any(c == "value_target" for cell in cells for c, _ in cell[3:])
+    return any(c == "value_target" for cell in cells for c, _ in cell.settings)
 
 
 def with_critic(cell: tuple) -> tuple:
     """A cell with ("value_target", "gae") among its settings when it has no critic column (after the
     sub-policy class, where sweeps write it): sweeps that list no value_targets trained with GAE."""
-    if any(c == "value_target" for c, _ in cell[3:]):
+    if any(c == "value_target" for c, _ in cell.settings):
         return cell
-    i = 4 if len(cell) > 3 and cell[3][0] == "subpolicy" else 3
-    return cell[:i] + (("value_target", "gae"),) + cell[i:]
+    i = 1 if cell.settings and cell.settings[0][0] == "subpolicy" else 0
+    return cell._replace(settings=cell.settings[:i] + (("value_target", "gae"),) + cell.settings[i:])
 
 
 def load_sweeps(dirs: Sequence[str]) -> dict:
@@ -120,7 +136,7 @@ def load_sweeps(dirs: Sequence[str]) -> dict:
         for cell, seeds in cells.items():
             twice = set(seeds) & set(data.get(cell, {}))
             if twice:
-                raise PlotError(f"{d}: seed {min(twice)} of {cell[0]}/{cell[1]} K={cell[2]} is already in another directory")
+                raise PlotError(f"{d}: seed {min(twice)} of {cell.env}/{cell.policy} K={cell.k} is already in another directory")
             data.setdefault(cell, {}).update(seeds)
     return data
 
@@ -136,10 +152,9 @@ def load_failed(sweep_dir: str) -> list:
 
 
 def failed_cell(f: dict) -> tuple:
-    """The cell (env, policy, K, (column, value)...) of a failed run, as load_sweep keys them."""
+    """The Cell of a failed run, as load_sweep keys them."""
     extras = [c for c in f if c not in ("run", "env", "policy", "K", "seed", "failed_at")]
-    return (f["env"], f["policy"], int(f["K"])) + tuple(
-        (f"hparam_{c}" if c in _METRIC_COLS else c, str(f[c])) for c in extras)
+    return Cell(f["env"], f["policy"], int(f["K"]), tuple((f"hparam_{c}" if c in _METRIC_COLS else c, str(f[c])) for c in extras))
 
 
 def drop_failed(data: dict, failed: list) -> tuple:
@@ -203,11 +218,11 @@ def evaluation_scores(data: dict) -> dict:
 
 def final_scores(data: dict) -> dict:
     """{cell: (scores [n], kind)}: each run's score, seeds in order. Where every run of a cell has its committed
-    controller's score (controller_score, gsa_jax.analysis.controller_scores: the final controller re-run in MuJoCo C
+    controller's score (controller_score, gsa_jax.analysis.sweeps.controller_scores: the final controller re-run in MuJoCo C
     from fixed start states) those, kind 'controller'; else evaluation_scores."""
     out = evaluation_scores(data)
     for cell, seeds in data.items():
-        got = np.array([s.get("controller_score", math.nan) for _, s in sorted(seeds.items())], float)
+        got = np.array([s.get(C.CONTROLLER_SCORE, math.nan) for _, s in sorted(seeds.items())], float)
         if len(got) and np.isfinite(got).all():
             out[cell] = (got, "controller")
     return out
@@ -248,7 +263,7 @@ def action_dims_of(dirs: Sequence[str], env_names: Iterable[str]) -> dict:
 
 def setting_columns(data: dict) -> list:
     """The columns that set cells apart beyond (env, policy, K): sub-policy class, critic, swept hyperparameters."""
-    return list(dict.fromkeys(c for cell in data for c, _ in cell[3:]))
+    return list(dict.fromkeys(c for cell in data for c, _ in cell.settings))
 
 
 def backend_of(dirs: Sequence[str], env_name: str) -> str:
@@ -271,7 +286,7 @@ def random_returns_of(dirs: Sequence[str], env_names: Iterable[str], out_dir: st
                 found.update(json.load(f))  # the sweeps' own, read last, take precedence
     missing = [e for e in env_names if e not in found]
     if missing:
-        from gsa_jax.analysis.scoring import random_policy_return
+        from gsa_jax.analysis.sweeps.random_return import random_policy_return
 
         for env_name in missing:
             backend = backend_of(dirs, env_name)

@@ -1,4 +1,4 @@
-"""Every K of an answer judged at the design's looks with Holm's shares (gsa_jax.analysis.sequential), so that "K* is
+"""Every K of an answer judged at the design's looks with Holm's shares (gsa_jax.analysis.verdicts.sequential), so that "K* is
 the smallest sufficient K" is wrong at most ALPHA of the time over all K and all looks.
 
 A cell is judged when its seeds reach a look: with the first `look` seeds of the cell (in seed order) against as many
@@ -10,7 +10,7 @@ gsa_jax.answer, so an answer continued from a committed table (--start-from) is 
 
 from typing import Sequence
 
-from gsa_jax.analysis import sequential, trimmed, verdict
+from gsa_jax.analysis.verdicts import sequential, trimmed, verdict
 
 DECIDED = (verdict.SUFFICIENT, verdict.INSUFFICIENT)
 

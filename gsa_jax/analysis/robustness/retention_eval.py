@@ -12,8 +12,8 @@ import numpy as np
 
 from envs import action_size, check_name
 from gsa_jax.algorithm.kinds import MIXTURE
-from gsa_jax.analysis.results import read_csv, write_csv
-from gsa_jax.analysis.shift_rows import TIDY, RobustnessError, controller_key
+from gsa_jax.analysis.robustness.shift_rows import TIDY, RobustnessError, controller_key
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.deployment.evaluation import DeployError, load_controller
 from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.deployment.shifts import PUSH_RATE, Shift, applies, run_shifted

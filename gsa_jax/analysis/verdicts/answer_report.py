@@ -11,9 +11,11 @@ import os
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
-from gsa_jax.analysis import controller_scores, ladder, sequential, trimmed, verdict
-from gsa_jax.analysis.answering import FLAT, Evidence, Setup, reference_of
-from gsa_jax.analysis.results import write_csv
+from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.analysis.sweeps import controller_scores, stats
+from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax.analysis.verdicts import ladder, sequential, trimmed, verdict
+from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, reference_of
 from gsa_jax.running.checkpoint import write_atomic
 
 
@@ -49,7 +51,7 @@ def sensitivity_rows(setup: Setup, evidence: Evidence, state: dict) -> list:
     base = state.get("baseline")
     if not base or not base["learned"]:
         return []
-    values = evidence.scores if base["metric"] == "controller_score" else evidence.last100
+    values = evidence.scores if base["metric"] == C.CONTROLLER_SCORE else evidence.last100
     reference = reference_of(setup, evidence, base)
     level = setup.alpha / len(setup.ladder)
     rows = []
@@ -94,7 +96,7 @@ def plot_answer(setup: Setup, scores: dict, random_mean: float, path: str) -> No
     flat_tick = setup.target is None and bool(scores.get(FLAT))
     if flat_tick:
         flat = np.array([scores[FLAT][s] for s in sorted(scores[FLAT])])
-        ref = float(verdict.iqm(flat))
+        ref = stats.iqm(flat)
         ax.scatter(np.full(len(flat), -1) + rng.uniform(-0.12, 0.12, len(flat)), flat, s=10, color="k", alpha=0.5)
         ax.axhline(ref, color="k", lw=1.5, label=f"flat PPO IQM ({len(flat)} seeds; dots at the left)")
     else:

@@ -19,8 +19,8 @@ import math
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.shift_rows import cells
+from gsa_jax.analysis.robustness.shift_rows import cells
+from gsa_jax.analysis.sweeps import stats
 
 MIN_RUNS = 3  # controllers per side for an interval
 

@@ -1,5 +1,5 @@
 """Numbers in Markdown pages quoted from the committed tables, so that they cannot drift from them:
-`python -m gsa_jax.analysis.quote PAGE.md [PAGE.md ...] [--check]`.
+`python -m gsa_jax.analysis.quoting.quote PAGE.md [PAGE.md ...] [--check]`.
 
 Each span `<!-- quote KIND FILE [column=value ...] [option=value ...] -->TEXT<!-- /quote -->` has its
 TEXT rewritten from FILE (a CSV path relative to the page: final_returns.csv, per_run_scores.csv,
@@ -33,7 +33,8 @@ from typing import Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis.results import read_csv
+from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.analysis.sweeps.results import read_csv
 from gsa_jax.running.runinfo import cli_description
 
 SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
@@ -101,7 +102,7 @@ def cell_name(row: dict) -> str:
     """A final_returns.csv row's configuration: flat PPO, or K with its ratio to the action dimension."""
     if row["policy"] == MLP:
         return "flat PPO (MLP 64x64)"
-    ratio = float(row["K_over_action_dim"]) if row.get("K_over_action_dim", "") != "" else math.nan
+    ratio = float(row[C.K_OVER_ACTION_DIM]) if row.get(C.K_OVER_ACTION_DIM, "") != "" else math.nan
     return f"K = {row['K']}" + (f" ({round(ratio, 2):g} d_a)" if math.isfinite(ratio) else "")
 
 
@@ -110,26 +111,24 @@ def halfwidth(x: float | str) -> str:
     return fmt(x, 1 if x != "" and abs(float(x)) < 10 else 0)
 
 
-def cell_table(rows: list) -> str:
-    """Figure 1's per-task table of final_returns.csv rows (one task)."""
-    mixture = [r for r in rows if r["policy"] == MIXTURE and r.get("K_over_action_dim", "") != ""]
-    d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0]['K_over_action_dim']))})" if mixture else ""
+def cell_markdown(rows: list) -> str:
+    """Figure 1's per-task Markdown table of final_returns.csv rows (one task)."""
+    mixture = [r for r in rows if r["policy"] == MIXTURE and r.get(C.K_OVER_ACTION_DIM, "") != ""]
+    d_a = f" (d_a = {round(float(mixture[0]['K']) / float(mixture[0][C.K_OVER_ACTION_DIM]))})" if mixture else ""
     lines = [f"| {rows[0]['env']}{d_a} | deterministic: mean ± 95% CI | IQM [95% CI] | P(> flat PPO) [95% CI] "
              "| training return | learning speed IQM |", "|---|---|---|---|---|---|"]
     for r in rows:
-        p = interval(r, "p_better_than_flat_ppo", "p_ci_low", "p_ci_high", 2)
-        lines.append(f"| {cell_name(r)} | {fmt(r['final_return_mean'])} ± {halfwidth(r['ci95_halfwidth'])} "
-                     f"| {interval(r, 'iqm', 'iqm_ci_low', 'iqm_ci_high')} | {p} "
-                     f"| {fmt(r['training_return_mean'])} ± {halfwidth(r['training_ci95_halfwidth'])} | {fmt(r['curve_iqm'])} |")
+        (mean, half), (train, train_half) = ((r[c] for c in cols) for cols in (C.MEAN_CI, C.TRAINING_CI))
+        lines.append(f"| {cell_name(r)} | {fmt(mean)} ± {halfwidth(half)} | {interval(r, *C.IQM_CI)} "
+                     f"| {interval(r, *C.P_FLAT_CI, 2)} | {fmt(train)} ± {halfwidth(train_half)} | {fmt(r[C.CURVE_CI[0]])} |")
     return "\n".join(lines)
 
 
-def aggregate_table(rows: list) -> str:
-    """The normalized-score table of aggregate.csv rows."""
+def aggregate_markdown(rows: list) -> str:
+    """The Markdown table of aggregate.csv rows (normalized IQM and P(> flat PPO) per configuration)."""
     lines = ["| configuration | normalized IQM [95% CI] | P(> flat PPO) [95% CI] |", "|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['config']} | {interval(r, 'normalized_iqm', 'iqm_ci_low', 'iqm_ci_high', 2)} "
-                     f"| {interval(r, 'p_better_than_flat_ppo', 'p_ci_low', 'p_ci_high', 2)} |")
+        lines.append(f"| {r['config']} | {interval(r, *C.NORMALIZED_IQM_CI, 2)} | {interval(r, *C.P_FLAT_CI, 2)} |")
     return "\n".join(lines)
 
 
@@ -137,13 +136,12 @@ def reach(dirs: Sequence[str], filters: dict, threshold: float) -> str:
     """'flat PPO 10/10 at 358k, K = 2 8/10 at 532k, ...': per cell of the sweeps' tidy metrics (cells whose
     columns hold the filters' values), the runs whose deterministic return reached `threshold` at an
     evaluation, and the median env step of their first such evaluation."""
-    from gsa_jax.analysis.results import drop_failed, load_failed, load_sweeps
-    from gsa_jax.analysis.tables import cell_order
+    from gsa_jax.analysis.sweeps.results import drop_failed, load_failed, load_sweeps
+    from gsa_jax.analysis.sweeps.tables import cell_order
 
     data, _ = drop_failed(load_sweeps(dirs), [f for d in dirs for f in load_failed(d)])
-    names = {"env": 0, "policy": 1, "K": 2}
     keep = [c for c in sorted(data, key=cell_order)
-            if all(str(c[names[k]] if k in names else dict(c[3:]).get(k, "")) in v for k, v in filters.items())]
+            if all(str(c.columns().get(k, "")) in v for k, v in filters.items())]
     if not keep:
         raise QuoteError(f"{', '.join(dirs)}: no cell matches")
     parts = []
@@ -151,7 +149,7 @@ def reach(dirs: Sequence[str], filters: dict, threshold: float) -> str:
         firsts = [s["env_steps"][np.flatnonzero(s["eval_return"] >= threshold)[0]] for s in data[cell].values()
                   if np.any(s["eval_return"] >= threshold)]
         at = f" at {round(float(np.median(firsts)) / 1000)}k" if firsts else ""
-        parts.append(f"{'flat PPO' if cell[1] == MLP else f'K = {cell[2]}'} {len(firsts)}/{len(data[cell])}{at}")
+        parts.append(f"{'flat PPO' if cell.policy == MLP else f'K = {cell.k}'} {len(firsts)}/{len(data[cell])}{at}")
     return ", ".join(parts)
 
 
@@ -168,7 +166,7 @@ def render(args: str, page_dir: str) -> str:
     if kind in ("table", "aggregate"):
         if not rows:
             raise QuoteError(f"{path}: no row matches")
-        return "\n\n" + (cell_table(rows) if kind == "table" else aggregate_table(rows)) + "\n\n"
+        return "\n\n" + (cell_markdown(rows) if kind == "table" else aggregate_markdown(rows)) + "\n\n"
     if kind == "text":  # one row's column as it is written ('none' where empty): verdicts, K lists
         col = options.get("col", "final_score")
         if len(rows) != 1 or col not in rows[0]:
@@ -212,7 +210,7 @@ def requote(text: str, page_dir: str) -> tuple:
 
 
 def main(argv: list | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quote", description=cli_description(__doc__))
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quoting.quote", description=cli_description(__doc__))
     p.add_argument("pages", nargs="+", metavar="PAGE", help="Markdown pages")
     p.add_argument("--check", action="store_true", help="rewrite nothing; exit 1 if any quoted number is stale")
     args = p.parse_args(argv)
@@ -222,7 +220,7 @@ def main(argv: list | None = None) -> int:
             with open(page) as f:
                 text, changed = requote(f.read(), os.path.dirname(page) or ".")
         except (OSError, QuoteError) as e:
-            print(f"gsa_jax.analysis.quote: error: {page}: {e}", file=sys.stderr)
+            print(f"gsa_jax.analysis.quoting.quote: error: {page}: {e}", file=sys.stderr)
             return 2
         for spec, old, new in changed:
             print(f"{page}: quote {spec}: {old.strip()[:80]!r} -> {new.strip()[:80]!r}")

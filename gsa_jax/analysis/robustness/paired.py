@@ -13,9 +13,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
-from gsa_jax.analysis import stats
-from gsa_jax.analysis.results import read_csv, write_csv
-from gsa_jax.analysis.shift_rows import controller_key
+from gsa_jax.analysis.robustness.shift_rows import controller_key
+from gsa_jax.analysis.sweeps import stats
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.deployment.pushes import evaluate_pushes
 
 KEY = ("env", "policy", "K", "seed")

@@ -3,6 +3,7 @@
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
+from gsa_jax.analysis.robustness.shift_rows import RETAINED_CI
 
 
 def plot_robustness(agg: list, path: str) -> None:
@@ -13,17 +14,18 @@ def plot_robustness(agg: list, path: str) -> None:
     import matplotlib.pyplot as plt
 
     env_names = list(dict.fromkeys(r["env"] for r in agg))
+    point, low, high = RETAINED_CI
     fig, axes = plt.subplots(len(env_names), 1, figsize=(11, 3.4 * len(env_names)), squeeze=False)
     for ax, env_name in zip(axes[:, 0], env_names):
-        rows = [r for r in agg if r["env"] == env_name and r["shift"] != "nominal" and r["retained_iqm"] != ""]
+        rows = [r for r in agg if r["env"] == env_name and r["shift"] != "nominal" and r[point] != ""]
         shifts = list(dict.fromkeys(r["shift"] for r in rows))
         configs = list(dict.fromkeys((r["policy"], r["K"]) for r in rows))
         width = 0.8 / max(1, len(configs))
         for j, (policy, k) in enumerate(configs):
             pts = {r["shift"]: r for r in rows if (r["policy"], r["K"]) == (policy, k)}
             x = np.array([i for i, sh in enumerate(shifts) if sh in pts]) + (j - (len(configs) - 1) / 2) * width
-            y = np.array([pts[sh]["retained_iqm"] for sh in shifts if sh in pts], float)
-            err = np.array([[pts[sh]["retained_iqm"] - pts[sh]["retained_ci_low"], pts[sh]["retained_ci_high"] - pts[sh]["retained_iqm"]]
+            y = np.array([pts[sh][point] for sh in shifts if sh in pts], float)
+            err = np.array([[pts[sh][point] - pts[sh][low], pts[sh][high] - pts[sh][point]]
                             for sh in shifts if sh in pts], float).T
             ax.bar(x, y, width, yerr=err, capsize=2, color="k" if policy == MLP else None, alpha=0.8,
                    label="flat PPO (MLP 64x64)" if policy == MLP else f"K = {k}")

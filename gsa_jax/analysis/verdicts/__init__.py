@@ -1,0 +1,2 @@
+"""Is K enough? The verdict at a margin (Yuen's trimmed-mean t), the sequential design and Holm's shares, the
+baseline's adequacy, a fixed grid's verdicts, and the answer loop with its report."""
