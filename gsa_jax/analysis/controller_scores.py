@@ -21,6 +21,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.errors import UserError
 
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
@@ -32,7 +33,7 @@ COLUMNS = ("label", "env", "policy", "K", "seed", "sha256", "episodes", "start_s
            "episode_std", "length_mean", "simulator", "mujoco_version")
 
 
-class ScoreError(Exception):
+class ScoreError(UserError):
     pass
 
 

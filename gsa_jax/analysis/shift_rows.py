@@ -3,11 +3,12 @@ and the rows grouped into cells; shared by the evaluation (retention_eval), its 
 the paired pushes (paired) and the fair comparisons (fairness)."""
 
 from gsa_jax.deployment.shifts import Shift
+from gsa_jax.errors import UserError
 
 TIDY = ("env", "policy", "K", "seed", "shift", "level", "score", "nominal_score", "random_score", "retained_fraction")
 
 
-class RobustnessError(ValueError):
+class RobustnessError(UserError, ValueError):
     pass
 
 

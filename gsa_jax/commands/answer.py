@@ -1,7 +1,7 @@
-"""How few linear controllers does a task need? One command trains, judges and adds seeds until it is decided:
+"""Answer how few linear controllers a task needs: one command trains, judges and adds seeds until it is decided.
 
-    python -m gsa_jax.answer --env TASK [--clusters 1,2,4] [--margin 0.1] [--target SCORE] [--looks 10,20,40]
-                             [--steps 1000000] [--budget-minutes 120] [--start-from RESULTS_DIR ...] [--out DIR]
+    gsa answer --env TASK [--clusters 1,2,4] [--margin 0.1] [--target SCORE] [--looks 10,20,40]
+                [--steps 1000000] [--budget-minutes 120] [--start-from RESULTS_DIR ...] [--out DIR]
     make answer ENV=TASK
 
 Trains flat PPO and a mixture of K linear controllers for every K of the ladder (default K = ceil(m d_a), m in 0.5,
@@ -15,7 +15,7 @@ round one vmapped program per class, until the smallest sufficient K is decided,
 reached or the budget would run out. The design (an alpha-spending function over the looks, Holm over the K) keeps
 the chance that the answer names a K that is not within the margin at most 2.5% over all K and looks
 (gsa_jax.analysis.sequential). --target SCORE judges against a score your robot needs instead. --start-from takes
-committed results (gsa_jax.extract --results; e.g. experiments/atlas_dmc/results/<task>/*): their runs are the first
+committed results (gsa extract --results; e.g. experiments/atlas_dmc/results/<task>/*): their runs are the first
 seeds (judged at the same looks as a table of them) and their sweep.json settings train the new ones.
 
 Writes DIR (default runs/answers/<task>): answer.json (the state: the same command resumes it), report.md (the
@@ -31,14 +31,14 @@ import json
 import math
 import os
 import shlex
-import subprocess
 import sys
 
 from gsa_jax.analysis import controller_scores, sequential, verdict
 from gsa_jax.analysis.answering import (
     DEFAULT_LOOKS, DEFAULT_SPENDING, AnswerError, Setup, check_setup, run_answer,
 )
-from gsa_jax.running.runinfo import cli_description
+from gsa_jax.cli import command_parser, run_command, whole_number
+from gsa_jax.running.runinfo import git_commit
 
 MULTIPLIERS = (0.5, 1, 2, 4)
 
@@ -72,7 +72,7 @@ def start_specs(dirs: list) -> dict:
             raise AnswerError(f"--start-from {d!r} is not a directory")
         metas = sweep_metas(d)
         if not metas:
-            raise AnswerError(f"--start-from {d!r} holds no sweep.json (give gsa_jax.extract --results directories)")
+            raise AnswerError(f"--start-from {d!r} holds no sweep.json (give gsa extract --results directories)")
         for meta in metas:
             for policy in meta["spec"]["policies"]:
                 specs[policy] = {k: v for k, v in meta["spec"].items() if k not in ("seeds", "policies", "envs")}
@@ -83,7 +83,7 @@ def base_specs(args, env: str) -> dict:
     """The base spec per class: --start-from's, else the defaults with --steps and the backend."""
     import envs
 
-    backend = args.backend or ("c" if envs.has_c_backend(env) else "mjx")
+    backend = args.physics or ("c" if envs.has_c_backend(env) else "mjx")
     try:
         config = json.loads(args.config)
     except json.JSONDecodeError as e:
@@ -127,13 +127,6 @@ def random_policy(out: str, setup: Setup) -> dict:
     return controller_scores.random_policy(out, setup.env)
 
 
-def git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
     """The answer's sentence, report and exported controller -> the sentence."""
     import jax
@@ -155,16 +148,17 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
                                evidence.scores)
         if choice:
             choice["K"] = chosen
-    command = "python -m gsa_jax.answer " + " ".join(shlex.quote(a) for a in argv)
-    versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit()}
+    command = "gsa answer " + " ".join(shlex.quote(a) for a in argv)
+    versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit() or "unknown"}
     path = write_report(out, setup, state, evidence, sentence, choice, command, versions)
     print(f"wrote {path}")
     return sentence
 
 
-def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.answer", description=cli_description(__doc__))
-    p.add_argument("--env", required=True, help="the task (any name gsa_jax.train takes, your own 'module:Class' too)")
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa answer`'s options."""
+    p = command_parser("answer", __doc__)
+    p.add_argument("--env", required=True, help="the task (any name gsa train takes, your own 'module:Class' too)")
     p.add_argument("--clusters", default=None, help="the K ladder, e.g. 1,2,4 (default: ceil(m d_a), m = 0.5, 1, 2, 4)")
     p.add_argument("--margin", type=float, default=verdict.DEFAULT_MARGIN,
                    help="the margin delta, a fraction of the reference's gain over a random policy (default %(default)s)")
@@ -175,8 +169,8 @@ def build_parser():
                    help="how each K's error is spread over the looks (default %(default)s: Pocock-type, see docs/answer.md)")
     p.add_argument("--references", default=None, metavar="CSV",
                    help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/ppo_references.csv)")
-    p.add_argument("--steps", type=int, default=1_000_000, help="env steps per run (default %(default)s)")
-    p.add_argument("--backend", choices=("c", "mjx"), default=None, help="physics (default: c where the task has MuJoCo C)")
+    p.add_argument("--steps", type=whole_number, default=1_000_000, help="env steps per run (default %(default)s)")
+    p.add_argument("--physics", choices=("c", "mjx"), default=None, help="physics backend (default: c where the task has MuJoCo C)")
     p.add_argument("--config", default="{}", metavar="JSON",
                    help="the runs' config fields as a JSON object, e.g. '{\"num_envs\": 16}' (default: the defaults)")
     p.add_argument("--budget-minutes", type=float, default=120.0, help="stop before a round that would run past it (default %(default)s)")
@@ -186,21 +180,19 @@ def build_parser():
     return p
 
 
-def main(argv=None):
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
-    try:
-        setup = make_setup(args)
-        from gsa_jax.running.trained import path_part
+def answer(argv: list) -> int:
+    """Run (or resume) the answer and print its sentence."""
+    from gsa_jax.running.trained import path_part
 
-        out = args.out or os.path.join("runs", "answers", path_part(setup.env))
-        state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup))
-        print(finish(out, setup, state, argv))
-    except AnswerError as e:
-        print(f"gsa_jax.answer: error: {e}", file=sys.stderr)
-        return 3 if "sweep" in str(e) and "exit status" in str(e) else 2
+    args = build_parser().parse_args(argv)
+    setup = make_setup(args)
+    out = args.out or os.path.join("runs", "answers", path_part(setup.env))
+    state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup))
+    print(finish(out, setup, state, argv))
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa answer`: exit status 0 answered (decided or not), 2 bad input, 3 a sweep failed."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return run_command("answer", lambda: answer(argv))

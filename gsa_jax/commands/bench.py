@@ -1,4 +1,4 @@
-"""The vmapped seed benchmark: `python -m gsa_jax.bench [--quick] [--out DIR]` (make bench).
+"""Measure sweep throughput against MuJoCo C on this machine (`gsa bench [--quick] [--out DIR]`, make bench).
 
 For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one invocation:
 - the raw step rate of MuJoCo C on the same MJCF (`mujoco.rollout`, one thread per core, batch 256,
@@ -8,7 +8,7 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
 - end-to-end training throughput (env steps per second, PPO updates included, compile excluded and
   reported separately) of sweeps of 1, 16, 64 and 256 runs of the mixture (K=6) with 1 and with
   <cores> worker processes, and of the flat mlp at 256 runs on all cores (`--policies mixture,mlp`
-  for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa_jax.sweep` runs them,
+  for mlp at every size and process count); worker processes (each one XLA CPU device, as `gsa sweep` runs them,
   in its sub-batches of --run-batch runs), with compile time and peak resident memory;
 - with --profile-runs N, a time profile of one PPO iteration (physics / rest of the rollout / update) on
   --profile-processes workers (default 1; <cores> measures the update as the sweep's workers run it), and
@@ -32,7 +32,6 @@ import argparse
 import itertools
 import json
 import os
-import sys
 import time
 
 import envs
@@ -43,9 +42,10 @@ from gsa_jax.benchmark.measure import (
 )
 from gsa_jax.benchmark.report import plot
 from gsa_jax.benchmark.workers import raw_worker, worker
+from gsa_jax.cli import command_parser, run_command
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import cli_description, run_metadata
+from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.spec import check_spec
 
 
@@ -92,8 +92,9 @@ def positive_ints(flag, text, default):
     return values
 
 
-def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.bench", description=cli_description(__doc__))
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa bench`'s options (and its worker processes')."""
+    p = command_parser("bench", __doc__)
     p.add_argument("--quick", action="store_true",
                    help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
     p.add_argument("--out", default="runs/bench")
@@ -111,7 +112,7 @@ def build_parser():
     p.add_argument("--repeats", type=int, default=None,
                    help="timed chunks per measurement (default 3; 2 for sweeps of >= 64 runs, whose chunks are long)")
     p.add_argument("--run-batch", type=int, default=RUN_BATCH,
-                   help=f"runs per sequential sub-batch in each worker, as gsa_jax.sweep --run-batch (default {RUN_BATCH}, "
+                   help=f"runs per sequential sub-batch in each worker, as gsa sweep --run-batch (default {RUN_BATCH}, "
                         "the sweep's; 0: all at once)")
     p.add_argument("--solver-variant", default=None,
                    help="ITER,LS: also measure the largest raw batch and mixture sweep (all cores) and MuJoCo C with this "
@@ -284,7 +285,8 @@ def measure_profile(args, repeats, mujoco_c, backend="mjx", processes=1):
     return prof
 
 
-def main(argv=None):
+def bench(argv: list | None) -> int:
+    """Measure the plan (or, in a worker process, its share) and write bench.json and bench.png."""
     args = build_parser().parse_args(argv)
     if args.worker or args.raw_worker:
         args.repeats = args.repeats or 3
@@ -293,11 +295,10 @@ def main(argv=None):
     try:
         info = make_plan(args)
     except ValueError as e:
-        print(f"gsa_jax.bench: error: {e}", file=sys.stderr)
-        return 2
+        raise BenchError(e) from None
     plan, raw_plan, variant, repeats = info["plan"], info["raw_plan"], info["variant"], info["repeats"]
     n_profiles = len(info["backends"]) * len(info["profile_procs"])
-    print(f"gsa_jax.bench: {args.env}: raw stepping at batch {info['batches']}, {len(plan)} sweep configurations (runs "
+    print(f"gsa bench: {args.env}: raw stepping at batch {info['batches']}, {len(plan)} sweep configurations (runs "
           f"{info['sizes']}, policies {info['policies']}, processes {info['procs']})"
           + (f", a time profile at {args.profile_runs} runs on {info['profile_procs']} process(es)" if args.profile_runs else "")
           + (f", the largest sizes again with {variant[0]} solver / {variant[1]} line-search iterations" if variant else "")
@@ -326,5 +327,6 @@ def main(argv=None):
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa bench`: exit status 0, or 2 on bad input."""
+    return run_command("bench", lambda: bench(argv))

@@ -1,8 +1,8 @@
-"""Run an exported controller in plain MuJoCo C (no MJX, no JAX) and in gymnasium's own tasks:
+"""Run an exported controller in plain MuJoCo C (no MJX, no JAX) and in gymnasium's own tasks.
 
-    python -m gsa_jax.deploy controller.npz [--episodes 20] [--gymnasium Hopper-v5] [--compare-mjx RUN_DIR] [--out F]
+    gsa deploy controller.npz [--episodes 20] [--gymnasium Hopper-v5] [--compare-mjx RUN_DIR] [--out F]
 
-The controller file comes from `python -m gsa_jax.export RUN --out controller.npz`; its task is read
+The controller file comes from `gsa export RUN --out controller.npz`; its task is read
 from the file, and a controller that no longer fits it (its observation size, or its definition's sha256: a task file
 edited since) is refused in one line (--force runs it where the sizes agree). Prints the mean return (95% CI over
 episodes) and episode length of the deterministic controller in MuJoCo C (the MJCF it was trained on: our port of
@@ -14,14 +14,13 @@ refused with the reason where its observation layout is not ours, gsa_jax.deploy
 
 import argparse
 import json
-import sys
 
 from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, has_mujoco_c, load_controller, mujoco_c_label,
                                            open_gymnasium, report_line, run_gymnasium, run_mujoco_c)
-from gsa_jax.running.runinfo import cli_description
+from gsa_jax.cli import command_parser, run_command
 
 
-def deploy(args):
+def deploy(args: argparse.Namespace) -> dict:
     """Every requested simulator's summary, printed as it completes; a request that cannot run (no gymnasium
     counterpart) is refused before any episode."""
     if args.episodes < 1:
@@ -41,9 +40,10 @@ def deploy(args):
     return result
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.deploy", description=cli_description(__doc__))
-    p.add_argument("controller", help="an exported controller .npz (python -m gsa_jax.export)")
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa deploy`'s options."""
+    p = command_parser("deploy", __doc__)
+    p.add_argument("controller", help="an exported controller .npz (gsa export)")
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--episode-length", type=int, default=None, help="default: the run's time limit")
     p.add_argument("--seed", type=int, default=0)
@@ -54,12 +54,13 @@ def main(argv=None):
     p.add_argument("--force", action="store_true",
                    help="run a controller whose task's definition changed since it was trained, or that names another "
                         "task, where the observation sizes agree")
-    args = p.parse_args(argv)
-    try:
-        result = deploy(args)
-    except DeployError as e:
-        print(f"gsa_jax.deploy: error: {e}", file=sys.stderr)
-        return 2
+    return p
+
+
+def deploy_controller(argv: list | None) -> int:
+    """Run the controller and write its results as JSON where --out asks."""
+    args = build_parser().parse_args(argv)
+    result = deploy(args)
     if args.out:
         import mujoco
 
@@ -74,5 +75,6 @@ def main(argv=None):
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa deploy`: exit status 0, or 2 on bad input."""
+    return run_command("deploy", lambda: deploy_controller(argv))

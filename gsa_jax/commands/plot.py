@@ -1,5 +1,5 @@
-"""Figures and tables of sweeps: `python -m gsa_jax.plot DIR [DIR ...] [--out OUT]` (a single run's learning
-curve: gsa_jax.running.curve).
+"""Draw the figures and tables of sweeps (`gsa plot DIR [DIR ...] [--out OUT]`; a single run's learning curve:
+gsa_jax.running.curve).
 
 Merges every tidy metrics.csv under the directories (one per worker process, host, or separately run
 sweep: a task's sweep may run on another day or machine; sweeps that hold the same group with other
@@ -28,34 +28,39 @@ only in tables written before failed evaluation episodes were counted).
 """
 
 import argparse
-import sys
 
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.figures import plot_sweep
 from gsa_jax.analysis.results import PlotError
-from gsa_jax.running.runinfo import cli_description
+from gsa_jax.cli import command_parser, run_command
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.plot", description=cli_description(__doc__))
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa plot`'s options."""
+    p = command_parser("plot", __doc__)
     p.add_argument("sweep_dirs", nargs="+", metavar="DIR", help="sweep directories (merged)")
     p.add_argument("--out", default=None, help="directory for the figures and tables (default: the first DIR)")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples of the tables' intervals (default %(default)s)")
     p.add_argument("--curve-reps", type=int, default=stats.CURVE_REPS,
                    help="bootstrap resamples of each learning-curve point's band (default %(default)s)")
-    args = p.parse_args(argv)
+    return p
+
+
+def plot(argv: list | None) -> int:
+    """Write the figures and tables and print the table's rows."""
+    args = build_parser().parse_args(argv)
+    if min(args.reps, args.curve_reps) < 1:
+        raise PlotError(f"--reps and --curve-reps must be >= 1, got {args.reps} and {args.curve_reps}")
     try:
-        if min(args.reps, args.curve_reps) < 1:
-            raise PlotError(f"--reps and --curve-reps must be >= 1, got {args.reps} and {args.curve_reps}")
         png, table, rows = plot_sweep(args.sweep_dirs, args.out, reps=args.reps, curve_reps=args.curve_reps)
-    except (FileNotFoundError, PlotError) as e:
-        print(f"gsa_jax.plot: error: {e}", file=sys.stderr)
-        return 2
+    except FileNotFoundError as e:
+        raise PlotError(e) from None
     print(f"wrote {png} and {table}")
     for r in rows:
         print("  " + "  ".join(f"{k}={v}" for k, v in r.items() if v != ""))
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa plot`: exit status 0, or 2 on bad input."""
+    return run_command("plot", lambda: plot(argv))

@@ -1,11 +1,11 @@
-"""Does state abstraction regularize? Exported controllers under shifted physics, observations and actions
-(gsa_jax.deployment.shifts), in MuJoCo C, with rliable statistics:
+"""Run exported controllers under shifted physics, observations, actions and paired pushes: does state abstraction
+regularize? (gsa_jax.deployment.shifts, in MuJoCo C, with rliable statistics)
 
-    python -m gsa_jax.robustness CONTROLLERS [CONTROLLERS ...] --out OUT [--episodes 20] [--shifts mass,push]
-                                 [--level push=0.5,1] [--push-sizes 0.25,0.5,1] [--windows 20,50,100]
-                                 [--pushes-per-episode 10]
+    gsa robustness CONTROLLERS [CONTROLLERS ...] --out OUT [--episodes 20] [--shifts mass,push]
+                   [--level push=0.5,1] [--push-sizes 0.25,0.5,1] [--windows 20,50,100]
+                   [--pushes-per-episode 10]
 
-CONTROLLERS: exported controller files (gsa_jax.export, gsa_jax.extract --controllers) or directories of
+CONTROLLERS: exported controller files (gsa export, gsa extract --controllers) or directories of
 them. Every controller plays `--episodes` deterministic episodes under every shift that applies to its
 task, from the same fixed start states (seeds 10,000 + i); --level replaces a kind's default levels (pushes
 of other sizes keep their times and directions: a dose-response). Writes to OUT:
@@ -37,9 +37,7 @@ correlation.csv also gives the partial rank correlation controlling for nominal 
 """
 
 import argparse
-import json
 import os
-import sys
 
 import numpy as np
 
@@ -48,9 +46,9 @@ from gsa_jax.analysis.paired import evaluate_all_pushes
 from gsa_jax.analysis.retention import analyse
 from gsa_jax.analysis.retention_eval import START_SEED, evaluate_all, load_controllers, write_settings
 from gsa_jax.analysis.shift_rows import RobustnessError
+from gsa_jax.cli import command_parser, read_saved, run_command
 from gsa_jax.deployment.pushes import PER_EPISODE, PUSH_SIZES, WINDOWS
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
-from gsa_jax.running.runinfo import cli_description
 
 
 def parse_levels(items):
@@ -117,14 +115,8 @@ def resolve_settings(args):
     """(shifts, episodes, paired pushes): as given, and where not given, what OUT's robustness.json recorded
     (a re-run continues the evaluation it holds), else the defaults (every shift, 20 episodes, paired pushes
     of PUSH_SIZES in WINDOWS). Raises RobustnessError."""
-    saved = {}
     path = os.path.join(args.out, "robustness.json")
-    if os.path.exists(path):
-        try:
-            with open(path) as f:
-                saved = json.load(f)
-        except (OSError, ValueError) as e:
-            raise RobustnessError(f"{path} is unreadable ({e}); use another --out") from None
+    saved = read_saved(path, RobustnessError)[0] if os.path.exists(path) else {}
     if args.shifts is None and not args.level and "shifts" in saved:
         shifts = [Shift(kind, level) for kind, level in saved["shifts"]]
     else:
@@ -133,8 +125,9 @@ def resolve_settings(args):
     return shifts, episodes, resolve_pushes(args, saved)
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.robustness", description=cli_description(__doc__))
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa robustness`'s options."""
+    p = command_parser("robustness", __doc__)
     p.add_argument("controllers", nargs="+", help="exported controller files or directories of them")
     p.add_argument("--out", required=True, help="output directory (a re-run continues what it holds, with the shifts "
                                                 "and episodes it recorded unless given again)")
@@ -147,17 +140,21 @@ def main(argv=None):
     p.add_argument("--pushes-per-episode", type=int, default=None,
                    help=f"paired push events per start state (default {PER_EPISODE}; 0: no paired pushes)")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
-    args = p.parse_args(argv)
+    return p
+
+
+def robustness(argv: list | None) -> int:
+    """Evaluate every controller under every shift and paired push; write the tables and figures."""
+    args = build_parser().parse_args(argv)
+    shifts, episodes, pushes = resolve_settings(args)
+    if episodes < 1 or args.reps < 1:
+        raise RobustnessError(f"--episodes and --reps must be >= 1, got {episodes} and {args.reps}")
     try:
-        shifts, episodes, pushes = resolve_settings(args)
-        if episodes < 1 or args.reps < 1:
-            raise RobustnessError(f"--episodes and --reps must be >= 1, got {episodes} and {args.reps}")
         controllers = load_controllers(args.controllers)
         os.makedirs(args.out, exist_ok=True)
         write_settings(args.out, shifts, episodes, pushes)
-    except (RobustnessError, OSError) as e:
-        print(f"gsa_jax.robustness: error: {e}", file=sys.stderr)
-        return 2
+    except OSError as e:
+        raise RobustnessError(e) from None
     rows, sens = evaluate_all(controllers, shifts, episodes, args.out)
     events, nominal = [], []
     if pushes:
@@ -169,5 +166,6 @@ def main(argv=None):
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa robustness`: exit status 0, or 2 on bad input."""
+    return run_command("robustness", lambda: robustness(argv))

@@ -1,8 +1,8 @@
-"""Sweeps: a grid of (env, policy, K, seed, hyperparameters) trained as one vmapped program per (env, policy).
+"""Train a sweep: a grid of (env, policy, K, seed, hyperparameters) as one vmapped program per (env, policy).
 
-    python -m gsa_jax.sweep experiments/fig1_small/fig1_small.toml [--out DIR] [--devices N]
+    gsa sweep experiments/fig1_small/fig1_small.toml [--out DIR] [--devices N]
     make sweep EXP=experiments/fig1_small/fig1_small.toml
-    python -m gsa_jax.sweep --resume DIR      # continue the sweep in DIR as its sweep.json recorded it
+    gsa sweep --resume DIR      # continue the sweep in DIR as its sweep.json recorded it
 
 Every run of an (env, policy) group trains at once: `jax.vmap` over the runs, the run axis
 sharded over the local devices (`shard_map`). On a CPU, use the cores with --local-processes N
@@ -25,14 +25,16 @@ Output (DIR, default runs/sweeps/<name>):
   LOCK                  pid and host of the sweep writing DIR (a second one is refused)
   xla_cache/            compiled programs (JAX's persistent cache): worker 0 compiles each group's
                         program once, the other workers and any resumed run load it (seconds)
-With --num-processes P each process writes its share under DIR/process-<i>/ (`gsa_jax.plot` merges them).
+With --num-processes P each process writes its share under DIR/process-<i>/ (`gsa plot` merges them).
 
 Failures are loud and lose nothing: a run whose loss or parameters turn NaN/inf is frozen inside the
 compiled program (ppo.guarded_iteration; the others train on bit for bit), its metrics end there and
 its last finite parameters are kept; sweep.json and the final summary list it and the sweep exits 1.
 A checkpoint unreadable on resume falls back to its previous version; a full disk stops with one line
 (exit 4) and the same command resumes once space is freed; a changed experiment file is refused with
-the difference (--force continues with it). Exit status: see main().
+the difference (--force continues with it). Exit status: 0 done (or stopped as asked), 1 some runs failed
+(NaN/inf), 2 bad input or a locked / changed / unreadable output directory, 3 a worker hung repeatedly, 4 disk full,
+130 interrupted.
 
 Experiment file (TOML):
   name = "fig1_small"
@@ -54,24 +56,26 @@ Experiment file (TOML):
 """
 
 import argparse
-import json
 import os
 import sys
+from typing import Callable
 
 import jax
 
+from gsa_jax.cli import command_parser, options_over_saved, run_command
+from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import ResumeRefused, cli_description, resume_command
-from gsa_jax.running.runlock import LockError, hold
+from gsa_jax.running.runinfo import resume_command
+from gsa_jax.running.runlock import hold
 from gsa_jax.running.spec import SpecError, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
 from gsa_jax.running.sweeps import EXIT_DISK_FULL, EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
-from gsa_jax.running.trained import FormatError
 
 
-def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.sweep", description=cli_description(__doc__))
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa sweep`'s options (and its worker processes')."""
+    p = command_parser("sweep", __doc__)
     p.add_argument("experiment", nargs="?", default=None,
                    help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml (with --resume: optional)")
     p.add_argument("--resume", metavar="DIR", default=None,
@@ -99,22 +103,17 @@ def build_parser():
     return p
 
 
-def saved_sweep(out):
-    """The record (sweep.json) of the sweep in `out`; SpecError if there is none."""
-    path = os.path.join(out, "sweep.json")
-    if not os.path.exists(path):
-        raise SpecError(f"--resume {out}: no sweep there (no sweep.json); start one with python -m gsa_jax.sweep "
-                        f"EXPERIMENT --out {out}")
-    try:
-        with open(path) as f:
-            meta = json.load(f)
-        meta["spec"]
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise SpecError(f"--resume {out}: {path} is not a gsa_jax sweep's record ({type(e).__name__}: {e})") from None
-    return meta
+def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
+    """Option values (dest -> value) that give back a saved sweep's settings (its sweep.json): what --resume DIR
+    continues with (the spec is checked apart)."""
+    meta["spec"]
+    saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
+    if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
+        saved["local_processes"] = meta["num_processes"]
+    return {"out": out, **saved}
 
 
-def parse_args(argv):
+def parse_args(argv: list) -> argparse.Namespace:
     """The command line; with --resume DIR, parsed again over the settings DIR/sweep.json recorded (options not
     typed take them). Raises SpecError."""
     parser = build_parser()
@@ -125,12 +124,12 @@ def parse_args(argv):
         return args
     if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
         raise SpecError(f"--resume {args.resume} and --out {args.out} name different directories")
-    meta = saved_sweep(args.resume)
-    saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
-    if args.coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
-        saved["local_processes"] = meta["num_processes"]
-    parser.set_defaults(out=args.resume, **saved)
-    args = parser.parse_args(argv)
+    path = os.path.join(args.resume, "sweep.json")
+    if not os.path.exists(path):
+        raise SpecError(f"--resume {args.resume}: no sweep there (no sweep.json); start one with gsa sweep "
+                        f"EXPERIMENT --out {args.resume}")
+    coordinator = args.coordinator
+    args, meta = options_over_saved(parser, argv, path, lambda m: saved_options(m, args.resume, coordinator), SpecError)
     args.saved_spec = meta["spec"]
     return args
 
@@ -158,29 +157,25 @@ def check_args(args, argv):
     return spec, out, local
 
 
-def main(argv=None, after_chunk=None):
-    """Exit status: 0 done (or stopped as asked), 1 some runs failed (NaN/inf), 2 bad input or a locked /
-    changed / unreadable output directory, 3 a worker hung repeatedly, 4 disk full, 130 interrupted.
-    after_chunk: see run_worker."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        args = parse_args(argv)
-        spec, out, local = check_args(args, argv)
-    except SpecError as e:
-        print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
-        return 2
+def sweep(argv: list, after_chunk: Callable | None = None) -> int:
+    """Check the command line, then train this process's share or supervise the workers. after_chunk: see
+    run_worker."""
+    args = parse_args(argv)
+    spec, out, local = check_args(args, argv)
     if args.worker:
         return run_worker(args, spec, out, after_chunk)
     lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
     os.makedirs(lock_dir, exist_ok=True)
-    try:
-        with hold(lock_dir, f"gsa_jax.sweep {spec.name}", log=lambda m: print(m, file=sys.stderr)):
-            if local > 1 or not args.no_watchdog:
-                return supervise_workers(args, argv, out, local)
-            return run_worker(args, spec, out, after_chunk)
-    except LockError as e:
-        print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
-        return 2
+    with hold(lock_dir, f"gsa_jax.sweep {spec.name}", log=lambda m: print(m, file=sys.stderr)):
+        if local > 1 or not args.no_watchdog:
+            return supervise_workers(args, argv, out, local)
+        return run_worker(args, spec, out, after_chunk)
+
+
+def main(argv: list | None = None, after_chunk: Callable | None = None) -> int:
+    """`gsa sweep` (exit statuses: the module docstring). after_chunk: see run_worker."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return run_command("sweep", lambda: sweep(argv, after_chunk))
 
 
 def supervise_workers(args, argv, out, local):
@@ -202,8 +197,7 @@ def supervise_workers(args, argv, out, local):
             if report_failures(out, dirs):
                 return EXIT_FAILED_RUNS
         except DiskFullError as e:
-            print(f"gsa_jax.sweep: error: {e.describe('the final one of every group (training is done; only sweep.json is behind)')}", file=sys.stderr)
-            return EXIT_DISK_FULL
+            raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
         print(f"sweep complete: {out}", flush=True)
     return status
 
@@ -219,8 +213,7 @@ def run_worker(args, spec, out, after_chunk=None):
     devices = jax.local_devices()
     if args.devices is not None:
         if not 1 <= args.devices <= len(devices):
-            print(f"gsa_jax.sweep: error: --devices must be in 1..{len(devices)}", file=sys.stderr)
-            return 2
+            raise SpecError(f"--devices must be in 1..{len(devices)}")
         devices = devices[: args.devices]
     wdir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
     os.makedirs(wdir, exist_ok=True)
@@ -236,15 +229,10 @@ def run_worker(args, spec, out, after_chunk=None):
                                heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
                                tensorboard=args.tensorboard)
         complete = run_sweep(spec, out, options)
-    except (SpecError, ResumeRefused, FormatError) as e:
-        print(f"gsa_jax.sweep: error: {e}", file=sys.stderr)
-        return 2
     except CheckpointError as e:
-        print(f"gsa_jax.sweep: error: {e} (a sweep resumes with the same --devices as the interrupted one)", file=sys.stderr)
-        return 2
+        raise CheckpointError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
     except DiskFullError as e:
-        print(f"gsa_jax.sweep: error: {e.describe(getattr(e, 'last_intact', 'none (nothing trained yet)'))}", file=sys.stderr)
-        return EXIT_DISK_FULL
+        raise disk_full(e, getattr(e, "last_intact", "none (nothing trained yet)")) from None
     if not args.quiet:
         again = "" if args.coordinator else f" or: {resume_command('gsa_jax.sweep', '--resume', out)}"
         done_msg = f"done: {out}" if complete else f"stopped: {out}; continue with the same command{again}"
@@ -254,10 +242,9 @@ def run_worker(args, spec, out, after_chunk=None):
     try:
         return EXIT_FAILED_RUNS if report_failures(out, [wdir], log=print) else 0
     except DiskFullError as e:
-        print(f"gsa_jax.sweep: error: {e.describe('the final one of every group (training is done; only sweep.json is behind)')}",
-              file=sys.stderr)
-        return EXIT_DISK_FULL
+        raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def disk_full(e: DiskFullError, intact: str) -> UserError:
+    """A full disk as the sweep's one-line error (exit status 4), naming the checkpoint left intact."""
+    return UserError(e.describe(intact), exit_status=EXIT_DISK_FULL)

@@ -1,4 +1,4 @@
-"""Train one policy: `python -m gsa_jax.train [--env NAME] [--policy mixture|mlp] [--clusters K] [--steps N] ...`
+"""Train one policy (`gsa train [--env NAME] [--policy mixture|mlp] [--clusters K] [--steps N] ...`).
 
 Writes to --out (default runs/<env>-<policy>[-K<k>]-s<seed>-<time>/):
   config.json   resolved config, hyperparameters, versions, git commit (and timings once finished)
@@ -7,16 +7,17 @@ Writes to --out (default runs/<env>-<policy>[-K<k>]-s<seed>-<time>/):
   curve.png     the learning curve
 and what makes it resumable, the same files as a sweep's group of runs (gsa_jax.running.store; the run is a
 group of one): runs.csv, metrics.npz and state.npz (dropped once finished), failed.json and DONE at the end.
-Training runs as compiled chunks of iterations; between chunks the CLI logs, evaluates and saves.
+Training runs as compiled chunks of iterations; between chunks the command logs, evaluates and saves.
+Exit status: 0 done (or stopped as asked), 1 stopped at a NaN/inf, 2 bad input, 4 disk full, 130 interrupted.
 """
 
 import argparse
-import json
 import math
 import os
 import re
 import sys
 import time
+from typing import Any, Callable
 
 import envs
 from envs.physics import BACKENDS, Physics
@@ -24,9 +25,11 @@ from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.ppo import HPARAM_DEFAULTS, Config, config_record, make_hparams, validate_hparams
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
+from gsa_jax.cli import command_parser, options_over_saved, run_command, whole_number
+from gsa_jax.running.driver import duration, fmt
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
-from gsa_jax.running.runinfo import cli_description
-from gsa_jax.running.runlock import LockError, hold
+from gsa_jax.running.runinfo import resume_command
+from gsa_jax.running.runlock import hold
 from gsa_jax.running.single import RunOptions, RunPlan, UsageError, run
 from gsa_jax.running.trained import path_part
 
@@ -63,8 +66,9 @@ def add_physics_flags(p):
                    help="evaluate under the training randomization (default: the nominal task)")
 
 
-def build_parser():
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.train", description=cli_description(__doc__))
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa train`'s options."""
+    p = command_parser("train", __doc__)
     p.add_argument("--env", default="inverted_double_pendulum",
                    help=f"one of: {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' or "
                         "'path/file.py:Class'; or another library's environment: 'brax:<name>' (Brax's registry) or "
@@ -74,7 +78,7 @@ def build_parser():
     p.add_argument("--subpolicy", default="linear",
                    help="sub-policy class of a mixture: constant (one action per cluster), linear (default), quadratic")
     p.add_argument("--k-max", type=int, default=None, help="pad the cluster axis to this size (default: K)")
-    p.add_argument("--steps", type=int, default=1_000_000, help="environment steps (rounded up to whole chunks)")
+    p.add_argument("--steps", type=whole_number, default=1_000_000, help="environment steps (rounded up to whole chunks)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="output directory (default: runs/<env>-<policy>-...)")
     p.add_argument("--resume", action="store_true",
@@ -106,7 +110,7 @@ def build_parser():
                    help="evaluation start states: the same for every training seed (default 0)")
     p.add_argument("--eval-envs", type=int, default=Config.eval_envs)
     p.add_argument("--chunk", type=int, default=None, help="PPO iterations per compiled chunk (default: auto)")
-    p.add_argument("--stop-after", type=int, default=None,
+    p.add_argument("--stop-after", type=whole_number, default=None,
                    help="stop (resumably) after this many iterations in this invocation; continue with --resume")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
@@ -226,14 +230,7 @@ def resume_args(parser, argv, out):
         if not typed(argv, "--env"):
             raise UsageError(f"no run in {out} to resume (to start one there with --resume, name its task: --env NAME)")
         return parser.parse_args(argv)
-    try:
-        with open(path) as f:
-            saved = json.load(f)
-        defaults = saved_options(saved)
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise UsageError(f"cannot resume: {path} is not a gsa_jax run's config ({type(e).__name__}: {e})") from None
-    parser.set_defaults(**defaults)
-    return parser.parse_args(argv)
+    return options_over_saved(parser, argv, path, saved_options, UsageError)[0]
 
 
 def typed(argv, *flags):
@@ -274,7 +271,8 @@ def prepare_out(out, resume):
         raise UsageError(f"--out {out!r} already holds a run; pass --resume to continue it or choose another --out")
 
 
-def main(argv=None):
+def train(argv: list | None) -> int:
+    """Check the command line, then train (or resume) the run in its locked output directory."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -283,18 +281,61 @@ def main(argv=None):
         envs.check_task(args.env)
         check_policy_options(args, argv)
         plan = resolve(args)
-        out = args.out or default_out(plan.cfg, plan.hp, plan.seed)
-        prepare_out(out, args.resume)
-    except (UsageError, ValueError) as e:
-        print(f"gsa_jax.train: error: {e}", file=sys.stderr)
-        return 2
-    try:
-        with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)):
-            return run(plan, RunOptions(out, args.resume, args.force, args.stop_after, argv, args.quiet, args.tensorboard))
-    except LockError as e:
-        print(f"gsa_jax.train: error: {e}", file=sys.stderr)
-        return 2
+    except ValueError as e:
+        raise UsageError(e) from None
+    out = args.out or default_out(plan.cfg, plan.hp, plan.seed)
+    prepare_out(out, args.resume)
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
+    warn = lambda msg: print(f"gsa train: warning: {msg}", file=sys.stderr)  # noqa: E731
+    with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)):
+        options = RunOptions(out, args.resume, args.force, args.stop_after, argv, args.quiet, args.tensorboard)
+        end = run(plan, options, log, warn)
+    return 0 if end.result is None else report_end(end.result, end.config, out, log)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def report_end(result: Any, config: dict, out: str, log: Callable) -> int:
+    """The closing lines of this invocation. Returns the exit status: 0, 1 (NaN/inf), 130 (interrupted)."""
+    timing, res = config["timing"], config["result"]
+    if result.status == "failed":
+        print(f"gsa train: error: {failure_line(result.metrics, result.done, out)}", file=sys.stderr)
+        return 1
+    if result.status == "interrupted":
+        print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
+              f"(continue with: {resume_command('gsa_jax.train', '--resume', '--out', out)})", file=sys.stderr)
+        return 130
+    if result.done < result.iterations:
+        again = resume_command("gsa_jax.train", "--resume", "--out", out)
+        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with: {again}")
+    else:
+        log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
+            f"{timing['env_steps_per_s']:,.0f} steps/s); final return {returned(res, 'final_episode_return')}, "
+            f"eval {returned(res, 'final_eval_return')}; results in {out}")
+    return 0
+
+
+def returned(result: dict, key: str) -> str:
+    """A result's return with the iteration it is from ('-' where there is none)."""
+    it = result.get(f"{key}_iteration")
+    return fmt(result[key], ".1f") + (f" (iteration {it})" if it is not None else "")
+
+
+def failure_line(metrics: dict, done: int, out: str) -> str:
+    """What stopped a run at a NaN/inf, from its metrics [1, iterations] up to `done`: the task's reward where an
+    episode that ended in the failing iteration returned a non-finite total, else the loss or parameters."""
+    failed_at = int(metrics["failed_at"][0, done - 1])
+    ended, total = metrics["episodes"][0, failed_at - 1], float(metrics["episode_return"][0, failed_at - 1])
+    if ended > 0 and not math.isfinite(total):
+        what = (f"NaN/inf in the task's reward (the episodes that ended in iteration {failed_at} returned {total}: "
+                "check its outcome()), and so in the loss")
+    elif ended > 0:
+        what = "NaN/inf in the loss or parameters (the episodes that ended in it returned finite rewards)"
+    else:
+        what = ("NaN/inf in the loss or parameters (no episode ended in it, so its rewards are not known here: if "
+                "the task's reward can be NaN/inf, check its outcome())")
+    return (f"{what} at iteration {failed_at}; stopped. Last good parameters (iteration {failed_at - 1}) are in "
+            f"{os.path.join(out, 'params.npz')}")
+
+
+def main(argv: list | None = None) -> int:
+    """`gsa train` (exit statuses: the module docstring)."""
+    return run_command("train", lambda: train(argv))

@@ -1,15 +1,15 @@
-"""An equal tuning budget for flat PPO and the mixtures: every policy class of a tuning file gets the same
+"""Tune flat PPO and the mixtures with an equal budget: every policy class of a tuning file gets the same
 number of configurations drawn from its stated ranges (the first the defaults), trained on the tuning seeds;
-the best by IQM of the final deterministic score is trained on the evaluation seeds:
+the best by IQM of the final deterministic score is trained on the evaluation seeds.
 
-    python -m gsa_jax.tune TUNING.toml --out DIR [--phase tune|evaluate|all|rank] [--baseline SWEEP_DIR ...]
+    gsa tune TUNING.toml --out DIR [--phase tune|evaluate|all|rank] [--baseline SWEEP_DIR ...]
 
 (gsa_jax.running.tuning says what a tuning file holds.) Per class under DIR/<class>/: tuning.toml and the
 tuning sweep (tuning/), selection.csv (every configuration's tuning scores, best first), evaluation.toml and
 its sweep (evaluation/). DIR/tuning.csv: per class the chosen configuration, its evaluation IQM [95% CI] and
 P(beats the flat PPO class) [CI]; with --baseline (sweep directories holding the same env, policy and K at
 the defaults on the evaluation seeds, e.g. Figure 1's) the defaults' IQM and P next to them. Each sweep is
-gsa_jax.sweep's (resumable: run the same command again); a phase already done is not run twice.
+gsa sweep's (resumable: run the same command again); a phase already done is not run twice.
 
 --phase rank (after tune) checks that short tuning runs rank configurations as full-length ones would: per
 class the configurations at --rank-check's ranks are trained on the tuning seeds for the evaluation's env
@@ -20,14 +20,13 @@ DIR/ranking.csv per class their Spearman correlation and whether the short tunin
 import argparse
 import json
 import os
-import sys
 
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis import stats
 from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
-from gsa_jax.running.runinfo import cli_description
+from gsa_jax.cli import command_parser, run_command
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, to_toml
 
@@ -48,15 +47,15 @@ def select(scores, sets, seeds):
 
 
 def run_phase(spec, cls, phase, sets, out, sweep_args):
-    """Write DIR/<class>/<phase>.toml and run its sweep into DIR/<class>/<phase>/ -> gsa_jax.sweep's status."""
-    from gsa_jax import sweep
+    """Write DIR/<class>/<phase>.toml and run its sweep into DIR/<class>/<phase>/ -> gsa sweep's status."""
+    from gsa_jax.commands import sweep
 
     cdir = os.path.join(out, cls)
     os.makedirs(cdir, exist_ok=True)
     path = os.path.join(cdir, f"{phase}.toml")
     what = "every configuration on the tuning seeds" if phase == "tuning" else "the chosen configuration on the evaluation seeds"
     with open(path, "w") as f:
-        f.write(to_toml(class_experiment(spec, cls, phase, sets), f"{spec.name}, class {cls}: {what} (written by gsa_jax.tune)"))
+        f.write(to_toml(class_experiment(spec, cls, phase, sets), f"{spec.name}, class {cls}: {what} (written by gsa tune)"))
     return sweep.main([path, "--out", os.path.join(cdir, phase), *sweep_args])
 
 
@@ -163,8 +162,9 @@ def run_rank_checks(spec, args):
     return 0
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.tune", description=cli_description(__doc__))
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa tune`'s options."""
+    p = command_parser("tune", __doc__)
     p.add_argument("tuning", help="tuning file (TOML; gsa_jax.running.tuning)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--phase", choices=("tune", "evaluate", "all", "rank"), default="all",
@@ -173,22 +173,22 @@ def main(argv=None):
     p.add_argument("--rank-check", default="1,2,12,24", help="with --phase rank: the ranks checked (default %(default)s)")
     p.add_argument("--baseline", nargs="*", default=[], help="sweep directories with the defaults on the evaluation seeds")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
-    p.add_argument("--sweep-args", default="--no-tensorboard", help="flags passed to each gsa_jax.sweep (default %(default)s)")
-    args = p.parse_args(argv)
-    try:
-        spec = load_tuning(args.tuning)
-        for d in args.baseline:
-            if not os.path.isdir(d):
-                raise SpecError(f"--baseline {d!r} is not a directory")
-    except SpecError as e:
-        print(f"gsa_jax.tune: error: {e}", file=sys.stderr)
-        return 2
+    p.add_argument("--sweep-args", default="--no-tensorboard", help="flags passed to each gsa sweep (default %(default)s)")
+    return p
+
+
+def tune(argv: list | None) -> int:
+    """Run the phases --phase asks for. Returns the exit status (a sweep's that did not finish)."""
+    args = build_parser().parse_args(argv)
+    spec = load_tuning(args.tuning)
+    for d in args.baseline:
+        if not os.path.isdir(d):
+            raise SpecError(f"--baseline {d!r} is not a directory")
     if args.phase == "rank":
         try:
             return run_rank_checks(spec, args)
-        except (SpecError, ValueError) as e:
-            print(f"gsa_jax.tune: error: {e}", file=sys.stderr)
-            return 2
+        except ValueError as e:
+            raise SpecError(e) from None
     return run_tuning(spec, args)
 
 
@@ -211,9 +211,8 @@ def run_tuning(spec, args):
             if status:
                 return status
         rows = report(spec, args.out, chosen, baseline_scores(args.baseline, spec.env, spec.classes), args.reps)
-    except (SpecError, FileNotFoundError, KeyError) as e:
-        print(f"gsa_jax.tune: error: {e}", file=sys.stderr)
-        return 2
+    except (FileNotFoundError, KeyError) as e:
+        raise SpecError(e) from None
     for r in rows:
         print(f"{r['env']} {r['class']}: tuned IQM {r['tuned_iqm']} [{r['tuned_ci_low']}, {r['tuned_ci_high']}]"
               + (f", defaults {r['default_iqm']}" if r["default_iqm"] != "" else ""))
@@ -221,5 +220,6 @@ def run_tuning(spec, args):
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa tune`: exit status 0, 2 on bad input, else the status of the sweep that did not finish."""
+    return run_command("tune", lambda: tune(argv))

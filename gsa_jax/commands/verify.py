@@ -1,6 +1,6 @@
-"""Check an exported controller's closed loop in its task's MuJoCo C twin:
+"""Check an exported controller's closed loop in its task's MuJoCo C twin.
 
-    python -m gsa_jax.verify CONTROLLER.npz [--out DIR] [--quick] [--seed N]
+    gsa verify CONTROLLER.npz [--out DIR] [--quick] [--seed N]
 
 Writes DIR/verify.json (docs/verify.md), DIR/report.md and DIR/verify.png: fixed points and closed-loop eigenvalues
 per piece, the region of attraction of the task's equilibrium (with an LQR beside it), the lowest-return start
@@ -9,9 +9,9 @@ states and pushes a cross-entropy search finds (replayable), and how the control
 
 import argparse
 import os
-import sys
 import time
 
+from gsa_jax.cli import command_parser, run_command
 from gsa_jax.verify.analysis import QUICK, Budget, LqrWeights, verify
 from gsa_jax.verify.report import write_all
 from gsa_jax.verify.system import System, VerifyError, equilibrium_guess, load_system
@@ -25,7 +25,7 @@ def parse_weights(text: str, flag: str) -> tuple:
         raise VerifyError(f"{flag} takes comma-separated numbers, got {text!r}") from None
 
 
-def lqr_weights_of(args, system: System) -> "LqrWeights | None":
+def lqr_weights_of(args: argparse.Namespace, system: System) -> "LqrWeights | None":
     """The LQR's weights of --lqr-q / --lqr-r (both or neither), checked against the task: q one per tangent
     state coordinate (2 nv) and >= 0, r one per action and > 0."""
     if args.lqr_q is None and args.lqr_r is None:
@@ -43,22 +43,24 @@ def lqr_weights_of(args, system: System) -> "LqrWeights | None":
     return LqrWeights(q, r)
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.verify", description=__doc__.split("\n")[0])
-    p.add_argument("controller", help="an exported controller .npz (python -m gsa_jax.export)")
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa verify`'s options."""
+    p = command_parser("verify", __doc__)
+    p.add_argument("controller", help="an exported controller .npz (gsa export)")
     p.add_argument("--out", default=None, help="output folder (default: verify_<controller name>)")
     p.add_argument("--quick", action="store_true", help="a small budget (under 2 minutes on 2 cores)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--lqr-q", default=None, metavar="Q1,...", help="the LQR beside the controller weights the tangent "
                    "state by these (the task's units: positions, then velocities; default: Q = I on scaled states)")
     p.add_argument("--lqr-r", default=None, metavar="R1,...", help="... and the actions by these (default R = I)")
-    args = p.parse_args(argv)
-    try:
-        system = load_system(args.controller)
-        weights = lqr_weights_of(args, system)
-    except VerifyError as e:
-        print(f"gsa_jax.verify: error: {e}", file=sys.stderr)
-        return 2
+    return p
+
+
+def verify_controller(argv: list | None) -> int:
+    """Analyse the controller and write the report."""
+    args = build_parser().parse_args(argv)
+    system = load_system(args.controller)
+    weights = lqr_weights_of(args, system)
     budget = (QUICK if args.quick else Budget())._replace(seed=args.seed)
     out = args.out or f"verify_{os.path.splitext(os.path.basename(args.controller))[0]}"
     t0 = time.perf_counter()
@@ -68,5 +70,6 @@ def main(argv=None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa verify`: exit status 0, or 2 on bad input."""
+    return run_command("verify", lambda: verify_controller(argv))

@@ -11,6 +11,7 @@ from importlib import metadata
 
 import envs
 from envs.physics import record
+from gsa_jax.errors import UserError
 
 
 def _version(dist):
@@ -76,7 +77,7 @@ def describe_changes(old, new, prefix=""):
     return "; ".join(changes)
 
 
-class ResumeRefused(ValueError):
+class ResumeRefused(UserError, ValueError):
     """A saved run or sweep differs from the one asked to continue it."""
 
 

@@ -13,10 +13,12 @@ import socket
 import time
 from contextlib import contextmanager
 
+from gsa_jax.errors import UserError
+
 LOCK_NAME = "LOCK"
 
 
-class LockError(RuntimeError):
+class LockError(UserError, RuntimeError):
     pass
 
 
