@@ -79,7 +79,7 @@ def start_specs(dirs: list) -> dict:
     return specs
 
 
-def base_specs(args, env: str) -> dict:
+def base_specs(args: argparse.Namespace, env: str) -> dict:
     """The base spec per class: --start-from's, else the defaults with --steps and the backend."""
     import envs
 
@@ -96,7 +96,7 @@ def base_specs(args, env: str) -> dict:
     return specs
 
 
-def make_setup(args) -> Setup:
+def make_setup(args: argparse.Namespace) -> Setup:
     """The checked Setup of the command line (AnswerError in one line; nothing compiles)."""
     import envs
 

@@ -33,6 +33,7 @@ import itertools
 import json
 import os
 import time
+from typing import Callable
 
 import envs
 from envs.physics import Physics
@@ -49,7 +50,7 @@ from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.spec import check_spec
 
 
-def parse_solver_variant(text, quick):
+def parse_solver_variant(text: str | None, quick: bool) -> tuple | None:
     """--solver-variant: None -> SOLVER_VARIANT (none with --quick); 'none' -> None; 'I,L' -> (I, L)."""
     if text is None:
         return None if quick else SOLVER_VARIANT
@@ -64,12 +65,12 @@ def parse_solver_variant(text, quick):
     return it, ls
 
 
-def reps(repeats, runs, explicit=False):
+def reps(repeats: int, runs: int, explicit: bool = False) -> int:
     """Timed chunks for a sweep of `runs` runs: chunks of >= 64 runs take 10-40 s each here, 2 are enough."""
     return repeats if explicit or runs < 64 else min(repeats, 2)
 
 
-def estimate_s(plan, raw_plan, profile_runs, repeats, profiles=1):
+def estimate_s(plan: list, raw_plan: list, profile_runs: int, repeats: int, profiles: int = 1) -> float:
     """Rough wall time: ~50 s compile + start per measurement, timed chunks at ~10k steps/s per process;
     `profiles` time profiles of profile_runs runs."""
     t = 30 + sum(60 + (reps(repeats, n) + 1) * n * 2048 / (8000 + 4000 * k) / (2 if sol else 1) for _, n, k, sol, _ in plan)
@@ -79,7 +80,7 @@ def estimate_s(plan, raw_plan, profile_runs, repeats, profiles=1):
     return t
 
 
-def positive_ints(flag, text, default):
+def positive_ints(flag: str, text: str | None, default: list) -> list:
     """Comma-separated positive integers of a flag (or the default); ValueError naming the flag."""
     if not text:
         return default
@@ -138,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def parse_backends(text, env):
+def parse_backends(text: str, env: str) -> list:
     """--physics: the backends to measure, each checked against the task; ValueError naming the flag."""
 
     backends = [b.strip() for b in text.split(",")]
@@ -150,7 +151,7 @@ def parse_backends(text, env):
     return list(dict.fromkeys(backends))
 
 
-def make_plan(args):
+def make_plan(args: argparse.Namespace) -> dict:
     """What to measure: {sizes, procs, batches, policies, variant, repeats, backends, plan, raw_plan}: plan
     entries (policy, runs, processes, solver variant, backend), raw_plan (batch, processes, variant, backend);
     ValueError on bad input."""
@@ -187,18 +188,19 @@ def make_plan(args):
             "repeats": args.repeats or (2 if args.quick else 3), "plan": plan, "raw_plan": raw_plan}
 
 
-def add_ratios(r, c_ref, solver):
+def add_ratios(r: dict, c_ref: dict, solver: tuple | None) -> None:
     """ratio_vs_mujoco_c: against MuJoCo C with the same solver settings (the same simulator);
     ratio_vs_mujoco_c_task_solver: against MuJoCo C with the MJCF's own (differs for the variant)."""
     r["ratio_vs_mujoco_c"] = r["env_steps_per_s"] / c_ref[solver]["env_steps_per_s"]
     r["ratio_vs_mujoco_c_task_solver"] = r["env_steps_per_s"] / c_ref[None]["env_steps_per_s"]
 
 
-def solver_tag(solver):
+def solver_tag(solver: tuple | None) -> str:
+    """The solver variant as printed beside a measurement ('' for the task's own)."""
     return f"  solver {solver[0]}/{solver[1]}" if solver else ""
 
 
-def measure_references(env, variant):
+def measure_references(env: str, variant: tuple | None) -> dict:
     """MuJoCo C's rate with the task's solver (key None) and, if asked, with the variant's."""
     mujoco_c = measure_mujoco_c(env)
     print(f"MuJoCo C rollout: {mujoco_c['env_steps_per_s']:,.0f} env-steps/s ({mujoco_c['threads']} threads, "
@@ -211,7 +213,8 @@ def measure_references(env, variant):
     return c_ref
 
 
-def measure_raw_plan(args, info, report, c_ref, save):
+def measure_raw_plan(args: argparse.Namespace, info: dict, report: dict, c_ref: dict, save: Callable) -> None:
+    """Measure raw stepping at every batch of the plan, printing a row and saving bench.json after each."""
     print(f"{'raw':8} {'physics':>7} {'batch':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9}", flush=True)
     for b, k, sol, be in info["raw_plan"]:
         try:
@@ -225,7 +228,8 @@ def measure_raw_plan(args, info, report, c_ref, save):
         save()
 
 
-def measure_sweep_plan(args, info, report, c_ref, save):
+def measure_sweep_plan(args: argparse.Namespace, info: dict, report: dict, c_ref: dict, save: Callable) -> None:
+    """Measure every sweep of the plan, printing a row and saving bench.json after each."""
     print(f"{'policy':8} {'physics':>7} {'runs':>5} {'procs':>5} {'env-steps/s':>12} {'ratio_vs_C':>10} {'compile_s':>9} "
           f"{'peak_MiB':>9}", flush=True)
     nominal = {}  # (policy, runs, processes, solver, backend) -> its nominal rate, for the randomized twin's ratio
@@ -255,7 +259,7 @@ def measure_sweep_plan(args, info, report, c_ref, save):
         save()
 
 
-def print_in_run(split):
+def print_in_run(split: dict) -> None:
     """One line: a 'c' sweep's split of its time and its in-run ceiling."""
     f = split["fractions"]
     print(f"{'':8} in the run: MuJoCo C {f['mujoco_c']:.0%} ({split['mujoco_c_us_per_env_step']:.1f} us per env step and "
@@ -265,7 +269,7 @@ def print_in_run(split):
           f"own cost in the run)", flush=True)
 
 
-def measure_profile(args, repeats, mujoco_c, backend="mjx", processes=1):
+def measure_profile(args: argparse.Namespace, repeats: int, mujoco_c: dict, backend: str = "mjx", processes: int = 1) -> dict:
     """The time profile at --profile-runs runs on `processes` workers, with the ratio ceiling when MuJoCo C
     was measured."""
     try:

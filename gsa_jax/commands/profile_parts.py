@@ -18,6 +18,7 @@ import time
 import envs
 from envs.registry import Definition
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.algorithm.ppo import Config
 from gsa_jax.benchmark.parts import profile_parts
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.running.checkpoint import write_atomic
@@ -45,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def pin_cores(cores):
+def pin_cores(cores: int) -> None:
     """Before jax starts its backend: run on the first `cores` cores, with a sweep worker's XLA flag when one."""
     if not cores:
         return
@@ -57,7 +58,7 @@ def pin_cores(cores):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_EIGEN).strip()
 
 
-def sweep_config(env, policy, K, runs, backend):
+def sweep_config(env: str, policy: str, K: int, runs: int, backend: str) -> Config:
     """The static Config a sweep of these runs would train with (its defaults, this backend); a task defined in
     Python is made here, so that a missing dependency (dm_control for dmc: tasks) is refused before any profiling."""
     record = envs.task_record(env)
@@ -66,7 +67,7 @@ def sweep_config(env, policy, K, runs, backend):
     return single_group(env, policy, K, list(range(runs)), backend, source="gsa_jax.profile")[1]
 
 
-def table(prof):
+def table(prof: dict) -> str:
     """A profile as a markdown table (one row per part)."""
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
     head = (f"### {prof['env']}, {prof['policy']}" + (f" K={prof['K']}" if prof["K"] else "") + f", {prof['runs']} runs, "

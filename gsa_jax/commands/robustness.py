@@ -51,7 +51,7 @@ from gsa_jax.deployment.pushes import PER_EPISODE, PUSH_SIZES, WINDOWS
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
 
 
-def parse_levels(items):
+def parse_levels(items: list) -> dict:
     """--level KIND=V1,V2 (repeatable) -> {kind: (levels,)}: the levels that replace a kind's defaults."""
     levels = {}
     for item in items:
@@ -67,7 +67,7 @@ def parse_levels(items):
     return levels
 
 
-def parse_shifts(text, levels=None):
+def parse_shifts(text: str, levels: dict | None = None) -> list:
     """--shifts ('all' or comma-separated kinds, every default level of each) and --level overrides ->
     [Shift] with nominal first."""
     kinds = list(dict.fromkeys(s.kind for s in DEFAULT_SHIFTS)) if text == "all" else [k.strip() for k in text.split(",") if k.strip()]
@@ -84,7 +84,7 @@ def parse_shifts(text, levels=None):
     return shifts
 
 
-def parse_numbers(flag, text, kind=float):
+def parse_numbers(flag: str, text: str, kind: type = float) -> tuple:
     """'0.25,0.5' -> (0.25, 0.5): positive numbers, sorted, RobustnessError in one line otherwise."""
     try:
         values = tuple(sorted(kind(v) for v in text.split(",")))
@@ -95,7 +95,7 @@ def parse_numbers(flag, text, kind=float):
     return values
 
 
-def resolve_pushes(args, saved):
+def resolve_pushes(args: argparse.Namespace, saved: dict) -> dict | None:
     """{sizes, windows, per_episode} of the paired pushes (None with --pushes-per-episode 0): as given, else
     as OUT's robustness.json recorded, else the defaults."""
     old = saved.get("paired_pushes") or {}
@@ -111,7 +111,7 @@ def resolve_pushes(args, saved):
     return {"sizes": sizes, "windows": windows, "per_episode": per}
 
 
-def resolve_settings(args):
+def resolve_settings(args: argparse.Namespace) -> tuple:
     """(shifts, episodes, paired pushes): as given, and where not given, what OUT's robustness.json recorded
     (a re-run continues the evaluation it holds), else the defaults (every shift, 20 episodes, paired pushes
     of PUSH_SIZES in WINDOWS). Raises RobustnessError."""

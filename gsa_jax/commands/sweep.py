@@ -68,7 +68,7 @@ from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import resume_command
 from gsa_jax.running.runlock import hold
-from gsa_jax.running.spec import SpecError, check_spec, load_spec
+from gsa_jax.running.spec import SpecError, SweepSpec, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
 from gsa_jax.running.sweeps import EXIT_DISK_FULL, EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
 
@@ -134,7 +134,7 @@ def parse_args(argv: list) -> argparse.Namespace:
     return args
 
 
-def check_args(args, argv):
+def check_args(args: argparse.Namespace, argv: list) -> tuple:
     """(spec, out, local worker count) after checking every argument; raises SpecError. Nothing compiles."""
     if args.experiment is None:
         spec = check_spec(args.saved_spec, source=os.path.join(args.resume, "sweep.json"))
@@ -178,7 +178,7 @@ def main(argv: list | None = None, after_chunk: Callable | None = None) -> int:
     return run_command("sweep", lambda: sweep(argv, after_chunk))
 
 
-def supervise_workers(args, argv, out, local):
+def supervise_workers(args: argparse.Namespace, argv: list, out: str, local: int) -> int:
     """Start the worker processes under the watchdog; then collect failed runs into sweep.json."""
     base = list(argv) + (["--out", out] if args.out is None else [])
     if local > 1:
@@ -202,7 +202,7 @@ def supervise_workers(args, argv, out, local):
     return status
 
 
-def run_worker(args, spec, out, after_chunk=None):
+def run_worker(args: argparse.Namespace, spec: SweepSpec, out: str, after_chunk: Callable | None = None) -> int:
     """Train this process's share in this process (a supervised worker, or --no-watchdog). after_chunk:
     called after every chunk's heartbeat (tests inject faults with it)."""
     if args.num_processes > 1 and args.coordinator:

@@ -42,7 +42,7 @@ _HP_FLAGS = {  # CLI flag -> hparam name
 }
 
 
-def add_physics_flags(p):
+def add_physics_flags(p: argparse.ArgumentParser) -> None:
     """The physics options (envs/physics.py): backend, its threads, and MJX's solver settings."""
     p.add_argument("--solver-iterations", type=int, default=None,
                    help="MJX constraint-solver iterations (default: the task's own; hopper 4). Fewer is faster but a "
@@ -146,7 +146,7 @@ def flag_names(msg: str) -> str:
     return msg
 
 
-def make_config(args, k_max):
+def make_config(args: argparse.Namespace, k_max: int) -> Config:
     """The run's validated Config; a bad field is a UsageError naming its flag."""
     values = {field: getattr(args, dest) for field, dest in CONFIG_OPTIONS.items()}
     values.update(getattr(args, "unflagged", {}))
@@ -158,7 +158,7 @@ def make_config(args, k_max):
         raise UsageError(flag_names(str(e))) from None
 
 
-def resolve(args):
+def resolve(args: argparse.Namespace) -> RunPlan:
     """Check every argument and return the RunPlan. No compiling."""
     if args.policy not in POLICY_KINDS:
         raise UsageError(f"unknown --policy {args.policy!r}; choose mixture or mlp")
@@ -196,7 +196,7 @@ def resolve(args):
     return RunPlan(cfg, hp, iterations, chunk, eval_every, args.eval_seed, args.seed)
 
 
-def saved_options(saved):
+def saved_options(saved: dict) -> dict:
     """Option values (dest -> value) that give back a saved run's settings (its config.json): what
     `--resume --out DIR` continues with. Config fields a config.json written before they existed lacks ran at
     their defaults."""
@@ -218,7 +218,7 @@ def saved_options(saved):
     return opts
 
 
-def resume_args(parser, argv, out):
+def resume_args(parser: argparse.ArgumentParser, argv: list | None, out: str | None) -> argparse.Namespace:
     """With --resume: the command line parsed again over the run saved in `out` (its settings are the
     defaults, so only the options typed differ from them; run() refuses a difference without --force).
     A directory without a saved run keeps the command line's own settings where it names the task (a first
@@ -233,13 +233,13 @@ def resume_args(parser, argv, out):
     return options_over_saved(parser, argv, path, saved_options, UsageError)[0]
 
 
-def typed(argv, *flags):
+def typed(argv: list | None, *flags: str) -> bool:
     """Whether the command line argv names one of the options `flags` ('--flag', '--flag=V', or a one-letter '-KV')."""
     argv = sys.argv[1:] if argv is None else argv
     return any(a == f or a.startswith(f + "=") or (len(f) == 2 and a.startswith(f)) for a in argv for f in flags)
 
 
-def check_policy_options(args, argv):
+def check_policy_options(args: argparse.Namespace, argv: list | None) -> None:
     """UsageError (one line) for an option the chosen policy does not use (the mixture's, with --policy mlp)."""
     if args.policy == MLP:
         spellings = {"--clusters": ("--clusters", "-K"), "--k-max": ("--k-max",)}
@@ -249,14 +249,15 @@ def check_policy_options(args, argv):
                              "(--policy mlp trains one flat MLP)")
 
 
-def default_out(cfg, hp, seed):
+def default_out(cfg: Config, hp: dict, seed: int) -> str:
+    """runs/<env>-<policy>[-K<k>][-<subpolicy>]-s<seed>-<time>: a new run's directory when --out is not given."""
     tag = f"{path_part(cfg.env)}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == MIXTURE else "")
     tag += f"-{cfg.subpolicy}" if cfg.policy == MIXTURE and cfg.subpolicy != "linear" else ""
     tag += "-retrace" if cfg.value_target == "retrace" else ""
     return os.path.join("runs", f"{tag}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
-def prepare_out(out, resume):
+def prepare_out(out: str, resume: bool) -> None:
     """Create --out and prove it is writable, before anything compiles."""
     try:
         os.makedirs(out, exist_ok=True)

@@ -28,10 +28,10 @@ from gsa_jax.analysis import stats
 from gsa_jax.analysis.results import final_scores, load_sweep, load_sweeps, read_csv, write_csv
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.running.spec import SpecError
-from gsa_jax.running.tuning import class_experiment, draw_configurations, load_tuning, to_toml
+from gsa_jax.running.tuning import TuningSpec, class_experiment, draw_configurations, load_tuning, to_toml
 
 
-def select(scores, sets, seeds):
+def select(scores: dict, sets: list, seeds: list) -> list:
     """selection.csv rows, best first: per configuration its knobs, its runs' final scores on the tuning seeds
     and their IQM; a configuration with a failed (non-finite) run ranks last. scores: {set index: [scores]}."""
     rows = []
@@ -46,7 +46,7 @@ def select(scores, sets, seeds):
     return rows
 
 
-def run_phase(spec, cls, phase, sets, out, sweep_args):
+def run_phase(spec: TuningSpec, cls: str, phase: str, sets: list, out: str, sweep_args: list) -> int:
     """Write DIR/<class>/<phase>.toml and run its sweep into DIR/<class>/<phase>/ -> gsa sweep's status."""
     from gsa_jax.commands import sweep
 
@@ -59,7 +59,7 @@ def run_phase(spec, cls, phase, sets, out, sweep_args):
     return sweep.main([path, "--out", os.path.join(cdir, phase), *sweep_args])
 
 
-def cell_scores(sweep_dir):
+def cell_scores(sweep_dir: str) -> dict:
     """{hparam_set (int, or None without sets): [final scores in seed order]} of a one-cell-per-set sweep."""
     out = {}
     for cell, (scores, _) in final_scores(load_sweep(sweep_dir)).items():
@@ -68,7 +68,7 @@ def cell_scores(sweep_dir):
     return out
 
 
-def choose(spec, cls, out):
+def choose(spec: TuningSpec, cls: str, out: str) -> tuple:
     """selection.csv of a class's finished tuning sweep -> the chosen configuration {knob: value}."""
     sets = draw_configurations(spec, cls)
     rows = select(cell_scores(os.path.join(out, cls, "tuning")), sets, spec.tuning_seeds)
@@ -78,7 +78,7 @@ def choose(spec, cls, out):
     return {k: rows[0][k] for k in sets[0]}, rows[0]["hparam_set"]
 
 
-def baseline_scores(dirs, env_name, classes):
+def baseline_scores(dirs: list, env_name: str, classes: tuple) -> dict:
     """{class: [scores]} of the default configuration of each class in Figure-1 style sweeps (cells without
     swept columns), {} without dirs."""
     if not dirs:
@@ -88,7 +88,7 @@ def baseline_scores(dirs, env_name, classes):
             if (env_name, c["policy"], c["K"]) in scores}
 
 
-def report(spec, out, chosen, baseline, reps=stats.REPS):
+def report(spec: TuningSpec, out: str, chosen: dict, baseline: dict, reps: int = stats.REPS) -> list:
     """DIR/tuning.csv rows: per class the chosen set, evaluation IQM [CI], P(> the flat class) [CI], and the
     defaults' (baseline) IQM [CI] and P where given."""
     evaluated = {cls: np.asarray(cell_scores(os.path.join(out, cls, "evaluation"))[None], float) for cls in chosen}
@@ -115,7 +115,7 @@ def report(spec, out, chosen, baseline, reps=stats.REPS):
     return rows
 
 
-def rank_check(spec, cls, out, ranks, sweep_args):
+def rank_check(spec: TuningSpec, cls: str, out: str, ranks: list, sweep_args: list) -> tuple:
     """Train the class's configurations at `ranks` (1-based ranks of its selection.csv) on the tuning seeds for
     the evaluation's env steps -> (the sweep's status, DIR/<class>/ranking.csv rows)."""
     selection = read_csv(os.path.join(out, cls, "selection.csv"))
@@ -134,7 +134,7 @@ def rank_check(spec, cls, out, ranks, sweep_args):
     return 0, rows
 
 
-def rank_summary(cls, rows, spec):
+def rank_summary(cls: str, rows: list, spec: TuningSpec) -> dict:
     """DIR/ranking.csv's row of one class: Spearman's rho of short vs full-length tuning IQM over the checked
     configurations, and whether the short tuning's best is the full-length best among them."""
     from scipy.stats import spearmanr
@@ -147,7 +147,7 @@ def rank_summary(cls, rows, spec):
             "best_stays_best": int(np.argmax(long) == np.argmax(short))}
 
 
-def run_rank_checks(spec, args):
+def run_rank_checks(spec: TuningSpec, args: argparse.Namespace) -> int:
     """--phase rank: every class's rank check, then DIR/ranking.csv."""
     ranks = [int(r) for r in args.rank_check.split(",")]
     summary = []
@@ -192,7 +192,7 @@ def tune(argv: list | None) -> int:
     return run_tuning(spec, args)
 
 
-def run_tuning(spec, args):
+def run_tuning(spec: TuningSpec, args: argparse.Namespace) -> int:
     """The phases in order, stopping at the first sweep that does not finish (its status)."""
     sweep_args = args.sweep_args.split()
     chosen = {}
