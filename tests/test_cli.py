@@ -179,7 +179,7 @@ def test_run_directories_of_an_older_layout_refused_in_one_line(full_run, tmp_pa
     silently. So is a metrics.npz that lacks a tracked metric."""
     import shutil
 
-    from gsa_jax.deployment.inspection import main as inspect_main
+    from gsa_jax.commands.inspect_run import main as inspect_main
     from gsa_jax.export import main as export_main
 
     old = tmp_path / "old"
@@ -242,7 +242,7 @@ def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
 
 
 def test_inspect_mixture_run(full_run, tmp_path, capsys):
-    from gsa_jax.deployment.inspection import main as inspect_main
+    from gsa_jax.commands.inspect_run import main as inspect_main
 
     out = tmp_path / "inspect"
     assert inspect_main([str(full_run), "--episodes", "3", "--out", str(out)]) == 0
@@ -258,7 +258,7 @@ def test_inspect_mixture_run(full_run, tmp_path, capsys):
 
 
 def test_inspect_bad_run_dirs(tmp_path, capsys):
-    from gsa_jax.deployment.inspection import main as inspect_main
+    from gsa_jax.commands.inspect_run import main as inspect_main
 
     assert inspect_main([str(tmp_path / "nope")]) == 2
     assert "is not a gsa_jax run: neither a run directory" in capsys.readouterr().err
