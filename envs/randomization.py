@@ -35,6 +35,8 @@ from typing import Any, Optional
 
 import numpy as np
 
+from gsa_jax.errors import UserError
+
 # scale name -> (MjModel fields it scales, the column it scales or None for every entry)
 ALIASES = {"mass": (("body_mass", None), ("body_inertia", None)), "friction": (("geom_friction", 0),),
            "gear": (("actuator_gear", 0),), "damping": (("dof_damping", None),)}
@@ -43,7 +45,7 @@ REGISTRY_KEY = "playground"  # the item that asks for a Playground environment's
 DEFAULT_PUSH_RATE = 0.01
 
 
-class RandomizeError(ValueError):
+class RandomizeError(UserError, ValueError):
     """A randomization that cannot run (one line, raised before anything is compiled)."""
 
 

@@ -89,7 +89,11 @@ def _record(name):
         dmc.task_class(name)  # the name is not one of them: ValueError listing those there are
     if name in _REGISTERED or ":" in name:
         return user_record(name, _REGISTERED.get(name) or _import_factory(name))
-    raise ValueError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, name your "
+    TaskError = mujoco_side().task.TaskError
+    if name.endswith(".py") or "/" in name or "." in name:  # a file or module without the class it defines
+        raise TaskError(f"unknown env {name!r}: name the task class it defines, 'path/file.py:Class' or 'module:Class' "
+                        "(docs/your_task.md)")
+    raise TaskError(f"unknown env {name!r}; choose one of {', '.join(NAMES + tuple(_REGISTERED))}, name your "
                      "own task definition 'module:Class', or another library's environment 'brax:<name>' or "
                      "'playground:<Name>' (docs/your_task.md)")
 

@@ -45,8 +45,10 @@ from typing import Any, Sequence
 import mujoco
 import numpy as np
 
+from gsa_jax.errors import UserError
 
-class TaskError(ValueError):
+
+class TaskError(UserError, ValueError):
     """A task name or definition that cannot be used (one line)."""
 
 
@@ -342,7 +344,9 @@ def _validate(task, where):
     if np.shape(after) != (1,) + obs.shape:
         raise TaskError(f"{where}: outcome() must return obs [n, {obs.size}] (as observe()); got shape "
                         f"{np.shape(after)} for n = 1")
-    check_rows(where, "outcome()", "reward", reward, 1)
+    if not np.all(np.isfinite(check_rows(where, "outcome()", "reward", reward, 1))):
+        raise TaskError(f"{where}: outcome() returned the reward {np.asarray(reward).tolist()} at the first state under "
+                        "zero action; a reward must be finite on every step")
     check_rows(where, "outcome()", "terminated", terminated, 1, kind="b")
 
 

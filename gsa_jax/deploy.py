@@ -1,78 +1,8 @@
-"""Run an exported controller in plain MuJoCo C (no MJX, no JAX) and in gymnasium's own tasks:
+"""`python -m gsa_jax.deploy`: `gsa deploy` (gsa_jax.commands.deploy)."""
 
-    python -m gsa_jax.deploy controller.npz [--episodes 20] [--gymnasium Hopper-v5] [--compare-mjx RUN_DIR] [--out F]
-
-The controller file comes from `python -m gsa_jax.export RUN --out controller.npz`; its task is read
-from the file, and a controller that no longer fits it (its observation size, or its definition's sha256: a task file
-edited since) is refused in one line (--force runs it where the sizes agree). Prints the mean return (95% CI over
-episodes) and episode length of the deterministic controller in MuJoCo C (the MJCF it was trained on: our port of
-Brax's task, or the task's own definition; every task with a MuJoCo C version, envs/registry.py);
-with --gymnasium ENV_ID also in gymnasium's own task (its MJCF, reward, termination and time limit;
-refused with the reason where its observation layout is not ours, gsa_jax.deployment.gymnasium_rollout); with
---compare-mjx RUN_DIR also in the MJX environment it was trained in (this part uses JAX).
-"""
-
-import argparse
-import json
 import sys
 
-from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, has_mujoco_c, load_controller, mujoco_c_label,
-                                           open_gymnasium, report_line, run_gymnasium, run_mujoco_c)
-from gsa_jax.running.runinfo import cli_description
-
-
-def deploy(args):
-    """Every requested simulator's summary, printed as it completes; a request that cannot run (no gymnasium
-    counterpart) is refused before any episode."""
-    if args.episodes < 1:
-        raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
-    ctrl, env_name, config = load_controller(args.controller, args.force)
-    gym = open_gymnasium(ctrl, env_name, args.gymnasium, args.seed) if args.gymnasium else None
-    result = {"env": env_name, "controller": args.controller}
-    if has_mujoco_c(env_name) or not (args.gymnasium or args.compare_mjx):  # else: the others only
-        result["mujoco_c"] = run_mujoco_c(ctrl, env_name, config, args.episodes, args.episode_length, args.seed)
-        print(report_line(env_name, mujoco_c_label(env_name) + ",", result["mujoco_c"]))
-    if gym:
-        result["gymnasium"] = run_gymnasium(ctrl, gym, args.gymnasium, args.episodes, args.seed)
-        print(report_line(env_name, f"gymnasium {args.gymnasium},", result["gymnasium"]))
-    if args.compare_mjx:
-        result["mjx"] = compare_mjx(args.compare_mjx, env_name, args.episodes, args.seed)
-        print(report_line(env_name, "MJX,", result["mjx"]))
-    return result
-
-
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.deploy", description=cli_description(__doc__))
-    p.add_argument("controller", help="an exported controller .npz (python -m gsa_jax.export)")
-    p.add_argument("--episodes", type=int, default=20)
-    p.add_argument("--episode-length", type=int, default=None, help="default: the run's time limit")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--gymnasium", default=None, metavar="ENV_ID",
-                   help="also run it in gymnasium's own task, e.g. Hopper-v5 (needs the deploy extra)")
-    p.add_argument("--compare-mjx", default=None, metavar="RUN_DIR", help="also roll out the run's controller in MJX")
-    p.add_argument("--out", default=None, help="write the results as JSON")
-    p.add_argument("--force", action="store_true",
-                   help="run a controller whose task's definition changed since it was trained, or that names another "
-                        "task, where the observation sizes agree")
-    args = p.parse_args(argv)
-    try:
-        result = deploy(args)
-    except DeployError as e:
-        print(f"gsa_jax.deploy: error: {e}", file=sys.stderr)
-        return 2
-    if args.out:
-        import mujoco
-
-        result["versions"] = {"mujoco": mujoco.__version__}
-        if args.gymnasium:
-            import gymnasium
-
-            result["versions"]["gymnasium"] = gymnasium.__version__
-        with open(args.out, "w") as f:
-            json.dump(result, f, indent=1)
-        print(f"wrote {args.out}")
-    return 0
-
+from gsa_jax.commands.deploy import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,58 +1,8 @@
-"""Pictures of a task: `python -m gsa_jax.render ENV --out scene.png`, or a video of a trained run's
-deterministic controller: `python -m gsa_jax.render ENV --run RUN --out video.gif` (RUN: a run directory
-or SWEEP_DIR/<run label>).
+"""`python -m gsa_jax.render`: `gsa render` (gsa_jax.commands.render)."""
 
-Uses MuJoCo's offscreen renderer. MUJOCO_GL picks the OpenGL backend; when it is not set, this
-module uses OSMesa (Debian's libosmesa6, software rendering, no display or GPU needed; `make scene`
-installs it), or EGL when only libEGL is found.
-"""
-
-import argparse
-import os
 import sys
 
-import envs
-from gsa_jax.deployment.rendering import RenderError, render_run, render_scene
-from gsa_jax.running.runinfo import cli_description
-from gsa_jax.running.trained import FormatError, read_run
-
-
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.render", description=cli_description(__doc__))
-    p.add_argument("env", help=f"one of: {', '.join(envs.NAMES)}; a task of yours, 'module:Class'; 'brax:<name>', 'playground:<Name>'")
-    p.add_argument("--out", required=True, help="scene.png, or with --run: video.gif / video.mp4")
-    p.add_argument("--run", default=None, help="a run directory or SWEEP_DIR/<run label>: render its deterministic controller")
-    p.add_argument("--episodes", type=int, default=1)
-    p.add_argument("--camera", default=None, help="camera name (default: all cameras side by side / 'front')")
-    p.add_argument("--width", type=int, default=None)
-    p.add_argument("--height", type=int, default=None)
-    p.add_argument("--seed", type=int, default=0)
-    args = p.parse_args(argv)
-    from gsa_jax.deployment.inspection import InspectError
-
-    try:
-        envs.check_name(args.env)
-        out_dir = os.path.dirname(os.path.abspath(args.out))
-        if not os.path.isdir(out_dir):
-            raise RenderError(f"--out: directory {out_dir!r} does not exist")
-        if args.run is None:
-            if not args.out.endswith(".png"):
-                raise RenderError("--out must end in .png for a scene picture (add --run DIR for a video)")
-            render_scene(args.env, args.out, args.width or 640, args.height or 480, args.camera, args.seed)
-            print(f"wrote {args.out}")
-        else:
-            if not args.out.endswith((".gif", ".mp4")):
-                raise RenderError("--out must end in .gif or .mp4 for a video")
-            run_env = read_run(args.run).meta["config"]["env"]
-            if run_env != args.env:
-                raise RenderError(f"{args.run!r} was trained on {run_env!r}, not {args.env!r}")
-            out, returns = render_run(args.run, args.out, args.episodes, args.width or 480, args.height or 360, args.camera, seed=args.seed)
-            print(f"wrote {out} (deterministic controller, episode returns {', '.join(f'{r:.1f}' for r in returns)})")
-    except (RenderError, InspectError, FormatError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
-
+from gsa_jax.commands.render import main
 
 if __name__ == "__main__":
     sys.exit(main())

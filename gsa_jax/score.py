@@ -1,46 +1,8 @@
-"""Score committed controllers as anyone re-running them would: every controllers/<run label>.npz under the
-directories, in plain MuJoCo C, over a fixed set of start states.
+"""`python -m gsa_jax.score`: `gsa score` (gsa_jax.commands.score)."""
 
-    python -m gsa_jax.score DIR [DIR ...] [--episodes 10] [--start-seed 10000]
-
-Writes DIR/.../controller_scores.csv beside each controllers/ folder (gsa_jax.analysis.sweeps.controller_scores):
-per controller its file's sha256, the start seeds and its mean deterministic return (`controller_score`),
-which gsa_jax.plot puts in per_run_scores.csv and every verdict uses. Controllers already scored with the
-same file, episodes and start seed are kept; an interrupted scoring resumes where it stopped.
-"""
-
-import argparse
-import os
 import sys
 
-from gsa_jax.analysis.sweeps.controller_scores import EPISODES, START_SEED, ScoreError, controller_dirs, score_directory
-from gsa_jax.running.runinfo import cli_description
-
-
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.score", description=cli_description(__doc__))
-    p.add_argument("dirs", nargs="+", metavar="DIR", help="results directories (searched for controllers/*.npz)")
-    p.add_argument("--episodes", type=int, default=EPISODES, help="start states per controller (default %(default)s)")
-    p.add_argument("--start-seed", type=int, default=START_SEED,
-                   help="the first start state's seed; episode i starts from seed START_SEED + i (default %(default)s)")
-    args = p.parse_args(argv)
-    try:
-        if args.episodes < 1:
-            raise ScoreError(f"--episodes must be >= 1, got {args.episodes}")
-        missing = [d for d in args.dirs if not os.path.isdir(d)]
-        if missing:
-            raise ScoreError(f"no directory {missing[0]!r}")
-        found = controller_dirs(args.dirs)
-        if not found:
-            raise ScoreError(f"no controllers/*.npz under {' '.join(args.dirs)}")
-        for d in found:
-            rows = score_directory(d, args.episodes, args.start_seed)
-            print(f"{d}: {len(rows)} controllers scored ({os.path.join(d, 'controller_scores.csv')})", flush=True)
-    except ScoreError as e:
-        print(f"gsa_jax.score: error: {e}", file=sys.stderr)
-        return 2
-    return 0
-
+from gsa_jax.commands.score import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -9,7 +9,7 @@ import os
 import sys
 import time
 
-from gsa_jax import sweep
+from gsa_jax.commands import sweep
 
 
 def supervise_stalling_worker(hang_after, marker, spec_file, out):

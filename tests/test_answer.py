@@ -111,7 +111,7 @@ def test_bad_input_is_one_line_before_anything_compiles(argv, message, tmp_path,
 
     assert main(argv + ["--out", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message in err and err.startswith("gsa_jax.answer: error:")
+    assert err.count("\n") == 1 and message in err and err.startswith("gsa answer: error:")
     assert not (tmp_path / "a").exists()
 
 
@@ -120,7 +120,7 @@ def test_a_small_real_task_end_to_end(tmp_path):
     exported and scored in MuJoCo C, the random policy measured there; the verdicts follow from those scores; the
     report and the chosen controller written; running the same command again changes nothing."""
     from gsa_jax.analysis.verdicts import ladder, trimmed
-    from gsa_jax.answer import finish
+    from gsa_jax.commands.answer import finish
 
     spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, physics={"backend": "c"})}
     setup = A.Setup("InvertedDoublePendulum-v5", (1, 2), 0.2, (10,), {"mlp": spec, "mixture": spec}, target=60.0)

@@ -9,7 +9,7 @@ import pytest
 
 from gsa_jax.analysis.verdicts import answering as A
 from gsa_jax.analysis.verdicts import baseline as B
-from gsa_jax.analysis.verdicts import trimmed, verdict
+from gsa_jax.analysis.verdicts import verdict
 
 HEADER = "task,published_task,score,std,seeds,steps,metric,algorithm,source,note\n"
 
@@ -111,7 +111,7 @@ def test_a_baseline_below_its_reference_is_replaced_by_it(tmp_path, mixture_mean
 def test_flat_ppo_within_the_random_returns_interval_gives_no_answer(tmp_path):
     """fish-like: flat PPO scores 80 where 128 random episodes average 80 with a wide spread: the answer stops with
     'no answer' after the first look, for every K."""
-    from gsa_jax.answer import finish
+    from gsa_jax.commands.answer import finish
     from tests.test_answer import random_policy, synthetic_trainer
 
     spec = {"steps": 1000, "hparams": {}, "config": {}}

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from gsa_jax import bench
+from gsa_jax.commands import bench
 from gsa_jax.bench import main
 from gsa_jax.benchmark import measure, workers
 from gsa_jax.benchmark.measure import BenchError, measure_mujoco_c, run_workers

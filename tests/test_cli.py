@@ -1,4 +1,4 @@
-"""`python -m gsa_jax.train`: bad input, outputs, interrupt + resume, NaN handling."""
+"""`gsa train` (`python -m gsa_jax.train`): bad input, outputs, interrupt + resume, NaN handling."""
 
 import csv
 import json
@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from golden_runs import arrays_digest, check_fingerprint, summarize, table_digest
 
+from gsa_jax.cli import COMMANDS
 from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.tensorboard import FILE_NAME, read_scalars
 from gsa_jax.train import main
@@ -121,7 +122,6 @@ def test_the_printed_resume_command_resumes(full_run, tmp_path, capsys):
     continues the run to the uninterrupted one's metrics; without --out, --resume is a one-line error."""
     import shlex
     import subprocess
-    import sys
 
     out = tmp_path / "hinted"
     assert main(SMALL[:-1] + ["--out", str(out), "--stop-after", "1", "--no-tensorboard"]) == 0
@@ -178,7 +178,7 @@ def test_run_directories_of_an_older_layout_refused_in_one_line(full_run, tmp_pa
     silently. So is a metrics.npz that lacks a tracked metric."""
     import shutil
 
-    from gsa_jax.deployment.inspection import main as inspect_main
+    from gsa_jax.commands.inspect_run import main as inspect_main
     from gsa_jax.export import main as export_main
 
     old = tmp_path / "old"
@@ -228,7 +228,7 @@ def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
     import jax
 
     from gsa_jax.running.programs import single_program
-    from gsa_jax.train import build_parser, resolve
+    from gsa_jax.commands.train import build_parser, resolve
 
     plan = resolve(build_parser().parse_args(SMALL))
     cfg, hp, chunk = plan.cfg, plan.hp, plan.chunk
@@ -241,7 +241,7 @@ def test_evaluation_starts_do_not_depend_on_the_training_seed(full_run):
 
 
 def test_inspect_mixture_run(full_run, tmp_path, capsys):
-    from gsa_jax.deployment.inspection import main as inspect_main
+    from gsa_jax.commands.inspect_run import main as inspect_main
 
     out = tmp_path / "inspect"
     assert inspect_main([str(full_run), "--episodes", "3", "--out", str(out)]) == 0
@@ -257,7 +257,7 @@ def test_inspect_mixture_run(full_run, tmp_path, capsys):
 
 
 def test_inspect_bad_run_dirs(tmp_path, capsys):
-    from gsa_jax.deployment.inspection import main as inspect_main
+    from gsa_jax.commands.inspect_run import main as inspect_main
 
     assert inspect_main([str(tmp_path / "nope")]) == 2
     assert "is not a gsa_jax run: neither a run directory" in capsys.readouterr().err
@@ -293,8 +293,7 @@ def test_export_real_run_matches_jax(full_run, tmp_path):
     assert np.abs(ctrl.L).sum() > 0  # trained: not the L = 0 init
 
 
-@pytest.mark.parametrize("module", ["train", "plot", "deploy", "export", "robustness", "tune", "sweep", "extract",
-                                    "render", "bench", "profile", "deployment.inspection", "answer", "score"])
+@pytest.mark.parametrize("module", sorted(COMMANDS.values()))
 def test_help_describes_the_command_in_whole_sentences(module, capsys):
     """Every command's --help opens with its docstring's first paragraph, whole (not cut at a line end); train's
     --env names every kind of task name, playground:<Name> included."""
@@ -302,7 +301,7 @@ def test_help_describes_the_command_in_whole_sentences(module, capsys):
 
     from gsa_jax.running.runinfo import cli_description
 
-    mod = importlib.import_module(f"gsa_jax.{module}")
+    mod = importlib.import_module(f"gsa_jax.commands.{module}")
     with pytest.raises(SystemExit):
         mod.main(["--help"])
     text = " ".join(capsys.readouterr().out.split())
@@ -315,7 +314,7 @@ def test_help_describes_the_command_in_whole_sentences(module, capsys):
 def test_a_nan_is_attributed_to_the_tasks_reward_where_an_episode_shows_it():
     """The failure line names the task's reward where an episode that ended in the failing iteration returned a
     non-finite total, and the loss or parameters otherwise, saying what it could not see."""
-    from gsa_jax.running.single import failure_line
+    from gsa_jax.commands.train import failure_line
 
     m = {"failed_at": np.array([[-1, -1, 3]]), "episodes": np.array([[2.0, 1.0, 4.0]]),
          "episode_return": np.array([[1.0, 2.0, np.nan]])}  # iteration 3 failed
@@ -330,7 +329,7 @@ def test_a_nan_is_attributed_to_the_tasks_reward_where_an_episode_shows_it():
 def test_the_summary_names_the_iteration_of_its_returns(full_run, capsys):
     """config.json's result and the closing line say which iteration the final training and evaluation returns
     are from (the last with an ended episode / an evaluation, not always the last iteration)."""
-    from gsa_jax.running.single import report_end
+    from gsa_jax.commands.train import report_end
 
     rows = read_csv(full_run / "metrics.csv")
     result = json.loads((full_run / "config.json").read_text())["result"]
@@ -350,7 +349,7 @@ def test_the_evaluation_compiles_with_the_run(full_run):
     import jax
 
     from gsa_jax.running.programs import compile_single
-    from gsa_jax.train import build_parser, resolve
+    from gsa_jax.commands.train import build_parser, resolve
 
     plan = resolve(build_parser().parse_args(SMALL))
     assert plan.eval_every > 0

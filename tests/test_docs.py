@@ -4,6 +4,7 @@ the experiment pages, every number quoted from the committed tables is what they
 import glob
 import os
 import re
+import sys
 
 import pytest
 
@@ -129,3 +130,44 @@ def test_the_stable_baselines3_snippet_runs_on_a_task_as_a_gymnasium_env():
     namespace = {}
     exec(code.replace("total_timesteps=100_000", "total_timesteps=64"), namespace)
     assert namespace["env"].action_space.contains(namespace["action"].astype("float32"))
+
+
+def test_the_stable_baselines3_snippet_gets_what_sb3_needs_without_torch(monkeypatch):
+    """The same snippet with SB3's PPO stood in by what it asks of its env (SB3 and torch are not installed in
+    CI): gymnasium's API as gymnasium's own check_env tests it, Box spaces, and rollouts of the snippet's
+    100,000 steps (here 2,048, one SB3 rollout) that reset on terminated or truncated with finite rewards."""
+    import types
+
+    import numpy as np
+    from gymnasium.spaces import Box
+    from gymnasium.utils.env_checker import check_env
+
+    class StandInPPO:
+        def __init__(self, policy, env, seed=None, device="auto"):
+            assert policy == "MlpPolicy" and device == "cpu"
+            check_env(env, skip_render_check=True)
+            assert isinstance(env.observation_space, Box) and isinstance(env.action_space, Box)
+            self.env = env
+            env.action_space.seed(seed)
+
+        def learn(self, total_timesteps):
+            self.env.reset(seed=0)
+            for _ in range(total_timesteps):
+                obs, reward, terminated, truncated, _ = self.env.step(self.env.action_space.sample())
+                assert obs.shape == self.env.observation_space.shape and np.isfinite(reward)
+                if terminated or truncated:
+                    self.env.reset()
+            return self
+
+        def predict(self, obs, deterministic=False):
+            assert obs.shape == self.env.observation_space.shape and deterministic
+            return np.zeros(self.env.action_space.shape, self.env.action_space.dtype), None
+
+    monkeypatch.setitem(sys.modules, "stable_baselines3", types.ModuleType("stable_baselines3"))
+    monkeypatch.setattr(sys.modules["stable_baselines3"], "PPO", StandInPPO, raising=False)
+    code = next(b for b in python_blocks("your_task.md") if "stable_baselines3" in b)
+    assert code.count("total_timesteps=100_000") == 1
+    namespace = {}
+    exec(code.replace("total_timesteps=100_000", "total_timesteps=2048"), namespace)
+    assert namespace["env"].action_space.contains(namespace["action"].astype("float32"))
+

@@ -253,8 +253,13 @@ def test_export_formats_and_errors(tmp_path, capsys):
     assert "is not an exported controller" in capsys.readouterr().err
     assert export_main([str(run), "--out", str(tmp_path / "no" / "dir" / "c.onnx")]) == 2
     assert "does not exist" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        export_main([str(run), "--format", "tflite"])
+    assert export_main([str(run), "--format", "tflite"]) == 2
+    assert capsys.readouterr().err.strip() == ("gsa export: error: argument --format: invalid choice: 'tflite' "
+                                              "(choose from 'c', 'npz', 'onnx') (see gsa export --help)")
+    assert export_main([str(run), "--out", str(tmp_path / "ctrl.pt")]) == 2  # an unknown suffix, no --format
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "unknown suffix" in err and "--format" in err and ".onnx" in err, err
+    assert not (tmp_path / "ctrl.pt").exists()
 
 
 # --- action bounds: every format keeps actions inside the task's bounds; the README's use scores as committed -------

@@ -74,7 +74,7 @@ def test_disk_full_at_every_write_then_resume_equals_uninterrupted(reference, tm
         err = capsys.readouterr().err.strip()
         assert inj.fired and status == 4, (name, n, status, err)
         line = err.splitlines()[-1]
-        assert line.startswith("gsa_jax.train: error: disk full: writing ") and str(out) in line, line
+        assert line.startswith("gsa train: error: disk full: writing ") and str(out) in line, line
         assert "MiB more free space" in line and f"the last intact checkpoint is iteration {INTACT_AFTER[i]};" in line
         assert no_temp_files(out) == []
     assert main(SMALL + ["--out", str(out), "--resume"]) == 0

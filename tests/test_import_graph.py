@@ -86,7 +86,7 @@ def cycles(edges):
 
 def test_no_import_circle():
     g = graph()
-    assert len(g) > 80 and "gsa_jax.analysis.robustness.retention" in g["gsa_jax.robustness"]
+    assert len(g) > 80 and "gsa_jax.analysis.robustness.retention" in g["gsa_jax.commands.robustness"]
     assert {"envs.registry", "envs.randomized_env"} <= g["envs.build"] and "envs.task" in g["envs.families.record"]
     found = cycles(g)
     assert not found, "import circles: " + "; ".join(" <-> ".join(c) for c in found)

@@ -1,5 +1,6 @@
 """The package's layers, as folders: every gsa_jax module imports only from its own layer or lower ones (the
-commands at the top level sit above all of them), and the result-reading and deployment modules load
+user-error base class, gsa_jax/errors.py, below all of them; the commands, gsa_jax/commands/ with the entry point
+and the `python -m` shims at the top level, above all of them), and the result-reading and deployment modules load
 without JAX (reading results and running a controller must not pay JAX's import or need it installed as it
 trains)."""
 
@@ -10,14 +11,15 @@ import subprocess
 import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
-LAYERS = ("algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
+LAYERS = ("errors", "algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
 JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
             "analysis.sweeps.figures", "analysis.sweep_report", "analysis.verdicts.grid", "analysis.robustness.retention",
             "analysis.robustness.retention_eval", "analysis.robustness.retention_stats", "analysis.robustness.retention_plots",
             "analysis.robustness.shift_rows", "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained",
-            "plot", "robustness", "deploy")
+            "commands.plot",
+            "commands.robustness", "commands.deploy", "plot", "robustness", "deploy", "cli", "errors")
 
 
 def modules():
@@ -32,9 +34,10 @@ def modules():
 
 
 def layer(name):
-    """A module's layer: its folder, or 'commands' for the top level (inspect/__main__ included)."""
+    """A module's layer: its folder, 'errors' for gsa_jax/errors.py, or 'commands' for the rest of the top level
+    (inspect/__main__ included)."""
     head = name.split(".")[0]
-    return head if "." in name and head in LAYERS else "commands"
+    return head if head in LAYERS and ("." in name or head == "errors") else "commands"
 
 
 def gsa_imports(path):

@@ -1,4 +1,4 @@
-"""gsa_jax.profile: the parts of the update it times compute what the update computes (on the toy task of
+"""gsa profile (gsa_jax.commands.profile_parts): the parts of the update it times compute what the update computes (on the toy task of
 test_ppo_parts), its split of an iteration adds up, and bad input is refused in one line."""
 
 import os
@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsa_jax import profile
+from gsa_jax.commands import profile_parts as profile
 from gsa_jax.algorithm.config import Config
 from gsa_jax.algorithm.optim import init_adam
 from gsa_jax.algorithm.ppo import TrainState, apply_gradients, epoch_minibatches, minibatch_gradients, schedule

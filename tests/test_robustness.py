@@ -106,7 +106,7 @@ def test_cli_writes_tables_resumes_and_refuses_other_settings(tmp_path, capsys):
 
 
 def test_level_replaces_a_kinds_default_levels_and_bad_levels_are_one_line(tmp_path, capsys):
-    from gsa_jax.robustness import parse_levels, parse_shifts
+    from gsa_jax.commands.robustness import parse_levels, parse_shifts
 
     shifts = parse_shifts("push,gear", parse_levels(["push=0.5,1"]))
     assert [(s.kind, s.level) for s in shifts] == [("nominal", 0.0), ("push", 0.5), ("push", 1.0), ("gear", 0.8)]

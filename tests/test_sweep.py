@@ -452,7 +452,7 @@ def sweep_main(spec_file, out, *extra):
 
 def test_default_out_is_runs_sweeps_name(tmp_path, monkeypatch):
     """Without --out (make sweep) the output directory is runs/sweeps/<the experiment's name>."""
-    from gsa_jax.sweep import build_parser, check_args
+    from gsa_jax.commands.sweep import build_parser, check_args
 
     spec = tmp_path / "exp.toml"
     spec.write_text('name = "tiny_default_out"\nenvs = ["hopper"]\npolicies = ["mlp"]\nsteps = 100\n')
@@ -542,7 +542,7 @@ def test_disk_full_at_every_sweep_write_then_resume(tiny_spec_file, inprocess, t
             status = sweep_main(tiny_spec_file, out)
         err = capsys.readouterr().err.strip()
         assert inj.fired and status == 4, (name, n, status, err)
-        assert err.count("\n") == 0 and "gsa_jax.sweep: error: disk full: writing" in err
+        assert err.count("\n") == 0 and "gsa sweep: error: disk full: writing" in err
         assert "the last intact checkpoint is" in err and no_temp_files(out) == []
     assert sweep_main(tiny_spec_file, out) == 0
     assert canonical_rows(out / "metrics.csv") == canonical_rows(inprocess / "metrics.csv")

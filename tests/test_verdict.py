@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gsa_jax.analysis.sweeps.stats import iqm
-from gsa_jax.analysis.verdicts import answering, ladder, sequential, trimmed
+from gsa_jax.analysis.verdicts import ladder, sequential, trimmed
 from gsa_jax.analysis.verdicts import verdict as V
 
 

@@ -96,6 +96,8 @@ BAD = {
                                                  "comparison, or xp.zeros(n, bool)); got float64 [1]"),
     "scalar_reward": ("FILE:ScalarReward", "outcome() must return the reward as [n], one row per simulation; got "
                                              "shape () (float64)"),
+    "nan_reward": ("FILE:NanReward", "outcome() returned the reward [nan] at the first state under zero action"),
+    "file_without_class": ("FILE", "name the task class it defines, 'path/file.py:Class' or 'module:Class'"),
 }
 BAD_TASKS = '''
 import numpy as np
@@ -155,6 +157,11 @@ class FloatTerminated(Reacher):
     def outcome(self, before, qpos, qvel, derived, action, xp=np):
         obs, reward, terminated = super().outcome(before, qpos, qvel, derived, action, xp)
         return obs, reward, xp.zeros(qpos.shape[:1])
+
+class NanReward(Reacher):
+    def outcome(self, before, qpos, qvel, derived, action, xp=np):
+        obs, reward, terminated = super().outcome(before, qpos, qvel, derived, action, xp)
+        return obs, reward * xp.nan, terminated
 
 class ScalarReward(Reacher):
     def outcome(self, before, qpos, qvel, derived, action, xp=np):

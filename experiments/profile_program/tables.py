@@ -1,7 +1,7 @@
 """The profile's tables from its committed results: `.venv/bin/python experiments/profile_program/tables.py`.
 
-Reads results/<task>/parts.json (written by `python -m gsa_jax.profile --envs <task> --out results/<task>`) and
-writes results/profile.md (every profile's table, as gsa_jax.profile prints it) and results/summary.csv (one row
+Reads results/<task>/parts.json (written by `gsa profile --envs <task> --out results/<task>`) and
+writes results/profile.md (every profile's table, as gsa profile prints it) and results/summary.csv (one row
 per task and policy: the figures experiments/profile_program/README.md quotes), every figure derived again from
 what was timed by today's gsa_jax.benchmark.parts.summarize.
 """
@@ -12,7 +12,7 @@ import os
 
 from gsa_jax.analysis.sweeps.results import write_csv
 from gsa_jax.benchmark.parts import summarize
-from gsa_jax.profile import table
+from gsa_jax.commands.profile_parts import table
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 FIELDS = ["key", "task", "policy", "iteration_ms", "ppo_program_ms", "ppo_share_of_iteration", "update_ms",

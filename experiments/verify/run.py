@@ -10,7 +10,6 @@ this process, and its verify.json, report.md and verify.png go to results/<group
 import argparse
 import glob
 import os
-import sys
 import time
 
 from gsa_jax.verify.analysis import QUICK, Budget, verify

@@ -1,1 +1,1 @@
-"""The vmapped seed benchmark's measurements, workers and figure (`python -m gsa_jax.bench`)."""
+"""The vmapped seed benchmark's measurements, workers and figure (`gsa bench`)."""

@@ -1,6 +1,6 @@
 """The benchmark's measurements: sweeps of N runs timed in worker processes (SweepCell, measure_sweep),
 raw stepping, the time profile of one PPO iteration, MuJoCo C's own rollout as the reference, and the
-in-run ceiling. `python -m gsa_jax.bench` is its command."""
+in-run ceiling. `gsa bench` is its command."""
 
 import copy
 import json
@@ -19,6 +19,7 @@ from mujoco import rollout
 
 import envs
 from gsa_jax.algorithm.config import Config
+from gsa_jax.errors import UserError
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.supervise import worker_env
 
@@ -29,7 +30,7 @@ RAW_UNROLL = 20  # env steps per timed raw-stepping chunk
 SOLVER_VARIANT = (1, 4)  # (solver iterations, line-search iterations) of the extra "cheaper solver" lines
 
 
-class BenchError(Exception):
+class BenchError(UserError):
     pass
 
 

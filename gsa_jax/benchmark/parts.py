@@ -1,6 +1,6 @@
 """Where the compiled PPO program's own time goes: one PPO iteration of a sweep's sub-batch of runs split into
 its parts, each compiled and timed alone, with the floating-point operations each needs and the rate it reaches
-(`python -m gsa_jax.profile`, make profile).
+(`gsa profile`, make profile).
 
 Parts (all vmapped over the runs, as a sweep worker runs them), in seconds per iteration of all the runs:
 - mujoco_c, host_other, env_step_program: the rollout's env steps alone (its actions replayed): with backend

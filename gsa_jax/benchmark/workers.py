@@ -1,4 +1,4 @@
-"""The benchmark's worker processes (`python -m gsa_jax.bench --worker` / `--raw-worker`): compile, then
+"""The benchmark's worker processes (`gsa bench --worker` / `--raw-worker`): compile, then
 time chunks together with the other workers and report the medians as one JSON line."""
 
 import argparse

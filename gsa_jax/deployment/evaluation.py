@@ -1,5 +1,5 @@
 """An exported controller run outside training: in MuJoCo C (our ports), in gymnasium's own task, and the
-run's own controller in MJX for comparison; `python -m gsa_jax.deploy` is its command."""
+run's own controller in MJX for comparison; `gsa deploy` is its command."""
 
 import json
 import os
@@ -9,9 +9,10 @@ import numpy as np
 
 from envs import task_record
 from gsa_jax.deployment import numpy_policy
+from gsa_jax.errors import UserError
 
 
-class DeployError(Exception):
+class DeployError(UserError):
     pass
 
 
@@ -28,7 +29,7 @@ def load_controller(controller_path: str, force: bool = False) -> tuple:
     tasks' step() takes (Controller.unit_actions); DeployError (one line) where it does not fit its task's definition
     as it is now (numpy_policy.check_task; force: only its observation size)."""
     if not os.path.exists(controller_path):
-        raise DeployError(f"{controller_path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
+        raise DeployError(f"{controller_path!r} does not exist (make one with gsa export RUN --out FILE)")
     if not zipfile.is_zipfile(controller_path):
         raise DeployError(f"{controller_path!r} is not an exported controller (not an .npz archive)")
     try:

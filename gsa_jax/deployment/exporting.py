@@ -1,5 +1,5 @@
-"""A run's deterministic controller as arrays (npz), one ONNX graph or a C99 header; `python -m
-gsa_jax.export` is its command."""
+"""A run's deterministic controller as arrays (npz), one ONNX graph or a C99 header; `gsa export` is its
+command."""
 
 import json
 import os
@@ -12,11 +12,12 @@ from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.export_c import cost, to_source
 from gsa_jax.deployment.numpy_policy import action_bounds, map_actions, task_name
+from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import save_npz_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
 
-class ExportError(Exception):
+class ExportError(UserError):
     pass
 
 

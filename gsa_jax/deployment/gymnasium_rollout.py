@@ -17,6 +17,7 @@ import numpy as np
 
 from envs import GYM_V5_TASKS
 from envs.mujoco_c import BRAX_PORTS
+from gsa_jax.errors import UserError
 
 GYM_NAMES = {"hopper": "Hopper", "walker2d": "Walker2d", "halfcheetah": "HalfCheetah", "ant": "Ant",
              "inverted_double_pendulum": "InvertedDoublePendulum"}
@@ -30,7 +31,7 @@ NO_MATCH = {
 }
 
 
-class GymnasiumError(Exception):
+class GymnasiumError(UserError):
     pass
 
 

@@ -1,20 +1,8 @@
-"""Read a trained mixture controller: `python -m gsa_jax.inspect RUN [--episodes 8] [--out DIR]`, RUN a run
-directory or SWEEP_DIR/<run label>.
+"""A trained mixture controller read from its rollouts: cluster usage and dwell times, the active cluster over
+an episode, visited states by cluster and each piece's L and b (the files `gsa inspect` writes)."""
 
-Rolls out the deterministic controller (most probable cluster, mean action) and the stochastic
-policy for a few episodes, then writes to DIR (default <run dir>/inspect/, SWEEP_DIR/inspect/<run label>/):
-  summary.json        returns (deterministic vs stochastic), cluster usage, clusters ever used,
-                      mean dwell time and switches per episode
-  clusters_time.png   the active cluster over one episode, above the main state variables
-  clusters_pca.png    visited states (PCA of normalized observations) coloured by cluster
-  controllers.md      each active cluster's L and b (normalized observation units), with the state
-                      variables that drive each actuator most
-"""
-
-import argparse
 import json
 import os
-import sys
 from typing import Any
 
 import jax
@@ -28,12 +16,12 @@ from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import make_env, make_train, schedule
-from gsa_jax.running.runinfo import cli_description
+from gsa_jax.errors import UserError
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
 
-class InspectError(Exception):
-    pass
+class InspectError(UserError):
+    """A run that cannot be inspected (not found, not a mixture, unreadable)."""
 
 
 def load_run(address: str, require_mixture: bool = True) -> tuple:
@@ -235,32 +223,3 @@ def inspect_run(run_dir: str, out: str | None = None, episodes: int = 8, seed: i
     plot_time(det, k, os.path.join(out, "clusters_time.png"))
     plot_pca(det, k, os.path.join(out, "clusters_pca.png"))
     return summary, out
-
-
-def main(argv: list | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.inspect", description=cli_description(__doc__))
-    p.add_argument("run_dir", metavar="RUN", help="a run directory (gsa_jax.train) or SWEEP_DIR/<run label>")
-    p.add_argument("--out", default=None)
-    p.add_argument("--episodes", type=int, default=8)
-    p.add_argument("--seed", type=int, default=0)
-    args = p.parse_args(argv)
-    if args.episodes < 1:
-        print("gsa_jax.inspect: error: --episodes must be >= 1", file=sys.stderr)
-        return 2
-    try:
-        s, out = inspect_run(args.run_dir, args.out, args.episodes, args.seed)
-    except InspectError as e:
-        print(f"gsa_jax.inspect: error: {e}", file=sys.stderr)
-        return 2
-    d = s["deterministic"]
-    print(f"{s['env']}, K={s['K']}: return deterministic {s['return_deterministic_mean']:.1f} vs stochastic "
-          f"{s['return_stochastic_mean']:.1f} over {s['episodes']} episodes")
-    print(f"deterministic controller: {d['clusters_used']}/{s['K']} clusters used, usage "
-          + ", ".join(f"{u:.0%}" for u in d["usage"])
-          + f"; mean dwell {d['mean_dwell_steps']:.1f} steps, {d['switches_per_episode']:.1f} switches/episode")
-    print(f"wrote {out}/summary.json, controllers.md, clusters_time.png, clusters_pca.png")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -8,7 +8,7 @@ z (linear), [z, z_i z_j for i <= j] (quadratic). An MLP controller applies its t
 training clips to), so it can go straight into the task's step (gymnasium's v5 tasks charge their control cost on
 the action they are given); `act(obs, clip=False)` is the raw action, for analysis.
 
-File format (written by `python -m gsa_jax.export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
+File format (written by `gsa export`): kind ('mixture'|'mlp'), obs_mean, obs_var,
 obs_clip, n_layers, w{i}/b{i} for i < n_layers (partition or policy MLP), action_low, action_high [d_a],
 config_json (the run's config: its task is config.env), task (its name), obs_size (d_s), task_sha256 (the sha256 of
 the file that defined the task, '' for a built-in one; envs.task_source), ctrl_low, ctrl_high [d_a] where the task maps
@@ -29,6 +29,7 @@ import numpy as np
 
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
+from gsa_jax.errors import UserError
 
 
 def task_name(arrays: Mapping) -> str | None:
@@ -61,7 +62,7 @@ def action_bounds(arrays: Mapping) -> tuple | None:
     return envs.action_bounds(task, action_size(arrays))
 
 
-class TaskMismatch(ValueError):
+class TaskMismatch(UserError, ValueError):
     """An exported controller that does not fit the task it is asked to run (one line)."""
 
 

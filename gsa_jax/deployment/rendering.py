@@ -1,7 +1,7 @@
 """Pictures and videos with MuJoCo's offscreen renderer: a task's scene, a run's deterministic controller
 playing. MUJOCO_GL picks the OpenGL backend; unset, this module uses OSMesa (Debian's libosmesa6,
 software rendering, no display or GPU needed; `make scene` installs it), or EGL when only libEGL is
-found. `python -m gsa_jax.render` is its command."""
+found. `gsa render` is its command."""
 
 import ctypes.util
 import os
@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 
 import envs
+
+from gsa_jax.errors import UserError
 
 
 def pick_gl() -> str | None:
@@ -28,7 +30,7 @@ GL_HELP = ("install Debian's libosmesa6 (`make scene` does) for MUJOCO_GL=osmesa
            "or libegl1 + libegl-mesa0 and set MUJOCO_GL=egl")
 
 
-class RenderError(Exception):
+class RenderError(UserError):
     pass
 
 

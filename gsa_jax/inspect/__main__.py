@@ -1,10 +1,10 @@
-"""`python -m gsa_jax.inspect RUN_DIR`: the controller report of gsa_jax.deployment.inspection.
+"""`python -m gsa_jax.inspect`: `gsa inspect` (gsa_jax.commands.inspect_run).
 
 This directory has no __init__.py on purpose: a namespace package never shadows the standard
 library's `inspect`, even when gsa_jax/ itself is on sys.path."""
 
 import sys
 
-from gsa_jax.deployment.inspection import main
+from gsa_jax.commands.inspect_run import main
 
 sys.exit(main())

@@ -16,6 +16,8 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
+from gsa_jax.errors import UserError
+
 
 def _flat(tree):
     leaves, treedef = jax.tree_util.tree_flatten_with_path(tree)
@@ -37,7 +39,7 @@ class DiskFullError(OSError):
                 f"command with --resume (sweeps: the same command) to continue")
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError, ValueError):
     """Neither a checkpoint nor its previous version can be read."""
 
 

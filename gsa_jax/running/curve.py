@@ -1,4 +1,4 @@
-"""A single run's learning curve (curve.png of `python -m gsa_jax.train`), apart from the sweep figures so
+"""A single run's learning curve (curve.png of `gsa train`), apart from the sweep figures so
 that training does not import the sweep-analysis stack. matplotlib is imported when a curve is drawn, not at
 import: selecting its non-interactive backend is process-wide, which importing this module must not do."""
 

@@ -2,7 +2,7 @@
 
     result = drive(program, store, plan, log=print)
 
-One loop for `python -m gsa_jax.train` and for every group of a sweep. It owns resume, the chunk
+One loop for `gsa train` and for every group of a sweep. It owns resume, the chunk
 loop, atomic checkpoints after every chunk (through the store), the heartbeat, the NaN guard's
 outcome (a run whose loss or parameters turned NaN/inf is frozen inside the compiled program; the
 group stops once every run has failed), the deterministic-evaluation schedule, progress lines with

@@ -2,7 +2,7 @@
 
 A group of runs (same Config, any hyperparameters and seeds) becomes one program: `jax.vmap` over
 the runs, optionally in sequential sub-batches (sub_batched), and with several devices the run axis
-sharded over them (shard_map). Used by gsa_jax.sweep and gsa_jax.bench.
+sharded over them (shard_map). Used by gsa sweep and gsa_jax.bench.
 
     shape = GroupShape(cfg, chunk, tuple(devices))
     states, run, hps, place, how = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import envs
 from envs.physics import record
+from gsa_jax.errors import UserError
 
 if TYPE_CHECKING:  # annotations only: this module loads without JAX
     from gsa_jax.algorithm.config import Config
@@ -80,7 +81,7 @@ def describe_changes(old: Any, new: Any, prefix: str = "") -> str:
     return "; ".join(changes)
 
 
-class ResumeRefused(ValueError):
+class ResumeRefused(UserError, ValueError):
     """A saved run or sweep differs from the one asked to continue it."""
 
 

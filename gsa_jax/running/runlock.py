@@ -14,10 +14,12 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
+from gsa_jax.errors import UserError
+
 LOCK_NAME = "LOCK"
 
 
-class LockError(RuntimeError):
+class LockError(UserError, RuntimeError):
     pass
 
 

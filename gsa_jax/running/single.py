@@ -1,5 +1,5 @@
 """One training run: its plan (RunPlan), this invocation's options (RunOptions) and the chunk loop around it;
-`python -m gsa_jax.train` is its command. The run is stored as a group of one (gsa_jax.running.store: runs.csv,
+`gsa train` (gsa_jax.commands.train) is its command, which prints how it ended. The run is stored as a group of one (gsa_jax.running.store: runs.csv,
 metrics.npz, state.npz, params.npz, DONE), with its own config.json, metrics.csv (one row per iteration, a view
 of metrics.npz rewritten after every chunk) and curve.png."""
 
@@ -11,30 +11,31 @@ import math
 import os
 import sys
 import time
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
 import envs
 from envs import solver_settings
 from envs.physics import C, resolve_threads
-from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.ppo import Trainer
+from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.retrace import buffer_bytes
-from gsa_jax.running.checkpoint import CheckpointError, DiskFullError, write_atomic
+from gsa_jax.errors import UserError
+from gsa_jax.running.checkpoint import DiskFullError, write_atomic
 from gsa_jax.running.curve import plot_curve
-from gsa_jax.running.driver import Plan, Result, drive, duration, failed_mask, fmt, rows_before_failure
+from gsa_jax.running.driver import Plan, drive, failed_mask, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS
 from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.programs import single_program
-from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, resume_command, run_metadata
+from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
 from gsa_jax.running.store import GroupStore, write_runs_table
-from gsa_jax.running.trained import FormatError, check_layout
+from gsa_jax.running.trained import check_layout
 
 
-class UsageError(Exception):
-    pass
+class UsageError(UserError):
+    """A command line of `gsa train` that cannot run (one line)."""
 
 
 class RunPlan(NamedTuple):
@@ -62,6 +63,14 @@ class RunOptions(NamedTuple):
     argv: list | None = None
     quiet: bool = False
     tensorboard: bool = True
+
+
+class RunEnd(NamedTuple):
+    """How an invocation of a run ended: the driver's result (None: the run had already ended, nothing was
+    trained) and the run's config.json record (its timing and result once trained)."""
+
+    result: Any
+    config: dict
 
 
 def rows_to_csv(rows: list) -> str:
@@ -96,7 +105,7 @@ def run_row(plan: RunPlan) -> dict:
     return {"env": plan.cfg.env, "policy": plan.cfg.policy, "K": plan.hp["K"], "seed": plan.seed}
 
 
-def run_store(plan: RunPlan, options: RunOptions, config: dict) -> GroupStore:
+def run_store(plan: RunPlan, options: RunOptions, config: dict, warn: Callable) -> GroupStore:
     """The run's GroupStore (a group of one) in options.out; after every chunk it rewrites metrics.csv from
     the metrics, at the end it records the result in config.json."""
     metrics_csv = os.path.join(options.out, "metrics.csv")
@@ -106,7 +115,7 @@ def run_store(plan: RunPlan, options: RunOptions, config: dict) -> GroupStore:
 
     def write_result(metrics, done, timing):
         status = "nan" if failed_mask(metrics, done)[0] else "finished"
-        record_result(plan, options.out, config, (metrics, done, timing, status))
+        record_result(plan, options.out, config, (metrics, done, timing, status), warn)
 
     board = (os.path.join(options.out, "tensorboard"), [""]) if options.tensorboard else None
     return GroupStore(options.out, [run_row(plan)], plan.iterations, write_table, board, write_result)
@@ -125,11 +134,10 @@ def metrics_to_rows(metrics: dict, done: int) -> list:
     return rows
 
 
-def run(plan: RunPlan, options: RunOptions) -> int:
-    """Train (or resume) one run into options.out. Returns the exit status: 0, 1 (NaN/inf), 2 (bad resume),
-    4 (disk full), 130 (interrupted)."""
+def run(plan: RunPlan, options: RunOptions, log: Callable, warn: Callable) -> RunEnd:
+    """Train (or resume) one run into options.out; log: its progress lines, warn: what it could not write but
+    went on without. Raises a UserError for a run it cannot continue (exit status 4: the disk is full)."""
     cfg, out = plan.cfg, options.out
-    log = (lambda msg: None) if options.quiet else (lambda msg: print(msg, flush=True))
     config = {
         "config": dataclasses.asdict(cfg), "hparams": plan.hp, "seed": plan.seed, "iterations": plan.iterations,
         "chunk": plan.chunk, "eval_every": plan.eval_every, "eval_seed": plan.eval_seed,
@@ -143,30 +151,25 @@ def run(plan: RunPlan, options: RunOptions) -> int:
             with open(config_path) as f:
                 check_resume_config(json.load(f), config, options.force)
             if os.path.exists(os.path.join(out, "DONE")):
-                return report_ended(out, log)
+                return RunEnd(report_ended(out, log), config)
         task = envs.resolve(cfg.env)  # the task's record, read for both
         config.update(physics=physics_record(cfg, task), task=task.source(), **run_metadata())
         write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
         write_atomic(config_path, json.dumps(config, indent=2))
-        return train_run(plan, options, config, log)
-    except (UsageError, CheckpointError, ResumeRefused, FormatError) as e:
-        print(f"gsa_jax.train: error: {e}", file=sys.stderr)
-        return 2
+        return RunEnd(train_run(plan, options, config, (log, warn)), config)
     except DiskFullError as e:
         intact = getattr(e, "last_intact", None) or f"iteration {saved_iteration(out)}"
-        print(f"gsa_jax.train: error: {e.describe(intact)}", file=sys.stderr)
-        return 4
+        raise UserError(e.describe(intact), exit_status=4) from None
 
 
-def report_ended(out: str, log: Callable) -> int:
-    """--resume of a run that has ended: nothing to train. Exit 0 for a finished run; a run stopped by a
-    NaN/inf is a UsageError."""
+def report_ended(out: str, log: Callable) -> None:
+    """--resume of a run that has ended: nothing to train (a finished run is logged; a run stopped by a NaN/inf
+    is a UsageError)."""
     with open(os.path.join(out, "failed.json")) as f:
         failed = json.load(f)
     if failed:
         raise UsageError(f"the run in {out} stopped at a NaN/inf at iteration {failed[0]['failed_at']}; nothing to resume")
     log(f"the run in {out} is finished; nothing to resume")
-    return 0
 
 
 def saved_iteration(out: str) -> int:
@@ -180,9 +183,10 @@ def saved_iteration(out: str) -> int:
     return 0
 
 
-def train_run(plan: RunPlan, options: RunOptions, config: dict, log: Callable) -> int:
-    """Compile (or reuse) the run's program and drive it with its store; then finish. Returns the exit status."""
-    cfg, out = plan.cfg, options.out
+def train_run(plan: RunPlan, options: RunOptions, config: dict, outputs: tuple) -> Any:
+    """Compile (or reuse) the run's program and drive it with its store; then finish. outputs: (log, warn).
+    Returns the driver's result."""
+    (log, warn), cfg, out = outputs, plan.cfg, options.out
     t0 = time.perf_counter()
     program, trainer = single_program(cfg, plan.chunk, plan.seed, plan.hp, plan.eval_seed, plan.eval_every > 0)
     log_start(plan, trainer, out, log)
@@ -191,57 +195,14 @@ def train_run(plan: RunPlan, options: RunOptions, config: dict, log: Callable) -
         log(f"value targets: Retrace over the samples of the last {cfg.retrace_iterations} iterations "
             f"(buffer {config['retrace_buffer_bytes'] / 2**20:.2f} MiB)")
     log(f"compiled in {time.perf_counter() - t0:.1f}s")
-    store = run_store(plan, options, config)
+    store = run_store(plan, options, config, warn)
     stop = None if options.stop_after is None else math.ceil(options.stop_after / plan.chunk)
     drive_plan = Plan(plan.iterations, plan.chunk, cfg.batch_size, 1, plan.eval_every, mixture=cfg.policy == MIXTURE,
                       stop_after_chunks=stop)
     result = drive(program, store, drive_plan, log, clock_start=t0)
     if not result.finished:  # stopped as asked or interrupted: the store recorded no result
-        record_result(plan, out, config, (result.metrics, result.done, result.timing, "interrupted"))
-    return report_end(result, config, out, log)
-
-
-def report_end(result: Result, config: dict, out: str, log: Callable) -> int:
-    """The closing lines of this invocation. Returns the exit status: 0, 1 (NaN/inf), 130 (interrupted)."""
-    timing, res = config["timing"], config["result"]
-    if result.status == "failed":
-        print(f"gsa_jax.train: error: {failure_line(result.metrics, result.done, out)}", file=sys.stderr)
-        return 1
-    if result.status == "interrupted":
-        print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
-              f"(continue with: {resume_command('gsa_jax.train', '--resume', '--out', out)})", file=sys.stderr)
-        return 130
-    if result.done < result.iterations:
-        again = resume_command("gsa_jax.train", "--resume", "--out", out)
-        log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with: {again}")
-    else:
-        log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "
-            f"{timing['env_steps_per_s']:,.0f} steps/s); final return {returned(res, 'final_episode_return')}, "
-            f"eval {returned(res, 'final_eval_return')}; results in {out}")
-    return 0
-
-
-def returned(result: dict, key: str) -> str:
-    """A result's return with the iteration it is from ('-' where there is none)."""
-    it = result.get(f"{key}_iteration")
-    return fmt(result[key], ".1f") + (f" (iteration {it})" if it is not None else "")
-
-
-def failure_line(metrics: dict, done: int, out: str) -> str:
-    """What stopped a run at a NaN/inf, from its metrics [1, iterations] up to `done`: the task's reward where an
-    episode that ended in the failing iteration returned a non-finite total, else the loss or parameters."""
-    failed_at = int(metrics["failed_at"][0, done - 1])
-    ended, total = metrics["episodes"][0, failed_at - 1], float(metrics["episode_return"][0, failed_at - 1])
-    if ended > 0 and not math.isfinite(total):
-        what = (f"NaN/inf in the task's reward (the episodes that ended in iteration {failed_at} returned {total}: "
-                "check its outcome()), and so in the loss")
-    elif ended > 0:
-        what = "NaN/inf in the loss or parameters (the episodes that ended in it returned finite rewards)"
-    else:
-        what = ("NaN/inf in the loss or parameters (no episode ended in it, so its rewards are not known here: if "
-                "the task's reward can be NaN/inf, check its outcome())")
-    return (f"{what} at iteration {failed_at}; stopped. Last good parameters (iteration {failed_at - 1}) are in "
-            f"{os.path.join(out, 'params.npz')}")
+        record_result(plan, out, config, (result.metrics, result.done, result.timing, "interrupted"), warn)
+    return result
 
 
 def log_start(plan: RunPlan, trainer: Trainer, out: str, log: Callable) -> None:
@@ -259,9 +220,9 @@ def log_start(plan: RunPlan, trainer: Trainer, out: str, log: Callable) -> None:
         log(f"physics: MuJoCo C inside the program ({resolve_threads(cfg.physics.threads)} thread(s))")
 
 
-def record_result(plan: RunPlan, out: str, config: dict, ended: tuple) -> None:
+def record_result(plan: RunPlan, out: str, config: dict, ended: tuple, warn: Callable) -> None:
     """The learning curve, and the timings and result into config.json. ended: (metrics [1, iterations], done,
-    driver timing, status: 'finished', 'nan' or 'interrupted')."""
+    driver timing, status: 'finished', 'nan' or 'interrupted'); warn: told when the curve cannot be written."""
     metrics, done, timing, status = ended
     rows = metrics_to_rows(metrics, done)
     cfg, hp_py = plan.cfg, plan.hp
@@ -270,7 +231,7 @@ def record_result(plan: RunPlan, out: str, config: dict, ended: tuple) -> None:
         try:
             plot_curve(rows, os.path.join(out, "curve.png"), title)
         except OSError as e:  # a figure is not worth failing a run for (e.g. a full disk)
-            print(f"gsa_jax.train: warning: curve.png not written ({e.strerror or e})", file=sys.stderr)
+            warn(f"curve.png not written ({e.strerror or e})")
     last = [r for r in rows if r["episode_return"] != ""]
     evals = [r for r in rows if r["eval_return"] != ""]
     config["timing"] = timing

@@ -22,6 +22,7 @@ from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
+from gsa_jax.errors import UserError
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.trained import path_part
 
@@ -34,7 +35,7 @@ GROUP_AXES = (("subpolicies", "subpolicy", MIXTURE, SUBPOLICY_KINDS), ("value_ta
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
-class SpecError(ValueError):
+class SpecError(UserError, ValueError):
     pass
 
 
@@ -355,7 +356,7 @@ def group_config(spec: SweepSpec, group: Group) -> Config:
 def single_group(env: str, policy: str, K: int, seeds: list[int], backend: str,
                  source: str = "spec") -> tuple[Group, Config]:
     """(Group, Config) of the one group a sweep of `seeds` (a list) of one task, policy and K would train: its
-    defaults, this physics backend (the benchmark's workers and gsa_jax.profile build their programs from it)."""
+    defaults, this physics backend (the benchmark's workers and gsa profile build their programs from it)."""
     spec = check_spec({"envs": [env], "policies": [policy], "clusters": [K], "seeds": seeds, "steps": 10**9,
                        "config": {"physics": {"backend": backend}}}, source=source)
     group = build_grid(spec)[0]

@@ -1,6 +1,6 @@
 """Worker supervision: run worker processes, watch their heartbeats, and restart (from the last
 checkpoint) a worker that stops making progress -- XLA:CPU has been seen to hang in large vmapped MJX
-programs. Used by gsa_jax.sweep; gsa_jax.bench starts its workers with the same environment.
+programs. Used by gsa sweep; gsa bench starts its workers with the same environment.
 
 A worker reports progress by rewriting `heartbeat.json` ({"count": chunks done, "durations": [s]})
 in its heartbeat directory after every chunk.

@@ -1,5 +1,5 @@
 """A sweep's groups trained one after the other: group checkpoints (GroupStore), the tidy metrics table,
-sweep.json and the failed-runs report; `python -m gsa_jax.sweep` is its command (workers, watchdog)."""
+sweep.json and the failed-runs report; `gsa sweep` is its command (workers, watchdog)."""
 
 import dataclasses
 import json

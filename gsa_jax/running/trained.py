@@ -1,6 +1,6 @@
 """A trained run's settings and parameters, read by one function wherever the run is stored: a run
-directory (gsa_jax.train; a group of one) or one run of a sweep, addressed as SWEEP_DIR/<run label>, e.g.
-runs/sweeps/fig1_small/hopper-mixture-K2-s0 (`python -m gsa_jax.extract SWEEP_DIR --list` names them).
+directory (gsa train; a group of one) or one run of a sweep, addressed as SWEEP_DIR/<run label>, e.g.
+runs/sweeps/fig1_small/hopper-mixture-K2-s0 (`gsa extract SWEEP_DIR --list` names them).
 
 Both are group directories (gsa_jax.running.store): runs.csv (the run axis), config.json (what the runs
 compute; a group's lists each run's seed and hyperparameters under "runs") and params.npz [R, ...]. Loads
@@ -17,16 +17,17 @@ import numpy as np
 
 from envs.physics import nest_physics
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.errors import UserError
 
 LAYOUT_FILE = "runs.csv"  # what marks a group directory (a run directory of an older gsa_jax has none)
 
 
-class FormatError(Exception):
+class FormatError(UserError):
     """A run file written by a gsa_jax of another file format: intact, so no fallback to its previous version;
     the message says how to go on."""
 
 
-class RunNotFound(ValueError):
+class RunNotFound(UserError, ValueError):
     """An address that is neither a run directory nor a finished run of a sweep."""
 
 

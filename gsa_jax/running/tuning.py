@@ -1,6 +1,6 @@
 """An equal tuning budget for every policy class: the tuning file checked once into a TuningSpec, each
 class's configurations drawn from its stated ranges, the experiment files of the tuning and evaluation
-sweeps; `python -m gsa_jax.tune` (which selects by IQM over the tuning seeds) is its command.
+sweeps; `gsa tune` (which selects by IQM over the tuning seeds) is its command.
 
 A tuning file (TOML):
 

@@ -1,4 +1,4 @@
-"""Closed-loop verification of an exported controller in its task's MuJoCo C twin (`python -m gsa_jax.verify`).
+"""Closed-loop verification of an exported controller in its task's MuJoCo C twin (`gsa verify`).
 
 Modules by concern: system (the controller, its task and the state coordinates), simulate (batched closed-loop
 rollouts on mujoco.batch), linearize (fixed points, the closed loop's Jacobian and eigenvalues), roa (region of

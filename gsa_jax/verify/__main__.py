@@ -1,72 +1,7 @@
-"""Check an exported controller's closed loop in its task's MuJoCo C twin:
+"""`python -m gsa_jax.verify`: `gsa verify` (gsa_jax.commands.verify)."""
 
-    python -m gsa_jax.verify CONTROLLER.npz [--out DIR] [--quick] [--seed N]
-
-Writes DIR/verify.json (docs/verify.md), DIR/report.md and DIR/verify.png: fixed points and closed-loop eigenvalues
-per piece, the region of attraction of the task's equilibrium (with an LQR beside it), the lowest-return start
-states and pushes a cross-entropy search finds (replayable), and how the controller switches pieces.
-"""
-
-import argparse
-import os
 import sys
-import time
 
-from gsa_jax.verify.analysis import QUICK, Budget, LqrWeights, verify
-from gsa_jax.verify.report import write_all
-from gsa_jax.verify.system import System, VerifyError, equilibrium_guess, load_system
+from gsa_jax.commands.verify import main
 
-
-def parse_weights(text: str, flag: str) -> tuple:
-    """Comma-separated numbers of --lqr-q / --lqr-r; VerifyError names the flag."""
-    try:
-        return tuple(float(x) for x in text.split(","))
-    except ValueError:
-        raise VerifyError(f"{flag} takes comma-separated numbers, got {text!r}") from None
-
-
-def lqr_weights_of(args: argparse.Namespace, system: System) -> "LqrWeights | None":
-    """The LQR's weights of --lqr-q / --lqr-r (both or neither), checked against the task: q one per tangent
-    state coordinate (2 nv) and >= 0, r one per action and > 0."""
-    if args.lqr_q is None and args.lqr_r is None:
-        return None
-    if args.lqr_q is None or args.lqr_r is None:
-        raise VerifyError("--lqr-q and --lqr-r go together (the state and the action weights)")
-    if equilibrium_guess(system.task) is None:
-        raise VerifyError(f"{system.env!r} declares no equilibrium (Task.equilibrium_qpos): no LQR to weight")
-    q, r = parse_weights(args.lqr_q, "--lqr-q"), parse_weights(args.lqr_r, "--lqr-r")
-    n, d_a = 2 * system.task.model.nv, system.ctrl.action_size
-    if len(q) != n or min(q) < 0:
-        raise VerifyError(f"--lqr-q needs {n} weights >= 0 (qpos's {n // 2} tangent coordinates, then qvel's), got {len(q)}: {args.lqr_q}")
-    if len(r) != d_a or min(r) <= 0:
-        raise VerifyError(f"--lqr-r needs {d_a} weights > 0 (one per action), got {len(r)}: {args.lqr_r}")
-    return LqrWeights(q, r)
-
-
-def main(argv: "list[str] | None" = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.verify", description=__doc__.split("\n")[0])
-    p.add_argument("controller", help="an exported controller .npz (python -m gsa_jax.export)")
-    p.add_argument("--out", default=None, help="output folder (default: verify_<controller name>)")
-    p.add_argument("--quick", action="store_true", help="a small budget (under 2 minutes on 2 cores)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--lqr-q", default=None, metavar="Q1,...", help="the LQR beside the controller weights the tangent "
-                   "state by these (the task's units: positions, then velocities; default: Q = I on scaled states)")
-    p.add_argument("--lqr-r", default=None, metavar="R1,...", help="... and the actions by these (default R = I)")
-    args = p.parse_args(argv)
-    try:
-        system = load_system(args.controller)
-        weights = lqr_weights_of(args, system)
-    except VerifyError as e:
-        print(f"gsa_jax.verify: error: {e}", file=sys.stderr)
-        return 2
-    budget = (QUICK if args.quick else Budget())._replace(seed=args.seed)
-    out = args.out or f"verify_{os.path.splitext(os.path.basename(args.controller))[0]}"
-    t0 = time.perf_counter()
-    result = verify(system, budget, weights)
-    write_all(out, system, result, budget, args.quick)
-    print(f"wrote {out}/verify.json, report.md, verify.png ({time.perf_counter() - t0:.0f} s)")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+sys.exit(main())

@@ -17,10 +17,11 @@ from envs.task import Task
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment import numpy_policy
+from gsa_jax.errors import UserError
 
 
-class VerifyError(Exception):
-    """A one-line error of `python -m gsa_jax.verify` (exit code 2)."""
+class VerifyError(UserError):
+    """A one-line error of `gsa verify` (exit code 2)."""
 
 
 C_TWINS = ("gymnasium's v5 tasks (Hopper-v5, Walker2d-v5, HalfCheetah-v5, Ant-v5, InvertedDoublePendulum-v5), "
@@ -53,7 +54,7 @@ def _load_controller(path):
     import json
 
     if not os.path.exists(path):
-        raise VerifyError(f"{path!r} does not exist (make one with python -m gsa_jax.export RUN --out FILE)")
+        raise VerifyError(f"{path!r} does not exist (make one with gsa export RUN --out FILE)")
     if not zipfile.is_zipfile(path):
         raise VerifyError(f"{path!r} is not an exported controller (not an .npz archive)")
     try:

@@ -4,7 +4,7 @@
 
 Run with dm_control and a MuJoCo it supports (here dm_control 1.0.50 with mujoco 3.17.0 in a venv of its own).
 """
-import sys, json, glob, time
+import sys, json
 import numpy as np
 from dm_control import suite
 

@@ -16,7 +16,7 @@ fi
 (nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv 2>&1; nproc; date -u) | tee "$OUT/device.txt"
 $PY -c "import jax, mujoco; print('jax', jax.__version__, 'mujoco', mujoco.__version__, jax.devices())" 2>&1 | tee -a "$OUT/device.txt"
 t0=$(date +%s)
-timeout $LIMIT $PY -m gsa_jax.answer --env Hopper-v5 --backend mjx --looks $LOOKS --steps $STEPS --clusters $CLUSTERS \
+timeout $LIMIT $PY -m gsa_jax.answer --env Hopper-v5 --physics mjx --looks $LOOKS --steps $STEPS --clusters $CLUSTERS \
   --budget-minutes $BUDGET --config "$CONFIG" --out "$OUT/answer" > "$OUT/answer.log" 2>&1
 echo "answer rc=$? $(( $(date +%s) - t0 )) s" | tee -a "$OUT/device.txt"
 tail -5 "$OUT/answer.log"

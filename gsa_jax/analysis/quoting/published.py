@@ -1,5 +1,5 @@
-"""Flat PPO against published PPO scores, computed the way the published table computes them:
-`python -m gsa_jax.analysis.quoting.published REFERENCE.csv PER_RUN.csv [PER_RUN.csv ...] --out OUT.csv`.
+"""Flat PPO against published PPO scores, computed the way the published table computes them
+(`gsa published REFERENCE.csv PER_RUN.csv [PER_RUN.csv ...] --out OUT.csv`).
 
 REFERENCE.csv: one published score per task (columns env, mean, std, source; e.g. CleanRL's PPO table,
 whose entries are the mean ± std (ddof 0) over seeds of each run's mean return over its last 100 training
@@ -9,15 +9,10 @@ gets one row: our mean ± std (ddof 0) over seeds of training_return_last_100_ep
 deterministic final score, next to the published entry.
 """
 
-import argparse
-import sys
-
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis.sweeps import columns as C
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
-from gsa_jax.running.runinfo import cli_description
 
 
 def task_name(env: str) -> str:
@@ -47,28 +42,3 @@ def compare(reference: list, runs: list) -> list:
                         "published_env": ref["env"], "published_mean": ref["mean"], "published_std": ref["std"],
                         "published_source": ref["source"]})
     return out
-
-
-def main(argv: list | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quoting.published", description=cli_description(__doc__))
-    p.add_argument("reference", help="CSV of published scores: env, mean, std, source")
-    p.add_argument("per_run", nargs="+", help="per_run_scores.csv files of gsa_jax.plot")
-    p.add_argument("--out", required=True, help="the comparison CSV to write")
-    args = p.parse_args(argv)
-    try:
-        rows = compare(read_csv(args.reference), [r for path in args.per_run for r in read_csv(path)])
-    except (OSError, KeyError) as e:
-        print(f"gsa_jax.analysis.quoting.published: error: {e}", file=sys.stderr)
-        return 2
-    if not rows:
-        print("gsa_jax.analysis.quoting.published: error: no flat PPO task matches a published one", file=sys.stderr)
-        return 2
-    write_csv(args.out, rows)
-    for r in rows:
-        print(f"{r['env']} ({r['seeds']} seeds): {r['last_100_episodes_mean']:.0f} ± {r['last_100_episodes_std']:.0f}"
-              f"  vs {r['published_env']}: {float(r['published_mean']):.0f} ± {float(r['published_std']):.0f}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

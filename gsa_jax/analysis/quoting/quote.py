@@ -1,5 +1,5 @@
-"""Numbers in Markdown pages quoted from the committed tables, so that they cannot drift from them:
-`python -m gsa_jax.analysis.quoting.quote PAGE.md [PAGE.md ...] [--check]`.
+"""Numbers in Markdown pages quoted from the committed tables, so that they cannot drift from them
+(`gsa quote PAGE.md [PAGE.md ...] [--check]`).
 
 Each span `<!-- quote KIND FILE [column=value ...] [option=value ...] -->TEXT<!-- /quote -->` has its
 TEXT rewritten from FILE (a CSV path relative to the page: final_returns.csv, per_run_scores.csv,
@@ -18,15 +18,12 @@ value "a,b" matches either; quote a value with spaces: config="K = 0.5 d_a"). KI
              deterministic controllers reached `threshold` and the median env step where they first did
 Options: col (default final_score), pm, ci, digits (default 0; thousands are separated by commas),
 threshold, order. Tables give half-widths under 10 with one decimal.
---check rewrites nothing and exits 1 naming every span whose TEXT is not what the tables give.
 """
 
-import argparse
 import math
 import os
 import re
 import shlex
-import sys
 from decimal import ROUND_HALF_UP, Decimal
 from typing import Sequence
 
@@ -35,14 +32,14 @@ import numpy as np
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps.results import read_csv
-from gsa_jax.running.runinfo import cli_description
+from gsa_jax.errors import UserError
 
 SPAN = re.compile(r"<!-- quote (?P<args>.*?) -->(?P<text>.*?)<!-- /quote -->", re.S)
 OPTIONS = ("col", "pm", "ci", "digits", "threshold", "order")
 
 
-class QuoteError(ValueError):
-    pass
+class QuoteError(UserError, ValueError):
+    """A quote span the tables cannot fill (a bad argument, a missing file or column, no matching row)."""
 
 
 def fmt(x: float | str, digits: int = 0) -> str:
@@ -207,29 +204,3 @@ def requote(text: str, page_dir: str) -> tuple:
         return f"<!-- quote {m['args']} -->{new}<!-- /quote -->"
 
     return SPAN.sub(one, text), changed
-
-
-def main(argv: list | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.analysis.quoting.quote", description=cli_description(__doc__))
-    p.add_argument("pages", nargs="+", metavar="PAGE", help="Markdown pages")
-    p.add_argument("--check", action="store_true", help="rewrite nothing; exit 1 if any quoted number is stale")
-    args = p.parse_args(argv)
-    stale = 0
-    for page in args.pages:
-        try:
-            with open(page) as f:
-                text, changed = requote(f.read(), os.path.dirname(page) or ".")
-        except (OSError, QuoteError) as e:
-            print(f"gsa_jax.analysis.quoting.quote: error: {page}: {e}", file=sys.stderr)
-            return 2
-        for spec, old, new in changed:
-            print(f"{page}: quote {spec}: {old.strip()[:80]!r} -> {new.strip()[:80]!r}")
-        stale += len(changed)
-        if changed and not args.check:
-            with open(page, "w") as f:
-                f.write(text)
-    return 1 if args.check and stale else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

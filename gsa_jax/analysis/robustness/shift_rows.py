@@ -4,12 +4,13 @@ into cells; shared by the evaluation (retention_eval), its statistics (retention
 the paired pushes (paired) and the fair comparisons (fairness)."""
 
 from gsa_jax.deployment.shifts import Shift
+from gsa_jax.errors import UserError
 
 TIDY = ("env", "policy", "K", "seed", "shift", "level", "score", "nominal_score", "random_score", "retained_fraction")
 RETAINED_CI = ("retained_iqm", "retained_ci_low", "retained_ci_high")  # aggregate.csv: IQM [95% CI] of the fraction
 
 
-class RobustnessError(ValueError):
+class RobustnessError(UserError, ValueError):
     pass
 
 

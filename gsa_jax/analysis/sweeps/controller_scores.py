@@ -22,6 +22,7 @@ import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.errors import UserError
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
 START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
@@ -32,7 +33,7 @@ COLUMNS = ("label", "env", "policy", "K", "seed", "sha256", "episodes", "start_s
            "episode_std", "length_mean", "simulator", "mujoco_version")
 
 
-class ScoreError(Exception):
+class ScoreError(UserError):
     pass
 
 

@@ -9,11 +9,12 @@ import os
 
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.exporting import controller_arrays
+from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import save_npz_atomic, write_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, finished_runs
 
 
-class ExtractError(Exception):
+class ExtractError(UserError):
     pass
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from envs.physics import nest_physics, record_backend
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
+from gsa_jax.errors import UserError
 from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.runinfo import describe_changes
 
@@ -24,7 +25,7 @@ _METRIC_COLS = set(TIDY_METRICS)
 _SERIES = ("env_steps", "episode_return", "episodes", "eval_return", "eval_failures")
 
 
-class PlotError(ValueError):
+class PlotError(UserError, ValueError):
     pass
 
 

@@ -25,6 +25,7 @@ from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.sweeps.extraction import collect_results
 from gsa_jax.analysis.verdicts import baseline, ladder, sequential, trimmed, verdict
+from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
 
@@ -34,7 +35,7 @@ DEFAULT_LOOKS = (10, 20, 40)
 DEFAULT_SPENDING = "pocock"
 
 
-class AnswerError(Exception):
+class AnswerError(UserError):
     pass
 
 
@@ -356,7 +357,7 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable) -> dict:
         status = proc.wait()
     if status not in (0, 1):  # 1: some runs failed (NaN/inf): they are left out, as gsa_jax.plot leaves them out
         raise AnswerError(f"the sweep {name} stopped with exit status {status} (log: {os.path.join(out, 'logs', name + '.log')}); "
-                          "run the same command again to resume")
+                          "run the same command again to resume", exit_status=3)
     collect_results(sweep_dir, results)
     controller_scores.score_directory(results, log=None)
     return {"seconds": round(time.monotonic() - t0, 1), "compile_s": round(compile_s, 1), "status": status}

@@ -27,6 +27,7 @@ import numpy as np
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.verdicts import trimmed
+from gsa_jax.errors import UserError
 
 REFERENCES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ppo_references.csv")
 COLUMNS = ("task", "published_task", "score", "std", "seeds", "steps", "metric", "algorithm", "source", "note")
@@ -35,7 +36,7 @@ WINDOW = 0.05  # the share of the steps each end of the last fifth averages its 
 LEARNING_LEVEL = 0.05  # one-sided: 'stopped learning' when the last fifth's gain is shown below the margin at this level
 
 
-class ReferenceError(ValueError):
+class ReferenceError(UserError, ValueError):
     pass
 
 

@@ -1,5 +1,5 @@
-"""Where the compiled PPO program's time goes, part by part: `python -m gsa_jax.profile [--envs A,B] [--out DIR]`
-(make profile).
+"""Time the compiled PPO program part by part, to see where its time goes (`gsa profile [--envs A,B]
+[--out DIR]`, make profile).
 
 For each task and policy, one PPO iteration of a sweep worker's sub-batch of runs (--runs, default the sweep's
 8) is split into MuJoCo C, the host calls, the env step's compiled side and PPO's own parts (policy sampling,
@@ -16,26 +16,27 @@ import sys
 import time
 
 import envs
-from envs.task import TaskError
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.algorithm.config import Config
 from gsa_jax.benchmark.parts import profile_parts
+from gsa_jax.cli import command_parser, run_command
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import RUN_BATCH
-from gsa_jax.running.runinfo import cli_description, run_metadata
+from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.supervise import SINGLE_THREAD_EIGEN
 from gsa_jax.running.spec import SpecError, single_group
 
 DEFAULT_ENVS = "Hopper-v5,Walker2d-v5,HalfCheetah-v5,InvertedDoublePendulum-v5,Ant-v5,dmc:cartpole-swingup"
 
 
-def build_parser():
-    """The command line (see the module docstring)."""
-    p = argparse.ArgumentParser(prog="python -m gsa_jax.profile", description=cli_description(__doc__))
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa profile`'s options."""
+    p = command_parser("profile", __doc__)
     p.add_argument("--envs", default=DEFAULT_ENVS, help=f"comma-separated task names (default {DEFAULT_ENVS})")
     p.add_argument("--policies", default="mixture,mlp", help="comma-separated: mixture, mlp (default both)")
-    p.add_argument("--clusters", type=int, default=6, help="K of the mixture (default 6, as gsa_jax.bench)")
+    p.add_argument("--clusters", type=int, default=6, help="K of the mixture (default 6, as gsa bench)")
     p.add_argument("--runs", type=int, default=RUN_BATCH, help=f"runs vmapped together (default {RUN_BATCH}: one sweep sub-batch)")
-    p.add_argument("--backend", default="c", help="physics backend: c (default) or mjx")
+    p.add_argument("--physics", default="c", help="physics backend: c (default: MuJoCo C inside the program) or mjx")
     p.add_argument("--repeats", type=int, default=5, help="timed calls per piece (median; default 5)")
     p.add_argument("--cores", type=int, default=1,
                    help="CPU cores the profile runs on (default 1: one of a sweep's worker processes on its share of "
@@ -44,7 +45,7 @@ def build_parser():
     return p
 
 
-def pin_cores(cores):
+def pin_cores(cores: int) -> None:
     """Before jax starts its backend: run on the first `cores` cores, with a sweep worker's XLA flag when one."""
     if not cores:
         return
@@ -56,14 +57,14 @@ def pin_cores(cores):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_EIGEN).strip()
 
 
-def sweep_config(env, policy, K, runs, backend):
+def sweep_config(env: str, policy: str, K: int, runs: int, backend: str) -> Config:
     """The static Config a sweep of these runs would train with (its defaults, this backend); a task defined in
     Python is made here, so that a missing dependency (dm_control for dmc: tasks) is refused before any profiling."""
     envs.task_record(env).load()
     return single_group(env, policy, K, list(range(runs)), backend, source="gsa_jax.profile")[1]
 
 
-def table(prof):
+def table(prof: dict) -> str:
     """A profile as a markdown table (one row per part)."""
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
     head = (f"### {prof['env']}, {prof['policy']}" + (f" K={prof['K']}" if prof["K"] else "") + f", {prof['runs']} runs, "
@@ -79,8 +80,8 @@ def table(prof):
     return head + "\n".join(rows) + "\n"
 
 
-def main(argv=None):
-    """Profile every task x policy asked for; 2 (one line on stderr, nothing changed) for bad input."""
+def profile(argv: list | None) -> int:
+    """Profile every task x policy asked for; bad input changes nothing."""
     args = build_parser().parse_args(argv)
     envs_, policies = [e for e in args.envs.split(",") if e], [q for q in args.policies.split(",") if q]
     try:
@@ -89,11 +90,10 @@ def main(argv=None):
                 raise SpecError(f"{flag} must be >= {least}, got {value}")
         if not envs_ or not policies:
             raise SpecError(f"--envs and --policies must name at least one each, got {args.envs!r} and {args.policies!r}")
-        configs = [(sweep_config(e, q, args.clusters, args.runs, args.backend), q) for e in envs_ for q in policies]
+        configs = [(sweep_config(e, q, args.clusters, args.runs, args.physics), q) for e in envs_ for q in policies]
         pin_cores(args.cores)  # last: a refused command leaves the calling process as it was
-    except (ValueError, TaskError) as e:  # SpecError is a ValueError; an unknown task name too
-        print(f"gsa_jax.profile: error: {e}", file=sys.stderr)
-        return 2
+    except ValueError as e:
+        raise SpecError(e) from None
     os.makedirs(args.out, exist_ok=True)
     report = {"command": sys.argv, "cores": sorted(os.sched_getaffinity(0)), "profiles": [], **run_metadata()}
     t0 = time.perf_counter()
@@ -109,5 +109,6 @@ def main(argv=None):
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def main(argv: list | None = None) -> int:
+    """`gsa profile`: exit status 0, or 2 on bad input (nothing changed)."""
+    return run_command("profile", lambda: profile(argv))

@@ -1,0 +1,119 @@
+"""`gsa COMMAND [options]`: the project's commands behind one entry point. Each command is one module of
+gsa_jax/commands/ (its docstring's first line is its line in `gsa --help`); `python -m gsa_jax.X` runs the same.
+
+Exit status: 0 done, 2 bad input (one line on stderr, `gsa COMMAND: error: ...`), 130 interrupted; a command's
+own further statuses are in its --help."""
+
+import argparse
+import importlib
+import json
+import sys
+from typing import Callable
+
+from gsa_jax.errors import UserError
+
+COMMANDS = {  # command -> its module under gsa_jax.commands
+    "train": "train", "sweep": "sweep", "answer": "answer", "score": "score", "plot": "plot", "inspect": "inspect_run",
+    "export": "export", "deploy": "deploy", "verify": "verify", "robustness": "robustness", "tune": "tune",
+    "bench": "bench", "profile": "profile_parts", "render": "render", "extract": "extract", "quote": "quote",
+    "published": "published",
+}
+
+
+class CommandParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one UserError line (argparse prints its usage block otherwise)."""
+
+    def error(self, message: str) -> None:
+        raise UserError(f"{message} (see {self.prog} --help)")
+
+
+def whole_number(text: str) -> int:
+    """An option's integer as people write counts: 1000000, 1_000_000 or 1e6 (argparse type; 1.5e0 is refused)."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        value = float("nan")
+    if not value.is_integer():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (write e.g. 1000000, 1_000_000 or 1e6)")
+    return int(value)
+
+
+def command_parser(name: str, doc: str) -> CommandParser:
+    """The parser of `gsa NAME`: its description is the first paragraph of the command's docstring."""
+    from gsa_jax.running.runinfo import cli_description
+
+    return CommandParser(prog=f"gsa {name}", description=cli_description(doc))
+
+
+def read_saved(path: str, error: type, options_of: Callable = dict) -> tuple:
+    """(the settings a run, sweep or evaluation saved in the JSON file `path`, options_of(them)); an unreadable
+    record, or one options_of cannot read, is `error` (a UserError class) in one line."""
+    try:
+        with open(path) as f:
+            saved = json.load(f)
+        return saved, options_of(saved)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise error(f"{path} is not a gsa_jax record to continue ({type(e).__name__}: {e})") from None
+
+
+def options_over_saved(parser: argparse.ArgumentParser, argv: list | None, path: str, options_of: Callable,
+                       error: type) -> tuple:
+    """(argv parsed over the settings saved in the JSON file `path`, the saved record): options_of(record) gives
+    option values (dest -> value) that replace the parser's defaults, so the options typed win and the rest
+    continue as saved (read_saved: an unreadable record is `error` in one line)."""
+    saved, defaults = read_saved(path, error, options_of)
+    parser.set_defaults(**defaults)
+    return parser.parse_args(argv), saved
+
+
+def run_command(name: str, body: Callable[[], int]) -> int:
+    """Run a command's body and return its exit status: a UserError is one line on stderr and its status, an
+    interrupt 130."""
+    try:
+        return body()
+    except UserError as e:
+        print(f"gsa {name}: error: {e}", file=sys.stderr)
+        return e.exit_status
+    except KeyboardInterrupt:
+        print(f"gsa {name}: interrupted", file=sys.stderr)
+        return 130
+
+
+def summary_line(name: str) -> str:
+    """A command's line in `gsa --help`: its module docstring's opening words, up to its usage in parentheses or
+    the first sentence's end."""
+    from gsa_jax.running.runinfo import cli_description
+
+    text = cli_description(importlib.import_module(f"gsa_jax.commands.{COMMANDS[name]}").__doc__)
+    for stop in (" (`gsa ", ". ", ": "):
+        text = text.split(stop)[0]
+    return text.rstrip(".")
+
+
+def usage() -> str:
+    """`gsa --help`: every command with its line."""
+    width = max(map(len, COMMANDS))
+    rows = [f"  {name:<{width}}  {summary_line(name)}" for name in COMMANDS]
+    return "usage: gsa COMMAND [options]   (gsa COMMAND --help: its options)\n\ncommands:\n" + "\n".join(rows) + "\n"
+
+
+def main(argv: list | None = None) -> int:
+    """`gsa COMMAND ...`: run COMMAND's main on the rest of the command line."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage(), end="")
+        return 0 if argv else 2
+    if argv[0] not in COMMANDS:
+        print(f"gsa: error: unknown command {argv[0]!r}; choose one of {', '.join(COMMANDS)} (see gsa --help)",
+              file=sys.stderr)
+        return 2
+    module = importlib.import_module(f"gsa_jax.commands.{COMMANDS[argv[0]]}")
+    return module.main(argv[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

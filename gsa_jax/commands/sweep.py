@@ -1,0 +1,250 @@
+"""Train a sweep: a grid of (env, policy, K, seed, hyperparameters) as one vmapped program per (env, policy).
+
+    gsa sweep experiments/fig1_small/fig1_small.toml [--out DIR] [--devices N]
+    make sweep EXP=experiments/fig1_small/fig1_small.toml
+    gsa sweep --resume DIR      # continue the sweep in DIR as its sweep.json recorded it
+
+Every run of an (env, policy) group trains at once: `jax.vmap` over the runs, the run axis
+sharded over the local devices (`shard_map`). On a CPU, use the cores with --local-processes N
+(default: one per core): N worker processes, each training its share of every group's runs
+on its own XLA CPU device (or set --xla_force_host_platform_device_count and --local-processes 1); worker 0
+compiles each group's program and the others load it from the sweep's compilation cache (gsa_jax.running.xla_cache).
+Training goes in chunks of iterations; after each chunk the group's state, its
+metrics and the tidy `metrics.csv` are written atomically, so a killed sweep resumes from its
+last chunk when the same command runs again (or `--resume DIR` alone) and ends with the same results. A supervisor
+process watches a heartbeat and restarts a worker whose chunk takes far longer than usual
+(XLA:CPU has been seen to hang in large vmapped MJX programs).
+
+Output (DIR, default runs/sweeps/<name>):
+  sweep.json            the spec, every run of the grid, runs per sub-batch, versions, git commit; failed_runs at the end
+  metrics.csv           tidy: one row per run per iteration (env, policy, K, seed, swept hparams, metrics with
+                        eval_return, the deterministic controller's mean return where evaluated; a swept
+                        hparam named like a metric is hparam_<name>, e.g. hparam_lr next to the annealed lr)
+  groups/<env>-<policy>/{state.npz, metrics.npz (+ their .prev.npz), params.npz, runs.csv, failed.json, DONE}
+  tensorboard/<run>/    TensorBoard event files of every run (tensorboard --logdir DIR; --no-tensorboard: none)
+  LOCK                  pid and host of the sweep writing DIR (a second one is refused)
+  xla_cache/            compiled programs (JAX's persistent cache): worker 0 compiles each group's
+                        program once, the other workers and any resumed run load it (seconds)
+With --num-processes P each process writes its share under DIR/process-<i>/ (`gsa plot` merges them).
+
+Failures are loud and lose nothing: a run whose loss or parameters turn NaN/inf is frozen inside the
+compiled program (ppo.guarded_iteration; the others train on bit for bit), its metrics end there and
+its last finite parameters are kept; sweep.json and the final summary list it and the sweep exits 1.
+A checkpoint unreadable on resume falls back to its previous version; a full disk stops with one line
+(exit 4) and the same command resumes once space is freed; a changed experiment file is refused with
+the difference (--force continues with it). Exit status: 0 done (or stopped as asked), 1 some runs failed
+(NaN/inf), 2 bad input or a locked / changed / unreadable output directory, 3 a worker hung repeatedly, 4 disk full,
+130 interrupted.
+
+Experiment file (TOML):
+  name = "fig1_small"
+  envs = ["inverted_double_pendulum", "hopper"]
+  policies = ["mlp", "mixture"]
+  cluster_multipliers = [0.5, 1, 2, 4]   # K = ceil(m * action_dim); or: clusters = [2, 4, 6]
+  subpolicies = ["constant", "linear"]    # optional: sub-policy classes of the mixtures (default linear)
+  value_targets = ["gae", "retrace"]      # optional: the critics to compare (default [config] value_target, gae)
+  seeds = 8                               # seeds 0..7, or a list [0, 5, 9]
+  steps = 200_000                         # env steps per run
+  chunk = 10                              # PPO iterations per compiled chunk (optional)
+  eval_every = 8                          # iterations between deterministic evaluations (default ~25 per run; 0: none)
+  eval_seed = 0                           # evaluation start states: the same for every run of the sweep
+  [hparams]                               # scalars, or lists to sweep over (every combination)
+  lr = 3e-4
+  eps_decay = [0.99, 0.995]
+  [config]                                # static gsa_jax.algorithm.config.Config fields (num_envs, unroll_length, ...)
+  num_envs = 32
+"""
+
+import argparse
+import os
+import sys
+from typing import Callable
+
+import jax
+
+from gsa_jax.cli import command_parser, options_over_saved, run_command
+from gsa_jax.errors import UserError
+from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
+from gsa_jax.running.programs import RUN_BATCH
+from gsa_jax.running.runinfo import resume_command
+from gsa_jax.running.runlock import hold
+from gsa_jax.running.spec import SpecError, SweepSpec, check_spec, load_spec
+from gsa_jax.running.supervise import heartbeat_writer, supervise
+from gsa_jax.running.sweeps import EXIT_DISK_FULL, EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """`gsa sweep`'s options (and its worker processes')."""
+    p = command_parser("sweep", __doc__)
+    p.add_argument("experiment", nargs="?", default=None,
+                   help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml (with --resume: optional)")
+    p.add_argument("--resume", metavar="DIR", default=None,
+                   help="continue the sweep in DIR with the experiment, local worker count, sub-batch size and "
+                        "TensorBoard setting its sweep.json recorded (an experiment file given too must match it, or --force)")
+    p.add_argument("--out", default=None, help="output directory (default runs/sweeps/<name>)")
+    p.add_argument("--devices", type=int, default=None, help="shard each worker's runs over its first N local devices (default: all)")
+    p.add_argument("--local-processes", type=int, default=None,
+                   help="worker processes on this machine, each with its share of the runs (default: one per CPU core)")
+    p.add_argument("--no-watchdog", action="store_true", help="run in this process, without the restarting supervisor")
+    p.add_argument("--watchdog-min", type=float, default=600.0, help="seconds without progress before a restart (at least)")
+    p.add_argument("--max-restarts", type=int, default=5)
+    p.add_argument("--stop-after-chunks", type=int, default=None, help="stop (resumably) after N chunks")
+    p.add_argument("--coordinator", default=None, help="host:port of process 0, for multi-process sweeps")
+    p.add_argument("--num-processes", type=int, default=1)
+    p.add_argument("--process-id", type=int, default=0)
+    p.add_argument("--run-batch", type=int, default=RUN_BATCH,
+                   help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
+                        "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
+    p.add_argument("--force", action="store_true", help="resume even if the experiment file changed (continues with the new spec)")
+    p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
+                   help="no TensorBoard event files (default: OUT/tensorboard/<run>/, open with tensorboard --logdir OUT)")
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    return p
+
+
+def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
+    """Option values (dest -> value) that give back a saved sweep's settings (its sweep.json): what --resume DIR
+    continues with (the spec is checked apart)."""
+    meta["spec"]
+    saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
+    if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
+        saved["local_processes"] = meta["num_processes"]
+    return {"out": out, **saved}
+
+
+def parse_args(argv: list) -> argparse.Namespace:
+    """The command line; with --resume DIR, parsed again over the settings DIR/sweep.json recorded (options not
+    typed take them). Raises SpecError."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.resume is None:
+        if args.experiment is None:
+            raise SpecError("give an experiment file (TOML), or --resume DIR to continue a sweep")
+        return args
+    if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
+        raise SpecError(f"--resume {args.resume} and --out {args.out} name different directories")
+    path = os.path.join(args.resume, "sweep.json")
+    if not os.path.exists(path):
+        raise SpecError(f"--resume {args.resume}: no sweep there (no sweep.json); start one with gsa sweep "
+                        f"EXPERIMENT --out {args.resume}")
+    coordinator = args.coordinator
+    args, meta = options_over_saved(parser, argv, path, lambda m: saved_options(m, args.resume, coordinator), SpecError)
+    args.saved_spec = meta["spec"]
+    return args
+
+
+def check_args(args: argparse.Namespace, argv: list) -> tuple:
+    """(spec, out, local worker count) after checking every argument; raises SpecError. Nothing compiles."""
+    if args.experiment is None:
+        spec = check_spec(args.saved_spec, source=os.path.join(args.resume, "sweep.json"))
+    else:
+        spec = load_spec(args.experiment)
+    if args.num_processes < 1 or not 0 <= args.process_id < args.num_processes:
+        raise SpecError(f"--process-id must be in 0..{args.num_processes - 1}")
+    out = args.out or os.path.join("runs", "sweeps", spec.name)
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as e:
+        raise SpecError(f"--out {out!r} cannot be created: {e.strerror or e}") from None
+    local = args.local_processes if args.local_processes is not None else (1 if args.no_watchdog else (os.cpu_count() or 1))
+    if args.num_processes > 1 or args.worker:
+        local = 1  # multi-host: one process per host runs here, as launched
+    if local < 1:
+        raise SpecError("--local-processes must be >= 1")
+    if args.run_batch < 0:
+        raise SpecError(f"--run-batch must be >= 0, got {args.run_batch}")
+    return spec, out, local
+
+
+def sweep(argv: list, after_chunk: Callable | None = None) -> int:
+    """Check the command line, then train this process's share or supervise the workers. after_chunk: see
+    run_worker."""
+    args = parse_args(argv)
+    spec, out, local = check_args(args, argv)
+    if args.worker:
+        return run_worker(args, spec, out, after_chunk)
+    lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
+    os.makedirs(lock_dir, exist_ok=True)
+    with hold(lock_dir, f"gsa_jax.sweep {spec.name}", log=lambda m: print(m, file=sys.stderr)):
+        if local > 1 or not args.no_watchdog:
+            return supervise_workers(args, argv, out, local)
+        return run_worker(args, spec, out, after_chunk)
+
+
+def main(argv: list | None = None, after_chunk: Callable | None = None) -> int:
+    """`gsa sweep` (exit statuses: the module docstring). after_chunk: see run_worker."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return run_command("sweep", lambda: sweep(argv, after_chunk))
+
+
+def supervise_workers(args: argparse.Namespace, argv: list, out: str, local: int) -> int:
+    """Start the worker processes under the watchdog; then collect failed runs into sweep.json."""
+    base = list(argv) + (["--out", out] if args.out is None else [])
+    if local > 1:
+        argvs = [base + ["--process-id", str(i), "--num-processes", str(local), "--local-processes", "1"] for i in range(local)]
+        dirs = [os.path.join(out, f"process-{i}") for i in range(local)]
+        print(f"sweep: {local} local worker processes (one XLA CPU device each); logs prefixed [process i]", flush=True)
+    else:
+        argvs = [base]
+        dirs = [out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")]
+    for d in dirs:
+        os.makedirs(d, exist_ok=True)
+    cmds = [[sys.executable, "-m", "gsa_jax.sweep", *a, "--worker"] for a in argvs]
+    status = supervise(cmds, dirs, args.watchdog_min, args.max_restarts)
+    if status == 0:
+        try:
+            if report_failures(out, dirs):
+                return EXIT_FAILED_RUNS
+        except DiskFullError as e:
+            raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
+        print(f"sweep complete: {out}", flush=True)
+    return status
+
+
+def run_worker(args: argparse.Namespace, spec: SweepSpec, out: str, after_chunk: Callable | None = None) -> int:
+    """Train this process's share in this process (a supervised worker, or --no-watchdog). after_chunk:
+    called after every chunk's heartbeat (tests inject faults with it)."""
+    if args.num_processes > 1 and args.coordinator:
+        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+        # eager arrays (the MJX model Brax builds) would otherwise land on global device 0, which
+        # belongs to process 0; each process works on its own devices only
+        jax.config.update("jax_default_device", jax.local_devices()[0])
+    devices = jax.local_devices()
+    if args.devices is not None:
+        if not 1 <= args.devices <= len(devices):
+            raise SpecError(f"--devices must be in 1..{len(devices)}")
+        devices = devices[: args.devices]
+    wdir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
+    os.makedirs(wdir, exist_ok=True)
+    beat = heartbeat_writer(wdir)
+
+    def heartbeat(duration):
+        beat(duration)
+        if after_chunk:
+            after_chunk()
+
+    try:
+        options = SweepOptions(tuple(devices), args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,
+                               heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
+                               tensorboard=args.tensorboard)
+        complete = run_sweep(spec, out, options)
+    except CheckpointError as e:
+        raise CheckpointError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
+    except DiskFullError as e:
+        raise disk_full(e, getattr(e, "last_intact", "none (nothing trained yet)")) from None
+    if not args.quiet:
+        again = "" if args.coordinator else f" or: {resume_command('gsa_jax.sweep', '--resume', out)}"
+        done_msg = f"done: {out}" if complete else f"stopped: {out}; continue with the same command{again}"
+        print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg, flush=True)
+    if args.worker or args.num_processes > 1:
+        return 0
+    try:
+        return EXIT_FAILED_RUNS if report_failures(out, [wdir], log=print) else 0
+    except DiskFullError as e:
+        raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
+
+
+def disk_full(e: DiskFullError, intact: str) -> UserError:
+    """A full disk as the sweep's one-line error (exit status 4), naming the checkpoint left intact."""
+    return UserError(e.describe(intact), exit_status=EXIT_DISK_FULL)

@@ -1,0 +1,102 @@
+"""`gsa`: one entry point lists every command; each command's --help and its `python -m gsa_jax.X` shim work; a bad
+option of any command is one line and exit status 2; counts are written as people write them (1e6)."""
+
+import argparse
+import importlib
+import os
+import subprocess
+import sys
+import tomllib
+
+import pytest
+
+from gsa_jax import cli
+from gsa_jax.cli import COMMANDS, whole_number
+
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+SHIMS = {  # python -m <module> -> the command it runs
+    **{f"gsa_jax.{name}": name for name in ("train", "sweep", "answer", "score", "plot", "export", "deploy",
+                                             "robustness", "tune", "bench", "render", "extract")},
+    "gsa_jax.inspect": "inspect", "gsa_jax.verify": "verify",
+}
+
+
+def test_gsa_help_lists_every_command_with_one_line(capsys):
+    """`gsa --help` names every command of gsa_jax/commands/ once, each with a line of words."""
+    modules = {n[:-3] for n in os.listdir(os.path.join(ROOT, "gsa_jax", "commands")) if n.endswith(".py")} - {"__init__"}
+    assert set(COMMANDS.values()) == modules
+    assert cli.main(["--help"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    for name in COMMANDS:
+        line = next(row for row in lines if row.split()[:1] == [name])
+        assert len(line.split()) >= 4 and len(line) < 120, line
+
+
+def test_the_console_script_is_the_front_door():
+    with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:
+        target = tomllib.load(f)["project"]["scripts"]["gsa"]
+    module, _, name = target.partition(":")
+    assert getattr(importlib.import_module(module), name) is cli.main
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_every_command_has_help(name, capsys):
+    with pytest.raises(SystemExit) as stop:
+        cli.main([name, "--help"])
+    assert stop.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: gsa {name} ")
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_a_bad_option_of_every_command_is_one_line_and_exit_2(name, capsys):
+    assert cli.main([name, "--no-such-option"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"gsa {name}: error: ") and f"gsa {name} --help" in err, err
+
+
+def test_an_unknown_command_is_one_line_and_exit_2(capsys):
+    assert cli.main(["trian"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown command 'trian'" in err and "train" in err
+
+
+@pytest.mark.parametrize("module", sorted(m for m in SHIMS if m not in ("gsa_jax.inspect", "gsa_jax.verify")))
+def test_every_python_m_shim_runs_its_command(module):
+    assert importlib.import_module(module).main is importlib.import_module(f"gsa_jax.commands.{COMMANDS[SHIMS[module]]}").main
+
+
+@pytest.mark.parametrize("argv", [["gsa_jax", "--help"], ["gsa_jax.cli", "export", "--help"], ["gsa_jax.export", "--help"],
+                                  ["gsa_jax.inspect", "--help"], ["gsa_jax.verify", "--help"]])
+def test_python_m_forms_in_a_new_process(argv):
+    done = subprocess.run([sys.executable, "-m", *argv], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert done.returncode == 0, done.stderr
+    name = argv[1] if argv[0] == "gsa_jax.cli" else SHIMS.get(argv[0])
+    assert done.stdout.startswith(f"usage: gsa {name} " if name else "usage: gsa COMMAND"), done.stdout[:200]
+
+
+def test_a_count_is_written_as_people_write_it():
+    assert whole_number("1e6") == whole_number("1_000_000") == whole_number("1000000") == 1_000_000
+    assert whole_number("2.5e3") == 2500
+    for text in ("1.5e0", "ten", "nan", "inf"):
+        with pytest.raises(argparse.ArgumentTypeError, match="is not a whole number"):
+            whole_number(text)
+
+
+@pytest.mark.parametrize("name", ["train", "answer"])
+def test_steps_take_1e6_and_refuse_a_fraction_in_one_line(name, capsys):
+    module = importlib.import_module(f"gsa_jax.commands.{name}")
+    required = ["--env", "hopper"] if name == "answer" else []
+    assert module.build_parser().parse_args(required + ["--steps", "1e6"]).steps == 1_000_000
+    assert module.main(required + ["--steps", "1.5e0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'1.5e0' is not a whole number" in err, err
+
+
+def test_the_physics_option_has_one_name_in_every_command():
+    """train, answer, bench and profile call the physics backend --physics; none calls it --backend."""
+    for name in COMMANDS:
+        options = {o for a in importlib.import_module(f"gsa_jax.commands.{COMMANDS[name]}").build_parser()._actions
+                   for o in a.option_strings}
+        assert "--backend" not in options, name
+        if name in ("train", "answer", "bench", "profile"):
+            assert "--physics" in options, name
