@@ -21,9 +21,12 @@ LOOKUPS = {"resolve", "task_record", "check_name", "check_task", "is_name", "res
            "has_c_backend", "default_episode_length", "max_return", "task_model", "action_size", "observation_size",
            "action_bounds", "control_range", "task_randomize", "make_c", "observation_layout"}
 ALLOWED = {  # path or folder -> why its modules still look a name up
-    "gsa_jax/algorithm/ppo.py": "Config.__post_init__ and validate resolve cfg.env (the Config move of issue 74 item 4 "
-                                "is in progress); make_train(cfg, task) is the library's entry, taking a name, a "
-                                "record or a Task as Brax's train takes an environment",
+    "gsa_jax/algorithm/config.py": "Config is the run's settings as config.json and experiment files write them: it "
+                                   "names its task, and when built fills the task's defaults (episode length, its "
+                                   "declared randomization) from its record; validate(task) takes a record the "
+                                   "caller holds",
+    "gsa_jax/algorithm/ppo.py": "make_train(cfg, task) is the library's entry, taking a name, a record or a Task as "
+                                "Brax's train takes an environment",
     "envs/build.py": "envs.make, make_base, check_backend, check_randomize, as_gymnasium: the library's entry, taking "
                      "a name or a record (resolve() returns a record as it is); make resolves once and passes it on",
     "envs/mujoco_c.py": "make_c(name), observation_layout(name): the library's entry to plain MuJoCo C by name",

@@ -1,13 +1,13 @@
 """Compare flat PPO with published PPO scores, computed the way the published table computes them
 (`gsa published REFERENCE.csv PER_RUN.csv [PER_RUN.csv ...] --out OUT.csv`).
 
-The comparison's rows: gsa_jax.analysis.published.
+The comparison's rows: gsa_jax.analysis.quoting.published.
 """
 
 import argparse
 
-from gsa_jax.analysis.published import compare
-from gsa_jax.analysis.results import read_csv, write_csv
+from gsa_jax.analysis.quoting.published import compare
+from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.errors import UserError
 

@@ -1,14 +1,14 @@
 """Rewrite the numbers quoted in Markdown pages from the committed tables (`gsa quote PAGE.md [PAGE.md ...]
 [--check]`).
 
-The spans and their kinds: gsa_jax.analysis.quote. --check rewrites nothing and exits 1 naming every span whose
+The spans and their kinds: gsa_jax.analysis.quoting.quote. --check rewrites nothing and exits 1 naming every span whose
 TEXT is not what the tables give.
 """
 
 import argparse
 import os
 
-from gsa_jax.analysis.quote import QuoteError, requote
+from gsa_jax.analysis.quoting.quote import QuoteError, requote
 from gsa_jax.cli import command_parser, run_command
 
 
