@@ -1,6 +1,6 @@
 """Tasks by name: `envs.make(name)` returns a single-env Brax environment (reset(key), step(state, action))
 with a time limit and auto-reset; batch it with jax.vmap. A name is resolved once per process into its record
-(`resolve(name)`, also `task_record(name)`: envs/registry.py), which holds everything about the task; the functions
+(`resolve(name)`: envs/registry.py), which holds everything about the task; the functions
 here read it.
 
 Tasks: Brax's MJX variants of the gym MuJoCo benchmarks used in the paper's Figure 1 (BRAX_TASKS),
@@ -33,7 +33,7 @@ from envs.names import (  # noqa: E402
 from envs.physics import mj_model, substeps  # noqa: E402
 from envs.registry import (  # noqa: E402
     action_bounds, action_size, check_name, check_task, control_range, default_episode_length, has_c_backend, is_name,
-    max_return, observation_size, register, resolve, resolve_task, task_model, task_randomize, task_record, task_source, unregister,
+    max_return, observation_size, register, resolve, resolve_task, task_model, task_randomize, task_source, unregister,
 )
 
 __all__ = [
@@ -41,5 +41,5 @@ __all__ = [
     "RESET_MODES", "action_bounds", "action_size", "as_gymnasium", "check_backend", "check_name", "check_randomize",
     "check_task", "control_range", "default_episode_length", "has_c_backend", "is_name", "make", "make_base",
     "max_return", "mj_model", "observation_size", "register", "resolve", "resolve_task", "solver_settings", "substeps",
-    "task_model", "task_randomize", "task_record", "task_source", "unregister",
+    "task_model", "task_randomize", "task_source", "unregister",
 ]

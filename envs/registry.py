@@ -72,7 +72,6 @@ def resolve(task: TaskLike) -> TaskRecord:
     return definition_record(task)
 
 
-task_record = resolve  # the name the rest of the project has long used
 
 
 @functools.lru_cache(maxsize=None)

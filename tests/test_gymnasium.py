@@ -89,7 +89,7 @@ def test_a_task_as_a_gymnasium_env_passes_check_env_and_steps_as_its_mujoco_c_tw
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # unbounded observation boxes, as gymnasium's own MuJoCo tasks have
         check_env(env, skip_render_check=True)
-    twin = envs.task_record(task).make_c()
+    twin = envs.resolve(task).make_c()
     rng = np.random.default_rng(0)
     ends = []
     for seed in range(3):

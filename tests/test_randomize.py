@@ -107,7 +107,7 @@ def test_c_doubled_mass_steps_as_mujoco_c_with_that_mass(hopper_nominal):
     """Every body's mass and inertia x 2 and mj_setConst, stepped by mj_step from the same start rows: equal."""
     acts, (_, ref) = hopper_nominal
     s0, (qpos, _, _, done) = rollout(envs.make("Hopper-v5", physics=C, randomize="mass=2"), acts)
-    task = envs.task_record("Hopper-v5").make_c()
+    task = envs.resolve("Hopper-v5").make_c()
     m = task.model
     m.body_mass[:] *= 2
     m.body_inertia[:] *= 2
@@ -161,7 +161,7 @@ def test_scales_and_push_do_what_they_say_on_a_linear_task(backend):
     0.1 x total mass along +-x: each step equals the linear step of those parameters with force +-0.1 M / dt,
     exactly on 'c' (float32 of the float64 state), to float32 rounding on MJX."""
     physics = C if backend == "c" else Physics()
-    env = envs.make(envs.task_record(PointMass), physics=physics,
+    env = envs.make(envs.resolve(PointMass), physics=physics,
                     randomize="mass=2, damping=1.5, gear=0.5, push=0.1, push_rate=1")
     acts = actions_for(env, 8)
     s0, (qpos, obs, _, _) = rollout(env, acts)
@@ -180,10 +180,10 @@ def test_scales_and_push_do_what_they_say_on_a_linear_task(backend):
 
 
 def test_mjx_nominal_draws_equal_the_nominal_task():
-    env = envs.make(envs.task_record(PointMass))
+    env = envs.make(envs.resolve(PointMass))
     acts = actions_for(env, 10)
     _, ref = rollout(env, acts)
-    _, out = rollout(envs.make(envs.task_record(PointMass), randomize="mass=1, damping=1:1, gear=1"), acts)
+    _, out = rollout(envs.make(envs.resolve(PointMass), randomize="mass=1, damping=1:1, gear=1"), acts)
     for a, b in zip(ref, out):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-6)
 

@@ -68,7 +68,7 @@ def test_sensitivity_is_the_active_piece_or_the_networks_jacobian():
     rng = np.random.default_rng(1)
     obs = rng.normal(0, 1, (5, 11)).astype(np.float32)
     mix = numpy_policy.Controller(controller_arrays("mixture"))
-    np.testing.assert_allclose(action_jacobian_norms(mix, obs), np.linalg.norm(mix.L[mix.cluster(obs)], axis=(1, 2)))
+    np.testing.assert_array_equal(action_jacobian_norms(mix, obs), np.linalg.norm(mix.L[mix.cluster(obs)], axis=(1, 2)))
     mlp = numpy_policy.Controller(controller_arrays("mlp"))
     h = 1e-3
     for i, o in enumerate(obs.astype(np.float64)):
@@ -117,3 +117,22 @@ def test_level_replaces_a_kinds_default_levels_and_bad_levels_are_one_line(tmp_p
         assert main([str(tmp_path / "c.npz"), "--out", str(tmp_path / "o"), "--level", bad]) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and message in err, err
+
+
+def test_sensitivity_of_a_quadratic_mixture_is_its_pieces_jacobian_in_z():
+    """d action / d z of the active piece, L_c d phi / d z, for a sub-policy class that is not linear: checked by
+    central differences of L_c phi(z) + b_c in z (the cluster held)."""
+    from gsa_jax.algorithm import subpolicies
+
+    rng = np.random.default_rng(2)
+    arrays = controller_arrays("mixture")
+    quadratic = subpolicies.get("quadratic")
+    arrays.update(subpolicy=np.array("quadratic"), L=rng.normal(0, 0.3, (3, 3, quadratic.size(11))).astype(np.float32))
+    mix = numpy_policy.Controller(arrays)
+    obs = rng.normal(0, 1, (4, 11)).astype(np.float32)
+    norms = action_jacobian_norms(mix, obs)
+    h = 1e-4
+    for i, (z, c) in enumerate(zip(mix.normalize(obs).astype(np.float64), mix.cluster(obs))):
+        piece = lambda x: mix.L[c].astype(np.float64) @ quadratic.features(x, np)  # noqa: E731
+        cols = [(piece(z + h * e) - piece(z - h * e)) / (2 * h) for e in np.eye(11)]
+        assert norms[i] == pytest.approx(np.linalg.norm(np.array(cols)), rel=1e-4)

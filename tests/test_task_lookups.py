@@ -17,7 +17,7 @@ import os
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 FAMILY_MODULES = ("envs/registry.py", "envs/families/")
 LOOKUP_MODULES = ("envs", "envs.registry", "envs.mujoco_c")
-LOOKUPS = {"resolve", "task_record", "check_name", "check_task", "is_name", "resolve_task", "task_source",
+LOOKUPS = {"resolve", "check_name", "check_task", "is_name", "resolve_task", "task_source",
            "has_c_backend", "default_episode_length", "max_return", "task_model", "action_size", "observation_size",
            "action_bounds", "control_range", "task_randomize", "make_c", "observation_layout"}
 ALLOWED = {  # path or folder -> why its modules still look a name up

@@ -219,7 +219,7 @@ def test_make_train_takes_a_task_object_and_trains_it_as_its_name_does():
     with pytest.raises(ValueError, match="names env 'hopper' but the task given is 'Reacher'"):
         make_train(Config(env="hopper", **small), Reacher)
     mine = Reacher()  # an instance: every use gets its own copy (its own MjModel), the user's object stays as it was
-    record = envs.task_record(mine)
+    record = envs.resolve(mine)
     assert record.name == "Reacher" and record.new() is not mine and record.new().model is not mine.model
 
 

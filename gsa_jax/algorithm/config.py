@@ -103,7 +103,7 @@ class Config:
     def validate(self, task: Any = None) -> "Config":
         """Raise ValueError naming the first bad field (before anything is compiled). task: the task's record
         (envs/registry.py; default: self.env resolved), whose name must be self.env."""
-        task = envs.task_record(self.env if task is None else task)
+        task = envs.resolve(self.env if task is None else task)
         if task.name != self.env:
             raise ValueError(f"the Config names env {self.env!r} but the task given is {task.name!r}: make the Config "
                              "with env=<the task's name>")

@@ -407,7 +407,7 @@ def make_parts(cfg: Config, env: Any, eval_env: Any) -> Parts:
 
 def make_run_parts(cfg: Config, task: Any = None) -> Parts:
     """The Parts of a run of cfg on `task` (as make_train takes it), validated; gsa_jax.benchmark.parts times them."""
-    task = envs.task_record(cfg.env if task is None else task)
+    task = envs.resolve(cfg.env if task is None else task)
     if cfg.episode_length is None:
         cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
     cfg.validate(task)
@@ -418,7 +418,7 @@ def make_run_parts(cfg: Config, task: Any = None) -> Parts:
 def make_train(cfg: Config, task: Any = None) -> Trainer:
     """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...).
 
-    task: what to train, as Brax's train takes an environment: a task name, its record (envs.task_record) or a
+    task: what to train, as Brax's train takes an environment: a task name, its record (envs.resolve) or a
     task definition (an envs.task.Task instance or subclass, named for its class); default: cfg.env. Resolved
     once here; cfg.env must be its name (Config(env=...)); cfg.episode_length None: the task's own."""
     p = make_run_parts(cfg, task)

@@ -60,7 +60,7 @@ def pin_cores(cores: int) -> None:
 def sweep_config(env: str, policy: str, K: int, runs: int, backend: str) -> Config:
     """The static Config a sweep of these runs would train with (its defaults, this backend); a task defined in
     Python is made here, so that a missing dependency (dm_control for dmc: tasks) is refused before any profiling."""
-    envs.task_record(env).load()
+    envs.resolve(env).load()
     return single_group(env, policy, K, list(range(runs)), backend, source="gsa_jax.profile")[1]
 
 

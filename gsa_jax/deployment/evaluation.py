@@ -7,7 +7,7 @@ import zipfile
 
 import numpy as np
 
-from envs import task_record
+from envs import resolve
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.errors import UserError
 
@@ -50,7 +50,7 @@ def load_controller(controller_path: str, force: bool = False) -> tuple:
 def has_mujoco_c(env_name: str) -> bool:
     """Whether plain MuJoCo C runs the controller's task (DeployError, one line, if its name does not resolve)."""
     try:
-        return task_record(env_name).has_c
+        return resolve(env_name).has_c
     except (ValueError, ImportError) as e:  # a name that does not resolve, or a library this machine lacks
         raise DeployError(f"the controller is for {env_name!r}: {' '.join(str(e).split())}") from None
 
@@ -61,7 +61,7 @@ def run_mujoco_c(ctrl: numpy_policy.Controller, env_name: str, config: dict, epi
     from envs.mujoco_c import run_episodes
 
     try:  # a task defined outside the package is imported here: its errors in one line
-        record = task_record(env_name)
+        record = resolve(env_name)
         task = record.make_c()
         length = episode_length or config.get("episode_length") or record.episode_length()
     except ValueError as e:
@@ -97,7 +97,7 @@ def run_gymnasium(ctrl: numpy_policy.Controller, gym: tuple, env_id: str, episod
 def mujoco_c_label(env_name: str) -> str:
     """What runs a task in MuJoCo C, for report lines: our port of Brax's task (or of the Allegro hand), a built-in
     task definition, or the user's own."""
-    return task_record(env_name).mujoco_c_label()
+    return resolve(env_name).mujoco_c_label()
 
 
 def run_mjx(run_dir: str, episodes: int, seed: int = 0) -> tuple:

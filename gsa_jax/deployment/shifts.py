@@ -13,7 +13,7 @@ patched), and every episode starts from the same fixed start states as the nomin
                               level x total mass / dt for one env step dt: an impulse of level x total mass,
                               the momentum of a `level` m/s velocity change of the whole robot as one rigid
                               body (not a velocity set on the root joint),
-                              at each env step with probability PUSH_RATE, in a random horizontal direction
+                              at each env step with probability DEFAULT_PUSH_RATE (envs/randomization.py), in a random horizontal direction
                               (+-x for planar robots)
     Shift("simulator", 0)     the same robot in the other task family: gymnasium's v5 task <-> Brax's
                               variant (envs.mujoco_c ports), where their observation layouts match
@@ -27,7 +27,6 @@ import numpy as np
 from envs.mujoco_c import make_c
 from envs.randomization import DEFAULT_PUSH_RATE, push_force
 
-PUSH_RATE = DEFAULT_PUSH_RATE  # probability of a push at each env step (one every 100 steps on average)
 OTHER_SIMULATOR = {"Hopper-v5": "hopper", "Walker2d-v5": "walker2d", "HalfCheetah-v5": "halfcheetah",
                    "hopper": "Hopper-v5", "walker2d": "Walker2d-v5", "halfcheetah": "HalfCheetah-v5"}
 KINDS = ("nominal", "simulator", "mass", "friction", "gear", "obs_noise", "action_delay", "push")
@@ -72,7 +71,7 @@ def shifted_task(env_name: str, shift: Shift) -> Any:
 
 def push_schedule(rng: np.random.Generator, length: int, planar: bool) -> np.ndarray:
     """[length, 2] horizontal push directions (unit vectors; zero where no push) of one episode."""
-    hit = rng.random(length) < PUSH_RATE
+    hit = rng.random(length) < DEFAULT_PUSH_RATE
     angle = np.where(rng.random(length) < 0.5, 0.0, np.pi) if planar else rng.uniform(0, 2 * np.pi, length)
     return hit[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
 

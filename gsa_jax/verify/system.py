@@ -70,7 +70,7 @@ def _task_definition(env):
     import envs
 
     try:
-        record = envs.task_record(env)
+        record = envs.resolve(env)
     except (ValueError, ImportError) as e:
         raise VerifyError(f"the controller is for {env!r}: {' '.join(str(e).split())}") from None
     if not record.verifiable:

@@ -11,12 +11,14 @@ from typing import Callable, Sequence
 import numpy as np
 
 from envs import action_size, check_name
+from envs.randomization import DEFAULT_PUSH_RATE
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.analysis.robustness.shift_rows import TIDY, RobustnessError, controller_key
 from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.deployment.evaluation import DeployError, load_controller
 from gsa_jax.deployment.numpy_policy import Controller
-from gsa_jax.deployment.shifts import PUSH_RATE, Shift, applies, run_shifted
+from gsa_jax.deployment.shifts import Shift, applies, run_shifted
 from gsa_jax.running.runinfo import run_metadata
 
 START_SEED = 10_000
@@ -69,12 +71,13 @@ def random_score(env_name: str, shift: Shift, seeds: np.ndarray) -> float:
 
 def action_jacobian_norms(ctrl: Controller, obs: np.ndarray) -> np.ndarray:
     """[N] Frobenius norms of d action / d z at observations obs [N, d_s], z the normalized observation:
-    a mixture's active piece L_c (linear sub-policies), an MLP's Jacobian through its tanh layers."""
-    if ctrl.kind == MIXTURE:
-        if ctrl.subpolicy != "linear":
-            raise RobustnessError(f"sensitivity is defined for linear sub-policies, not {ctrl.subpolicy!r}")
-        return np.linalg.norm(ctrl.L[ctrl.cluster(obs)], axis=(1, 2))
+    a mixture's active piece L_c times its sub-policy class's d phi / d z (L_c itself for linear pieces), an MLP's
+    Jacobian through its tanh layers."""
     x = ctrl.normalize(obs)
+    if ctrl.kind == MIXTURE:
+        feature_jacobian = subpolicies.get(ctrl.subpolicy).jacobian
+        L = ctrl.L[ctrl.cluster(obs)]
+        return np.linalg.norm(np.stack([l @ feature_jacobian(z).astype(l.dtype) for l, z in zip(L, x)]), axis=(1, 2))
     jac = np.broadcast_to(np.eye(x.shape[-1], dtype=np.float32), (len(x),) + (x.shape[-1],) * 2)
     for i, (w, b) in enumerate(ctrl.layers):
         x = x @ w + b
@@ -135,7 +138,7 @@ def write_settings(out: str, shifts: Sequence[Shift], episodes: int, pushes: dic
     from gsa_jax.running.checkpoint import write_atomic
 
     settings = {"shifts": [list(s) for s in shifts], "episodes": episodes, "start_seeds": [START_SEED, START_SEED + episodes],
-                "push_rate": PUSH_RATE}
+                "push_rate": DEFAULT_PUSH_RATE}
     if pushes:
         settings["paired_pushes"] = {k: list(v) if isinstance(v, tuple) else v for k, v in pushes.items()}
     path = os.path.join(out, "robustness.json")

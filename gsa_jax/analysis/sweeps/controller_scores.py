@@ -182,9 +182,9 @@ def score_random_policy(env_name: str, episodes: int = RANDOM_EPISODES, start_se
     generator seeded with it -> {returns, mean, std, episodes, start_seed, simulator, mujoco_version}."""
     import mujoco
 
-    from envs import default_episode_length, task_record
+    from envs import default_episode_length, resolve
 
-    task = task_record(env_name).make_c()
+    task = resolve(env_name).make_c()
     actions, length = RandomActions(task.action_size), default_episode_length(env_name)
     returns = []
     for e in range(episodes):

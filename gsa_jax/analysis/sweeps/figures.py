@@ -6,6 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
@@ -85,7 +86,7 @@ def plot_return_vs_k(rows: list, path: str, settings: Sequence[str] = (), suffic
         for extra, pts in curves.items():
             iqm = np.array([r[point] for r in pts], float)
             err = np.array([[r[point] - r[low], r[high] - r[point]] for r in pts], float).T
-            sub = dict(extra).get("subpolicy") or "linear"
+            sub = dict(extra).get("subpolicy") or subpolicies.DEFAULT
             rest = "".join(f", {c}={v}" for c, v in extra if c != "subpolicy")
             ax.errorbar([r["K"] for r in pts], iqm, yerr=err, fmt="o-", capsize=3, label=f"mixture of K {sub} controllers{rest}")
         if all_ks:
