@@ -1,5 +1,5 @@
 """A sweep's report: every figure and table of merged sweeps written to disk (`plot_sweep`, which
-`python -m gsa_jax.plot` runs): the statistics (sweeps/), the verdicts of the grid (verdicts/) and the figures. It sits
+`gsa plot` runs): the statistics (sweeps/), the verdicts of the grid (verdicts/) and the figures. It sits
 above analysis/'s folders, which import none of it."""
 
 import os

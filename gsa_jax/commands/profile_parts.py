@@ -61,7 +61,7 @@ def sweep_config(env: str, policy: str, K: int, runs: int, backend: str) -> Conf
     """The static Config a sweep of these runs would train with (its defaults, this backend); a task defined in
     Python is made here, so that a missing dependency (dm_control for dmc: tasks) is refused before any profiling."""
     envs.resolve(env).load()
-    return single_group(env, policy, K, list(range(runs)), backend, source="gsa_jax.profile")[1]
+    return single_group(env, policy, K, list(range(runs)), backend, source="gsa-profile")[1]
 
 
 def table(prof: dict) -> str:

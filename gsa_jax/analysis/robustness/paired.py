@@ -1,6 +1,6 @@
 """Paired pushes (gsa_jax.deployment.pushes) over many controllers: the evaluation driver (resumable, one
 controller at a time), each controller's fall probability per push and return lost, and per configuration
-their IQM and P(a mixture falls less than flat PPO) with rliable's intervals; `python -m gsa_jax.robustness`
+their IQM and P(a mixture falls less than flat PPO) with rliable's intervals; `gsa robustness`
 runs it beside the shifts."""
 
 import csv

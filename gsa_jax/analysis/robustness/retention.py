@@ -1,6 +1,6 @@
 """Exported controllers under shifted physics, observations and actions: from the tidy rows, the CSV files and
 figures of the analysis (aggregate.csv, correlation.csv, robustness.png, profile.png, and with paired
-pushes paired_pushes.csv, pushes.png, fair.csv); `python -m gsa_jax.robustness` is its command. The
+pushes paired_pushes.csv, pushes.png, fair.csv); `gsa robustness` is its command. The
 evaluation is retention_eval, the statistics retention_stats, the shared row helpers shift_rows."""
 
 import os

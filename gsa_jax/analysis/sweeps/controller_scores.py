@@ -5,7 +5,7 @@ Each results directory holding controllers/<run label>.npz gets a controller_sco
 controller with its file's sha256, the start seeds (`start_seed` + 0 .. episodes - 1, the seeds gsa_jax.deploy
 --seed takes) and the mean return over them. Rows are written as each controller finishes (an interrupted scoring
 loses nothing) and kept while the file's sha256, the episodes and the start seed are unchanged, so scoring a
-directory again only scores what is new. `python -m gsa_jax.score DIR [DIR ...]` is its command; gsa_jax.plot
+directory again only scores what is new. `gsa score DIR [DIR ...]` is its command; gsa plot
 and gsa_jax.answer read the scores (per_run_scores.csv `controller_score`) and every verdict uses them.
 """
 

@@ -1,6 +1,6 @@
 """A sweep's runs seen as trained runs: their addresses (SWEEP_DIR/<run label>, which every single-run tool
 reads: inspect, export, deploy, render --run), every finished run's exported controller, and a sweep's results
-copied for committing (tidy metrics gzipped, sweep.json, failed runs, controllers); `python -m gsa_jax.extract`."""
+copied for committing (tidy metrics gzipped, sweep.json, failed runs, controllers); `gsa extract`."""
 
 import glob
 import gzip

@@ -1,4 +1,4 @@
-"""The report of `python -m gsa_jax.answer`: the answer in one sentence, the baseline's standing (still learning? below
+"""The report of `gsa answer`: the answer in one sentence, the baseline's standing (still learning? below
 a published or tuned PPO?), the verdicts with the seeds each interval used and the look that froze it, flat PPO's
 IQM, the seeds per cell for 80% power, other margins as sensitivity (not the answer), score against K with the
 margin drawn, the rounds, the command, and the chosen controller exported (npz, C header, ONNX) and re-scored on
@@ -266,5 +266,5 @@ def choice_text(out: str, choice: dict | None) -> list:
             f"(episode std {fresh['episode_std']:.1f}): the fresh score is what to expect, the selection score carries "
             f"the best-of-seeds pick. From `{choice['source']}`: "
             + ", ".join(f"`{os.path.relpath(f, out)}`" for f in choice["files"]), "",
-            f"Re-score it: `python -m gsa_jax.deploy {os.path.join(out, 'controller', 'controller.npz')} "
+            f"Re-score it: `gsa deploy {os.path.join(out, 'controller', 'controller.npz')} "
             f"--episodes {fresh['episodes']} --seed {fresh['start_seed']}`", ""]

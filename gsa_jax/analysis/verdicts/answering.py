@@ -1,4 +1,4 @@
-"""The answer loop of `python -m gsa_jax.answer`: train flat PPO and a ladder of K in rounds, judge every cell at the
+"""The answer loop of `gsa answer`: train flat PPO and a ladder of K in rounds, judge every cell at the
 design's looks (gsa_jax.analysis.verdicts.ladder: Yuen's trimmed-mean t, an alpha-spending function over the looks, Holm over
 the K) against a baseline shown adequate (gsa_jax.analysis.verdicts.baseline), and add seeds only where the smallest
 sufficient K is not decided yet.
