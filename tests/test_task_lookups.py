@@ -20,7 +20,7 @@ LOOKUP_MODULES = ("envs", "envs.registry", "envs.mujoco_c")
 LOOKUPS = {"resolve", "check_name", "check_task", "is_name", "resolve_task", "task_source",
            "has_c_backend", "default_episode_length", "max_return", "task_model", "action_size", "observation_size",
            "action_bounds", "control_range", "task_randomize", "make_c", "observation_layout"}
-ALLOWED = {  # path or folder -> why its modules still look a name up
+ALLOWED = {  # module (or folder) -> why it still looks a name up
     "gsa_jax/algorithm/config.py": "Config is the run's settings as config.json and experiment files write them: it "
                                    "names its task, and when built fills the task's defaults (episode length, its "
                                    "declared randomization) from its record; validate(task) takes a record the "
@@ -30,14 +30,30 @@ ALLOWED = {  # path or folder -> why its modules still look a name up
     "envs/build.py": "envs.make, make_base, check_backend, check_randomize, as_gymnasium: the library's entry, taking "
                      "a name or a record (resolve() returns a record as it is); make resolves once and passes it on",
     "envs/mujoco_c.py": "make_c(name), observation_layout(name): the library's entry to plain MuJoCo C by name",
-    "gsa_jax/running/": "experiment files, sweep.json and config.json name their tasks and a sweep worker process "
-                        "starts from them; single.run and physics_record take a Config whose env is a name (the "
-                        "record is not yet passed from the command: issue 74 item 1 moves the commands' code out of "
-                        "running/single.py)",
-    "gsa_jax/deployment/": "an exported controller's file names its task (its config_json): the name enters there; "
-                           "the 'simulator' shift maps a task's name to another task's (shifts.OTHER_SIMULATOR)",
-    "gsa_jax/verify/": "an exported controller's file names its task (its config_json): the name enters there",
-    "gsa_jax/analysis/": "result tables and saved runs name their tasks (CSV rows, config.json): the names enter there",
+    "gsa_jax/running/single.py": "single.run resolves its task once from the Config (whose env is the name config.json "
+                                 "keeps) and hands the record on; the resume check reads the saved run's task source",
+    "gsa_jax/running/sweeps.py": "a sweep worker process starts from sweep.json, which names its tasks: each group "
+                                 "resolves its task once, for its physics record and source",
+    "gsa_jax/running/spec.py": "experiment files name their tasks: check_spec checks each name where the file is read",
+    "gsa_jax/running/tuning.py": "tuning files name their task: checked where the file is read",
+    "gsa_jax/running/runinfo.py": "physics_record(cfg, task) takes the record a caller holds, else resolves cfg.env",
+    "gsa_jax/deployment/numpy_policy.py": "an exported controller's file names its task (config_json): load reads its "
+                                          "bounds, size and source there",
+    "gsa_jax/deployment/exporting.py": "the exported run names its task in config.json: its control ranges and "
+                                       "observation layout are read there",
+    "gsa_jax/deployment/evaluation.py": "a controller file names its task: its MuJoCo C twin is built where it is read",
+    "gsa_jax/deployment/shifts.py": "the 'simulator' shift maps a task's name to the other family's (OTHER_SIMULATOR)",
+    "gsa_jax/verify/system.py": "an exported controller's file names its task: verify's system is built from it there",
+    "gsa_jax/analysis/robustness/retention.py": "tidy result rows name their tasks (CSV): action sizes read per name",
+    "gsa_jax/analysis/robustness/retention_eval.py": "controller files name their tasks: checked where they are read",
+    "gsa_jax/analysis/sweep_report.py": "merged sweeps name their tasks (CSV rows): whether each has MuJoCo C",
+    "gsa_jax/analysis/sweeps/controller_scores.py": "controller files name their tasks: the random policy's task "
+                                                    "built where it is scored",
+    "gsa_jax/analysis/sweeps/random_return.py": "a sweep names its task: the random policy runs it by name "
+                                                "(envs.make) with its time limit",
+    "gsa_jax/analysis/sweeps/results.py": "sweep results name their tasks (CSV rows): action sizes a sweep.json lacks",
+    "gsa_jax/analysis/verdicts/answering.py": "an answer and the result rows it judges name their task: its "
+                                              "declared maximum read per name",
 }
 
 
