@@ -100,3 +100,25 @@ def test_the_physics_option_has_one_name_in_every_command():
         assert "--backend" not in options, name
         if name in ("train", "answer", "bench", "profile"):
             assert "--physics" in options, name
+
+
+def test_the_wrapper_maps_errors_and_interrupts_to_exit_statuses(capsys):
+    """A UserError is its exit status and one line naming the command; Ctrl-C is 130; any other error is not
+    swallowed (a traceback, as for a bug)."""
+    from gsa_jax.cli import run_command
+    from gsa_jax.errors import UserError
+
+    def fail(error):
+        def body():
+            raise error
+        return body
+
+    assert run_command("train", fail(UserError("bad --steps"))) == 2
+    assert capsys.readouterr().err == "gsa train: error: bad --steps\n"
+    assert run_command("sweep", fail(UserError("the disk is full", exit_status=4))) == 4
+    assert capsys.readouterr().err == "gsa sweep: error: the disk is full\n"
+    assert run_command("answer", fail(KeyboardInterrupt())) == 130
+    assert capsys.readouterr().err == "gsa answer: interrupted\n"
+    with pytest.raises(ZeroDivisionError):
+        run_command("plot", fail(ZeroDivisionError()))
+    assert run_command("score", lambda: 0) == 0
