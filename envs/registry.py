@@ -72,8 +72,6 @@ def resolve(task: TaskLike) -> TaskRecord:
     return definition_record(task)
 
 
-
-
 @functools.lru_cache(maxsize=None)
 def _record(name):
     if not isinstance(name, str) or not name:

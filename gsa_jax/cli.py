@@ -1,5 +1,6 @@
 """`gsa COMMAND [options]`: the project's commands behind one entry point. Each command is one module of
-gsa_jax/commands/ (its docstring's first line is its line in `gsa --help`); `python -m gsa_jax.X` runs the same.
+gsa_jax/commands/ (its docstring's first line is its line in `gsa --help`); `python -m gsa_jax.X` runs the same
+(`profile` aside: a module of that name would shadow the standard library's).
 
 Exit status: 0 done, 2 bad input (one line on stderr, `gsa COMMAND: error: ...`), 130 interrupted; a command's
 own further statuses are in its --help."""
@@ -68,6 +69,15 @@ def options_over_saved(parser: argparse.ArgumentParser, argv: list | None, path:
     saved, defaults = read_saved(path, error, options_of)
     parser.set_defaults(**defaults)
     return parser.parse_args(argv), saved
+
+
+EXIT_DISK_FULL = 4
+
+
+def disk_full(e: OSError, intact: str) -> UserError:
+    """A full disk (running/checkpoint.py's DiskFullError) as a command's one-line error with exit status 4, naming
+    the checkpoint left intact."""
+    return UserError(e.describe(intact), exit_status=EXIT_DISK_FULL)
 
 
 def run_command(name: str, body: Callable[[], int]) -> int:

@@ -16,7 +16,7 @@ from gsa_jax.cli import COMMANDS, whole_number
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 SHIMS = {  # python -m <module> -> the command it runs
     **{f"gsa_jax.{name}": name for name in ("train", "sweep", "answer", "score", "plot", "export", "deploy",
-                                             "robustness", "tune", "bench", "render", "extract")},
+                                             "robustness", "tune", "bench", "render", "extract", "quote", "published")},
     "gsa_jax.inspect": "inspect", "gsa_jax.verify": "verify",
 }
 
@@ -122,3 +122,17 @@ def test_the_wrapper_maps_errors_and_interrupts_to_exit_statuses(capsys):
     with pytest.raises(ZeroDivisionError):
         run_command("plot", fail(ZeroDivisionError()))
     assert run_command("score", lambda: 0) == 0
+
+
+def test_render_says_in_one_line_what_mujocos_renderer_refuses(monkeypatch, tmp_path, capsys):
+    """MuJoCo's renderer refuses an unknown camera or a size beyond its framebuffer with a ValueError: one line and
+    exit 2, as every other bad input (the renderer itself stands in here: it needs an OpenGL library)."""
+    from gsa_jax.commands import render
+
+    def refuse(*args):
+        raise ValueError("The camera 'nosuch' does not exist.")
+
+    monkeypatch.setattr(render, "render_scene", refuse)
+    assert render.main(["inverted_double_pendulum", "--out", str(tmp_path / "x.png"), "--camera", "nosuch"]) == 2
+    err = capsys.readouterr().err
+    assert err == "gsa render: error: The camera 'nosuch' does not exist.\n"

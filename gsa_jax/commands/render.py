@@ -30,12 +30,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def render(argv: list | None) -> int:
-    """Write the scene picture or the run's video."""
+    """Write the scene picture or the run's video; a ValueError (an unknown task, or MuJoCo's renderer refusing a
+    camera or a size larger than its framebuffer) is one line."""
     args = build_parser().parse_args(argv)
     try:
-        envs.check_name(args.env)
+        return draw(args)
     except ValueError as e:
         raise RenderError(e) from None
+
+
+def draw(args: argparse.Namespace) -> int:
+    """The picture or the video the options ask for."""
+    envs.check_name(args.env)
     out_dir = os.path.dirname(os.path.abspath(args.out))
     if not os.path.isdir(out_dir):
         raise RenderError(f"--out: directory {out_dir!r} does not exist")

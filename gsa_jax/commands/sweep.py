@@ -62,15 +62,14 @@ from typing import Callable
 
 import jax
 
-from gsa_jax.cli import command_parser, options_over_saved, run_command
-from gsa_jax.errors import UserError
+from gsa_jax.cli import command_parser, disk_full, options_over_saved, run_command
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import resume_command
 from gsa_jax.running.runlock import hold
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
-from gsa_jax.running.sweeps import EXIT_DISK_FULL, EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
+from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -105,8 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
     """Option values (dest -> value) that give back a saved sweep's settings (its sweep.json): what --resume DIR
-    continues with (the spec is checked apart)."""
-    meta["spec"]
+    continues with (the spec is checked apart; a record without one is not a sweep's: KeyError)."""
+    if "spec" not in meta:
+        raise KeyError("spec")
     saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
     if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
         saved["local_processes"] = meta["num_processes"]
@@ -234,7 +234,7 @@ def run_worker(args: argparse.Namespace, spec: SweepSpec, out: str, after_chunk:
     except DiskFullError as e:
         raise disk_full(e, getattr(e, "last_intact", "none (nothing trained yet)")) from None
     if not args.quiet:
-        again = "" if args.coordinator else f" or: {resume_command('gsa_jax.sweep', '--resume', out)}"
+        again = "" if args.coordinator else f" or: {resume_command('sweep', '--resume', out)}"
         done_msg = f"done: {out}" if complete else f"stopped: {out}; continue with the same command{again}"
         print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg, flush=True)
     if args.worker or args.num_processes > 1:
@@ -243,8 +243,3 @@ def run_worker(args: argparse.Namespace, spec: SweepSpec, out: str, after_chunk:
         return EXIT_FAILED_RUNS if report_failures(out, [wdir], log=print) else 0
     except DiskFullError as e:
         raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
-
-
-def disk_full(e: DiskFullError, intact: str) -> UserError:
-    """A full disk as the sweep's one-line error (exit status 4), naming the checkpoint left intact."""
-    return UserError(e.describe(intact), exit_status=EXIT_DISK_FULL)

@@ -21,20 +21,25 @@ from typing import Any, Callable
 import envs
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.config import (
-    add_options, config_record, flag_names, make_hparams, options_config, options_hparams, saved_option_values,
+    Config, add_options, config_record, flag_names, make_hparams, options_config, options_hparams, saved_option_values,
     validate_hparams,
 )
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
-from gsa_jax.algorithm.config import Config
-from gsa_jax.cli import command_parser, options_over_saved, run_command, whole_number
+from gsa_jax.cli import command_parser, disk_full, options_over_saved, run_command, whole_number
+from gsa_jax.errors import UserError
+from gsa_jax.running.checkpoint import DiskFullError
 from gsa_jax.running.driver import duration, fmt
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.runinfo import resume_command
 from gsa_jax.running.runlock import hold
-from gsa_jax.running.single import RunOptions, RunPlan, UsageError, run
+from gsa_jax.running.single import RunOptions, RunPlan, run
 from gsa_jax.running.trained import path_part
 
+
+
+class UsageError(UserError):
+    """A command line of `gsa train` that cannot run (one line)."""
 
 def build_parser() -> argparse.ArgumentParser:
     """`gsa train`'s options."""
@@ -189,8 +194,11 @@ def train(argv: list | None) -> int:
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     warn = lambda msg: print(f"gsa train: warning: {msg}", file=sys.stderr)  # noqa: E731
     with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)):
-        options = RunOptions(out, args.resume, args.force, args.stop_after, argv, args.quiet, args.tensorboard)
-        end = run(plan, options, log, warn)
+        options = RunOptions(out, args.resume, args.force, args.stop_after, argv, args.tensorboard)
+        try:
+            end = run(plan, options, log, warn)
+        except DiskFullError as e:
+            raise disk_full(e, e.last_intact) from None
     return 0 if end.result is None else report_end(end.result, end.config, out, log)
 
 
@@ -202,10 +210,10 @@ def report_end(result: Any, config: dict, out: str, log: Callable) -> int:
         return 1
     if result.status == "interrupted":
         print(f"\ninterrupted; everything up to iteration {result.intact} is saved in {out} "
-              f"(continue with: {resume_command('gsa_jax.train', '--resume', '--out', out)})", file=sys.stderr)
+              f"(continue with: {resume_command('train', '--resume', '--out', out)})", file=sys.stderr)
         return 130
     if result.done < result.iterations:
-        again = resume_command("gsa_jax.train", "--resume", "--out", out)
+        again = resume_command("train", "--resume", "--out", out)
         log(f"stopped at iteration {result.done}/{result.iterations} as asked; continue with: {again}")
     else:
         log(f"done: {timing['env_steps_run']:,} steps in {duration(timing['wall_s'])} (compile {timing['compile_s']:.1f}s, "

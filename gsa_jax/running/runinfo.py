@@ -93,14 +93,16 @@ def check_unchanged(old: dict, new: dict, force: bool, what: str, remedy: str) -
         raise ResumeRefused(f"{what} ({diff}); {remedy}")
 
 
-def resume_command(module: str, *flags: str) -> str:
-    """The shell command `<this interpreter> -m <module> <flags>` that continues a run or sweep with its saved
-    settings; the interpreter relative to the working directory when it lies under it (e.g. .venv/bin/python)."""
-    python = sys.executable
-    rel = os.path.relpath(python)
+def resume_command(command: str, *flags: str) -> str:
+    """The shell command that continues a run or sweep with its saved settings: `gsa <command> <flags>` with the
+    `gsa` script installed beside this interpreter, else `<this interpreter> -m gsa_jax.<command> <flags>`; either
+    relative to the working directory when it lies under it (e.g. .venv/bin/gsa)."""
+    script = os.path.join(os.path.dirname(sys.executable), "gsa")
+    words = [script, command] if os.path.isfile(script) else [sys.executable, "-m", f"gsa_jax.{command}"]
+    rel = os.path.relpath(words[0])
     if not rel.startswith(".."):
-        python = rel if os.sep in rel else os.path.join(".", rel)
-    return shlex.join([python, "-m", module, *flags])
+        words[0] = rel if os.sep in rel else os.path.join(".", rel)
+    return shlex.join([*words, *flags])
 
 
 def cli_description(doc: str) -> str:

@@ -18,24 +18,19 @@ import numpy as np
 import envs
 from envs import solver_settings
 from envs.physics import C, resolve_threads
+from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.ppo import Trainer
-from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.retrace import buffer_bytes
-from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
 from gsa_jax.running.curve import plot_curve
 from gsa_jax.running.driver import Plan, drive, failed_mask, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS
 from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.programs import single_program
-from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
+from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
 from gsa_jax.running.store import GroupStore, write_runs_table
 from gsa_jax.running.trained import check_layout
-
-
-class UsageError(UserError):
-    """A command line of `gsa train` that cannot run (one line)."""
 
 
 class RunPlan(NamedTuple):
@@ -54,14 +49,13 @@ class RunPlan(NamedTuple):
 
 class RunOptions(NamedTuple):
     """How this invocation runs it: the output directory, whether to resume it (force: with changed settings),
-    stop (resumably) after stop_after iterations, the command line recorded, progress lines, TensorBoard files."""
+    stop (resumably) after stop_after iterations, the command line recorded, TensorBoard files."""
 
     out: str
     resume: bool = False
     force: bool = False
     stop_after: int | None = None
     argv: list | None = None
-    quiet: bool = False
     tensorboard: bool = True
 
 
@@ -136,7 +130,8 @@ def metrics_to_rows(metrics: dict, done: int) -> list:
 
 def run(plan: RunPlan, options: RunOptions, log: Callable, warn: Callable) -> RunEnd:
     """Train (or resume) one run into options.out; log: its progress lines, warn: what it could not write but
-    went on without. Raises a UserError for a run it cannot continue (exit status 4: the disk is full)."""
+    went on without. Raises a UserError for a run it cannot continue, and a DiskFullError (with last_intact, the
+    newest intact checkpoint) where the disk is full."""
     cfg, out = plan.cfg, options.out
     config = {
         "config": dataclasses.asdict(cfg), "hparams": plan.hp, "seed": plan.seed, "iterations": plan.iterations,
@@ -157,18 +152,18 @@ def run(plan: RunPlan, options: RunOptions, log: Callable, warn: Callable) -> Ru
         write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
         write_atomic(config_path, json.dumps(config, indent=2))
         return RunEnd(train_run(plan, options, config, (log, warn)), config)
-    except DiskFullError as e:
-        intact = getattr(e, "last_intact", None) or f"iteration {saved_iteration(out)}"
-        raise UserError(e.describe(intact), exit_status=4) from None
+    except DiskFullError as e:  # the command says so; the newest intact checkpoint goes with it
+        e.last_intact = getattr(e, "last_intact", None) or f"iteration {saved_iteration(out)}"
+        raise
 
 
 def report_ended(out: str, log: Callable) -> None:
     """--resume of a run that has ended: nothing to train (a finished run is logged; a run stopped by a NaN/inf
-    is a UsageError)."""
+    is refused: ResumeRefused)."""
     with open(os.path.join(out, "failed.json")) as f:
         failed = json.load(f)
     if failed:
-        raise UsageError(f"the run in {out} stopped at a NaN/inf at iteration {failed[0]['failed_at']}; nothing to resume")
+        raise ResumeRefused(f"the run in {out} stopped at a NaN/inf at iteration {failed[0]['failed_at']}; nothing to resume")
     log(f"the run in {out} is finished; nothing to resume")
 
 

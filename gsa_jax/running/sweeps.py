@@ -26,7 +26,7 @@ from gsa_jax.running.spec import (
 from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
 from gsa_jax.running.trained import run_label
 
-EXIT_FAILED_RUNS, EXIT_DISK_FULL = 1, 4
+EXIT_FAILED_RUNS = 1
 
 
 # ----------------------------------------------------------------------------------------------- files
