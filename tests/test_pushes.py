@@ -13,7 +13,7 @@ from gsa_jax.analysis.robustness.fairness import fair_rows, leave_out_residuals,
 from gsa_jax.analysis.robustness.paired import aggregate_pushes, crossed_interval, per_controller
 from gsa_jax.analysis.robustness.shift_rows import cells
 from gsa_jax.deployment import numpy_policy
-from gsa_jax.deployment.pushes import evaluate_pushes, push_events, window_outcomes
+from gsa_jax.deployment.pushes import PushPlan, evaluate_pushes, push_events, window_outcomes
 from gsa_jax.robustness import main
 from tests.test_robustness import controller_arrays
 
@@ -74,8 +74,9 @@ class ConstantController:
 
 
 def fake_events(delay, seed, fall_at=None, windows=(5, 20)):
-    rows, nominal = evaluate_pushes(ConstantController(delay), "fake", [0, 1], sizes=(0.5,), windows=windows,
-                                    per_episode=6, length=200, make_task=lambda: FakeTask(fall_at))
+    rows, nominal = evaluate_pushes(ConstantController(delay), "fake", [0, 1],
+                                    PushPlan(sizes=(0.5,), windows=windows, per_episode=6, length=200),
+                                    make_task=lambda: FakeTask(fall_at))
     return [{"env": "fake", "policy": "mlp" if delay == 10 else "mixture", "K": "" if delay == 10 else "2", "seed": seed,
              **r} for r in rows], nominal
 
@@ -157,7 +158,8 @@ def test_a_pushed_copy_differs_from_its_control_by_the_push_only():
     """On Hopper-v5 in MuJoCo C: a push of size 0 never makes the robot fall and costs exactly nothing (the copy
     continues the control's MjData bit for bit); a real push changes the return."""
     ctrl = numpy_policy.Controller(controller_arrays("mlp", seed=3))
-    rows, nominal = evaluate_pushes(ctrl, "Hopper-v5", [10_000], sizes=(0.0, 1.0), windows=(10, 30), per_episode=3, length=120)
+    rows, nominal = evaluate_pushes(ctrl, "Hopper-v5", [10_000],
+                                    PushPlan(sizes=(0.0, 1.0), windows=(10, 30), per_episode=3, length=120))
     zero = [r for r in rows if r["size"] == 0.0 and r["counted_W10"]]
     assert zero and all(r["lost_W10"] == 0.0 and r["fell_W10"] == 0 and r["branch_fall"] in ("", None) for r in zero)
     hard = [r for r in rows if r["size"] == 1.0 and r["counted_W10"]]

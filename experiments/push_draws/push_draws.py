@@ -25,7 +25,7 @@ import numpy as np
 from gsa_jax.analysis.robustness.paired import aggregate_pushes
 from gsa_jax.analysis.robustness.retention_eval import START_SEED, load_controllers
 from gsa_jax.analysis.sweeps.results import write_csv
-from gsa_jax.deployment.pushes import PER_EPISODE, WINDOWS, evaluate_pushes
+from gsa_jax.deployment.pushes import PER_EPISODE, WINDOWS, PushPlan, evaluate_pushes
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 STARTS = 20  # the robustness experiment's start states
@@ -43,8 +43,8 @@ def verdict(ctrls, env, size, window, draw):
     """One draw's row: every controller's paired pushes under push-event draw `draw`, aggregated."""
     events = []
     for _, meta, ctrl in ctrls:
-        rows, _ = evaluate_pushes(ctrl, env, np.arange(START_SEED, START_SEED + STARTS), (size,), WINDOWS, PER_EPISODE,
-                                  draw=draw)  # every window: the push times are drawn below length - the longest
+        plan = PushPlan((size,), WINDOWS, PER_EPISODE, draw=draw)  # every window: push times drawn below length - the longest
+        rows, _ = evaluate_pushes(ctrl, env, np.arange(START_SEED, START_SEED + STARTS), plan)
         events += [{**meta, **r} for r in rows]
     agg = [r for r in aggregate_pushes(events, WINDOWS) if r["window"] == window]
     mix = next(r for r in agg if r["policy"] == "mixture")

@@ -127,13 +127,25 @@ def event_row(control: Control, e: int, t: int, branch_fall: np.ndarray, branch_
     return row
 
 
-def push_start(ctrl: Any, make_task: Callable, planar: bool, seed: int, sizes: tuple, windows: tuple, per_episode: int,
-               length: int, draw: int = 0) -> tuple:
+class PushPlan(NamedTuple):
+    """Which pushes a controller meets: push sizes, the windows after a push its loss is counted over, events
+    per episode, the episode length, and which independent draw of push events (push_events; 0: the robustness
+    experiment's)."""
+
+    sizes: tuple = PUSH_SIZES
+    windows: tuple = WINDOWS
+    per_episode: int = PER_EPISODE
+    length: int = 1000
+    draw: int = 0
+
+
+def push_start(ctrl: Any, make_task: Callable, planar: bool, seed: int, plan: PushPlan) -> tuple:
     """(rows, control) of one start seed: the control episode, then every push event x size (push_events' draw)
     as a pushed copy of it (none where the control has ended or terminates at the push's step: a row never
     counted)."""
+    sizes, windows, length = plan.sizes, plan.windows, plan.length
     wmax = max(windows)
-    events = push_events(seed, per_episode, length - wmax, planar, draw)
+    events = push_events(seed, plan.per_episode, length - wmax, planar, plan.draw)
     control = run_controls(ctrl, make_task, [seed], {0: {t for t, _ in events}}, length)
     keys, branches, limits = [], [], []
     for j, (t, direction) in enumerate(events):
@@ -153,20 +165,18 @@ def push_start(ctrl: Any, make_task: Callable, planar: bool, seed: int, sizes: t
     return rows, control
 
 
-def evaluate_pushes(ctrl: Any, env_name: str, seeds: np.ndarray, sizes: tuple = PUSH_SIZES, windows: tuple = WINDOWS,
-                    per_episode: int = PER_EPISODE, length: int = 1000, make_task: Callable | None = None,
-                    draw: int = 0) -> tuple:
+def evaluate_pushes(ctrl: Any, env_name: str, seeds: np.ndarray, plan: PushPlan = PushPlan(),
+                    make_task: Callable | None = None) -> tuple:
     """(rows, nominal) of one controller: a row per push event x size (start_seed, event, time, size and
     event_row's columns) and its control episodes' {nominal_score, mean_length, full_length_fraction}.
-    make_task: the task's MuJoCo C twin (default: env_name's, nominal physics); draw: which independent draw of
-    push events (push_events; 0: the robustness experiment's)."""
+    make_task: the task's MuJoCo C twin (default: env_name's, nominal physics)."""
     make_task = make_task or (lambda: shifted_task(env_name, Shift("nominal")))
     rows, returns, lengths, planar = [], [], [], is_planar(make_task())
     for seed in seeds:
-        new, control = push_start(ctrl, make_task, planar, seed, sizes, windows, per_episode, length, draw)
+        new, control = push_start(ctrl, make_task, planar, seed, plan)
         rows += new
         returns.append(control.rewards.sum())
         lengths.append(int(control.lengths[0]))
     nominal = {"nominal_score": round(float(np.mean(returns)), 3), "mean_length": round(float(np.mean(lengths)), 2),
-               "full_length_fraction": round(float(np.mean(np.array(lengths) >= length)), 4), "episodes": len(seeds)}
+               "full_length_fraction": round(float(np.mean(np.array(lengths) >= plan.length)), 4), "episodes": len(seeds)}
     return rows, nominal

@@ -137,7 +137,8 @@ def roa_of(system: System, policy: simulate.Policy, qref: np.ndarray, scale: np.
     if not hold.holds:
         return {**out, "radius": [], "volume_fraction": 0.0, "note": "the closed loop does not hold the equilibrium"}
     dirs = roa.directions(budget.roa_directions, dim, budget.seed)
-    r = roa.search_radii(task, policy, qref, hold, scale, dirs, budget.roa_radius, budget.roa_bisections, horizon)
+    r = roa.search_radii(task, policy, qref, hold, scale,
+                         roa.Rays(dirs, budget.roa_radius, budget.roa_bisections, horizon))
     out.update({"radius": r.radius.tolist(), "radius_min": float(r.radius.min()),
                 "radius_median": float(np.median(r.radius)),
                 "no_boundary_in_range": bool(np.all(r.radius >= budget.roa_radius)),
@@ -166,7 +167,8 @@ def falsification(system: System, budget: Budget) -> dict:
     task, ctrl = system.task, system.ctrl
     horizon, policy, out = int(task.episode_length), simulate.controller_policy(ctrl), {}
     for name, spread, push in SEARCHES:
-        s = falsify.cem(task, policy, horizon, push, budget.population, budget.iterations, budget.seed, spread)
+        s = falsify.cem(task, policy, horizon, falsify.Sampling(push, spread, budget.population, budget.iterations,
+                                                                budget.seed))
         out[name] = {"spread": spread, "pushes": push, "episodes": int(s.returns.size),
                      "worst_return": float(s.returns.min()),
                      "first_iteration_p05": float(np.percentile(s.returns[0], 5)), "best_by_iteration": s.best.tolist(),

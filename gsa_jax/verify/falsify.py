@@ -49,17 +49,29 @@ def decode(task: Task, u: np.ndarray, horizon: int, push: bool, spread: float) -
     return qpos, v, simulate.Push(step, simulate.push_impulse(task, 1.0) * dv)
 
 
-def cem(task: Task, policy: simulate.Policy, horizon: int, push: bool, population: int, iterations: int, seed: int,
-        spread: float = 1.0, elite_frac: float = 0.125) -> Search:
+class Sampling(NamedTuple):
+    """What one search draws: starts (and a push if push) up to `spread` times the start law's, `population`
+    episodes per iteration for `iterations` iterations from `seed`, the best `elite_frac` refitting the law."""
+
+    push: bool
+    spread: float = 1.0
+    population: int = 64
+    iterations: int = 8
+    seed: int = 0
+    elite_frac: float = 0.125
+
+
+def cem(task: Task, policy: simulate.Policy, horizon: int, sampling: Sampling) -> Search:
     """The cross-entropy search (see the module docstring)."""
+    push, population = sampling.push, sampling.population
     p = 2 * task.model.nv + (3 if push else 0)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(sampling.seed)
     mean, std = np.zeros(p), np.full(p, 0.5)
-    n_elite = max(2, int(round(elite_frac * population)))
+    n_elite = max(2, int(round(sampling.elite_frac * population)))
     rets, pars, best = [], [], []
-    for _ in range(iterations):
+    for _ in range(sampling.iterations):
         u = np.clip(mean + std * rng.standard_normal((population, p)), -1.0, 1.0)
-        qpos, qvel, pushes = decode(task, u, horizon, push, spread)
+        qpos, qvel, pushes = decode(task, u, horizon, push, sampling.spread)
         r = simulate.run(task, policy, qpos, qvel, horizon, push=pushes).returns
         elite = u[np.argsort(r)[:n_elite]]
         mean, std = elite.mean(0), np.maximum(elite.std(0), 0.02)

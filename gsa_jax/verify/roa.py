@@ -77,18 +77,30 @@ class Radii(NamedTuple):
     ok: np.ndarray  # [S] whether each converged
 
 
+class Rays(NamedTuple):
+    """Where the region is searched: unit directions [D, 2 nv] in scaled coordinates, the largest radius tried,
+    the bisections per direction, and the episode length a start has to converge in."""
+
+    dirs: np.ndarray
+    r_max: float
+    bisections: int
+    horizon: int
+
+
 def search_radii(task: Task, policy: simulate.Policy, qref: np.ndarray, hold: Hold, scale: np.ndarray,
-                 dirs: np.ndarray, r_max: float, iters: int, horizon: int) -> Radii:
+                 rays: Rays) -> Radii:
     """Bisection on the radius along each direction, every open direction's episodes run as one batch."""
+    dirs, r_max = rays.dirs, rays.r_max
+
     def test(d, r):
         offsets = d * r[:, None]
-        return offsets, converged(task, policy, qref, hold, scale, hold.x + offsets * scale, horizon)
+        return offsets, converged(task, policy, qref, hold, scale, hold.x + offsets * scale, rays.horizon)
 
     offs, ok_max = test(dirs, np.full(len(dirs), r_max))
     samples, oks = [offs], [ok_max]
     open_ = ~ok_max
     lo, hi = np.where(ok_max, r_max, 0.0), np.full(len(dirs), r_max)
-    for _ in range(iters if open_.any() else 0):
+    for _ in range(rays.bisections if open_.any() else 0):
         mid = (lo[open_] + hi[open_]) / 2
         offs, ok = test(dirs[open_], mid)
         samples.append(offs)

@@ -16,7 +16,7 @@ from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.robustness.shift_rows import controller_key
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import read_csv, write_csv
-from gsa_jax.deployment.pushes import evaluate_pushes
+from gsa_jax.deployment.pushes import PushPlan, evaluate_pushes
 
 KEY = ("env", "policy", "K", "seed")
 NOMINAL = KEY + ("nominal_score", "mean_length", "full_length_fraction", "episodes")
@@ -52,7 +52,8 @@ def evaluate_all_pushes(controllers: list, settings: dict, seeds: np.ndarray, ou
     for i, (path, meta, ctrl) in enumerate(controllers):
         if controller_key(meta) in done:
             continue
-        rows, nom = evaluate_pushes(ctrl, meta["env"], seeds, settings["sizes"], settings["windows"], settings["per_episode"])
+        plan = PushPlan(settings["sizes"], settings["windows"], settings["per_episode"])
+        rows, nom = evaluate_pushes(ctrl, meta["env"], seeds, plan)
         events += [{**meta, **r} for r in rows]
         nominal.append({**meta, **nom})
         write_gz(ev_path, events, event_columns(settings["windows"]))
