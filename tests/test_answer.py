@@ -7,6 +7,7 @@ import os
 import numpy as np
 import pytest
 
+import envs
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import answering as A
 from gsa_jax.analysis.verdicts import verdict
@@ -125,7 +126,7 @@ def test_a_small_real_task_end_to_end(tmp_path):
     spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, physics={"backend": "c"})}
     setup = A.Setup("InvertedDoublePendulum-v5", (1, 2), 0.2, (10,), {"mlp": spec, "mixture": spec}, target=60.0)
     out = str(tmp_path / "answer")
-    measure = lambda: controller_scores.random_policy(out, setup.env, log=None)  # noqa: E731
+    measure = lambda: controller_scores.random_policy(out, envs.resolve(setup.env), log=None)  # noqa: E731
     state = A.run_answer(out, setup, 1e9, measure, log=lambda m: None)
     scores = A.collect_scores(out, setup)
     assert set(scores) == {1, 2} and all(len(v) == 10 for v in scores.values())

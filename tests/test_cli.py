@@ -13,6 +13,8 @@ from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.tensorboard import FILE_NAME, read_scalars
 from gsa_jax.train import main
 
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+
 SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--minibatches", "8", "--epochs", "2",
          "--episode-length", "200", "--chunk", "1", "--eval-every", "2", "--eval-envs", "4", "--quiet"]
 
@@ -139,6 +141,39 @@ def test_the_printed_resume_command_resumes(full_run, tmp_path, capsys):
     assert main(["--resume"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--resume needs --out DIR" in err
+
+
+def test_ctrl_c_in_a_running_process_is_130_and_keeps_what_is_saved(tmp_path):
+    """Ctrl-C (SIGINT) sent to a real `python -m gsa_jax train` process mid-run: exit status 130, a closing line
+    naming the last saved iteration and the command that continues it, and that many rows saved."""
+    import re
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import jax
+
+    out = tmp_path / "ctrl_c"
+    argv = [sys.executable, "-m", "gsa_jax", "train", *SMALL[2:-1], "--steps", "100000000", "--out", str(out),
+            "--no-tensorboard"]
+    cache = {"JAX_COMPILATION_CACHE_DIR": jax.config.jax_compilation_cache_dir or ""}  # the suite's compiled programs
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                            env={**os.environ, **cache})
+    deadline = time.time() + 600
+    while proc.poll() is None and time.time() < deadline:  # until two iterations are saved
+        if (out / "metrics.csv").exists() and len(read_csv(out / "metrics.csv")) >= 2:
+            break
+        time.sleep(0.5)
+    assert proc.poll() is None, proc.communicate()[1]
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=300)[1]
+    assert proc.returncode == 130, err
+    saved = re.search(r"interrupted; everything up to iteration (\d+) is saved in .*continue with: (.*)\)", err)
+    flags = ["--resume", "--out", str(out)]
+    assert saved and saved.group(2).split()[1:] in (["train", *flags], ["-m", "gsa_jax.train", *flags]), err
+    assert len(read_csv(out / "metrics.csv")) >= int(saved.group(1)) >= 1  # rows past the last checkpoint: redone on resume
+    assert json.loads((out / "config.json").read_text())["result"]["status"] == "interrupted"
 
 
 def test_no_tensorboard_writes_no_event_files(tmp_path):

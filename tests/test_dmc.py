@@ -218,8 +218,8 @@ def test_exported_controllers_carry_the_map_onto_a_models_ctrlrange():
     from gsa_jax.deployment.exporting import control_range_arrays
     from gsa_jax.deployment.numpy_policy import Controller
 
-    assert control_range_arrays("dmc:walker-walk") == {}
-    stored = control_range_arrays("dmc:quadruped-walk")
+    assert control_range_arrays(envs.resolve("dmc:walker-walk")) == {} and control_range_arrays(None) == {}
+    stored = control_range_arrays(envs.resolve("dmc:quadruped-walk"))
     task = envs.resolve_task("dmc:quadruped-walk")
     np.testing.assert_array_equal(np.stack([stored["ctrl_low"], stored["ctrl_high"]], 1), task.model.actuator_ctrlrange)
     nu = task.model.nu

@@ -539,6 +539,7 @@ def test_quadruped_controllers_act_in_dm_controls_action_spec(tmp_path, capsys):
     assert inside(run_c_header(tmp_path, obs, 12)[0])
     ort = pytest.importorskip("onnxruntime")
     assert inside(ort.InferenceSession(out["onnx"], providers=["CPUExecutionProvider"]).run(None, {"obs": obs})[0])
-    unit = load_controller(out["npz"])[0]  # what deploy and robustness step our MuJoCo C task with: [-1, 1] again
+    unit, record, _ = load_controller(out["npz"])  # what deploy and robustness step our MuJoCo C task with: [-1, 1]
     np.testing.assert_allclose(unit.act(obs), old.act(obs), rtol=1e-5, atol=1e-5)
-    assert np.all(np.isfinite(run_mujoco_c(unit, "dmc:quadruped-walk", {}, 1, 50)["returns"]))
+    assert record.name == "dmc:quadruped-walk"
+    assert np.all(np.isfinite(run_mujoco_c(unit, record, {}, 1, 50)["returns"]))

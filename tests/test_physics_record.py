@@ -51,10 +51,10 @@ def test_resume_of_a_run_saved_with_flat_physics_fields():
     config = {"config": json.loads(json.dumps(dataclasses.asdict(cfg))), "seed": 0}
     old = {"config": {**{k: v for k, v in config["config"].items() if k != "physics"}, "backend": "c",
                       "physics_threads": 0}, "seed": 0}
-    check_resume_config(old, config, force=False)
+    check_resume_config(old, config, False, cfg.task.source())
     old["config"]["backend"] = "mjx"
     with pytest.raises(ResumeRefused, match=r"config.physics.backend: \"mjx\" -> \"c\""):
-        check_resume_config(old, config, force=False)
+        check_resume_config(old, config, False, cfg.task.source())
 
 
 def test_experiment_files_and_sweep_json_in_either_layout():

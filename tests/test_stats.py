@@ -331,7 +331,7 @@ def test_random_returns_are_measured_with_the_backend_the_sweep_trained_with(tmp
     from gsa_jax.analysis.sweeps.results import random_returns_of
 
     asked = []
-    monkeypatch.setattr(random_return, "random_policy_return", lambda env, backend="mjx": asked.append((env, backend)) or 1.0)
+    monkeypatch.setattr(random_return, "random_policy_return", lambda task, backend="mjx": asked.append((task.name, backend)) or 1.0)
     a = write_sweep(tmp_path / "a", "dmc:fish-swim")
     meta = json.loads((a / "sweep.json").read_text())
     meta["spec"]["config"] = {"backend": "c"}

@@ -20,40 +20,26 @@ LOOKUP_MODULES = ("envs", "envs.registry", "envs.mujoco_c")
 LOOKUPS = {"resolve", "check_name", "check_task", "is_name", "resolve_task", "task_source",
            "has_c_backend", "default_episode_length", "max_return", "task_model", "action_size", "observation_size",
            "action_bounds", "control_range", "task_randomize", "make_c", "observation_layout"}
-ALLOWED = {  # module (or folder) -> why it still looks a name up
+ALLOWED = {  # module -> why it still looks a name up: a library entry that takes a name, or the one reader of a kind
+    # of file that names its task (where that name becomes the record code below is handed)
     "gsa_jax/algorithm/config.py": "Config is the run's settings as config.json and experiment files write them: it "
-                                   "names its task, and when built fills the task's defaults (episode length, its "
-                                   "declared randomization) from its record; validate(task) takes a record the "
-                                   "caller holds",
+                                   "names its task, and resolves it once (Config.task, the record everything below "
+                                   "asks); when built it fills the task's defaults (episode length, declared "
+                                   "randomization) from the record",
     "gsa_jax/algorithm/ppo.py": "make_train(cfg, task) is the library's entry, taking a name, a record or a Task as "
-                                "Brax's train takes an environment",
+                                "Brax's train takes an environment (default: cfg.task)",
     "envs/build.py": "envs.make, make_base, check_backend, check_randomize, as_gymnasium: the library's entry, taking "
                      "a name or a record (resolve() returns a record as it is); make resolves once and passes it on",
     "envs/mujoco_c.py": "make_c(name), observation_layout(name): the library's entry to plain MuJoCo C by name",
-    "gsa_jax/running/single.py": "single.run resolves its task once from the Config (whose env is the name config.json "
-                                 "keeps) and hands the record on; the resume check reads the saved run's task source",
-    "gsa_jax/running/sweeps.py": "a sweep worker process starts from sweep.json, which names its tasks: each group "
-                                 "resolves its task once, for its physics record and source",
+    "gsa_jax/deployment/numpy_policy.py": "exported controller files name their task: controller_task(arrays) is where "
+                                          "that name becomes the record (evaluation, export, verify, robustness ask "
+                                          "it); load(path, task=NAME) is the library's entry",
+    "gsa_jax/deployment/shifts.py": "the 'simulator' shift runs the same robot in the other family's task, named by "
+                                    "OTHER_SIMULATOR",
     "gsa_jax/running/spec.py": "experiment files name their tasks: check_spec checks each name where the file is read",
     "gsa_jax/running/tuning.py": "tuning files name their task: checked where the file is read",
-    "gsa_jax/running/runinfo.py": "physics_record(cfg, task) takes the record a caller holds, else resolves cfg.env",
-    "gsa_jax/deployment/numpy_policy.py": "an exported controller's file names its task (config_json): load reads its "
-                                          "bounds, size and source there",
-    "gsa_jax/deployment/exporting.py": "the exported run names its task in config.json: its control ranges and "
-                                       "observation layout are read there",
-    "gsa_jax/deployment/evaluation.py": "a controller file names its task: its MuJoCo C twin is built where it is read",
-    "gsa_jax/deployment/shifts.py": "the 'simulator' shift maps a task's name to the other family's (OTHER_SIMULATOR)",
-    "gsa_jax/verify/system.py": "an exported controller's file names its task: verify's system is built from it there",
-    "gsa_jax/analysis/robustness/retention.py": "tidy result rows name their tasks (CSV): action sizes read per name",
-    "gsa_jax/analysis/robustness/retention_eval.py": "controller files name their tasks: checked where they are read",
-    "gsa_jax/analysis/sweep_report.py": "merged sweeps name their tasks (CSV rows): whether each has MuJoCo C",
-    "gsa_jax/analysis/sweeps/controller_scores.py": "controller files name their tasks: the random policy's task "
-                                                    "built where it is scored",
-    "gsa_jax/analysis/sweeps/random_return.py": "a sweep names its task: the random policy runs it by name "
-                                                "(envs.make) with its time limit",
-    "gsa_jax/analysis/sweeps/results.py": "sweep results name their tasks (CSV rows): action sizes a sweep.json lacks",
-    "gsa_jax/analysis/verdicts/answering.py": "an answer and the result rows it judges name their task: its "
-                                              "declared maximum read per name",
+    "gsa_jax/analysis/sweeps/results.py": "result files (tidy CSV rows, sweep.json, answer.json) name their "
+                                          "tasks: task_records is where analysis turns those names into records",
 }
 
 

@@ -130,11 +130,11 @@ def score(run_dir, out, episodes):
     paths = {fmt: os.path.join(dest, name) for fmt, name in (("npz", "controller.npz"), ("onnx", "controller.onnx"), ("c", "controller.h"))}
     for fmt, path in paths.items():
         write(arrays, fmt, path)
-    ctrl, _, config = load_controller(paths["npz"])
+    ctrl, task, config = load_controller(paths["npz"])
     row = {"run": os.path.basename(os.path.normpath(run_dir)), "env": env_name, "gymnasium": GYM_IDS[env_name],
            "kind": str(arrays["kind"]), "K": int(np.asarray(arrays["L"]).shape[0]) if "L" in arrays else ""}
     for name, summary in (("mjx", run_mjx(run_dir, episodes)[1]),
-                          ("mujoco_c", run_mujoco_c(ctrl, env_name, config, episodes)),
+                          ("mujoco_c", run_mujoco_c(ctrl, task, config, episodes)),
                           ("gymnasium_v5", run_gymnasium(ctrl, open_gymnasium(ctrl, env_name, GYM_IDS[env_name]),
                                                          GYM_IDS[env_name], episodes))):
         row[f"{name}_return"] = round(summary["return_mean"], 1)

@@ -6,6 +6,7 @@ options_hparams read a parsed command line, saved_option_values gives back a sav
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import re
@@ -15,6 +16,7 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 
 import envs
+from envs.families.record import TaskRecord
 from envs.physics import Physics, make_physics, nest_physics
 from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm import subpolicies
@@ -92,6 +94,20 @@ class Config:
             if not isinstance(self.randomize, str):
                 raise
 
+    @functools.cached_property
+    def task(self) -> TaskRecord:
+        """The record of the task this Config names (envs/registry.py), resolved once per Config: code below the
+        command layer asks it (cfg.task.source(), .model(), .has_c, ...) instead of looking the name up again.
+        ValueError (one line) where env names no task."""
+        return envs.resolve(self.env)
+
+    def __getstate__(self) -> dict:
+        """The fields only: the resolved record is not pickled (a worker resolves its own)."""
+        return {k: v for k, v in self.__dict__.items() if k != "task"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+
     @property
     def batch_size(self) -> int:
         return self.num_envs * self.unroll_length
@@ -102,8 +118,8 @@ class Config:
 
     def validate(self, task: Any = None) -> "Config":
         """Raise ValueError naming the first bad field (before anything is compiled). task: the task's record
-        (envs/registry.py; default: self.env resolved), whose name must be self.env."""
-        task = envs.resolve(self.env if task is None else task)
+        (envs/registry.py; default: self.task), whose name must be self.env."""
+        task = self.task if task is None else task
         if task.name != self.env:
             raise ValueError(f"the Config names env {self.env!r} but the task given is {task.name!r}: make the Config "
                              "with env=<the task's name>")

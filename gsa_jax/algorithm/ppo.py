@@ -407,7 +407,7 @@ def make_parts(cfg: Config, env: Any, eval_env: Any) -> Parts:
 
 def make_run_parts(cfg: Config, task: Any = None) -> Parts:
     """The Parts of a run of cfg on `task` (as make_train takes it), validated; gsa_jax.benchmark.parts times them."""
-    task = envs.resolve(cfg.env if task is None else task)
+    task = cfg.task if task is None else envs.resolve(task)
     if cfg.episode_length is None:
         cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
     cfg.validate(task)

@@ -12,7 +12,7 @@ from gsa_jax.analysis.sweeps import controller_scores, stats
 from gsa_jax.analysis.sweeps.figures import plot_curves, plot_profiles, plot_return_vs_k
 from gsa_jax.analysis.sweeps.results import (
     action_dims_of, drop_failed, load_failed, load_sweeps, random_returns_of, setting_columns, spec_multipliers, spec_steps,
-    unscored_lines, write_csv,
+    task_records, unscored_lines, write_csv,
 )
 from gsa_jax.analysis.sweeps.tables import aggregate_table, final_table, normalized_scores, run_table
 from gsa_jax.analysis.verdicts.grid import write_verdicts
@@ -21,12 +21,10 @@ from gsa_jax.analysis.verdicts.grid import write_verdicts
 def random_policies_of(env_names: Sequence[str], random_returns: dict, out_dir: str, log: Callable = print) -> dict:
     """{env: random policy record}: measured in MuJoCo C (controller_scores.random_policy, kept in out_dir) where the
     task has a MuJoCo C version, else the sweeps' scalar return taken as exact (its uncertainty unknown)."""
-    from envs import has_c_backend
-
     out = {}
-    for env_name in env_names:
-        if has_c_backend(env_name):
-            out[env_name] = controller_scores.random_policy(out_dir, env_name, log=log)
+    for env_name, task in task_records(env_names).items():
+        if task.has_c:
+            out[env_name] = controller_scores.random_policy(out_dir, task, log=log)
         elif env_name in random_returns:
             out[env_name] = {"returns": float(random_returns[env_name]), "episodes": 0, "start_seed": ""}
     return out

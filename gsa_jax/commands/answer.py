@@ -33,6 +33,7 @@ import os
 import shlex
 import sys
 
+import envs
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import sequential, verdict
 from gsa_jax.analysis.verdicts.answering import (
@@ -57,8 +58,6 @@ def parse_ints(text: str, what: str) -> tuple:
 
 def default_ladder(env: str) -> tuple:
     """K = ceil(m d_a) for m in MULTIPLIERS, the atlas's ladder ({1, 2, 4} on a one-action task)."""
-    import envs
-
     d_a = envs.action_size(env)
     return (1, 2, 4) if d_a == 1 else tuple(sorted({max(1, math.ceil(m * d_a - 1e-9)) for m in MULTIPLIERS}))
 
@@ -82,8 +81,6 @@ def start_specs(dirs: list) -> dict:
 
 def base_specs(args: argparse.Namespace, env: str) -> dict:
     """The base spec per class: --start-from's, else the defaults with --steps and the backend."""
-    import envs
-
     backend = args.physics or ("c" if envs.has_c_backend(env) else "mjx")
     try:
         config = json.loads(args.config)
@@ -99,8 +96,6 @@ def base_specs(args: argparse.Namespace, env: str) -> dict:
 
 def make_setup(args: argparse.Namespace) -> Setup:
     """The checked Setup of the command line (AnswerError in one line; nothing compiles)."""
-    import envs
-
     if args.budget_minutes <= 0:
         raise AnswerError(f"--budget-minutes must be > 0, got {args.budget_minutes:g}")
     if not 0.0 < args.margin < 1.0:
@@ -125,7 +120,7 @@ def make_setup(args: argparse.Namespace) -> Setup:
 def random_policy(out: str, setup: Setup) -> dict:
     """The random policy's episodes on the task in MuJoCo C (controller_scores.random_policy: 128 episodes, kept in
     out/random_policy.json)."""
-    return controller_scores.random_policy(out, setup.env)
+    return controller_scores.random_policy(out, envs.resolve(setup.env))
 
 
 def finish(out: str, setup: Setup, state: dict, argv: list) -> str:

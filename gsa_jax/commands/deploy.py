@@ -15,8 +15,8 @@ refused with the reason where its observation layout is not ours, gsa_jax.deploy
 import argparse
 import json
 
-from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, has_mujoco_c, load_controller, mujoco_c_label,
-                                           open_gymnasium, report_line, run_gymnasium, run_mujoco_c)
+from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, load_controller, open_gymnasium, report_line,
+                                           run_gymnasium, run_mujoco_c)
 from gsa_jax.cli import command_parser, run_command
 
 
@@ -25,12 +25,13 @@ def deploy(args: argparse.Namespace) -> dict:
     counterpart) is refused before any episode."""
     if args.episodes < 1:
         raise DeployError(f"--episodes must be >= 1, got {args.episodes}")
-    ctrl, env_name, config = load_controller(args.controller, args.force)
+    ctrl, task, config = load_controller(args.controller, args.force)
+    env_name = task.name
     gym = open_gymnasium(ctrl, env_name, args.gymnasium, args.seed) if args.gymnasium else None
     result = {"env": env_name, "controller": args.controller}
-    if has_mujoco_c(env_name) or not (args.gymnasium or args.compare_mjx):  # else: the others only
-        result["mujoco_c"] = run_mujoco_c(ctrl, env_name, config, args.episodes, args.episode_length, args.seed)
-        print(report_line(env_name, mujoco_c_label(env_name) + ",", result["mujoco_c"]))
+    if task.has_c or not (args.gymnasium or args.compare_mjx):  # else: the others only
+        result["mujoco_c"] = run_mujoco_c(ctrl, task, config, args.episodes, args.episode_length, args.seed)
+        print(report_line(env_name, task.mujoco_c_label() + ",", result["mujoco_c"]))
     if gym:
         result["gymnasium"] = run_gymnasium(ctrl, gym, args.gymnasium, args.episodes, args.seed)
         print(report_line(env_name, f"gymnasium {args.gymnasium},", result["gymnasium"]))

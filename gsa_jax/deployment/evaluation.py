@@ -5,11 +5,15 @@ import json
 import os
 import zipfile
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from envs import resolve
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.errors import UserError
+
+if TYPE_CHECKING:
+    from envs.families.record import TaskRecord
 
 
 class DeployError(UserError):
@@ -25,9 +29,10 @@ def summarize(returns: np.ndarray, lengths: np.ndarray) -> dict:
 
 
 def load_controller(controller_path: str, force: bool = False) -> tuple:
-    """(NumPy controller, its task name, its config) of an exported controller file, acting in [-1, 1] as our MuJoCo C
-    tasks' step() takes (Controller.unit_actions); DeployError (one line) where it does not fit its task's definition
-    as it is now (numpy_policy.check_task; force: only its observation size)."""
+    """(NumPy controller, its task's record, its config) of an exported controller file, acting in [-1, 1] as our
+    MuJoCo C tasks' step() takes (Controller.unit_actions); DeployError (one line) where its task does not resolve
+    here or it does not fit its task's definition as it is now (numpy_policy.check_task; force: only its observation
+    size)."""
     if not os.path.exists(controller_path):
         raise DeployError(f"{controller_path!r} does not exist (make one with gsa export RUN --out FILE)")
     if not zipfile.is_zipfile(controller_path):
@@ -39,34 +44,36 @@ def load_controller(controller_path: str, force: bool = False) -> tuple:
         config = json.loads(str(arrays["config_json"]))["config"]
     except (OSError, KeyError, ValueError) as e:
         raise DeployError(f"{controller_path!r} is not an exported controller ({e})") from None
-    if has_mujoco_c(config["env"]):  # a task MuJoCo C steps: its definition is read without JAX
+    task = controller_record(arrays, config["env"])
+    if task.has_c:  # a task MuJoCo C steps: its definition is read without JAX
         try:
-            numpy_policy.check_task(arrays, config["env"], force, name=str(controller_path))
+            numpy_policy.check_task(arrays, task, force, name=str(controller_path))
         except numpy_policy.TaskMismatch as e:
             raise DeployError(str(e)) from None
-    return ctrl.unit_actions(), config["env"], config
+    return ctrl.unit_actions(), task, config
 
 
-def has_mujoco_c(env_name: str) -> bool:
-    """Whether plain MuJoCo C runs the controller's task (DeployError, one line, if its name does not resolve)."""
+def controller_record(arrays: dict, env_name: str) -> "TaskRecord":
+    """The record of the task a controller's arrays name (numpy_policy.controller_task); DeployError, one line, where
+    the name does not resolve here."""
     try:
-        return resolve(env_name).has_c
+        return numpy_policy.controller_task(arrays)
     except (ValueError, ImportError) as e:  # a name that does not resolve, or a library this machine lacks
         raise DeployError(f"the controller is for {env_name!r}: {' '.join(str(e).split())}") from None
 
 
-def run_mujoco_c(ctrl: numpy_policy.Controller, env_name: str, config: dict, episodes: int,
+def run_mujoco_c(ctrl: numpy_policy.Controller, task: "TaskRecord", config: dict, episodes: int,
                  episode_length: int | None = None, seed: int = 0) -> dict:
-    """Summary of the controller's deterministic episodes in our MuJoCo C port of its task."""
+    """Summary of the controller's deterministic episodes in our MuJoCo C port of its task (task: its record,
+    load_controller's)."""
     from envs.mujoco_c import run_episodes
 
     try:  # a task defined outside the package is imported here: its errors in one line
-        record = resolve(env_name)
-        task = record.make_c()
-        length = episode_length or config.get("episode_length") or record.episode_length()
+        twin = task.make_c()
+        length = episode_length or config.get("episode_length") or task.episode_length()
     except ValueError as e:
-        raise DeployError(f"the controller is for {env_name!r}: {e}") from None
-    returns, lengths = run_episodes(task, ctrl, episodes, int(length), seed)
+        raise DeployError(f"the controller is for {task.name!r}: {e}") from None
+    returns, lengths = run_episodes(twin, ctrl, episodes, int(length), seed)
     return {**summarize(returns, lengths), "episode_length_limit": int(length)}
 
 
@@ -92,12 +99,6 @@ def run_gymnasium(ctrl: numpy_policy.Controller, gym: tuple, env_id: str, episod
     returns, lengths = run_episodes(env, ctrl, episodes, seed)
     return {**summarize(returns, lengths), "env_id": env_id, "options": options,
             "episode_length_limit": int(env.spec.max_episode_steps or 0)}
-
-
-def mujoco_c_label(env_name: str) -> str:
-    """What runs a task in MuJoCo C, for report lines: our port of Brax's task (or of the Allegro hand), a built-in
-    task definition, or the user's own."""
-    return resolve(env_name).mujoco_c_label()
 
 
 def run_mjx(run_dir: str, episodes: int, seed: int = 0) -> tuple:

@@ -4,17 +4,20 @@ command."""
 import json
 import os
 import zipfile
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.export_c import cost, to_source
-from gsa_jax.deployment.numpy_policy import action_bounds, map_actions, task_name
+from gsa_jax.deployment.numpy_policy import action_bounds, controller_task, map_actions, task_name
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import save_npz_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
+
+if TYPE_CHECKING:
+    from envs.families.record import TaskRecord
 
 
 class ExportError(UserError):
@@ -30,7 +33,7 @@ def with_bounds(arrays: Mapping, source: str) -> dict:
         raise ExportError(f"{source!r} names no known task ({task_name(arrays)!r}), so no action bounds to export")
     if "action_space" not in arrays:
         arrays = {**arrays, "action_low": bounds[0], "action_high": bounds[1]}
-        arrays = in_task_action_space({**arrays, **control_range_arrays(task_name(arrays))})
+        arrays = in_task_action_space({**arrays, **control_range_arrays(known_task(arrays))})
     return {**arrays, **identity_arrays(arrays)}
 
 
@@ -53,13 +56,19 @@ def identity_arrays(arrays: Mapping) -> dict:
             "task_sha256": np.array(str(arrays["task_sha256"]) if "task_sha256" in arrays else "")}
 
 
-def control_range_arrays(task: str) -> dict:
-    """{ctrl_low, ctrl_high} where the task maps actions onto its actuators' ctrlrange (envs.control_range), else {}."""
-    import envs
+def known_task(arrays: Mapping) -> "TaskRecord | None":
+    """The record of the task a controller's arrays name (numpy_policy.controller_task), None where they name none or
+    it does not resolve here."""
+    try:
+        return controller_task(arrays)
+    except (ValueError, ImportError):
+        return None
 
-    if task is None or not envs.is_name(task):
-        return {}
-    ranges = envs.control_range(task)
+
+def control_range_arrays(task: "TaskRecord | None") -> dict:
+    """{ctrl_low, ctrl_high} where the task (its record) maps actions onto its actuators' ctrlrange
+    (TaskRecord.control_range), else {}."""
+    ranges = None if task is None else task.control_range()
     return {} if ranges is None else {"ctrl_low": ranges[0], "ctrl_high": ranges[1]}
 
 
@@ -132,13 +141,12 @@ def load_arrays(source: str) -> dict:
 
 def task_layout(arrays: Mapping) -> list | None:
     """The task's observation layout (names), or None for an unknown task."""
+    task = known_task(arrays)
     try:
-        from envs.mujoco_c import observation_layout
-
-        layout = observation_layout(task_name(arrays))
+        layout = None if task is None else task.observation_layout()
     except (KeyError, ValueError):
         return None
-    return layout if len(layout) == np.asarray(arrays["obs_mean"]).shape[0] else None
+    return layout if layout is not None and len(layout) == np.asarray(arrays["obs_mean"]).shape[0] else None
 
 
 def write(arrays: dict, fmt: str, out: str) -> list:

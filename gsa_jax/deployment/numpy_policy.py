@@ -23,13 +23,16 @@ Files exported before the bounds were stored get their task's (`action_bounds`);
 
 import json
 import warnings
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.errors import UserError
+
+if TYPE_CHECKING:
+    from envs.families.record import TaskRecord
 
 
 def task_name(arrays: Mapping) -> str | None:
@@ -47,19 +50,28 @@ def action_size(arrays: Mapping) -> int:
     return int(np.shape(arrays[f"b{int(arrays['n_layers']) - 1}"])[-1])
 
 
-def action_bounds(arrays: Mapping) -> tuple | None:
-    """(low [d_a], high [d_a]) float32 of an exported controller: its own action_low / action_high, else (files
-    exported before they were stored) those of the task it names (envs.action_bounds), else None."""
-    if "action_low" in arrays:
-        return np.asarray(arrays["action_low"], np.float32), np.asarray(arrays["action_high"], np.float32)
-    task = task_name(arrays)
-    if task is None:
+def controller_task(arrays: Mapping) -> "TaskRecord | None":
+    """The record of the task an exported controller names (config_json's config.env; envs/registry.py), or None
+    where it names none: the one place a controller file's task name becomes its record (ValueError / ImportError,
+    one line, where the name does not resolve on this machine)."""
+    name = task_name(arrays)
+    if name is None:
         return None
     import envs  # no JAX: the task registry
 
-    if not envs.is_name(task):  # a built-in name resolves without loading its task
+    return envs.resolve(name)
+
+
+def action_bounds(arrays: Mapping) -> tuple | None:
+    """(low [d_a], high [d_a]) float32 of an exported controller: its own action_low / action_high, else (files
+    exported before they were stored) those of the task it names (TaskRecord.action_bounds), else None."""
+    if "action_low" in arrays:
+        return np.asarray(arrays["action_low"], np.float32), np.asarray(arrays["action_high"], np.float32)
+    try:
+        task = controller_task(arrays)
+    except (ValueError, ImportError):  # a name that does not resolve here: no bounds
         return None
-    return envs.action_bounds(task, action_size(arrays))
+    return None if task is None else task.action_bounds(action_size(arrays))
 
 
 class TaskMismatch(UserError, ValueError):
@@ -71,26 +83,25 @@ def stored_sha256(arrays: Mapping) -> str | None:
     return str(arrays["task_sha256"]) or None if "task_sha256" in arrays else None
 
 
-def check_task(arrays: Mapping, task: str, force: bool = False, name: str = "the controller") -> None:
-    """TaskMismatch (one line) unless the controller fits `task` (a task name) as its definition is now: the same
-    observation size, and (unless force) the same task name and, where both are recorded, the same definition
-    sha256 (envs.task_source, what `train --resume` compares)."""
-    import envs
-
+def check_task(arrays: Mapping, task: "TaskRecord", force: bool = False, name: str = "the controller") -> None:
+    """TaskMismatch (one line) unless the controller fits `task` (its record, envs/registry.py) as its definition is
+    now: the same observation size, and (unless force) the same task name and, where both are recorded, the same
+    definition sha256 (TaskRecord.source(), what `train --resume` compares)."""
     d_s = int(np.shape(arrays["obs_mean"])[0])
     mine = (str(arrays["task"]) if "task" in arrays else "") or task_name(arrays)  # task: as exported
-    size = envs.observation_size(task)
+    size = task.observation_size()
     if size != d_s:
-        raise TaskMismatch(f"{name} takes {d_s} observation values and task {task!r} now observes {size}: it was "
-                           f"trained on {'task ' + repr(mine) if mine else 'another task'} as it was then; export it "
-                           "again from a run of the task as it is")
+        raise TaskMismatch(f"{name} takes {d_s} observation values and task {task.name!r} now observes {size}: it "
+                           f"was trained on {'task ' + repr(mine) if mine else 'another task'} as it was then; export "
+                           "it again from a run of the task as it is")
     if force:
         return
-    sha = envs.task_source(task).get("sha256")
-    if mine is not None and mine != task:
-        raise TaskMismatch(f"{name} is for task {mine!r}, not {task!r} (pass --force / force=True to run it anyway)")
+    sha = task.source().get("sha256")
+    if mine is not None and mine != task.name:
+        raise TaskMismatch(f"{name} is for task {mine!r}, not {task.name!r} (pass --force / force=True to run it "
+                           "anyway)")
     if stored_sha256(arrays) and sha and stored_sha256(arrays) != sha:
-        raise TaskMismatch(f"the definition of task {task!r} changed since {name} was trained (sha256 "
+        raise TaskMismatch(f"the definition of task {task.name!r} changed since {name} was trained (sha256 "
                            f"{stored_sha256(arrays)[:12]}... then, {sha[:12]}... now); pass --force / force=True to "
                            "run it anyway")
 
@@ -218,12 +229,14 @@ class Controller:
         return np.einsum("...ij,...j->...i", self.L[c], self.features(z)) + self.b[c]
 
 
-def load(path: str, task: "str | None" = None, force: bool = False) -> Controller:
+def load(path: str, task: "str | TaskRecord | None" = None, force: bool = False) -> Controller:
     """The controller of an exported .npz; one warning line where it has no action bounds and names no known task.
-    task: a task name it must fit (check_task: TaskMismatch, one line, where it does not; force: only its
-    observation size is checked)."""
+    task: a task (its name, resolved here, or its record) it must fit (check_task: TaskMismatch, one line, where it
+    does not; force: only its observation size is checked)."""
     with np.load(path, allow_pickle=False) as f:
         arrays = {k: f[k] for k in f.files}
     if task is not None:
-        check_task(arrays, task, force, name=str(path))
+        import envs
+
+        check_task(arrays, envs.resolve(task), force, name=str(path))
     return Controller(arrays, name=str(path))

@@ -10,7 +10,6 @@ import sys
 from importlib import metadata
 from typing import TYPE_CHECKING, Any
 
-import envs
 from envs.physics import record
 from gsa_jax.errors import UserError
 
@@ -40,10 +39,10 @@ def git_commit() -> "str | None":
         return None
 
 
-def physics_record(cfg: "Config", task: Any = None) -> dict:
-    """Every physics option in force for a Config's task (envs.physics.record; no MJX env is built). task: its
-    record (envs.resolve(cfg.env), resolved here if not given)."""
-    return record(cfg.physics, envs.resolve(cfg.env if task is None else task).model())
+def physics_record(cfg: "Config") -> dict:
+    """Every physics option in force for a Config's task (envs.physics.record of cfg.task's model; no MJX env is
+    built)."""
+    return record(cfg.physics, cfg.task.model())
 
 
 def run_metadata() -> dict:

@@ -15,7 +15,6 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-import envs
 from envs import solver_settings
 from envs.physics import C, resolve_threads
 from gsa_jax.algorithm.config import Config, config_record
@@ -78,14 +77,15 @@ def rows_to_csv(rows: list) -> str:
 RESUME_KEYS = ("config", "hparams", "seed", "iterations", "chunk", "eval_every", "eval_seed")
 
 
-def check_resume_config(old: dict, config: dict, force: bool) -> None:
+def check_resume_config(old: dict, config: dict, force: bool, source: dict) -> None:
     """Refuse (ResumeRefused, one line) to resume a saved run whose settings or task code (the sha256 of the file
     that defines a task of the user's) differ, unless force. A config field the saved run's config.json lacks (it
-    was written before the field existed) ran at its default; a setting it lacks is not compared."""
+    was written before the field existed) ran at its default; a setting it lacks is not compared. source: the task's
+    source as it is now (TaskRecord.source())."""
     mine = {k: config[k] for k in RESUME_KEYS if k in old}
     theirs = {k: old.get(k) for k in RESUME_KEYS if k in old}
     if "task" in old:
-        mine["task"], theirs["task"] = envs.task_source(config["config"]["env"]), old["task"]
+        mine["task"], theirs["task"] = source, old["task"]
     theirs["config"] = config_record(theirs["config"] or {})
     check_unchanged(theirs, mine, force, "--resume with a different run than the one in the output directory",
                     "pass --force to continue it with the new settings")
@@ -144,11 +144,10 @@ def run(plan: RunPlan, options: RunOptions, log: Callable, warn: Callable) -> Ru
         if options.resume and os.path.exists(config_path):
             check_layout(out)
             with open(config_path) as f:
-                check_resume_config(json.load(f), config, options.force)
+                check_resume_config(json.load(f), config, options.force, cfg.task.source())
             if os.path.exists(os.path.join(out, "DONE")):
                 return RunEnd(report_ended(out, log), config)
-        task = envs.resolve(cfg.env)  # the task's record, read for both
-        config.update(physics=physics_record(cfg, task), task=task.source(), **run_metadata())
+        config.update(physics=physics_record(cfg), task=cfg.task.source(), **run_metadata())
         write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
         write_atomic(config_path, json.dumps(config, indent=2))
         return RunEnd(train_run(plan, options, config, (log, warn)), config)

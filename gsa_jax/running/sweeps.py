@@ -12,7 +12,6 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-import envs
 from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
@@ -123,12 +122,11 @@ def write_group_record(gdir: str, spec: SweepSpec, cfg: Config, runs: list[dict]
     run's seed and full hyperparameters (gsa_jax.running.trained reads a run's settings from it), physics,
     versions and commit. schedule: (iterations, chunk, eval_every)."""
     iterations, chunk, eval_every = schedule
-    task = envs.resolve(cfg.env)  # the task's record, read for its physics and its source
     per_run = [{"seed": r["seed"], "hparams": {**HPARAM_DEFAULTS, **{n: r[n] for n in spec.run_hparam_names()}, "K": r["K"],
                                                "total_iterations": iterations}} for r in runs]
     record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, "eval_every": eval_every,
               "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
-              "physics": physics_record(cfg, task), "task": task.source(), **run_metadata()}
+              "physics": physics_record(cfg), "task": cfg.task.source(), **run_metadata()}
     write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
 
 
@@ -155,7 +153,9 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
     """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
     spec, unless options.force)."""
     meta_path = os.path.join(root, "sweep.json")
-    tasks = {e: envs.task_source(e) for e in spec.envs}
+    configs = {group_name(g): group_config(spec, g) for g in groups}
+    sources = {cfg.env: cfg.task.source() for cfg in configs.values()}
+    tasks = {e: sources[e] for e in spec.envs if e in sources}
     if os.path.exists(meta_path):
         with open(meta_path) as f:
             old = json.load(f)
@@ -163,7 +163,7 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
                         {"spec": spec.to_json(), "tasks": tasks},
                         options.force, f"{root} holds a sweep with a different spec or task code",
                         "use another --out, or --force to continue it with the new spec")
-    physics = {group_name(g): physics_record(group_config(spec, g)) for g in groups}
+    physics = {name: physics_record(cfg) for name, cfg in configs.items()}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
             "run_batch": options.run_batch, "tensorboard": options.tensorboard, "physics": physics,
             "tasks": tasks, **run_metadata()}

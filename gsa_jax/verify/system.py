@@ -40,7 +40,7 @@ def load_system(path: str) -> System:
     """The controller at `path` and its task's definition; VerifyError (one line) for a file that is not an exported
     controller, a task without a MuJoCo C twin, or an observation size that differs from the task's."""
     ctrl, env = _load_controller(path)
-    task = _task_definition(env)
+    task = _task_definition(ctrl, env)
     d_s, d_in = task.observation_size, controller_input_size(ctrl)
     if d_in != d_s:
         raise VerifyError(f"{path!r} takes observations of size {d_in} but its task {env!r} observes {d_s}: "
@@ -66,11 +66,11 @@ def _load_controller(path):
     return ctrl, env
 
 
-def _task_definition(env):
-    import envs
-
+def _task_definition(ctrl: numpy_policy.Controller, env: str) -> Task:
+    """The task definition verify steps: that of the controller's task's record (numpy_policy.controller_task);
+    VerifyError (one line) where it does not resolve here or has no MuJoCo C twin."""
     try:
-        record = envs.resolve(env)
+        record = numpy_policy.controller_task(ctrl.arrays)
     except (ValueError, ImportError) as e:
         raise VerifyError(f"the controller is for {env!r}: {' '.join(str(e).split())}") from None
     if not record.verifiable:

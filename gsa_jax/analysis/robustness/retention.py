@@ -6,7 +6,6 @@ evaluation is retention_eval, the statistics retention_stats, the shared row hel
 import os
 from typing import Callable, Sequence
 
-import envs
 from gsa_jax.analysis.robustness.fairness import fair_rows
 from gsa_jax.analysis.robustness.paired import aggregate_pushes, plot_pushes
 from gsa_jax.analysis.robustness.retention_plots import plot_robustness
@@ -14,7 +13,7 @@ from gsa_jax.analysis.robustness.retention_stats import aggregate, correlations,
 from gsa_jax.analysis.robustness.shift_rows import controller_key
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.figures import plot_profiles
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax.analysis.sweeps.results import task_records, write_csv
 
 EARLY_PUSHES = 300  # env steps: paired_pushes_early.csv's pushes
 
@@ -29,7 +28,7 @@ def analyse(rows: list, sens: list, out: str, reps: int = stats.REPS, log: Calla
     if corr:
         write_csv(os.path.join(out, "correlation.csv"), corr)
     plot_robustness(agg, os.path.join(out, "robustness.png"))
-    scores = profile_scores(rows, {e: envs.action_size(e) for e in {r["env"] for r in rows}})
+    scores = profile_scores(rows, {e: t.action_size() for e, t in task_records(r["env"] for r in rows).items()})
     if scores:
         plot_profiles(scores, os.path.join(out, "profile.png"), reps,
                       xlabel="tau: a run's mean retained fraction over the shifts (1 = its nominal score, 0 = random)")

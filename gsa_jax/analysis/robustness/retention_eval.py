@@ -10,14 +10,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from envs import action_size, check_name
 from envs.randomization import DEFAULT_PUSH_RATE
 from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.analysis.robustness.shift_rows import TIDY, RobustnessError, controller_key
 from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.deployment.evaluation import DeployError, load_controller
-from gsa_jax.deployment.numpy_policy import Controller
+from gsa_jax.deployment.numpy_policy import Controller, action_size
 from gsa_jax.deployment.shifts import Shift, applies, run_shifted
 from gsa_jax.running.runinfo import run_metadata
 
@@ -39,10 +38,10 @@ def load_controllers(paths: Sequence[str]) -> list:
     out = []
     for f in files:
         try:
-            ctrl, env_name, _ = load_controller(f)
+            ctrl, task, _ = load_controller(f)  # a task defined outside the package: importable here, one line if not
+            env_name = task.name
             with np.load(f, allow_pickle=False) as z:
                 meta = json.loads(str(z["config_json"]))
-            check_name(env_name)  # a task defined outside the package: importable from here, in one line if not
         except (DeployError, ValueError) as e:
             raise RobustnessError(f"{f}: {e}") from None
         k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""
@@ -61,9 +60,9 @@ class RandomController:
         return self.rng.uniform(-1.0, 1.0, obs.shape[:-1] + (self.action_size,))
 
 
-def random_score(env_name: str, shift: Shift, seeds: np.ndarray) -> float:
-    """Mean return of the random policy under the shift from the same starts."""
-    ctrl = RandomController(action_size(env_name))
+def random_score(env_name: str, shift: Shift, seeds: np.ndarray, size: int) -> float:
+    """Mean return of the random policy (actions [size] uniform in [-1, 1]) under the shift from the same starts."""
+    ctrl = RandomController(size)
     same_law = shift.kind in ("obs_noise", "action_delay")  # a random policy ignores what it sees and when
     returns, _, _ = run_shifted(ctrl, env_name, Shift("nominal") if same_law else shift, seeds)
     return float(returns.mean())
@@ -117,7 +116,7 @@ def evaluate_all(controllers: list, shifts: Sequence[Shift], episodes: int, out:
             continue
         for shift in shifts:
             if applies(meta["env"], shift) and (meta["env"], shift) not in randoms:
-                randoms[(meta["env"], shift)] = random_score(meta["env"], shift, seeds)
+                randoms[(meta["env"], shift)] = random_score(meta["env"], shift, seeds, action_size(ctrl.arrays))
         new, sensitivity = evaluate_controller(meta, ctrl, shifts, seeds, randoms)
         kept = [float(r["retained_fraction"]) for r in new if r["shift"] != "nominal"]
         rows += new

@@ -16,13 +16,16 @@ import io
 import json
 import os
 import time
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.errors import UserError
+
+if TYPE_CHECKING:
+    from envs.families.record import TaskRecord
 
 EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
 START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
@@ -68,13 +71,14 @@ def score_controller(path: str, episodes: int = EPISODES, start_seed: int = STAR
     episodes - 1 (gsa_jax.deployment.evaluation.run_mujoco_c, what gsa_jax.deploy runs)."""
     import mujoco
 
-    from gsa_jax.deployment.evaluation import DeployError, has_mujoco_c, load_controller, run_mujoco_c
+    from gsa_jax.deployment.evaluation import DeployError, load_controller, run_mujoco_c
 
     try:
-        ctrl, env_name, config = load_controller(path)
-        if not has_mujoco_c(env_name):
+        ctrl, task, config = load_controller(path)
+        env_name = task.name
+        if not task.has_c:
             raise ScoreError(f"{env_name!r} has no MuJoCo C version: its controllers cannot be scored outside training")
-        summary = run_mujoco_c(ctrl, env_name, config, episodes, seed=start_seed)
+        summary = run_mujoco_c(ctrl, task, config, episodes, seed=start_seed)
     except DeployError as e:
         raise ScoreError(str(e)) from None
     k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""
@@ -176,16 +180,14 @@ class RandomActions:
         return self.rng.uniform(-1.0, 1.0, self.size)
 
 
-def score_random_policy(env_name: str, episodes: int = RANDOM_EPISODES, start_seed: int = RANDOM_START_SEED) -> dict:
+def score_random_policy(task: "TaskRecord", episodes: int = RANDOM_EPISODES, start_seed: int = RANDOM_START_SEED) -> dict:
     """The random policy's episodes in MuJoCo C (the simulator every controller score comes from): the returns of
     episodes start_seed .. start_seed + episodes - 1, each from that seed's start state with actions drawn from a
     generator seeded with it -> {returns, mean, std, episodes, start_seed, simulator, mujoco_version}."""
     import mujoco
 
-    from envs import default_episode_length, resolve
-
-    task = resolve(env_name).make_c()
-    actions, length = RandomActions(task.action_size), default_episode_length(env_name)
+    length, task = task.episode_length(), task.make_c()
+    actions = RandomActions(task.action_size)
     returns = []
     for e in range(episodes):
         obs, total = task.reset(start_seed + e), 0.0
@@ -201,13 +203,13 @@ def score_random_policy(env_name: str, episodes: int = RANDOM_EPISODES, start_se
             "episodes": episodes, "start_seed": start_seed, "simulator": "mujoco_c", "mujoco_version": mujoco.__version__}
 
 
-def random_policy(directory: str, env_name: str, episodes: int = RANDOM_EPISODES, start_seed: int = RANDOM_START_SEED,
+def random_policy(directory: str, task: "TaskRecord", episodes: int = RANDOM_EPISODES, start_seed: int = RANDOM_START_SEED,
                   log: Callable | None = print) -> dict:
-    """The random policy's record of `env_name` kept in directory/random_policy.json (measured and added there when
-    it is missing or was measured with other episodes or start seed)."""
+    """The random policy's record of a task (task: its record) kept in directory/random_policy.json under its name
+    (measured and added there when it is missing or was measured with other episodes or start seed)."""
     from gsa_jax.running.checkpoint import write_atomic
 
-    path = os.path.join(directory, RANDOM_FILE)
+    path, env_name = os.path.join(directory, RANDOM_FILE), task.name
     found = {}
     if os.path.exists(path):
         with open(path) as f:
@@ -217,7 +219,7 @@ def random_policy(directory: str, env_name: str, episodes: int = RANDOM_EPISODES
         return kept
     if log:
         log(f"measuring the random policy's return on {env_name} ({episodes} episodes in MuJoCo C from seed {start_seed})")
-    found[env_name] = score_random_policy(env_name, episodes, start_seed)
+    found[env_name] = score_random_policy(task, episodes, start_seed)
     os.makedirs(directory, exist_ok=True)
     write_atomic(path, json.dumps(found, indent=1))
     return found[env_name]

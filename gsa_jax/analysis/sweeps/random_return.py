@@ -5,17 +5,18 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from envs.families.record import TaskRecord
 from envs.physics import Physics
 from gsa_jax.algorithm.episodes import step_episodes
 
 
-def random_policy_return(env_name: str, episodes: int = 16, seed: int = 0, episode_length: int | None = None,
+def random_policy_return(task: TaskRecord, episodes: int = 16, seed: int = 0, episode_length: int | None = None,
                          backend: str = "mjx") -> float:
     """Mean return of uniformly random actions in [-1, 1] over `episodes` full episodes of a task (the
-    score that normalizes to 0), from the start states of PRNGKey(seed), stepped by `backend` ('mjx' or 'c':
+    score that normalizes to 0; task: its record), from the start states of PRNGKey(seed), stepped by `backend` ('mjx' or 'c':
     the one the sweep trained with, since MJX cannot step every task)."""
-    env = envs.make(env_name, episode_length, auto_reset=False, physics=Physics(backend=backend))
-    length = episode_length or envs.default_episode_length(env_name)
+    env = envs.make(task, episode_length, auto_reset=False, physics=Physics(backend=backend))
+    length = episode_length or task.episode_length()
 
     def run(key):
         k_reset, k_act = jax.random.split(key)

@@ -249,16 +249,21 @@ def spec_multipliers(dirs: Sequence[str]) -> dict:
     return {e: sorted(ms) for e, ms in out.items()}
 
 
+def task_records(env_names: Iterable[str]) -> dict:
+    """{env: its record (envs/registry.py)} of the task names result files hold (CSV rows, sweep.json): the one place
+    analysis turns those names into records, once each; ValueError (one line) for a name that does not resolve here."""
+    import envs
+
+    return {e: envs.resolve(e) for e in dict.fromkeys(env_names)}
+
+
 def action_dims_of(dirs: Sequence[str], env_names: Iterable[str]) -> dict:
     """{env: d_a}: as the sweeps' sweep.json recorded it for a task defined outside the package (`tasks`), so that
     reading results never imports a user's task code; else from the task registry (built-in tasks)."""
     recorded = {e: t["action_size"] for d in dirs for meta in sweep_metas(d)
                 for e, t in (meta.get("tasks") or {}).items() if "action_size" in t}
     missing = [e for e in env_names if e not in recorded]
-    if missing:
-        import envs
-
-        recorded.update({e: envs.action_size(e) for e in missing})
+    recorded.update({e: task.action_size() for e, task in task_records(missing).items()})
     return {e: recorded[e] for e in env_names}
 
 
@@ -289,10 +294,10 @@ def random_returns_of(dirs: Sequence[str], env_names: Iterable[str], out_dir: st
     if missing:
         from gsa_jax.analysis.sweeps.random_return import random_policy_return
 
-        for env_name in missing:
+        for env_name, task in task_records(missing).items():
             backend = backend_of(dirs, env_name)
             log(f"measuring the random-policy return of {env_name} (for normalized scores; backend {backend!r})")
-            found[env_name] = random_policy_return(env_name, backend=backend)
+            found[env_name] = random_policy_return(task, backend=backend)
         with open(saved, "w") as f:
             json.dump({e: found[e] for e in env_names}, f, indent=1)
     return {e: found[e] for e in env_names}

@@ -24,6 +24,7 @@ from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.sweeps.extraction import collect_results
+from gsa_jax.analysis.sweeps.results import task_records
 from gsa_jax.analysis.verdicts import baseline, ladder, sequential, trimmed, verdict
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import write_atomic
@@ -246,11 +247,10 @@ def choose_baseline(setup: Setup, evidence: Evidence, state: dict) -> dict:
 
 
 def task_max_return(env: str) -> float | None:
-    """The task's declared maximum return (envs.max_return), None where it declares none or is not a task here."""
-    import envs
-
+    """The task's declared maximum return (TaskRecord.max_return), None where it declares none or is not a task
+    here."""
     try:
-        return envs.max_return(env)
+        return task_records([env])[env].max_return()
     except (ValueError, ImportError):
         return None
 
