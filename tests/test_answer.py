@@ -106,6 +106,7 @@ def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     (["--env", "dmc:cartpole-swingup", "--steps", "4096"], "the still-learning test needs at least 10"),
     (["--env", "dmc:cartpole-swingup", "--config", "[1]"], "--config must be a JSON object"),
     (["--env", "dmc:cartpole-swingup", "--config", "{num_envs: 16}"], "--config must be a JSON object"),
+    (["--env", "dmc:cartpole-swingup", "--config", '{"partition": "cubic"}'], "unknown partition 'cubic'"),
 ])
 def test_bad_input_is_one_line_before_anything_compiles(argv, message, tmp_path, capsys):
     from gsa_jax.answer import main

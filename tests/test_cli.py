@@ -32,6 +32,8 @@ SMALL = ["--steps", "2048", "--num-envs", "16", "--unroll-length", "32", "--mini
         (["--eps-init", "1.5"], "eps_init must be in [0, 1)"),
         (["--subpolicy", "cubic"], "unknown --subpolicy 'cubic'; choose one of constant, linear, quadratic"),
         (["--policy", "mlp", "--subpolicy", "constant"], "--subpolicy applies to --policy mixture only"),
+        (["--partition", "cubic"], "unknown partition 'cubic'; choose one of mlp, linear"),
+        (["--policy", "mlp", "--partition", "linear"], "--partition applies to --policy mixture only"),
         (["--solver-iterations", "0"], "--solver-iterations must be an integer >= 1"),
         (["--ls-iterations", "-2"], "--ls-iterations must be an integer >= 1"),
         (["--value-target", "td"], "unknown --value-target 'td'; choose one of gae, retrace"),

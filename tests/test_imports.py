@@ -12,7 +12,7 @@ import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
 LAYERS = ("errors", "algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
-JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "deployment.numpy_policy", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
+JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "algorithm.partitions", "deployment.numpy_policy", "deployment.cells", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
             "analysis.sweeps.figures", "analysis.sweep_report", "analysis.verdicts.grid", "analysis.robustness.retention",

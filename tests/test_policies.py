@@ -65,6 +65,12 @@ def mix4():
     return make_policy("mixture", D_S, D_A, k_max=4)
 
 
+@pytest.fixture(scope="module", params=["mlp", "linear"])
+def masked_pair(request):
+    """(K_max = 16, K_max = 4) mixtures of one partition class."""
+    return tuple(make_policy("mixture", D_S, D_A, k_max=k, partition=request.param) for k in (16, 4))
+
+
 def test_mixture_log_prob_matches_numpy(mix16):
     K = 5
     params = random_mixture_params(mix16, jax.random.PRNGKey(0), K)
@@ -171,14 +177,20 @@ def test_sigma_min_floor(mix16):
     np.testing.assert_allclose(float(logp[0]), ref, rtol=1e-4, atol=1e-4)
 
 
-def test_masked_k_equals_unpadded(mix16, mix4):
-    """K=4 inside K_max=16 == K=4 with K_max=4: init, samples, log-probs, deterministic actions, gradients."""
+def test_masked_k_equals_unpadded(masked_pair):
+    """K=4 inside K_max=16 == K=4 with K_max=4, for every partition class: init, samples, log-probs, deterministic
+    actions, gradients."""
+    mix16, mix4 = masked_pair
     K = 4
     hp = make_hparams(K=K, sigma_init_scale=1.0)
     p16 = mix16.init(jax.random.PRNGKey(0), hp)
     p4 = mix4.init(jax.random.PRNGKey(0), hp)
     np.testing.assert_array_equal(np.asarray(p16["b"][:K]), np.asarray(p4["b"]))
     np.testing.assert_array_equal(np.asarray(p16["log_sigma"][:K]), np.asarray(p4["log_sigma"]))
+    for l16, l4 in zip(p16["partition"][:-1], p4["partition"][:-1]):
+        np.testing.assert_array_equal(np.asarray(l16["w"]), np.asarray(l4["w"]))
+    for layer in (p16["partition"][-1], p4["partition"][-1]):  # zero last layer: uniform at init
+        assert not np.any(np.asarray(layer["w"])) and not np.any(np.asarray(layer["b"]))
     # train-like params: random, with the K active clusters of p16 equal to p4
     p4 = random_mixture_params(mix4, jax.random.PRNGKey(8), K)
     p16 = random_mixture_params(mix16, jax.random.PRNGKey(9), K)
@@ -187,7 +199,7 @@ def test_masked_k_equals_unpadded(mix16, mix4):
     p16["log_sigma"] = p16["log_sigma"].at[:K].set(p4["log_sigma"])
     p16["partition"] = [dict(l) for l in p4["partition"]]
     p16["partition"][-1] = {
-        "w": jnp.concatenate([p4["partition"][-1]["w"], jnp.ones((64, 12))], axis=1),
+        "w": jnp.concatenate([p4["partition"][-1]["w"], jnp.ones((p4["partition"][-1]["w"].shape[0], 12))], axis=1),
         "b": jnp.concatenate([p4["partition"][-1]["b"], jnp.full((12,), 9.0)]),
     }
     s = sched(K, 0.15, 0.05)

@@ -19,7 +19,7 @@ import envs
 from envs.families.record import TaskRecord
 from envs.physics import Physics, make_physics, nest_physics
 from envs.randomization import parse as parse_randomize
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
@@ -45,6 +45,10 @@ class Config:
     # mixture sub-policy class: constant | linear | quadratic
     subpolicy: str = _flag(subpolicies.DEFAULT, "--subpolicy", help=(
         "sub-policy class of a mixture: constant (one action per cluster), linear (default), quadratic"))
+    # mixture partition class: mlp | linear (gsa_jax/algorithm/partitions.py)
+    partition: str = _flag(partitions.DEFAULT, "--partition", help=(
+        "partition class of a mixture: mlp (the paper's tanh MLP, default) or linear (logits = W z + c on the "
+        "normalized observation: polyhedral cells)"))
     k_max: int = _flag(8, "--k-max", default=None, help="pad the cluster axis to this size (default: K)")
     num_envs: int = _flag(32, "--num-envs")
     unroll_length: int = _flag(64, "--unroll-length")
@@ -128,6 +132,7 @@ class Config:
             raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
         if self.subpolicy not in SUBPOLICY_KINDS:
             raise ValueError(f"unknown subpolicy {self.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
+        partitions.get(self.partition)  # ValueError naming the classes
         if self.reset_mode not in envs.RESET_MODES:
             raise ValueError(f"unknown reset_mode {self.reset_mode!r}; choose one of {', '.join(envs.RESET_MODES)}")
         if self.value_target not in VALUE_TARGETS:

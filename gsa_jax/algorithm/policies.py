@@ -13,11 +13,13 @@ Both are given as a `Policy` of pure functions on one observation (vmap for batc
 exploration of the partition), sigma_min (floor of every sub-policy std).
 
 Mixture: pi(c, a | s) = pi_p(c | s) N(a | L_c phi(s) + b_c, diag(max(sigma_c, sigma_min)^2)),
-pi_p = (1 - eps) softmax(partition_mlp(s))[active] + eps / K on the K active clusters.
+pi_p = (1 - eps) softmax(logits(s))[active] + eps / K on the K active clusters.
+The logits are the partition class's (gsa_jax/algorithm/partitions.py, one entry each): mlp (the paper's tanh MLP,
+the default) or linear (W s + c: polyhedral cells).
 phi is the sub-policy class (the paper's second complexity knob; gsa_jax/algorithm/subpolicies.py, one entry
 each): constant (phi = [], one action per cluster: classic state abstraction), linear (phi = s, the default),
 quadratic (phi = [s, upper-triangular s (x) s]).
-Params: partition (MLP d_s -> hidden -> K_max), L [K_max, d_a, d_phi], b [K_max, d_a],
+Params: partition (layers d_s -> ... -> K_max, its last zero at init), L [K_max, d_a, d_phi], b [K_max, d_a],
 log_sigma [K_max, d_a]. Clusters c >= K are masked: probability exactly 0, excluded from
 the uniform part, never sampled; every quantity (init, samples, log-probs, modes) is the
 same for a K inside any K_max >= K.
@@ -29,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.nn import apply_mlp, init_mlp
 
@@ -106,15 +108,16 @@ def component(params: dict, phi: jax.Array, c: jax.Array, sigma_min: jax.Array) 
 
 
 def make_mixture_policy(obs_size: int, action_size: int, k_max: int, hidden: tuple = (64, 64), b_init_scale: float = 1.0,
-                        subpolicy: str = subpolicies.DEFAULT) -> Policy:
+                        subpolicy: str = subpolicies.DEFAULT, partition: str = partitions.DEFAULT) -> Policy:
     bias_init = jnp.asarray(bias_spread(k_max, action_size, b_init_scale))
     d_phi = feature_size(subpolicy, obs_size)
+    partition_sizes = partitions.get(partition).sizes(obs_size, hidden, k_max)
 
     def init(key, hp):
         k = jnp.asarray(hp.K, jnp.float32)
         return {
             # zero last layer: uniform partition at init, independent of K_max
-            "partition": init_mlp(key, (obs_size, *hidden, k_max), out_scale=0.0),
+            "partition": init_mlp(key, partition_sizes, out_scale=0.0),
             "L": jnp.zeros((k_max, action_size, d_phi), jnp.float32),
             "b": bias_init,
             "log_sigma": jnp.full((k_max, action_size), 1.0, jnp.float32)
@@ -192,9 +195,10 @@ def make_mlp_policy(obs_size: int, action_size: int, hidden: tuple = (64, 64)) -
 
 
 def make_policy(kind: str, obs_size: int, action_size: int, k_max: int = 1, hidden: tuple = (64, 64),
-                b_init_scale: float = 1.0, subpolicy: str = subpolicies.DEFAULT) -> Policy:
+                b_init_scale: float = 1.0, subpolicy: str = subpolicies.DEFAULT,
+                partition: str = partitions.DEFAULT) -> Policy:
     if kind == MIXTURE:
-        return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale, subpolicy)
+        return make_mixture_policy(obs_size, action_size, k_max, hidden, b_init_scale, subpolicy, partition)
     if kind == MLP:
         return make_mlp_policy(obs_size, action_size, hidden)
     raise ValueError(f"unknown policy {kind!r}; choose one of {', '.join(POLICY_KINDS)}")

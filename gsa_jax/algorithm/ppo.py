@@ -399,7 +399,7 @@ def evaluate(p: Parts, params: dict, obs_stats: dict, hp: Hparams, key: jax.Arra
 def make_parts(cfg: Config, env: Any, eval_env: Any) -> Parts:
     """Parts of a run on the tasks env / eval_env (anything with reset, step, observation_size, action_size)."""
     policy = make_policy(cfg.policy, env.observation_size, env.action_size, cfg.k_max, cfg.hidden, cfg.b_init_scale,
-                         cfg.subpolicy)
+                         cfg.subpolicy, cfg.partition)
     return Parts(cfg, env, eval_env, policy, env.observation_size,
                  jax.vmap(policy.sample, in_axes=(None, 0, 0, None)), jax.vmap(policy.log_prob, in_axes=(None, 0, 0, 0, None)),
                  jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))

@@ -11,7 +11,7 @@ action bounds, and its action is inside them. RUN is a run directory (train, ext
 import argparse
 import os
 
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.deployment.exporting import SUFFIXES, ExportError, load_arrays, write
 
@@ -48,7 +48,9 @@ def export_controller(argv: list | None) -> int:
     lines = write(arrays, fmt, out)
     k = arrays["L"].shape[0] if "L" in arrays else None
     sub = str(arrays["subpolicy"]) if "subpolicy" in arrays else subpolicies.DEFAULT
-    print(f"wrote {out} ({fmt}): {arrays['kind']} controller" + (f" with {k} {sub} pieces" if k else ""))
+    part = str(arrays["partition"]) if "partition" in arrays else partitions.DEFAULT
+    print(f"wrote {out} ({fmt}): {arrays['kind']} controller" + (f" with {k} {sub} pieces" if k else "")
+          + (f", {part} partition" if k and part != partitions.DEFAULT else ""))
     for line in lines:
         print(line)
     return 0

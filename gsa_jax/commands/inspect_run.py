@@ -9,9 +9,15 @@ policy for a few episodes, then writes to DIR (default <run dir>/inspect/, SWEEP
   clusters_pca.png    visited states (PCA of normalized observations) coloured by cluster
   controllers.md      each active cluster's L and b (normalized observation units), with the state
                       variables that drive each actuator most
+and, for a linear partition (--partition linear), printed too:
+  cells.txt           each cluster's cell as inequalities A s >= d in the task's own units (the observation
+                      normalization folded in), one per other cluster; summary.json holds A and d
+  cells.png           the cells on the two observations that part them most (the largest spread of the
+                      partition's weights over the clusters, per observation std), the others at their mean
 """
 
 import argparse
+import os
 
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.deployment.inspection import InspectError, inspect_run
@@ -39,7 +45,12 @@ def inspect_command(argv: list | None) -> int:
     print(f"deterministic controller: {d['clusters_used']}/{s['K']} clusters used, usage "
           + ", ".join(f"{u:.0%}" for u in d["usage"])
           + f"; mean dwell {d['mean_dwell_steps']:.1f} steps, {d['switches_per_episode']:.1f} switches/episode")
-    print(f"wrote {out}/summary.json, controllers.md, clusters_time.png, clusters_pca.png")
+    cells = ""
+    if "cells" in s:
+        with open(os.path.join(out, "cells.txt")) as f:
+            print(f.read(), end="")
+        cells = ", cells.txt" + (", cells.png" if os.path.exists(os.path.join(out, "cells.png")) else "")
+    print(f"wrote {out}/summary.json, controllers.md, clusters_time.png, clusters_pca.png{cells}")
     return 0
 
 

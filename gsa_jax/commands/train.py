@@ -19,7 +19,7 @@ import time
 from typing import Any, Callable
 
 import envs
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.config import (
     Config, add_options, config_record, flag_names, make_hparams, options_config, options_hparams, saved_option_values,
     validate_hparams,
@@ -90,6 +90,8 @@ def resolve(args: argparse.Namespace) -> RunPlan:
         raise UsageError(f"unknown --subpolicy {args.subpolicy!r}; choose one of {', '.join(SUBPOLICY_KINDS)}")
     if args.policy != MIXTURE and args.subpolicy != subpolicies.DEFAULT:
         raise UsageError("--subpolicy applies to --policy mixture only")
+    if args.policy != MIXTURE and args.partition != partitions.DEFAULT:
+        raise UsageError("--partition applies to --policy mixture only")
     cfg = make_config(args, k_max)
     iterations = math.ceil(args.steps / cfg.batch_size)
     chunk = args.chunk if args.chunk is not None else max(1, min(10, iterations // 20))
@@ -155,9 +157,11 @@ def check_policy_options(args: argparse.Namespace, argv: list | None) -> None:
 
 
 def default_out(cfg: Config, hp: dict, seed: int) -> str:
-    """runs/<env>-<policy>[-K<k>][-<subpolicy>]-s<seed>-<time>: a new run's directory when --out is not given."""
+    """runs/<env>-<policy>[-K<k>][-<subpolicy>][-<partition>-partition]-s<seed>-<time>: a new run's directory when
+    --out is not given."""
     tag = f"{path_part(cfg.env)}-{cfg.policy}" + (f"-K{hp['K']}" if cfg.policy == MIXTURE else "")
     tag += f"-{cfg.subpolicy}" if cfg.policy == MIXTURE and cfg.subpolicy != subpolicies.DEFAULT else ""
+    tag += f"-{cfg.partition}-partition" if cfg.policy == MIXTURE and cfg.partition != partitions.DEFAULT else ""
     tag += "-retrace" if cfg.value_target == "retrace" else ""
     return os.path.join("runs", f"{tag}-s{seed}-{time.strftime('%Y%m%d-%H%M%S')}")
 

@@ -6,7 +6,8 @@ allocation, only <math.h> (tanhf), declaring
 
 Single-header style: every file may include it for the declaration; exactly one C file defines
 GSA_CONTROLLER_IMPLEMENTATION before including it to get the definition. The arithmetic is
-numpy_policy's in float32: normalize, partition MLP, first maximum, the cluster's L_c phi(z) + b_c (gsa_act_raw,
+numpy_policy's in float32: normalize, the partition's layers (a tanh MLP; one affine layer W z + c for the linear
+partition class), first maximum, the cluster's L_c phi(z) + b_c (gsa_act_raw,
 as act(obs, clip=False)), then gsa_act clamps each action to [gsa_action_low, gsa_action_high] (as act(obs)).
 """
 
@@ -15,7 +16,7 @@ from typing import Mapping
 
 import numpy as np
 
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
 
@@ -68,7 +69,8 @@ def _header_comment(ctrl, arrays, layout, c):
     cfg = meta.get("config", {})
     d_s = ctrl.obs_mean.shape[0]
     if ctrl.kind == MIXTURE:
-        what = f"a mixture of K = {ctrl.num_clusters} {ctrl.subpolicy} controllers (most probable cluster, its mean action)"
+        what = (f"a mixture of K = {ctrl.num_clusters} {ctrl.subpolicy} controllers (most probable cluster, its mean "
+                f"action); {ctrl.partition} partition, {partitions.get(ctrl.partition).rule} (gsa_w*, gsa_b*)")
     else:
         what = "a tanh MLP (mean action); cluster is always 0"
     names = layout or [f"obs[{i}]" for i in range(d_s)]

@@ -4,8 +4,8 @@ Input `obs` float32 [N, d_s]; outputs `action` float32 [N, d_a] (inside the task
 numpy_policy's act), `cluster` int64 [N] (0 for an MLP controller) and `raw_action` float32 [N, d_a] (before the
 bounds, as act(obs, clip=False)); the bounds are also in its metadata (action_low, action_high), with what it was
 trained on (task, obs_size, task_sha256: the npz's, docs/deploy.md). The graph:
-normalize (subtract the running mean, divide by the std, clip), then for a mixture: partition MLP -> logits of the
-K active clusters -> ArgMax (first maximum, as NumPy's) -> gather that cluster's L_c, b_c -> L_c phi(z) + b_c; for
+normalize (subtract the running mean, divide by the std, clip), then for a mixture: the partition's layers (a tanh
+MLP; one affine layer W z + c for the linear partition class) -> logits of the K active clusters -> ArgMax (first maximum, as NumPy's) -> gather that cluster's L_c, b_c -> L_c phi(z) + b_c; for
 an MLP controller its tanh MLP; then Max / Min with the bounds.
 Needs the optional `deploy` extra (`pip install gsa_jax[deploy]`).
 """
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
 
@@ -145,9 +145,10 @@ def describe(arrays: Mapping) -> str:
     meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
     cfg = meta.get("config", {})
     kind = str(arrays["kind"])
-    sub = arrays["subpolicy"] if "subpolicy" in arrays else subpolicies.DEFAULT
-    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {sub} "
-            "controllers (most probable cluster, mean action)" if kind == MIXTURE else "tanh MLP (mean action)")
+    sub = arrays.get("subpolicy", subpolicies.DEFAULT)
+    part = arrays.get("partition", partitions.DEFAULT)
+    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {sub} controllers (most probable cluster, mean action), "
+            f"{part} partition" if kind == MIXTURE else "tanh MLP (mean action)")
     return (f"gsa_jax deterministic controller: {what}; task {cfg.get('env', '?')}, seed {meta.get('seed', '?')}, "
             f"commit {meta.get('git_commit') or '?'}")
 

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.export_c import cost, to_source
 from gsa_jax.deployment.numpy_policy import action_bounds, controller_task, map_actions, task_name
@@ -103,6 +103,7 @@ def controller_arrays(address: str) -> dict:
         out[f"b{i}"] = arrays[f"{prefix}['{net}'][{i}]['b']"]
     if kind == MIXTURE:
         out["subpolicy"] = np.array(meta["config"].get("subpolicy", subpolicies.DEFAULT))
+        out["partition"] = np.array(meta["config"].get("partition", partitions.DEFAULT))
         k = int(meta["hparams"]["K"])
         out["L"] = arrays[f"{prefix}['L']"][:k]
         out["b"] = arrays[f"{prefix}['b']"][:k]

@@ -1,5 +1,6 @@
 """A trained mixture controller read from its rollouts: cluster usage and dwell times, the active cluster over
-an episode, visited states by cluster and each piece's L and b (the files `gsa inspect` writes)."""
+an episode, visited states by cluster, each piece's L and b and, for a linear partition, its cells' inequalities in
+the task's units and their figure (the files `gsa inspect` writes)."""
 
 import json
 import os
@@ -9,13 +10,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.config import Config, config_record, make_hparams
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import make_env, make_train, schedule
+from gsa_jax.deployment.cells import cell_inequalities, cells_text, plot_cells
+from gsa_jax.deployment.exporting import controller_arrays, task_layout
+from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.errors import UserError
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
@@ -189,6 +193,20 @@ def plot_pca(data: dict, k: int, path: str) -> None:
     plt.close(fig)
 
 
+def write_cells(address: str, out: str, visited: np.ndarray) -> list:
+    """A linear partition's cells (gsa_jax.deployment.cells) from the run's exported controller: out/cells.txt (named
+    by the task's observation layout where it has one) and out/cells.png with the visited states [n, d_s] ->
+    [{cluster, versus, A, d}] for summary.json."""
+    arrays = controller_arrays(address)
+    ctrl = Controller(arrays)
+    names = task_layout(arrays) or [f"obs[{j}]" for j in range(ctrl.obs_mean.shape[0])]
+    with open(os.path.join(out, "cells.txt"), "w") as f:
+        f.write(cells_text(ctrl, names))
+    if len(names) >= 2:
+        plot_cells(ctrl, names, os.path.join(out, "cells.png"), visited)
+    return [{"cluster": c.cluster, "versus": c.others, "A": c.A.tolist(), "d": c.d.tolist()} for c in cell_inequalities(ctrl)]
+
+
 def default_out(address: str) -> str:
     """<run dir>/inspect/, or SWEEP_DIR/inspect/<run label>/ for a sweep's run."""
     if os.path.exists(os.path.join(address, "config.json")):
@@ -214,6 +232,8 @@ def inspect_run(run_dir: str, out: str | None = None, episodes: int = 8, seed: i
         "deterministic": cluster_stats(det["cluster"], det["alive"], k),
         "stochastic": cluster_stats(sto["cluster"], sto["alive"], k),
     }
+    if partitions.get(trainer.cfg.partition).polyhedral:
+        summary["cells"] = write_cells(run_dir, out, det["obs"][det["alive"] > 0.5])
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)
     d_s, d_a = det["obs"].shape[-1], det["action"].shape[-1]

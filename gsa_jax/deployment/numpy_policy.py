@@ -1,7 +1,8 @@
 """The deployed controller in plain NumPy (no JAX needed): load(path).act(obs), .cluster(obs).
 
 A mixture controller is piecewise simple: normalize the observation, pick the most probable
-cluster of the partition network (eps-uniform exploration does not change the argmax), apply
+cluster of the partition (eps-uniform exploration does not change the argmax; gsa_jax.algorithm.partitions: a tanh
+MLP, or one affine layer W z + c for the linear class), apply
 that cluster's L_c phi(z) + b_c, where phi is the sub-policy class (gsa_jax.algorithm.subpolicies): [] (constant),
 z (linear), [z, z_i z_j for i <= j] (quadratic). An MLP controller applies its tanh MLP to the normalized observation.
 `act` then clips that raw action to the task's action bounds (action_low, action_high: envs.action_bounds, what
@@ -15,7 +16,8 @@ the file that defined the task, '' for a built-in one; envs.task_source), ctrl_l
 its actions onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), action_space
 ('controls' where that map is applied in the file: the actions are the controls; absent: actions in [-1, 1]; see
 unit_actions), and for mixtures subpolicy
-('constant'|'linear'|'quadratic'; absent = linear), L [K, d_a, d_phi], b [K, d_a] of the K active clusters.
+('constant'|'linear'|'quadratic'; absent = linear), partition ('mlp'|'linear'; absent = mlp), L [K, d_a, d_phi],
+b [K, d_a] of the K active clusters.
 Files exported before the bounds were stored get their task's (`action_bounds`); docs/deploy.md lists every key.
 `load(path, task=NAME)` refuses (TaskMismatch, one line) a controller that does not fit that task as it is now
 (check_task).
@@ -27,7 +29,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.errors import UserError
 
@@ -76,6 +78,11 @@ def action_bounds(arrays: Mapping) -> tuple | None:
 
 class TaskMismatch(UserError, ValueError):
     """An exported controller that does not fit the task it is asked to run (one line)."""
+
+
+class ControllerClassError(UserError, ValueError):
+    """An exported controller of a sub-policy or partition class this version does not know, or whose arrays do not
+    fit its class (one line)."""
 
 
 def stored_sha256(arrays: Mapping) -> str | None:
@@ -132,6 +139,19 @@ def map_actions(arrays: Mapping, scale: np.ndarray, offset: np.ndarray, low: np.
     return out
 
 
+def partition_class(arrays: Mapping, layers: list, name: str = "the controller") -> str:
+    """The partition class of a mixture's arrays (absent: mlp, the only one before it was stored): ControllerClassError
+    (one line) for a class this version does not know or whose layer sizes are not that class's."""
+    partition = str(arrays["partition"]) if "partition" in arrays else partitions.DEFAULT
+    if partition not in partitions.PARTITIONS:
+        raise ControllerClassError(f"{name} has an unknown partition class {partition!r}; this version knows "
+                                   f"{', '.join(partitions.PARTITIONS)}")
+    sizes = (layers[0][0].shape[0], *(w.shape[1] for w, _ in layers))  # (d_s, hidden widths..., K)
+    if tuple(partitions.get(partition).sizes(sizes[0], sizes[1:-1], sizes[-1])) != sizes:
+        raise ControllerClassError(f"{name} names partition class {partition!r} but its layers have sizes {sizes}")
+    return partition
+
+
 class Controller:
     def __init__(self, arrays, name="the controller"):
         self.arrays = arrays
@@ -144,7 +164,9 @@ class Controller:
         if self.kind == MIXTURE:
             self.subpolicy = str(arrays["subpolicy"]) if "subpolicy" in arrays else subpolicies.DEFAULT
             if self.subpolicy not in subpolicies.SUBPOLICIES:
-                raise ValueError(f"unknown sub-policy class {self.subpolicy!r}")
+                raise ControllerClassError(f"{name} has an unknown sub-policy class {self.subpolicy!r}; this version "
+                                           f"knows {', '.join(subpolicies.SUBPOLICIES)}")
+            self.partition = partition_class(arrays, self.layers, name)
             self.L = np.asarray(arrays["L"], np.float32)
             self.b = np.asarray(arrays["b"], np.float32)
         elif self.kind != MLP:

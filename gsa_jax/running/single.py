@@ -203,7 +203,8 @@ def log_start(plan: RunPlan, trainer: Trainer, out: str, log: Callable) -> None:
     """The run's first lines: task, policy, length; a changed MJX solver; the physics backend."""
     cfg, hp_py, iterations = plan.cfg, plan.hp, plan.iterations
     log(f"gsa_jax: {cfg.env} ({trainer.env.observation_size} obs, {trainer.env.action_size} actions), "
-        f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies)" if cfg.policy == MIXTURE else "")
+        f"{cfg.policy}" + (f" K={hp_py['K']} (k_max {cfg.k_max}, {cfg.subpolicy} sub-policies, {cfg.partition} "
+                           "partition)" if cfg.policy == MIXTURE else "")
         + f", {iterations} iterations x {cfg.batch_size} steps = {iterations * cfg.batch_size:,} env steps -> {out}")
     if cfg.physics.solver_iterations is not None or cfg.physics.ls_iterations is not None:
         sol = solver_settings(trainer.env.unwrapped)
