@@ -73,6 +73,30 @@ def test_grid_with_subpolicy_classes():
     assert [group_name(g) for g in build_grid(plain)] == ["hopper-mixture"]
 
 
+def test_grid_with_partition_classes():
+    """One compiled group per partition class (a mixture's own axis, crossed with sub-policy classes); flat PPO once
+    and compared with every mixture cell (MIXTURE_COLUMNS aside); an unknown class is refused where the file is read."""
+    from gsa_jax.algorithm.kinds import MIXTURE_COLUMNS
+    from gsa_jax.analysis.sweeps.results import Cell
+    from gsa_jax.analysis.sweeps.tables import flat_cell
+    from gsa_jax.running.spec import GROUP_AXES
+
+    spec = check_spec({"envs": ["hopper"], "policies": ["mlp", "mixture"], "partitions": ["mlp", "linear"],
+                       "subpolicies": ["constant", "linear"], "clusters": [2], "seeds": 2, "steps": 1000})
+    groups = build_grid(spec)
+    assert [group_name(g) for g in groups] == [
+        "hopper-mlp", "hopper-mixture-constant-mlp-partition", "hopper-mixture-constant-linear-partition",
+        "hopper-mixture-linear-mlp-partition", "hopper-mixture-linear-linear-partition"]
+    assert [group_config(spec, g).partition for g in groups] == ["mlp", "mlp", "linear", "mlp", "linear"]
+    assert spec.id_columns() == ["env", "policy", "subpolicy", "partition", "K", "seed", "run"]
+    assert MIXTURE_COLUMNS == tuple(column for _, column, policy, _ in GROUP_AXES if policy == "mixture")
+    flat = Cell("hopper", "mlp", 1, (("subpolicy", ""), ("partition", "")))
+    mix = Cell("hopper", "mixture", 2, (("subpolicy", "linear"), ("partition", "linear")))
+    assert flat_cell(mix, [flat, mix]) == flat
+    with pytest.raises(SpecError, match="partitions"):
+        check_spec({"envs": ["hopper"], "policies": ["mixture"], "clusters": [2], "steps": 10, "partitions": ["tree"]})
+
+
 def test_grid_with_value_targets():
     """One compiled group per critic, for flat PPO and mixtures alike, crossed with sub-policy classes."""
     spec = check_spec({"envs": ["hopper"], "policies": ["mlp", "mixture"], "subpolicies": ["constant", "linear"],

@@ -5,3 +5,4 @@ No JAX: the result readers and deployed controllers import it."""
 MIXTURE = "mixture"
 MLP = "mlp"
 POLICY_KINDS = (MIXTURE, MLP)
+MIXTURE_COLUMNS = ("subpolicy", "partition")  # a mixture's own classes: the group axes of mixtures only (running/spec.py)

@@ -42,6 +42,7 @@ Experiment file (TOML):
   policies = ["mlp", "mixture"]
   cluster_multipliers = [0.5, 1, 2, 4]   # K = ceil(m * action_dim); or: clusters = [2, 4, 6]
   subpolicies = ["constant", "linear"]    # optional: sub-policy classes of the mixtures (default linear)
+  partitions = ["mlp", "linear"]          # optional: partition classes of the mixtures (default mlp)
   value_targets = ["gae", "retrace"]      # optional: the critics to compare (default [config] value_target, gae)
   seeds = 8                               # seeds 0..7, or a list [0, 5, 9]
   steps = 200_000                         # env steps per run

@@ -20,18 +20,20 @@ from envs.physics import FLAT_CONFIG_FIELDS, Physics, nest_physics
 from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
+from gsa_jax.algorithm.partitions import PARTITIONS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.algorithm.retrace import VALUE_TARGETS
 from gsa_jax.errors import UserError
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.trained import path_part
 
-SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
+SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "partitions", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
                "eval_every", "eval_seed", "hparams", "hparam_sets", "config")
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
 # Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
 # the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
-GROUP_AXES = (("subpolicies", "subpolicy", MIXTURE, SUBPOLICY_KINDS), ("value_targets", "value_target", None, VALUE_TARGETS))
+GROUP_AXES = (("subpolicies", "subpolicy", MIXTURE, SUBPOLICY_KINDS), ("partitions", "partition", MIXTURE, tuple(PARTITIONS)),
+              ("value_targets", "value_target", None, VALUE_TARGETS))
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
@@ -54,6 +56,7 @@ class SweepSpec:
     clusters: tuple | None = None
     cluster_multipliers: tuple | None = None
     subpolicies: tuple | None = None
+    partitions: tuple | None = None
     value_targets: tuple | None = None
     chunk: int | None = None
     eval_every: int | None = None
@@ -247,7 +250,7 @@ def check_cluster_fields(spec: dict, bad: Callable[[str, str], NoReturn]) -> Non
 
 
 def check_group_axes(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
-    """subpolicies / value_targets (GROUP_AXES) of a spec, normalized to lists in place; absent stays absent
+    """subpolicies / partitions / value_targets (GROUP_AXES) of a spec, normalized to lists in place; absent stays absent
     (a spec's identity, sweep.json, must not change)."""
     for field, column, policy, allowed in GROUP_AXES:
         if field not in spec:
@@ -341,9 +344,10 @@ def build_grid(spec: SweepSpec) -> list[Group]:
 
 
 def group_name(group: Group) -> str:
-    """The group's directory name: env-policy[-<axis value>...]."""
+    """The group's directory name: env-policy[-<axis value>...] (a partition class as <class>-partition)."""
     first = group.runs[0] if group.runs else {}
-    return f"{path_part(group.env)}-{group.policy}" + "".join(f"-{first[c]}" for _, c, _, _ in GROUP_AXES if first.get(c))
+    return f"{path_part(group.env)}-{group.policy}" + "".join(
+        f"-{first[c]}" + ("-partition" if c == "partition" else "") for _, c, _, _ in GROUP_AXES if first.get(c))
 
 
 def group_config(spec: SweepSpec, group: Group) -> Config:

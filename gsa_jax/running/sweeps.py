@@ -269,6 +269,6 @@ def report_failures(root: str, dirs: list[str], log: Callable = print) -> list[d
     if failed:
         log(f"{len(failed)} run(s) failed (NaN/inf in the loss or parameters; listed in sweep.json 'failed_runs'):")
         for f in failed:
-            log("  " + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "subpolicy", "value_target", "K", "seed", "run") if k in f)
+            log("  " + ", ".join(f"{k}={f[k]}" for k in ("env", "policy", "subpolicy", "partition", "value_target", "K", "seed", "run") if k in f)
                 + f": failed at iteration {f['failed_at']}")
     return failed

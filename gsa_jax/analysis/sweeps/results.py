@@ -14,6 +14,7 @@ from typing import Callable, Iterable, NamedTuple, Sequence
 import numpy as np
 
 from envs.physics import nest_physics, record_backend
+from gsa_jax.algorithm.kinds import MIXTURE_COLUMNS
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.errors import UserError
@@ -110,10 +111,10 @@ def lists_critics(cells: Iterable[tuple]) -> bool:
 
 def with_critic(cell: tuple) -> tuple:
     """A cell with ("value_target", "gae") among its settings when it has no critic column (after the
-    sub-policy class, where sweeps write it): sweeps that list no value_targets trained with GAE."""
+    mixture's own classes, where sweeps write them): sweeps that list no value_targets trained with GAE."""
     if any(c == "value_target" for c, _ in cell.settings):
         return cell
-    i = 1 if cell.settings and cell.settings[0][0] == "subpolicy" else 0
+    i = next((i for i, (c, _) in enumerate(cell.settings) if c not in MIXTURE_COLUMNS), len(cell.settings))
     return cell._replace(settings=cell.settings[:i] + (("value_target", "gae"),) + cell.settings[i:])
 
 

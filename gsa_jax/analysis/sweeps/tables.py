@@ -7,7 +7,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from gsa_jax.algorithm.kinds import MIXTURE, MLP
+from gsa_jax.algorithm.kinds import MIXTURE, MIXTURE_COLUMNS, MLP
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import Cell, cell_schedule, eval_failures, evaluation_scores, final_scores, unscored_runs
@@ -43,12 +43,14 @@ def cell_order(cell: Cell) -> tuple:
 
 
 def other_settings(cell: Cell) -> tuple:
-    """A cell's settings but its sub-policy class: what a mixture cell shares with the flat PPO cell it is compared with."""
-    return tuple((c, v) for c, v in cell.settings if c != "subpolicy")
+    """A cell's settings but a mixture's own classes (sub-policy, partition: MIXTURE_COLUMNS): what a mixture cell
+    shares with the flat PPO cell it is compared with."""
+    return tuple((c, v) for c, v in cell.settings if c not in MIXTURE_COLUMNS)
 
 
 def flat_cell(cell: Cell, cells: Iterable[Cell]) -> Cell | None:
-    """The flat PPO cell a mixture cell is compared with: same env and swept settings (sub-policy aside)."""
+    """The flat PPO cell a mixture cell is compared with: same env and swept settings (a mixture's own classes
+    aside)."""
     flats = [c for c in cells if c.env == cell.env and c.policy == MLP]
     same = [c for c in flats if other_settings(c) == other_settings(cell)]
     return (same or (flats if len(flats) == 1 else [None]))[0]
@@ -189,10 +191,10 @@ def aggregate_table(normalized: dict, reps: int = stats.REPS) -> list:
     if not normalized:
         return []
     iqm = stats.iqm_ci({str(k): m for k, (_, m) in normalized.items()}, reps=reps)
-    flats = {tuple(c for c in k[1:] if c[0] != "subpolicy"): k for k in normalized if k[0] == "flat PPO"}
+    flats = {tuple(c for c in k[1:] if c[0] not in MIXTURE_COLUMNS): k for k in normalized if k[0] == "flat PPO"}
     pairs = {}
     for k, (tasks, m) in normalized.items():
-        f = flats.get(tuple(c for c in k[1:] if c[0] != "subpolicy"))
+        f = flats.get(tuple(c for c in k[1:] if c[0] not in MIXTURE_COLUMNS))
         if k[0] != "flat PPO" and f is not None and normalized[f][0] == tasks:
             n = min(len(m), len(normalized[f][1]))
             pairs[str(k)] = (m[:n], normalized[f][1][:n])
