@@ -29,6 +29,8 @@ def read_scores(task_dir: str) -> tuple:
     cells = defaultdict(list)
     with open(os.path.join(task_dir, "per_run_scores.csv")) as f:
         rows = sorted(csv.DictReader(f), key=lambda r: int(r["seed"]))
+    if any(r["controller_score"] == "" for r in rows):
+        raise SystemExit(f"{task_dir}: runs without a controller score: run gsa score {task_dir} and gsa plot first")
     for r in rows:
         key = (r["policy"], r["K"], r.get("partition", ""), r.get("lr_scale_partition", ""))
         cells[key].append(float(r["controller_score"]))
