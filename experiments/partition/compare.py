@@ -1,11 +1,14 @@
-"""The linear partition judged against the MLP partition at equal K and step size, and each against flat PPO, with the
-project's verdict (gsa_jax.analysis.verdicts.verdict.judge: IQM gap on the scale of the reference's gain over the
-random policy, Yuen's trimmed-mean test, margin 0.1), from a task's committed results (gsa plot's per_run_scores.csv:
-every run's controller score in MuJoCo C, and random_policy.json).
+"""The linear partition judged against the MLP partition at equal K and step size with the project's verdict
+(gsa_jax.analysis.verdicts.verdict.judge: IQM gap on the scale of the reference's gain over the random policy, Yuen's
+trimmed-mean test, margin 0.1), from a task's committed results (gsa plot's per_run_scores.csv: every run's
+controller score in MuJoCo C, and random_policy.json); beside it, each partition's verdict against flat PPO as gsa
+plot gave it (its verdicts.csv: the project's answer, flat PPO's adequacy included).
 
-One error rate for the whole table: every row of every task is one test of the family, at the one-sided level
-ALPHA / (rows of the family) (Bonferroni), so the chance of any wrong 'sufficient' or 'insufficient' in the table is
-at most ALPHA.
+The MLP partition is a reference only where it learned the task by the project's rule for flat PPO
+(baseline.learned: its IQM a tenth of the way from the random policy's return to the task's maximum), else 'no
+answer'. One error rate for the linear-vs-MLP rows: every such row of every task is one test of the family, at the
+one-sided level ALPHA / (rows of the family) (Bonferroni), so the chance of any wrong 'sufficient' or 'insufficient'
+among them is at most ALPHA.
 
     .venv/bin/python experiments/partition/compare.py experiments/partition/results/<task> [...]
 writes experiments/partition/results/verdicts.csv and verdicts.md over the tasks given.
@@ -17,11 +20,13 @@ import os
 import sys
 from collections import defaultdict
 
+import envs
 from gsa_jax.analysis.verdicts import trimmed
-from gsa_jax.analysis.verdicts.verdict import ALPHA, DEFAULT_MARGIN, judge
+from gsa_jax.analysis.verdicts.baseline import learned
+from gsa_jax.analysis.verdicts.verdict import ALPHA, DEFAULT_MARGIN, NO_SCALE, judge
 
-COLUMNS = ("env", "K", "lr_scale_partition", "cell", "versus", "seeds", "cell_iqm", "reference_iqm", "random_mean",
-           "gap", "gap_low", "gap_high", "level", "verdict")
+COLUMNS = ("env", "K", "lr_scale_partition", "linear_iqm", "mlp_iqm", "random_mean", "gap", "gap_low", "gap_high",
+           "level", "linear_vs_mlp", "linear_vs_flat_ppo", "mlp_vs_flat_ppo", "seeds")
 
 
 def read_scores(task_dir: str) -> tuple:
@@ -40,36 +45,50 @@ def read_scores(task_dir: str) -> tuple:
     return cells, random_returns, env
 
 
-def comparisons(cells: dict) -> list:
-    """[(K, lr, cell key, reference key, what the reference is)]: linear vs MLP partition at equal K and step size,
-    and every mixture cell vs flat PPO."""
-    flat = next(k for k in cells if k[0] == "mlp")
-    mixtures = sorted((k for k in cells if k[0] == "mixture"), key=lambda k: (int(k[1]), k[3], k[2]))
-    out = []
-    for k in mixtures:
-        if k[2] == "linear" and ("mixture", k[1], "mlp", k[3]) in cells:
-            out.append((k, ("mixture", k[1], "mlp", k[3]), "MLP partition"))
-    out += [(k, flat, "flat PPO") for k in mixtures]
-    return out
+def flat_verdicts(task_dir: str) -> dict:
+    """{(K, partition, lr_scale_partition): verdict against flat PPO at margin 0.1} from gsa plot's verdicts.csv."""
+    with open(os.path.join(task_dir, "verdicts.csv")) as f:
+        return {(r["K"], r["partition"], r["lr_scale_partition"]): r["verdict"] for r in csv.DictReader(f)
+                if r["role"] == "answer" and float(r["margin"]) == DEFAULT_MARGIN}
+
+
+def pairs(cells: dict) -> list:
+    """[(K, lr_scale_partition)] where both partitions have a cell, in K then step-size order."""
+    found = {(k[1], k[3]) for k in cells if k[0] == "mixture" and k[2] == "linear"}
+    return sorted((p for p in found if ("mixture", p[0], "mlp", p[1]) in cells), key=lambda p: (int(p[0]), p[1]))
+
+
+def judge_pair(linear: list, mlp: list, random_returns: list, max_return: "float | None", level: float) -> tuple:
+    """(Gap or None, verdict) of the linear partition's scores against the MLP partition's."""
+    rand = sum(random_returns) / len(random_returns)
+    ok, why = learned(trimmed.trimmed(mlp).mean, rand, max_return)
+    if not ok:
+        return None, "no answer: " + why.replace("flat PPO", "the MLP partition")
+    gap = judge(linear, mlp, random_returns, DEFAULT_MARGIN, level)
+    if gap.verdict == NO_SCALE:
+        return None, "no answer: the MLP partition's gain over the random policy is not shown (its seeds spread)"
+    return gap, gap.verdict
 
 
 def judge_rows(task_dirs: list) -> list:
-    """Every comparison of every task, judged at the family's Bonferroni level."""
-    planned = []
-    for d in task_dirs:
-        cells, random_returns, env = read_scores(d)
-        planned += [(env, cells, random_returns, c) for c in comparisons(cells)]
-    level = ALPHA / len(planned)
+    """Every (task, K, step size): linear vs MLP partition at the family's Bonferroni level, beside gsa plot's
+    verdicts of both against flat PPO."""
+    tasks = [(d, *read_scores(d)) for d in task_dirs]
+    level = ALPHA / sum(len(pairs(cells)) for _, cells, _, _ in tasks)
     rows = []
-    for env, cells, random_returns, (key, ref, versus) in planned:
-        gap = judge(cells[key], cells[ref], random_returns, DEFAULT_MARGIN, level)
-        rows.append({"env": env, "K": key[1], "lr_scale_partition": key[3], "cell": f"{key[2]} partition",
-                     "versus": versus, "seeds": f"{len(cells[key])} / {len(cells[ref])}",
-                     "cell_iqm": round(trimmed.trimmed(cells[key]).mean, 1),
-                     "reference_iqm": round(trimmed.trimmed(cells[ref]).mean, 1),
-                     "random_mean": round(sum(random_returns) / len(random_returns), 2),
-                     "gap": round(gap.point, 3), "gap_low": round(gap.low, 3), "gap_high": round(gap.high, 3),
-                     "level": f"{level:.5f}", "verdict": gap.verdict})
+    for d, cells, random_returns, env in tasks:
+        flat, top = flat_verdicts(d), envs.resolve(env).max_return()
+        for k, lr in pairs(cells):
+            lin, mlp = cells[("mixture", k, "linear", lr)], cells[("mixture", k, "mlp", lr)]
+            gap, verdict = judge_pair(lin, mlp, random_returns, top, level)
+            rows.append({"env": env, "K": k, "lr_scale_partition": lr, "linear_iqm": round(trimmed.trimmed(lin).mean, 1),
+                         "mlp_iqm": round(trimmed.trimmed(mlp).mean, 1),
+                         "random_mean": round(sum(random_returns) / len(random_returns), 2),
+                         **{c: "" if gap is None else round(getattr(gap, a), 3)
+                            for c, a in (("gap", "point"), ("gap_low", "low"), ("gap_high", "high"))},
+                         "level": f"{level:.5f}", "linear_vs_mlp": verdict,
+                         "linear_vs_flat_ppo": flat.get((k, "linear", lr), ""),
+                         "mlp_vs_flat_ppo": flat.get((k, "mlp", lr), ""), "seeds": f"{len(lin)} / {len(mlp)}"})
     return rows
 
 
@@ -93,9 +112,9 @@ def main(argv: list) -> int:
     out = os.path.dirname(os.path.normpath(argv[0]))
     write_tables(rows, out)
     for r in rows:
-        print(f"{r['env']} K={r['K']} lr_scale_partition={r['lr_scale_partition']}: {r['cell']} "
-              f"{r['cell_iqm']} vs {r['versus']} {r['reference_iqm']}: gap {r['gap']} "
-              f"[{r['gap_low']}, {r['gap_high']}] -> {r['verdict']}")
+        print(f"{r['env']} K={r['K']} lr_scale_partition={r['lr_scale_partition']}: linear partition "
+              f"{r['linear_iqm']} vs MLP partition {r['mlp_iqm']}: gap {r['gap']} [{r['gap_low']}, {r['gap_high']}] "
+              f"-> {r['linear_vs_mlp']} (vs flat PPO: linear {r['linear_vs_flat_ppo']}, MLP {r['mlp_vs_flat_ppo']})")
     return 0
 
 
