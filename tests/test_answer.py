@@ -107,6 +107,7 @@ def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     (["--env", "dmc:cartpole-swingup", "--config", "[1]"], "--config must be a JSON object"),
     (["--env", "dmc:cartpole-swingup", "--config", "{num_envs: 16}"], "--config must be a JSON object"),
     (["--env", "dmc:cartpole-swingup", "--config", '{"partition": "cubic"}'], "unknown partition 'cubic'"),
+    (["--env", "dmc:cartpole-swingup", "--partition", "cubic"], "--partition: invalid choice: 'cubic'"),
 ])
 def test_bad_input_is_one_line_before_anything_compiles(argv, message, tmp_path, capsys):
     from gsa_jax.answer import main
@@ -115,6 +116,15 @@ def test_bad_input_is_one_line_before_anything_compiles(argv, message, tmp_path,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err and err.startswith("gsa answer: error:")
     assert not (tmp_path / "a").exists()
+
+
+def test_partition_sets_the_mixtures_class_only():
+    """--partition linear: the mixtures' spec trains the linear partition, flat PPO's is unchanged (answer.json
+    records both specs)."""
+    from gsa_jax.commands.answer import build_parser, make_setup
+
+    setup = make_setup(build_parser().parse_args(["--env", "dmc:cartpole-balance", "--partition", "linear"]))
+    assert setup.specs["mixture"]["config"]["partition"] == "linear" and "partition" not in setup.specs["mlp"]["config"]
 
 
 def test_a_small_real_task_end_to_end(tmp_path):

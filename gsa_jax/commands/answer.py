@@ -34,6 +34,7 @@ import shlex
 import sys
 
 import envs
+from gsa_jax.algorithm import partitions
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import sequential, verdict
 from gsa_jax.analysis.verdicts.answering import (
@@ -91,6 +92,9 @@ def base_specs(args: argparse.Namespace, env: str) -> dict:
     default = {"steps": args.steps, "hparams": {}, "config": {**config, "physics": {"backend": backend}}}
     specs = {"mlp": dict(default), "mixture": dict(default)}
     specs.update(start_specs(args.start_from or []))
+    if args.partition is not None:  # the mixtures' partition class (flat PPO has none)
+        mixture = {k: v for k, v in specs["mixture"].items() if k != "partitions"}
+        specs["mixture"] = {**mixture, "config": {**mixture.get("config", {}), "partition": args.partition}}
     return specs
 
 
@@ -167,6 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/verdicts/ppo_references.csv)")
     p.add_argument("--steps", type=whole_number, default=1_000_000, help="env steps per run (default %(default)s)")
     p.add_argument("--physics", choices=("c", "mjx"), default=None, help="physics backend (default: c where the task has MuJoCo C)")
+    p.add_argument("--partition", choices=tuple(partitions.PARTITIONS), default=None,
+                   help="the mixtures' partition class: mlp (the paper's, default) or linear (polyhedral cells)")
     p.add_argument("--config", default="{}", metavar="JSON",
                    help="the runs' config fields as a JSON object, e.g. '{\"num_envs\": 16}' (default: the defaults)")
     p.add_argument("--budget-minutes", type=float, default=120.0, help="stop before a round that would run past it (default %(default)s)")
