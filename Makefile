@@ -15,11 +15,12 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-# the tests also train a MuJoCo Playground environment and check the DeepMind Control Suite's tasks against
-# dm_control: their optional extras (warp-lang: ~390 MB installed; dm_control ~60 MB)
+# the tests also train a MuJoCo Playground environment, check the DeepMind Control Suite's tasks against
+# dm_control and certify regions of attraction (gsa verify --certify): their optional extras (warp-lang: ~390 MB
+# installed; dm_control ~60 MB; cvxpy and Clarabel ~175 MB)
 TEST_STAMP := $(VENV)/.installed-test
 $(TEST_STAMP): $(STAMP) pyproject.toml
-	$(BIN)/python -m pip install -q -e ".[test,deploy,playground,dmc]"
+	$(BIN)/python -m pip install -q -e ".[test,deploy,playground,dmc,verify]"
 	touch $(TEST_STAMP)
 
 ## demo: a short real training run (mixture of 4 linear controllers on inverted_double_pendulum, ~2 min)

@@ -8,43 +8,18 @@ import sys
 import mujoco
 import numpy as np
 import pytest
-import scipy.linalg
 
 from envs.task import TaskC
 from gsa_jax.running.checkpoint import save_npz_atomic
 from gsa_jax.verify import analysis
 from gsa_jax.verify.system import load_system
-from verify_tasks import analytic_step
+from verify_tasks import analytic_step, export, lqr_gain
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 POINT_MASS = os.path.join(ROOT, "tests", "verify_tasks.py") + ":PointMass"
 IDP = os.path.join(ROOT, "experiments/fig1_v5/results/fig1_v5_InvertedDoublePendulum-v5/controllers",
                    "InvertedDoublePendulum-v5-mixture-K4-s0.npz")
 EIG_TOL = 1e-6  # finite differences (eps 1e-6, central) of an exactly linear step: exact to rounding
-
-
-def lqr_gain():
-    """[1, 2] the discrete LQR gain (Q = diag(10, 1), R = 1) of PointMass's analytic step: a = -K x."""
-    A, B = analytic_step()
-    P = scipy.linalg.solve_discrete_are(A, B, np.diag([10.0, 1.0]), np.eye(1))
-    return np.linalg.solve(np.eye(1) + B.T @ P @ B, B.T @ P @ A)
-
-
-def export(path, env, L, b, w=None, bw=None, obs_var=(1.0, 1.0)):
-    """An exported mixture controller (as python -m gsa_jax.export writes one): pieces L [K, 1, 2], b [K, 1];
-    partition layers w, bw (default: one linear layer, argmax 0)."""
-    K = len(L)
-    w = w or [np.zeros((2, K))]
-    bw = bw or [np.zeros(K)]
-    arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(2, np.float32),
-              "obs_var": np.asarray(obs_var, np.float32), "obs_clip": np.array(1e3, np.float32),
-              "n_layers": np.array(len(w)), "L": np.asarray(L, np.float32), "b": np.asarray(b, np.float32),
-              "action_low": -np.ones(1, np.float32), "action_high": np.ones(1, np.float32),
-              "config_json": np.array(json.dumps({"config": {"env": env}}))}
-    for i, (wi, bi) in enumerate(zip(w, bw)):
-        arrays[f"w{i}"], arrays[f"b{i}"] = np.asarray(wi, np.float32), np.asarray(bi, np.float32)
-    save_npz_atomic(str(path), **arrays)
-    return str(path)
 
 
 def test_linear_task_eigenvalues_match_the_analytic_ones_and_its_roa_has_no_boundary(tmp_path):

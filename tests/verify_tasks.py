@@ -1,12 +1,17 @@
-"""Tasks for tests/test_verify.py: a point mass on a damped slide, whose dynamics are exactly linear.
+"""Tasks and controllers for tests/test_verify.py and tests/test_certify.py: a point mass on a damped slide, whose
+dynamics are exactly linear, its LQR gain, and exported mixture controllers of it.
 
 MuJoCo's Euler step with implicit damping (its default): (m + h d) v' = m v + h g u, x' = x + h v', so one physics
 step is x_{k+1} = A_h x_k + B_h u with A_h = [[1, h m / (m + h d)], [0, m / (m + h d)]], B_h = [h^2 g, h g] / (m + h d).
 """
 
+import json
+
 import numpy as np
+import scipy.linalg
 
 from envs.task import Task
+from gsa_jax.running.checkpoint import save_npz_atomic
 
 MASS, DAMPING, GEAR, TIMESTEP = 1.0, 0.5, 10.0, 0.01
 
@@ -54,3 +59,27 @@ def analytic_step():
     for _ in range(PointMass.frame_skip):
         A, B = a_h @ A, a_h @ B + b_h
     return A, B
+
+
+def lqr_gain():
+    """[1, 2] the discrete LQR gain (Q = diag(10, 1), R = 1) of PointMass's analytic step: a = -K x."""
+    A, B = analytic_step()
+    P = scipy.linalg.solve_discrete_are(A, B, np.diag([10.0, 1.0]), np.eye(1))
+    return np.linalg.solve(np.eye(1) + B.T @ P @ B, B.T @ P @ A)
+
+
+def export(path, env, L, b, w=None, bw=None, obs_var=(1.0, 1.0)):
+    """An exported mixture controller (as python -m gsa_jax.export writes one): pieces L [K, 1, 2], b [K, 1];
+    partition layers w, bw (default: one linear layer, argmax 0)."""
+    K = len(L)
+    w = w or [np.zeros((2, K))]
+    bw = bw or [np.zeros(K)]
+    arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(2, np.float32),
+              "obs_var": np.asarray(obs_var, np.float32), "obs_clip": np.array(1e3, np.float32),
+              "n_layers": np.array(len(w)), "L": np.asarray(L, np.float32), "b": np.asarray(b, np.float32),
+              "action_low": -np.ones(1, np.float32), "action_high": np.ones(1, np.float32),
+              "config_json": np.array(json.dumps({"config": {"env": env}}))}
+    for i, (wi, bi) in enumerate(zip(w, bw)):
+        arrays[f"w{i}"], arrays[f"b{i}"] = np.asarray(wi, np.float32), np.asarray(bi, np.float32)
+    save_npz_atomic(str(path), **arrays)
+    return str(path)

@@ -3,6 +3,8 @@
 Modules by concern: system (the controller, its task and the state coordinates), simulate (batched closed-loop
 rollouts on mujoco.batch), linearize (fixed points, the closed loop's Jacobian and eigenvalues), roa (region of
 attraction, Lyapunov sublevel set, LQR beside it), falsify (cross-entropy search for low-return episodes, replayable
-counterexamples), switching (which pieces the closed loop uses and how often it changes them), analysis (all of them
-for one controller, each timed), report (verify.json, report.md, figures). NumPy, SciPy and MuJoCo only: no JAX.
+counterexamples), switching (which pieces the closed loop uses and how often it changes them), certify (a certified
+region of attraction of a stable fixed point, --certify), analysis (all of them for one controller, each timed), report
+(verify.json, report.md, figures). NumPy, SciPy and MuJoCo only, no JAX; certify's semidefinite program needs cvxpy
+and Clarabel (the optional extra verify).
 """

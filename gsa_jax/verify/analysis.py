@@ -9,9 +9,9 @@ import numpy as np
 from envs.task import Task
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
-from gsa_jax.verify import falsify, roa, simulate, switching
+from gsa_jax.verify import certify, falsify, roa, simulate, switching
 from gsa_jax.verify import linearize as lin
-from gsa_jax.verify.system import System, equilibrium_guess, state_scale, to_qpos, wrap
+from gsa_jax.verify.system import System, VerifyError, equilibrium_guess, state_scale, to_qpos, wrap
 
 
 class Budget(NamedTuple):
@@ -178,16 +178,23 @@ def falsification(system: System, budget: Budget) -> dict:
 
 
 def equilibrium_part(system: System, budget: Budget, scale: np.ndarray, qref: np.ndarray, cost: dict,
-                     weights: "LqrWeights | None" = None) -> dict:
-    """Local analysis, region of attraction and the LQR beside it, for a task with an equilibrium."""
+                     weights: "LqrWeights | None" = None,
+                     certify_budget: "certify.CertifyBudget | None" = None) -> dict:
+    """Local analysis, the certificate (where certify_budget is given), region of attraction and the LQR beside it,
+    for a task with an equilibrium."""
     task, policy = system.task, simulate.controller_policy(system.ctrl)
     t0 = time.perf_counter()
     hold = roa.find_hold(task, policy, qref, scale, int(task.episode_length))
     local = local_analysis(system, qref, scale, hold)
     cost["local"] = time.perf_counter() - t0
+    out = {"local": local}
+    if certify_budget is not None:
+        t0 = time.perf_counter()
+        out["certificate"] = certify.certificate(system, qref, local, certify_budget)
+        cost["certificate"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     a_cl = local["_a_cl"] / scale[:, None] * scale[None, :] if local["_a_cl"] is not None else None  # scaled
-    out = {"local": local, "roa": roa_of(system, policy, qref, scale, budget, a_cl, hold)}
+    out["roa"] = roa_of(system, policy, qref, scale, budget, a_cl, hold)
     cost["roa"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     lqr, lqr_policy = lqr_design(system, qref, scale, np.zeros(2 * task.model.nv), weights)
@@ -198,9 +205,13 @@ def equilibrium_part(system: System, budget: Budget, scale: np.ndarray, qref: np
     return out
 
 
-def verify(system: System, budget: Budget, lqr: "LqrWeights | None" = None) -> dict:
-    """Every analysis of one controller, with its cost in seconds. lqr: the weights of the LQR beside it."""
+def verify(system: System, budget: Budget, lqr: "LqrWeights | None" = None,
+           certify_budget: "certify.CertifyBudget | None" = None) -> dict:
+    """Every analysis of one controller, with its cost in seconds. lqr: the weights of the LQR beside it;
+    certify_budget: certify the closed loop's stable fixed point (VerifyError, one line, where there is none)."""
     task, ctrl, cost = system.task, system.ctrl, {}
+    if certify_budget is not None and equilibrium_guess(task) is None:
+        raise VerifyError(f"nothing to certify: {system.env!r} declares no equilibrium (Task.equilibrium_qpos)")
     scale = state_scale(task)
     t0 = time.perf_counter()
     nom, ep = nominal(system, budget)
@@ -208,7 +219,7 @@ def verify(system: System, budget: Budget, lqr: "LqrWeights | None" = None) -> d
     cost["nominal_and_switching"] = time.perf_counter() - t0
     qref = equilibrium_guess(task)
     if qref is not None:
-        result.update(equilibrium_part(system, budget, scale, qref, cost, lqr))
+        result.update(equilibrium_part(system, budget, scale, qref, cost, lqr, certify_budget))
     else:
         result["local"] = {"note": f"{system.env!r} declares no equilibrium (Task.equilibrium_qpos): no local "
                                    "analysis or region of attraction"}

@@ -24,26 +24,37 @@ from gsa_jax.verify.system import to_qpos, to_tangent
 FD_EPS = 1e-6  # finite-difference step (tangent coordinates, SI units), central differences
 
 
+def normalized(ctrl: Controller, obs: np.ndarray) -> tuple:
+    """(z [d_s] the normalizer's clipped output, d z / d obs [d_s], its diagonal) of the controller at obs [d_s]."""
+    zraw = (np.asarray(obs, np.float64) - ctrl.obs_mean) / ctrl.obs_std
+    dz = np.where(np.abs(zraw) < ctrl.obs_clip, 1.0 / ctrl.obs_std, 0.0)
+    return np.clip(zraw, -ctrl.obs_clip, ctrl.obs_clip), dz
+
+
+def raw_jacobian(ctrl: Controller, obs: np.ndarray, piece: "int | None" = None) -> tuple:
+    """(raw action [d_a] before the action clip, d raw / d obs [d_a, d_s]) of the controller at obs [d_s]: piece
+    `piece` of a mixture (None: the piece its partition picks there), or the flat network."""
+    z, dz = normalized(ctrl, obs)
+    if ctrl.kind == MLP:
+        raw, jz = mlp_jacobian(ctrl.layers, z)
+    else:
+        c = int(ctrl.cluster(np.asarray(obs, np.float32))) if piece is None else int(piece)
+        raw, jz = _subpolicy_jacobian(ctrl, c, z)
+    return raw, jz * dz[None, :]
+
+
 def piece_jacobian(ctrl: Controller, obs: np.ndarray, piece: "int | None" = None) -> tuple:
     """(action [d_a] as act() clips it, d action / d obs [d_a, d_s]) of the controller at obs [d_s]: piece `piece`
     of a mixture (None: the piece its partition picks there), or the flat network."""
-    obs = np.asarray(obs, np.float64)
-    zraw = (obs - ctrl.obs_mean) / ctrl.obs_std
-    dz = np.where(np.abs(zraw) < ctrl.obs_clip, 1.0 / ctrl.obs_std, 0.0)  # d z / d obs (diagonal)
-    z = np.clip(zraw, -ctrl.obs_clip, ctrl.obs_clip)
-    if ctrl.kind == MLP:
-        raw, jz = _mlp_jacobian(ctrl.layers, z)
-    else:
-        c = int(ctrl.cluster(obs.astype(np.float32))) if piece is None else int(piece)
-        raw, jz = _subpolicy_jacobian(ctrl, c, z)
-    j = jz * dz[None, :]
+    raw, j = raw_jacobian(ctrl, obs, piece)
     if ctrl.action_low is None:
         return raw, j
     inside = (raw > ctrl.action_low) & (raw < ctrl.action_high)
     return np.clip(raw, ctrl.action_low, ctrl.action_high), j * inside[:, None]
 
 
-def _mlp_jacobian(layers, z):
+def mlp_jacobian(layers, z):
+    """(output, d output / d z) of a tanh MLP (layers [(w, b)]) at z."""
     h, jac = z, np.eye(len(z))
     for i, (w, b) in enumerate(layers):
         pre = h @ w + b

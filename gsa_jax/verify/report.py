@@ -79,6 +79,29 @@ def roa_lines(name: str, r: "dict | None") -> list:
             f"{', no boundary in range' if r['no_boundary_in_range'] else ''}{ly}."]
 
 
+def certificate_lines(cert: dict) -> list:
+    """The certificate (gsa_jax.verify.certify) in words, SI units per coordinate."""
+    where = "the network" if cert["piece"] is None else f"piece {cert['piece']}"
+    extent = ", ".join(f"{name} +-{e:.3g}" for name, e in zip(cert["coordinates"], cert["extent"]))
+    rounds = "; ".join(f"level {r['level']:.4g}: {r['samples']} samples inside, {r['boundary_samples']} on the "
+                       f"boundary, {r['falsifier_episodes']} falsifier starts, {r['violations']} violations"
+                       for r in cert["rounds"])
+    verdict = ("certified: the last round found no violation" if cert["certified"] else
+               f"nothing certified: every one of {len(cert['rounds'])} rounds found violations")
+    return [f"{cert['claim'][0].upper()}{cert['claim'][1:]}.",
+            f"- fixed point: {where}'s at qpos {np.round(cert['qpos'], 4).tolist()}, qvel "
+            f"{np.round(cert['qvel'], 4).tolist()}; spectral radius {cert['spectral_radius']:.4f}",
+            f"- V(x) = (x - x*)' P (x - x*) falls by rho^2 over k = {cert['k']} control steps ({cert['k_seconds']:.3g} "
+            f"s), rho = {cert['rho']:.4g} ({cert['rho_per_step']:.4g} per step); on the linearization "
+            f"A^k' P A^k <= rho_P^2 P, rho_P = {cert['rho_linearization']:.4g}",
+            f"- level {cert['level']:.4g} ({verdict}); {cert['level_linearization']:.4g} on the linearization, "
+            f"bounded by {cert['bounded_by']}",
+            f"- inscribed radius {cert['inscribed_radius']:.3g} (SI units); semi-axes "
+            f"{', '.join(f'{a:.3g}' for a in cert['semi_axes'])}; extent {extent}",
+            f"- plant test ({cert['samples']} starts, each stepped k control steps in MuJoCo C with the exported "
+            f"controller): {rounds}"]
+
+
 def push_text(push: "dict | None") -> str:
     if push is None:
         return "no push"
@@ -117,6 +140,10 @@ def write_markdown(path: str, doc: dict) -> None:
         lines += [f"- LQR: {doc['lqr']['note']}."] if "note" in doc["lqr"] else []
     else:
         lines.append("None: no equilibrium declared.")
+    if "certificate" in doc:
+        lines += ["", "## Certified region of attraction", "", *certificate_lines(doc["certificate"]), "",
+                  "Not proved on the plant: the decrease is tested at the samples and the falsifier's starts, not "
+                  "between them; no disturbance, model error or sensor noise is part of it."]
     lines += ["", "## Falsification", "", *falsification_lines(doc), "", "## Switching", "",
               f"Switches per second {s['switches_per_second']:.3g} (second half of the episodes: "
               f"{s['switches_per_second_second_half']:.3g}); dwell {s['dwell_steps_mean']:.3g} steps on average "

@@ -1,0 +1,347 @@
+"""A certified local region of attraction of the closed loop's stable fixed point x* (`gsa verify --certify`).
+
+Exact on the linearization, tested on the plant (not proved on it). States are verify's tangent coordinates in SI
+units (rad, m, rad/s, m/s; gsa_jax.verify.system), the closed loop's Jacobian A one control step at x*
+(gsa_jax.verify.linearize), V(x) = (x - x*)' P (x - x*) and the set E = {x : V(x) <= level}.
+
+- k, rho: k is the fewest control steps with rho_A^k <= 1/2 (rho_A: A's spectral radius; at most K_MAX), so a slow
+  loop is certified over k steps rather than one. The certified contraction is rho = (1 + rho_A^k) / 2 (V falls
+  by rho^2 every k steps), the LMI's target halfway below it, rho_P = (rho_A^k + rho) / 2: on the linearization V
+  falls by rho_P^2 < rho^2 in every direction, and the difference is what the plant's nonlinearity may take near x*
+  (an LMI tight at rho itself would leave it none along its tight direction, at any distance from x*). Recorded
+  beside them is P's own k-step contraction on A (exact, at most rho_P up to the solver's tolerance).
+- P: with Q = P^-1, maximize t subject to Q >= t I (the inscribed ball's radius is sqrt(t) at level 1),
+  A^k Q A^k' <= rho_P^2 Q (the decrease LMI, A^k' P A^k <= rho_P^2 P), E and its images A^j E (j < k) inside the
+  linearization's validity bounds (h' Q h <= 1 per bound, below) and Q <= AXIS_CAP^2 I where no bound limits a
+  direction: a semidefinite program, solved with cvxpy and Clarabel (the optional extra verify).
+- Validity bounds, each |g (x - x*)| <= margin to first order: an action reaching its clip, an observation the
+  normalizer's clip, the partition picking another piece (a mixture), a joint's range, an unlimited hinge's +-pi.
+  The largest level of P they allow is the support function's min over bounds and j < k of
+  margin^2 / (g A^j P^-1 A^j' g') (capped where the largest semi-axis would pass AXIS_CAP).
+- The plant test: uniform samples in E and on its boundary and a cross-entropy search for the largest
+  V(x_k) / V(x_0) inside it, each start stepped k control steps in MuJoCo C with the exported controller (float32,
+  clipped, its partition): a violation is V(x_k) > rho^2 V(x_0) + DECREASE_TOL level, or an episode that terminates.
+  A violation sets the level to SHRINK x the smallest V(x_0) among them and a fresh round runs; the level is
+  certified when a round finds none (after CertifyBudget.rounds rounds with violations, nothing is).
+"""
+
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+import scipy.linalg
+
+from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.verify import linearize as lin
+from gsa_jax.verify import roa
+from gsa_jax.verify.simulate import controller_policy
+from gsa_jax.verify.system import System, VerifyError, to_tangent, wrap
+
+CLAIM = "exact on the linearization, tested on the plant (not proved on it)"
+INSTALL = "pip install 'gsa_jax[verify]'"
+HALF = 0.5  # k: the fewest steps whose linear contraction rho_A^k is at most this
+K_MAX = 1000  # control steps
+AXIS_CAP = 100.0  # SI units: the largest semi-axis where no validity bound limits a direction
+SHRINK = 0.9  # a violation at V(x_0) = v sets the level to SHRINK v
+DECREASE_TOL = 1e-6  # x level: the float32 controller's rounding
+RULE = (f"k: the fewest control steps with rho_A^k <= {HALF} (at most {K_MAX}); rho: (1 + rho_A^k) / 2, tested on "
+        "the plant; P: the largest inscribed ball subject to A^k' P A^k <= rho_P^2 P, rho_P = (rho_A^k + rho) / 2 "
+        "with the ellipsoid and its images over the k steps inside the linearization's validity bounds (action "
+        "clips, normalizer clips, partition boundaries, joint ranges, +-pi on unlimited hinges; semi-axes at most "
+        f"{AXIS_CAP:g}); level: the largest those bounds allow, then {SHRINK} x the smallest V(x_0) of a violation "
+        f"found on the plant (V(x_k) > rho^2 V(x_0) + {DECREASE_TOL:g} level, or termination) until a round finds none")
+
+
+class CertifyBudget(NamedTuple):
+    samples: int = 2000  # uniform samples in E per round
+    boundary: int = 2000  # uniform samples on its boundary (where a violation first appears as the level grows)
+    population: int = 64  # the falsifier's episodes per iteration
+    iterations: int = 6
+    rounds: int = 12
+    seed: int = 0
+
+
+QUICK = CertifyBudget(samples=500, boundary=500, population=32, iterations=4)
+
+
+def require_solver() -> None:
+    """VerifyError (one line) unless cvxpy with the Clarabel solver imports."""
+    try:
+        import cvxpy
+    except ImportError:
+        cvxpy = None
+    if cvxpy is None or "CLARABEL" not in cvxpy.installed_solvers():
+        raise VerifyError(f"--certify needs cvxpy and Clarabel, the optional extra verify: {INSTALL}")
+
+
+def stable_fixed_point(local: dict) -> dict:
+    """The closed loop's fixed point record (local analysis) to certify; VerifyError (one line) saying what was
+    found instead where it has none or it is unstable."""
+    fp = local.get("closed_loop_fixed_point")
+    if fp is None:
+        found = [p for p in local["pieces"] if p["fixed_point_found"]]
+        if not found:
+            worst = min(p["residual"] for p in local["pieces"])
+            raise VerifyError(f"nothing to certify: no fixed point found near the hold (Newton's residual {worst:.3g} "
+                              "scaled units)")
+        where = ", ".join(f"piece {p['piece']}'s where piece {p['picked_there']} is picked" for p in found)
+        raise VerifyError(f"nothing to certify: no piece's fixed point lies in its own region ({where}): the hold "
+                          "switches between pieces, or does not hold")
+    if fp["spectral_radius"] >= 1.0:
+        who = "the network" if fp["piece"] is None else f"piece {fp['piece']}"
+        raise VerifyError(f"nothing to certify: the closed loop's fixed point ({who}'s) is unstable, spectral radius "
+                          f"{fp['spectral_radius']:.4f}")
+    return fp
+
+
+def step_rule(rho_a: float) -> tuple:
+    """(k, the certified contraction rho, the LMI's target rho_P) for a closed loop of spectral radius rho_a < 1
+    (module docstring)."""
+    k = 1 if rho_a <= HALF else min(K_MAX, int(np.ceil(np.log(HALF) / np.log(rho_a))))
+    rho = 0.5 * (1.0 + rho_a ** k)
+    return k, rho, 0.5 * (rho_a ** k + rho)
+
+
+class Bounds(NamedTuple):
+    g: np.ndarray  # [m, n] d (bounded quantity) / dx at x*
+    margin: np.ndarray  # [m] its distance to the bound there
+    names: list  # [m] what each bound is
+
+
+def controller_bounds(ctrl, piece: "int | None", obs: np.ndarray, C: np.ndarray) -> Bounds:
+    """The controller's validity bounds at obs [d_s] (C = d obs / dx [d_s, n]): its action clips, its normalizer's
+    clips and, for a mixture, where the partition's logit of another piece reaches that of `piece`."""
+    zraw = (np.asarray(obs, np.float64) - ctrl.obs_mean) / ctrl.obs_std
+    g = [C / ctrl.obs_std[:, None].astype(np.float64)]
+    margin = [np.abs(ctrl.obs_clip - np.abs(zraw))]
+    names = [f"observation {i}'s normalizer clip" for i in range(len(zraw))]
+    raw, j = lin.raw_jacobian(ctrl, obs, piece)
+    if ctrl.action_low is not None:
+        g.append(j @ C)
+        margin.append(np.minimum(np.abs(raw - ctrl.action_low), np.abs(ctrl.action_high - raw)))
+        names += [f"action {i}'s clip" for i in range(len(raw))]
+    if ctrl.kind == MIXTURE and ctrl.num_clusters > 1:
+        z, dz = lin.normalized(ctrl, obs)
+        logits, jl = lin.mlp_jacobian(ctrl.layers, z)
+        others = [c for c in range(ctrl.num_clusters) if c != piece]
+        g.append((jl[others] - jl[piece]) * dz[None, :] @ C)
+        margin.append(np.abs(logits[piece] - logits[others]))
+        names += [f"the partition's boundary with piece {c}" for c in others]
+    return Bounds(np.concatenate(g), np.concatenate(margin), names)
+
+
+def joint_bounds(model: mujoco.MjModel, qref: np.ndarray, x: np.ndarray) -> Bounds:
+    """Validity bounds of the tangent state x [n]: each limited hinge or slide joint's range, each unlimited hinge's
+    +-pi (where its angle wraps)."""
+    n, g, margin, names = 2 * model.nv, [], [], []
+    for j in range(model.njnt):
+        kind, dof, adr = int(model.jnt_type[j]), int(model.jnt_dofadr[j]), int(model.jnt_qposadr[j])
+        if kind not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            continue
+        if model.jnt_limited[j]:
+            lo, hi = model.jnt_range[j]
+            q = qref[adr] + x[dof]
+            margin.append(max(0.0, min(q - lo, hi - q)))
+            names.append(f"joint {model.joint(j).name!r}'s range")
+        elif kind == mujoco.mjtJoint.mjJNT_HINGE:
+            margin.append(np.pi)
+            names.append(f"joint {model.joint(j).name!r}'s +-pi")
+        else:
+            continue
+        g.append(np.eye(n)[dof])
+    return Bounds(np.reshape(g, (-1, n)), np.array(margin), names)
+
+
+def image_rows(A: np.ndarray, bounds: Bounds, k: int) -> tuple:
+    """(h [k m', n] = g A^j / margin for j < k over the bounds that limit a direction, their names): E's images
+    over the k steps lie inside the bounds where h' P^-1 h <= level^-1 for every row."""
+    keep = np.isfinite(bounds.margin) & (np.abs(bounds.g).sum(1) > 0)
+    if np.any(bounds.margin[keep] <= 0):
+        name = bounds.names[int(np.flatnonzero(keep & (bounds.margin <= 0))[0])]
+        raise VerifyError(f"nothing to certify: the closed loop's fixed point lies on {name} (its linearization "
+                          "holds on no neighbourhood)")
+    h, rows = bounds.g[keep] / bounds.margin[keep][:, None], []
+    for _ in range(k):
+        rows.append(h)
+        h = h @ A
+    names = [bounds.names[i] for i in np.flatnonzero(keep)]
+    return np.concatenate(rows), [f"{name} at step {j}" for j in range(k) for name in names]
+
+
+def decrease_shape(Ak: np.ndarray, rho: float, H: np.ndarray) -> np.ndarray:
+    """Q = P^-1 [n, n] of the largest inscribed ball with Ak Q Ak' <= rho^2 Q, h' Q h <= 1 for each row of H [M, n]
+    and Q <= AXIS_CAP^2 I (the module docstring's program; cvxpy with Clarabel)."""
+    import cvxpy as cp
+
+    n = len(Ak)
+    Q, t, eye = cp.Variable((n, n), symmetric=True), cp.Variable(), np.eye(n)
+    S = rho ** 2 * Q - Ak @ Q @ Ak.T
+    cons = [Q - t * eye >> 0, AXIS_CAP ** 2 * eye - Q >> 0, (S + S.T) / 2 >> 0]
+    if len(H):
+        cons.append(np.einsum("mi,mj->mij", H, H).reshape(len(H), -1) @ cp.vec(Q, order="F") <= 1.0)
+    problem = cp.Problem(cp.Maximize(t), cons)
+    problem.solve(solver=cp.CLARABEL)
+    if problem.status not in ("optimal", "optimal_inaccurate") or Q.value is None or not t.value > 0:
+        raise VerifyError(f"nothing to certify: the decrease LMI has no solution Clarabel finds ({problem.status})")
+    return 0.5 * (Q.value + Q.value.T)
+
+
+def contraction(Ak: np.ndarray, P: np.ndarray) -> float:
+    """The least rho with Ak' P Ak <= rho^2 P."""
+    return float(np.sqrt(scipy.linalg.eigh(Ak.T @ P @ Ak, P, eigvals_only=True).max()))
+
+
+def largest_level(P: np.ndarray, H: np.ndarray, names: list) -> tuple:
+    """(level, what bounds it): the largest level with E's images inside every row of H [M, n] (the support
+    function, min 1 / h' P^-1 h) and E's largest semi-axis at most AXIS_CAP."""
+    cap = AXIS_CAP ** 2 * float(np.linalg.eigvalsh(P)[0])
+    if not len(H):
+        return cap, f"the semi-axis cap {AXIS_CAP:g}"
+    support = np.einsum("mi,ij,mj->m", H, np.linalg.inv(P), H)
+    i = int(np.argmax(support))
+    return (1.0 / support[i], names[i]) if 1.0 / support[i] < cap else (cap, f"the semi-axis cap {AXIS_CAP:g}")
+
+
+class Linear(NamedTuple):
+    """The certificate on the linearization: V's matrix, the contraction certified over k steps, P's own on the
+    linearization (exact, below it), the level its bounds allow."""
+
+    P: np.ndarray
+    k: int
+    rho: float
+    rho_p: float
+    rho_a: float
+    level: float
+    bounded_by: str
+
+
+def certify_linear(A: np.ndarray, bounds: Bounds) -> Linear:
+    """The certificate of the closed loop's Jacobian A [n, n] (stable) within bounds."""
+    rho_a = float(np.max(np.abs(np.linalg.eigvals(A))))
+    k, rho, rho_target = step_rule(rho_a)
+    H, names = image_rows(A, bounds, k)
+    Ak = np.linalg.matrix_power(A, k)
+    P = np.linalg.inv(decrease_shape(Ak, rho_target, H))
+    P = 0.5 * (P + P.T)
+    level, by = largest_level(P, H, names)
+    return Linear(P, k, rho, contraction(Ak, P), rho_a, level, by)
+
+
+def sphere(rng: np.random.Generator, count: int, n: int) -> np.ndarray:
+    """[count, n] uniform on the unit sphere."""
+    u = rng.standard_normal((count, n))
+    return u / np.linalg.norm(u, axis=1, keepdims=True)
+
+
+def ball(rng: np.random.Generator, count: int, n: int) -> np.ndarray:
+    """[count, n] uniform in the unit ball."""
+    return sphere(rng, count, n) * rng.uniform(size=(count, 1)) ** (1.0 / n)
+
+
+def offsets(P: np.ndarray, level: float, u: np.ndarray) -> np.ndarray:
+    """[B, n] x - x* of points u [B, n] of the unit ball mapped onto E (V = level |u|^2)."""
+    lam, W = np.linalg.eigh(P)
+    return np.sqrt(level) * (u / np.sqrt(lam)) @ W.T
+
+
+class Plant(NamedTuple):
+    """The closed loop as the plant test steps it: the task, the exported controller, x* around qref."""
+
+    system: System
+    qref: np.ndarray
+    x_star: np.ndarray
+
+
+def decrease_values(plant: Plant, lin_cert: Linear, level: float, u: np.ndarray) -> tuple:
+    """(V(x_0) [B], V(x_k) [B], +inf where the episode terminates) of starts u [B, n] (the unit ball, mapped onto E
+    at level) after k control steps in MuJoCo C with the exported controller."""
+    task, P = plant.system.task, lin_cert.P
+    dx0 = offsets(P, level, u)
+    ep = roa.run_from(task, controller_policy(plant.system.ctrl), plant.qref, plant.x_star + dx0, lin_cert.k)
+    xk = np.concatenate([to_tangent(task.model, plant.qref, ep.qpos[-1]), ep.qvel[-1]], axis=1)
+    dxk = wrap(task.model, xk - plant.x_star)
+    v0, vk = (np.einsum("bi,ij,bj->b", d, P, d) for d in (dx0, dxk))
+    return v0, np.where(ep.terminated, np.inf, vk)
+
+
+def ratio(v0: np.ndarray, vk: np.ndarray) -> np.ndarray:
+    """V(x_k) / V(x_0): unlike their difference, it does not favour starts near x*."""
+    return vk / np.maximum(v0, np.finfo(float).tiny)
+
+
+def search_violations(values, start: np.ndarray, budget: CertifyBudget, rng: np.random.Generator) -> tuple:
+    """(V(x_0) [N], V(x_k) [N]) of a cross-entropy search over the unit ball for the largest ratio, from start [n]
+    (values(u [B, n]) -> (V(x_0), V(x_k)); the elite eighth refitted each iteration)."""
+    mean, std, n_elite = start, np.full(len(start), 0.3), max(2, budget.population // 8)
+    seen = []
+    for _ in range(budget.iterations):
+        u = mean + std * rng.standard_normal((budget.population, len(start)))
+        u = u / np.maximum(1.0, np.linalg.norm(u, axis=1, keepdims=True))
+        seen.append(values(u))
+        elite = u[np.argsort(-ratio(*seen[-1]))[:n_elite]]
+        mean, std = elite.mean(0), np.maximum(elite.std(0), 0.02)
+    return tuple(np.concatenate(v) for v in zip(*seen))
+
+
+def check_round(plant: Plant, lin_cert: Linear, level: float, budget: CertifyBudget, r: int) -> dict:
+    """One round of the plant test at level: uniform samples in E and on its boundary, then the falsifier from the
+    sample with the largest ratio."""
+    rng, n = np.random.default_rng([budget.seed, r]), len(lin_cert.P)
+    values = lambda u: decrease_values(plant, lin_cert, level, u)
+    u = np.concatenate([ball(rng, budget.samples, n), sphere(rng, budget.boundary, n)])
+    v0, vk = values(u)
+    f0, fk = search_violations(values, u[int(np.argmax(ratio(v0, vk)))], budget, rng)
+    v0, vk = np.concatenate([v0, f0]), np.concatenate([vk, fk])
+    excess = (vk - lin_cert.rho ** 2 * v0) / level
+    bad = excess > DECREASE_TOL
+    return {"level": float(level), "samples": int(budget.samples), "boundary_samples": int(budget.boundary),
+            "falsifier_episodes": int(len(f0)), "violations": int(bad.sum()), "largest_excess": float(excess.max()),
+            "smallest_violating_v0": float(v0[bad].min()) if bad.any() else None}
+
+
+def check_on_plant(plant: Plant, lin_cert: Linear, budget: CertifyBudget) -> tuple:
+    """(level, certified, rounds): the plant test's rounds from the linearization's level, shrinking at each
+    violation, until one finds none (certified) or budget.rounds have run (level 0: nothing certified)."""
+    level, rounds = lin_cert.level, []
+    for r in range(budget.rounds):
+        rounds.append(check_round(plant, lin_cert, level, budget, r))
+        if not rounds[-1]["violations"]:
+            return level, True, rounds
+        level = SHRINK * rounds[-1]["smallest_violating_v0"]
+    return 0.0, False, rounds
+
+
+def coordinates(model: mujoco.MjModel) -> list:
+    """[2 nv] each tangent coordinate's joint and SI unit, positions then velocities."""
+    units = {int(mujoco.mjtJoint.mjJNT_FREE): ["m"] * 3 + ["rad"] * 3, int(mujoco.mjtJoint.mjJNT_BALL): ["rad"] * 3,
+             int(mujoco.mjtJoint.mjJNT_SLIDE): ["m"], int(mujoco.mjtJoint.mjJNT_HINGE): ["rad"]}
+    pos = []
+    for j in range(model.njnt):
+        u = units[int(model.jnt_type[j])]
+        pos += [(model.joint(j).name + (f"[{i}]" if len(u) > 1 else ""), unit) for i, unit in enumerate(u)]
+    return [f"{name} ({unit})" for name, unit in pos] + [f"{name} velocity ({unit}/s)" for name, unit in pos]
+
+
+def certificate(system: System, qref: np.ndarray, local: dict, budget: CertifyBudget) -> dict:
+    """The certificate record (docs/verify.md) of the closed loop's stable fixed point (local: verify's local
+    analysis); VerifyError (one line) where there is nothing to certify."""
+    task, ctrl = system.task, system.ctrl
+    fp = stable_fixed_point(local)
+    x = wrap(task.model, np.concatenate([to_tangent(task.model, qref, np.array(fp["qpos"]))[0], fp["qvel"]]))
+    L = lin.linearize(task, lambda obs: lin.piece_jacobian(ctrl, obs, fp["piece"]), qref, x)
+    obs = lin.observe_at(task, np.array(fp["qpos"]), np.array(fp["qvel"]))
+    b = [controller_bounds(ctrl, fp["piece"], obs, L.C), joint_bounds(task.model, qref, x)]
+    bounds = Bounds(np.concatenate([c.g for c in b]), np.concatenate([c.margin for c in b]), b[0].names + b[1].names)
+    lc = certify_linear(L.closed, bounds)
+    level, certified, rounds = check_on_plant(Plant(system, qref, x), lc, budget)
+    lam, W = np.linalg.eigh(lc.P)
+    axes = np.sqrt(level / lam)  # largest first
+    return {"claim": CLAIM, "rule": RULE, "certified": certified, "piece": fp["piece"],
+            "qpos": fp["qpos"], "qvel": fp["qvel"], "coordinates": coordinates(task.model), "P": lc.P.tolist(),
+            "k": lc.k, "k_seconds": lc.k * float(task.dt), "rho": lc.rho, "rho_per_step": lc.rho ** (1.0 / lc.k),
+            "rho_linearization": lc.rho_p, "spectral_radius": lc.rho_a,
+            "level_linearization": lc.level, "bounded_by": lc.bounded_by, "level": level,
+            "semi_axes": axes.tolist(), "semi_axis_directions": W.T.tolist(), "inscribed_radius": float(axes.min()),
+            "extent": np.sqrt(level * np.diag(np.linalg.inv(lc.P))).tolist(),
+            "samples": int(sum(r["samples"] + r["boundary_samples"] + r["falsifier_episodes"] for r in rounds)),
+            "violations": [r["violations"] for r in rounds], "rounds": rounds, "budget": budget._asdict()}

@@ -1,0 +1,177 @@
+"""gsa verify --certify: a certified region of attraction, exact on the linearization and tested on the plant."""
+
+import json
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from envs.task import TaskC
+from gsa_jax.commands.verify import main as verify_main
+from gsa_jax.verify import analysis, certify, roa, simulate
+from gsa_jax.verify.system import equilibrium_guess, load_system, state_scale
+from verify_tasks import analytic_step, export, lqr_gain
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+POINT_MASS = os.path.join(ROOT, "tests", "verify_tasks.py") + ":PointMass"
+HOPPER = os.path.join(ROOT, "experiments/fig1_v5/results/fig1_v5_Hopper-v5/controllers",
+                      "Hopper-v5-mixture-K2-s5.npz")
+IDP_FLAT = os.path.join(ROOT, "experiments/fig1_v5/results/fig1_v5_InvertedDoublePendulum-v5/controllers",
+                        "InvertedDoublePendulum-v5-mlp-s0.npz")
+LEVEL_TOL = 1e-6  # relative: verify's A (mjd_transitionFD, central differences of a linear step) vs the formula
+R0 = 0.1  # m: the planted controller's piece changes at |x| = R0
+
+
+def lqr_controller(path):
+    return load_system(export(path, POINT_MASS, -lqr_gain()[None] * np.sqrt(1.0 + 1e-8), [[0.0]]))
+
+
+def planted_controller(path):
+    """K = 2 on PointMass: piece 0 the LQR gain, piece 1 its opposite, picked where |x| > R0 (tanh units
+    h1 = tanh(50 (x - R0)), h2 = tanh(50 (-x - R0)); logit 1 = h1 + h2 + 1 > 0 exactly there). Piece 1 pushes away:
+    where x > R0 and v >= 0 (or x < -R0 and v <= 0) the action is positive (negative), so x and v only grow and
+    every start there diverges."""
+    k = lqr_gain()[None] * np.sqrt(1.0 + 1e-8)
+    w = [np.array([[50.0, -50.0], [0.0, 0.0]]), np.array([[0.0, 1.0], [0.0, 1.0]])]
+    bw = [np.full(2, -50.0 * R0), np.array([0.0, 1.0])]
+    return load_system(export(path, POINT_MASS, np.concatenate([-k, k]), [[0.0], [0.0]], w, bw))
+
+
+def certify_system(system, budget=certify.QUICK):
+    task = system.task
+    qref, scale = equilibrium_guess(task), state_scale(task)
+    hold = roa.find_hold(task, simulate.controller_policy(system.ctrl), qref, scale, int(task.episode_length))
+    return certify.certificate(system, qref, analysis.local_analysis(system, qref, scale, hold), budget)
+
+
+def boundary(cert, level, count=20_000):
+    """[count, 2] points on the boundary of {x' P x <= level} (x* = 0 here)."""
+    t = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
+    return certify.offsets(np.array(cert["P"]), level, np.stack([np.cos(t), np.sin(t)], axis=1))
+
+
+def recheck(system, cert, seed, count=400):
+    """Starts uniform in the certified set drawn otherwise than the certifier draws them (rejection from the cube
+    around the unit ball, mapped by P's Cholesky factor; another seed), each stepped k control steps in plain MuJoCo C
+    (TaskC, the controller's act on one observation): none terminates, V(x_k) <= rho^2 V(x_0) + DECREASE_TOL level for
+    every one."""
+    P, level, k, rho = np.array(cert["P"]), cert["level"], cert["k"], cert["rho"]
+    q0, v0, nv = np.array(cert["qpos"]), np.array(cert["qvel"]), system.task.model.nv
+    assert system.task.model.nq == nv  # hinges and slides: qpos = q* + dq
+    cube = np.random.default_rng(seed).uniform(-1.0, 1.0, (50 * count, len(P)))
+    u = cube[np.linalg.norm(cube, axis=1) <= 1.0][:count]
+    assert len(u) == count
+    starts = np.sqrt(level) * np.linalg.solve(np.linalg.cholesky(P).T, u.T).T  # d' P d = level |u|^2
+    for d in starts:
+        tc = TaskC(system.task)
+        obs = tc.set_start(q0 + d[:nv], v0 + d[nv:])
+        for _ in range(k):
+            obs, _, done = tc.step(system.ctrl.act(obs.astype(np.float32)))
+            assert not done
+        dk = np.concatenate([tc.data.qpos - q0, tc.data.qvel - v0])
+        assert dk @ P @ dk <= rho ** 2 * (d @ P @ d) + certify.DECREASE_TOL * level
+
+
+def test_lqr_on_a_linear_task_gets_the_largest_ellipsoid_of_its_p(tmp_path):
+    """An LQR gain as a K = 1 controller on an exactly linear task (PointMass): P satisfies the decrease LMI on the
+    analytic closed loop over k steps (k by the rule), the certified level equals the analytic largest level of that
+    P (the ellipsoid and its images over the k steps inside |gain x| <= 1, the action clip, and the normalizer's
+    clip) within LEVEL_TOL, the plant test finds no violation, and an independent recheck finds none either."""
+    system = lqr_controller(tmp_path / "lqr.npz")
+    cert = certify_system(system)
+    A, B = analytic_step()
+    gain = system.ctrl.L[0].astype(np.float64) / system.ctrl.obs_std  # d action / d obs = d action / dx
+    a_cl = A + B @ gain
+    rho_a = np.abs(np.linalg.eigvals(a_cl)).max()
+    assert cert["k"] == int(np.ceil(np.log(0.5) / np.log(rho_a))) and rho_a ** cert["k"] <= 0.5
+    P, k = np.array(cert["P"]), cert["k"]
+    rho_p = certify.contraction(np.linalg.matrix_power(a_cl, k), P)
+    assert rho_p <= cert["rho_linearization"] * (1 + LEVEL_TOL) and cert["rho_linearization"] < cert["rho"] < 1
+    rows = np.concatenate([gain, np.eye(2) / system.ctrl.obs_clip])  # |row x| <= 1
+    images = np.concatenate([rows @ np.linalg.matrix_power(a_cl, j) for j in range(k)])
+    analytic = 1.0 / np.einsum("mi,ij,mj->m", images, np.linalg.inv(P), images).max()
+    assert cert["level"] == cert["level_linearization"]
+    assert abs(cert["level"] - analytic) <= LEVEL_TOL * analytic
+    assert cert["bounded_by"] == "action 0's clip at step 0"
+    assert cert["certified"] and cert["violations"] == [0] and cert["samples"] == 500 + 500 + 32 * 4
+    axes = np.sqrt(cert["level"] / np.linalg.eigvalsh(P))
+    np.testing.assert_allclose(cert["semi_axes"], axes, rtol=1e-12)  # largest first
+    assert cert["inscribed_radius"] == pytest.approx(axes.min(), rel=1e-12)
+    recheck(system, cert, seed=12345)
+
+
+def test_planted_instability_is_certified_no_further_than_its_radius(tmp_path):
+    """The planted controller (planted_controller) diverges from every start beyond |x| = R0 whose velocity does not
+    point back. The linearization sees none of it (the partition's boundary has zero gradient at x*) and its level
+    reaches there; the plant test finds violations, shrinks the level, and the certified set reaches no such start
+    (checked on its boundary: the set is convex and those starts are closed under growing |x|). An independent
+    recheck finds no violation. With one round only, its violations leave nothing certified."""
+    system = planted_controller(tmp_path / "planted.npz")
+    cert = certify_system(system)
+    unstable = lambda x: ((x[:, 0] > R0) & (x[:, 1] >= 0)) | ((x[:, 0] < -R0) & (x[:, 1] <= 0))
+    assert unstable(boundary(cert, cert["level_linearization"])).any()
+    assert cert["violations"][0] > 0 and cert["violations"][-1] == 0 and cert["certified"]
+    assert not unstable(boundary(cert, cert["level"])).any()
+    assert cert["level"] < cert["level_linearization"] and cert["inscribed_radius"] > 0.1 * R0
+    recheck(system, cert, seed=54321)
+    one_round = certify_system(system, certify.QUICK._replace(rounds=1))  # violations in its only round
+    assert not one_round["certified"] and one_round["level"] == 0.0 and one_round["inscribed_radius"] == 0.0
+
+
+def test_a_committed_controllers_certificate_holds_on_an_independent_recheck():
+    """InvertedDoublePendulum-v5's flat PPO seed 0 (a stable fixed point, spectral radius 0.948): the plant test finds
+    violations at the linearization's level and certifies a smaller one; 1000 starts drawn otherwise, stepped in plain
+    MuJoCo C, find no violation in it."""
+    system = load_system(IDP_FLAT)
+    cert = certify_system(system)
+    assert cert["violations"][0] > 0 and cert["violations"][-1] == 0 and cert["certified"]
+    assert 0 < cert["level"] < cert["level_linearization"] and cert["k"] == 14
+    recheck(system, cert, seed=777, count=1000)
+
+
+def test_certify_writes_its_record_and_prints_it(tmp_path, capsys):
+    """--certify --quick on the LQR controller: verify.json's certificate (P, rho, k, level, semi-axes, inscribed
+    radius, samples and violations per round, the rule), report.md's section and the printed certificate say
+    exactly what it is: exact on the linearization, tested on the plant (not proved on it)."""
+    path = export(tmp_path / "lqr.npz", POINT_MASS, -lqr_gain()[None] * np.sqrt(1.0 + 1e-8), [[0.0]])
+    assert verify_main([path, "--quick", "--certify", "--out", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    doc = json.load(open(tmp_path / "out" / "verify.json"))
+    cert = doc["certificate"]
+    assert {"P", "rho", "k", "level", "semi_axes", "inscribed_radius", "samples", "violations", "rule"} <= set(cert)
+    assert cert["claim"] == "exact on the linearization, tested on the plant (not proved on it)"
+    assert cert["coordinates"] == ["x (m)", "x velocity (m/s)"] and "certificate" in doc["cost_seconds"]
+    report = (tmp_path / "out" / "report.md").read_text()
+    for text in (printed, report):
+        assert "Exact on the linearization, tested on the plant (not proved on it)." in text
+        assert f"inscribed radius {cert['inscribed_radius']:.3g} (SI units)" in text
+    recheck(load_system(path), cert, seed=2024)
+
+
+def biased_pair(path):
+    """K = 2 on PointMass that holds by switching: piece 0 (x < 0) pushes right of the origin, piece 1 (x > 0) left
+    of it, so each piece's fixed point lies in the other's region."""
+    k = lqr_gain()[None]
+    w = [np.array([[50.0, 0.0], [0.0, 0.0]]), np.array([[0.0, 1.0], [0.0, 0.0]])]
+    return export(path, POINT_MASS, np.concatenate([-k, -k]), [[0.5], [-0.5]], w, [np.zeros(2), np.zeros(2)])
+
+
+@pytest.mark.parametrize("case, expect", [
+    ("no_extra", "--certify needs cvxpy and Clarabel, the optional extra verify: pip install 'gsa_jax[verify]'"),
+    ("unstable", "is unstable, spectral radius 1."),
+    ("switching", "no piece's fixed point lies in its own region (piece 0's where piece 1 is picked"),
+    ("no_equilibrium", "'Hopper-v5' declares no equilibrium"),
+])
+def test_certify_one_line_errors(tmp_path, monkeypatch, capsys, case, expect):
+    """--certify without the extra (its import hidden), with an unstable fixed point (PointMass with the LQR gain's
+    opposite), a hold kept by switching (biased_pair), a task without an equilibrium: exit code 2, one line."""
+    path = {"unstable": lambda: export(tmp_path / "c.npz", POINT_MASS, lqr_gain()[None], [[0.0]]),
+            "switching": lambda: biased_pair(tmp_path / "c.npz"), "no_equilibrium": lambda: HOPPER,
+            "no_extra": lambda: export(tmp_path / "c.npz", POINT_MASS, -lqr_gain()[None], [[0.0]])}[case]()
+    if case == "no_extra":
+        monkeypatch.setitem(sys.modules, "cvxpy", None)
+    assert verify_main([path, "--quick", "--certify", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert expect in err and err.count("\n") == 1 and "Traceback" not in err, err
+    assert not (tmp_path / "out").exists()
