@@ -25,7 +25,7 @@ units (rad, m, rad/s, m/s; gsa_jax.verify.system), the closed loop's Jacobian A 
   certified when a round finds none (after CertifyBudget.rounds rounds with violations, nothing is).
 """
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import mujoco
 import numpy as np
@@ -36,6 +36,9 @@ from gsa_jax.verify import linearize as lin
 from gsa_jax.verify import roa
 from gsa_jax.verify.simulate import controller_policy
 from gsa_jax.verify.system import System, VerifyError, to_tangent, wrap
+
+if TYPE_CHECKING:
+    from gsa_jax.deployment import numpy_policy
 
 CLAIM = "exact on the linearization, tested on the plant (not proved on it)"
 INSTALL = "pip install 'gsa_jax[verify]'"
@@ -108,7 +111,7 @@ class Bounds(NamedTuple):
     names: list  # [m] what each bound is
 
 
-def controller_bounds(ctrl, piece: "int | None", obs: np.ndarray, C: np.ndarray) -> Bounds:
+def controller_bounds(ctrl: "numpy_policy.Controller", piece: "int | None", obs: np.ndarray, C: np.ndarray) -> Bounds:
     """The controller's validity bounds at obs [d_s] (C = d obs / dx [d_s, n]): its action clips, its normalizer's
     clips and, for a mixture, where the partition's logit of another piece reaches that of `piece`."""
     zraw = (np.asarray(obs, np.float64) - ctrl.obs_mean) / ctrl.obs_std
@@ -269,7 +272,7 @@ def ratio(v0: np.ndarray, vk: np.ndarray) -> np.ndarray:
     return vk / np.maximum(v0, np.finfo(float).tiny)
 
 
-def search_violations(values, start: np.ndarray, budget: CertifyBudget, rng: np.random.Generator) -> tuple:
+def search_violations(values: Callable, start: np.ndarray, budget: CertifyBudget, rng: np.random.Generator) -> tuple:
     """(V(x_0) [N], V(x_k) [N]) of a cross-entropy search over the unit ball for the largest ratio, from start [n]
     (values(u [B, n]) -> (V(x_0), V(x_k)); the elite eighth refitted each iteration)."""
     mean, std, n_elite = start, np.full(len(start), 0.3), max(2, budget.population // 8)

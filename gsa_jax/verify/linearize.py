@@ -53,7 +53,7 @@ def piece_jacobian(ctrl: Controller, obs: np.ndarray, piece: "int | None" = None
     return np.clip(raw, ctrl.action_low, ctrl.action_high), j * inside[:, None]
 
 
-def mlp_jacobian(layers, z):
+def mlp_jacobian(layers: list, z: np.ndarray) -> tuple:
     """(output, d output / d z) of a tanh MLP (layers [(w, b)]) at z."""
     h, jac = z, np.eye(len(z))
     for i, (w, b) in enumerate(layers):
