@@ -1,0 +1,58 @@
+"""The certified region of attraction (`gsa verify --certify`) of every committed controller of one cell per partition
+class of a task, in SI units: per controller its fixed point's piece, spectral radius, certified level, inscribed
+radius and per-coordinate extent, or why none was certified (a one-line refusal: the hold switches pieces, no stable
+fixed point, ...). Exact on the linearization, tested on the plant (docs/verify.md).
+
+    .venv/bin/python experiments/partition/certify_regions.py experiments/partition/results/cartpole-balance 4 2.968 [SEEDS]
+writes certified_regions.csv in that directory (row by row; SEEDS: the first that many seeds per class, default all).
+"""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+COLUMNS = ("partition", "K", "lr_scale_partition", "seed", "certified", "piece", "spectral_radius", "level",
+           "inscribed_radius", "extent", "violations", "refused")
+
+
+def certify(path: str, budget: str) -> dict:
+    """The certificate fields of one controller (verify --certify at `budget`), or its refusal."""
+    with tempfile.TemporaryDirectory() as out:
+        done = subprocess.run([sys.executable, "-m", "gsa_jax", "verify", path, f"--{budget}", "--certify", "--out", out],
+                              capture_output=True, text=True)
+        if done.returncode != 0:
+            return {"refused": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else f"exit {done.returncode}"}
+        c = json.load(open(os.path.join(out, "verify.json")))["certificate"]
+    return {"certified": c["certified"], "piece": c["piece"], "spectral_radius": round(c["spectral_radius"], 5),
+            "level": round(c["level"], 5), "inscribed_radius": round(c["inscribed_radius"], 5),
+            "extent": "; ".join(f"{name} +-{v:.3g}" for name, v in zip(c["coordinates"], c["extent"])),
+            "violations": sum(r["violations"] for r in c["rounds"])}
+
+
+def write_rows(path: str, rows: list) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def main(task_dir: str, k: str, lr: str, seeds: str = "0", budget: str = "quick") -> int:
+    rows, out = [], os.path.join(task_dir, "certified_regions.csv")
+    for seed in range(int(seeds) or 10 ** 6):
+        for partition in ("linear", "mlp"):
+            path = os.path.join(task_dir, partition, "controllers",
+                                f"{os.path.basename(task_dir).join(['dmc.', ''])}-mixture-K{k}-partition={partition}"
+                                f"-lr_scale_partition={lr}-s{seed}.npz")
+            if not os.path.exists(path):
+                return 0
+            rows.append({"partition": partition, "K": k, "lr_scale_partition": lr, "seed": seed, **certify(path, budget)})
+            print(rows[-1], flush=True)
+            write_rows(out, rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(*sys.argv[1:]))
