@@ -230,15 +230,9 @@ def certify_linear(A: np.ndarray, bounds: Bounds) -> Linear:
     return Linear(P, k, rho, contraction(Ak, P), rho_a, level, by)
 
 
-def sphere(rng: np.random.Generator, count: int, n: int) -> np.ndarray:
-    """[count, n] uniform on the unit sphere."""
-    u = rng.standard_normal((count, n))
-    return u / np.linalg.norm(u, axis=1, keepdims=True)
-
-
 def ball(rng: np.random.Generator, count: int, n: int) -> np.ndarray:
     """[count, n] uniform in the unit ball."""
-    return sphere(rng, count, n) * rng.uniform(size=(count, 1)) ** (1.0 / n)
+    return roa.sphere(rng, count, n) * rng.uniform(size=(count, 1)) ** (1.0 / n)
 
 
 def offsets(P: np.ndarray, level: float, u: np.ndarray) -> np.ndarray:
@@ -291,7 +285,7 @@ def check_round(plant: Plant, lin_cert: Linear, level: float, budget: CertifyBud
     sample with the largest ratio."""
     rng, n = np.random.default_rng([budget.seed, r]), len(lin_cert.P)
     values = lambda u: decrease_values(plant, lin_cert, level, u)
-    u = np.concatenate([ball(rng, budget.samples, n), sphere(rng, budget.boundary, n)])
+    u = np.concatenate([ball(rng, budget.samples, n), roa.sphere(rng, budget.boundary, n)])
     v0, vk = values(u)
     f0, fk = search_violations(values, u[int(np.argmax(ratio(v0, vk)))], budget, rng)
     v0, vk = np.concatenate([v0, f0]), np.concatenate([vk, fk])

@@ -65,10 +65,15 @@ def converged(task: Task, policy: simulate.Policy, qref: np.ndarray, hold: Hold,
     return near & ~ep.terminated & (ep.lengths == horizon)
 
 
+def sphere(rng: np.random.Generator, count: int, n: int) -> np.ndarray:
+    """[count, n] unit vectors uniform on the sphere."""
+    u = rng.standard_normal((count, n))
+    return u / np.linalg.norm(u, axis=1, keepdims=True)
+
+
 def directions(n_dirs: int, dim: int, seed: int) -> np.ndarray:
-    """[n_dirs, dim] unit vectors uniform on the sphere."""
-    d = np.random.default_rng(seed).standard_normal((n_dirs, dim))
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
+    """[n_dirs, dim] unit vectors uniform on the sphere, drawn from seed."""
+    return sphere(np.random.default_rng(seed), n_dirs, dim)
 
 
 class Radii(NamedTuple):
