@@ -21,9 +21,9 @@ def synthetic_trainer(truth):
     decisions are then tested against known truth without training."""
     calls = []
 
-    def run(out, name, spec, log):
+    def run(out, name, spec, log, where="results", pad_runs=0):
         calls.append((name, spec.get("clusters", []), list(spec["seeds"])))
-        results = os.path.join(out, "results", name)
+        results = os.path.join(out, where, name)
         os.makedirs(os.path.join(results, "controllers"), exist_ok=True)
         rows = {}
         for k in spec.get("clusters") or [A.FLAT]:
@@ -41,7 +41,7 @@ def synthetic_trainer(truth):
 
 
 def synthetic_setup():
-    spec = {"steps": 1000, "hparams": {}, "config": {}}
+    spec = {"steps": 1000, "chunk": 1, "eval_every": 0, "hparams": {}, "config": {}}
     return A.Setup("task", (1, 2, 4), 0.1, (10, 20, 40), {"mlp": spec, "mixture": spec})
 
 
@@ -58,7 +58,8 @@ TRUTH = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (940.0, 120.0), 4: (1000.0
 def test_seeds_go_only_to_undecided_cells(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
     state = A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
-    assert calls[0][1:] == ([], list(range(10))) and calls[1][1:] == ([1, 2, 4], list(range(10)))  # the first look: every cell
+    assert calls[0][1:] == ([], list(range(10)))  # the first look: every cell, one sweep (one program) per K
+    assert [c[1:] for c in calls[1:4]] == [([k], list(range(10))) for k in (1, 2, 4)]
     for r in state["rounds"][1:]:
         before = r["verdicts_before"]
         chosen, below = verdict.smallest_sufficient({int(k): v for k, v in before.items()})
@@ -74,15 +75,15 @@ def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
     run, _ = synthetic_trainer(TRUTH)
     whole = A.run_answer(str(tmp_path / "whole"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
 
-    def interrupted(out, name, spec, log):  # the second round's mixture sweep is killed
-        if name == "round2-mixture":
+    def interrupted(out, name, spec, log, **kw):  # the second round's mixture sweep is killed
+        if name.startswith("round2-mixture"):
             raise KeyboardInterrupt
-        return run(out, name, spec, log)
+        return run(out, name, spec, log, **kw)
 
     with pytest.raises(KeyboardInterrupt):
         A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=interrupted)
     saved = json.loads((tmp_path / "stopped" / A.STATE).read_text())
-    assert saved["rounds"][-1]["status"] == "running" and "mlp" in saved["rounds"][-1]["sweeps"]
+    assert saved["rounds"][-1]["status"] == "running" and any(n.startswith("round2-flat_ppo") for n in saved["rounds"][-1]["sweeps"])
     resumed = A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
     assert resumed["judged"] == whole["judged"] and resumed["stopped"] == whole["stopped"]
     assert [r["plan"] for r in resumed["rounds"]] == [r["plan"] for r in whole["rounds"]]
@@ -91,7 +92,7 @@ def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
 def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
     state = A.run_answer(str(tmp_path), synthetic_setup(), 0.5, random_policy(), log=lambda m: None, train=run)
-    assert len(calls) == 2 and state["stopped"].startswith("budget")  # the first round ran; the second would pass it
+    assert len(calls) == 4 and state["stopped"].startswith("budget")  # the first round ran; the second would pass it
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -179,8 +180,40 @@ def test_the_whole_answers_error_stays_at_the_stated_rate(tmp_path):
     called so far more often (experiments/verdicts/error_rates.py has the full table)."""
     refs = tmp_path / "none.csv"
     refs.write_text("task,published_task,score,std,seeds,steps,metric,algorithm,source,note\n")
-    spec = {"steps": 1000, "hparams": {}, "config": {}}
+    spec = {"steps": 1000, "chunk": 1, "eval_every": 0, "hparams": {}, "config": {}}
     setup = A.Setup("simulated", (1, 2, 4), 0.1, (10, 20, 40), {"mlp": spec, "mixture": spec}, references=str(refs))
     assert simulated_error(setup, 1200, seed=5) <= verdict.ALPHA
     uncorrected = A.Setup(**{**setup.__dict__, "multiplicity": "none", "alpha": verdict.ALPHA})
     assert simulated_error(uncorrected, 400, seed=6) > 1.5 * verdict.ALPHA
+
+
+def test_a_budget_below_the_first_round_is_refused_in_one_line_before_training(tmp_path, capsys):
+    """The random policy is measured (timed) first; a budget below scoring the first round's controllers alone is
+    refused in one line, and nothing trains."""
+    from gsa_jax.answer import main
+
+    out = tmp_path / "a"
+    assert main(["--env", "dmc:cartpole-balance", "--budget-minutes", "0.0001", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is less than the first round's least time" in err
+    assert not (out / "sweeps").exists() and not (out / "calibration").exists()
+    assert json.loads((out / A.STATE).read_text())["random"]["seconds"] > 0
+
+
+def test_every_sweep_of_a_class_has_one_program_shape():
+    """Whatever its K, seeds and step budget, every sweep of a class has the same static Config and chunk, so the
+    answer compiles one program per class (the padded run count is the first look's, gsa sweep --pad-runs)."""
+    from gsa_jax.analysis.verdicts import step_budget
+    from gsa_jax.commands.answer import build_parser, make_setup
+    from gsa_jax.running.spec import build_grid, check_spec, group_config
+
+    setup = make_setup(build_parser().parse_args(["--env", "dmc:cartpole-balance"]))
+    for policy, cells in (("mixture", [[1], [2], [4]]), ("mlp", [[]])):
+        shapes = set()
+        for steps in step_budget.candidates(setup.steps()):
+            for ks in cells:
+                spec = check_spec(A.sweep_spec(setup, policy, ks, list(range(10, 20)), "x", steps))
+                shapes.add((group_config(spec, build_grid(spec)[0]), spec.chunk))
+        assert len(shapes) == 1, shapes
+    assert A.unit(setup) == 10 and A.plan_sweeps(setup, {"mixture": ([2, 4], list(range(10, 30)))}, 3)[1] == (
+        "round3-mixture-K2-s20-29", "mixture", [2], list(range(20, 30)))

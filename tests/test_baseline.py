@@ -100,7 +100,7 @@ def test_a_baseline_below_its_reference_is_replaced_by_it(tmp_path, mixture_mean
     from tests.test_answer import random_policy, synthetic_trainer
 
     refs = write(tmp_path, HEADER + "task,task,2000,50,10,1000,deterministic,tuned PPO,src,\n")
-    spec = {"steps": 1000, "hparams": {}, "config": {}}
+    spec = {"steps": 1000, "chunk": 1, "eval_every": 0, "hparams": {}, "config": {}}
     setup = A.Setup("task", (4,), 0.1, (10, 20), {"mlp": spec, "mixture": spec}, references=refs)
     run, _ = synthetic_trainer({A.FLAT: (1000.0, 20.0), 4: (mixture_mean, 5.0)})
     state = A.run_answer(str(tmp_path / "a"), setup, 1e9, random_policy(), log=lambda m: None, train=run)
@@ -114,12 +114,12 @@ def test_flat_ppo_within_the_random_returns_interval_gives_no_answer(tmp_path):
     from gsa_jax.commands.answer import finish
     from tests.test_answer import random_policy, synthetic_trainer
 
-    spec = {"steps": 1000, "hparams": {}, "config": {}}
+    spec = {"steps": 1000, "chunk": 1, "eval_every": 0, "hparams": {}, "config": {}}
     setup = A.Setup("task", (1, 2), 0.1, (10, 20), {"mlp": spec, "mixture": spec})
     run, calls = synthetic_trainer({A.FLAT: (80.0, 10.0), 1: (85.0, 10.0), 2: (90.0, 10.0)})
     out = str(tmp_path / "a")
     state = A.run_answer(out, setup, 1e9, random_policy(80.0, 100.0), log=lambda m: None, train=run)
-    assert state["stopped"] == "no answer" and len(calls) == 2
+    assert state["stopped"] == "no answer" and len(calls) == 3  # flat PPO and K = 1, 2: one sweep each
     assert {r["verdict"] for r in state["judged"].values()} == {verdict.NO_SCALE}
     assert "no answer" in finish(out, setup, state, ["--env", "task"])
     assert os.path.exists(os.path.join(out, "report.md"))

@@ -1,7 +1,7 @@
 """Answer how few linear controllers a task needs: one command trains, judges and adds seeds until it is decided.
 
     gsa answer --env TASK [--clusters 1,2,4] [--margin 0.1] [--target SCORE] [--looks 10,20,40]
-                [--steps 1000000] [--budget-minutes 120] [--start-from RESULTS_DIR ...] [--out DIR]
+                [--steps auto|N] [--max-steps 1000000] [--budget-minutes 120] [--start-from RESULTS_DIR ...] [--out DIR]
     make answer ENV=TASK
 
 Trains flat PPO and a mixture of K linear controllers for every K of the ladder (default K = ceil(m d_a), m in 0.5,
@@ -9,9 +9,11 @@ Trains flat PPO and a mixture of K linear controllers for every K of the ladder 
 sufficient, insufficient or undecided at the margin (gsa_jax.analysis.verdicts.verdict: the IQM gap on the scale of the
 reference's gain over a random policy measured over 128 episodes, Yuen's trimmed-mean t, no resampling). The
 reference is flat PPO where it is adequate, else the published or tuned PPO score it falls below
-(gsa_jax.analysis.verdicts.baseline: --references); the report says which, and whether flat PPO still learns at --steps.
-Seeds are added, look by look, only to the undecided K below the smallest sufficient one (and to flat PPO), each
-round one vmapped program per class, until the smallest sufficient K is decided, the last look (the seed cap) is
+(gsa_jax.analysis.verdicts.baseline: --references); the report says which, and whether flat PPO still learns at the
+budget. --steps auto (default): every class trains to the first budget (of --max-steps halved four times, doubled
+back) at which flat PPO's first seeds have learned the task and stopped learning (gsa_jax.analysis.verdicts.step_budget).
+Seeds are added, look by look, only to the undecided K below the smallest sufficient one (and to flat PPO), every
+sweep of a class one program (compiled once per answer, loaded after), until the smallest sufficient K is decided, the last look (the seed cap) is
 reached or the budget would run out. The design (an alpha-spending function over the looks, Holm over the K) keeps
 the chance that the answer names a K that is not within the margin at most 2.5% over all K and looks
 (gsa_jax.analysis.verdicts.sequential). --target SCORE judges against a score your robot needs instead. --start-from takes
@@ -44,6 +46,12 @@ from gsa_jax.cli import command_parser, run_command, whole_number
 from gsa_jax.running.runinfo import git_commit
 
 MULTIPLIERS = (0.5, 1, 2, 4)
+AUTO = "auto"
+
+
+def steps_option(text: str) -> "int | str":
+    """--steps: 'auto' or a whole number (argparse type)."""
+    return AUTO if text.strip().lower() == AUTO else whole_number(text)
 
 
 def parse_ints(text: str, what: str) -> tuple:
@@ -89,7 +97,8 @@ def base_specs(args: argparse.Namespace, env: str) -> dict:
         raise AnswerError(f"--config must be a JSON object of config fields, e.g. '{{\"num_envs\": 16}}' ({e})") from None
     if not isinstance(config, dict):
         raise AnswerError(f"--config must be a JSON object of config fields, got {args.config!r}")
-    default = {"steps": args.steps, "hparams": {}, "config": {**config, "physics": {"backend": backend}}}
+    steps = args.max_steps if args.steps == AUTO else args.steps
+    default = {"steps": steps, "hparams": {}, "config": {**config, "physics": {"backend": backend}}}
     specs = {"mlp": dict(default), "mixture": dict(default)}
     specs.update(start_specs(args.start_from or []))
     if args.partition is not None:  # the mixtures' partition class (flat PPO has none)
@@ -104,8 +113,9 @@ def make_setup(args: argparse.Namespace) -> Setup:
         raise AnswerError(f"--budget-minutes must be > 0, got {args.budget_minutes:g}")
     if not 0.0 < args.margin < 1.0:
         raise AnswerError(f"--margin must be in (0, 1), got {args.margin:g}")
-    if args.steps < 1:
-        raise AnswerError(f"--steps must be >= 1, got {args.steps}")
+    for name, value in (("--steps", args.steps), ("--max-steps", args.max_steps)):
+        if value != AUTO and value < 1:
+            raise AnswerError(f"{name} must be >= 1, got {value}")
     try:
         envs.check_name(args.env)
     except ValueError as e:
@@ -116,7 +126,8 @@ def make_setup(args: argparse.Namespace) -> Setup:
     ladder = parse_ints(args.clusters, "--clusters (the K ladder)") if args.clusters is not None else default_ladder(args.env)
     setup = Setup(args.env, tuple(sorted(set(ladder))), args.margin, parse_ints(args.looks, "--looks"),
                   base_specs(args, args.env), args.target, tuple(args.start_from or ()), spending=args.spending,
-                  references=os.path.abspath(args.references) if args.references else None)
+                  references=os.path.abspath(args.references) if args.references else None,
+                  max_steps=args.max_steps if args.steps == AUTO and not args.start_from and args.target is None else None)
     check_setup(setup)
     return setup
 
@@ -169,7 +180,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="how each K's error is spread over the looks (default %(default)s: Pocock-type, see docs/answer.md)")
     p.add_argument("--references", default=None, metavar="CSV",
                    help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/verdicts/ppo_references.csv)")
-    p.add_argument("--steps", type=whole_number, default=1_000_000, help="env steps per run (default %(default)s)")
+    p.add_argument("--steps", type=steps_option, default=AUTO,
+                   help="env steps per run, or auto (default): the budget at which flat PPO has learned the task and "
+                        "stopped learning, found by training its first seeds at doubling budgets up to --max-steps "
+                        "(docs/answer.md); every class trains to it. With --target or --start-from: --max-steps or the "
+                        "committed runs' steps")
+    p.add_argument("--max-steps", type=whole_number, default=1_000_000,
+                   help="the largest step budget --steps auto tries (default %(default)s)")
     p.add_argument("--physics", choices=("c", "mjx"), default=None, help="physics backend (default: c where the task has MuJoCo C)")
     p.add_argument("--partition", choices=tuple(partitions.PARTITIONS), default=None,
                    help="the mixtures' partition class: mlp (the paper's, default) or linear (polyhedral cells)")

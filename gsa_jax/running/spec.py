@@ -29,7 +29,7 @@ from gsa_jax.running.trained import path_part
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "partitions", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
                "eval_every", "eval_seed", "hparams", "hparam_sets", "config")
-_STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy", "k_max"}
+_STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy"}  # k_max: a floor (group_config)
 # Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
 # the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
 GROUP_AXES = (("subpolicies", "subpolicy", MIXTURE, SUBPOLICY_KINDS), ("partitions", "partition", MIXTURE, tuple(PARTITIONS)),
@@ -351,10 +351,12 @@ def group_name(group: Group) -> str:
 
 
 def group_config(spec: SweepSpec, group: Group) -> Config:
-    """The group's static Config (k_max: its largest K)."""
+    """The group's static Config (k_max: its largest K, or the spec's config k_max where larger: programs of several
+    sweeps with different K then share one shape; masking the clusters beyond K is exact)."""
     static = {k: tuple(v) if isinstance(v, list) else v for k, v in spec.config.items()}
     static.update({c: group.runs[0][c] for _, c, _, _ in GROUP_AXES if group.runs[0].get(c)})
-    return Config(env=group.env, policy=group.policy, k_max=max(r["K"] for r in group.runs), **static)
+    k_max = max([int(static.pop("k_max", 1))] + [r["K"] for r in group.runs])
+    return Config(env=group.env, policy=group.policy, k_max=k_max, **static)
 
 
 def single_group(env: str, policy: str, K: int, seeds: list[int], backend: str,

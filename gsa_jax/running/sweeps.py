@@ -57,7 +57,8 @@ class SweepOptions:
     devices: () = every local device; process_id / num_processes: this process's share of each group's runs;
     heartbeat(seconds) after every chunk (the supervisor's watchdog); run_batch: see
     programs.make_group_program; local_workers: the processes share this machine and `out` (False for
-    multi-host sweeps: each process compiles for itself); force: resume a changed spec."""
+    multi-host sweeps: each process compiles for itself); force: resume a changed spec; pad_runs: pad every group to at
+    least this many runs, so sweeps of fewer runs share the program of that many."""
 
     devices: tuple = ()
     quiet: bool = False
@@ -69,6 +70,7 @@ class SweepOptions:
     local_workers: bool = True
     force: bool = False
     tensorboard: bool = True
+    pad_runs: int = 0
 
 
 class GroupContext(NamedTuple):
@@ -165,7 +167,7 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
                         "use another --out, or --force to continue it with the new spec")
     physics = {name: physics_record(cfg) for name, cfg in configs.items()}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
-            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "physics": physics,
+            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "pad_runs": options.pad_runs, "physics": physics,
             "tasks": tasks, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
@@ -224,7 +226,7 @@ def train_groups(spec: SweepSpec, out: str, groups: list[Group], ctx: GroupConte
         mine = group.runs[pid::nproc]
         if not mine:
             continue
-        group_ctx = ctx._replace(pad_to=math.ceil(len(group.runs) / nproc),
+        group_ctx = ctx._replace(pad_to=math.ceil(max(len(group.runs), ctx.options.pad_runs) / nproc),
                                  on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]))
         res = run_group(spec, out, group._replace(runs=mine), group_ctx)
         results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))

@@ -14,8 +14,8 @@ from gsa_jax.algorithm.kinds import MLP
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores, stats
 from gsa_jax.analysis.sweeps.results import write_csv
-from gsa_jax.analysis.verdicts import ladder, sequential, trimmed, verdict
-from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, reference_of
+from gsa_jax.analysis.verdicts import ladder, sequential, step_budget, trimmed, verdict
+from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, reference_of, trained_steps
 from gsa_jax.running.checkpoint import write_atomic
 
 
@@ -165,18 +165,40 @@ def sensitivity_text(rows: list) -> str:
 
 
 def rounds_text(state: dict) -> tuple:
-    """(markdown table of the rounds: what each trained and how long it took, compile share of the whole)."""
-    lines = ["| round | trained | seconds | compiling or loading programs (seconds summed over the sweeps' worker processes) |",
+    """(markdown table of the step budget's sweeps and the rounds: what each trained and how long it took, the share of
+    the wall time spent compiling or loading programs)."""
+    lines = ["| round | trained | seconds | compiling or loading programs (seconds, slowest worker per sweep) |",
              "|---|---|---|---|"]
     total = compile_s = 0.0
+    rows = [("step budget", f"flat PPO at {c['steps']:,} steps: seeds 0-{c['sweep']['runs'] - 1}", [c["sweep"]])
+            for c in state.get("steps", {}).get("calibration", [])]
     for r in state["rounds"]:
         what = "; ".join(f"{'flat PPO' if p == MLP else 'K = ' + ', '.join(map(str, ks))}: seeds {seeds[0]}-{seeds[-1]}"
                          for p, (ks, seeds) in r["plan"].items())
-        secs = sum(s["seconds"] for s in r["sweeps"].values())
-        comp = sum(s["compile_s"] for s in r["sweeps"].values())
+        rows.append((r["round"], what, list(r["sweeps"].values())))
+    for label, what, sweeps in rows:
+        secs = sum(s["seconds"] for s in sweeps)
+        comp = sum(s.get("compile_wall_s", s["compile_s"]) for s in sweeps)
         total, compile_s = total + secs, compile_s + comp
-        lines.append(f"| {r['round']} | {what} | {secs:.0f} | {comp:.0f} s |")
+        lines.append(f"| {label} | {what} | {secs:.0f} | {comp:.0f} s |")
     return "\n".join(lines), (compile_s / total if total else float("nan"))
+
+
+def step_budget_text(setup: Setup, state: dict) -> list:
+    """The step budget section: the budget every run trained, and how it was chosen."""
+    steps = state.get("steps") or {}
+    budget = trained_steps(setup, state)
+    if steps.get("mode") != "auto":
+        return [f"- Every run trained {budget:,} env steps (fixed: --steps, --target or the committed runs' settings)."]
+    lines = [f"- Every run trained **{budget:,} env steps**: the first budget (of {', '.join(f'{c:,}' for c in step_budget.candidates(setup.steps()))}) "
+             "at which flat PPO's first-look seeds, trained to it, had learned the task and stopped learning "
+             "(gsa_jax.analysis.verdicts.step_budget)" + (f"; limited by {steps['limited']}" if steps.get("limited") else "") + "."]
+    for c in steps.get("calibration", []):
+        learn = c["learning"]
+        lines.append(f"- At {c['steps']:,}: {'learned' if c['learned'] else 'not learned (' + c['why'] + ')'}; last fifth's "
+                     f"gain {learn['gain']:+.3f} of the gain over random (upper bound {learn['upper']:+.3f}): "
+                     f"{'stopped' if c['stopped'] else 'still learning'}.")
+    return lines
 
 
 def baseline_text(setup: Setup, state: dict) -> list:
@@ -194,7 +216,7 @@ def baseline_text(setup: Setup, state: dict) -> list:
     learn = base.get("learning")
     if learn:
         state_word = "has stopped learning" if learn["stopped"] else "**is not shown to have stopped learning**"
-        lines.append(f"- Flat PPO {state_word} at {setup.steps():,} steps: the last fifth of training gained "
+        lines.append(f"- Flat PPO {state_word} at {trained_steps(setup, state):,} steps: the last fifth of training gained "
                      f"{learn['gain']:+.3f} of its gain over the random policy (IQM over {learn['seeds']} seeds; one-sided "
                      f"95% upper bound {learn['upper']:+.3f}; stopped when below the margin {setup.margin:g})"
                      + ("" if learn["stopped"] else "; a longer --steps may move the answer") + ".")
@@ -235,7 +257,8 @@ def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, senten
     lines = [f"# How many linear controllers does {setup.env} need?", "", f"**{sentence}**", "",
              f"Stopped: {state['stopped']}. Scores are the committed controllers' deterministic returns in MuJoCo C from "
              f"fixed start states ({controller_scores.EPISODES} from seed {controller_scores.START_SEED}; "
-             "controller_scores.csv beside each controllers/ folder).", "", "## Baseline", ""] + baseline_text(setup, state)
+             "controller_scores.csv beside each controllers/ folder).", "", "## Step budget", ""]
+    lines += step_budget_text(setup, state) + ["", "## Baseline", ""] + baseline_text(setup, state)
     lines += ["", "## Design", ""] + design_text(setup) + ["", "![score against K](score_vs_k.png)", "", "## Verdicts", "",
                                                            table_text(rows, flat_row), ""]
     if sens:
@@ -246,8 +269,8 @@ def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, senten
     lines += ["## Rounds", "", rounds if state["rounds"] else "No round trained: every cell was judged on the runs of "
               "--start-from.", ""]
     if state["rounds"] and share == share:
-        lines += [f"Compiling or loading programs: {share:.0%} of the rounds' wall time, counted once per worker process "
-                  "(the workers compile side by side, so this can exceed 100%).", ""]
+        lines += [f"Compiling or loading programs: {share:.0%} of the sweeps' wall time (each sweep's slowest worker; every "
+                  "sweep of a class runs one program, compiled once and loaded after).", ""]
     lines += choice_text(out, choice) + ["## Reproduce", "", f"    {command}", "",
                                          "Versions: " + ", ".join(f"{k} {v}" for k, v in versions.items()), ""]
     path = os.path.join(out, "report.md")

@@ -3,9 +3,12 @@ design's looks (gsa_jax.analysis.verdicts.ladder: Yuen's trimmed-mean t, an alph
 the K) against a baseline shown adequate (gsa_jax.analysis.verdicts.baseline), and add seeds only where the smallest
 sufficient K is not decided yet.
 
-A round trains, per policy class, one sweep (one vmapped program; gsa_jax.sweep in a subprocess, resumable, with the
-answer's shared compilation cache so a later round with the same shapes loads its program), exports every run's
-controller and scores it in MuJoCo C (gsa_jax.analysis.sweeps.controller_scores). The decisions are a pure function of the
+First the step budget (step_budget: flat PPO's first seeds at doubling budgets until it has learned the task and
+stopped learning; every class then trains to it). A round trains sweeps of one K (or flat PPO) on at most the first
+look's seeds each, padded to it (gsa_jax.sweep in a subprocess, resumable), so every sweep of a class runs one program:
+compiled by the first, loaded from the answer's compilation cache by the rest. Each exports every run's controller and
+scores it in MuJoCo C (gsa_jax.analysis.sweeps.controller_scores); each is estimated before it runs (round_time), and a
+round that would overrun the budget is not started. The decisions are a pure function of the
 runs' values (decide), so experiments/verdicts/error_rates.py simulates this very loop. The state (DIR/answer.json)
 is written after every step, so the same command resumes where it stopped.
 """
@@ -15,6 +18,7 @@ import glob
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -25,7 +29,7 @@ from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.sweeps.extraction import collect_results
 from gsa_jax.analysis.sweeps.results import task_records
-from gsa_jax.analysis.verdicts import baseline, ladder, sequential, trimmed, verdict
+from gsa_jax.analysis.verdicts import baseline, ladder, round_time, sequential, step_budget, trimmed, verdict
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
@@ -45,7 +49,8 @@ class Setup:
     """What an answer computes (recorded in answer.json; a resumed answer must match it). specs: the base
     experiment spec per policy ('mlp', 'mixture': steps, hparams, config); looks: seeds per cell at each look;
     alpha, spending: the design (gsa_jax.analysis.verdicts.sequential); start_from: results directories whose committed
-    controllers are the first seeds; references: the references table (None: the shipped one)."""
+    controllers are the first seeds; references: the references table (None: the shipped one); max_steps: the cap of
+    a step budget chosen by flat PPO's learning (step_budget; None: every run trains its spec's steps)."""
 
     env: str
     ladder: tuple
@@ -58,25 +63,70 @@ class Setup:
     spending: str = DEFAULT_SPENDING
     references: str | None = None
     multiplicity: str = "holm"
+    max_steps: int | None = None
 
     def design(self) -> sequential.Design:
         return sequential.Design(tuple(self.looks), self.alpha, self.spending, self.multiplicity)
 
     def steps(self) -> int:
-        return int(self.specs[MLP if self.target is None else MIXTURE]["steps"])
+        """The fixed step budget of every run (the cap where the budget is chosen: auto_steps)."""
+        return int(self.max_steps or self.specs[MLP if self.target is None else MIXTURE]["steps"])
+
+    def auto_steps(self) -> bool:
+        """Whether the step budget is chosen by flat PPO's learning (gsa_jax.analysis.verdicts.step_budget)."""
+        return self.max_steps is not None and self.target is None
 
     def to_json(self) -> dict:
         return {**dataclasses.asdict(self), "ladder": list(self.ladder), "looks": list(self.looks),
                 "start_from": list(self.start_from)}
 
 
-def sweep_spec(setup: Setup, policy: str, ks: list, seeds: list, name: str) -> dict:
-    """The experiment spec of one round's sweep of one class: the base spec with the round's K and seeds."""
+def sweep_spec(setup: Setup, policy: str, ks: list, seeds: list, name: str, steps: int | None = None) -> dict:
+    """The experiment spec of one sweep of a class: the base spec with its K, seeds and step budget (default the
+    setup's), and the settings that fix its program's shape for the whole answer (program_settings)."""
     spec = {k: v for k, v in setup.specs[policy].items() if k not in ("clusters", "cluster_multipliers", "name")}
-    spec.update(name=name, envs=[setup.env], policies=[policy], seeds=list(seeds))
+    spec.update(name=name, envs=[setup.env], policies=[policy], seeds=list(seeds), steps=int(steps or setup.steps()))
+    spec.update(program_settings(setup, policy, spec))
     if policy == MIXTURE:
         spec["clusters"] = sorted(ks)
+        spec["config"] = {**spec.get("config", {}), "k_max": max(setup.ladder)}
     return spec
+
+
+EVALUATIONS = 12  # flat PPO's deterministic evaluations per run where the base spec sets none (>= MIN_EVALUATIONS)
+
+
+def probe_config(setup: Setup, policy: str, spec: dict | None = None) -> tuple:
+    """(checked spec, Config) of one run of the class: what fixes its program's shape."""
+    from gsa_jax.running.spec import build_grid, check_spec, group_config
+
+    base = {k: v for k, v in (spec or setup.specs[policy]).items() if k not in ("clusters", "cluster_multipliers", "name")}
+    probe = check_spec({**base, "name": "probe", "envs": [setup.env], "policies": [policy], "clusters": [1],
+                        "seeds": [0], "steps": setup.steps()}, source=f"the {policy} spec")
+    return probe, group_config(probe, build_grid(probe)[0])
+
+
+def batch_size(setup: Setup, policy: str) -> int:
+    """Env steps per PPO iteration of the class's runs."""
+    return probe_config(setup, policy)[1].batch_size
+
+
+def program_settings(setup: Setup, policy: str, spec: dict) -> dict:
+    """chunk and eval_every of a sweep: the base spec's where it sets them, else one chunk length for every budget of
+    the answer (the cap's default, so every sweep of a class runs one compiled program) and EVALUATIONS evaluations
+    per flat PPO run (the still-learning test's curve; none for the mixtures, whose curves no decision reads)."""
+    from gsa_jax.running.spec import default_chunk
+
+    base = setup.specs[policy]
+    if base.get("chunk") is not None and base.get("eval_every") is not None:
+        return {}
+    probe, cfg = probe_config(setup, policy, spec)
+    chunk = int(base.get("chunk") or default_chunk(probe, cfg))
+    out = {"chunk": chunk}
+    if base.get("eval_every") is None:
+        iterations = -(-(-(-int(spec["steps"]) // cfg.batch_size)) // chunk) * chunk
+        out["eval_every"] = max(1, iterations // EVALUATIONS) if policy == MLP else 0
+    return out
 
 
 def check_setup(setup: Setup) -> None:
@@ -153,6 +203,7 @@ def load_state(out: str, setup: Setup) -> dict:
     with open(path) as f:
         state = json.load(f)
     mine = json.loads(json.dumps(setup.to_json()))
+    state["setup"] = {"max_steps": None, **state["setup"]}  # written before the step budget was chosen: fixed steps
     if state["setup"] != mine:
         changed = sorted(k for k in set(state["setup"]) | set(mine) if state["setup"].get(k) != mine.get(k))
         raise AnswerError(f"{out} holds an answer with other settings ({', '.join(changed)}); use another --out")
@@ -184,10 +235,10 @@ def cell_key(setup: Setup, policy: str, k: int | str) -> int | str | None:
     return key if key == FLAT or key in setup.ladder else None
 
 
-def collect_scores(out: str, setup: Setup) -> dict:
-    """{FLAT or K: {seed: controller score}} of the task's scored controllers under score_roots."""
+def collect_scores(out: str, setup: Setup, roots: Sequence[str] | None = None) -> dict:
+    """{FLAT or K: {seed: controller score}} of the task's scored controllers under `roots` (default score_roots)."""
     found = {}
-    for root in score_roots(out, setup):
+    for root in score_roots(out, setup) if roots is None else roots:
         for path in sorted(glob.glob(os.path.join(root, "**", controller_scores.FILE), recursive=True)):
             for row in controller_scores.read_scores(path).values():
                 key = cell_key(setup, row["policy"], row["K"])
@@ -196,14 +247,14 @@ def collect_scores(out: str, setup: Setup) -> dict:
     return found
 
 
-def collect_runs(out: str, setup: Setup) -> tuple:
+def collect_runs(out: str, setup: Setup, roots: Sequence[str] | None = None) -> tuple:
     """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}) from the
-    tidy metrics under score_roots."""
+    tidy metrics under `roots` (default score_roots)."""
     from gsa_jax.analysis.sweeps.results import load_sweep
     from gsa_jax.analysis.sweeps.stats import last_episodes_return
 
     last100, curves = {}, {}
-    dirs = sorted({os.path.dirname(p) for root in score_roots(out, setup)
+    dirs = sorted({os.path.dirname(p) for root in (score_roots(out, setup) if roots is None else roots)
                    for p in glob.glob(os.path.join(root, "**", "sweep.json"), recursive=True)})
     for d in dirs:
         try:
@@ -222,8 +273,14 @@ def collect_runs(out: str, setup: Setup) -> tuple:
 
 
 def collect_evidence(out: str, setup: Setup) -> Evidence:
-    last100, curves = collect_runs(out, setup)
-    return Evidence(collect_scores(out, setup), last100, curves)
+    """The evidence of the answer's runs (score_roots)."""
+    return collect_evidence_in(score_roots(out, setup), setup)
+
+
+def collect_evidence_in(roots: Sequence[str], setup: Setup) -> Evidence:
+    """The evidence of the runs under `roots`."""
+    last100, curves = collect_runs("", setup, roots)
+    return Evidence(collect_scores("", setup, roots), last100, curves)
 
 
 # ----------------------------------------------------------------------------------------------- decisions
@@ -242,7 +299,7 @@ def choose_baseline(setup: Setup, evidence: Evidence, state: dict) -> dict:
                              ladder.first_seeds(evidence.last100.get(FLAT, {}), n),
                              [evidence.curves[s] for s in sorted(evidence.curves)[:n]])
     refs = baseline.load_references(setup.references or baseline.REFERENCES)
-    return baseline.choose(setup.env, setup.steps(), setup.margin, flat, random_summary(state), refs,
+    return baseline.choose(setup.env, trained_steps(setup, state), setup.margin, flat, random_summary(state), refs,
                            task_max_return(setup.env))
 
 
@@ -331,26 +388,27 @@ def decide(setup: Setup, evidence: Evidence, state: dict) -> tuple:
 COMPILE_LINE = re.compile(r"program (.*?) \(([\d.]+)s\)")
 
 
-def run_class_sweep(out: str, name: str, spec: dict, log: Callable) -> dict:
-    """Train one class's sweep of a round in a subprocess (gsa_jax.sweep: resumes if interrupted), collect its
-    results (sweep.json, tidy metrics, controllers) into out/results/<name> and score its controllers ->
-    {seconds, compile_s (program compile or cache load, from the sweep's log), status}."""
-    os.makedirs(os.path.join(out, "specs"), exist_ok=True)
-    os.makedirs(os.path.join(out, "logs"), exist_ok=True)
+def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str = "results", pad_runs: int = 0) -> dict:
+    """Train one sweep in a subprocess (gsa_jax.sweep: resumes if interrupted; every sweep padded to `pad_runs` runs,
+    so a class's sweeps share one program, loaded from the answer's compilation cache after the first), collect its
+    results (sweep.json, tidy metrics, controllers) into out/<where>/<name> and score its controllers ->
+    {seconds, compile_s (summed over the worker processes), compile_wall_s (the slowest worker's), status}."""
+    for d in ("specs", "logs"):
+        os.makedirs(os.path.join(out, d), exist_ok=True)
     toml = os.path.join(out, "specs", name + ".toml")
     write_atomic(toml, to_toml(spec))
-    sweep_dir, results = os.path.join(out, "sweeps", name), os.path.join(out, "results", name)
-    cmd = [sys.executable, "-m", "gsa_jax.sweep", toml, "--out", sweep_dir, "--no-tensorboard"]
-    env = dict(os.environ)  # a compilation cache the user configured, else the answer's own (shared by its rounds)
+    sweep_dir, results = os.path.join(out, "sweeps", name), os.path.join(out, where, name)
+    cmd = [sys.executable, "-m", "gsa_jax.sweep", toml, "--out", sweep_dir, "--no-tensorboard", "--pad-runs", str(pad_runs)]
+    env = dict(os.environ)  # a compilation cache the user configured, else the answer's own (shared by its sweeps)
     env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.abspath(os.path.join(out, "xla_cache")))
-    t0, compile_s, last = time.monotonic(), 0.0, 0.0
+    t0, compiles, last = time.monotonic(), [], 0.0
     with open(os.path.join(out, "logs", name + ".log"), "a") as logf:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         for line in proc.stdout:
             logf.write(line)
             logf.flush()
             m = COMPILE_LINE.search(line)
-            compile_s += float(m.group(2)) if m else 0.0
+            compiles += [float(m.group(2))] if m else []
             if "ETA" in line and time.monotonic() - last > 60:  # the sweep's chunk lines, one a minute
                 log("    " + line.rstrip())
                 last = time.monotonic()
@@ -360,13 +418,45 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable) -> dict:
                           "run the same command again to resume", exit_status=3)
     collect_results(sweep_dir, results)
     controller_scores.score_directory(results, log=None)
-    return {"seconds": round(time.monotonic() - t0, 1), "compile_s": round(compile_s, 1), "status": status}
+    return {"seconds": round(time.monotonic() - t0, 1), "compile_s": round(sum(compiles), 1),
+            "compile_wall_s": round(max(compiles, default=0.0), 1), "status": status}
+
+
+def unit(setup: Setup) -> int:
+    """Runs per sweep: the first look's seeds. Every sweep trains one K (or flat PPO) on at most this many seeds,
+    padded to it, so every sweep of a class runs one compiled program whatever the round."""
+    return int(setup.looks[0])
+
+
+def plan_sweeps(setup: Setup, plan: dict, index: int) -> list:
+    """[(name, policy, [K] or [], seeds)] of a planned round: per class, per K, its seeds in parts of unit(setup)."""
+    size, out = unit(setup), []
+    for policy in (MLP, MIXTURE):
+        if policy not in plan:
+            continue
+        ks, seeds = plan[policy]
+        for k in (ks if policy == MIXTURE else [None]):
+            for i in range(0, len(seeds), size):
+                part = list(seeds[i:i + size])
+                cell = "flat_ppo" if k is None else f"mixture-K{k}"
+                out.append((f"round{index}-{cell}-s{part[0]}-{part[-1]}", policy, [] if k is None else [k], part))
+    return out
+
+
+def train_sweep(out: str, setup: Setup, sweep: tuple, steps: int, log: Callable, train: Callable,
+                where: str = "results") -> dict:
+    """Train one planned sweep (name, policy, ks, seeds) at `steps` -> its record (run_class_sweep's, with its class,
+    padded runs and steps)."""
+    name, policy, ks, seeds = sweep
+    record = train(out, name, sweep_spec(setup, policy, ks, seeds, name, steps), log, where=where, pad_runs=unit(setup))
+    return {**record, "policy": policy, "runs": max(len(seeds), unit(setup)), "steps": int(steps)}
 
 
 def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, verdicts_before: dict | None = None,
               train: Callable | None = None) -> dict:
-    """Train a planned round (flat PPO first), recording it in the state before and after. train(out, name, spec,
-    log): what trains one class's sweep and scores its controllers (default run_class_sweep)."""
+    """Train a planned round (flat PPO first; plan_sweeps), recording it in the state before and after each sweep.
+    train(out, name, spec, log, where=, pad_runs=): what trains one sweep and scores its controllers (default
+    run_class_sweep)."""
     train = train or run_class_sweep
     index = len([r for r in state["rounds"] if r["status"] == "done"]) + 1
     if not state["rounds"] or state["rounds"][-1]["status"] == "done":
@@ -374,29 +464,119 @@ def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, ve
                                 "verdicts_before": verdicts_before, "status": "running", "sweeps": {}})
         save_state(out, state)
     record = state["rounds"][-1]
-    for policy in (MLP, MIXTURE):
-        if policy not in record["plan"] or policy in record["sweeps"]:
-            continue
-        ks, seeds = record["plan"][policy]
-        name = f"round{record['round']}-{'flat_ppo' if policy == MLP else 'mixture'}"
-        record["sweeps"][policy] = train(out, name, sweep_spec(setup, policy, ks, seeds, name), log)
-        save_state(out, state)
+    for sweep in plan_sweeps(setup, record["plan"], record["round"]):
+        if sweep[0] not in record["sweeps"]:
+            record["sweeps"][sweep[0]] = train_sweep(out, setup, sweep, trained_steps(setup, state), log, train)
+            save_state(out, state)
     record["status"] = "done"
     save_state(out, state)
     return record
 
 
+# ----------------------------------------------------------------------------------------------- the step budget
+def trained_steps(setup: Setup, state: dict) -> int:
+    """The env steps every run trains: the budget step_budget chose (auto), else the setup's."""
+    return int(state.get("steps", {}).get("budget") or setup.steps())
+
+
+def history(state: dict) -> list:
+    """Every sweep the answer ran, in order: the calibration's, then the rounds'."""
+    calibration = [c["sweep"] for c in state.get("steps", {}).get("calibration", [])]
+    return calibration + [s for r in state["rounds"] for s in r["sweeps"].values()]
+
+
+def first_round_seconds(setup: Setup, state: dict, steps: int) -> float | None:
+    """Estimated seconds of the first round's mixture sweeps at `steps` (None before any sweep)."""
+    n = len(plan_sweeps(setup, {MIXTURE: (list(setup.ladder), list(range(setup.looks[0])))}, 1))
+    one = round_time.sweep_estimate(history(state), MIXTURE, unit(setup), steps)
+    return None if one is None else n * one
+
+
+def check_budget_floor(setup: Setup, state: dict, budget_s: float) -> None:
+    """AnswerError in one line, before anything trains, where the budget is below the first round's least time
+    (round_time.scoring_floor: scoring its controllers alone)."""
+    if history(state):
+        return
+    runs = unit(setup) * (len(setup.ladder) + (setup.target is None))
+    floor = round_time.scoring_floor(state["random"], runs)
+    if floor is not None and floor > budget_s - state["elapsed_s"]:
+        raise AnswerError(f"--budget-minutes {budget_s / 60:g} is less than the first round's least time: scoring its "
+                          f"{runs} controllers alone takes ~{floor / 60:.1f} min here; give more minutes")
+
+
+def calibrate(out: str, setup: Setup, state: dict, budget_s: float, log: Callable, train: Callable) -> None:
+    """Choose the step budget (step_budget): flat PPO's first look trained at doubling budgets until it has learned
+    the task and stopped learning; the chosen budget's results become the first look (out/results/<name>)."""
+    steps = state.setdefault("steps", {"mode": "auto", "budget": None, "calibration": []})
+    budgets = step_budget.candidates(setup.steps(), calibration_floor(setup))
+    while steps["budget"] is None:
+        chosen, nxt = step_budget.next_budget(steps["calibration"], budgets)
+        if chosen is None and not fits(setup, state, nxt, budget_s, log):
+            if not steps["calibration"]:
+                raise AnswerError(f"--budget-minutes {budget_s / 60:g} does not fit the first round at {nxt:,} steps per "
+                                  "run; give more minutes")
+            chosen, steps["limited"] = int(steps["calibration"][-1]["steps"]), "the time budget"
+        if chosen is not None:
+            steps["budget"] = chosen
+            adopt_calibration(out, steps, chosen)
+            break
+        steps["calibration"].append(calibration_sweep(out, setup, state, nxt, log, train))
+        save_state(out, state)
+    save_state(out, state)
+
+
+def calibration_floor(setup: Setup) -> int:
+    """The smallest budget giving flat PPO EVALUATIONS evaluations per run (one per iteration)."""
+    return min(setup.steps(), EVALUATIONS * batch_size(setup, MLP))
+
+
+def fits(setup: Setup, state: dict, steps: int, budget_s: float, log: Callable) -> bool:
+    """Whether a calibration sweep at `steps` and the mixtures' first round after it fit in what is left of the budget
+    (unknown before the first sweep: it fits)."""
+    flat = round_time.sweep_estimate(history(state), MLP, unit(setup), steps)
+    mixtures = first_round_seconds(setup, state, steps)
+    if flat is None or mixtures is None:
+        return True
+    left = budget_s - state["elapsed_s"]
+    ok = flat + mixtures <= left
+    if not ok:
+        log(f"answer: the step budget stops below {steps:,}: flat PPO there and the first round would take "
+            f"~{(flat + mixtures) / 60:.1f} min of the {left / 60:.1f} left")
+    return ok
+
+
+def calibration_sweep(out: str, setup: Setup, state: dict, steps: int, log: Callable, train: Callable) -> dict:
+    """Train flat PPO's first-look seeds at `steps` (out/calibration/<name>) and judge them (step_budget)."""
+    name = f"calibrate-flat_ppo-{steps}"
+    log(f"answer: step budget: flat PPO's first {unit(setup)} seeds at {steps:,} steps")
+    sweep = train_sweep(out, setup, (name, MLP, [], list(range(unit(setup)))), steps, log, train, where="calibration")
+    evidence = collect_evidence_in([os.path.join(out, "calibration", name)], setup)
+    scores = [evidence.scores.get(FLAT, {})[s] for s in sorted(evidence.scores.get(FLAT, {}))]
+    curves = [evidence.curves[s] for s in sorted(evidence.curves)]
+    judged = step_budget.judge_budget(steps, scores, curves, state["random"]["returns"], setup.margin,
+                                      task_max_return(setup.env))
+    log(f"answer: at {steps:,} steps flat PPO has {'learned' if judged['learned'] else 'not learned'} the task and "
+        f"{'stopped' if judged['stopped'] else 'not stopped'} learning")
+    return {**judged, "name": name, "sweep": sweep}
+
+
+def adopt_calibration(out: str, steps: dict, chosen: int) -> None:
+    """Copy the chosen budget's calibration results into out/results: they are flat PPO's first look."""
+    for c in steps["calibration"]:
+        if int(c["steps"]) == chosen:
+            src, dst = os.path.join(out, "calibration", c["name"]), os.path.join(out, "results", c["name"])
+            if os.path.isdir(src) and not os.path.isdir(dst):
+                shutil.copytree(src, dst)
+
+
 # ----------------------------------------------------------------------------------------------- the loop
-def round_eta(state: dict, plan: dict) -> float:
-    """Seconds the planned round likely takes: the last round's seconds per trained run times the runs planned
-    (0 before any round: the first round is not estimated)."""
-    done = [r for r in state["rounds"] if r["status"] == "done" and r["sweeps"]]
-    if not done:
-        return 0.0
-    last = done[-1]
-    runs = sum(max(len(ks), 1) * len(seeds) for ks, seeds in last["plan"].values())
-    secs = sum(s["seconds"] for s in last["sweeps"].values())
-    return secs / max(runs, 1) * sum(max(len(ks), 1) * len(seeds) for ks, seeds in plan.values())
+def round_eta(setup: Setup, state: dict, plan: dict) -> float:
+    """Seconds the planned round likely takes: the sum of its sweeps' estimates (round_time; 0 before any sweep)."""
+    steps = trained_steps(setup, state)
+    total = 0.0
+    for _, policy, _, _ in plan_sweeps(setup, plan, 0):
+        total += round_time.sweep_estimate(history(state), policy, unit(setup), steps) or 0.0
+    return total
 
 
 def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> str:
@@ -406,34 +586,47 @@ def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> s
         return f"answer: verdicts {so_far}"
     cells = "; ".join(f"{'flat PPO' if p == MLP else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
                       for p, (ks, seeds) in plan.items())
-    return (f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts "
-            f"{so_far} | ETA {eta / 60:.0f} min" if eta else
-            f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts {so_far}")
+    head = f"answer: round {len([r for r in state['rounds'] if r['status'] == 'done']) + 1}: {cells} | verdicts {so_far}"
+    return head + (f" | ETA {eta / 60:.1f} min" if eta else "")
+
+
+def prepare(out: str, setup: Setup, state: dict, budget_s: float, random_policy: Callable, log: Callable,
+            train: Callable) -> None:
+    """What comes before the first round: the random policy's episodes (timed), the budget's floor, the step budget."""
+    if "random" not in state:
+        t0 = time.monotonic()
+        state["random"] = {**dict(random_policy()), "seconds": round(time.monotonic() - t0, 2)}
+        save_state(out, state)
+    check_budget_floor(setup, state, budget_s)
+    if setup.auto_steps() and (state.get("steps") or {}).get("budget") is None:
+        calibrate(out, setup, state, budget_s, log, train)
+    elif "steps" not in state:
+        state["steps"] = {"mode": "fixed", "budget": setup.steps(), "calibration": []}
+        save_state(out, state)
 
 
 def run_answer(out: str, setup: Setup, budget_s: float, random_policy: Callable, log: Callable = print,
                train: Callable | None = None) -> dict:
-    """The answer loop (resumable): rounds until the smallest sufficient K is decided, the seed cap or the budget
-    -> the final state (with 'judged' and 'stopped'). random_policy: a function measuring the random policy's
-    episodes (controller_scores.score_random_policy's record; called once, the state keeps it); train: see
+    """The answer loop (resumable): the step budget, then rounds until the smallest sufficient K is decided, the seed
+    cap or the budget -> the final state (with 'judged' and 'stopped'). random_policy: a function measuring the random
+    policy's episodes (controller_scores.score_random_policy's record; called once, the state keeps it); train: see
     run_round."""
     os.makedirs(out, exist_ok=True)
-    state = load_state(out, setup)
-    if "random" not in state:
-        state["random"] = dict(random_policy())
-        save_state(out, state)
+    state, train = load_state(out, setup), train or run_class_sweep
     t0, before = time.monotonic(), state["elapsed_s"]
+    clock = lambda: state.update(elapsed_s=round(before + time.monotonic() - t0, 1))  # noqa: E731
     for d in controller_dirs_of(setup.start_from):
         controller_scores.score_directory(d, log=log)
+    prepare(out, setup, state, budget_s, random_policy, lambda m: (clock(), log(m)), train)
     while True:
         if state["rounds"] and state["rounds"][-1]["status"] == "running":
             log(f"answer: resuming round {state['rounds'][-1]['round']}")
             run_round(out, setup, state, None, log, train=train)
         records, plan, stop = decide(setup, collect_evidence(out, setup), state)
-        state["elapsed_s"] = round(before + time.monotonic() - t0, 1)
-        eta = round_eta(state, plan) if plan else 0.0
+        clock()
+        eta = round_eta(setup, state, plan) if plan else 0.0
         if plan and state["elapsed_s"] + eta > budget_s:
-            stop = f"budget ({budget_s / 60:.0f} min; {state['elapsed_s'] / 60:.0f} used, next round ~{eta / 60:.0f})"
+            stop = f"budget ({budget_s / 60:.0f} min; {state['elapsed_s'] / 60:.1f} used, next round ~{eta / 60:.1f})"
         log(progress_line(state, records, None if stop else plan, eta))
         if stop:
             state.update(judged=records, stopped=stop)

@@ -1,0 +1,89 @@
+"""The step budget of an answer (gsa_jax.analysis.verdicts.step_budget): on synthetic learning curves that flatten at
+a known step, the rule picks the first candidate budget whose last fifth lies past it; the answer loop trains flat
+PPO's first seeds at doubling budgets until then, trains every class to that budget, and keeps the chosen budget's
+runs as flat PPO's first look."""
+
+import json
+import os
+
+import numpy as np
+
+from gsa_jax.analysis.sweeps import controller_scores
+from gsa_jax.analysis.verdicts import answering as A
+from gsa_jax.analysis.verdicts import step_budget
+from tests.test_answer import random_policy
+
+KNEE = 100_000  # flat PPO's return rises linearly to its plateau at this step, whatever the budget it trains to
+
+
+def curve(budget: int, seed: int, points: int = 12, noise: float = 0.01) -> tuple:
+    """(env_steps [points], eval_return [points]) of a run trained to `budget`: return min(step / KNEE, 1) * 1000."""
+    steps = np.linspace(budget / points, budget, points)
+    rng = np.random.default_rng(seed)
+    return steps, 1000.0 * np.minimum(steps / KNEE, 1.0) + noise * 1000.0 * rng.standard_normal(points)
+
+
+def test_candidates_halve_the_cap_and_respect_the_floor():
+    assert step_budget.candidates(1_000_000) == [62_500, 125_000, 250_000, 500_000, 1_000_000]
+    assert step_budget.candidates(1_000_000, floor=200_000) == [250_000, 500_000, 1_000_000]
+    assert step_budget.candidates(50_000, floor=60_000) == [50_000]
+
+
+def test_the_rule_picks_the_first_budget_past_the_knee():
+    budgets = step_budget.candidates(1_000_000)
+    judged, chosen = [], None
+    while chosen is None:
+        chosen, nxt = step_budget.next_budget(judged, budgets)
+        if chosen is None:
+            runs = [curve(nxt, s) for s in range(10)]
+            judged.append(step_budget.judge_budget(nxt, [r[1][-1] for r in runs], runs, [0.0] * 128 + [1.0], 0.1, None))
+    # 62.5k: still rising over its last fifth (50k .. 62.5k); 125k: its last fifth (100k .. 125k) is past the knee
+    assert chosen == 125_000 and [j["stopped"] for j in judged] == [False, True]
+
+
+def test_a_task_not_learned_is_not_stopped_at_a_flat_curve():
+    flat = [(np.linspace(1, 62_500, 12), np.zeros(12) + 0.01 * s) for s in range(10)]
+    judged = step_budget.judge_budget(62_500, [0.0] * 10, flat, list(np.random.default_rng(0).normal(0, 1, 128)), 0.1, None)
+    assert not judged["learned"] and not judged["enough"]  # flat at the random return: no budget is chosen there
+
+
+ENV = "dmc:cartpole-balance"  # a real task (the budget's floor reads its batch size); the runs are synthetic
+
+
+def write_sweep(results: str, policy: str, ks: list, seeds: list, steps: int) -> None:
+    """A sweep's results as run_class_sweep leaves them: sweep.json, a tidy metrics.csv and controller_scores.csv."""
+    os.makedirs(os.path.join(results, "controllers"), exist_ok=True)
+    with open(os.path.join(results, "sweep.json"), "w") as f:
+        json.dump({"spec": {"steps": steps}}, f)
+    lines, rows = ["env,policy,K,seed,run,iteration,env_steps,episode_return,episodes,eval_return"], {}
+    for k in ks or [1]:
+        for seed in seeds:
+            env_steps, returns = curve(steps, seed)
+            for i, (s, r) in enumerate(zip(env_steps, returns)):
+                lines.append(f"{ENV},{policy},{k},{seed},{seed},{i + 1},{s},{r},10,{r if policy == 'mlp' else ''}")
+            label = f"{policy}-K{k}-s{seed}"
+            rows[label] = {"label": label, "env": ENV, "policy": policy, "K": "" if policy == "mlp" else k,
+                           "seed": seed, "controller_score": float(returns[-1])}
+    with open(os.path.join(results, "metrics.csv"), "w") as f:
+        f.write("\n".join(lines) + "\n")
+    controller_scores.write_scores(os.path.join(results, controller_scores.FILE), rows)
+
+
+def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
+    calls = []
+
+    def train(out, name, spec, log, where="results", pad_runs=0):
+        calls.append((name, spec["steps"], spec.get("clusters", []), pad_runs))
+        write_sweep(os.path.join(out, where, name), spec["policies"][0], spec.get("clusters", []), spec["seeds"],
+                    spec["steps"])
+        return {"seconds": 1.0, "compile_s": 0.0, "compile_wall_s": 0.0, "status": 0}
+
+    spec = {"steps": 1_000_000, "chunk": 1, "eval_every": 1, "hparams": {}, "config": {}}
+    setup = A.Setup(ENV, (1, 2), 0.1, (10, 20), {"mlp": spec, "mixture": spec}, max_steps=1_000_000)
+    state = A.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=train)
+    assert state["steps"]["budget"] == 125_000 and [c["steps"] for c in state["steps"]["calibration"]] == [62_500, 125_000]
+    assert [c[1] for c in calls[:2]] == [62_500, 125_000] and {c[1] for c in calls[2:]} == {125_000}  # equal steps
+    assert all(c[3] == 10 for c in calls)  # every sweep padded to one program's run count
+    scores = A.collect_scores(str(tmp_path), setup)
+    assert sorted(scores[A.FLAT]) == list(range(10))  # the 125k calibration runs are flat PPO's first look, once
+    assert state["baseline"]["learning"]["stopped"] and state["baseline"]["learning"]["steps"] == 125_000
