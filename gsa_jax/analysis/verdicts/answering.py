@@ -443,13 +443,15 @@ def plan_sweeps(setup: Setup, plan: dict, index: int) -> list:
     return out
 
 
-def train_sweep(out: str, setup: Setup, sweep: tuple, steps: int, log: Callable, train: Callable,
+def train_sweep(out: str, setup: Setup, state: dict, sweep: tuple, steps: int, log: Callable, train: Callable,
                 where: str = "results") -> dict:
     """Train one planned sweep (name, policy, ks, seeds) at `steps` -> its record (run_class_sweep's, with its class,
-    padded runs and steps)."""
+    padded runs, steps and the seconds estimated before it ran: eta_s, None before any sweep)."""
     name, policy, ks, seeds = sweep
+    eta = round_time.sweep_estimate(history(state), policy, unit(setup), steps)
     record = train(out, name, sweep_spec(setup, policy, ks, seeds, name, steps), log, where=where, pad_runs=unit(setup))
-    return {**record, "policy": policy, "runs": max(len(seeds), unit(setup)), "steps": int(steps)}
+    return {**record, "policy": policy, "runs": max(len(seeds), unit(setup)), "steps": int(steps),
+            "eta_s": None if eta is None else round(eta, 1)}
 
 
 def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, verdicts_before: dict | None = None,
@@ -466,7 +468,7 @@ def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, ve
     record = state["rounds"][-1]
     for sweep in plan_sweeps(setup, record["plan"], record["round"]):
         if sweep[0] not in record["sweeps"]:
-            record["sweeps"][sweep[0]] = train_sweep(out, setup, sweep, trained_steps(setup, state), log, train)
+            record["sweeps"][sweep[0]] = train_sweep(out, setup, state, sweep, trained_steps(setup, state), log, train)
             save_state(out, state)
     record["status"] = "done"
     save_state(out, state)
@@ -549,7 +551,8 @@ def calibration_sweep(out: str, setup: Setup, state: dict, steps: int, log: Call
     """Train flat PPO's first-look seeds at `steps` (out/calibration/<name>) and judge them (step_budget)."""
     name = f"calibrate-flat_ppo-{steps}"
     log(f"answer: step budget: flat PPO's first {unit(setup)} seeds at {steps:,} steps")
-    sweep = train_sweep(out, setup, (name, MLP, [], list(range(unit(setup)))), steps, log, train, where="calibration")
+    sweep = train_sweep(out, setup, state, (name, MLP, [], list(range(unit(setup)))), steps, log, train,
+                        where="calibration")
     evidence = collect_evidence_in([os.path.join(out, "calibration", name)], setup)
     scores = [evidence.scores.get(FLAT, {})[s] for s in sorted(evidence.scores.get(FLAT, {}))]
     curves = [evidence.curves[s] for s in sorted(evidence.curves)]
