@@ -106,6 +106,10 @@ class Task:
     # the qpos of the state the task asks the controller to hold (an inverted pendulum's upright, at rest), where it
     # has one: python -m gsa_jax.verify analyses the closed loop there (None: no equilibrium, falsification only)
     equilibrium_qpos: "np.ndarray | None" = None
+    # how close to its hold a state must come for verify to count it as converged, in the task's units per tangent
+    # coordinate [2 nv] (positions, then velocities) or one number for all; None: 0.1 x the start law's spread
+    # (gsa_jax.verify.roa.convergence_tolerance)
+    convergence_tolerance: "float | np.ndarray | None" = None
     # the most an episode can return where rewards are bounded (dm_control's tasks: at most 1 a step), None where they
     # are not (gymnasium's locomotion): gsa_jax.answer gives no answer where flat PPO does not learn a tenth of it
     max_return: "float | None" = None
@@ -174,6 +178,13 @@ class Task:
                 xp: types.ModuleType = np) -> tuple:
         """(obs [n, d], reward [n], terminated [n] bool) after a step from `before`, with `action` [n, nu]."""
         raise NotImplementedError(f"{type(self).__name__} defines no outcome()")
+
+    def termination_margin(self, qpos: np.ndarray, qvel: np.ndarray, derived: dict,
+                           xp: types.ModuleType = np) -> "np.ndarray | None":
+        """[n] how far each simulation is from the termination condition after a step, in that condition's own units
+        (> 0 before it, <= 0 where it terminates), as outcome() sees the state; None (the default): not exposed.
+        verify reports its counterexamples' robustness with it."""
+        return None
 
     def observation_layout(self) -> list[str]:
         """One short description per observation entry (exported controllers' docs)."""

@@ -143,6 +143,10 @@ class InvertedDoublePendulumV5(V5Task):
         reward = (xp.where(terminated, 0.0, 10.0) - (0.01 * x**2 + (y - 2.0) ** 2)) - (1e-3 * v1**2 + 5e-3 * v2**2)
         return self.observe(qpos, qvel, derived, xp), reward, terminated
 
+    def termination_margin(self, qpos, qvel, derived, xp=np):
+        """[n] the tip's height above 1 m (m): the episode ends where it is <= 0."""
+        return derived["site_xpos"][:, 0, 2] - 1.0
+
 
 class AntV5(V5Task):
     """Ant-v5: obs [qpos[2:], qvel, clip(cfrc_ext[1:], +-1)] (105: the contact forces mj_rnePostConstraint

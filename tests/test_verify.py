@@ -25,7 +25,7 @@ EIG_TOL = 1e-6  # finite differences (eps 1e-6, central) of an exactly linear st
 def test_linear_task_eigenvalues_match_the_analytic_ones_and_its_roa_has_no_boundary(tmp_path):
     """An LQR gain as a K = 1 controller on an exactly linear task: the closed-loop eigenvalues verify computes
     (mjd_transitionFD over the frame skip, the exact controller Jacobian) equal eig(A - B K L/std) within EIG_TOL,
-    and every sampled direction converges out to the search's radius."""
+    and every sampled start converges, in every direction out to the largest radius the search grows to."""
     system = load_system(export(tmp_path / "lqr.npz", POINT_MASS, -lqr_gain()[None] * np.sqrt(1.0 + 1e-8), [[0.0]]))
     result = analysis.verify(system, analysis.QUICK)
     A, B = analytic_step()
@@ -38,12 +38,15 @@ def test_linear_task_eigenvalues_match_the_analytic_ones_and_its_roa_has_no_boun
     assert abs(piece["spectral_radius"] - np.abs(expected).max()) < EIG_TOL
     roa = result["roa"]
     assert roa["hold"]["holds"] and roa["no_boundary_in_range"] and roa["volume_fraction"] == 1.0
-    assert min(roa["radius"]) == roa["r_max"]
-    # every sampled start converged: each coordinate's reach (the task's units) is its largest offset sampled
+    assert roa["volume_fraction_sampled"] == 1.0 and roa["not_star_shaped_directions"] == 0
+    assert roa["r_limit"] == roa["r_max"] * 2 ** analysis.QUICK.roa_growths > roa["r_max"]
+    assert min(roa["radius"]) == roa["radius_equivalent"] == roa["r_limit"]
+    assert roa["unbounded_directions"] == analysis.QUICK.roa_directions
+    # every sampled start converged: each coordinate's reach and axis radii (the task's units) are r_limit's
     scale = analysis.state_scale(system.task)
-    dirs = analysis.roa.directions(analysis.QUICK.roa_directions, len(scale), analysis.QUICK.seed)
     assert roa["scale"] == scale.tolist()
-    np.testing.assert_allclose(roa["reach"], np.abs(dirs * roa["r_max"] * scale).max(0), rtol=1e-12)
+    np.testing.assert_allclose(roa["reach"], roa["r_limit"] * scale, rtol=1e-12)
+    np.testing.assert_allclose(roa["axis_radius_si"], roa["r_limit"] * np.stack([scale, scale], 1), rtol=1e-12)
 
 
 def test_lqr_with_given_weights_is_the_analytic_design(tmp_path):
@@ -72,8 +75,9 @@ def test_falsification_finds_a_planted_failure_quadrant(tmp_path):
     below the worst the same search finds for the LQR alone."""
     planted = load_system(quadrant_controller(tmp_path / "planted.npz"))
     lqr = load_system(export(tmp_path / "lqr.npz", POINT_MASS, -lqr_gain()[None] * np.sqrt(1.0 + 1e-8), [[0.0]]))
-    f = analysis.falsification(planted, analysis.QUICK)["start_law"]
-    g = analysis.falsification(lqr, analysis.QUICK)["start_law"]
+    budget = analysis.QUICK._replace(neighbours=4)
+    f = analysis.falsification(planted, budget)["start_law"]
+    g = analysis.falsification(lqr, budget)["start_law"]
     worst = f["counterexamples"][0]
     assert worst["qpos"][0] > 0 and worst["qvel"][0] > 0
     assert f["episodes"] == g["episodes"] == analysis.QUICK.population * analysis.QUICK.iterations
@@ -101,9 +105,9 @@ def test_counterexamples_replay_in_plain_mujoco_c_to_their_return():
     """Every counterexample of a small search on a committed InvertedDoublePendulum-v5 controller, pushes included,
     replays to its reported return and steps; the batched search's own return agrees."""
     system = load_system(IDP)
-    budget = analysis.QUICK._replace(population=8, iterations=2, counterexamples=2)
+    budget = analysis.QUICK._replace(population=8, iterations=2, counterexamples=2, neighbours=4)
     result = analysis.falsification(system, budget)
-    examples = [c for part in result.values() for c in part["counterexamples"]]
+    examples = [c for name, part in result.items() if name != "rule" for c in part["counterexamples"]]
     assert any(c["push"] is not None for c in examples)
     for c in examples:
         ret, steps = replay_in_mujoco_c(system.task, system.ctrl, c)
@@ -157,7 +161,7 @@ def test_quick_run_writes_json_report_and_figure(tmp_path):
     p = run_cli(path, "--quick", "--out", str(tmp_path / "out"))
     assert p.returncode == 0, p.stderr
     doc = json.load(open(tmp_path / "out" / "verify.json"))
-    assert doc["schema"] == 1 and doc["clusters"] == 2 and doc["quick"]
+    assert doc["schema"] == 2 and doc["clusters"] == 2 and doc["quick"]
     assert set(doc["cost_seconds"]) == {"nominal_and_switching", "local", "roa", "lqr", "falsification"}
     assert doc["local"]["has_fixed_point"] and doc["lqr"]["spectral_radius"] < 1
     lqr_piece, diverging = doc["local"]["pieces"]

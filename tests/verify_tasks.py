@@ -14,6 +14,7 @@ from envs.task import Task
 from gsa_jax.running.checkpoint import save_npz_atomic
 
 MASS, DAMPING, GEAR, TIMESTEP = 1.0, 0.5, 10.0, 0.01
+RAIL = 1.0  # m: RailPointMass's rail ends
 
 MJCF = f"""
 <mujoco model="point_mass_on_a_slide">
@@ -48,6 +49,13 @@ class PointMass(Task):
     def outcome(self, before, qpos, qvel, derived, action, xp=np):
         reward = -(qpos[:, 0] ** 2 + 0.1 * qvel[:, 0] ** 2 + 0.01 * action[:, 0] ** 2)
         return self.observe(qpos, qvel, derived, xp), reward, xp.zeros(qpos.shape[:1], bool)
+
+
+class RailPointMass(PointMass):
+    """PointMass on a rail that ends at x = +-RAIL m (a limited slide joint)."""
+
+    xml = MJCF.replace('damping="{DAMPING}"/>'.format(DAMPING=DAMPING),
+                       f'damping="{DAMPING}" limited="true" range="-{RAIL} {RAIL}"/>')
 
 
 def analytic_step():

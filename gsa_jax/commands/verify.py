@@ -1,12 +1,13 @@
 """Check an exported controller's closed loop in its task's MuJoCo C twin.
 
-    gsa verify CONTROLLER.npz [--out DIR] [--quick] [--seed N] [--certify]
+    gsa verify CONTROLLER.npz [--out DIR] [--quick] [--seed N] [--certify] [--force]
 
 Writes DIR/verify.json (docs/verify.md), DIR/report.md and DIR/verify.png: fixed points and closed-loop eigenvalues
 per piece, the region of attraction of the task's equilibrium (with an LQR beside it), the lowest-return start
 states and pushes a cross-entropy search finds (replayable), and how the controller switches pieces. --certify adds
 a certified region of attraction of the closed loop's stable fixed point: exact on the linearization, tested on the
-plant (the optional extra verify: pip install 'gsa_jax[verify]').
+plant (the optional extra verify: pip install 'gsa_jax[verify]'). A controller whose task's definition changed since
+it was trained is refused in one line, as deploy refuses it (--force verifies it where the sizes agree).
 """
 
 import argparse
@@ -58,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lqr-r", default=None, metavar="R1,...", help="... and the actions by these (default R = I)")
     p.add_argument("--certify", action="store_true", help="a certified region of attraction of the closed loop's "
                    f"stable fixed point (needs the optional extra verify: {certify.INSTALL})")
+    p.add_argument("--force", action="store_true",
+                   help="verify a controller whose task's definition changed since it was trained, or that names "
+                        "another task, where the observation sizes agree")
     return p
 
 
@@ -66,7 +70,7 @@ def verify_controller(argv: list | None) -> int:
     args = build_parser().parse_args(argv)
     if args.certify:
         certify.require_solver()
-    system = load_system(args.controller)
+    system = load_system(args.controller, args.force)
     weights = lqr_weights_of(args, system)
     budget = (QUICK if args.quick else Budget())._replace(seed=args.seed)
     cert_budget = (certify.QUICK if args.quick else certify.CertifyBudget())._replace(seed=args.seed)

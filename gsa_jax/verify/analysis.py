@@ -11,21 +11,27 @@ from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.verify import certify, falsify, roa, simulate, switching
 from gsa_jax.verify import linearize as lin
-from gsa_jax.verify.system import System, VerifyError, equilibrium_guess, state_scale, to_qpos, wrap
+from gsa_jax.verify.system import (System, VerifyError, equilibrium_guess, joints_at_limit, state_scale, to_qpos,
+                                   wrap)
 
 
 class Budget(NamedTuple):
     nominal_episodes: int = 50
     roa_directions: int = 96
     roa_bisections: int = 7
-    roa_radius: float = 4.0  # r_max, scaled coordinates
+    roa_radius: float = 4.0  # r_max, scaled coordinates: the first radius tried and the sampled ball's
+    roa_growths: int = 4  # doublings beyond r_max while a direction converges (r_limit = r_max 2^growths)
+    roa_inside: int = 2  # starts per direction below its radius (the star-shape check)
+    roa_samples: int = 96  # uniform samples in the ball of radius r_max
     population: int = 64
     iterations: int = 8
     counterexamples: int = 3
+    neighbours: int = falsify.NEIGHBOURS  # perturbed starts per counterexample
     seed: int = 0
 
 
-QUICK = Budget(nominal_episodes=16, roa_directions=16, roa_bisections=4, population=24, iterations=4)
+QUICK = Budget(nominal_episodes=16, roa_directions=16, roa_bisections=4, roa_growths=2, roa_inside=1, roa_samples=16,
+               population=24, iterations=4)
 
 
 def eig_list(a: np.ndarray) -> list:
@@ -60,6 +66,7 @@ def local_piece(system: System, piece: "int | None", qref: np.ndarray, scale: np
     picked = int(ctrl.cluster(lin.observe_at(task, out["qpos"], x[task.model.nv:]).astype(np.float32)))
     a_cl = L.closed
     return {**out, "picked_there": picked, "own_region": bool(piece is None or picked == piece),
+            "at_limit": joints_at_limit(task.model, np.asarray(out["qpos"])),
             "action": [float(a) for a in L.action], "saturated": saturated(ctrl, L.action),
             "eigenvalues": eig_list(a_cl), "spectral_radius": float(np.max(np.abs(np.linalg.eigvals(a_cl)))),
             "distance_from_hold_scaled": distance(x), "_a_cl": a_cl}
@@ -74,11 +81,12 @@ def saturated(ctrl: Controller, action: np.ndarray) -> bool:
 
 def local_analysis(system: System, qref: np.ndarray, scale: np.ndarray, hold: roa.Hold) -> dict:
     """Every piece's fixed point near the hold and the equilibrium, and the closed loop's own fixed point: the one
-    nearest the hold among those that lie in their own piece's region."""
+    nearest the hold among those that lie in their own piece's region and not at a joint's limit (system.
+    joints_at_limit: the limit's constraint holds it there, and its linearization is not the loop's)."""
     starts = np.stack([hold.x, np.zeros_like(hold.x)])
     pieces = range(system.ctrl.num_clusters) if system.ctrl.kind == MIXTURE else [None]
     found = [local_piece(system, p, qref, scale, starts) for p in pieces]
-    own = [p for p in found if p["fixed_point_found"] and p["own_region"]]
+    own = [p for p in found if p["fixed_point_found"] and p["own_region"] and not p["at_limit"]]
     fp = min(own, key=lambda p: p["distance_from_hold_scaled"]) if own else None
     return {"pieces": found, "has_fixed_point": fp is not None,
             "closed_loop_fixed_point": None if fp is None else {k: fp[k] for k in
@@ -127,26 +135,28 @@ def lqr_design(system: System, qref: np.ndarray, scale: np.ndarray, x_eq: np.nda
 
 def roa_of(system: System, policy: simulate.Policy, qref: np.ndarray, scale: np.ndarray, budget: Budget,
            a_cl: "np.ndarray | None" = None, hold: "roa.Hold | None" = None) -> dict:
-    """The region of attraction of policy's hold (found here unless given), with the Lyapunov sublevel set of a_cl
-    (scaled coordinates; None: none)."""
+    """The region of attraction of policy's hold (gsa_jax.verify.roa: the task's tolerance, the horizon a_cl's
+    slowest mode needs), with the Lyapunov sublevel set of a_cl (the closed loop's Jacobian at its fixed point, scaled
+    coordinates; None: none). hold: the hold over one episode, where already found."""
     task = system.task
-    horizon, dim = int(task.episode_length), 2 * task.model.nv
-    hold = hold or roa.find_hold(task, policy, qref, scale, horizon)
-    out = {"hold": {**state_dict(task, qref, hold.x), "excursion_scaled": (hold.excursion / scale).tolist(),
-                    "holds": hold.holds}, "r_max": budget.roa_radius, "directions": budget.roa_directions}
+    h = roa.horizon(task, a_cl)
+    if hold is None or h["steps"] != int(task.episode_length):
+        hold = roa.find_hold(task, policy, qref, scale, h["steps"])
+    tol = roa.convergence_tolerance(task)
+    out = {"coordinates": certify.coordinates(task.model), "tolerance": tol.tolist(),
+           "tolerance_rule": roa.TOLERANCE_RULE, "horizon": h,
+           "hold": {**state_dict(task, qref, hold.x), "excursion": hold.excursion.tolist(),
+                    "excursion_scaled": (hold.excursion / scale).tolist(), "holds": hold.holds,
+                    "within_tolerance": bool(np.all(hold.excursion <= tol))},
+           "r_max": budget.roa_radius, "directions": budget.roa_directions, "scale": scale.tolist()}
     if not hold.holds:
         return {**out, "radius": [], "volume_fraction": 0.0, "note": "the closed loop does not hold the equilibrium"}
-    dirs = roa.directions(budget.roa_directions, dim, budget.seed)
-    r = roa.search_radii(task, policy, qref, hold, scale,
-                         roa.Rays(dirs, budget.roa_radius, budget.roa_bisections, horizon))
-    out.update({"radius": r.radius.tolist(), "radius_min": float(r.radius.min()),
-                "radius_median": float(np.median(r.radius)),
-                "no_boundary_in_range": bool(np.all(r.radius >= budget.roa_radius)),
-                "volume_fraction": roa.volume_fraction(r.radius, budget.roa_radius, dim),
-                "scale": scale.tolist(), "reach": roa.reach(r, scale).tolist()})
-    P = roa.lyapunov(a_cl, dim) if a_cl is not None else None
-    out["lyapunov"] = roa.sublevel(P, r, budget.roa_radius) if P is not None else None
-    return out
+    trial = roa.Trial(task, policy, qref, hold, scale, tol, h["steps"])
+    region, samples, ok = roa.region(trial, roa.RegionBudget(
+        budget.roa_directions, budget.roa_radius, budget.roa_bisections, budget.roa_growths, budget.roa_inside,
+        budget.roa_samples, budget.seed))
+    P = roa.lyapunov(a_cl, len(scale)) if a_cl is not None else None
+    return {**out, **region, "lyapunov": roa.sublevel(P, samples, ok, budget.roa_radius) if P is not None else None}
 
 
 def nominal(system: System, budget: Budget) -> tuple:
@@ -158,23 +168,27 @@ def nominal(system: System, budget: Budget) -> tuple:
             "return_min": float(r.min()), "length_mean": float(ep.lengths.mean())}, ep
 
 
-SEARCHES = (("start_law", 1.0, False), ("twice_the_spread", 2.0, False), ("start_law_and_pushes", 1.0, True))
+SEARCHES = (("start_law", 1.0, False, None), ("twice_the_spread", 2.0, False, "start_law"),
+            ("start_law_and_pushes", 1.0, True, "start_law"))  # name, spread, pushes, the narrower it starts from
 
 
-def falsification(system: System, budget: Budget) -> dict:
+def falsification(system: System, budget: Budget, threshold: "float | None" = None) -> dict:
     """The three searches (start law; starts up to twice its spread; start law and pushes), each population x
-    iterations episodes, with their counterexamples."""
+    iterations episodes, the wider two from the start law's worst cases, with their counterexamples judged against
+    threshold (the failure return; None: the nominal episodes' worst)."""
     task, ctrl = system.task, system.ctrl
-    horizon, policy, out = int(task.episode_length), simulate.controller_policy(ctrl), {}
-    for name, spread, push in SEARCHES:
-        s = falsify.cem(task, policy, horizon, falsify.Sampling(push, spread, budget.population, budget.iterations,
-                                                                budget.seed))
-        out[name] = {"spread": spread, "pushes": push, "episodes": int(s.returns.size),
-                     "worst_return": float(s.returns.min()),
-                     "first_iteration_p05": float(np.percentile(s.returns[0], 5)), "best_by_iteration": s.best.tolist(),
-                     "counterexamples": falsify.counterexamples(task, ctrl, s, horizon, push, spread,
-                                                                budget.counterexamples)}
-    return out
+    threshold = nominal(system, budget)[0]["return_min"] if threshold is None else threshold
+    horizon, out = int(task.episode_length), {}
+    judge = falsify.Judge(threshold, state_scale(task), budget.neighbours, budget.seed)
+    for name, spread, push, narrower in SEARCHES:
+        sampling = falsify.Sampling(push, spread, budget.population, budget.iterations, budget.seed)
+        inherited = tuple(out[narrower]["_inherit"]) if narrower else ()
+        out[name] = {**falsify.search(task, ctrl, horizon, sampling, judge, budget.counterexamples, inherited),
+                     "starts_from": narrower}
+    rule = {"failure": f"a return below {threshold:.6g}, the nominal episodes' worst", "failure_return": threshold,
+            "neighbours": judge.neighbours, "perturbation_scaled": falsify.PERTURBATION,
+            "knife_edge_share": falsify.KNIFE_EDGE, "robustness": falsify.robustness_measure(task)}
+    return {"rule": rule, **out}
 
 
 def equilibrium_part(system: System, budget: Budget, scale: np.ndarray, qref: np.ndarray, cost: dict,
@@ -224,7 +238,7 @@ def verify(system: System, budget: Budget, lqr: "LqrWeights | None" = None,
         result["local"] = {"note": f"{system.env!r} declares no equilibrium (Task.equilibrium_qpos): no local "
                                    "analysis or region of attraction"}
     t0 = time.perf_counter()
-    result["falsification"] = falsification(system, budget)
+    result["falsification"] = falsification(system, budget, nom["return_min"])
     cost["falsification"] = time.perf_counter() - t0
     result["cost_seconds"] = {k: round(v, 2) for k, v in cost.items()}
     return result

@@ -87,7 +87,8 @@ def stable_fixed_point(local: dict) -> dict:
             worst = min(p["residual"] for p in local["pieces"])
             raise VerifyError(f"nothing to certify: no fixed point found near the hold (Newton's residual {worst:.3g} "
                               "scaled units)")
-        where = ", ".join(f"piece {p['piece']}'s where piece {p['picked_there']} is picked" for p in found)
+        where = ", ".join(f"piece {p['piece']}'s " + (f"at joint {', '.join(p['at_limit'])}'s limit" if p["at_limit"]
+                                                      else f"where piece {p['picked_there']} is picked") for p in found)
         raise VerifyError(f"nothing to certify: no piece's fixed point lies in its own region ({where}): the hold "
                           "switches between pieces, or does not hold")
     if fp["spectral_radius"] >= 1.0:
@@ -230,11 +231,6 @@ def certify_linear(A: np.ndarray, bounds: Bounds) -> Linear:
     return Linear(P, k, rho, contraction(Ak, P), rho_a, level, by)
 
 
-def ball(rng: np.random.Generator, count: int, n: int) -> np.ndarray:
-    """[count, n] uniform in the unit ball."""
-    return roa.sphere(rng, count, n) * rng.uniform(size=(count, 1)) ** (1.0 / n)
-
-
 def offsets(P: np.ndarray, level: float, u: np.ndarray) -> np.ndarray:
     """[B, n] x - x* of points u [B, n] of the unit ball mapped onto E (V = level |u|^2)."""
     lam, W = np.linalg.eigh(P)
@@ -285,7 +281,7 @@ def check_round(plant: Plant, lin_cert: Linear, level: float, budget: CertifyBud
     sample with the largest ratio."""
     rng, n = np.random.default_rng([budget.seed, r]), len(lin_cert.P)
     values = lambda u: decrease_values(plant, lin_cert, level, u)
-    u = np.concatenate([ball(rng, budget.samples, n), roa.sphere(rng, budget.boundary, n)])
+    u = np.concatenate([roa.ball(rng, budget.samples, n), roa.sphere(rng, budget.boundary, n)])
     v0, vk = values(u)
     f0, fk = search_violations(values, u[int(np.argmax(ratio(v0, vk)))], budget, rng)
     v0, vk = np.concatenate([v0, f0]), np.concatenate([vk, fk])

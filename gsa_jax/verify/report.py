@@ -9,7 +9,7 @@ import numpy as np
 from gsa_jax.verify.analysis import Budget
 from gsa_jax.verify.system import System
 
-SCHEMA = 1
+SCHEMA = 2
 
 
 def public(obj: Any) -> Any:
@@ -40,15 +40,16 @@ def local_lines(doc: dict) -> list:
     local = doc.get("local", {})
     if "note" in local:
         return [f"No local analysis: {local['note']}."]
-    lines = ["| piece | fixed point | picked there | spectral radius | saturated | qpos | qvel |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| piece | fixed point | picked there | spectral radius | saturated | at a joint's limit | qpos | qvel |",
+             "|---|---|---|---|---|---|---|---|"]
     for p in local["pieces"]:
         piece = "network" if p["piece"] is None else p["piece"]
         if not p["fixed_point_found"]:
-            lines.append(f"| {piece} | none found (residual {_fmt(p['residual'])}) | | | | | |")
+            lines.append(f"| {piece} | none found (residual {_fmt(p['residual'])}) | | | | | | |")
             continue
+        limit = ", ".join(p["at_limit"]) + " (kept out)" if p["at_limit"] else "no"
         lines.append(f"| {piece} | found | {p['picked_there']}{'' if p['own_region'] else ' (not its own)'} | "
-                     f"{p['spectral_radius']:.4f} | {p['saturated']} | {np.round(p['qpos'], 4).tolist()} | "
+                     f"{p['spectral_radius']:.4f} | {p['saturated']} | {limit} | {np.round(p['qpos'], 4).tolist()} | "
                      f"{np.round(p['qvel'], 4).tolist()} |")
     return lines + ["", f"Verdict: {fixed_point_verdict(local)}."]
 
@@ -56,8 +57,8 @@ def local_lines(doc: dict) -> list:
 def fixed_point_verdict(local: dict) -> str:
     fp = local["closed_loop_fixed_point"]
     if fp is None:
-        return ("no piece's fixed point lies where the partition picks that piece: the closed loop has no fixed point "
-                "near the hold (it holds by switching, or not at all)")
+        return ("no piece's fixed point lies where the partition picks that piece, away from a joint's limit: the "
+                "closed loop has no fixed point near the hold (it holds by switching, against a limit, or not at all)")
     where = "network" if fp["piece"] is None else f"piece {fp['piece']}"
     stable = "stable" if fp["spectral_radius"] < 1 else "unstable"
     return (f"the closed loop's fixed point nearest the hold is {where}'s at qpos {np.round(fp['qpos'], 4).tolist()}, "
@@ -70,13 +71,24 @@ def roa_lines(name: str, r: "dict | None") -> list:
     if "note" in r:
         return [f"- {name}: {r['note']} (volume 0)."]
     lyap = r.get("lyapunov")
-    ly = "; no quadratic Lyapunov function (no stable fixed point)"
+    ly = "no quadratic Lyapunov function (no stable fixed point)"
     if lyap:
-        ly = (f"; quadratic Lyapunov level {lyap['level']:.3g} ({lyap['bounded_by']}), its ellipsoid "
-              f"{lyap['ball_share']:.3g} of the sampled ball")
-    return [f"- {name}: radius min {r['radius_min']:.3g}, median {r['radius_median']:.3g} of r_max {r['r_max']} "
-            f"(scaled units), volume fraction {r['volume_fraction']:.3g}"
-            f"{', no boundary in range' if r['no_boundary_in_range'] else ''}{ly}."]
+        ly = (f"quadratic Lyapunov level {lyap['level']:.3g} ({lyap['bounded_by']}), its ellipsoid "
+              f"{lyap['ball_share']:.3g} of the ball of radius r_max")
+    h, hold = r["horizon"], r["hold"]
+    axis = "; ".join(f"{c} -{lo:.3g} to +{hi:.3g}" for c, (lo, hi) in zip(r["coordinates"], r["axis_radius_si"]))
+    sampled = r["volume_fraction_sampled"]
+    return [f"- {name}: radius min {r['radius_min']:.3g}, median {r['radius_median']:.3g} (scaled units; first "
+            f"radius {r['r_max']}, grown up to {r['r_limit']:g}: {r['unbounded_directions']} of {len(r['radius'])} "
+            f"directions without a boundary there), as large as a ball of radius {r['radius_equivalent']:.3g}",
+            f"  - volume fraction of the ball of radius {r['r_max']}: {r['volume_fraction']:.3g} from the radii "
+            f"(star-shaped), {'-' if sampled is None else f'{sampled:.3g}'} from {r['ball_samples']} uniform samples; "
+            f"{r['not_star_shaped_directions']} of {len(r['radius'])} directions not star-shaped (a start below "
+            f"the radius fails)",
+            f"  - from the hold along each coordinate alone: {axis}",
+            f"  - horizon {h['steps']} steps ({h['seconds']:.3g} s, set by {h['set_by']}); the hold's own excursion "
+            f"{'within' if hold['within_tolerance'] else 'beyond'} the task's tolerance "
+            f"{np.round(r['tolerance'], 4).tolist()}; {ly}"]
 
 
 def certificate_lines(cert: dict) -> list:
@@ -108,16 +120,34 @@ def push_text(push: "dict | None") -> str:
     return f"push {np.round(push['velocity_change'], 2).tolist()} m/s at step {push['step']}"
 
 
+def searches(doc: dict) -> dict:
+    """The falsification's searches by name (its rule aside)."""
+    return {k: v for k, v in doc["falsification"].items() if k != "rule"}
+
+
+def counterexample_line(c: dict) -> str:
+    verdict = ("knife-edge, kept out of the worst return" if c["knife_edge"] else "fails" if c["fails"]
+               else "does not fail")
+    inherited = " (inherited)" if c["inherited"] else ""
+    return (f"  - return {c['return']:.1f} in {c['steps']} steps from qpos {np.round(c['qpos'], 3).tolist()}, qvel "
+            f"{np.round(c['qvel'], 3).tolist()}, {push_text(c['push'])}: {verdict}; neighbours failing "
+            f"{c['neighbours_failing']:.2f}, robustness {c['robustness']:.3g}{inherited}")
+
+
 def falsification_lines(doc: dict) -> list:
-    n = doc["nominal"]
+    n, rule = doc["nominal"], doc["falsification"]["rule"]
     lines = [f"Nominal (start law, {n['episodes']} episodes): mean return {n['return_mean']:.1f}, "
-             f"5th percentile {n['return_p05']:.1f}, worst {n['return_min']:.1f}.", ""]
-    for name, f in doc["falsification"].items():
-        lines.append(f"- {name.replace('_', ' ')}: {f['episodes']} episodes, worst return {f['worst_return']:.1f} "
-                     f"(5th percentile of the first iteration's draws {f['first_iteration_p05']:.1f})")
-        for c in f["counterexamples"]:
-            lines.append(f"  - return {c['return']:.1f} in {c['steps']} steps from qpos "
-                         f"{np.round(c['qpos'], 3).tolist()}, qvel {np.round(c['qvel'], 3).tolist()}, {push_text(c['push'])}")
+             f"5th percentile {n['return_p05']:.1f}, worst {n['return_min']:.1f}.", "",
+             f"A counterexample fails with {rule['failure']}; {rule['neighbours']} neighbours within "
+             f"{rule['perturbation_scaled']:g} scaled units give the share that fail too, knife-edge below "
+             f"{rule['knife_edge_share']:g}; robustness: {rule['robustness']}.", ""]
+    for name, f in searches(doc).items():
+        worst = "none" if f["worst_return"] is None else f"{f['worst_return']:.1f}"
+        start = f", starting from {f['starts_from'].replace('_', ' ')}'s worst cases" if f["starts_from"] else ""
+        lines.append(f"- {name.replace('_', ' ')}: {f['episodes']} episodes{start}, worst return {worst} "
+                     f"({f['worst_return_with_knife_edges']:.1f} with {f['knife_edge_counterexamples']} knife-edge "
+                     f"counterexamples; 5th percentile of the first iteration's draws {f['first_iteration_p05']:.1f})")
+        lines += [counterexample_line(c) for c in f["counterexamples"]]
     return lines
 
 
@@ -144,14 +174,37 @@ def write_markdown(path: str, doc: dict) -> None:
         lines += ["", "## Certified region of attraction", "", *certificate_lines(doc["certificate"]), "",
                   "Not proved on the plant: the decrease is tested at the samples and the falsifier's starts, not "
                   "between them; no disturbance, model error or sensor noise is part of it."]
+    risk = (f" (above {s['chatter_rate_limit']:g}: a hardware risk, chattering)" if s["chattering_risk"] else "")
     lines += ["", "## Falsification", "", *falsification_lines(doc), "", "## Switching", "",
               f"Switches per second {s['switches_per_second']:.3g} (second half of the episodes: "
-              f"{s['switches_per_second_second_half']:.3g}); dwell {s['dwell_steps_mean']:.3g} steps on average "
+              f"{s['switches_per_second_second_half']:.3g}{risk}); dwell {s['dwell_steps_mean']:.3g} steps on average "
               f"(median {s['dwell_steps_median']:.3g}); pieces used {s['pieces_used']} with shares "
               f"{np.round(s['piece_share'], 3).tolist()}; crossings {s['crossings']}.", "",
               f"Cost (s): {doc['cost_seconds']}.", "", "![figures](verify.png)", ""]
     with open(path, "w") as f:
         f.write("\n".join(lines))
+
+
+def eigenvalue_panel(ax: "object", doc: dict) -> None:
+    """Each piece's and the LQR's closed-loop eigenvalues around the unit circle, scaled to those of fixed points away
+    from a joint's limit (those at one drawn hollow, off the scale where they fall outside it)."""
+    t = np.linspace(0, 2 * np.pi, 200)
+    ax.plot(np.cos(t), np.sin(t), "k:", lw=0.8)
+    extent = 1.0
+    for p in doc.get("local", {}).get("pieces", []):
+        if "eigenvalues" in p:
+            e = np.array(p["eigenvalues"])
+            label = f"piece {p['piece']}" if p["piece"] is not None else "network"
+            at_limit = bool(p["at_limit"])
+            ax.plot(e[:, 0], e[:, 1], "o", ms=4, mfc="none" if at_limit else None,
+                    label=label + (" (at a joint's limit)" if at_limit else ""))
+            extent = extent if at_limit else max(extent, float(np.abs(e).max()))
+    if "lqr" in doc and "eigenvalues" in doc["lqr"]:
+        e = np.array(doc["lqr"]["eigenvalues"])
+        ax.plot(e[:, 0], e[:, 1], "kx", label="LQR")
+        extent = max(extent, float(np.abs(e).max()))
+    ax.set(title="closed-loop eigenvalues", aspect="equal", xlim=(-1.1 * extent, 1.1 * extent),
+           ylim=(-1.1 * extent, 1.1 * extent))
 
 
 def write_figure(path: str, doc: dict) -> None:
@@ -161,17 +214,7 @@ def write_figure(path: str, doc: dict) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 4))
-    t = np.linspace(0, 2 * np.pi, 200)
-    ax[0].plot(np.cos(t), np.sin(t), "k:", lw=0.8)
-    for p in doc.get("local", {}).get("pieces", []):
-        if "eigenvalues" in p:
-            e = np.array(p["eigenvalues"])
-            label = f"piece {p['piece']}" if p["piece"] is not None else "network"
-            ax[0].plot(e[:, 0], e[:, 1], "o", ms=4, label=label)
-    if "lqr" in doc and "eigenvalues" in doc["lqr"]:
-        e = np.array(doc["lqr"]["eigenvalues"])
-        ax[0].plot(e[:, 0], e[:, 1], "kx", label="LQR")
-    ax[0].set(title="closed-loop eigenvalues", aspect="equal")
+    eigenvalue_panel(ax[0], doc)
     if len(ax[0].lines) > 1:
         ax[0].legend(fontsize=7)
     for name, r in (("controller", doc.get("roa")), ("LQR", doc.get("lqr", {}).get("roa"))):
@@ -180,7 +223,7 @@ def write_figure(path: str, doc: dict) -> None:
     ax[1].set(title="region of attraction: radius per direction (sorted)", ylabel="scaled radius")
     if ax[1].lines:
         ax[1].legend(fontsize=7)
-    for name, f in doc["falsification"].items():
+    for name, f in searches(doc).items():
         ax[2].plot(f["best_by_iteration"], "o-", label=name)
     ax[2].axhline(doc["nominal"]["return_mean"], color="k", ls="--", label="nominal mean")
     ax[2].set(title="falsification: lowest return so far", xlabel="CEM iteration")

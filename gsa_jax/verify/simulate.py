@@ -32,6 +32,7 @@ class Episodes(NamedTuple):
     qpos: np.ndarray  # [T + 1, B, nq] states visited (only the last when not recorded: [1, B, nq])
     qvel: np.ndarray  # [T + 1, B, nv]
     obs: np.ndarray  # [T + 1, B, d_s] observations (likewise)
+    margin: "np.ndarray | None" = None  # [B] the least Task.termination_margin over the steps taken (None: not exposed)
 
 
 def controller_policy(ctrl: Controller) -> Policy:
@@ -66,7 +67,7 @@ def run(task: Task, policy: Policy, qpos: np.ndarray, qvel: np.ndarray, steps: i
     n = len(qpos)
     stage = int(mujoco.mjtStage.mjSTAGE_VEL) if task.derived_after == "step1" else 0
     body = task.push_body_id()
-    alive, returns, lengths = np.ones(n, bool), np.zeros(n), np.zeros(n, int)
+    alive, returns, lengths, margin = np.ones(n, bool), np.zeros(n), np.zeros(n, int), np.full(n, np.inf)
     traj = [(b.qpos.copy(), b.qvel.copy(), obs.copy())]
     for t in range(steps):
         before = task.before(b.qpos, _derived(task, b))
@@ -79,6 +80,8 @@ def run(task: Task, policy: Policy, qpos: np.ndarray, qvel: np.ndarray, steps: i
         if len(pushed):
             b.xfrc_applied[pushed, body, :2] = 0.0
         obs, reward, terminated = task.outcome(before, b.qpos, b.qvel, _derived(task, b), u)
+        m = task.termination_margin(b.qpos, b.qvel, _derived(task, b))
+        margin = np.where(alive, np.minimum(margin, m), margin) if m is not None else None
         returns += np.where(alive, reward, 0.0)
         lengths += alive
         alive &= ~np.asarray(terminated, bool)
@@ -89,4 +92,4 @@ def run(task: Task, policy: Policy, qpos: np.ndarray, qvel: np.ndarray, steps: i
     if not record:
         traj = [(b.qpos.copy(), b.qvel.copy(), obs.copy())]
     qs, vs, os_ = (np.stack(x) for x in zip(*traj))
-    return Episodes(returns, lengths, ~alive, qs, vs, os_)
+    return Episodes(returns, lengths, ~alive, qs, vs, os_, margin)

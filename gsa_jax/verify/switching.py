@@ -1,10 +1,13 @@
 """Switching along trajectories: which pieces the closed loop uses, how long it stays in one (dwell), how often it
 changes piece (switches per second, over whole episodes and over their second half, where an equilibrium task
-holds), and between which pieces it crosses the partition's boundaries."""
+holds), and between which pieces it crosses the partition's boundaries. A rate above CHATTER_RATE over the second
+half is flagged as a hardware risk: an actuator asked to change its control law that often (chattering)."""
 
 import numpy as np
 
 from gsa_jax.deployment.numpy_policy import Controller
+
+CHATTER_RATE = 10.0  # switches per second over the second half of the episodes: above it, a hardware risk
 
 
 def piece_sequence(ctrl: Controller, obs: np.ndarray) -> np.ndarray:
@@ -36,8 +39,10 @@ def switching_stats(ctrl: Controller, obs: np.ndarray, lengths: np.ndarray, dt: 
             key = f"{int(s[i])}->{int(s[i + 1])}"
             crossings[key] = crossings.get(key, 0) + 1
     d = np.asarray(dwells, float)
+    half = sw_half / max(steps_half * dt, 1e-12)
     return {"switches_per_second": sw_all / max(steps_all * dt, 1e-12),
-            "switches_per_second_second_half": sw_half / max(steps_half * dt, 1e-12),
+            "switches_per_second_second_half": half, "chatter_rate_limit": CHATTER_RATE,
+            "chattering_risk": bool(half > CHATTER_RATE),
             "dwell_steps_mean": float(d.mean()), "dwell_steps_median": float(np.median(d)),
             "piece_share": [float(c) for c in counts / max(counts.sum(), 1)],
             "pieces_used": [int(i) for i in np.flatnonzero(counts)],

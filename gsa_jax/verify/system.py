@@ -8,7 +8,7 @@ whole circle), so that radius 1 is the size of the start law.
 
 import os
 import zipfile
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import mujoco
 import numpy as np
@@ -18,6 +18,9 @@ from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.errors import UserError
+
+if TYPE_CHECKING:
+    from envs.families.record import TaskRecord
 
 
 class VerifyError(UserError):
@@ -36,15 +39,21 @@ class System(NamedTuple):
     path: str
 
 
-def load_system(path: str) -> System:
+def load_system(path: str, force: bool = False) -> System:
     """The controller at `path` and its task's definition; VerifyError (one line) for a file that is not an exported
-    controller, a task without a MuJoCo C twin, or an observation size that differs from the task's."""
+    controller, a task without a MuJoCo C twin, an observation size that differs from the task's, or (unless force) a
+    task whose definition changed since the controller was trained (numpy_policy.check_task, as deploy refuses it)."""
     ctrl, env = _load_controller(path)
-    task = _task_definition(ctrl, env)
+    record = _task_record(ctrl, env)
+    task = record.new()
     d_s, d_in = task.observation_size, controller_input_size(ctrl)
     if d_in != d_s:
         raise VerifyError(f"{path!r} takes observations of size {d_in} but its task {env!r} observes {d_s}: "
                           "it was exported for another version of the task")
+    try:
+        numpy_policy.check_task(ctrl.arrays, record, force, name=repr(path))
+    except numpy_policy.TaskMismatch as e:
+        raise VerifyError(str(e)) from None
     if task.goal_size:
         raise VerifyError(f"{env!r} draws a goal at reset, which verify does not search over yet")
     return System(ctrl, task, env, path)
@@ -66,9 +75,9 @@ def _load_controller(path):
     return ctrl, env
 
 
-def _task_definition(ctrl: numpy_policy.Controller, env: str) -> Task:
-    """The task definition verify steps: that of the controller's task's record (numpy_policy.controller_task);
-    VerifyError (one line) where it does not resolve here or has no MuJoCo C twin."""
+def _task_record(ctrl: numpy_policy.Controller, env: str) -> "TaskRecord":
+    """The record of the controller's task (numpy_policy.controller_task), whose definition verify steps; VerifyError
+    (one line) where it does not resolve here or has no MuJoCo C twin."""
     try:
         record = numpy_policy.controller_task(ctrl.arrays)
     except (ValueError, ImportError) as e:
@@ -76,7 +85,7 @@ def _task_definition(ctrl: numpy_policy.Controller, env: str) -> Task:
     if not record.verifiable:
         raise VerifyError(f"the controller is for {env!r}, which has no MuJoCo C twin verify can step; "
                           f"these have one: {C_TWINS}")
-    return record.new()
+    return record
 
 
 def controller_input_size(ctrl: numpy_policy.Controller) -> int:
@@ -146,3 +155,21 @@ def equilibrium_guess(task: Task) -> "np.ndarray | None":
     """[nq] the task's declared equilibrium qpos (Task.equilibrium_qpos: the upright of a pendulum), or None."""
     q = getattr(task, "equilibrium_qpos", None)
     return None if q is None else np.asarray(q, np.float64).reshape(task.model.nq)
+
+
+LIMIT_SHARE = 0.01  # of a joint's range: a position this close to one of its ends is at that limit
+
+
+def joints_at_limit(model: mujoco.MjModel, qpos: np.ndarray) -> list:
+    """The names of the limited hinge and slide joints (a cart's rail included) whose position in qpos [nq] lies
+    within the limit's margin of an end of their range, or past it: max(jnt_margin, LIMIT_SHARE x range width)."""
+    out = []
+    for j in range(model.njnt):
+        kind = int(model.jnt_type[j])
+        if kind not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE) or not model.jnt_limited[j]:
+            continue
+        lo, hi = model.jnt_range[j]
+        q = float(qpos[model.jnt_qposadr[j]])
+        if min(q - lo, hi - q) <= max(float(model.jnt_margin[j]), LIMIT_SHARE * (hi - lo)):
+            out.append(model.joint(j).name)
+    return out
