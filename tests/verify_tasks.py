@@ -76,18 +76,33 @@ def lqr_gain():
     return np.linalg.solve(np.eye(1) + B.T @ P @ B, B.T @ P @ A)
 
 
-def export(path, env, L, b, w=None, bw=None, obs_var=(1.0, 1.0)):
+def export(path, env, L, b, w=None, bw=None, obs_var=(1.0, 1.0), obs_mean=(0.0, 0.0), partition=None):
     """An exported mixture controller (as python -m gsa_jax.export writes one): pieces L [K, 1, 2], b [K, 1];
-    partition layers w, bw (default: one linear layer, argmax 0)."""
+    partition layers w, bw (default: one linear layer, argmax 0) of class `partition` (None: stored as none, mlp)."""
     K = len(L)
     w = w or [np.zeros((2, K))]
     bw = bw or [np.zeros(K)]
-    arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.zeros(2, np.float32),
+    arrays = {"kind": np.array("mixture"), "subpolicy": np.array("linear"), "obs_mean": np.asarray(obs_mean, np.float32),
               "obs_var": np.asarray(obs_var, np.float32), "obs_clip": np.array(1e3, np.float32),
               "n_layers": np.array(len(w)), "L": np.asarray(L, np.float32), "b": np.asarray(b, np.float32),
               "action_low": -np.ones(1, np.float32), "action_high": np.ones(1, np.float32),
               "config_json": np.array(json.dumps({"config": {"env": env}}))}
+    if partition is not None:
+        arrays["partition"] = np.array(partition)
     for i, (wi, bi) in enumerate(zip(w, bw)):
         arrays[f"w{i}"], arrays[f"b{i}"] = np.asarray(wi, np.float32), np.asarray(bi, np.float32)
     save_npz_atomic(str(path), **arrays)
     return str(path)
+
+
+def biased_pair(path, env, bias, partition="mlp"):
+    """K = 2 on PointMass that holds by switching across x = 0: piece 0 (picked where x < 0) the LQR gain pushing right
+    by `bias`, piece 1 (x > 0) pushing left by it. Each piece alone is stable with its fixed point (x = +-bias / gain)
+    in the other's cell, so the closed loop chatters across the boundary. The partition: an MLP (logits 0 and
+    tanh(50 x)) or a linear one (logits -x and x)."""
+    k = lqr_gain()[None]
+    if partition == "linear":
+        w, bw = [np.array([[-1.0, 1.0], [0.0, 0.0]])], [np.zeros(2)]
+    else:
+        w, bw = [np.array([[50.0, 0.0], [0.0, 0.0]]), np.array([[0.0, 1.0], [0.0, 0.0]])], [np.zeros(2), np.zeros(2)]
+    return export(path, env, np.concatenate([-k, -k]), [[bias], [-bias]], w, bw, partition=partition)

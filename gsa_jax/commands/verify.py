@@ -5,9 +5,10 @@
 Writes DIR/verify.json (docs/verify.md), DIR/report.md and DIR/verify.png: fixed points and closed-loop eigenvalues
 per piece, the region of attraction of the task's equilibrium (with an LQR beside it), the lowest-return start
 states and pushes a cross-entropy search finds (replayable), and how the controller switches pieces. --certify adds
-a certified region of attraction of the closed loop's stable fixed point: exact on the linearization, tested on the
-plant (the optional extra verify: pip install 'gsa_jax[verify]'). A controller whose task's definition changed since
-it was trained is refused in one line, as deploy refuses it (--force verifies it where the sizes agree).
+a certified region of attraction of the closed loop's stable fixed point and, for a hold kept by switching between
+pieces, an invariant set around it: exact on the linearization, tested on the plant (the optional extra verify:
+pip install 'gsa_jax[verify]'). A controller whose task's definition changed since it was trained is refused in one
+line, as deploy refuses it (--force verifies it where the sizes agree).
 """
 
 import argparse
@@ -17,7 +18,7 @@ import time
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.verify import certify
 from gsa_jax.verify.analysis import QUICK, Budget, LqrWeights, verify
-from gsa_jax.verify.report import certificate_lines, write_all
+from gsa_jax.verify.report import certificate_lines, hold_set_lines, write_all
 from gsa_jax.verify.system import System, VerifyError, equilibrium_guess, load_system
 
 
@@ -58,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "state by these (the task's units: positions, then velocities; default: Q = I on scaled states)")
     p.add_argument("--lqr-r", default=None, metavar="R1,...", help="... and the actions by these (default R = I)")
     p.add_argument("--certify", action="store_true", help="a certified region of attraction of the closed loop's "
-                   f"stable fixed point (needs the optional extra verify: {certify.INSTALL})")
+                   "stable fixed point, and an invariant set of a hold kept by switching between pieces (needs the "
+                   f"optional extra verify: {certify.INSTALL})")
     p.add_argument("--force", action="store_true",
                    help="verify a controller whose task's definition changed since it was trained, or that names "
                         "another task, where the observation sizes agree")
@@ -78,8 +80,10 @@ def verify_controller(argv: list | None) -> int:
     t0 = time.perf_counter()
     result = verify(system, budget, weights, cert_budget if args.certify else None)
     doc = write_all(out, system, result, budget, args.quick)
-    if args.certify:
+    if "certificate" in doc:
         print("\n".join(["Certified region of attraction.", *certificate_lines(doc["certificate"])]))
+    if "hold_set" in doc:
+        print("\n".join(["Invariant set of the hold kept by switching.", *hold_set_lines(doc["hold_set"])]))
     print(f"wrote {out}/verify.json, report.md, verify.png ({time.perf_counter() - t0:.0f} s)")
     return 0
 

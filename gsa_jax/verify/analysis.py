@@ -9,7 +9,7 @@ import numpy as np
 from envs.task import Task
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import Controller
-from gsa_jax.verify import certify, falsify, roa, simulate, switching
+from gsa_jax.verify import certify, falsify, invariant, roa, simulate, switching
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify.system import (System, VerifyError, equilibrium_guess, joints_at_limit, state_scale, to_qpos,
                                    wrap)
@@ -204,7 +204,7 @@ def equilibrium_part(system: System, budget: Budget, scale: np.ndarray, qref: np
     out = {"local": local}
     if certify_budget is not None:
         t0 = time.perf_counter()
-        out["certificate"] = certify.certificate(system, qref, local, certify_budget)
+        out.update(invariant.certify_hold(system, qref, local, hold, certify_budget))
         cost["certificate"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     a_cl = local["_a_cl"] / scale[:, None] * scale[None, :] if local["_a_cl"] is not None else None  # scaled

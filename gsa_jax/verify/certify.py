@@ -112,26 +112,45 @@ class Bounds(NamedTuple):
     names: list  # [m] what each bound is
 
 
+def join_bounds(*parts: Bounds) -> Bounds:
+    """The bounds of every part, in order."""
+    return Bounds(np.concatenate([b.g for b in parts]), np.concatenate([b.margin for b in parts]),
+                  [name for b in parts for name in b.names])
+
+
+def observation_bounds(ctrl: "numpy_policy.Controller", obs: np.ndarray, C: np.ndarray) -> Bounds:
+    """Each observation reaching the normalizer's clip, at obs [d_s] (C = d obs / dx [d_s, n])."""
+    zraw = (np.asarray(obs, np.float64) - ctrl.obs_mean) / ctrl.obs_std
+    return Bounds(C / ctrl.obs_std[:, None].astype(np.float64), np.abs(ctrl.obs_clip - np.abs(zraw)),
+                  [f"observation {i}'s normalizer clip" for i in range(len(zraw))])
+
+
+def action_bounds(ctrl: "numpy_policy.Controller", piece: "int | None", obs: np.ndarray, C: np.ndarray,
+                  who: str = "") -> Bounds:
+    """Each of piece `piece`'s actions (None: the partition's pick, or the flat network) reaching its clip, at obs;
+    no rows for a controller without action bounds. who: prefixed to each bound's name."""
+    raw, j = lin.raw_jacobian(ctrl, obs, piece)
+    if ctrl.action_low is None:
+        return Bounds(np.zeros((0, C.shape[1])), np.zeros(0), [])
+    return Bounds(j @ C, np.minimum(np.abs(raw - ctrl.action_low), np.abs(ctrl.action_high - raw)),
+                  [f"{who}action {i}'s clip" for i in range(len(raw))])
+
+
+def partition_bounds(ctrl: "numpy_policy.Controller", piece: int, others: list, obs: np.ndarray,
+                     C: np.ndarray) -> Bounds:
+    """Where the partition's logit of each of `others` reaches that of `piece`, at obs (lin.logit_rows)."""
+    logits, jl, _ = lin.logit_rows(ctrl, obs)
+    return Bounds((jl[others] - jl[piece]) @ C, np.abs(logits[piece] - logits[others]),
+                  [f"the partition's boundary with piece {c}" for c in others])
+
+
 def controller_bounds(ctrl: "numpy_policy.Controller", piece: "int | None", obs: np.ndarray, C: np.ndarray) -> Bounds:
     """The controller's validity bounds at obs [d_s] (C = d obs / dx [d_s, n]): its action clips, its normalizer's
     clips and, for a mixture, where the partition's logit of another piece reaches that of `piece`."""
-    zraw = (np.asarray(obs, np.float64) - ctrl.obs_mean) / ctrl.obs_std
-    g = [C / ctrl.obs_std[:, None].astype(np.float64)]
-    margin = [np.abs(ctrl.obs_clip - np.abs(zraw))]
-    names = [f"observation {i}'s normalizer clip" for i in range(len(zraw))]
-    raw, j = lin.raw_jacobian(ctrl, obs, piece)
-    if ctrl.action_low is not None:
-        g.append(j @ C)
-        margin.append(np.minimum(np.abs(raw - ctrl.action_low), np.abs(ctrl.action_high - raw)))
-        names += [f"action {i}'s clip" for i in range(len(raw))]
+    parts = [observation_bounds(ctrl, obs, C), action_bounds(ctrl, piece, obs, C)]
     if ctrl.kind == MIXTURE and ctrl.num_clusters > 1:
-        z, dz = lin.normalized(ctrl, obs)
-        logits, jl = lin.mlp_jacobian(ctrl.layers, z)
-        others = [c for c in range(ctrl.num_clusters) if c != piece]
-        g.append((jl[others] - jl[piece]) * dz[None, :] @ C)
-        margin.append(np.abs(logits[piece] - logits[others]))
-        names += [f"the partition's boundary with piece {c}" for c in others]
-    return Bounds(np.concatenate(g), np.concatenate(margin), names)
+        parts.append(partition_bounds(ctrl, piece, [c for c in range(ctrl.num_clusters) if c != piece], obs, C))
+    return join_bounds(*parts)
 
 
 def joint_bounds(model: mujoco.MjModel, qref: np.ndarray, x: np.ndarray) -> Bounds:
@@ -156,19 +175,25 @@ def joint_bounds(model: mujoco.MjModel, qref: np.ndarray, x: np.ndarray) -> Boun
     return Bounds(np.reshape(g, (-1, n)), np.array(margin), names)
 
 
-def image_rows(A: np.ndarray, bounds: Bounds, k: int) -> tuple:
-    """(h [k m', n] = g A^j / margin for j < k over the bounds that limit a direction, their names): E's images
-    over the k steps lie inside the bounds where h' P^-1 h <= level^-1 for every row."""
+def slab_rows(bounds: Bounds, where: str) -> tuple:
+    """(h [m', n] = g / margin over the bounds that limit a direction, their names): a set lies inside them where
+    h' P^-1 h <= level^-1 for every row; VerifyError (one line) where `where` (the linearization's point, in words)
+    lies on one."""
     keep = np.isfinite(bounds.margin) & (np.abs(bounds.g).sum(1) > 0)
     if np.any(bounds.margin[keep] <= 0):
         name = bounds.names[int(np.flatnonzero(keep & (bounds.margin <= 0))[0])]
-        raise VerifyError(f"nothing to certify: the closed loop's fixed point lies on {name} (its linearization "
-                          "holds on no neighbourhood)")
-    h, rows = bounds.g[keep] / bounds.margin[keep][:, None], []
+        raise VerifyError(f"nothing to certify: {where} lies on {name} (its linearization holds on no neighbourhood)")
+    return bounds.g[keep] / bounds.margin[keep][:, None], [bounds.names[i] for i in np.flatnonzero(keep)]
+
+
+def image_rows(A: np.ndarray, bounds: Bounds, k: int) -> tuple:
+    """(h [k m', n] = g A^j / margin for j < k over the bounds that limit a direction, their names): E's images
+    over the k steps lie inside the bounds where h' P^-1 h <= level^-1 for every row."""
+    h, names = slab_rows(bounds, "the closed loop's fixed point")
+    rows = []
     for _ in range(k):
         rows.append(h)
         h = h @ A
-    names = [bounds.names[i] for i in np.flatnonzero(keep)]
     return np.concatenate(rows), [f"{name} at step {j}" for j in range(k) for name in names]
 
 
@@ -245,12 +270,24 @@ class Plant(NamedTuple):
     x_star: np.ndarray
 
 
-def decrease_values(plant: Plant, lin_cert: Linear, level: float, u: np.ndarray) -> tuple:
-    """(V(x_0) [B], V(x_k) [B], +inf where the episode terminates) of starts u [B, n] (the unit ball, mapped onto E
-    at level) after k control steps in MuJoCo C with the exported controller."""
-    task, P = plant.system.task, lin_cert.P
+class PlantTest(NamedTuple):
+    """What the plant test checks, V(x) = (x - x*)' P (x - x*): V(x_k) <= rho^2 V(x_0) + gamma from every start in
+    {V <= level} (gamma > 0: an invariant set around a hold that does not rest at x*, gsa_jax.verify.invariant)."""
+
+    plant: Plant
+    P: np.ndarray
+    k: int
+    rho: float
+    gamma: float = 0.0
+
+
+def decrease_values(test: PlantTest, level: float, u: np.ndarray) -> tuple:
+    """(V(x_0) [B], V(x_k) [B], +inf where the episode terminates) of starts u [B, n] (the unit ball, mapped onto
+    {V <= level}) after k control steps in MuJoCo C with the exported controller."""
+    plant, P = test.plant, test.P
+    task = plant.system.task
     dx0 = offsets(P, level, u)
-    ep = roa.run_from(task, controller_policy(plant.system.ctrl), plant.qref, plant.x_star + dx0, lin_cert.k)
+    ep = roa.run_from(task, controller_policy(plant.system.ctrl), plant.qref, plant.x_star + dx0, test.k)
     xk = np.concatenate([to_tangent(task.model, plant.qref, ep.qpos[-1]), ep.qvel[-1]], axis=1)
     dxk = wrap(task.model, xk - plant.x_star)
     v0, vk = (np.einsum("bi,ij,bj->b", d, P, d) for d in (dx0, dxk))
@@ -262,46 +299,66 @@ def ratio(v0: np.ndarray, vk: np.ndarray) -> np.ndarray:
     return vk / np.maximum(v0, np.finfo(float).tiny)
 
 
-def search_violations(values: Callable, start: np.ndarray, budget: CertifyBudget, rng: np.random.Generator) -> tuple:
-    """(V(x_0) [N], V(x_k) [N]) of a cross-entropy search over the unit ball for the largest ratio, from start [n]
-    (values(u [B, n]) -> (V(x_0), V(x_k)); the elite eighth refitted each iteration)."""
+def search_violations(values: Callable, gamma: float, start: np.ndarray, budget: CertifyBudget,
+                      rng: np.random.Generator) -> tuple:
+    """(V(x_0) [N], V(x_k) [N]) of a cross-entropy search over the unit ball for the largest
+    (V(x_k) - gamma) / V(x_0), from start [n] (values(u [B, n]) -> (V(x_0), V(x_k)); the elite eighth refitted each
+    iteration)."""
     mean, std, n_elite = start, np.full(len(start), 0.3), max(2, budget.population // 8)
     seen = []
     for _ in range(budget.iterations):
         u = mean + std * rng.standard_normal((budget.population, len(start)))
         u = u / np.maximum(1.0, np.linalg.norm(u, axis=1, keepdims=True))
         seen.append(values(u))
-        elite = u[np.argsort(-ratio(*seen[-1]))[:n_elite]]
+        elite = u[np.argsort(-ratio(seen[-1][0], seen[-1][1] - gamma))[:n_elite]]
         mean, std = elite.mean(0), np.maximum(elite.std(0), 0.02)
     return tuple(np.concatenate(v) for v in zip(*seen))
 
 
-def check_round(plant: Plant, lin_cert: Linear, level: float, budget: CertifyBudget, r: int) -> dict:
-    """One round of the plant test at level: uniform samples in E and on its boundary, then the falsifier from the
-    sample with the largest ratio."""
-    rng, n = np.random.default_rng([budget.seed, r]), len(lin_cert.P)
-    values = lambda u: decrease_values(plant, lin_cert, level, u)
+def check_round(test: PlantTest, level: float, budget: CertifyBudget, r: int) -> dict:
+    """One round of the plant test at level: uniform samples in {V <= level} and on its boundary, then the falsifier
+    from the sample with the largest (V(x_k) - gamma) / V(x_0)."""
+    rng, n = np.random.default_rng([budget.seed, r]), len(test.P)
+    values = lambda u: decrease_values(test, level, u)
     u = np.concatenate([roa.ball(rng, budget.samples, n), roa.sphere(rng, budget.boundary, n)])
     v0, vk = values(u)
-    f0, fk = search_violations(values, u[int(np.argmax(ratio(v0, vk)))], budget, rng)
+    f0, fk = search_violations(values, test.gamma, u[int(np.argmax(ratio(v0, vk - test.gamma)))], budget, rng)
     v0, vk = np.concatenate([v0, f0]), np.concatenate([vk, fk])
-    excess = (vk - lin_cert.rho ** 2 * v0) / level
+    excess = (vk - test.rho ** 2 * v0 - test.gamma) / level
     bad = excess > DECREASE_TOL
     return {"level": float(level), "samples": int(budget.samples), "boundary_samples": int(budget.boundary),
             "falsifier_episodes": int(len(f0)), "violations": int(bad.sum()), "largest_excess": float(excess.max()),
             "smallest_violating_v0": float(v0[bad].min()) if bad.any() else None}
 
 
-def check_on_plant(plant: Plant, lin_cert: Linear, budget: CertifyBudget) -> tuple:
-    """(level, certified, rounds): the plant test's rounds from the linearization's level, shrinking at each
-    violation, until one finds none (certified) or budget.rounds have run (level 0: nothing certified)."""
-    level, rounds = lin_cert.level, []
+def check_on_plant(test: PlantTest, level: float, budget: CertifyBudget, floor: float = 0.0) -> tuple:
+    """(level, certified, rounds): the plant test's rounds from `level`, shrinking at each violation, until one finds
+    none (certified) or budget.rounds have run or the level would fall to floor or below (level 0: nothing
+    certified)."""
+    rounds = []
     for r in range(budget.rounds):
-        rounds.append(check_round(plant, lin_cert, level, budget, r))
+        rounds.append(check_round(test, level, budget, r))
         if not rounds[-1]["violations"]:
             return level, True, rounds
         level = SHRINK * rounds[-1]["smallest_violating_v0"]
+        if level <= floor:
+            break
     return 0.0, False, rounds
+
+
+def ellipsoid_fields(P: np.ndarray, level: float) -> dict:
+    """{V <= level}'s semi-axes [n] (largest first) and their unit directions [n, n], inscribed radius and extent
+    [n] (per coordinate, the largest offset from the centre), in the state's units."""
+    lam, W = np.linalg.eigh(P)
+    axes = np.sqrt(level / lam)
+    return {"semi_axes": axes.tolist(), "semi_axis_directions": W.T.tolist(), "inscribed_radius": float(axes.min()),
+            "extent": np.sqrt(level * np.diag(np.linalg.inv(P))).tolist()}
+
+
+def plant_fields(rounds: list, budget: CertifyBudget) -> dict:
+    """The plant test's record: starts tested in all, violations per round, the rounds, the budget."""
+    return {"samples": int(sum(r["samples"] + r["boundary_samples"] + r["falsifier_episodes"] for r in rounds)),
+            "violations": [r["violations"] for r in rounds], "rounds": rounds, "budget": budget._asdict()}
 
 
 def coordinates(model: mujoco.MjModel) -> list:
@@ -323,18 +380,12 @@ def certificate(system: System, qref: np.ndarray, local: dict, budget: CertifyBu
     x = wrap(task.model, np.concatenate([to_tangent(task.model, qref, np.array(fp["qpos"]))[0], fp["qvel"]]))
     L = lin.linearize(task, lambda obs: lin.piece_jacobian(ctrl, obs, fp["piece"]), qref, x)
     obs = lin.observe_at(task, np.array(fp["qpos"]), np.array(fp["qvel"]))
-    b = [controller_bounds(ctrl, fp["piece"], obs, L.C), joint_bounds(task.model, qref, x)]
-    bounds = Bounds(np.concatenate([c.g for c in b]), np.concatenate([c.margin for c in b]), b[0].names + b[1].names)
+    bounds = join_bounds(controller_bounds(ctrl, fp["piece"], obs, L.C), joint_bounds(task.model, qref, x))
     lc = certify_linear(L.closed, bounds)
-    level, certified, rounds = check_on_plant(Plant(system, qref, x), lc, budget)
-    lam, W = np.linalg.eigh(lc.P)
-    axes = np.sqrt(level / lam)  # largest first
+    level, certified, rounds = check_on_plant(PlantTest(Plant(system, qref, x), lc.P, lc.k, lc.rho), lc.level, budget)
     return {"claim": CLAIM, "rule": RULE, "certified": certified, "piece": fp["piece"],
             "qpos": fp["qpos"], "qvel": fp["qvel"], "coordinates": coordinates(task.model), "P": lc.P.tolist(),
             "k": lc.k, "k_seconds": lc.k * float(task.dt), "rho": lc.rho, "rho_per_step": lc.rho ** (1.0 / lc.k),
             "rho_linearization": lc.rho_p, "spectral_radius": lc.rho_a,
             "level_linearization": lc.level, "bounded_by": lc.bounded_by, "level": level,
-            "semi_axes": axes.tolist(), "semi_axis_directions": W.T.tolist(), "inscribed_radius": float(axes.min()),
-            "extent": np.sqrt(level * np.diag(np.linalg.inv(lc.P))).tolist(),
-            "samples": int(sum(r["samples"] + r["boundary_samples"] + r["falsifier_episodes"] for r in rounds)),
-            "violations": [r["violations"] for r in rounds], "rounds": rounds, "budget": budget._asdict()}
+            **ellipsoid_fields(lc.P, level), **plant_fields(rounds, budget)}

@@ -16,8 +16,9 @@ import mujoco
 import numpy as np
 
 from envs.task import Task, TaskC
-from gsa_jax.algorithm import subpolicies
+from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MLP
+from gsa_jax.deployment.cells import raw_logits
 from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.verify.system import to_qpos, to_tangent
 
@@ -65,6 +66,20 @@ def mlp_jacobian(layers: list, z: np.ndarray) -> tuple:
         else:
             h = pre
     return h, jac
+
+
+def logit_rows(ctrl: Controller, obs: np.ndarray) -> tuple:
+    """(logits [K], d logits / d obs [K, d_s], exact) of a mixture's partition at obs [d_s] over its K active
+    pieces: for a linear partition with no observation at the normalizer's clip, its own W and c with the
+    normalization folded in (deployment.cells.raw_logits: the logits are exactly affine in obs there, so the cells
+    these rows give are the partition's, exactly); otherwise the network's linearization at obs."""
+    k = ctrl.num_clusters
+    z, dz = normalized(ctrl, obs)
+    if partitions.get(ctrl.partition).polyhedral and np.all(dz > 0):
+        w_raw, c_raw = raw_logits(ctrl)
+        return np.asarray(obs, np.float64) @ w_raw + c_raw, w_raw.T, True
+    logits, jl = mlp_jacobian(ctrl.layers, z)
+    return logits[:k], jl[:k] * dz[None, :], False
 
 
 def _subpolicy_jacobian(ctrl, c, z):

@@ -95,9 +95,7 @@ def certificate_lines(cert: dict) -> list:
     """The certificate (gsa_jax.verify.certify) in words, SI units per coordinate."""
     where = "the network" if cert["piece"] is None else f"piece {cert['piece']}"
     extent = ", ".join(f"{name} +-{e:.3g}" for name, e in zip(cert["coordinates"], cert["extent"]))
-    rounds = "; ".join(f"level {r['level']:.4g}: {r['samples']} samples inside, {r['boundary_samples']} on the "
-                       f"boundary, {r['falsifier_episodes']} falsifier starts, {r['violations']} violations"
-                       for r in cert["rounds"])
+    rounds = rounds_text(cert["rounds"])
     verdict = ("certified: the last round found no violation" if cert["certified"] else
                f"nothing certified: every one of {len(cert['rounds'])} rounds found violations")
     return [f"{cert['claim'][0].upper()}{cert['claim'][1:]}.",
@@ -112,6 +110,40 @@ def certificate_lines(cert: dict) -> list:
             f"{', '.join(f'{a:.3g}' for a in cert['semi_axes'])}; extent {extent}",
             f"- plant test ({cert['samples']} starts, each stepped k control steps in MuJoCo C with the exported "
             f"controller): {rounds}"]
+
+
+def rounds_text(rounds: list) -> str:
+    """The plant test's rounds (gsa_jax.verify.certify.check_round) in words."""
+    return "; ".join(f"level {r['level']:.4g}: {r['samples']} samples inside, {r['boundary_samples']} on the "
+                     f"boundary, {r['falsifier_episodes']} falsifier starts, {r['violations']} violations"
+                     for r in rounds)
+
+
+def hold_set_lines(rec: dict) -> list:
+    """The switching hold's invariant set (gsa_jax.verify.invariant) in words, SI units per coordinate."""
+    lines = [f"{rec['claim'][0].upper()}{rec['claim'][1:]}.",
+             f"- hold: pieces {rec['pieces']}, {rec['switches_per_second']:.3g} switches per second, centre x_c at qpos "
+             f"{np.round(rec['qpos'], 4).tolist()}, qvel {np.round(rec['qvel'], 4).tolist()}; the pieces' closed loops "
+             f"there have spectral radii {', '.join(f'{r:.4f}' for r in rec['spectral_radii'])}; cells "
+             f"{rec['cells']}",
+             f"- no fixed-point certificate: {rec['fixed_point']}" if rec.get("fixed_point") else
+             "- the fixed point's certificate is reported beside it"]
+    if "P" not in rec:
+        return lines + [f"- nothing certified: {rec['reason']}"]
+    extent = lambda key: ", ".join(f"{name} +-{e:.3g}" for name, e in zip(rec["coordinates"], rec[key]))
+    verdict = ("certified: the last round found no violation" if rec["certified"] else
+               f"nothing certified: {rec['reason']}")
+    return lines + [
+        f"- V(x) = (x - x_c)' P (x - x_c): V(x_1) <= rho^2 V(x_0) + gamma over one control step ({rec['k_seconds']:.3g} "
+        f"s), rho = {rec['rho']:.4g}, gamma = {rec['gamma']:.4g}; on the linearization rho_P = "
+        f"{rec['rho_linearization']:.4g}",
+        f"- level {rec['level']:.4g} ({verdict}); {rec['level_linearization']:.4g} on the linearization, bounded by "
+        f"{rec['bounded_by']}; every start in the set enters the inner set V <= {rec['inner_level']:.4g} and stays",
+        f"- inscribed radius {rec['inscribed_radius']:.3g} (SI units); semi-axes "
+        f"{', '.join(f'{a:.3g}' for a in rec['semi_axes'])}; extent {extent('extent')}; the inner set's extent "
+        f"{extent('inner_extent')}",
+        f"- plant test ({rec['samples']} starts, each stepped one control step in MuJoCo C with the exported "
+        f"controller): {rounds_text(rec['rounds'])}"]
 
 
 def push_text(push: "dict | None") -> str:
@@ -174,6 +206,8 @@ def write_markdown(path: str, doc: dict) -> None:
         lines += ["", "## Certified region of attraction", "", *certificate_lines(doc["certificate"]), "",
                   "Not proved on the plant: the decrease is tested at the samples and the falsifier's starts, not "
                   "between them; no disturbance, model error or sensor noise is part of it."]
+    if "hold_set" in doc:
+        lines += ["", "## Invariant set of the hold kept by switching", "", *hold_set_lines(doc["hold_set"])]
     risk = (f" (above {s['chatter_rate_limit']:g}: a hardware risk, chattering)" if s["chattering_risk"] else "")
     lines += ["", "## Falsification", "", *falsification_lines(doc), "", "## Switching", "",
               f"Switches per second {s['switches_per_second']:.3g} (second half of the episodes: "
