@@ -1,10 +1,11 @@
-"""Verify committed controllers: `.venv/bin/python experiments/verify/run.py [--full] [--seeds 0-4] [--only mlp-,...]
-[GROUP ...]` (default: every group, every controller).
+"""Verify committed controllers: `.venv/bin/python experiments/verify/run.py [--full] [--certify] [--seeds 0-4]
+[--only mlp-,...] [GROUP ...]` (default: every group, every controller).
 
 Each controller goes through the same analyses as `python -m gsa_jax.verify CONTROLLER --quick` (the quick budget,
 equal for every controller; --full: the default budget, `python -m gsa_jax.verify CONTROLLER`), one after another in
 this process, and its verify.json, report.md and verify.png go to results/<group>/<controller name>/
-(results/full/<group>/... with --full). A controller whose verify.json exists is skipped (the run resumes).
+(results/full/<group>/... with --full; results/certified/<group>/... with --certify, which adds `gsa verify
+--certify`'s certificates at the quick budget). A controller whose verify.json exists is skipped (the run resumes).
 """
 
 import argparse
@@ -12,9 +13,10 @@ import glob
 import os
 import time
 
+from gsa_jax.verify import certify
 from gsa_jax.verify.analysis import QUICK, Budget, verify
 from gsa_jax.verify.report import write_all
-from gsa_jax.verify.system import load_system
+from gsa_jax.verify.system import VerifyError, load_system
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
@@ -41,15 +43,21 @@ def controllers(group, seeds=None, only=None):
             and (only is None or any(o in os.path.basename(p) for o in only))]
 
 
-def run_group(group, full=False, seeds=None, only=None):
+def run_group(group, full=False, seeds=None, only=None, certified=False):
     budget = Budget() if full else QUICK
+    cert_budget = (certify.CertifyBudget() if full else certify.QUICK) if certified else None
+    where = (("full",) if full else ()) + (("certified",) if certified else ())
     for path in controllers(group, seeds, only):
-        out = os.path.join(HERE, "results", *(("full",) if full else ()), group, os.path.splitext(os.path.basename(path))[0])
+        out = os.path.join(HERE, "results", *where, group, os.path.splitext(os.path.basename(path))[0])
         if os.path.exists(os.path.join(out, "verify.json")):
             continue
         t0 = time.perf_counter()
         system = load_system(os.path.relpath(path, ROOT))
-        write_all(out, system, verify(system, budget), budget, quick=not full)
+        try:
+            result = verify(system, budget, None, cert_budget)
+        except VerifyError as e:  # nothing to certify: the rest of the analysis, with the reason recorded
+            result = {**verify(system, budget), "certify_refused": str(e)}
+        write_all(out, system, result, budget, quick=not full)
         print(f"{group}: {os.path.basename(path)} {time.perf_counter() - t0:.0f} s", flush=True)
 
 
@@ -63,6 +71,7 @@ if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("groups", nargs="*", metavar="GROUP", help=f"default: all of {', '.join(GROUPS)}")
     p.add_argument("--full", action="store_true", help="the default budget instead of --quick's (results/full/)")
+    p.add_argument("--certify", action="store_true", help="add the certificates (results/certified/)")
     p.add_argument("--seeds", type=seed_range, default=None, help="a seed range, e.g. 0-4 (default: every seed)")
     p.add_argument("--only", type=lambda t: t.split(","), default=None,
                    help="comma-separated parts of controller names to keep, e.g. mlp-,mixture-K4-")
@@ -70,4 +79,4 @@ if __name__ == "__main__":
     if set(args.groups) - set(GROUPS):
         p.error(f"unknown group(s) {', '.join(sorted(set(args.groups) - set(GROUPS)))}; choose from {', '.join(GROUPS)}")
     for g in args.groups or list(GROUPS):
-        run_group(g, args.full, args.seeds, args.only)
+        run_group(g, args.full, args.seeds, args.only, args.certify)
