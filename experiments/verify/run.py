@@ -33,6 +33,8 @@ GROUPS = {
     + [ATLAS.format("pendulum-swingup", "mixture", f"mixture-K{k}") for k in (1, 2, 4)],
     "Hopper-v5": [FIG1.format("Hopper-v5", "mlp", "*")] + [FIG1.format("Hopper-v5", f"mixture-K{k}", "*") for k in (2, 3, 6, 12)],
     "reacher": [REACHER.format("mlp")] + [REACHER.format(f"mixture-K{k}") for k in (1, 2, 4, 8)],
+    # the atlas's LQR as a controller file (lqr_controller.py writes it)
+    "cartpole-balance-lqr": ["experiments/verify/results/certified/lqr/dmc.cartpole-balance-lqr.npz"],
 }
 
 

@@ -190,14 +190,22 @@ def step_budget_text(setup: Setup, state: dict) -> list:
     budget = trained_steps(setup, state)
     if steps.get("mode") != "auto":
         return [f"- Every run trained {budget:,} env steps (fixed: --steps, --target or the committed runs' settings)."]
-    lines = [f"- Every run trained **{budget:,} env steps**: the first budget (of {', '.join(f'{c:,}' for c in step_budget.candidates(setup.steps()))}) "
-             "at which flat PPO's first-look seeds, trained to it, had learned the task and stopped learning "
-             "(gsa_jax.analysis.verdicts.step_budget)" + (f"; limited by {steps['limited']}" if steps.get("limited") else "") + "."]
+    tried = steps.get("candidates") or step_budget.candidates(setup.steps())
+    calibration = steps.get("calibration", [])
+    if calibration and calibration[-1]["enough"]:
+        how = "the first budget at which flat PPO's first-look seeds, trained to it, had learned the task and stopped learning"
+    elif steps.get("limited"):
+        how = f"the largest budget tried before {steps['limited']} stopped the search"
+    else:
+        how = "the cap (--max-steps): flat PPO's first-look seeds had not both learned the task and stopped learning below it"
+    lines = [f"- Every run trained **{budget:,} env steps**: {how} (of {', '.join(f'{c:,}' for c in tried)}; "
+             "gsa_jax.analysis.verdicts.step_budget)."]
     for c in steps.get("calibration", []):
         learn = c["learning"]
-        lines.append(f"- At {c['steps']:,}: {'learned' if c['learned'] else 'not learned (' + c['why'] + ')'}; last fifth's "
-                     f"gain {learn['gain']:+.3f} of the gain over random (upper bound {learn['upper']:+.3f}): "
-                     f"{'stopped' if c['stopped'] else 'still learning'}.")
+        gain = (f"last fifth's gain {learn['gain']:+.3f} of the gain over random (upper bound {learn['upper']:+.3f}): "
+                f"{'stopped' if c['stopped'] else 'still learning'}" if learn["gain"] == learn["gain"] else
+                "no gain over random to judge learning on")
+        lines.append(f"- At {c['steps']:,}: {'learned' if c['learned'] else 'not learned (' + c['why'] + ')'}; {gain}.")
     return lines
 
 

@@ -509,8 +509,8 @@ def check_budget_floor(setup: Setup, state: dict, budget_s: float) -> None:
 def calibrate(out: str, setup: Setup, state: dict, budget_s: float, log: Callable, train: Callable) -> None:
     """Choose the step budget (step_budget): flat PPO's first look trained at doubling budgets until it has learned
     the task and stopped learning; the chosen budget's results become the first look (out/results/<name>)."""
-    steps = state.setdefault("steps", {"mode": "auto", "budget": None, "calibration": []})
     budgets = step_budget.candidates(setup.steps(), calibration_floor(setup))
+    steps = state.setdefault("steps", {"mode": "auto", "budget": None, "calibration": [], "candidates": budgets})
     while steps["budget"] is None:
         chosen, nxt = step_budget.next_budget(steps["calibration"], budgets)
         if chosen is None and not fits(setup, state, nxt, budget_s, log):

@@ -1,0 +1,98 @@
+"""Tables of the certified runs (results/certified/, `run.py --certify`): `.venv/bin/python experiments/verify/summarize_certified.py`
+
+Writes results/certified/per_controller.csv (one row per controller: nominal return, the fixed-point certificate,
+the switching hold's invariant set, the region of attraction at the task's one convergence rule, the LQR's beside it,
+the falsification's knife-edge counts) and results/certified/summary.csv (per task and class: how many controllers
+got each certificate, the certified sets' median inscribed radius in SI units, the regions' medians).
+"""
+
+import glob
+import json
+import os
+
+import numpy as np
+
+from gsa_jax.analysis.sweeps.results import write_csv
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results", "certified")
+
+
+def cls(doc: dict) -> str:
+    return "flat PPO" if doc["kind"] == "mlp" else f"K={doc['clusters']}"
+
+
+def certificate_part(doc: dict) -> dict:
+    """The fixed-point certificate's and the hold set's columns."""
+    c, h = doc.get("certificate") or {}, doc.get("hold_set") or {}
+    return {"fixed_point_certified": bool(c.get("certified")), "cert_level": c.get("level", ""),
+            "cert_inscribed_radius_si": c.get("inscribed_radius", "") if c.get("certified") else "",
+            "cert_extent_si": " ".join(f"{x:.4g}" for x in c.get("extent", [])) if c.get("certified") else "",
+            "cert_rho_per_step": c.get("rho_per_step", ""), "hold_set_applies": bool(h),
+            "hold_set_certified": bool(h.get("certified")),
+            "hold_set_inscribed_radius_si": h.get("inscribed_radius", "") if h.get("certified") else "",
+            "hold_set_reason": (h.get("reason") or "")[:160], "refused": (doc.get("certify_refused") or "")[:160]}
+
+
+def region_part(doc: dict) -> dict:
+    """The region of attraction's columns (scaled units: 1 = the start law's spread per coordinate) and the LQR's."""
+    roa, lqr = doc.get("roa") or {}, (doc.get("lqr") or {}).get("roa") or {}
+    return {"tolerance": " ".join(f"{x:.4g}" for x in roa.get("tolerance", [])), "horizon_s": roa.get("horizon", {}).get("seconds", ""),
+            "holds": (roa.get("hold") or {}).get("holds", ""), "roa_radius_min": roa.get("radius_min", ""),
+            "roa_radius_median": roa.get("radius_median", ""), "roa_radius_equivalent": roa.get("radius_equivalent", ""),
+            "roa_volume_sampled": roa.get("volume_fraction_sampled", ""),
+            "not_star_shaped_directions": roa.get("not_star_shaped_directions", ""),
+            "lqr_roa_radius_median": lqr.get("radius_median", "")}
+
+
+def row(path: str) -> dict:
+    with open(path) as f:
+        doc = json.load(f)
+    fals = doc["falsification"]
+    knife = sum(fals[s].get("knife_edge_counterexamples", 0) for s in ("start_law", "twice_the_spread", "start_law_and_pushes"))
+    total = sum(len(fals[s].get("counterexamples", [])) for s in ("start_law", "twice_the_spread", "start_law_and_pushes"))
+    group = os.path.basename(os.path.dirname(os.path.dirname(path)))
+    lqr = group.endswith("-lqr")  # the atlas's LQR as a controller file (lqr_controller.py)
+    return {"task": group[:-4] if lqr else group, "class": "LQR (atlas)" if lqr else cls(doc),
+            "controller": os.path.basename(os.path.dirname(path)), "nominal_return": doc["nominal"]["return_mean"],
+            "switches_per_second": doc["switching"]["switches_per_second_second_half"],
+            "chattering_risk": doc["switching"].get("chattering_risk", ""),
+            **certificate_part(doc), **region_part(doc), "counterexamples": total, "knife_edge": knife,
+            "worst_return_start_law": fals["start_law"].get("worst_return", "")}
+
+
+def median(values: list) -> "float | str":
+    v = [float(x) for x in values if x not in ("", None)]
+    return round(float(np.median(v)), 4) if v else ""
+
+
+def summary(rows: list) -> list:
+    out = []
+    for key in sorted({(r["task"], r["class"]) for r in rows}):
+        rs = [r for r in rows if (r["task"], r["class"]) == key]
+        out.append({"task": key[0], "class": key[1], "controllers": len(rs),
+                    "nominal_return_median": median([r["nominal_return"] for r in rs]),
+                    "fixed_point_certified": sum(r["fixed_point_certified"] for r in rs),
+                    "cert_inscribed_radius_si_median": median([r["cert_inscribed_radius_si"] for r in rs]),
+                    "hold_set_applies": sum(r["hold_set_applies"] for r in rs),
+                    "hold_set_certified": sum(r["hold_set_certified"] for r in rs),
+                    "refused": sum(bool(r["refused"]) for r in rs),
+                    "roa_radius_median_median": median([r["roa_radius_median"] for r in rs]),
+                    "roa_volume_sampled_median": median([r["roa_volume_sampled"] for r in rs]),
+                    "not_star_shaped_controllers": sum(1 for r in rs if (r["not_star_shaped_directions"] or 0) > 0),
+                    "lqr_roa_radius_median_median": median([r["lqr_roa_radius_median"] for r in rs]),
+                    "counterexamples": sum(r["counterexamples"] for r in rs),
+                    "knife_edge": sum(r["knife_edge"] for r in rs),
+                    "tolerances": len({r["tolerance"] for r in rs})})
+    return out
+
+
+def main() -> None:
+    rows = [row(p) for p in sorted(glob.glob(os.path.join(RESULTS, "*", "*", "verify.json")))]
+    write_csv(os.path.join(RESULTS, "per_controller.csv"), rows)
+    write_csv(os.path.join(RESULTS, "summary.csv"), summary(rows))
+    print(f"{len(rows)} controllers -> {RESULTS}/per_controller.csv, summary.csv")
+
+
+if __name__ == "__main__":
+    main()
