@@ -7,6 +7,7 @@ import json
 import os
 
 import numpy as np
+import pytest
 
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import answering as A
@@ -87,3 +88,18 @@ def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
     scores = A.collect_scores(str(tmp_path), setup)
     assert sorted(scores[A.FLAT]) == list(range(10))  # the 125k calibration runs are flat PPO's first look, once
     assert state["baseline"]["learning"]["stopped"] and state["baseline"]["learning"]["steps"] == 125_000
+
+
+def test_a_sweep_is_estimated_from_the_line_through_the_last_two():
+    """Sweeps costing compile + 15 s + 1e-5 s per run-step: after two of different work the estimate is exact; before,
+    a class not run yet borrows the first sweep's compile."""
+    from gsa_jax.analysis.verdicts import round_time
+
+    def sweep(policy, steps, compile_s):
+        return {"policy": policy, "runs": 10, "steps": steps, "compile_wall_s": compile_s,
+                "seconds": compile_s + 15.0 + 1e-5 * 10 * steps}
+
+    history = [sweep("mlp", 50_000, 30.0), sweep("mlp", 100_000, 2.0)]
+    assert round_time.sweep_estimate(history, "mlp", 10, 400_000) == pytest.approx(2.0 + 15.0 + 40.0)
+    assert round_time.sweep_estimate(history, "mixture", 10, 400_000) == pytest.approx(30.0 + 15.0 + 40.0)
+    assert round_time.sweep_estimate([], "mlp", 10, 1) is None

@@ -3,8 +3,9 @@
 Every sweep of an answer records its wall seconds (training, compiling or loading its program, exporting and scoring
 its controllers), its program's compile or load seconds (the slowest worker's), its policy class, its runs (padded:
 every sweep of a class runs the same program) and its step budget. A sweep is estimated as the fixed seconds of the
-last sweep of its class (else of the answer's first sweep, which compiled) plus its runs x steps at the seconds per
-run-step of the last sweep of its class (else of the last sweep of any class). Before any sweep, only a floor is known:
+last sweep of its class (else of the answer's first sweep, which compiled) plus an overhead and its runs x steps at a
+rate: the line through the last two sweeps of its class (else of any class) of different work, else through the
+origin and the last one. Before any sweep, only a floor is known:
 scoring the first round's controllers alone (10 episodes each in MuJoCo C, timed on the random policy's episodes).
 """
 
@@ -18,10 +19,25 @@ def fixed_seconds(sweep: dict) -> float:
     return min(float(sweep.get("compile_wall_s", sweep.get("compile_s", 0.0))), float(sweep["seconds"]))
 
 
-def seconds_per_run_step(sweep: dict) -> float:
-    """A sweep's seconds per trained run-step beyond its fixed seconds."""
-    work = max(int(sweep["runs"]) * int(sweep["steps"]), 1)
-    return max(float(sweep["seconds"]) - fixed_seconds(sweep), 0.0) / work
+def work(sweep: dict) -> int:
+    """A sweep's trained run-steps (its padded runs x its steps)."""
+    return max(int(sweep["runs"]) * int(sweep["steps"]), 1)
+
+
+def line(sweeps: Sequence[dict]) -> tuple:
+    """(overhead seconds, seconds per run-step) of sweeps' seconds beyond their fixed seconds: the line through the last
+    two of different work (process start, exporting and scoring are the overhead), else through the origin and the
+    last one."""
+    last = sweeps[-1]
+    other = next((s for s in reversed(sweeps[:-1]) if work(s) != work(last)), None)
+    y1 = float(last["seconds"]) - fixed_seconds(last)
+    if other is not None:
+        y0 = float(other["seconds"]) - fixed_seconds(other)
+        rate = (y1 - y0) / (work(last) - work(other))
+        overhead = y1 - rate * work(last)
+        if rate > 0 and overhead >= 0:
+            return overhead, rate
+    return 0.0, max(y1, 0.0) / work(last)
 
 
 def sweep_estimate(history: Sequence[dict], policy: str, runs: int, steps: int) -> float | None:
@@ -30,9 +46,8 @@ def sweep_estimate(history: Sequence[dict], policy: str, runs: int, steps: int) 
     if not history:
         return None
     mine = [h for h in history if h["policy"] == policy]
-    fixed = fixed_seconds(mine[-1] if mine else history[0])
-    rate = seconds_per_run_step(mine[-1] if mine else history[-1])
-    return fixed + rate * runs * steps
+    overhead, rate = line(mine or history)
+    return fixed_seconds(mine[-1] if mine else history[0]) + overhead + rate * runs * steps
 
 
 def scoring_floor(random_record: dict, controllers: int, workers: int = 1) -> float | None:
