@@ -1,12 +1,15 @@
 """How long does `gsa answer` take to decide, from a cold and from a warm compilation cache?
 
     .venv/bin/python experiments/time_to_answer/run.py [--env dmc:cartpole-balance] [--budget-minutes 30]
+        [--checkout DIR] [--cold-only]
 
 Runs `gsa answer --env ENV` twice in fresh output directories: cold (an empty compilation cache: the answer's own,
 OUT/cold/xla_cache) and warm (JAX_COMPILATION_CACHE_DIR set to the cold answer's cache, so every program loads). Per
 answer: the wall time of the command, the step budget it chose, the answer's sentence; per sweep: its seconds, its
 program's compile or load seconds (slowest worker), and the seconds estimated before it ran (the ETA's accuracy).
-Writes results/<date>-<commit>/{summary.csv, sweeps.csv, <cold|warm>/ (answer.json, report.md, verdicts.csv, results/
+--checkout runs the answers from another checkout of the project (e.g. an earlier commit's `git worktree`, with this
+environment's Python: the checkout's code is imported from its directory), --cold-only skips the warm answer.
+Writes results/<date>-<commit>-<task>/{summary.csv, sweeps.csv, <cold|warm>/ (answer.json, report.md, verdicts.csv, results/
 with each sweep's controllers and controller_scores.csv, no training state)}.
 """
 
@@ -15,6 +18,7 @@ import csv
 import datetime
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -24,11 +28,11 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "..", ".."))
 
 
-def commit() -> str:
-    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+def commit(root: str = ROOT) -> str:
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
 
 
-def run_answer(env: str, out: str, budget: float, cache: str | None) -> dict:
+def run_answer(env: str, out: str, budget: float, cache: str | None, root: str = ROOT) -> dict:
     """Run gsa answer once -> {wall_s, sentence, state}."""
     environ = dict(os.environ)
     environ.pop("JAX_COMPILATION_CACHE_DIR", None)
@@ -36,7 +40,8 @@ def run_answer(env: str, out: str, budget: float, cache: str | None) -> dict:
         environ["JAX_COMPILATION_CACHE_DIR"] = cache
     cmd = [sys.executable, "-m", "gsa_jax.answer", "--env", env, "--budget-minutes", str(budget), "--out", out]
     t0 = time.monotonic()
-    proc = subprocess.run(cmd, cwd=ROOT, env=environ, capture_output=True, text=True)
+    os.makedirs(out, exist_ok=True)
+    proc = subprocess.run(cmd, cwd=root, env=environ, capture_output=True, text=True)
     wall = time.monotonic() - t0
     with open(os.path.join(out, "command.log"), "w") as f:
         f.write(proc.stdout + proc.stderr)
@@ -47,12 +52,22 @@ def run_answer(env: str, out: str, budget: float, cache: str | None) -> dict:
     return {"wall_s": wall, "sentence": proc.stdout.strip().splitlines()[-1], "state": state}
 
 
-def sweep_rows(kind: str, state: dict) -> list:
+def log_compiles(out: str, name: str) -> float:
+    """The slowest worker's program compile or load seconds of sweep `name`, from its log (answers written before
+    they recorded it keep only the workers' sum)."""
+    times = []
+    path = os.path.join(out, "logs", name + ".log")
+    if os.path.exists(path):
+        times = [float(m.group(1)) for m in re.finditer(r"program .*? \(([\d.]+)s\)", open(path).read())]
+    return max(times, default=0.0)
+
+
+def sweep_rows(kind: str, state: dict, out: str) -> list:
     """One row per sweep of an answer: its name, seconds, compile or load seconds and estimate."""
-    sweeps = [(c["name"], c["sweep"]) for c in state["steps"].get("calibration", [])]
-    sweeps += [(n, s) for r in state["rounds"] for n, s in r["sweeps"].items()]
-    return [{"cache": kind, "sweep": n, "policy": s["policy"], "steps": s["steps"], "runs": s["runs"],
-             "seconds": s["seconds"], "compile_or_load_s": s.get("compile_wall_s", ""),
+    sweeps = [(c["name"], c["sweep"]) for c in state.get("steps", {}).get("calibration", [])]
+    sweeps += [(n if "policy" in s else f"round{r['round']}-{n}", s) for r in state["rounds"] for n, s in r["sweeps"].items()]
+    return [{"cache": kind, "sweep": n, "policy": s.get("policy", n), "steps": s.get("steps", ""), "runs": s.get("runs", ""),
+             "seconds": s["seconds"], "compile_or_load_s": s.get("compile_wall_s", log_compiles(out, n.replace("mlp", "flat_ppo"))),
              "estimated_s": s.get("eta_s") if s.get("eta_s") is not None else ""} for n, s in sweeps]
 
 
@@ -66,22 +81,28 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--env", default="dmc:cartpole-balance")
     p.add_argument("--budget-minutes", type=float, default=30.0)
+    p.add_argument("--checkout", default=ROOT, help="the checkout whose code answers (default: this one)")
+    p.add_argument("--cold-only", action="store_true")
     args = p.parse_args()
-    res = os.path.join(HERE, "results", f"{datetime.date.today()}-{commit()}-{args.env.replace(':', '_')}")
+    root = os.path.abspath(args.checkout)
+    res = os.path.join(HERE, "results", f"{datetime.date.today()}-{commit(root)}-{args.env.replace(':', '_')}")
     shutil.rmtree(res, ignore_errors=True)
-    cold = run_answer(args.env, os.path.join(res, "cold"), args.budget_minutes, None)
-    cache = os.path.join(res, "cache")
-    shutil.copytree(os.path.join(res, "cold", "xla_cache"), cache)
-    warm = run_answer(args.env, os.path.join(res, "warm"), args.budget_minutes, cache)
-    shutil.rmtree(cache)
+    runs = [("cold", run_answer(args.env, os.path.join(res, "cold"), args.budget_minutes, None, root))]
+    if not args.cold_only:
+        cache = os.path.join(res, "cache")
+        shutil.copytree(os.path.join(res, "cold", "xla_cache"), cache)
+        runs.append(("warm", run_answer(args.env, os.path.join(res, "warm"), args.budget_minutes, cache, root)))
+        shutil.rmtree(cache)
     rows, summary = [], []
-    for kind, r in (("cold", cold), ("warm", warm)):
-        rows += sweep_rows(kind, r["state"])
-        comp = sum(float(x["compile_or_load_s"] or 0) for x in sweep_rows(kind, r["state"]))
+    for kind, r in runs:
+        mine = sweep_rows(kind, r["state"], os.path.join(res, kind))
+        rows += mine
+        comp = sum(float(x["compile_or_load_s"] or 0) for x in mine)
         summary.append({"env": args.env, "cache": kind, "wall_s": round(r["wall_s"], 1),
                         "compile_or_load_s": round(comp, 1), "compile_share": round(comp / r["wall_s"], 3),
-                        "step_budget": r["state"]["steps"]["budget"], "rounds": len(r["state"]["rounds"]),
-                        "stopped": r["state"]["stopped"], "answer": r["sentence"], "commit": commit(),
+                        "step_budget": r["state"].get("steps", {}).get("budget", r["state"]["setup"]["specs"]["mlp"]["steps"]),
+                        "rounds": len(r["state"]["rounds"]), "stopped": r["state"]["stopped"], "answer": r["sentence"],
+                        "commit": commit(root),
                         "cores": os.cpu_count()})
         keep(os.path.join(res, kind))
     for name, table in (("summary.csv", summary), ("sweeps.csv", rows)):
