@@ -6,7 +6,7 @@
 
 The options change the compiled program (they are static, like the network sizes):
 - backend: 'mjx' (the default; what accelerators run) or 'c' (envs/c_backend.py: MuJoCo C stepped from
-  inside the compiled program through a host callback, on `threads` threads per process (0: the process's
+  inside the compiled program through a host call (envs/host_call.py), on `threads` threads per process (0: the process's
   share of the cores, resolve_threads);
   the CPU speed path, for hopper, walker2d, halfcheetah, ant and allegro_cylinder). The options below are MJX's.
 - solver_iterations / ls_iterations: None keeps the task's own MJCF settings; an integer overrides

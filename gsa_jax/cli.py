@@ -8,6 +8,7 @@ own further statuses are in its --help."""
 import argparse
 import importlib
 import json
+import os
 import sys
 from typing import Callable
 
@@ -82,7 +83,13 @@ def disk_full(e: OSError, intact: str) -> UserError:
 
 def run_command(name: str, body: Callable[[], int]) -> int:
     """Run a command's body and return its exit status: a UserError is one line on stderr and its status, an
-    interrupt 130."""
+    interrupt 130. A command that runs JAX (the ones that import it) loads from a compilation cache the user set
+    (JAX_COMPILATION_CACHE_DIR) quietly (gsa_jax.running.xla_cache; one that enables a cache itself does so there);
+    the others do not import JAX."""
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR") and "jax" in sys.modules:
+        from gsa_jax.running import xla_cache
+
+        xla_cache.quiet_cache_loads()
     try:
         return body()
     except UserError as e:

@@ -23,10 +23,12 @@ import pytest  # noqa: E402
 @pytest.fixture(scope="session", autouse=True)
 def _compile_cache(tmp_path_factory):
     """One persistent compilation cache for the session, shared by its xdist workers (they compile some of
-    the same programs) and by the processes the tests start."""
+    the same programs) and by the processes the tests start (through the environment: a `gsa train` they start
+    keeps its programs there, not in the user's cache)."""
     root = tmp_path_factory.getbasetemp()
     cache = (root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root) / "xla_cache"
     cache.mkdir(exist_ok=True)
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = str(cache)
     jax.config.update("jax_compilation_cache_dir", str(cache))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     yield

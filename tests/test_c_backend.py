@@ -7,6 +7,8 @@ SIGKILL and restarted) equals an uninterrupted one."""
 
 import csv
 import glob
+import json
+import os
 import subprocess
 import sys
 
@@ -179,8 +181,6 @@ USER_TASK = "examples.reacher:Reacher"
 
 @pytest.mark.parametrize("sweep, env", [("c_sweep", "hopper"), ("v5_sweep", "Hopper-v5"), ("user_sweep", USER_TASK)])
 def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(sweep, env, request):
-    import json
-
     _, out = request.getfixturevalue(sweep)
     from gsa_jax.running.trained import path_part
 
@@ -258,3 +258,53 @@ def test_host_seconds_count_the_calls_and_the_time_inside_mujoco_c():
     assert host.clock["calls"] == 4 and after["calls"] - before["calls"] == 4
     assert 0 < host.clock["mujoco_c_s"] <= host.clock["host_s"]
     assert after["host_s"] - before["host_s"] == pytest.approx(host.clock["host_s"])
+
+
+# a process that rolls out a few steps of backend 'c' hopper (2 envs, auto-reset) as one compiled program, with
+# JAX's persistent cache in argv[1], and reports the cache hits of that program and its outputs' hash
+CACHED_PROGRAM = """
+import hashlib, json, sys
+import jax, numpy as np
+from jax._src import monitoring
+import envs
+from envs.physics import Physics
+from gsa_jax.running import xla_cache
+
+events = []
+monitoring.register_event_listener(lambda name, **kw: events.append(name))
+xla_cache.enable(sys.argv[1], min_compile_s=0)
+env = envs.make("hopper", physics=Physics(backend="c"), episode_length=3)
+
+def rollout(keys, actions):
+    state, rewards = jax.vmap(env.reset)(keys), []
+    for a in actions:
+        state = jax.vmap(env.step)(state, a)
+        rewards.append(state.reward)
+    return state.pipeline_state.rows, state.obs, rewards
+
+keys = jax.random.split(jax.random.PRNGKey(0), 2)
+actions = np.random.default_rng(0).uniform(-1, 1, (5, 2, env.action_size)).astype(np.float32)
+lowered = jax.jit(rollout).lower(keys, actions)
+hits = events.count("/jax/compilation_cache/cache_hits")
+out = jax.tree.leaves(lowered.compile()(keys, actions))
+digest = hashlib.sha256(b"".join(np.asarray(x).tobytes() for x in out)).hexdigest()
+print(json.dumps({"hits": events.count("/jax/compilation_cache/cache_hits") - hits, "digest": digest}))
+"""
+
+
+def test_cached_program_loads_in_a_new_process_and_computes_the_same(tmp_path):
+    """A backend-'c' program holds no Python callback (envs/host_call.py): a second process with the same program
+    loads it from the persistent cache, quietly, and its host calls step that process's MuJoCo C to the same bits."""
+    script = tmp_path / "program.py"
+    script.write_text(CACHED_PROGRAM)
+
+    def run():
+        out = subprocess.run([sys.executable, str(script), str(tmp_path / "cache")], capture_output=True, text=True,
+                             timeout=300, env={**os.environ, "PYTHONPATH": os.getcwd()})
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert "cpu_aot_loader" not in out.stderr
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    first, second = run(), run()
+    assert first["hits"] == 0 and second["hits"] == 1
+    assert second["digest"] == first["digest"]

@@ -79,3 +79,50 @@ def test_shard_map_over_two_devices():
                          timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().endswith("ok")
+
+
+FALLBACK = """
+import jax, jax.numpy as jnp, numpy as np
+from envs.host_call import host_call
+out = jax.ShapeDtypeStruct((3,), jnp.float32)
+f = jax.jit(jax.vmap(lambda x: host_call(lambda a: (np.cumsum(a, -1, dtype=np.float32),), (out,), x)[0]))
+x = np.arange(12, dtype=np.float32).reshape(4, 3)
+print("python callback" if "python_cpu_callback" in f.lower(x).as_text() else "ffi")
+np.testing.assert_array_equal(np.asarray(f(x)), np.cumsum(x, -1))
+"""
+
+
+@pytest.mark.parametrize("compiler", ["cc", "/nonexistent/cc"])
+def test_ffi_target_or_python_callback_without_a_compiler(tmp_path, compiler):
+    """On CPU a host call is the FFI target, built with the C compiler on first use; without one it is jax's
+    python callback, said in one line on stderr, with the same results."""
+    env = {**os.environ, "CC": compiler, "XDG_CACHE_HOME": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", FALLBACK], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    notes = [ln for ln in out.stderr.splitlines() if "python callback" in ln]
+    if compiler == "cc":
+        assert out.stdout.split() == ["ffi"] and not notes
+        assert [p.suffix for p in (tmp_path / "gsa_jax" / "ffi").iterdir()] == [".so"]
+    else:
+        assert out.stdout.strip() == "python callback" and len(notes) == 1 and "/nonexistent/cc" in notes[0]
+
+
+class Host:
+    def step(self, x):
+        return (x,)
+
+
+def test_keys_name_each_host_function_once_and_repeat_across_processes():
+    """key_of: a bound method keeps its key; another object's method gets the next key under the same name; the
+    n-th key under a name is the same in every process (a hash of the name and n)."""
+    import hashlib
+
+    from envs.host_call import _ISSUED, describe, key_of
+
+    a, b = Host(), Host()
+    name = describe(a.step)
+    assert name.endswith("test_host_call.Host.step")
+    ka = key_of(a.step)
+    assert key_of(a.step) == ka and key_of(b.step) != ka
+    n = _ISSUED[name].index(ka)
+    assert ka == int.from_bytes(hashlib.sha256(f"{name}#{n}".encode()).digest()[:8], "little", signed=True)

@@ -7,7 +7,9 @@ Writes to --out (default runs/<env>-<policy>[-K<k>]-s<seed>-<time>/):
   curve.png     the learning curve
 and what makes it resumable, the same files as a sweep's group of runs (gsa_jax.running.store; the run is a
 group of one): runs.csv, metrics.npz and state.npz (dropped once finished), failed.json and DONE at the end.
-Training runs as compiled chunks of iterations; between chunks the command logs, evaluates and saves.
+Training runs as compiled chunks of iterations; between chunks the command logs, evaluates and saves. The compiled
+programs are kept in JAX's persistent compilation cache (JAX_COMPILATION_CACHE_DIR, else ~/.cache/gsa_jax/xla;
+gsa_jax.running.xla_cache): an identical second invocation loads them instead of compiling.
 Exit status: 0 done (or stopped as asked), 1 stopped at a NaN/inf, 2 bad input, 4 disk full, 130 interrupted.
 """
 
@@ -28,6 +30,7 @@ from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
 from gsa_jax.cli import command_parser, disk_full, options_over_saved, run_command, whole_number
 from gsa_jax.errors import UserError
+from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError
 from gsa_jax.running.driver import duration, fmt
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
@@ -197,7 +200,7 @@ def train(argv: list | None) -> int:
     prepare_out(out, args.resume)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     warn = lambda msg: print(f"gsa train: warning: {msg}", file=sys.stderr)  # noqa: E731
-    with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)):
+    with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)), xla_cache.enabled(xla_cache.user_dir()):
         options = RunOptions(out, args.resume, args.force, args.stop_after, argv, args.tensorboard)
         try:
             end = run(plan, options, log, warn)

@@ -1,4 +1,10 @@
-"""One compile for all worker processes: JAX's persistent compilation cache, shared through a directory.
+"""JAX's persistent compilation cache: where programs are kept between processes, and one compile for all worker
+processes.
+
+Every command that enables the cache does it here (enable, enabled): a single run (gsa train) keeps its programs
+in the user's cache (JAX_COMPILATION_CACHE_DIR, else user_dir()), so an identical second invocation loads them; a
+sweep, an answer and the benchmark keep theirs in their own directory. Loads from the cache are quiet
+(quiet_cache_loads). JAX_ENABLE_COMPILATION_CACHE=false turns the cache off.
 
 Sweeps and the benchmark run one worker process per core, and every worker builds the same program
 (same shapes; seeds, K and hyperparameters are array arguments). Compiling it in every worker at once
@@ -22,11 +28,15 @@ import time
 from typing import Callable, Iterator
 
 import jax
+from jax._src import compilation_cache as cache_internals  # jax 0.10.1's internals: pinned in pyproject.toml
 from jax.experimental.compilation_cache import compilation_cache
 
-# XLA:CPU logs these at ERROR level on every load of a cached executable: LLVM's tuning flags
-# +prefer-no-gather/+prefer-no-scatter are recorded with the executable but never reported as host
-# features (openxla/xla#44565, jax-ml/jax#38445). The executable is used; the lines are noise.
+# XLA:CPU logs these at ERROR level on every load of a cached executable: on a host with AVX-512 its IR compiler
+# adds LLVM's tuning flags +prefer-no-gather/+prefer-no-scatter to the target features recorded with the executable,
+# and its AOT loader (cpu_aot_loader.cc) checks every recorded feature against the host's CPUID features, where
+# these flags never appear (openxla/xla#44565, jax-ml/jax#38445). The executable is used; the lines are noise. No
+# option turns the check off without changing the code generated (--xla_cpu_max_isa below AVX-512 drops the flags
+# and the AVX-512 code with them), so quiet_cache_loads drops the lines at each load.
 AOT_LOADER_NOISE = re.compile(r"cpu_aot_loader\.cc:\d+\] Loading XLA:CPU AOT result\. Target machine feature \+prefer-no-")
 
 
@@ -35,10 +45,16 @@ _OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_
 
 
 def _set(values):
-
     for name, value in zip(_OPTIONS, values):
         jax.config.update(name, value)
     compilation_cache.reset_cache()  # JAX reads the options once, at its first compile
+    quiet_cache_loads()
+
+
+def user_dir() -> str:
+    """The user's cache of compiled programs: $XDG_CACHE_HOME/gsa_jax/xla (default ~/.cache/gsa_jax/xla)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "gsa_jax", "xla")
 
 
 def enable(cache_dir: str, min_compile_s: float = 1.0) -> None:
@@ -81,6 +97,21 @@ def quiet_aot_loader() -> Iterator[None]:
                 sys.stderr.flush()
 
 
+def quiet_cache_loads() -> None:
+    """Every later load from the persistent cache in this process runs inside quiet_aot_loader (once per process:
+    wraps jax's compilation_cache.get_executable_and_time, which deserializes the cached executable)."""
+    read = cache_internals.get_executable_and_time
+    if getattr(read, "quiet", False):
+        return
+
+    def quiet_read(*args, **kwargs):
+        with quiet_aot_loader():
+            return read(*args, **kwargs)
+
+    quiet_read.quiet = True
+    cache_internals.get_executable_and_time = quiet_read
+
+
 def program_hash(lowered: jax.stages.Lowered) -> str:
     """Short hash of a lowered program's text (StableHLO): equal programs, equal hashes."""
     return hashlib.sha256(lowered.as_text().encode()).hexdigest()[:20]
@@ -100,29 +131,26 @@ def compile_shared(lowered: jax.stages.Lowered, mark_dir: str, leader: bool, gra
     if leader:
         if not os.path.exists(ready):
             open(compiling, "w").close()
-            with quiet_aot_loader():
-                compiled = lowered.compile()
+            compiled = lowered.compile()
             open(ready, "w").close()
             return compiled, "compiled"
-        with quiet_aot_loader():
-            return lowered.compile(), "loaded"
+        return lowered.compile(), "loaded"
     t0 = time.monotonic()
     while not os.path.exists(ready):
         waited = time.monotonic() - t0
         if waited > max_wait_s or (waited > grace_s and not os.path.exists(compiling)):
             if log:
                 log(f"no compiled program from the leader process after {waited:.0f} s; compiling here")
-            with quiet_aot_loader():
-                return lowered.compile(), "compiled (no leader for this program)"
+            return lowered.compile(), "compiled (no leader for this program)"
         time.sleep(0.05)
     waited = time.monotonic() - t0
-    with quiet_aot_loader():
-        return lowered.compile(), f"loaded after waiting {waited:.0f} s"
+    return lowered.compile(), f"loaded after waiting {waited:.0f} s"
 
 
 def has_host_callbacks(lowered: jax.stages.Lowered) -> bool:
-    """Whether a lowered program calls back into Python (physics backend 'c'). JAX never writes such a
-    program to the persistent cache (the callbacks are baked into the executable), so it cannot be shared."""
+    """Whether a lowered program holds jax's python callbacks (jax.debug.print, pure_callback; not backend 'c''s
+    host calls, envs/host_call.py). JAX never writes such a program to the persistent cache (the callbacks are
+    baked into the executable), so it cannot be shared."""
     return "python_cpu_callback" in lowered.as_text()
 
 
