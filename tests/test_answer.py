@@ -151,6 +151,9 @@ def test_a_small_real_task_end_to_end(tmp_path):
     assert "## Verdicts" in report and "## Baseline" in report and os.path.getsize(os.path.join(out, "score_vs_k.png")) > 5000
     again = A.run_answer(out, setup, 1e9, measure, log=lambda m: None)
     assert again["judged"] == state["judged"] and len(again["rounds"]) == len(state["rounds"])
+    # one program for the class: the second sweep (K = 2) loads what the first (K = 1) compiled, in both workers
+    logs = [open(os.path.join(out, "logs", f"round1-mixture-K{k}-s0-9.log")).read() for k in (1, 2)]
+    assert logs[1].count("program loaded") == 2 and "program compiled" not in logs[1]
 
 
 def simulated_error(setup, trials: int, seed: int) -> float:

@@ -117,23 +117,41 @@ def program_hash(lowered: jax.stages.Lowered) -> str:
     return hashlib.sha256(lowered.as_text().encode()).hexdigest()[:20]
 
 
+_HITS = [0]  # this process's loads from the persistent cache (jax's monitoring event), read by compile_counted
+
+
+def _count_hit(event: str, **kwargs) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _HITS[0] += 1
+
+
+jax.monitoring.register_event_listener(_count_hit)
+
+
+def compile_counted(lowered: jax.stages.Lowered) -> tuple:
+    """(lowered.compile(), whether it was loaded from the persistent cache rather than compiled)."""
+    before = _HITS[0]
+    compiled = lowered.compile()
+    return compiled, _HITS[0] > before
+
+
 def compile_shared(lowered: jax.stages.Lowered, mark_dir: str, leader: bool, grace_s: float = 120.0,
                    max_wait_s: float = 3600.0, log: "Callable | None" = None) -> tuple:
     """lowered.compile(), once for all processes sharing `mark_dir` (with enable() on the same cache dir).
 
     leader: True in exactly one process (worker 0). The leader announces `<hash>.compiling`, compiles
     (writing the cache) and marks `<hash>.ready`; a follower waits for `<hash>.ready` and then compiles,
-    which loads from the cache. Returns (compiled, how) with how one of "compiled", "loaded after
-    waiting N s" or "compiled (no leader for this program)"."""
+    which loads from the cache. Returns (compiled, how) with how one of "compiled", "loaded from the cache" (a
+    program an earlier process compiled), "loaded after waiting N s" or "compiled (no leader for this program)"."""
     os.makedirs(mark_dir, exist_ok=True)
     h = program_hash(lowered)
     ready, compiling = os.path.join(mark_dir, h + ".ready"), os.path.join(mark_dir, h + ".compiling")
     if leader:
         if not os.path.exists(ready):
             open(compiling, "w").close()
-            compiled = lowered.compile()
+            compiled, loaded = compile_counted(lowered)
             open(ready, "w").close()
-            return compiled, "compiled"
+            return compiled, "loaded from the cache" if loaded else "compiled"
         return lowered.compile(), "loaded"
     t0 = time.monotonic()
     while not os.path.exists(ready):
