@@ -40,11 +40,12 @@ point): the state chatters across the partition's boundaries. States are verify'
 """
 
 import warnings
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.deployment import numpy_policy  # noqa: F401 - annotations
 from gsa_jax.verify import certify, roa, switching
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify.simulate import controller_policy
@@ -97,7 +98,7 @@ def affine_pieces(system: System, qref: np.ndarray, x_c: np.ndarray, pieces: lis
     return Pieces(list(pieces), np.array(A), np.array(a), obs, L.C)
 
 
-def cell_rows(ctrl, p: Pieces) -> list:
+def cell_rows(ctrl: "numpy_policy.Controller", p: Pieces) -> list:
     """[p] per active piece, its cell's rows [m, n + 1] (g, h): g d + h >= 0 on the cell, one per other active
     piece (linearize.logit_rows through C)."""
     logits, jl, _ = lin.logit_rows(ctrl, p.obs)
@@ -105,7 +106,7 @@ def cell_rows(ctrl, p: Pieces) -> list:
             for i in p.pieces]
 
 
-def inactive_bounds(ctrl, p: Pieces) -> certify.Bounds:
+def inactive_bounds(ctrl: "numpy_policy.Controller", p: Pieces) -> certify.Bounds:
     """For each piece not active, its cell's boundary with the active piece whose linearized boundary is farthest
     from x_c (E on that piece's side: a sufficient condition for E to miss the cell); VerifyError (one line) where
     x_c lies in an inactive piece's cell."""
@@ -129,7 +130,7 @@ def hold_bounds(system: System, qref: np.ndarray, x_c: np.ndarray, p: Pieces) ->
                                certify.joint_bounds(system.task.model, qref, x_c))
 
 
-def transition_constraint(cp, P, gamma, F: np.ndarray, rows: np.ndarray, rho_p: float) -> list:
+def transition_constraint(cp: Any, P: Any, gamma: Any, F: np.ndarray, rows: np.ndarray, rho_p: float) -> list:
     """The S-procedure's constraints of one transition: F' P F - diag(rho_p^2 P, gamma) + R' U R <= 0 (F [n, n + 1];
     R: rows [m, n + 1], nonnegative where the transition happens, and (0, 1); U [m + 1, m + 1] >= 0 elementwise,
     zero diagonal)."""
@@ -159,7 +160,7 @@ class Shape(NamedTuple):
     radius: float  # E's inscribed radius (level 1)
 
 
-def solved(cp, objective, cons: list) -> bool:
+def solved(cp: Any, objective: Any, cons: list) -> bool:
     """Whether Clarabel solves the program to its tolerance (an inaccurate solution does not count; cvxpy's warning
     about one is not shown)."""
     problem = cp.Problem(objective, cons)
@@ -238,14 +239,14 @@ def spectral_radii(p: Pieces) -> list:
     return [float(np.max(np.abs(np.linalg.eigvals(A)))) for A in p.A]
 
 
-def cells_kind(ctrl, obs: np.ndarray) -> str:
+def cells_kind(ctrl: "numpy_policy.Controller", obs: np.ndarray) -> str:
     """How the cells enter the S-procedure at obs [d_s], in words."""
     if lin.logit_rows(ctrl, obs)[2]:
         return "exact: the linear partition's W and c, the normalization folded in (affine in the observation)"
     return "linearized at the hold's centre (the partition's network)"
 
 
-def state_fields(task, qref: np.ndarray, x: np.ndarray) -> dict:
+def state_fields(task: Any, qref: np.ndarray, x: np.ndarray) -> dict:
     """{qpos, qvel} of a tangent state x [2 nv] around qref."""
     nv = task.model.nv
     return {"qpos": to_qpos(task.model, qref, x[:nv])[0].tolist(), "qvel": x[nv:].tolist()}
@@ -294,7 +295,7 @@ def hold_set(system: System, qref: np.ndarray, x_c: np.ndarray, pieces: list, sw
         return {**out, "certified": False, "reason": str(e).removeprefix("nothing to certify: "), "level": 0.0}
 
 
-def no_hold(task, qref: np.ndarray, hold: roa.Hold) -> str:
+def no_hold(task: Any, qref: np.ndarray, hold: roa.Hold) -> str:
     """What the run from the equilibrium found where it holds nothing, in words."""
     return (f"the closed loop does not hold the equilibrium (its run from there terminates, moves away or falls: "
             f"the last tenth's mean qpos {np.round(state_fields(task, qref, hold.x)['qpos'], 4).tolist()}, largest "
