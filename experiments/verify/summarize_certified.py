@@ -19,7 +19,7 @@ RESULTS = os.path.join(HERE, "results", "certified")
 
 
 def cls(doc: dict) -> str:
-    return "flat PPO" if doc["kind"] == "mlp" else f"K={doc['clusters']}"
+    return "flat_ppo" if doc["kind"] == "mlp" else f"K{doc['clusters']}"
 
 
 def certificate_part(doc: dict) -> dict:
@@ -45,6 +45,17 @@ def region_part(doc: dict) -> dict:
             "lqr_roa_radius_median": lqr.get("radius_median", "")}
 
 
+def old_region(group: str, controller: str) -> dict:
+    """The same controller's region from results/<group>/ (the earlier rule: a tolerance per controller, radii capped
+    at r_max, the episode's horizon), where it was verified there."""
+    path = os.path.join(HERE, "results", group, controller, "verify.json")
+    if not os.path.exists(path):
+        return {"old_roa_radius_median": "", "old_roa_volume": ""}
+    with open(path) as f:
+        roa = json.load(f).get("roa") or {}
+    return {"old_roa_radius_median": roa.get("radius_median", ""), "old_roa_volume": roa.get("volume_fraction", "")}
+
+
 def row(path: str) -> dict:
     with open(path) as f:
         doc = json.load(f)
@@ -53,11 +64,12 @@ def row(path: str) -> dict:
     total = sum(len(fals[s].get("counterexamples", [])) for s in ("start_law", "twice_the_spread", "start_law_and_pushes"))
     group = os.path.basename(os.path.dirname(os.path.dirname(path)))
     lqr = group.endswith("-lqr")  # the atlas's LQR as a controller file (lqr_controller.py)
-    return {"task": group[:-4] if lqr else group, "class": "LQR (atlas)" if lqr else cls(doc),
+    return {"task": group[:-4] if lqr else group, "class": "lqr" if lqr else cls(doc),
             "controller": os.path.basename(os.path.dirname(path)), "nominal_return": doc["nominal"]["return_mean"],
             "switches_per_second": doc["switching"]["switches_per_second_second_half"],
             "chattering_risk": doc["switching"].get("chattering_risk", ""),
-            **certificate_part(doc), **region_part(doc), "counterexamples": total, "knife_edge": knife,
+            **certificate_part(doc), **region_part(doc),
+            **old_region(group, os.path.basename(os.path.dirname(path))), "counterexamples": total, "knife_edge": knife,
             "worst_return_start_law": fals["start_law"].get("worst_return", "")}
 
 
@@ -81,6 +93,8 @@ def summary(rows: list) -> list:
                     "roa_volume_sampled_median": median([r["roa_volume_sampled"] for r in rs]),
                     "not_star_shaped_controllers": sum(1 for r in rs if (r["not_star_shaped_directions"] or 0) > 0),
                     "lqr_roa_radius_median_median": median([r["lqr_roa_radius_median"] for r in rs]),
+                    "old_roa_radius_median_median": median([r["old_roa_radius_median"] for r in rs]),
+                    "old_roa_volume_median": median([r["old_roa_volume"] for r in rs]),
                     "counterexamples": sum(r["counterexamples"] for r in rs),
                     "knife_edge": sum(r["knife_edge"] for r in rs),
                     "tolerances": len({r["tolerance"] for r in rs})})
