@@ -38,11 +38,11 @@ PROGRAM = textwrap.dedent("""
 """)
 
 
-def start(tmp_path, leader, grace=120.0):
+def start(tmp_path, leader, grace=120.0, cache="cache", marks="marks"):
     script = tmp_path / "program.py"
     script.write_text(PROGRAM)
     env = dict(os.environ, PYTHONPATH=os.getcwd())
-    return subprocess.Popen([sys.executable, str(script), str(tmp_path / "cache"), str(tmp_path / "marks"),
+    return subprocess.Popen([sys.executable, str(script), str(tmp_path / cache), str(tmp_path / marks),
                              "1" if leader else "0", str(grace)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
 
@@ -65,6 +65,18 @@ def test_follower_waits_for_the_leader_and_loads_its_program(tmp_path):
     # a later leader (a resumed worker) loads it too
     again = result(start(tmp_path, leader=True))
     assert again["how"] == "loaded" and again["hits"] >= 1 and again["y"] == lead["y"]
+
+
+def test_a_cache_moved_to_another_path_loads_and_says_so(tmp_path):
+    """The cache key does not depend on the cache's directory (JAX would put its path in the key), and a leader whose
+    program an earlier process compiled says it loaded it."""
+    import shutil
+
+    first = result(start(tmp_path, leader=True))
+    shutil.copytree(tmp_path / "cache", tmp_path / "moved")
+    moved = result(start(tmp_path, leader=True, cache="moved", marks="new_marks"))
+    assert first["how"] == "compiled" and moved["how"] == "loaded from the cache" and moved["hits"] >= 1
+    assert moved["y"] == first["y"]
 
 
 def test_follower_without_a_leader_compiles_itself(tmp_path):

@@ -41,7 +41,11 @@ AOT_LOADER_NOISE = re.compile(r"cpu_aot_loader\.cc:\d+\] Loading XLA:CPU AOT res
 
 
 _OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
-            "jax_persistent_cache_min_entry_size_bytes")
+            "jax_persistent_cache_min_entry_size_bytes", "jax_persistent_cache_enable_xla_caches")
+# JAX's default also keeps XLA's GPU autotuning cache under the cache directory, and writes that directory's path into
+# every program's compile options, hence into its cache key: the same program cached under another path (an answer's
+# cache copied, a sweep's next to an answer's) would never load. "none": no XLA-side caches, keys independent of paths.
+NO_XLA_CACHES = "none"
 
 
 def _set(values):
@@ -61,7 +65,7 @@ def enable(cache_dir: str, min_compile_s: float = 1.0) -> None:
     """Use `cache_dir` as JAX's persistent compilation cache for programs that take at least
     `min_compile_s` to compile (not the many small eager ops, whose loads XLA:CPU would log as errors)."""
     os.makedirs(cache_dir, exist_ok=True)
-    _set((os.path.abspath(cache_dir), float(min_compile_s), -1))
+    _set((os.path.abspath(cache_dir), float(min_compile_s), -1, NO_XLA_CACHES))
 
 
 @contextlib.contextmanager
@@ -69,7 +73,7 @@ def enabled(default_dir: str) -> Iterator[None]:
     """A persistent compilation cache for every program inside the block: the one the user configured
     (JAX_COMPILATION_CACHE_DIR), else `default_dir`. JAX's previous cache settings after it."""
     before = tuple(getattr(jax.config, name) for name in _OPTIONS)
-    enable(before[0] or default_dir, min_compile_s=max(before[1], 1.0))
+    enable(before[0] or default_dir, min_compile_s=max(before[1], 1.0))  # sets every option of _OPTIONS
     try:
         yield
     finally:
