@@ -17,11 +17,11 @@ from tests.test_answer import random_policy
 KNEE = 100_000  # flat PPO's return rises linearly to its plateau at this step, whatever the budget it trains to
 
 
-def curve(budget: int, seed: int, points: int = 12, noise: float = 0.01) -> tuple:
-    """(env_steps [points], eval_return [points]) of a run trained to `budget`: return min(step / KNEE, 1) * 1000."""
+def curve(budget: int, seed: int, points: int = 12, noise: float = 0.01, knee: int = KNEE) -> tuple:
+    """(env_steps [points], eval_return [points]) of a run trained to `budget`: return min(step / knee, 1) * 1000."""
     steps = np.linspace(budget / points, budget, points)
     rng = np.random.default_rng(seed)
-    return steps, 1000.0 * np.minimum(steps / KNEE, 1.0) + noise * 1000.0 * rng.standard_normal(points)
+    return steps, 1000.0 * np.minimum(steps / knee, 1.0) + noise * 1000.0 * rng.standard_normal(points)
 
 
 def test_candidates_halve_the_cap_and_respect_the_floor():
@@ -51,6 +51,9 @@ def test_a_task_not_learned_is_not_stopped_at_a_flat_curve():
 ENV = "dmc:cartpole-balance"  # a real task (the budget's floor reads its batch size); the runs are synthetic
 
 
+SLOW_K = 2  # this K learns twice slower than flat PPO: still learning at flat PPO's budget
+
+
 def write_sweep(results: str, policy: str, ks: list, seeds: list, steps: int) -> None:
     """A sweep's results as run_class_sweep leaves them: sweep.json, a tidy metrics.csv and controller_scores.csv."""
     os.makedirs(os.path.join(results, "controllers"), exist_ok=True)
@@ -59,7 +62,7 @@ def write_sweep(results: str, policy: str, ks: list, seeds: list, steps: int) ->
     lines, rows = ["env,policy,K,seed,run,iteration,env_steps,episode_return,episodes,eval_return"], {}
     for k in ks or [1]:
         for seed in seeds:
-            env_steps, returns = curve(steps, seed)
+            env_steps, returns = curve(steps, seed, knee=2 * KNEE if policy == "mixture" and k == SLOW_K else KNEE)
             for i, (s, r) in enumerate(zip(env_steps, returns)):
                 lines.append(f"{ENV},{policy},{k},{seed},{seed},{i + 1},{s},{r},10,{r if policy == 'mlp' else ''}")
             label = f"{policy}-K{k}-s{seed}"
@@ -88,6 +91,12 @@ def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
     scores = A.collect_scores(str(tmp_path), setup)
     assert sorted(scores[A.FLAT]) == list(range(10))  # the 125k calibration runs are flat PPO's first look, once
     assert state["baseline"]["learning"]["stopped"] and state["baseline"]["learning"]["steps"] == 125_000
+    # the mixtures' own curves at that budget: K = 1 has stopped learning, the slow K has not, and the answer says so
+    assert state["mixture_learning"]["1"]["stopped"] and not state["mixture_learning"][str(SLOW_K)]["stopped"]
+    from gsa_jax.commands.answer import finish
+
+    sentence = finish(str(tmp_path), setup, state, ["--env", ENV])
+    assert f"K = {SLOW_K} still learned" in sentence and "still learning" in (tmp_path / "report.md").read_text()
 
 
 def test_a_sweep_is_estimated_from_the_line_through_the_last_two():

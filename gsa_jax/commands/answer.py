@@ -152,6 +152,12 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
     sentence = verdict.sentence(setup.env, verdicts, setup.margin, versus)
     if verdicts and all(v == verdict.NO_SCALE for v in verdicts.values()) and state.get("baseline", {}).get("why"):
         sentence = f"{setup.env}: no answer: {state['baseline']['why']}."
+    from gsa_jax.analysis.verdicts.answer_report import still_learning
+
+    learning = [k for k in still_learning(state) if verdicts.get(k) != verdict.SUFFICIENT]
+    if learning and state.get("steps", {}).get("mode") == "auto":
+        sentence += (f" At {state['steps']['budget']:,} steps K = {', '.join(map(str, learning))} still learned: a "
+                     "longer --steps may change their verdicts.")
     chosen, _ = verdict.smallest_sufficient(verdicts)
     choice = None
     if chosen is not None:

@@ -184,6 +184,25 @@ def rounds_text(state: dict) -> tuple:
     return "\n".join(lines), (compile_s / total if total else float("nan"))
 
 
+def still_learning(state: dict) -> list:
+    """The K whose training return still rose over the last fifth of the budget (answering.mixtures_learning)."""
+    return sorted((int(k) for k, r in (state.get("mixture_learning") or {}).items() if not r["stopped"]))
+
+
+def learning_text(setup: Setup, state: dict) -> list:
+    """Per K the still-learning test on its training curves, and what it means for its verdict."""
+    records = state.get("mixture_learning") or {}
+    if not records:
+        return []
+    lines = [f"The mixtures at the step budget ({trained_steps(setup, state):,}), by the test flat PPO's budget was "
+             "chosen with, on their training curves (the stochastic policy's episode returns; on the scale of flat "
+             "PPO's gain over the random policy):", ""]
+    for k, r in sorted(records.items(), key=lambda kv: int(kv[0])):
+        word = "stopped learning" if r["stopped"] else "**still learning**: a longer budget may change its verdict"
+        lines.append(f"- K = {k}: last fifth's gain {r['gain']:+.3f} (upper bound {r['upper']:+.3f}): {word}.")
+    return lines + [""]
+
+
 def step_budget_text(setup: Setup, state: dict) -> list:
     """The step budget section: the budget every run trained, and how it was chosen."""
     steps = state.get("steps") or {}
@@ -269,6 +288,7 @@ def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, senten
     lines += step_budget_text(setup, state) + ["", "## Baseline", ""] + baseline_text(setup, state)
     lines += ["", "## Design", ""] + design_text(setup) + ["", "![score against K](score_vs_k.png)", "", "## Verdicts", "",
                                                            table_text(rows, flat_row), ""]
+    lines += learning_text(setup, state)
     if sens:
         lines += ["## Other margins (sensitivity, not the answer)", "",
                   "Each K judged once on all its seeds at a single look's level (alpha / K): how the answer would read at "

@@ -217,11 +217,13 @@ def save_state(out: str, state: dict) -> None:
 # ----------------------------------------------------------------------------------------------- evidence
 class Evidence(NamedTuple):
     """What the decisions read: per cell (FLAT or K) {seed: value} of the controller scores and of the mean return of
-    the last 100 training episodes, and flat PPO's learning curves {seed: (env_steps [T], eval_return [T])}."""
+    the last 100 training episodes, flat PPO's learning curves {seed: (env_steps [T], eval_return [T])} and the
+    mixtures' training curves (training)."""
 
     scores: dict
     last100: dict
     curves: dict
+    training: dict = {}  # {K: {seed: (env_steps [T], training episode return [T])}}: the mixtures' training curves
 
 
 def score_roots(out: str, setup: Setup) -> list:
@@ -248,12 +250,13 @@ def collect_scores(out: str, setup: Setup, roots: Sequence[str] | None = None) -
 
 
 def collect_runs(out: str, setup: Setup, roots: Sequence[str] | None = None) -> tuple:
-    """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}) from the
-    tidy metrics under `roots` (default score_roots)."""
+    """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}, the
+    mixtures' {K: {seed: (env_steps, training episode return)}}) from the tidy metrics under `roots` (default
+    score_roots)."""
     from gsa_jax.analysis.sweeps.results import load_sweep
     from gsa_jax.analysis.sweeps.stats import last_episodes_return
 
-    last100, curves = {}, {}
+    last100, curves, training = {}, {}, {}
     dirs = sorted({os.path.dirname(p) for root in (score_roots(out, setup) if roots is None else roots)
                    for p in glob.glob(os.path.join(root, "**", "sweep.json"), recursive=True)})
     for d in dirs:
@@ -269,7 +272,9 @@ def collect_runs(out: str, setup: Setup, roots: Sequence[str] | None = None) -> 
                 last100.setdefault(key, {})[seed] = last_episodes_return(s["episode_return"], s["episodes"])
                 if key == FLAT:
                     curves[seed] = (s["env_steps"], s["eval_return"])
-    return last100, curves
+                else:
+                    training.setdefault(key, {})[seed] = (s["env_steps"], s["episode_return"])
+    return last100, curves, training
 
 
 def collect_evidence(out: str, setup: Setup) -> Evidence:
@@ -279,8 +284,8 @@ def collect_evidence(out: str, setup: Setup) -> Evidence:
 
 def collect_evidence_in(roots: Sequence[str], setup: Setup) -> Evidence:
     """The evidence of the runs under `roots`."""
-    last100, curves = collect_runs("", setup, roots)
-    return Evidence(collect_scores("", setup, roots), last100, curves)
+    last100, curves, training = collect_runs("", setup, roots)
+    return Evidence(collect_scores("", setup, roots), last100, curves, training)
 
 
 # ----------------------------------------------------------------------------------------------- decisions
@@ -333,6 +338,23 @@ def judge_cells(setup: Setup, evidence: Evidence, state: dict) -> dict:
                                setup.margin, setup.design(), state["records"])
 
 
+def mixtures_learning(setup: Setup, evidence: Evidence, state: dict) -> dict:
+    """{str(K): the still-learning test (baseline.learning) on the K's training curves (the stochastic policy's episode
+    returns) at the step budget, on the scale of flat PPO's gain over the random policy}: a K judged worse than flat
+    PPO while it still learns may be judged otherwise at a longer budget (the budget is where flat PPO stopped)."""
+    flat = list(evidence.scores.get(FLAT, {}).values())
+    if setup.target is not None or len(flat) < 2:
+        return {}
+    scale = trimmed.trimmed(flat).mean - random_summary(state).mean
+    out = {}
+    for k in setup.ladder:
+        curves = [evidence.training[k][s] for s in sorted(evidence.training.get(k, {}))]
+        if len(curves) >= 2:
+            learn = baseline.learning(curves, trained_steps(setup, state), scale, setup.margin)
+            out[str(k)] = {n: (round(v, 4) if isinstance(v, float) else v) for n, v in learn._asdict().items()}
+    return out
+
+
 def cells_to_extend(setup: Setup, records: dict, scores: dict) -> list:
     """The K that need more seeds: those not yet at the first look, and the undecided ones below the smallest
     sufficient K (none once there is no answer)."""
@@ -374,6 +396,7 @@ def decide(setup: Setup, evidence: Evidence, state: dict) -> tuple:
         state["baseline"] = choose_baseline(setup, evidence, state)
     if "baseline" in state:
         state["records"] = judge_cells(setup, evidence, state)
+        state["mixture_learning"] = mixtures_learning(setup, evidence, state)
     ks = cells_to_extend(setup, state["records"], scores)
     if not ks:
         no = any(r["verdict"] == verdict.NO_SCALE for r in state["records"].values())
