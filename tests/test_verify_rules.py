@@ -158,3 +158,27 @@ def test_a_controller_whose_task_changed_is_refused_in_one_line_unless_forced(tm
     monkeypatch.setattr(verify_command, "QUICK", TINY._replace(nominal_episodes=2, roa_directions=2))
     assert verify_command.main([path, "--quick", "--force", "--out", str(tmp_path / "out")]) == 0
     assert json.load(open(tmp_path / "out" / "verify.json"))["env"] == f"{mine}:PointMass"
+
+
+def test_committed_knife_edge_counterexamples_are_kept_out_of_the_worst_return():
+    """In every committed certified run (experiments/verify/results/certified/): a search's worst return is at most
+    every counterexample it lists that is not knife-edge, and its worst return with knife-edges at most every one it
+    lists; in at least one run a knife-edge counterexample lies below the worst return (it was kept out)."""
+    import glob
+    import math
+
+    seen_below = False
+    paths = glob.glob(os.path.join(ROOT, "experiments/verify/results/certified/*/*/verify.json"))
+    assert paths
+    for path in paths:
+        with open(path) as f:
+            fals = json.load(f)["falsification"]
+        for name in ("start_law", "twice_the_spread", "start_law_and_pushes"):
+            s, ce = fals[name], fals[name]["counterexamples"]
+            clear = [c["search_return"] for c in ce if not c["knife_edge"]]
+            knife = [c["search_return"] for c in ce if c["knife_edge"]]
+            if s["worst_return"] is not None and clear:
+                assert s["worst_return"] <= min(clear) + 1e-9
+            assert s["worst_return_with_knife_edges"] <= min([c["search_return"] for c in ce] + [math.inf]) + 1e-9
+            seen_below |= any(k < (s["worst_return"] or -math.inf) for k in knife)
+    assert seen_below

@@ -60,7 +60,8 @@ def row(path: str) -> dict:
     with open(path) as f:
         doc = json.load(f)
     fals = doc["falsification"]
-    knife = sum(fals[s].get("knife_edge_counterexamples", 0) for s in ("start_law", "twice_the_spread", "start_law_and_pushes"))
+    knife = sum(bool(c.get("knife_edge")) for s in ("start_law", "twice_the_spread", "start_law_and_pushes")
+                for c in fals[s].get("counterexamples", []))  # listed ones (a search's count also holds those it inherits)
     total = sum(len(fals[s].get("counterexamples", [])) for s in ("start_law", "twice_the_spread", "start_law_and_pushes"))
     group = os.path.basename(os.path.dirname(os.path.dirname(path)))
     lqr = group.endswith("-lqr")  # the atlas's LQR as a controller file (lqr_controller.py)
