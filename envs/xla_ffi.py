@@ -25,6 +25,7 @@ import tempfile
 import threading
 from typing import Callable
 
+import jax
 import numpy as np
 
 TARGET = "gsa_host_call"
@@ -42,8 +43,6 @@ def cache_dir() -> str:
 
 
 def _header_dir() -> str:
-    import jax
-
     return jax.ffi.include_dir()
 
 
@@ -119,8 +118,6 @@ _REGISTERED = []  # (library, dispatch) once registered: kept alive, XLA holds o
 def register(handle: Callable) -> "str | None":
     """Register handle(key, args, rets) as the XLA:CPU FFI target TARGET, once per process. Returns None, or why
     the handler library could not be built or loaded (then nothing is registered)."""
-    import jax
-
     if _REGISTERED:
         return None
     try:
