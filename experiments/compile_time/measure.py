@@ -155,12 +155,39 @@ def fmt_row(row: dict) -> dict:
     return {k: (f"{v:.3f}" if isinstance(v, float) else v) for k, v in row.items()}
 
 
+def summarize(path: str) -> str:
+    """results/summary.csv beside the CSV at `path`: per case, program and label, the median over rounds of each
+    time and the compiles, and the after/before ratio of total_s where both labels are measured. Its path."""
+    import statistics
+
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["case"], r["program"], r["label"]), []).append(r)
+    out = []
+    for (case, program, label), rs in sorted(groups.items()):
+        med = lambda c: (statistics.median(float(r[c]) for r in rs) if all(r[c] for r in rs) else "")  # noqa: E731
+        out.append({"case": case, "program": program, "label": label, "rounds": len(rs), "commit": rs[0]["commit"],
+                    **{c: med(c) for c in ("trace_s", "lower_s", "compile_s", "total_s", "xla_compiles")}})
+    for row in out:
+        before = [b for b in out if (b["case"], b["program"], b["label"]) == (row["case"], row["program"], "before")]
+        row["ratio_to_before"] = row["total_s"] / before[0]["total_s"] if before and before[0]["total_s"] else ""
+    target = os.path.join(os.path.dirname(path), "summary.csv")
+    with open(target, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(out[0]))
+        w.writeheader()
+        w.writerows(fmt_row(r) for r in out)
+    return target
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--label", default="current", help="what the rows are called (e.g. before, after)")
     ap.add_argument("--round", type=int, default=1, help="which round of measurements of this label (default 1)")
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, of: {', '.join(CASES)}")
     ap.add_argument("--out", default=RESULTS)
+    ap.add_argument("--summarize", action="store_true", help="only write results/summary.csv from the CSV")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     ap.add_argument("--part", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -168,6 +195,9 @@ def main() -> None:
         sys.path.insert(0, ROOT)
         argv = CASES[args.one].split()
         print(json.dumps(program_rows(argv) if args.part == "programs" else command_rows(argv)))
+        return
+    if args.summarize:
+        print(summarize(args.out))
         return
     cases, rows = args.cases.split(","), []
     noted = {"label": args.label, "round": args.round, "commit": commit(), "machine": machine()}
@@ -179,6 +209,7 @@ def main() -> None:
                                      "load_after": f"{os.getloadavg()[0]:.2f}"}))
                 print(", ".join(f"{k}={v}" for k, v in rows[-1].items() if k not in ("machine", "commit")), flush=True)
     write_rows(args.out, args.label, args.round, cases, rows)
+    print("summary:", summarize(args.out))
 
 
 if __name__ == "__main__":
