@@ -9,6 +9,7 @@ sharded over them (shard_map). Used by gsa sweep and gsa_jax.bench.
     states, metrics = run(states, hps)          # metrics [R, chunk]
 """
 
+import concurrent.futures
 from typing import Any, Callable, NamedTuple, Sequence
 
 import jax
@@ -148,21 +149,33 @@ def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = N
     return init(keys, hps), run, hps, place, how[0]
 
 
+def compile_concurrently(lowerings: Sequence[Callable]) -> list:
+    """Each lowering() -> a jax.stages.Lowered, lowered in turn and compiled by XLA in a thread of its own as soon
+    as it is lowered (XLA releases the GIL: it compiles one program while Python traces the next, and the
+    compiles share the cores); the compiled programs, in order. The same executables as compiling one by one."""
+    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, len(lowerings))) as pool:
+        futures = [pool.submit(lowering().compile) for lowering in lowerings]
+        return [f.result() for f in futures]
+
+
 def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
-    """(trainer, jitted init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
-    vmapped: train.py's program), compiled once per process for these shapes; evaluate is compiled with them
-    (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only)."""
+    """(trainer, compiled init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
+    vmapped: train.py's program), compiled once per process for these shapes, concurrently
+    (compile_concurrently); evaluate is compiled with them (so a run's compile time includes it) unless
+    `evaluate` is False (a run without evaluations: jitted only)."""
 
     def build():
         trainer = make_train(cfg)
+        key, hp = jax.random.PRNGKey(0), make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
         init = jax.jit(trainer.init)
-        hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
-        state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
-        run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
+        state = jax.eval_shape(init, key, hp)
+        lowerings = [lambda: jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk),
+                     lambda: init.lower(key, hp)]
         evaluation = jax.jit(trainer.evaluate)
         if evaluate:
-            evaluation = evaluation.lower(state.params, state.obs_stats, hp, jax.random.PRNGKey(0)).compile()
-        return trainer, init, run_chunk, evaluation
+            lowerings.append(lambda: evaluation.lower(state.params, state.obs_stats, hp, key))
+        run_chunk, init, *evaluated = compile_concurrently(lowerings)
+        return trainer, init, run_chunk, evaluated[0] if evaluate else evaluation
 
     return cached("single", (cfg, chunk, evaluate), build)
 
@@ -176,6 +189,10 @@ def first_run(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[0], tree)
 
 
+# one program per tree for all its leaves, instead of one small eager op (and compile) per leaf
+_with_run_axis, _first_run = jax.jit(with_run_axis), jax.jit(first_run)
+
+
 def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: int = 0, evaluate: bool = True) -> tuple:
     """(Program of one run, its trainer). The run is a group of one: its state and metrics carry a leading run
     axis of 1 (what the group store saves), around the un-vmapped compiled run_chunk. The deterministic
@@ -186,14 +203,13 @@ def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: i
     eval_key = jax.random.PRNGKey(eval_seed)
 
     def run(states, hps):
-        state, metrics = run_chunk(first_run(states), hps)
-        return with_run_axis(state), with_run_axis(metrics)
+        return _with_run_axis(run_chunk(_first_run(states), hps))
 
     def evaluate_state(states, hps, it):
-        state = first_run(states)
+        state = _first_run(states)
         return evaluate(state.params, state.obs_stats, hps, jax.random.fold_in(eval_key, it))
 
-    state = with_run_axis(init(jax.random.PRNGKey(seed), hp))
+    state = _with_run_axis(init(jax.random.PRNGKey(seed), hp))
     return Program(1, state, hp, run, evaluate_state, lambda tree: tree), trainer
 
 
