@@ -77,3 +77,14 @@ def test_plot_tables_use_the_controller_scores(tmp_path):
         flat = next(r for r in csv.DictReader(f) if r["policy"] == "mlp")
     assert flat["score"] == "controller" and float(flat["iqm"]) == pytest.approx(iqm([100.0 + i for i in range(10)]), abs=1e-3)
     assert (d / "verdicts.csv").exists() and (d / "sufficient_k.csv").exists()
+
+
+def test_scores_from_several_processes_equal_one_process(one_controller, tmp_path):
+    """score_directory with jobs=2 (each controller in a spawned process) writes the rows jobs=1 writes."""
+    other = tmp_path / "again"
+    shutil.copytree(one_controller, other)
+    alone = cs.score_directory(str(one_controller), episodes=2, log=None, jobs=1)
+    lines = []
+    both = cs.score_directory(str(other), episodes=2, log=lines.append, jobs=2)
+    assert both == alone and len(lines) == 2
+    assert (other / cs.FILE).read_text() == (one_controller / cs.FILE).read_text()

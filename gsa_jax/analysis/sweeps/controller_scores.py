@@ -9,14 +9,16 @@ directory again only scores what is new. `gsa score DIR [DIR ...]` is its comman
 and gsa_jax.answer read the scores (per_run_scores.csv `controller_score`) and every verdict uses them.
 """
 
+import concurrent.futures
 import csv
 import glob
 import hashlib
 import io
 import json
+import multiprocessing
 import os
 import time
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -106,11 +108,33 @@ def is_current(row: dict, sha: str, episodes: int, start_seed: int) -> bool:
             and str(row.get("start_seed")) == str(start_seed) and row.get(C.CONTROLLER_SCORE, "") != "")
 
 
+def default_jobs() -> int:
+    """Processes to score in: the cores this process may use."""
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def scored_rows(todo: Sequence[str], episodes: int, start_seed: int, jobs: int) -> Iterator[dict]:
+    """Each controller's row (score_controller) as it finishes: in this process, or in `jobs` fresh processes where
+    there is more than one controller (each controller is scored alone, so the rows are the same either way)."""
+    if jobs <= 1 or len(todo) <= 1:
+        yield from (score_controller(f, episodes, start_seed) for f in todo)
+        return
+    context = multiprocessing.get_context("spawn")  # not fork: the caller may hold JAX's threads
+    with concurrent.futures.ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=context) as pool:
+        futures = [pool.submit(score_controller, f, episodes, start_seed) for f in todo]
+        try:
+            for future in concurrent.futures.as_completed(futures):
+                yield future.result()
+        finally:
+            for future in futures:
+                future.cancel()
+
+
 def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int = START_SEED,
-                    log: Callable = print) -> dict:
+                    log: Callable = print, jobs: int = 1) -> dict:
     """Score every controllers/*.npz of one results directory that its controller_scores.csv does not hold
-    yet (or holds for another file, episode count or start seed) -> {label: row as stored}; rows of controllers
-    no longer there are dropped."""
+    yet (or holds for another file, episode count or start seed), in `jobs` processes -> {label: row as stored};
+    rows of controllers no longer there are dropped."""
     path = os.path.join(results_dir, FILE)
     stored = read_scores(path)
     files = sorted(glob.glob(os.path.join(results_dir, "controllers", "*.npz")))
@@ -123,10 +147,9 @@ def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int 
         else:
             todo.append(f)
     t0 = time.monotonic()
-    for i, f in enumerate(todo):
-        row = score_controller(f, episodes, start_seed)
+    for i, row in enumerate(scored_rows(todo, episodes, start_seed, jobs)):
         rows[row["label"]] = row
-        write_scores(path, rows)  # after every controller: an interruption loses at most one
+        write_scores(path, rows)  # after every controller: an interruption loses at most the ones being scored
         if log:
             eta = (time.monotonic() - t0) / (i + 1) * (len(todo) - i - 1)
             log(f"  {results_dir}: {i + 1}/{len(todo)} {row['label']}: {row['controller_score']:.1f} (ETA {eta:.0f} s)")

@@ -440,7 +440,7 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
         raise AnswerError(f"the sweep {name} stopped with exit status {status} (log: {os.path.join(out, 'logs', name + '.log')}); "
                           "run the same command again to resume", exit_status=3)
     collect_results(sweep_dir, results)
-    controller_scores.score_directory(results, log=None)
+    controller_scores.score_directory(results, log=None, jobs=controller_scores.default_jobs())
     return {"seconds": round(time.monotonic() - t0, 1), "compile_s": round(sum(compiles), 1),
             "compile_wall_s": round(max(compiles, default=0.0), 1), "status": status}
 
@@ -642,7 +642,7 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_policy: Callable,
     t0, before = time.monotonic(), state["elapsed_s"]
     clock = lambda: state.update(elapsed_s=round(before + time.monotonic() - t0, 1))  # noqa: E731
     for d in controller_dirs_of(setup.start_from):
-        controller_scores.score_directory(d, log=log)
+        controller_scores.score_directory(d, log=log, jobs=controller_scores.default_jobs())
     prepare(out, setup, state, budget_s, random_policy, lambda m: (clock(), log(m)), train)
     while True:
         if state["rounds"] and state["rounds"][-1]["status"] == "running":
