@@ -166,3 +166,25 @@ def test_write_atomic_keeps_previous_and_cleans_up(tmp_path, monkeypatch):
         checkpoint.write_atomic(p, b"three" * 1000, "wb", keep_previous=True)
     assert e.value.needed == 5000 and no_temp_files(tmp_path) == []
     assert open(p, "rb").read() == b"two" and open(checkpoint.previous_path(p), "rb").read() == b"one"
+
+
+def test_the_supervisor_sees_a_worker_exit_without_waiting_out_its_poll(monkeypatch):
+    """wait_for_exit returns once a worker has exited (a sweep ends when its last worker does), and sleeps its whole
+    interval while every worker runs."""
+    from gsa_jax.running import supervise as sv
+
+    class Proc:
+        def __init__(self, polls_until_exit):
+            self.left = polls_until_exit
+
+        def poll(self):
+            self.left -= 1
+            return 0 if self.left <= 0 else None
+
+    clock = {"t": 0.0}
+    monkeypatch.setattr(sv.time, "monotonic", lambda: clock["t"])
+    monkeypatch.setattr(sv.time, "sleep", lambda s: clock.update(t=clock["t"] + s))
+    sv.wait_for_exit({0: {"proc": Proc(10**6)}, 1: {"proc": Proc(3)}}, 1.0, step_s=0.05)
+    assert clock["t"] == pytest.approx(0.10)
+    sv.wait_for_exit({0: {"proc": Proc(10**6)}}, 1.0, step_s=0.05)
+    assert clock["t"] == pytest.approx(0.10 + 1.0)

@@ -77,6 +77,14 @@ def kill(worker: dict) -> None:
     worker["proc"].wait()
 
 
+def wait_for_exit(workers: dict, seconds: float, step_s: float = 0.05) -> None:
+    """Sleep up to `seconds`, returning as soon as a worker process has exited (a finished sweep ends when its
+    last worker does, not up to a second later)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and all(w["proc"].poll() is None for w in workers.values()):
+        time.sleep(step_s)
+
+
 def supervise(worker_cmds: list, heartbeat_dirs: list, watchdog_min_s: float, max_restarts: int,
               log: Callable = print) -> int:
     """Run one worker process per command; kill and restart (from its last checkpoint) any worker whose
@@ -87,7 +95,7 @@ def supervise(worker_cmds: list, heartbeat_dirs: list, watchdog_min_s: float, ma
     status = 0
     try:
         while workers:
-            time.sleep(1.0)
+            wait_for_exit(workers, 1.0)
             for i, w in list(workers.items()):
                 rc = w["proc"].poll()
                 if rc is not None:
