@@ -10,6 +10,7 @@ writes certified_regions.csv in that directory (row by row; SEEDS: the first tha
 """
 
 import csv
+import glob
 import json
 import os
 import subprocess
@@ -59,14 +60,19 @@ def write_rows(path: str, rows: list) -> None:
         w.writerows(rows)
 
 
+def controller_path(task_dir: str, partition: str, k: str, lr: str, seed: int) -> "str | None":
+    """The committed controller of one run (any task family's label: dmc.<task>-..., Hopper-v5-..., ...), or None."""
+    found = glob.glob(os.path.join(task_dir, partition, "controllers",
+                                   f"*-mixture-K{k}-partition={partition}-lr_scale_partition={lr}-s{seed}.npz"))
+    return found[0] if len(found) == 1 else None
+
+
 def main(task_dir: str, k: str, lr: str, seeds: str = "0", budget: str = "quick") -> int:
     rows, out = [], os.path.join(task_dir, "certified_regions.csv")
     for seed in range(int(seeds) or 10 ** 6):
         for partition in ("linear", "mlp"):
-            path = os.path.join(task_dir, partition, "controllers",
-                                f"{os.path.basename(task_dir).join(['dmc.', ''])}-mixture-K{k}-partition={partition}"
-                                f"-lr_scale_partition={lr}-s{seed}.npz")
-            if not os.path.exists(path):
+            path = controller_path(task_dir, partition, k, lr, seed)
+            if path is None:
                 return 0
             rows.append({"partition": partition, "K": k, "lr_scale_partition": lr, "seed": seed, **certify(path, budget)})
             print(rows[-1], flush=True)
