@@ -393,21 +393,3 @@ def test_the_evaluation_compiles_with_the_run(full_run):
     assert plan.eval_every > 0
     evaluate = compile_single(plan.cfg, plan.chunk)[3]  # the program full_run compiled: reused, not compiled again
     assert isinstance(evaluate, jax.stages.Compiled), type(evaluate)
-
-
-def test_programs_compiled_at_once_are_the_ones_compiled_one_by_one():
-    """compile_concurrently (compile_single's compiles, in threads) returns each lowering's compiled program in
-    order, computing what jit computes; an error in a lowering reaches the caller."""
-    import jax
-    import jax.numpy as jnp
-
-    from gsa_jax.running.programs import compile_concurrently
-
-    x = jnp.arange(5.0)
-    fns = [lambda v: v * 2.0, jnp.sum, jnp.cumsum]
-    compiled = compile_concurrently([lambda f=f: jax.jit(f).lower(x) for f in fns])
-    for f, c in zip(fns, compiled):
-        assert isinstance(c, jax.stages.Compiled)
-        np.testing.assert_array_equal(c(x), jax.jit(f)(x))
-    with pytest.raises(ZeroDivisionError):
-        compile_concurrently([lambda: jax.jit(jnp.sum).lower(x), lambda: 1 / 0])

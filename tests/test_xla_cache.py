@@ -93,37 +93,6 @@ def test_quiet_aot_loader_drops_only_the_spurious_lines(capfd):
     assert capfd.readouterr().err == other
 
 
-def test_quiet_sections_overlapping_in_threads_restore_stderr(capfd):
-    """Two loads in threads (compile_concurrently) whose quiet sections overlap, the first ending first: stderr
-    is restored afterwards (the interleaving that once left descriptor 2 on a deleted temporary file), and the
-    real lines of both sections are passed on."""
-    import threading
-
-    noise = ("E1121 17:20:05.978323    6788 cpu_aot_loader.cc:195] Loading XLA:CPU AOT result. Target machine "
-             "feature +prefer-no-gather is not  supported on the host machine. This could lead to SIGILL.\n")
-    first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
-
-    def first():
-        with xla_cache.quiet_aot_loader():
-            os.write(2, (noise + "line from the first\n").encode())
-            first_in.set()
-            second_in.wait(10)
-        first_out.set()
-
-    def second():
-        first_in.wait(10)
-        with xla_cache.quiet_aot_loader():
-            second_in.set()
-            first_out.wait(10)
-            os.write(2, b"line from the second\n")
-
-    threads = [threading.Thread(target=f) for f in (first, second)]
-    [t.start() for t in threads]
-    [t.join(20) for t in threads]
-    os.write(2, b"after both\n")
-    assert capfd.readouterr().err == "line from the first\nline from the second\nafter both\n"
-
-
 def test_enabled_restores_the_previous_cache_settings(tmp_path):
     before = jax.config.jax_compilation_cache_dir
     with xla_cache.enabled(str(tmp_path / "default")):

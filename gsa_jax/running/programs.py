@@ -9,7 +9,6 @@ sharded over them (shard_map). Used by gsa sweep and gsa_jax.bench.
     states, metrics = run(states, hps)          # metrics [R, chunk]
 """
 
-import concurrent.futures
 from typing import Any, Callable, NamedTuple, Sequence
 
 import jax
@@ -149,33 +148,21 @@ def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = N
     return init(keys, hps), run, hps, place, how[0]
 
 
-def compile_concurrently(lowerings: Sequence[Callable]) -> list:
-    """Each lowering() -> a jax.stages.Lowered, lowered in turn and compiled by XLA in a thread of its own as soon
-    as it is lowered (XLA releases the GIL: it compiles one program while Python traces the next, and the
-    compiles share the cores); the compiled programs, in order. The same executables as compiling one by one."""
-    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, len(lowerings))) as pool:
-        futures = [pool.submit(lowering().compile) for lowering in lowerings]
-        return [f.result() for f in futures]
-
-
 def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
-    """(trainer, compiled init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
-    vmapped: train.py's program), compiled once per process for these shapes, concurrently
-    (compile_concurrently); evaluate is compiled with them (so a run's compile time includes it) unless
-    `evaluate` is False (a run without evaluations: jitted only)."""
+    """(trainer, jitted init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
+    vmapped: train.py's program), compiled once per process for these shapes; evaluate is compiled with them
+    (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only)."""
 
     def build():
         trainer = make_train(cfg)
-        key, hp = jax.random.PRNGKey(0), make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
         init = jax.jit(trainer.init)
-        state = jax.eval_shape(init, key, hp)
-        lowerings = [lambda: jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk),
-                     lambda: init.lower(key, hp)]
+        hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
+        state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
+        run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
         evaluation = jax.jit(trainer.evaluate)
         if evaluate:
-            lowerings.append(lambda: evaluation.lower(state.params, state.obs_stats, hp, key))
-        run_chunk, init, *evaluated = compile_concurrently(lowerings)
-        return trainer, init, run_chunk, evaluated[0] if evaluate else evaluation
+            evaluation = evaluation.lower(state.params, state.obs_stats, hp, jax.random.PRNGKey(0)).compile()
+        return trainer, init, run_chunk, evaluation
 
     return cached("single", (cfg, chunk, evaluate), build)
 

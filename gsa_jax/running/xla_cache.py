@@ -24,7 +24,6 @@ import os
 import re
 import sys
 import tempfile
-import threading
 import time
 from typing import Callable, Iterator
 
@@ -81,49 +80,25 @@ def enabled(default_dir: str) -> Iterator[None]:
         _set(before)
 
 
-_QUIET = {"lock": threading.Lock(), "depth": 0, "saved": -1, "tmp": None}  # one redirect shared by concurrent loads
-
-
-def _redirect_stderr() -> None:
-    """Point file descriptor 2 at a temporary file (the first of nested or concurrent quiet sections only)."""
-    with _QUIET["lock"]:
-        if _QUIET["depth"] == 0:
-            sys.stderr.flush()
-            _QUIET["saved"], _QUIET["tmp"] = os.dup(2), tempfile.TemporaryFile(mode="w+b")
-            os.dup2(_QUIET["tmp"].fileno(), 2)
-        _QUIET["depth"] += 1
-
-
-def _restore_stderr() -> None:
-    """Undo _redirect_stderr once the last quiet section ends: descriptor 2 restored, the captured lines but
-    AOT_LOADER_NOISE written to it."""
-    with _QUIET["lock"]:
-        _QUIET["depth"] -= 1
-        if _QUIET["depth"] > 0:
-            return
-        sys.stderr.flush()
-        os.dup2(_QUIET["saved"], 2)
-        os.close(_QUIET["saved"])
-        tmp, _QUIET["tmp"] = _QUIET["tmp"], None
-        with tmp:
-            tmp.seek(0)
-            lines = tmp.read().decode(errors="replace").splitlines(keepends=True)
-        kept = [ln for ln in lines if not AOT_LOADER_NOISE.search(ln)]
-        if kept:
-            sys.stderr.write("".join(kept))
-            sys.stderr.flush()
-
-
 @contextlib.contextmanager
 def quiet_aot_loader() -> Iterator[None]:
     """Drop XLA:CPU's spurious cache-load errors (AOT_LOADER_NOISE) from stderr; pass every other line on.
-    Works on file descriptor 2, where XLA's C++ logging writes. Safe when programs load in several threads at once
-    (compile_concurrently): one redirect while any section is open, so descriptor 2 is always restored."""
-    _redirect_stderr()
-    try:
-        yield
-    finally:
-        _restore_stderr()
+    Works on file descriptor 2, where XLA's C++ logging writes."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            kept = [ln for ln in tmp.read().decode(errors="replace").splitlines(keepends=True) if not AOT_LOADER_NOISE.search(ln)]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
 
 
 def quiet_cache_loads() -> None:
