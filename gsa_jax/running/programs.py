@@ -176,10 +176,6 @@ def first_run(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[0], tree)
 
 
-# one program per tree for all its leaves, instead of one small eager op (and compile) per leaf
-_with_run_axis, _first_run = jax.jit(with_run_axis), jax.jit(first_run)
-
-
 def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: int = 0, evaluate: bool = True) -> tuple:
     """(Program of one run, its trainer). The run is a group of one: its state and metrics carry a leading run
     axis of 1 (what the group store saves), around the un-vmapped compiled run_chunk. The deterministic
@@ -190,13 +186,14 @@ def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: i
     eval_key = jax.random.PRNGKey(eval_seed)
 
     def run(states, hps):
-        return _with_run_axis(run_chunk(_first_run(states), hps))
+        state, metrics = run_chunk(first_run(states), hps)
+        return with_run_axis(state), with_run_axis(metrics)
 
     def evaluate_state(states, hps, it):
-        state = _first_run(states)
+        state = first_run(states)
         return evaluate(state.params, state.obs_stats, hps, jax.random.fold_in(eval_key, it))
 
-    state = _with_run_axis(init(jax.random.PRNGKey(seed), hp))
+    state = with_run_axis(init(jax.random.PRNGKey(seed), hp))
     return Program(1, state, hp, run, evaluate_state, lambda tree: tree), trainer
 
 
