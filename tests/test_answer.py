@@ -21,7 +21,7 @@ def synthetic_trainer(truth):
     decisions are then tested against known truth without training."""
     calls = []
 
-    def run(out, name, spec, log, where="results", pad_runs=0):
+    def run(out, name, spec, log, where="results", runs_per_program=0):
         calls.append((name, spec.get("clusters", []), list(spec["seeds"])))
         results = os.path.join(out, where, name)
         os.makedirs(os.path.join(results, "controllers"), exist_ok=True)
@@ -58,8 +58,8 @@ TRUTH = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (940.0, 120.0), 4: (1000.0
 def test_seeds_go_only_to_undecided_cells(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
     state = A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
-    assert calls[0][1:] == ([], list(range(10)))  # the first look: every cell, one sweep (one program) per K
-    assert [c[1:] for c in calls[1:4]] == [([k], list(range(10))) for k in (1, 2, 4)]
+    assert calls[0][1:] == ([], list(range(10)))  # the first look: flat PPO, then one sweep of every K (one program)
+    assert calls[1][1:] == ([1, 2, 4], list(range(10)))
     for r in state["rounds"][1:]:
         before = r["verdicts_before"]
         chosen, below = verdict.smallest_sufficient({int(k): v for k, v in before.items()})
@@ -92,7 +92,7 @@ def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
 def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
     state = A.run_answer(str(tmp_path), synthetic_setup(), 0.5, random_policy(), log=lambda m: None, train=run)
-    assert len(calls) == 4 and state["stopped"].startswith("budget")  # the first round ran; the second would pass it
+    assert len(calls) == 2 and state["stopped"].startswith("budget")  # the first round ran; the second would pass it
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -128,16 +128,18 @@ def test_partition_sets_the_mixtures_class_only():
     assert setup.specs["mixture"]["config"]["partition"] == "linear" and "partition" not in setup.specs["mlp"]["config"]
 
 
-def test_a_small_real_task_end_to_end(tmp_path):
+def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
     """One look of K = 1, 2 against a target on InvertedDoublePendulum-v5 (a few iterations each): every run trained,
     exported and scored in MuJoCo C, the random policy measured there; the verdicts follow from those scores; the
-    report and the chosen controller written; running the same command again changes nothing."""
+    report and the chosen controller written; running the same command again changes nothing; the round's one mixture
+    sweep compiles one program, and another answer's round of that program loads it."""
     from gsa_jax.analysis.verdicts import ladder, trimmed
     from gsa_jax.commands.answer import finish
 
     spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, physics={"backend": "c"})}
     setup = A.Setup("InvertedDoublePendulum-v5", (1, 2), 0.2, (10,), {"mlp": spec, "mixture": spec}, target=60.0)
     out = str(tmp_path / "answer")
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "cache"))  # the sweeps' programs: not the suite's
     measure = lambda: controller_scores.random_policy(out, envs.resolve(setup.env), log=None)  # noqa: E731
     state = A.run_answer(out, setup, 1e9, measure, log=lambda m: None)
     scores = A.collect_scores(out, setup)
@@ -151,9 +153,17 @@ def test_a_small_real_task_end_to_end(tmp_path):
     assert "## Verdicts" in report and "## Baseline" in report and os.path.getsize(os.path.join(out, "score_vs_k.png")) > 5000
     again = A.run_answer(out, setup, 1e9, measure, log=lambda m: None)
     assert again["judged"] == state["judged"] and len(again["rounds"]) == len(state["rounds"])
-    # one program for the class: the second sweep (K = 2) loads what the first (K = 1) compiled, in both workers
-    logs = [open(os.path.join(out, "logs", f"round1-mixture-K{k}-s0-9.log")).read() for k in (1, 2)]
-    assert logs[1].count("program loaded") == 2 and "program compiled" not in logs[1]
+    # one program for the class: the round's one mixture sweep trains K = 1 and K = 2 as two parts of 10 runs; the first
+    # part's program is compiled once (worker 0) and loaded by worker 1, the second part reuses it in both
+    log_text = open(os.path.join(out, "logs", "round1-mixture-K1-2-s0-9.log")).read()
+    assert log_text.count("program compiled") == 1 and log_text.count("program loaded") == 1
+    assert log_text.count("program reused") == 2
+    # a second answer's round with the same program (here K = 2 alone, k_max 2) loads it from the cache
+    second, out2 = A.Setup(**{**setup.__dict__, "ladder": (2,)}), str(tmp_path / "second")
+    A.run_answer(out2, second, 1e9, lambda: controller_scores.random_policy(out2, envs.resolve(setup.env), log=None),
+                 log=lambda m: None)
+    log_text = open(tmp_path / "second" / "logs" / "round1-mixture-K2-s0-9.log").read()
+    assert log_text.count("program loaded") == 2 and "program compiled" not in log_text
 
 
 def simulated_error(setup, trials: int, seed: int) -> float:
@@ -205,18 +215,22 @@ def test_a_budget_below_the_first_round_is_refused_in_one_line_before_training(t
 
 def test_every_sweep_of_a_class_has_one_program_shape():
     """Whatever its K, seeds and step budget, every sweep of a class has the same static Config and chunk, so the
-    answer compiles one program per class (the padded run count is the first look's, gsa sweep --pad-runs)."""
+    answer compiles one program per class (its runs are trained in parts of the first look's count, each padded to it:
+    gsa sweep --runs-per-program); a round runs one sweep per class."""
     from gsa_jax.analysis.verdicts import step_budget
     from gsa_jax.commands.answer import build_parser, make_setup
     from gsa_jax.running.spec import build_grid, check_spec, group_config
 
     setup = make_setup(build_parser().parse_args(["--env", "dmc:cartpole-balance"]))
-    for policy, cells in (("mixture", [[1], [2], [4]]), ("mlp", [[]])):
+    for policy, cells in (("mixture", [[1], [2], [4], [1, 2, 4]]), ("mlp", [[]])):
         shapes = set()
         for steps in step_budget.candidates(setup.steps()):
             for ks in cells:
                 spec = check_spec(A.sweep_spec(setup, policy, ks, list(range(10, 20)), "x", steps))
                 shapes.add((group_config(spec, build_grid(spec)[0]), spec.chunk))
         assert len(shapes) == 1, shapes
-    assert A.unit(setup) == 10 and A.plan_sweeps(setup, {"mixture": ([2, 4], list(range(10, 30)))}, 3)[1] == (
-        "round3-mixture-K2-s20-29", "mixture", [2], list(range(20, 30)))
+    sweeps = A.plan_sweeps(setup, {"mlp": ([], list(range(10, 30))), "mixture": ([2, 4], list(range(10, 30)))}, 3)
+    assert A.unit(setup) == 10 and sweeps == [("round3-flat_ppo-s10-29", "mlp", [], list(range(10, 30))),
+                                              ("round3-mixture-K2-4-s10-29", "mixture", [2, 4], list(range(10, 30)))]
+    assert [A.padded_runs(setup, s) for s in sweeps] == [20, 40]
+    assert A.padded_runs(setup, ("x", "mixture", [1, 2, 4], list(range(5)))) == 20  # 15 runs: parts of 10, padded

@@ -76,8 +76,8 @@ def write_sweep(results: str, policy: str, ks: list, seeds: list, steps: int) ->
 def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
     calls = []
 
-    def train(out, name, spec, log, where="results", pad_runs=0):
-        calls.append((name, spec["steps"], spec.get("clusters", []), pad_runs))
+    def train(out, name, spec, log, where="results", runs_per_program=0):
+        calls.append((name, spec["steps"], spec.get("clusters", []), runs_per_program))
         write_sweep(os.path.join(out, where, name), spec["policies"][0], spec.get("clusters", []), spec["seeds"],
                     spec["steps"])
         return {"seconds": 1.0, "compile_s": 0.0, "compile_wall_s": 0.0, "status": 0}

@@ -624,14 +624,30 @@ def test_changed_spec_and_second_writer_refused(tiny_spec_file, tmp_path, capsys
         release(lock)
 
 
-# Last in this file: it compiles the group with 2 runs per sub-batch, which replaces the 4-run program the
-# tests above reuse in this process (gsa_jax.running.programs keeps one).
+# Last in this file (with the parts test after it): it compiles the group with 2 runs per sub-batch, which replaces the
+# 4-run program the tests above reuse in this process (gsa_jax.running.programs keeps one).
 def test_sweep_in_sub_batches_matches_all_at_once(tiny_spec_file, inprocess, tmp_path):
     """--run-batch 2: the group's 4 runs trained as 2 sequential sub-batches give the same runs."""
     out = tmp_path / "sub"
     assert run_sweep(load_spec(tiny_spec_file), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), quiet=True, run_batch=2))
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
     assert json.loads((out / "sweep.json").read_text())["run_batch"] == 2
+
+
+def test_a_group_trained_in_parts_equals_the_group_whole(tiny_spec_file, inprocess, tmp_path, capsys):
+    """--runs-per-program 2: the group's 4 runs trained as two parts of 2 (groups/<group> and <group>-part2), one
+    program compiled once and reused by the second part, give the same runs; every run is found and read back."""
+    from gsa_jax.running.trained import finished_runs
+
+    out = tmp_path / "parts"
+    assert run_sweep(load_spec(tiny_spec_file), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1]), runs_per_program=2))
+    printed = [line for line in capsys.readouterr().out.splitlines() if "; program " in line]
+    assert len(printed) == 2 and "program reused" in printed[1] and "program reused" not in printed[0]
+    group = "inverted_double_pendulum-mixture"
+    assert sorted(os.listdir(out / "groups")) == [group, group + "-part2"]
+    assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
+    assert json.loads((out / "sweep.json").read_text())["runs_per_program"] == 2
+    assert sorted((r[3]["K"], r[3]["seed"]) for r in finished_runs(str(out))) == [("1", "0"), ("1", "1"), ("3", "0"), ("3", "1")]
 
 
 def test_group_of_an_older_file_format_refused_in_one_line(tiny_spec_file, inprocess, tmp_path, capsys):

@@ -95,9 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run-batch", type=int, default=RUN_BATCH,
                    help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
                         "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
-    p.add_argument("--pad-runs", type=int, default=0, metavar="N",
-                   help="pad every group to at least N runs (copies, trained and dropped), so sweeps of fewer runs run the "
-                        "program of N runs (gsa answer: one program per class for all its sweeps)")
+    p.add_argument("--runs-per-program", type=int, default=0, metavar="N",
+                   help="every compiled program trains N runs: a group of more is trained in consecutive parts of N (one "
+                        "program, compiled once), one of fewer is padded to N (copies, trained and dropped), so sweeps of "
+                        "any size run one program (gsa answer: one program per class for all its sweeps)")
     p.add_argument("--force", action="store_true", help="resume even if the experiment file changed (continues with the new spec)")
     p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
                    help="no TensorBoard event files (default: OUT/tensorboard/<run>/, open with tensorboard --logdir OUT)")
@@ -111,7 +112,10 @@ def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
     continues with (the spec is checked apart; a record without one is not a sweep's: KeyError)."""
     if "spec" not in meta:
         raise KeyError("spec")
-    saved = {k: meta[k] for k in ("run_batch", "tensorboard", "pad_runs") if k in meta}
+    saved = {k: meta[k] for k in ("run_batch", "tensorboard", "runs_per_program") if k in meta}
+    if "pad_runs" in meta:  # an older sweep.json's: it padded groups of fewer runs as runs_per_program does (gsa answer,
+        # its only user, never gave a group more runs)
+        saved["runs_per_program"] = meta["pad_runs"]
     if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
         saved["local_processes"] = meta["num_processes"]
     return {"out": out, **saved}
@@ -158,8 +162,8 @@ def check_args(args: argparse.Namespace, argv: list) -> tuple:
         raise SpecError("--local-processes must be >= 1")
     if args.run_batch < 0:
         raise SpecError(f"--run-batch must be >= 0, got {args.run_batch}")
-    if args.pad_runs < 0:
-        raise SpecError(f"--pad-runs must be >= 0, got {args.pad_runs}")
+    if args.runs_per_program < 0:
+        raise SpecError(f"--runs-per-program must be >= 0, got {args.runs_per_program}")
     return spec, out, local
 
 
@@ -233,7 +237,7 @@ def run_worker(args: argparse.Namespace, spec: SweepSpec, out: str, after_chunk:
     try:
         options = SweepOptions(tuple(devices), args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,
                                heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
-                               tensorboard=args.tensorboard, pad_runs=args.pad_runs)
+                               tensorboard=args.tensorboard, runs_per_program=args.runs_per_program)
         complete = run_sweep(spec, out, options)
     except CheckpointError as e:
         raise CheckpointError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None

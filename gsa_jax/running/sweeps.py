@@ -57,8 +57,10 @@ class SweepOptions:
     devices: () = every local device; process_id / num_processes: this process's share of each group's runs;
     heartbeat(seconds) after every chunk (the supervisor's watchdog); run_batch: see
     programs.make_group_program; local_workers: the processes share this machine and `out` (False for
-    multi-host sweeps: each process compiles for itself); force: resume a changed spec; pad_runs: pad every group to at
-    least this many runs, so sweeps of fewer runs share the program of that many."""
+    multi-host sweeps: each process compiles for itself); force: resume a changed spec; runs_per_program: every program
+    trains this many runs (0: a group's own count): a group of more is trained in consecutive parts of it, one call of
+    the same compiled program each (program_parts), and one of fewer is padded to it, so sweeps of any size share
+    one program."""
 
     devices: tuple = ()
     quiet: bool = False
@@ -70,13 +72,14 @@ class SweepOptions:
     local_workers: bool = True
     force: bool = False
     tensorboard: bool = True
-    pad_runs: int = 0
+    runs_per_program: int = 0
 
 
 class GroupContext(NamedTuple):
     """What this process brings to training one group: devices, log, options; pad_to: pad the runs to at
     least this many (every worker process builds the same program); share: see programs.compile_group;
-    board_dir: the sweep's TensorBoard directory (None: no event files); on_chunk: see GroupStore."""
+    board_dir: the sweep's TensorBoard directory (None: no event files); on_chunk: see GroupStore; name, cfg: a part's
+    directory name (program_parts) and its whole group's Config (defaults: the group's own)."""
 
     devices: list
     log: Callable
@@ -85,14 +88,26 @@ class GroupContext(NamedTuple):
     share: tuple | None = None
     board_dir: str | None = None
     on_chunk: Callable | None = None
+    name: str | None = None
+    cfg: Config | None = None
+
+
+def program_parts(group: Group, per_program: int) -> list:
+    """[(directory name, Group)] a group is trained as: itself (per_program 0), else its runs in consecutive parts of
+    per_program runs, named <group>, <group>-part2, ...: each part is one call of the same compiled program."""
+    name = group_name(group)
+    if not per_program or len(group.runs) <= per_program:
+        return [(name, group)]
+    parts = [group.runs[i:i + per_program] for i in range(0, len(group.runs), per_program)]
+    return [(name if i == 0 else f"{name}-part{i + 1}", group._replace(runs=p)) for i, p in enumerate(parts)]
 
 
 def run_group(spec: SweepSpec, out: str, group: Group, ctx: GroupContext) -> Result:
     """Train (or resume) one Group (this process's runs of it) with the run driver. Returns its driver Result."""
-    name = group_name(group)
+    name = ctx.name or group_name(group)
     gdir = os.path.join(out, "groups", name)
     os.makedirs(gdir, exist_ok=True)
-    cfg = group_config(spec, group)
+    cfg = ctx.cfg or group_config(spec, group)
     chunk = default_chunk(spec, cfg)
     iterations = group_iterations(spec, cfg, chunk)
     if os.path.exists(os.path.join(gdir, "DONE")):
@@ -167,7 +182,7 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
                         "use another --out, or --force to continue it with the new spec")
     physics = {name: physics_record(cfg) for name, cfg in configs.items()}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
-            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "pad_runs": options.pad_runs, "physics": physics,
+            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "runs_per_program": options.runs_per_program, "physics": physics,
             "tasks": tasks, **run_metadata()}
     write_atomic(meta_path, json.dumps(meta, indent=1))
 
@@ -222,13 +237,15 @@ def train_groups(spec: SweepSpec, out: str, groups: list[Group], ctx: GroupConte
     """Train this process's share of every group in turn, appending (runs, metrics, done) to results and
     rewriting the tidy table after every chunk. Returns False if a group stopped before its end."""
     pid, nproc = ctx.options.process_id, ctx.options.num_processes
-    for group in groups:
-        mine = group.runs[pid::nproc]
+    per_program = ctx.options.runs_per_program
+    for group, (name, part) in ((g, p) for g in groups for p in program_parts(g, per_program)):
+        mine = part.runs[pid::nproc]
         if not mine:
             continue
-        group_ctx = ctx._replace(pad_to=math.ceil(max(len(group.runs), ctx.options.pad_runs) / nproc),
+        group_ctx = ctx._replace(pad_to=math.ceil(max(len(part.runs), per_program) / nproc), name=name,
+                                 cfg=group_config(spec, group),
                                  on_chunk=lambda *partial: write_tidy(out, spec, results + [partial]))
-        res = run_group(spec, out, group._replace(runs=mine), group_ctx)
+        res = run_group(spec, out, part._replace(runs=mine), group_ctx)
         results.append((mine, {k: v[: len(mine)] for k, v in res.metrics.items()}, res.done))
         write_tidy(out, spec, results)
         if not res.finished:

@@ -4,9 +4,10 @@ the K) against a baseline shown adequate (gsa_jax.analysis.verdicts.baseline), a
 sufficient K is not decided yet.
 
 First the step budget (step_budget: flat PPO's first seeds at doubling budgets until it has learned the task and
-stopped learning; every class then trains to it). A round trains sweeps of one K (or flat PPO) on at most the first
-look's seeds each, padded to it (gsa_jax.sweep in a subprocess, resumable), so every sweep of a class runs one program:
-compiled by the first, loaded from the answer's compilation cache by the rest. Each exports every run's controller and
+stopped learning; every class then trains to it). A round trains one sweep per class (gsa_jax.sweep in a subprocess,
+resumable: flat PPO's new seeds, then every K's), whose runs are trained in parts of the first look's seed count, each
+padded to it, so every sweep of a class runs one program: compiled by its first part, reused by the sweep's later
+parts, loaded from the answer's compilation cache by its later sweeps. Each exports every run's controller and
 scores it in MuJoCo C (gsa_jax.analysis.sweeps.controller_scores); each is estimated before it runs (round_time), and a
 round that would overrun the budget is not started. The decisions are a pure function of the
 runs' values (decide), so experiments/verdicts/error_rates.py simulates this very loop. The state (DIR/answer.json)
@@ -411,9 +412,11 @@ def decide(setup: Setup, evidence: Evidence, state: dict) -> tuple:
 COMPILE_LINE = re.compile(r"program (.*?) \(([\d.]+)s\)")
 
 
-def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str = "results", pad_runs: int = 0) -> dict:
-    """Train one sweep in a subprocess (gsa_jax.sweep: resumes if interrupted; every sweep padded to `pad_runs` runs,
-    so a class's sweeps share one program, loaded from the answer's compilation cache after the first), collect its
+def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str = "results",
+                    runs_per_program: int = 0) -> dict:
+    """Train one sweep in a subprocess (gsa_jax.sweep: resumes if interrupted; its runs trained in parts of
+    `runs_per_program`, each padded to it, so a class's sweeps share one program: compiled once, reused by the sweep's
+    later parts, loaded from the answer's compilation cache by its later sweeps), collect its
     results (sweep.json, tidy metrics, controllers) into out/<where>/<name> and score its controllers ->
     {seconds, compile_s (summed over the worker processes), compile_wall_s (the slowest worker's), status}."""
     for d in ("specs", "logs"):
@@ -421,7 +424,8 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
     toml = os.path.join(out, "specs", name + ".toml")
     write_atomic(toml, to_toml(spec))
     sweep_dir, results = os.path.join(out, "sweeps", name), os.path.join(out, where, name)
-    cmd = [sys.executable, "-m", "gsa_jax.sweep", toml, "--out", sweep_dir, "--no-tensorboard", "--pad-runs", str(pad_runs)]
+    cmd = [sys.executable, "-m", "gsa_jax.sweep", toml, "--out", sweep_dir, "--no-tensorboard",
+           "--runs-per-program", str(runs_per_program)]
     env = dict(os.environ)  # a compilation cache the user configured, else the answer's own (shared by its sweeps)
     env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.abspath(os.path.join(out, "xla_cache")))
     t0, compiles, last = time.monotonic(), [], 0.0
@@ -446,24 +450,34 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
 
 
 def unit(setup: Setup) -> int:
-    """Runs per sweep: the first look's seeds. Every sweep trains one K (or flat PPO) on at most this many seeds,
-    padded to it, so every sweep of a class runs one compiled program whatever the round."""
+    """Runs per program: the first look's seeds. Every sweep trains its runs in parts of this many, each padded to it
+    (gsa sweep --runs-per-program), so every sweep of a class runs one compiled program whatever the round."""
     return int(setup.looks[0])
 
 
 def plan_sweeps(setup: Setup, plan: dict, index: int) -> list:
-    """[(name, policy, [K] or [], seeds)] of a planned round: per class, per K, its seeds in parts of unit(setup)."""
-    size, out = unit(setup), []
+    """[(name, policy, [K] or [], seeds)] of a planned round: one sweep per class, holding all its K and seeds (one
+    worker start and one program load per class and round; its runs trained in parts of unit(setup))."""
+    out = []
     for policy in (MLP, MIXTURE):
-        if policy not in plan:
-            continue
-        ks, seeds = plan[policy]
-        for k in (ks if policy == MIXTURE else [None]):
-            for i in range(0, len(seeds), size):
-                part = list(seeds[i:i + size])
-                cell = "flat_ppo" if k is None else f"mixture-K{k}"
-                out.append((f"round{index}-{cell}-s{part[0]}-{part[-1]}", policy, [] if k is None else [k], part))
+        if policy in plan:
+            ks, seeds = plan[policy]
+            cell = "flat_ppo" if policy == MLP else "mixture-K" + "-".join(str(k) for k in ks)
+            out.append((f"round{index}-{cell}-s{seeds[0]}-{seeds[-1]}", policy, [] if policy == MLP else list(ks),
+                        list(seeds)))
     return out
+
+
+def padded_runs(setup: Setup, sweep: tuple) -> int:
+    """The runs a planned sweep's program calls train: its K x seeds in parts of unit(setup), each padded to it."""
+    _, _, ks, seeds = sweep
+    return -(-max(len(ks), 1) * len(seeds) // unit(setup)) * unit(setup)
+
+
+def sweeps_seconds(setup: Setup, state: dict, sweeps: list, steps: int) -> float | None:
+    """Estimated seconds of planned sweeps at `steps` (round_time.sweep_estimate each; None before any sweep)."""
+    each = [round_time.sweep_estimate(history(state), s[1], padded_runs(setup, s), steps) for s in sweeps]
+    return None if any(e is None for e in each) else sum(each)
 
 
 def train_sweep(out: str, setup: Setup, state: dict, sweep: tuple, steps: int, log: Callable, train: Callable,
@@ -471,16 +485,17 @@ def train_sweep(out: str, setup: Setup, state: dict, sweep: tuple, steps: int, l
     """Train one planned sweep (name, policy, ks, seeds) at `steps` -> its record (run_class_sweep's, with its class,
     padded runs, steps and the seconds estimated before it ran: eta_s, None before any sweep)."""
     name, policy, ks, seeds = sweep
-    eta = round_time.sweep_estimate(history(state), policy, unit(setup), steps)
-    record = train(out, name, sweep_spec(setup, policy, ks, seeds, name, steps), log, where=where, pad_runs=unit(setup))
-    return {**record, "policy": policy, "runs": max(len(seeds), unit(setup)), "steps": int(steps),
+    eta = sweeps_seconds(setup, state, [sweep], steps)
+    record = train(out, name, sweep_spec(setup, policy, ks, seeds, name, steps), log, where=where,
+                   runs_per_program=unit(setup))
+    return {**record, "policy": policy, "runs": padded_runs(setup, sweep), "steps": int(steps),
             "eta_s": None if eta is None else round(eta, 1)}
 
 
 def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, verdicts_before: dict | None = None,
               train: Callable | None = None) -> dict:
     """Train a planned round (flat PPO first; plan_sweeps), recording it in the state before and after each sweep.
-    train(out, name, spec, log, where=, pad_runs=): what trains one sweep and scores its controllers (default
+    train(out, name, spec, log, where=, runs_per_program=): what trains one sweep and scores its controllers (default
     run_class_sweep)."""
     train = train or run_class_sweep
     index = len([r for r in state["rounds"] if r["status"] == "done"]) + 1
@@ -511,10 +526,9 @@ def history(state: dict) -> list:
 
 
 def first_round_seconds(setup: Setup, state: dict, steps: int) -> float | None:
-    """Estimated seconds of the first round's mixture sweeps at `steps` (None before any sweep)."""
-    n = len(plan_sweeps(setup, {MIXTURE: (list(setup.ladder), list(range(setup.looks[0])))}, 1))
-    one = round_time.sweep_estimate(history(state), MIXTURE, unit(setup), steps)
-    return None if one is None else n * one
+    """Estimated seconds of the first round's mixture sweep at `steps` (None before any sweep)."""
+    return sweeps_seconds(setup, state, plan_sweeps(setup, {MIXTURE: (list(setup.ladder), list(range(setup.looks[0])))}, 1),
+                          steps)
 
 
 def check_budget_floor(setup: Setup, state: dict, budget_s: float) -> None:
@@ -598,11 +612,7 @@ def adopt_calibration(out: str, steps: dict, chosen: int) -> None:
 # ----------------------------------------------------------------------------------------------- the loop
 def round_eta(setup: Setup, state: dict, plan: dict) -> float:
     """Seconds the planned round likely takes: the sum of its sweeps' estimates (round_time; 0 before any sweep)."""
-    steps = trained_steps(setup, state)
-    total = 0.0
-    for _, policy, _, _ in plan_sweeps(setup, plan, 0):
-        total += round_time.sweep_estimate(history(state), policy, unit(setup), steps) or 0.0
-    return total
+    return sweeps_seconds(setup, state, plan_sweeps(setup, plan, 0), trained_steps(setup, state)) or 0.0
 
 
 def progress_line(state: dict, judged: dict, plan: dict | None, eta: float) -> str:
