@@ -23,6 +23,9 @@ TASKS = {  # task -> (its source spec's family, K of the experiment)
     "InvertedDoublePendulum-v5": ("v5", (2, 4)),
     "Hopper-v5": ("v5", (3,)),
     "walker-walk": ("dmc", (6,)),
+    "HalfCheetah-v5": ("v5", (6,)),
+    "Walker2d-v5": ("v5", (6,)),
+    "Ant-v5": ("v5", (8,)),
 }
 LR_FACTOR = 3.0
 DEFAULT_LR_SCALE_PARTITION = 1.0  # gsa_jax.algorithm.config's default, where a spec sets none
@@ -39,8 +42,11 @@ def source_specs(task: str, family: str) -> tuple:
         paths = f"experiments/atlas_dmc/specs/{task}_mixture.toml", f"experiments/atlas_dmc/specs/{task}_flat_ppo.toml"
         texts = [read(p) for p in paths]
     else:
-        paths = (f"experiments/fig1_v5/fig1_v5_{task}.toml",) * 2
-        whole = read(paths[0])
+        whole_file = f"experiments/fig1_v5/fig1_v5_{task}.toml"
+        if not os.path.exists(os.path.join(ROOT, whole_file)):  # a task Figure 1 ran in two halves of 5 seeds
+            whole_file = f"experiments/fig1_v5/fig1_v5_{task}_seeds_0_4.toml"
+        whole = re.sub(r"(?m)^seeds = .*$", "seeds = 10", read(whole_file))
+        paths = (whole_file + ("" if whole_file.endswith(f"{task}.toml") else " at seeds 0-9"),) * 2
         texts = [whole.replace('policies = ["mlp", "mixture"]', f'policies = ["{p}"]') for p in ("mixture", "mlp")]
     strip = [re.sub(r"(?m)^#.*\n|^name = .*\n|^cluster_multipliers = .*\n|^clusters = .*\n", "", t) for t in texts]
     return strip[0], strip[1], paths

@@ -4,7 +4,7 @@
 set -uo pipefail
 tasks=("$@")
 [ ${#tasks[@]} -gt 0 ] || tasks=(pendulum-swingup cartpole-balance cartpole-swingup InvertedDoublePendulum-v5 Hopper-v5 \
-  walker-walk)
+  walker-walk HalfCheetah-v5 Walker2d-v5 Ant-v5)
 for task in "${tasks[@]}"; do
   start=$(date +%s)
   if bash experiments/partition/run_task.sh "$task"; then
