@@ -200,6 +200,15 @@ def inprocess(tiny_spec_file, tmp_path_factory):
     return out
 
 
+def test_a_resumed_sweep_keeps_its_runs_per_program():
+    """--resume DIR continues with the runs per program DIR/sweep.json recorded (an older record's pad_runs too)."""
+    from gsa_jax.commands.sweep import saved_options
+
+    assert saved_options({"spec": {}, "runs_per_program": 10, "num_processes": 2}, "d", None) == {
+        "out": "d", "runs_per_program": 10, "local_processes": 2}
+    assert saved_options({"spec": {}, "pad_runs": 10}, "d", None) == {"out": "d", "runs_per_program": 10}
+
+
 def test_every_experiment_file_is_valid():
     root = os.path.join(os.path.dirname(__file__), "..", "experiments")
     files = sorted(glob.glob(os.path.join(root, "*", "*.toml")))
