@@ -119,7 +119,7 @@ def test_flat_ppo_within_the_random_returns_interval_gives_no_answer(tmp_path):
     run, calls = synthetic_trainer({A.FLAT: (80.0, 10.0), 1: (85.0, 10.0), 2: (90.0, 10.0)})
     out = str(tmp_path / "a")
     state = A.run_answer(out, setup, 1e9, random_policy(80.0, 100.0), log=lambda m: None, train=run)
-    assert state["stopped"] == "no answer" and len(calls) == 3  # flat PPO and K = 1, 2: one sweep each
+    assert state["stopped"] == "no answer" and len(calls) == 2  # flat PPO, then K = 1, 2 in one sweep
     assert {r["verdict"] for r in state["judged"].values()} == {verdict.NO_SCALE}
     assert "no answer" in finish(out, setup, state, ["--env", "task"])
     assert os.path.exists(os.path.join(out, "report.md"))

@@ -157,8 +157,12 @@ def test_ctrl_c_in_a_running_process_is_130_and_keeps_what_is_saved(tmp_path):
     import jax
 
     out = tmp_path / "ctrl_c"
-    argv = [sys.executable, "-m", "gsa_jax", "train", *SMALL[2:-1], "--steps", "100000000", "--out", str(out),
-            "--no-tensorboard"]
+    # As a terminal starts it: SIGINT unblocked and at its default, whatever this test process's threads left in the
+    # signal mask or dispositions it hands on (the launcher resets both, then execs the very command).
+    launcher = ("import os, signal, sys; signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT]); "
+                "signal.signal(signal.SIGINT, signal.SIG_DFL); os.execv(sys.executable, [sys.executable, *sys.argv[1:]])")
+    argv = [sys.executable, "-c", launcher, "-m", "gsa_jax", "train", *SMALL[2:-1], "--steps", "100000000",
+            "--out", str(out), "--no-tensorboard"]
     cache = {"JAX_COMPILATION_CACHE_DIR": jax.config.jax_compilation_cache_dir or ""}  # the suite's compiled programs
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT,
                             env={**os.environ, **cache})
@@ -168,8 +172,15 @@ def test_ctrl_c_in_a_running_process_is_130_and_keeps_what_is_saved(tmp_path):
             break
         time.sleep(0.5)
     assert proc.poll() is None, proc.communicate()[1]
+    with open(f"/proc/{proc.pid}/status") as f:  # what the run's SIGINT state is, for the message if it does not stop
+        state = " ".join(line.strip() for line in f if line.startswith(("SigBlk", "SigIgn", "SigCgt")))
     proc.send_signal(signal.SIGINT)
-    err = proc.communicate(timeout=300)[1]
+    try:
+        err = proc.communicate(timeout=300)[1]
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        rows = len(read_csv(out / "metrics.csv"))
+        pytest.fail(f"gsa train did not stop within 300 s of SIGINT ({rows} rows saved; before the signal: {state})")
     assert proc.returncode == 130, err
     saved = re.search(r"interrupted; everything up to iteration (\d+) is saved in .*continue with: (.*)\)", err)
     flags = ["--resume", "--out", str(out)]
