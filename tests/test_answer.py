@@ -89,6 +89,28 @@ def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
     assert [r["plan"] for r in resumed["rounds"]] == [r["plan"] for r in whole["rounds"]]
 
 
+def test_a_round_started_with_other_sweeps_is_refused_not_trained_again(tmp_path):
+    """A running round whose recorded sweeps are not the ones planned now (one sweep per K, as an older gsa_jax split a
+    round) is refused in one line: training the planned sweep would give the finished K a second copy of its seeds."""
+    run, calls = synthetic_trainer(TRUTH)
+
+    def interrupted(out, name, spec, log, **kw):  # the first round's mixture sweep is killed
+        if name.startswith("round1-mixture"):
+            raise KeyboardInterrupt
+        return run(out, name, spec, log, **kw)
+
+    with pytest.raises(KeyboardInterrupt):
+        A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=interrupted)
+    path = tmp_path / A.STATE
+    saved = json.loads(path.read_text())
+    saved["rounds"][-1]["sweeps"]["round1-mixture-K1-s0-9"] = {"seconds": 1.0, "policy": "mixture"}
+    path.write_text(json.dumps(saved))
+    calls.clear()
+    with pytest.raises(A.AnswerError, match="round 1 was started with other sweeps .round1-mixture-K1-s0-9."):
+        A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
+    assert calls == []
+
+
 def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
     state = A.run_answer(str(tmp_path), synthetic_setup(), 0.5, random_policy(), log=lambda m: None, train=run)

@@ -19,6 +19,7 @@ from golden_runs import arrays_digest, check_fingerprint, summarize, table_diges
 
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.ppo import make_train
+from gsa_jax.running.runinfo import ResumeRefused
 from gsa_jax.running.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
 from gsa_jax.running.sweeps import SweepOptions, run_sweep
 from gsa_jax.running.tuning import load_tuning
@@ -206,7 +207,10 @@ def test_a_resumed_sweep_keeps_its_runs_per_program():
 
     assert saved_options({"spec": {}, "runs_per_program": 10, "num_processes": 2}, "d", None) == {
         "out": "d", "runs_per_program": 10, "local_processes": 2}
-    assert saved_options({"spec": {}, "pad_runs": 10}, "d", None) == {"out": "d", "runs_per_program": 10}
+    runs = [{"env": "e", "policy": "mixture", "K": 1, "seed": s} for s in range(10)]
+    assert saved_options({"spec": {}, "pad_runs": 10, "runs": runs}, "d", None) == {"out": "d", "runs_per_program": 10}
+    with pytest.raises(SpecError, match="a group of 11 runs, which it trained whole"):  # parts would retrain it
+        saved_options({"spec": {}, "pad_runs": 10, "runs": runs + [{**runs[0], "seed": 10}]}, "d", None)
 
 
 def test_every_experiment_file_is_valid():
@@ -656,7 +660,11 @@ def test_a_group_trained_in_parts_equals_the_group_whole(tiny_spec_file, inproce
     assert sorted(os.listdir(out / "groups")) == [group, group + "-part2"]
     assert_same_results(read_rows(str(out / "metrics.csv")), read_rows(str(inprocess / "metrics.csv")), rtol=2e-3)
     assert json.loads((out / "sweep.json").read_text())["runs_per_program"] == 2
-    assert sorted((r[3]["K"], r[3]["seed"]) for r in finished_runs(str(out))) == [("1", "0"), ("1", "1"), ("3", "0"), ("3", "1")]
+    found = finished_runs(str(out))
+    assert [os.path.basename(r[1]) for r in found] == [group] * 2 + [group + "-part2"] * 2  # parts in order
+    assert sorted((r[3]["K"], r[3]["seed"]) for r in found) == [("1", "0"), ("1", "1"), ("3", "0"), ("3", "1")]
+    with pytest.raises(ResumeRefused, match="--runs-per-program 2, not 0"):  # other parts would train them again
+        run_sweep(load_spec(tiny_spec_file), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1])))
 
 
 def test_group_of_an_older_file_format_refused_in_one_line(tiny_spec_file, inprocess, tmp_path, capsys):

@@ -80,9 +80,10 @@ def test_draws_are_reproducible_in_range_and_start_from_the_defaults():
 def test_tuning_selects_evaluates_and_a_vmapped_configuration_equals_it_alone(tmp_path, capsys):
     spec_path = tmp_path / "t.toml"
     spec_path.write_text(
-        'name = "t"\nenv = "inverted_double_pendulum"\nconfigurations = 2\ndraw_seed = 3\ntuning_seeds = [5]\n'
+        'name = "t"\nenv = "InvertedDoublePendulum-v5"\nconfigurations = 2\ndraw_seed = 3\ntuning_seeds = [5]\n'
         "tuning_steps = 1536\nevaluation_seeds = [0]\nevaluation_steps = 1024\n[config]\n"
         + "".join(f"{k} = {v}\n" for k, v in {**SMALL, "eval_envs": 4}.items())
+        + '[config.physics]\nbackend = "c"\n'  # MuJoCo C in the program (the protocol is under test, not MJX)
         + '[classes.mix]\npolicy = "mixture"\nclusters = 3\nknobs.lr_scale_L = [0.3, 3.0, "log"]\n'
           'knobs.eps_init = [0.0, 0.3]\nknobs.lr = [1e-4, 1e-3, "log"]\n')
     out = tmp_path / "tune"
@@ -96,10 +97,9 @@ def test_tuning_selects_evaluates_and_a_vmapped_configuration_equals_it_alone(tm
         (row,) = list(csv.DictReader(f))
     assert row["class"] == "mix" and row["K"] == "3" and int(row["chosen_set"]) == int(selection[0]["hparam_set"])
     assert json.loads(row["chosen"]) == {k: float(selection[0][k]) for k in ("lr_scale_L", "eps_init", "lr")}
-    # the drawn configuration (set 1) in the vmapped tuning sweep equals it trained alone (the program of
-    # tests/test_sweep.py's run alone: compiled once per session)
+    # the drawn configuration (set 1) in the vmapped tuning sweep equals it trained alone
     drawn = draw_configurations(check_tuning(TUNING), "mix")[1]
-    tr = make_train(Config(env="inverted_double_pendulum", policy="mixture", k_max=3, **SMALL))
+    tr = make_train(Config(env="InvertedDoublePendulum-v5", policy="mixture", k_max=3, physics={"backend": "c"}, **SMALL))
     hp = make_hparams(K=3, total_iterations=3, **drawn)
     _, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(5), hp), hp, 3)
     rows = []

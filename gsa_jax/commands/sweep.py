@@ -21,6 +21,7 @@ Output (DIR, default runs/sweeps/<name>):
                         eval_return, the deterministic controller's mean return where evaluated; a swept
                         hparam named like a metric is hparam_<name>, e.g. hparam_lr next to the annealed lr)
   groups/<env>-<policy>/{state.npz, metrics.npz (+ their .prev.npz), params.npz, runs.csv, failed.json, DONE}
+                        (with --runs-per-program N, a group of more than N runs: groups/<env>-<policy>-part2/, ...)
   tensorboard/<run>/    TensorBoard event files of every run (tensorboard --logdir DIR; --no-tensorboard: none)
   LOCK                  pid and host of the sweep writing DIR (a second one is refused)
   xla_cache/            compiled programs (JAX's persistent cache): worker 0 compiles each group's
@@ -57,6 +58,7 @@ Experiment file (TOML):
 """
 
 import argparse
+import collections
 import os
 import sys
 from typing import Callable
@@ -68,7 +70,7 @@ from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import resume_command
 from gsa_jax.running.runlock import hold
-from gsa_jax.running.spec import SpecError, SweepSpec, check_spec, load_spec
+from gsa_jax.running.spec import Group, SpecError, SweepSpec, check_spec, group_name, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
 from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
 
@@ -113,12 +115,24 @@ def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
     if "spec" not in meta:
         raise KeyError("spec")
     saved = {k: meta[k] for k in ("run_batch", "tensorboard", "runs_per_program") if k in meta}
-    if "pad_runs" in meta:  # an older sweep.json's: it padded groups of fewer runs as runs_per_program does (gsa answer,
-        # its only user, never gave a group more runs)
-        saved["runs_per_program"] = meta["pad_runs"]
+    if "pad_runs" in meta:  # an older sweep.json's: it padded groups of fewer runs as runs_per_program does, and trained a
+        # group of more whole, which runs_per_program would split into parts under other directories
+        saved["runs_per_program"] = pad_runs_as_runs_per_program(meta)
     if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
         saved["local_processes"] = meta["num_processes"]
     return {"out": out, **saved}
+
+
+def pad_runs_as_runs_per_program(meta: dict) -> int:
+    """An older sweep.json's pad_runs as runs_per_program: the same where no group has more runs than it (each group
+    then one program, padded); a sweep with a larger group is refused (SpecError: resume it with its own commit)."""
+    n = int(meta["pad_runs"])
+    sizes = collections.Counter(group_name(Group(r["env"], r["policy"], [r])) for r in meta.get("runs", []))
+    if n and sizes and max(sizes.values()) > n:
+        raise SpecError(f"this sweep.json was written by an older gsa_jax (pad_runs {n}) and has a group of "
+                        f"{max(sizes.values())} runs, which it trained whole; resume it with its own commit "
+                        f"(git_commit {meta.get('git_commit', '?')})")
+    return n
 
 
 def parse_args(argv: list) -> argparse.Namespace:

@@ -18,7 +18,7 @@ from gsa_jax.running.checkpoint import DiskFullError, write_atomic
 from gsa_jax.running.driver import Plan, Result, drive, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
-from gsa_jax.running.runinfo import check_unchanged, physics_record, run_metadata
+from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
 from gsa_jax.running.spec import (
     Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_every, group_iterations, group_name,
 )
@@ -180,6 +180,11 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
                         {"spec": spec.to_json(), "tasks": tasks},
                         options.force, f"{root} holds a sweep with a different spec or task code",
                         "use another --out, or --force to continue it with the new spec")
+        before = old.get("runs_per_program", old.get("pad_runs", 0))
+        if int(before) != options.runs_per_program:  # parts are directories: another N would train its runs again
+            raise ResumeRefused(f"{root} holds a sweep trained with --runs-per-program {before}, not "
+                                f"{options.runs_per_program}: resume it with {before} (or --resume {root} alone), "
+                                "or use another --out")
     physics = {name: physics_record(cfg) for name, cfg in configs.items()}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
             "run_batch": options.run_batch, "tensorboard": options.tensorboard, "runs_per_program": options.runs_per_program, "physics": physics,

@@ -11,6 +11,7 @@ import csv
 import glob
 import json
 import os
+import re
 from typing import NamedTuple
 
 import numpy as np
@@ -75,13 +76,23 @@ def run_label(row: dict) -> str:
     return "-".join(parts + [f"s{row['seed']}"])
 
 
+def group_order(path: str) -> tuple:
+    """Sort key of a group directory's file: its parent path, then the group, then its part (<group>, <group>-part2,
+    ..., <group>-part10: gsa sweep --runs-per-program)."""
+    group_dir = os.path.dirname(path)
+    m = re.fullmatch(r"(.*)-part(\d+)", os.path.basename(group_dir))
+    name, part = (m.group(1), int(m.group(2))) if m else (os.path.basename(group_dir), 1)
+    return os.path.dirname(group_dir), name, part
+
+
 def finished_runs(sweep_dir: str) -> list:
     """[(label, group dir, index on the run axis, runs.csv row)] of every run of a sweep whose group finished
     (DONE), in group order."""
     if not os.path.exists(os.path.join(sweep_dir, "sweep.json")):
         raise RunNotFound(f"{sweep_dir!r} is not a sweep directory (no sweep.json)")
     out = []
-    for runs_csv in sorted(glob.glob(os.path.join(sweep_dir, "**", "groups", "*", LAYOUT_FILE), recursive=True)):
+    for runs_csv in sorted(glob.glob(os.path.join(sweep_dir, "**", "groups", "*", LAYOUT_FILE), recursive=True),
+                           key=group_order):
         root = os.path.dirname(runs_csv)
         if os.path.exists(os.path.join(root, "DONE")):
             if not os.path.exists(os.path.join(root, "config.json")):

@@ -178,7 +178,7 @@ def draw_configurations(spec: TuningSpec, class_name: str) -> list:
 
 
 def toml_value(v: Any) -> str:
-    """A TOML literal of a string, bool, number or list of them."""
+    """A TOML literal of a string, bool, number, list of them or table of them (inline: [config]'s physics)."""
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, (int, float)):
@@ -187,6 +187,8 @@ def toml_value(v: Any) -> str:
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + "}"
     raise TypeError(f"no TOML literal for {v!r}")
 
 

@@ -34,6 +34,7 @@ from gsa_jax.analysis.verdicts import baseline, ladder, round_time, sequential, 
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
+from gsa_jax.running.tuning import toml_value
 
 STATE = "answer.json"
 FLAT = "flat"  # the key of flat PPO's cell beside the K of the mixtures
@@ -179,20 +180,10 @@ def check_evaluations(spec: SweepSpec) -> None:
 
 def to_toml(spec: dict) -> str:
     """An experiment spec as a TOML experiment file (scalars, lists, [hparams], [config], hparam_sets)."""
-
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{" + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + "}"
-        return json.dumps(v)
-
-    lines = [f"{k} = {value(v)}" for k, v in spec.items() if k not in ("hparams", "config") and v is not None]
+    lines = [f"{k} = {toml_value(v)}" for k, v in spec.items() if k not in ("hparams", "config") and v is not None]
     for table in ("hparams", "config"):
         lines.append(f"[{table}]")
-        lines += [f"{k} = {value(v)}" for k, v in (spec.get(table) or {}).items() if v is not None]
+        lines += [f"{k} = {toml_value(v)}" for k, v in (spec.get(table) or {}).items() if v is not None]
     return "\n".join(lines) + "\n"
 
 
@@ -409,7 +400,7 @@ def decide(setup: Setup, evidence: Evidence, state: dict) -> tuple:
 
 
 # ----------------------------------------------------------------------------------------------- rounds
-COMPILE_LINE = re.compile(r"program (.*?) \(([\d.]+)s\)")
+COMPILE_LINE = re.compile(r"program ((?:compiled|loaded).*?) \(([\d.]+)s\)")  # not "reused": no compile
 
 
 def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str = "results",
@@ -504,13 +495,26 @@ def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, ve
                                 "verdicts_before": verdicts_before, "status": "running", "sweeps": {}})
         save_state(out, state)
     record = state["rounds"][-1]
-    for sweep in plan_sweeps(setup, record["plan"], record["round"]):
+    sweeps = plan_sweeps(setup, record["plan"], record["round"])
+    check_round_sweeps(out, record, [s[0] for s in sweeps])
+    for sweep in sweeps:
         if sweep[0] not in record["sweeps"]:
             record["sweeps"][sweep[0]] = train_sweep(out, setup, state, sweep, trained_steps(setup, state), log, train)
             save_state(out, state)
     record["status"] = "done"
     save_state(out, state)
     return record
+
+
+def check_round_sweeps(out: str, record: dict, planned: list) -> None:
+    """Refuse to resume a round whose recorded sweeps are not among those planned now (a round an older gsa_jax split
+    otherwise, e.g. one sweep per K): training the plan's sweeps would give its finished cells a second copy of the
+    same seeds. Raises AnswerError."""
+    stray = sorted(set(record["sweeps"]) - set(planned))
+    if stray:
+        raise AnswerError(f"{out}: round {record['round']} was started with other sweeps ({', '.join(stray)}) than this "
+                          f"gsa_jax plans ({', '.join(planned)}); finish it with the gsa_jax that started it, or answer "
+                          "in a new directory")
 
 
 # ----------------------------------------------------------------------------------------------- the step budget
