@@ -19,6 +19,7 @@ stderr), the call is jax's python callback, which is never cached. Built on jax 
 pyproject.toml).
 """
 
+import collections
 import functools
 import hashlib
 import sys
@@ -57,6 +58,20 @@ def _no_derivatives(*args, **kwargs):
 _LOCK = threading.Lock()
 _LIVE = {}  # key -> weak reference to the host function it names (alive while a program or a trace holds it)
 _ISSUED = {}  # fn's name -> keys issued under that name in this process, in order
+# the host functions most recently keyed or called, held strongly: a program runs asynchronously, so the env whose
+# host it calls may be dropped (with the jitted function holding the program) before the program has run, e.g.
+# `roll(envs.make(...))` returning unread arrays
+_RECENT = collections.OrderedDict()  # key -> host function
+RECENT = 8
+
+
+def hold(key: int, fn: Callable) -> None:
+    """Keep fn (named by key) alive until RECENT other host functions have been keyed or called after it."""
+    with _LOCK:
+        _RECENT[key] = fn
+        _RECENT.move_to_end(key)
+        while len(_RECENT) > RECENT:
+            _RECENT.popitem(last=False)
 
 
 def describe(fn: Callable) -> str:
@@ -87,12 +102,14 @@ def key_of(fn: Callable) -> int:
             if live is None:
                 _LIVE.pop(key, None)  # its programs are gone; the key is not issued again
             elif live == fn:
-                return key
-        digest = hashlib.sha256(f"{name}#{len(issued)}".encode()).digest()
-        key = int.from_bytes(digest[:8], "little", signed=True)
-        issued.append(key)
-        _LIVE[key] = _weak(fn)
-        return key
+                break
+        else:
+            digest = hashlib.sha256(f"{name}#{len(issued)}".encode()).digest()
+            key = int.from_bytes(digest[:8], "little", signed=True)
+            issued.append(key)
+            _LIVE[key] = _weak(fn)
+    hold(key, fn)
+    return key
 
 
 def checked_results(outs, expected: list) -> list:
@@ -118,7 +135,10 @@ def _handle(key: int, args: list, rets: list) -> None:
     ref = _LIVE.get(key)
     fn = ref() if ref is not None else None
     if fn is None:
-        raise RuntimeError(f"no host function with key {key} in this process")
+        raise RuntimeError(f"no host function with key {key} in this process: the env whose program this is was "
+                           f"dropped before the program ran, and {RECENT} others were used since (keep the env until "
+                           "its results are read)")
+    hold(key, fn)
     for ret, out in zip(rets, checked_results(fn(*args), [(r.shape, r.dtype) for r in rets])):
         np.copyto(ret, out)
 

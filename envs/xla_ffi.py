@@ -95,8 +95,10 @@ def views(words: list, start: int, count: int, writable: bool) -> tuple:
 
 def make_dispatch(handle: Callable) -> Dispatch:
     """The C-callable dispatch around handle(key, args, rets): NULL, or the address of its error message (kept
-    alive per thread until that thread's next error; the handler copies it at once)."""
-    errors = threading.local()
+    alive per thread until that thread's next error; the handler copies it at once). The messages are kept by thread
+    id, not in a threading.local: XLA's threads are not Python's, and a foreign thread's locals go with the thread
+    state ctypes makes for one call and drops on return, before XLA reads the message."""
+    errors, lock = {}, threading.Lock()
 
     def call(descriptor):
         try:
@@ -106,8 +108,10 @@ def make_dispatch(handle: Callable) -> Dispatch:
             handle(words[1], args, rets)
             return None
         except BaseException as e:  # noqa: BLE001 -- any failure is the call's error, never an unwinding into XLA
-            errors.message = ctypes.create_string_buffer(f"{type(e).__name__}: {e}".encode(errors="replace"))
-            return ctypes.addressof(errors.message)
+            message = ctypes.create_string_buffer(f"{type(e).__name__}: {e}".encode(errors="replace"))
+            with lock:
+                errors[threading.get_ident()] = message
+            return ctypes.addressof(message)
 
     return Dispatch(call)
 

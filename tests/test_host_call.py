@@ -126,3 +126,22 @@ def test_keys_name_each_host_function_once_and_repeat_across_processes():
     assert key_of(a.step) == ka and key_of(b.step) != ka
     n = _ISSUED[name].index(ka)
     assert ka == int.from_bytes(hashlib.sha256(f"{name}#{n}".encode()).digest()[:8], "little", signed=True)
+
+
+
+
+def test_a_program_whose_env_is_dropped_before_it_runs_still_runs():
+    """An env dropped, with the jitted functions holding its programs, right after they were called and before
+    they ran (`roll(envs.make(...))` returning unread arrays) still runs: the recently used host functions are held
+    (without that, this program's host calls found no host function, and the error XLA passed on was unreadable:
+    the message lived in a Python thread state that ctypes drops when a call from XLA's thread returns)."""
+    import envs
+    from envs.physics import Physics
+
+    def roll(env, steps=30):
+        s = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 3))
+        step = lambda s, _: (jax.vmap(env.step)(s, jnp.zeros((3, env.action_size))), s.obs)  # noqa: E731
+        return jax.jit(lambda s: jax.lax.scan(step, s, None, steps)[1])(s)
+
+    obs = np.asarray(roll(envs.make("Hopper-v5", physics=Physics(backend="c", threads=1), randomize="mass=2")))
+    assert obs.shape == (30, 3, 11) and np.all(np.isfinite(obs))
