@@ -45,7 +45,7 @@ def test_mjx_same_with_and_without_lapack():
         return jax.jit(lambda s: jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a), None), s, acts)[0].pipeline_state.qpos)
 
     env = envs.make_base("inverted_double_pendulum")
-    s0 = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 8))
+    s0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 8))  # eager MJX is op by op: slower
     acts = jax.random.uniform(jax.random.PRNGKey(1), (10, 8, env.action_size), minval=-1, maxval=1)
     ours, lapack = roll_of(env), roll_of(envs.make_base("inverted_double_pendulum", Physics(cholesky="lapack")))
     assert "lapack" in lapack.lower(s0).as_text().lower()  # the check below can see a LAPACK call

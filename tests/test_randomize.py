@@ -25,7 +25,7 @@ N_ENVS, N_STEPS = 3, 30
 
 def rollout(env, actions, key=0):
     """(states after reset, (qpos, obs, reward, done, info) per step [T, N, ...]) of env batched over N envs."""
-    s0 = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(key), actions.shape[1]))
+    s0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(key), actions.shape[1]))  # eager: op by op
 
     def step(s, a):
         s = jax.vmap(env.step)(s, a)

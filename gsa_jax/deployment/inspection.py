@@ -4,7 +4,7 @@ the task's units and their figure (the files `gsa inspect` writes)."""
 
 import json
 import os
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -64,29 +64,41 @@ def last_iteration(meta: dict) -> int:
     return int(meta.get("result", {}).get("iterations_done") or meta.get("iterations", 0))
 
 
-def rollout(trainer: Any, params: dict, obs_stats: dict, hp: Any, key: jax.Array, episodes: int, deterministic: bool,
-            iteration: int) -> dict:
-    """Full episodes (no auto-reset) -> dict of arrays [T, episodes, ...] and alive mask."""
-    cfg = trainer.cfg
+def rollout_program(trainer: Any, episodes: int) -> Callable:
+    """One compiled program for full episodes (no auto-reset) of either controller, so a caller wanting both compiles
+    once: f(params, obs_stats, sched, key, deterministic: bool array []) -> dict of arrays [T, episodes, ...] and the
+    alive mask (both the mean action and a sampled one are computed per step; `deterministic` picks one)."""
+    cfg, pol = trainer.cfg, trainer.policy
     env = make_env(cfg, auto_reset=False)
-    pol = trainer.policy
+
+    def episodes_of(params, obs_stats, sched, key, deterministic):
+        def step(carry, noise):
+            s, alive = carry
+            z = normalize(obs_stats, s.obs) if cfg.normalize_obs else s.obs
+            a_mode, c_mode = jax.vmap(pol.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
+            a_draw, c_draw, _ = jax.vmap(pol.sample, in_axes=(None, 0, 0, None))(params["policy"], z, noise, sched)
+            a, c = jnp.where(deterministic, a_mode, a_draw), jnp.where(deterministic, c_mode, c_draw)
+            nxt, reward, still, _ = step_episodes(env, s, jnp.clip(a, -1.0, 1.0), alive)
+            out = {"obs": s.obs, "qpos": s.pipeline_state.qpos, "z": z, "cluster": c, "action": a, "reward": reward,
+                   "alive": alive}
+            return (nxt, still), out
+
+        k_reset, k_run = jax.random.split(key)
+        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+        noise = draw_noise(k_run, (cfg.episode_length, episodes), env.action_size)
+        return jax.lax.scan(step, (s0, jnp.ones((episodes,))), noise)[1]
+
+    return jax.jit(episodes_of)
+
+
+def rollout(trainer: Any, params: dict, obs_stats: dict, hp: Any, key: jax.Array, episodes: int, deterministic: bool,
+            iteration: int, program: Callable | None = None) -> dict:
+    """Full episodes (no auto-reset) of the deterministic or the stochastic controller at training iteration
+    `iteration` -> dict of arrays [T, episodes, ...] and alive mask (program: rollout_program(trainer, episodes),
+    to reuse one compile)."""
+    program = program or rollout_program(trainer, episodes)
     sched = schedule(hp, jnp.asarray(iteration, jnp.int32))
-
-    def step(carry, noise):
-        s, alive = carry
-        z = normalize(obs_stats, s.obs) if cfg.normalize_obs else s.obs
-        if deterministic:
-            a, c = jax.vmap(pol.mode, in_axes=(None, 0, None))(params["policy"], z, sched)
-        else:
-            a, c, _ = jax.vmap(pol.sample, in_axes=(None, 0, 0, None))(params["policy"], z, noise, sched)
-        nxt, reward, still, _ = step_episodes(env, s, jnp.clip(a, -1.0, 1.0), alive)
-        out = {"obs": s.obs, "qpos": s.pipeline_state.qpos, "z": z, "cluster": c, "action": a, "reward": reward, "alive": alive}
-        return (nxt, still), out
-
-    k_reset, k_run = jax.random.split(key)
-    s0 = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
-    fn = jax.jit(lambda s0, noise: jax.lax.scan(step, (s0, jnp.ones((episodes,))), noise)[1])
-    return jax.device_get(fn(s0, draw_noise(k_run, (cfg.episode_length, episodes), env.action_size)))
+    return jax.device_get(program(params, obs_stats, sched, key, jnp.asarray(deterministic)))
 
 
 def cluster_stats(cluster: np.ndarray, alive: np.ndarray, k: int) -> dict:
@@ -221,8 +233,9 @@ def inspect_run(run_dir: str, out: str | None = None, episodes: int = 8, seed: i
     os.makedirs(out, exist_ok=True)
     last_it = last_iteration(meta)
     key = jax.random.PRNGKey(seed)
-    det = rollout(trainer, params, obs_stats, hp, key, episodes, True, last_it)
-    sto = rollout(trainer, params, obs_stats, hp, key, episodes, False, last_it)
+    program = rollout_program(trainer, episodes)  # compiled once for both controllers
+    det = rollout(trainer, params, obs_stats, hp, key, episodes, True, last_it, program)
+    sto = rollout(trainer, params, obs_stats, hp, key, episodes, False, last_it, program)
     ret_det, ret_sto = det["reward"].sum(0), sto["reward"].sum(0)
     summary = {
         "run_dir": run_dir, "env": trainer.cfg.env, "K": k, "episodes": episodes,
