@@ -66,12 +66,27 @@ RECENT = 8
 
 
 def hold(key: int, fn: Callable) -> None:
-    """Keep fn (named by key) alive until RECENT other host functions have been keyed or called after it."""
+    """Keep fn (named by key) alive until RECENT other host functions have been keyed or called after it, or
+    release_recent. Only lowering (key_of) and calls refresh it: a program dispatched again from jit's cache is
+    covered only while its host is among the RECENT last used."""
+    dropped = []  # released after the lock: a host's teardown (its simulations, threads) never runs under it
     with _LOCK:
+        if _RECENT and next(reversed(_RECENT)) == key:  # the common case: the same host, call after call
+            return
         _RECENT[key] = fn
         _RECENT.move_to_end(key)
         while len(_RECENT) > RECENT:
-            _RECENT.popitem(last=False)
+            dropped.append(_RECENT.popitem(last=False))
+    del dropped
+
+
+def release_recent() -> None:
+    """Stop holding the recently used host functions (gsa_jax.running.programs.cached, when it drops a program
+    whose results were read): their envs live on only where something else holds them."""
+    with _LOCK:
+        dropped = list(_RECENT.values())
+        _RECENT.clear()
+    del dropped
 
 
 def describe(fn: Callable) -> str:
@@ -160,8 +175,9 @@ def ffi_available() -> bool:
 
 def _lower_ffi(ctx, *args, callback, result_avals, vmap_method):
     """CPU: the custom call xla_ffi.TARGET with attributes key (key_of(callback)) and site (its place in the
-    program); the program keeps callback alive (a keepalive of the executable) so that its key stays live. Without
-    the FFI handler: _lower_callback."""
+    program); the program keeps callback alive (a keepalive of the executable) so that its key stays live while
+    the program is held, and hold() while it may still be running after it was dropped. Without the FFI handler:
+    _lower_callback."""
     if not ffi_available():
         return _lower_callback(ctx, *args, callback=callback, result_avals=result_avals, vmap_method=vmap_method)
     ctx.module_context.add_keepalive(callback)

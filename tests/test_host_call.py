@@ -128,8 +128,6 @@ def test_keys_name_each_host_function_once_and_repeat_across_processes():
     assert ka == int.from_bytes(hashlib.sha256(f"{name}#{n}".encode()).digest()[:8], "little", signed=True)
 
 
-
-
 def test_a_program_whose_env_is_dropped_before_it_runs_still_runs():
     """An env dropped, with the jitted functions holding its programs, right after they were called and before
     they ran (`roll(envs.make(...))` returning unread arrays) still runs: the recently used host functions are held
@@ -145,3 +143,35 @@ def test_a_program_whose_env_is_dropped_before_it_runs_still_runs():
 
     obs = np.asarray(roll(envs.make("Hopper-v5", physics=Physics(backend="c", threads=1), randomize="mass=2")))
     assert obs.shape == (30, 3, 11) and np.all(np.isfinite(obs))
+
+
+def test_a_host_function_is_held_until_others_were_used_or_released():
+    """The host function of a key is held after its owner is dropped, until RECENT other host functions were
+    keyed or called after it, or release_recent(); then its key finds nothing, and says why."""
+    import gc
+
+    from envs import host_call as hc
+
+    class Host:
+        def step(self):
+            return ()
+
+    def key_of_dropped():
+        return hc.key_of(Host().step)  # the Host is dropped on return
+
+    key = key_of_dropped()
+    gc.collect()
+    hc._handle(key, [], [])  # held
+    others = [Host() for _ in range(hc.RECENT)]
+    for host in others:
+        hc.key_of(host.step)
+    del host
+    gc.collect()
+    with pytest.raises(RuntimeError, match="dropped before the program ran"):
+        hc._handle(key, [], [])
+    key = hc.key_of(others.pop().step)
+    others.clear()
+    hc.release_recent()
+    gc.collect()
+    with pytest.raises(RuntimeError, match=f"no host function with key {key}"):
+        hc._handle(key, [], [])

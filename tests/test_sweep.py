@@ -209,7 +209,7 @@ def test_a_resumed_sweep_keeps_its_runs_per_program():
         "out": "d", "runs_per_program": 10, "local_processes": 2}
     runs = [{"env": "e", "policy": "mixture", "K": 1, "seed": s} for s in range(10)]
     assert saved_options({"spec": {}, "pad_runs": 10, "runs": runs}, "d", None) == {"out": "d", "runs_per_program": 10}
-    with pytest.raises(SpecError, match="a group of 11 runs, which it trained whole"):  # parts would retrain it
+    with pytest.raises(ResumeRefused, match="a group of 11 runs, which it trained whole"):  # parts would retrain it
         saved_options({"spec": {}, "pad_runs": 10, "runs": runs + [{**runs[0], "seed": 10}]}, "d", None)
 
 
@@ -665,6 +665,12 @@ def test_a_group_trained_in_parts_equals_the_group_whole(tiny_spec_file, inproce
     assert sorted((r[3]["K"], r[3]["seed"]) for r in found) == [("1", "0"), ("1", "1"), ("3", "0"), ("3", "1")]
     with pytest.raises(ResumeRefused, match="--runs-per-program 2, not 0"):  # other parts would train them again
         run_sweep(load_spec(tiny_spec_file), str(out), SweepOptions(devices=tuple(jax.local_devices()[:1])))
+    from gsa_jax.sweep import main  # the supervisor refuses before any worker starts (workers 1.. would not check)
+
+    capsys.readouterr()
+    assert main([str(tiny_spec_file), "--out", str(out), "--local-processes", "2", "--runs-per-program", "3"]) == 2
+    captured = capsys.readouterr()
+    assert "--runs-per-program 2, not 3" in captured.err and "worker processes" not in captured.out
 
 
 def test_group_of_an_older_file_format_refused_in_one_line(tiny_spec_file, inprocess, tmp_path, capsys):

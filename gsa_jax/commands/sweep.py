@@ -58,7 +58,6 @@ Experiment file (TOML):
 """
 
 import argparse
-import collections
 import os
 import sys
 from typing import Callable
@@ -70,9 +69,10 @@ from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
 from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import resume_command
 from gsa_jax.running.runlock import hold
-from gsa_jax.running.spec import Group, SpecError, SweepSpec, check_spec, group_name, load_spec
+from gsa_jax.running.spec import SpecError, SweepSpec, build_grid, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
-from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
+from gsa_jax.running.sweeps import (EXIT_FAILED_RUNS, SweepOptions, check_resumable, recorded_runs_per_program, report_failures,
+                                    run_sweep, spec_tasks)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -115,24 +115,11 @@ def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
     if "spec" not in meta:
         raise KeyError("spec")
     saved = {k: meta[k] for k in ("run_batch", "tensorboard", "runs_per_program") if k in meta}
-    if "pad_runs" in meta:  # an older sweep.json's: it padded groups of fewer runs as runs_per_program does, and trained a
-        # group of more whole, which runs_per_program would split into parts under other directories
-        saved["runs_per_program"] = pad_runs_as_runs_per_program(meta)
+    if "pad_runs" in meta:  # an older sweep.json's
+        saved["runs_per_program"] = recorded_runs_per_program(meta)
     if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
         saved["local_processes"] = meta["num_processes"]
     return {"out": out, **saved}
-
-
-def pad_runs_as_runs_per_program(meta: dict) -> int:
-    """An older sweep.json's pad_runs as runs_per_program: the same where no group has more runs than it (each group
-    then one program, padded); a sweep with a larger group is refused (SpecError: resume it with its own commit)."""
-    n = int(meta["pad_runs"])
-    sizes = collections.Counter(group_name(Group(r["env"], r["policy"], [r])) for r in meta.get("runs", []))
-    if n and sizes and max(sizes.values()) > n:
-        raise SpecError(f"this sweep.json was written by an older gsa_jax (pad_runs {n}) and has a group of "
-                        f"{max(sizes.values())} runs, which it trained whole; resume it with its own commit "
-                        f"(git_commit {meta.get('git_commit', '?')})")
-    return n
 
 
 def parse_args(argv: list) -> argparse.Namespace:
@@ -191,7 +178,9 @@ def sweep(argv: list, after_chunk: Callable | None = None) -> int:
     lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
     os.makedirs(lock_dir, exist_ok=True)
     with hold(lock_dir, f"gsa_jax.sweep {spec.name}", log=lambda m: print(m, file=sys.stderr)):
-        if local > 1 or not args.no_watchdog:
+        if local > 1 or not args.no_watchdog:  # every worker finds what process 0 would refuse: refused before them
+            check_resumable(out, spec, spec_tasks(spec, build_grid(spec))[1],
+                            SweepOptions(force=args.force, runs_per_program=args.runs_per_program))
             return supervise_workers(args, argv, out, local)
         return run_worker(args, spec, out, after_chunk)
 

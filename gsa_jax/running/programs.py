@@ -17,6 +17,7 @@ import numpy as np
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from envs import host_call
 from gsa_jax.algorithm.config import Config, Hparams, make_hparams
 from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running import xla_cache
@@ -117,6 +118,7 @@ def cached(kind: str, key: Any, build: Callable) -> Any:
     if key not in programs:
         while len(programs) >= _KEEP.get(kind, 1):
             programs.pop(next(iter(programs)))
+            host_call.release_recent()  # its envs' hosts (MuJoCo C) go with it
         programs[key] = build()
     programs[key] = programs.pop(key)  # most recent last
     return programs[key]

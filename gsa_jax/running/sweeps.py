@@ -1,6 +1,7 @@
 """A sweep's groups trained one after the other: group checkpoints (GroupStore), the tidy metrics table,
 sweep.json and the failed-runs report; `gsa sweep` is its command (workers, watchdog)."""
 
+import collections
 import dataclasses
 import json
 import math
@@ -23,7 +24,7 @@ from gsa_jax.running.spec import (
     Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_every, group_iterations, group_name,
 )
 from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
-from gsa_jax.running.trained import run_label
+from gsa_jax.running.trained import part_dir, run_label
 
 EXIT_FAILED_RUNS = 1
 
@@ -99,7 +100,7 @@ def program_parts(group: Group, per_program: int) -> list:
     if not per_program or len(group.runs) <= per_program:
         return [(name, group)]
     parts = [group.runs[i:i + per_program] for i in range(0, len(group.runs), per_program)]
-    return [(name if i == 0 else f"{name}-part{i + 1}", group._replace(runs=p)) for i, p in enumerate(parts)]
+    return [(part_dir(name, i), group._replace(runs=p)) for i, p in enumerate(parts)]
 
 
 def run_group(spec: SweepSpec, out: str, group: Group, ctx: GroupContext) -> Result:
@@ -166,30 +167,58 @@ def recorded_spec(raw: dict) -> dict:
         return raw
 
 
-def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: SweepOptions) -> None:
-    """sweep.json: spec, every run, runs per sub-batch, versions, commit (a resumed sweep must have the same
-    spec, unless options.force)."""
+def recorded_runs_per_program(old: dict) -> int:
+    """A sweep.json's runs per program; an older one's pad_runs where no group had more runs than it (that sweep
+    padded smaller groups as runs_per_program does, and trained a larger one whole, which parts would split under
+    other directories: ResumeRefused)."""
+    if "pad_runs" not in old:
+        return int(old.get("runs_per_program", 0))
+    n = int(old["pad_runs"])
+    sizes = collections.Counter(group_name(Group(r["env"], r["policy"], [r])) for r in old.get("runs", []))
+    if n and sizes and max(sizes.values()) > n:
+        raise ResumeRefused(f"this sweep.json was written by an older gsa_jax (pad_runs {n}) and has a group of "
+                            f"{max(sizes.values())} runs, which it trained whole; resume it with its own commit "
+                            f"(git_commit {old.get('git_commit', '?')})")
+    return n
+
+
+def check_resumable(root: str, spec: SweepSpec, tasks: dict, options: SweepOptions) -> None:
+    """Nothing, or ResumeRefused where root/sweep.json holds another sweep: another spec or task code (unless
+    options.force), or other runs per program (even with force: parts are directories, so another N would train
+    runs again). Read-only: the supervisor checks before it starts the workers, process 0 before it writes."""
     meta_path = os.path.join(root, "sweep.json")
+    if not os.path.exists(meta_path):
+        return
+    with open(meta_path) as f:
+        old = json.load(f)
+    check_unchanged({"spec": recorded_spec(old.get("spec", {})), "tasks": old.get("tasks", tasks)},
+                    {"spec": spec.to_json(), "tasks": tasks},
+                    options.force, f"{root} holds a sweep with a different spec or task code",
+                    "use another --out, or --force to continue it with the new spec")
+    before = recorded_runs_per_program(old)
+    if before != options.runs_per_program:
+        raise ResumeRefused(f"{root} holds a sweep trained with --runs-per-program {before}, not "
+                            f"{options.runs_per_program}: resume it with {before} (or --resume {root} alone), "
+                            "or use another --out")
+
+
+def spec_tasks(spec: SweepSpec, groups: list[Group]) -> tuple:
+    """({group name: Config}, {env: its task's source record}) of a sweep's groups."""
     configs = {group_name(g): group_config(spec, g) for g in groups}
     sources = {cfg.env: cfg.task.source() for cfg in configs.values()}
-    tasks = {e: sources[e] for e in spec.envs if e in sources}
-    if os.path.exists(meta_path):
-        with open(meta_path) as f:
-            old = json.load(f)
-        check_unchanged({"spec": recorded_spec(old.get("spec", {})), "tasks": old.get("tasks", tasks)},
-                        {"spec": spec.to_json(), "tasks": tasks},
-                        options.force, f"{root} holds a sweep with a different spec or task code",
-                        "use another --out, or --force to continue it with the new spec")
-        before = old.get("runs_per_program", old.get("pad_runs", 0))
-        if int(before) != options.runs_per_program:  # parts are directories: another N would train its runs again
-            raise ResumeRefused(f"{root} holds a sweep trained with --runs-per-program {before}, not "
-                                f"{options.runs_per_program}: resume it with {before} (or --resume {root} alone), "
-                                "or use another --out")
+    return configs, {e: sources[e] for e in spec.envs if e in sources}
+
+
+def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: SweepOptions) -> None:
+    """sweep.json: spec, every run, runs per sub-batch and per program, versions, commit (a resumed sweep must be
+    the same: check_resumable)."""
+    configs, tasks = spec_tasks(spec, groups)
+    check_resumable(root, spec, tasks, options)
     physics = {name: physics_record(cfg) for name, cfg in configs.items()}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
-            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "runs_per_program": options.runs_per_program, "physics": physics,
-            "tasks": tasks, **run_metadata()}
-    write_atomic(meta_path, json.dumps(meta, indent=1))
+            "run_batch": options.run_batch, "tensorboard": options.tensorboard, "runs_per_program": options.runs_per_program,
+            "physics": physics, "tasks": tasks, **run_metadata()}
+    write_atomic(os.path.join(root, "sweep.json"), json.dumps(meta, indent=1))
 
 
 def run_sweep(spec: SweepSpec, out: str, options: SweepOptions = SweepOptions()) -> bool:

@@ -76,13 +76,22 @@ def run_label(row: dict) -> str:
     return "-".join(parts + [f"s{row['seed']}"])
 
 
+PART = re.compile(r"(.*)-part([2-9]|[1-9]\d+)")  # a group's later parts: <group>-part2, ... (part_dir)
+
+
+def part_dir(group: str, index: int) -> str:
+    """The directory of part `index` (0-based) of a group trained in parts (gsa sweep --runs-per-program): the
+    group's own name, then <group>-part2, <group>-part3, ..."""
+    return group if index == 0 else f"{group}-part{index + 1}"
+
+
 def group_order(path: str) -> tuple:
-    """Sort key of a group directory's file: its parent path, then the group, then its part (<group>, <group>-part2,
-    ..., <group>-part10: gsa sweep --runs-per-program)."""
+    """Sort key of a file in a group directory: its parent path, the group, its part (<group> before <group>-part2
+    before <group>-part10), then the path itself."""
     group_dir = os.path.dirname(path)
-    m = re.fullmatch(r"(.*)-part(\d+)", os.path.basename(group_dir))
+    m = PART.fullmatch(os.path.basename(group_dir))
     name, part = (m.group(1), int(m.group(2))) if m else (os.path.basename(group_dir), 1)
-    return os.path.dirname(group_dir), name, part
+    return os.path.dirname(group_dir), name, part, path
 
 
 def finished_runs(sweep_dir: str) -> list:
