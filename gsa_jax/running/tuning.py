@@ -194,14 +194,17 @@ def toml_value(v: Any) -> str:
 
 
 def to_toml(experiment: dict, comment: str) -> str:
-    """An experiment file's text: top-level fields, [config], then [[hparam_sets]] (if any)."""
-    lines = [f"# {comment}"]
-    lines += [f"{k} = {toml_value(v)}" for k, v in experiment.items() if k not in ("config", "hparam_sets", "hparams")]
+    """An experiment file's text: top-level fields, [hparams], [config], then [[hparam_sets]] (if any); fields
+    that are None are left out (the spec's defaults)."""
+    def fields(table: dict) -> list:
+        return [f"{k} = {toml_value(v)}" for k, v in table.items() if v is not None]
+
+    lines = [f"# {comment}"] + fields({k: v for k, v in experiment.items() if k not in ("config", "hparam_sets", "hparams")})
     if experiment.get("hparams"):
-        lines += ["[hparams]"] + [f"{k} = {toml_value(v)}" for k, v in experiment["hparams"].items()]
-    lines += ["[config]"] + [f"{k} = {toml_value(v)}" for k, v in experiment.get("config", {}).items()]
+        lines += ["[hparams]"] + fields(experiment["hparams"])
+    lines += ["[config]"] + fields(experiment.get("config") or {})
     for s in experiment.get("hparam_sets", ()):
-        lines += ["[[hparam_sets]]"] + [f"{k} = {toml_value(v)}" for k, v in s.items()]
+        lines += ["[[hparam_sets]]"] + fields(s)
     return "\n".join(lines) + "\n"
 
 

@@ -34,7 +34,7 @@ from gsa_jax.analysis.verdicts import baseline, ladder, round_time, sequential, 
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
-from gsa_jax.running.tuning import toml_value
+from gsa_jax.running.tuning import to_toml
 
 STATE = "answer.json"
 FLAT = "flat"  # the key of flat PPO's cell beside the K of the mixtures
@@ -176,15 +176,6 @@ def check_evaluations(spec: SweepSpec) -> None:
         need = MIN_EVALUATIONS * cfg.batch_size * (every if spec.eval_every else 1)
         raise AnswerError(f"--steps {spec.steps} gives flat PPO {evaluations} evaluations per run; the still-learning "
                           f"test needs at least {MIN_EVALUATIONS}: give --steps {need} or more")
-
-
-def to_toml(spec: dict) -> str:
-    """An experiment spec as a TOML experiment file (scalars, lists, [hparams], [config], hparam_sets)."""
-    lines = [f"{k} = {toml_value(v)}" for k, v in spec.items() if k not in ("hparams", "config") and v is not None]
-    for table in ("hparams", "config"):
-        lines.append(f"[{table}]")
-        lines += [f"{k} = {toml_value(v)}" for k, v in (spec.get(table) or {}).items() if v is not None]
-    return "\n".join(lines) + "\n"
 
 
 def load_state(out: str, setup: Setup) -> dict:
@@ -413,7 +404,7 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
     for d in ("specs", "logs"):
         os.makedirs(os.path.join(out, d), exist_ok=True)
     toml = os.path.join(out, "specs", name + ".toml")
-    write_atomic(toml, to_toml(spec))
+    write_atomic(toml, to_toml(spec, f"sweep {name} of gsa answer (written by gsa answer)"))
     sweep_dir, results = os.path.join(out, "sweeps", name), os.path.join(out, where, name)
     cmd = [sys.executable, "-m", "gsa_jax.sweep", toml, "--out", sweep_dir, "--no-tensorboard",
            "--runs-per-program", str(runs_per_program)]
