@@ -114,8 +114,8 @@ def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
     continues with (the spec is checked apart; a record without one is not a sweep's: KeyError)."""
     if "spec" not in meta:
         raise KeyError("spec")
-    saved = {k: meta[k] for k in ("run_batch", "tensorboard", "runs_per_program") if k in meta}
-    if "pad_runs" in meta:  # an older sweep.json's
+    saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
+    if "runs_per_program" in meta or "pad_runs" in meta:  # pad_runs: an older sweep.json's
         saved["runs_per_program"] = recorded_runs_per_program(meta)
     if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
         saved["local_processes"] = meta["num_processes"]

@@ -91,14 +91,19 @@ def rollout_program(trainer: Any, episodes: int) -> Callable:
     return jax.jit(episodes_of)
 
 
-def rollout(trainer: Any, params: dict, obs_stats: dict, hp: Any, key: jax.Array, episodes: int, deterministic: bool,
-            iteration: int, program: Callable | None = None) -> dict:
-    """Full episodes (no auto-reset) of the deterministic or the stochastic controller at training iteration
-    `iteration` -> dict of arrays [T, episodes, ...] and alive mask (program: rollout_program(trainer, episodes),
-    to reuse one compile)."""
-    program = program or rollout_program(trainer, episodes)
+def play(program: Callable, params: dict, obs_stats: dict, hp: Any, key: jax.Array, deterministic: bool,
+         iteration: int) -> dict:
+    """Full episodes of a rollout_program at training iteration `iteration` (its schedules) -> NumPy arrays
+    [T, episodes, ...] and the alive mask."""
     sched = schedule(hp, jnp.asarray(iteration, jnp.int32))
     return jax.device_get(program(params, obs_stats, sched, key, jnp.asarray(deterministic)))
+
+
+def rollout(trainer: Any, params: dict, obs_stats: dict, hp: Any, key: jax.Array, episodes: int, deterministic: bool,
+            iteration: int) -> dict:
+    """Full episodes (no auto-reset) of the deterministic or the stochastic controller at training iteration
+    `iteration` -> dict of arrays [T, episodes, ...] and alive mask."""
+    return play(rollout_program(trainer, episodes), params, obs_stats, hp, key, deterministic, iteration)
 
 
 def cluster_stats(cluster: np.ndarray, alive: np.ndarray, k: int) -> dict:
@@ -234,8 +239,8 @@ def inspect_run(run_dir: str, out: str | None = None, episodes: int = 8, seed: i
     last_it = last_iteration(meta)
     key = jax.random.PRNGKey(seed)
     program = rollout_program(trainer, episodes)  # compiled once for both controllers
-    det = rollout(trainer, params, obs_stats, hp, key, episodes, True, last_it, program)
-    sto = rollout(trainer, params, obs_stats, hp, key, episodes, False, last_it, program)
+    det = play(program, params, obs_stats, hp, key, True, last_it)
+    sto = play(program, params, obs_stats, hp, key, False, last_it)
     ret_det, ret_sto = det["reward"].sum(0), sto["reward"].sum(0)
     summary = {
         "run_dir": run_dir, "env": trainer.cfg.env, "K": k, "episodes": episodes,

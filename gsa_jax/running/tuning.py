@@ -182,7 +182,7 @@ def toml_value(v: Any) -> str:
     """A TOML literal of a string, bool, number, list of them or table of them (inline: [config]'s physics)."""
     if isinstance(v, bool):
         return "true" if v else "false"
-    if isinstance(v, (numbers.Integral, numbers.Real)):  # NumPy's too, written as plain numbers
+    if isinstance(v, numbers.Real):  # NumPy's too, written as plain numbers
         return str(int(v)) if isinstance(v, numbers.Integral) else repr(float(v))
     if isinstance(v, str):
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'

@@ -404,7 +404,7 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
     for d in ("specs", "logs"):
         os.makedirs(os.path.join(out, d), exist_ok=True)
     toml = os.path.join(out, "specs", name + ".toml")
-    write_atomic(toml, to_toml(spec, f"sweep {name} of gsa answer (written by gsa answer)"))
+    write_atomic(toml, to_toml(spec, f"gsa answer's sweep {name}"))
     sweep_dir, results = os.path.join(out, "sweeps", name), os.path.join(out, where, name)
     cmd = [sys.executable, "-m", "gsa_jax.sweep", toml, "--out", sweep_dir, "--no-tensorboard",
            "--runs-per-program", str(runs_per_program)]
