@@ -8,6 +8,7 @@ import io
 from typing import TYPE_CHECKING, Any, Optional
 
 from envs import registry
+from envs.families.record import mjx_side
 from envs.physics import C, Physics, applied, mj_model, record
 from envs.randomization import Randomize, RandomizeError, check_model, parse
 from envs.registry import TaskLike
@@ -130,7 +131,7 @@ def _variant_reason(task, backend, spec):
         return None
     if not task.mjx_variants:
         return f"{task.name} is not a Brax PipelineEnv; model scales and pushes apply to task definitions and Brax's envs"
-    have = _wrappers()[1].mjx_model_fields()
+    have = mjx_side().task_mjx.mjx_model_fields()
     missing = [f for f, _, _ in spec.model_fields if f not in have]
     if missing:
         return f"MJX's model has no field {missing[0]}; backend 'c' (--physics c) scales any float MjModel field"

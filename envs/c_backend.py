@@ -29,14 +29,14 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from brax.envs.base import Env, State
 from mujoco import batch as mj_batch
 
 from envs import allegro_task
 from envs.host_call import host_call
+from envs.interface import Env, State
 from envs.physics import resolve_threads
 from envs.randomization import scaled_values
-from envs.task_mjx import task_start_noise
+from envs.starts import task_start_noise
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 _HOSTS = weakref.WeakSet()  # this process's live hosts, read by host_seconds()

@@ -12,13 +12,11 @@ start of a run under the nominal model.
 """
 
 import contextlib
-import dataclasses
 
 import jax
 import jax.numpy as jnp
-from brax.envs.base import Wrapper
-from mujoco import mjx
 
+from envs.interface import Wrapper
 from envs.physics import C, mj_model, substeps
 from envs.randomization import push_force
 
@@ -68,11 +66,6 @@ def is_planar(base):
     """Whether pushes act along +-x only (the task definition's `planar`)."""
     task = getattr(base, "task", None) or getattr(base, "port", None)
     return bool(getattr(task, "planar", False))
-
-
-def mjx_model_fields():
-    """The names of MJX's model fields (model scales on MJX apply to these)."""
-    return {f.name for f in dataclasses.fields(mjx.Model)}
 
 
 class Randomized(Wrapper):

@@ -10,6 +10,7 @@ part after such an event (Ant-v5 from ~3 env steps on); from a shared state one 
 
 import contextlib
 import copy
+import dataclasses
 import functools
 
 import jax
@@ -20,25 +21,12 @@ from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
 from mujoco import mjx
 
-
-def start_noise(rng, m, noise, law, vel_noise=None, qpos_law="uniform"):
-    """(dq [nq], dv [nv]) of a reset drawn from rng: dq ~ U(-noise, noise) (qpos_law 'uniform') or noise * N(0, 1)
-    ('normal'); dv ~ U(-s, s) (law 'uniform') or s * N(0, 1) ('normal') with s = vel_noise (None: noise); scales
-    are scalars or per-coordinate arrays. The C backend's resets draw the same."""
-    k_q, k_v = jax.random.split(rng)
-    s = noise if vel_noise is None else vel_noise
-    if qpos_law == "uniform":
-        dq = jax.random.uniform(k_q, (m.nq,), minval=-noise, maxval=noise)
-    else:
-        dq = noise * jax.random.normal(k_q, (m.nq,))
-    if law == "uniform":
-        return dq, jax.random.uniform(k_v, (m.nv,), minval=-s, maxval=s)
-    return dq, s * jax.random.normal(k_v, (m.nv,))
+from envs.starts import start_noise, task_start_noise  # noqa: F401 - re-exported
 
 
-def task_start_noise(rng, task):
-    """start_noise with a Task's (envs/task.py) start-state law."""
-    return start_noise(rng, task.model, task.noise, task.qvel_noise, task.vel_noise, task.qpos_noise)
+def mjx_model_fields():
+    """The names of MJX's model fields (model scales on MJX apply to these)."""
+    return {f.name for f in dataclasses.fields(mjx.Model)}
 
 
 def step1(sys, data):

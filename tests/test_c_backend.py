@@ -261,12 +261,14 @@ def test_host_seconds_count_the_calls_and_the_time_inside_mujoco_c():
 
 
 # a process that rolls out a few steps of backend 'c' hopper (2 envs, auto-reset) as one compiled program, with
-# JAX's persistent cache in argv[1], and reports the cache hits of that program and its outputs' hash
+# JAX's persistent cache in argv[1], and reports the cache hits of that program, its outputs' hash and which of Brax,
+# Flax and MJX it imported (with the modules a sweep worker and a training run import)
 CACHED_PROGRAM = """
 import hashlib, json, sys
 import jax, numpy as np
 from jax._src import monitoring
 import envs
+import gsa_jax.running.driver, gsa_jax.sweep
 from envs.physics import Physics
 from gsa_jax.running import xla_cache
 
@@ -288,13 +290,15 @@ lowered = jax.jit(rollout).lower(keys, actions)
 hits = events.count("/jax/compilation_cache/cache_hits")
 out = jax.tree.leaves(lowered.compile()(keys, actions))
 digest = hashlib.sha256(b"".join(np.asarray(x).tobytes() for x in out)).hexdigest()
-print(json.dumps({"hits": events.count("/jax/compilation_cache/cache_hits") - hits, "digest": digest}))
+heavy = sorted({m.split(".")[0] if m != "mujoco.mjx" else m for m in sys.modules if m.startswith(("brax", "flax", "mujoco.mjx"))})
+print(json.dumps({"hits": events.count("/jax/compilation_cache/cache_hits") - hits, "digest": digest, "heavy": heavy}))
 """
 
 
 def test_cached_program_loads_in_a_new_process_and_computes_the_same(tmp_path):
     """A backend-'c' program holds no Python callback (envs/host_call.py): a second process with the same program
-    loads it from the persistent cache, quietly, and its host calls step that process's MuJoCo C to the same bits."""
+    loads it from the persistent cache, quietly, and its host calls step that process's MuJoCo C to the same bits.
+    Neither process imports Brax or MJX (envs/interface.py): seconds of every 'c' worker's start."""
     script = tmp_path / "program.py"
     script.write_text(CACHED_PROGRAM)
 
@@ -308,3 +312,18 @@ def test_cached_program_loads_in_a_new_process_and_computes_the_same(tmp_path):
     first, second = run(), run()
     assert first["hits"] == 0 and second["hits"] == 1
     assert second["digest"] == first["digest"]
+    assert first["heavy"] == [] and second["heavy"] == []
+
+
+def test_the_c_state_flattens_as_brax_state_does():
+    """envs.interface.State has Brax's fields in Brax's order and the same leaf paths, so a checkpoint's keys
+    (gsa_jax.running.checkpoint: keystr of each leaf) are the same whichever State a run carried."""
+    from brax.envs.base import State as BraxState
+
+    from envs.interface import State
+
+    fields = dict(pipeline_state={"q": jnp.zeros(2)}, obs=jnp.ones(3), reward=jnp.zeros(()), done=jnp.zeros(()),
+                  metrics={"m": jnp.ones(())}, info={"steps": jnp.zeros((), jnp.int32)})
+    ours, theirs = jax.tree_util.tree_flatten_with_path(State(**fields)), jax.tree_util.tree_flatten_with_path(BraxState(**fields))
+    assert [jax.tree_util.keystr(p) for p, _ in ours[0]] == [jax.tree_util.keystr(p) for p, _ in theirs[0]]
+    assert State(**fields).replace(obs=jnp.zeros(3)).obs.sum() == 0
