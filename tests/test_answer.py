@@ -241,15 +241,18 @@ def test_every_sweep_of_a_class_has_one_program_shape():
     gsa sweep --runs-per-program); a round runs one sweep per class."""
     from gsa_jax.analysis.verdicts import step_budget
     from gsa_jax.commands.answer import build_parser, make_setup
-    from gsa_jax.running.spec import build_grid, check_spec, group_config
+    from gsa_jax.running.spec import build_grid, check_spec, group_config, group_iterations
 
     setup = make_setup(build_parser().parse_args(["--env", "dmc:cartpole-balance"]))
     for policy, cells in (("mixture", [[1], [2], [4], [1, 2, 4]]), ("mlp", [[]])):
         shapes = set()
-        for steps in step_budget.candidates(setup.steps()):
+        for steps in step_budget.candidates(setup.steps(), A.calibration_floor(setup), A.budget_quantum(setup)):
             for ks in cells:
                 spec = check_spec(A.sweep_spec(setup, policy, ks, list(range(10, 20)), "x", steps))
-                shapes.add((group_config(spec, build_grid(spec)[0]), spec.chunk))
+                cfg = group_config(spec, build_grid(spec)[0])
+                shapes.add((cfg, spec.chunk))
+                if policy == "mlp":  # flat PPO's runs train exactly the budget judged: whole chunks, not rounded up
+                    assert group_iterations(spec, cfg, spec.chunk) * cfg.batch_size == steps
         assert len(shapes) == 1, shapes
     sweeps = A.plan_sweeps(setup, {"mlp": ([], list(range(10, 30))), "mixture": ([2, 4], list(range(10, 30)))}, 3)
     assert A.unit(setup) == 10 and sweeps == [("round3-flat_ppo-s10-29", "mlp", [], list(range(10, 30))),

@@ -30,6 +30,16 @@ def test_candidates_halve_the_cap_and_respect_the_floor():
     assert step_budget.candidates(50_000, floor=60_000) == [50_000]
 
 
+def test_candidates_are_whole_chunks_nearest_the_halvings():
+    """With quantum = one chunk of flat PPO's program (10 iterations x 2048 env steps), every budget is whole chunks,
+    so a run trains exactly the budget judged: 62,500 would train 4 chunks (81,920 steps) rounded up, its nearest
+    whole number is 3 chunks."""
+    q = 20_480
+    assert step_budget.candidates(1_000_000, quantum=q) == [61_440, 122_880, 245_760, 491_520, 1_003_520]
+    assert all(b % q == 0 for b in step_budget.candidates(1_000_000, floor=24_576, quantum=q))
+    assert step_budget.candidates(30_000, quantum=q) == [20_480]  # at least one chunk; the cap too is its nearest
+
+
 def test_the_rule_picks_the_first_budget_past_the_knee():
     budgets = step_budget.candidates(1_000_000)
     judged, chosen = [], None
@@ -85,12 +95,14 @@ def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
     spec = {"steps": 1_000_000, "chunk": 1, "eval_every": 1, "hparams": {}, "config": {}}
     setup = A.Setup(ENV, (1, 2), 0.1, (10, 20), {"mlp": spec, "mixture": spec}, max_steps=1_000_000)
     state = A.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=train)
-    assert state["steps"]["budget"] == 125_000 and [c["steps"] for c in state["steps"]["calibration"]] == [62_500, 125_000]
-    assert [c[1] for c in calls[:2]] == [62_500, 125_000] and {c[1] for c in calls[2:]} == {125_000}  # equal steps
+    q = A.budget_quantum(setup)  # a chunk of 1 iteration here: the budgets are whole iterations of flat PPO's batch
+    first, second = round(62_500 / q) * q, round(125_000 / q) * q
+    assert state["steps"]["budget"] == second and [c["steps"] for c in state["steps"]["calibration"]] == [first, second]
+    assert [c[1] for c in calls[:2]] == [first, second] and {c[1] for c in calls[2:]} == {second}  # equal steps
     assert all(c[3] == 10 for c in calls)  # every sweep padded to one program's run count
     scores = A.collect_scores(str(tmp_path), setup)
     assert sorted(scores[A.FLAT]) == list(range(10))  # the 125k calibration runs are flat PPO's first look, once
-    assert state["baseline"]["learning"]["stopped"] and state["baseline"]["learning"]["steps"] == 125_000
+    assert state["baseline"]["learning"]["stopped"] and state["baseline"]["learning"]["steps"] == second
     # the mixtures' own curves at that budget: K = 1 has stopped learning, the slow K has not, and the answer says so
     assert state["mixture_learning"]["1"]["stopped"] and not state["mixture_learning"][str(SLOW_K)]["stopped"]
     from gsa_jax.commands.answer import finish

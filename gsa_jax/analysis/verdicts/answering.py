@@ -541,8 +541,9 @@ def check_budget_floor(setup: Setup, state: dict, budget_s: float) -> None:
 def calibrate(out: str, setup: Setup, state: dict, budget_s: float, log: Callable, train: Callable) -> None:
     """Choose the step budget (step_budget): flat PPO's first look trained at doubling budgets until it has learned
     the task and stopped learning; the chosen budget's results become the first look (out/results/<name>)."""
-    budgets = step_budget.candidates(setup.steps(), calibration_floor(setup))
-    steps = state.setdefault("steps", {"mode": "auto", "budget": None, "calibration": [], "candidates": budgets})
+    fresh = step_budget.candidates(setup.steps(), calibration_floor(setup), budget_quantum(setup))
+    steps = state.setdefault("steps", {"mode": "auto", "budget": None, "calibration": [], "candidates": fresh})
+    budgets = steps.get("candidates") or fresh  # a resumed answer keeps the budgets it started with
     while steps["budget"] is None:
         chosen, nxt = step_budget.next_budget(steps["calibration"], budgets)
         if chosen is None and not fits(setup, state, nxt, budget_s, log):
@@ -562,6 +563,14 @@ def calibrate(out: str, setup: Setup, state: dict, budget_s: float, log: Callabl
 def calibration_floor(setup: Setup) -> int:
     """The smallest budget giving flat PPO EVALUATIONS evaluations per run (one per iteration)."""
     return min(setup.steps(), EVALUATIONS * batch_size(setup, MLP))
+
+
+def budget_quantum(setup: Setup) -> int:
+    """Env steps of one chunk of flat PPO's program (chunk x batch): the step budgets are whole chunks of it, so a
+    run's iterations (whole chunks) train exactly its budget."""
+    base = setup.specs[MLP]
+    chunk = base.get("chunk") or program_settings(setup, MLP, {**base, "steps": setup.steps()})["chunk"]
+    return int(chunk) * batch_size(setup, MLP)
 
 
 def fits(setup: Setup, state: dict, steps: int, budget_s: float, log: Callable) -> bool:

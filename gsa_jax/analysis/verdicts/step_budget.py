@@ -23,11 +23,19 @@ from gsa_jax.analysis.verdicts import baseline, trimmed, verdict
 HALVINGS = 4  # the smallest candidate is the cap / 2**HALVINGS
 
 
-def candidates(cap: int, floor: int = 1) -> list:
-    """Increasing budgets [env steps]: cap / 2**j for j = HALVINGS .. 0, those at or above `floor` (the smallest budget
-    giving flat PPO enough evaluations for the still-learning test); [cap] if none below it qualifies."""
-    out = [int(round(cap / 2 ** j)) for j in range(HALVINGS, 0, -1) if cap / 2 ** j >= floor]
-    return out + [int(cap)]
+def candidates(cap: int, floor: int = 1, quantum: int = 1) -> list:
+    """Increasing budgets [env steps]: cap / 2**j for j = HALVINGS .. 0, each rounded to the nearest whole number of
+    `quantum` env steps (at least one; quantum = a chunk of flat PPO's program, so its runs train exactly the budget
+    judged, not the budget rounded up to whole chunks), those at or above `floor` (the smallest budget giving flat PPO
+    enough evaluations for the still-learning test); [the cap] if none below it qualifies."""
+    q = max(1, int(quantum))
+
+    def snap(steps: float) -> int:
+        return max(q, int(round(steps / q)) * q)
+
+    top = snap(cap)
+    below = sorted({snap(cap / 2 ** j) for j in range(HALVINGS, 0, -1)})
+    return [b for b in below if floor <= b < top] + [top]
 
 
 def judge_budget(steps: int, scores: Sequence[float], curves: Sequence[tuple], random_returns: Sequence[float],
