@@ -8,7 +8,8 @@ OUT/cold/xla_cache) and warm (JAX_COMPILATION_CACHE_DIR set to the cold answer's
 answer: the wall time of the command, the step budget it chose, the answer's sentence; per sweep: its seconds, its
 program's compile or load seconds (slowest worker), and the seconds estimated before it ran (the ETA's accuracy).
 --checkout runs the answers from another checkout of the project (e.g. an earlier commit's `git worktree`, with this
-environment's Python: the checkout's code is imported from its directory), --cold-only skips the warm answer.
+environment's Python: the checkout's code is imported from its directory), --cold-only skips the warm answer; --recount only writes results/trained_env_steps.csv (the env steps every committed
+answer trained).
 Writes results/<date>-<commit>-<task>/{summary.csv, sweeps.csv, <cold|warm>/ (answer.json, report.md, verdicts.csv, results/
 with each sweep's controllers and controller_scores.csv, no training state)}.
 """
@@ -16,6 +17,8 @@ with each sweep's controllers and controller_scores.csv, no training state)}.
 import argparse
 import csv
 import datetime
+import glob
+import gzip
 import json
 import os
 import re
@@ -71,6 +74,33 @@ def sweep_rows(kind: str, state: dict, out: str) -> list:
              "estimated_s": s.get("eta_s") if s.get("eta_s") is not None else ""} for n, s in sweeps]
 
 
+def trained_env_steps(answer_dir: str) -> int:
+    """Env steps an answer trained, summed over its runs (each run's last env_steps in its sweep's tidy metrics): every
+    calibration sweep and every round's sweep, the chosen calibration's copy in results/ counted once."""
+    total = 0
+    sweeps = glob.glob(os.path.join(answer_dir, "calibration", "*"))
+    sweeps += [d for d in glob.glob(os.path.join(answer_dir, "results", "*")) if not os.path.basename(d).startswith("calibrate-")]
+    for sweep in sorted(sweeps):
+        last = {}
+        for path in glob.glob(os.path.join(sweep, "metrics-process-*.csv.gz")):
+            with gzip.open(path, "rt") as f:
+                for row in csv.DictReader(f):
+                    last[row["run"]] = max(last.get(row["run"], 0), int(row["env_steps"]))
+        total += sum(last.values())
+    return total
+
+
+def recount() -> None:
+    """results/trained_env_steps.csv: trained_env_steps of every committed answer (results/<dir>/<cold|warm>)."""
+    rows = [{"answer": os.path.relpath(d, os.path.join(HERE, "results")), "env_steps": trained_env_steps(d)}
+            for d in sorted(glob.glob(os.path.join(HERE, "results", "*", "cold")) + glob.glob(os.path.join(HERE, "results", "*", "warm")))]
+    with open(os.path.join(HERE, "results", "trained_env_steps.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["answer", "env_steps"])
+        w.writeheader()
+        w.writerows(rows)
+    print("\n".join(f"{r['answer']}: {r['env_steps']:,}" for r in rows))
+
+
 def keep(out: str) -> None:
     """Drop what is training state or cache, keep the results."""
     for d in ("sweeps", "xla_cache", "specs"):
@@ -83,7 +113,10 @@ def main() -> None:
     p.add_argument("--budget-minutes", type=float, default=30.0)
     p.add_argument("--checkout", default=ROOT, help="the checkout whose code answers (default: this one)")
     p.add_argument("--cold-only", action="store_true")
+    p.add_argument("--recount", action="store_true", help="only write results/trained_env_steps.csv from the committed answers")
     args = p.parse_args()
+    if args.recount:
+        return recount()
     root = os.path.abspath(args.checkout)
     res = os.path.join(HERE, "results", f"{datetime.date.today()}-{commit(root)}-{args.env.replace(':', '_')}")
     shutil.rmtree(res, ignore_errors=True)
@@ -101,6 +134,7 @@ def main() -> None:
         summary.append({"env": args.env, "cache": kind, "wall_s": round(r["wall_s"], 1),
                         "compile_or_load_s": round(comp, 1), "compile_share": round(comp / r["wall_s"], 3),
                         "step_budget": r["state"].get("steps", {}).get("budget", r["state"]["setup"]["specs"]["mlp"]["steps"]),
+                        "env_steps_trained": trained_env_steps(os.path.join(res, kind)),
                         "rounds": len(r["state"]["rounds"]), "stopped": r["state"]["stopped"], "answer": r["sentence"],
                         "commit": commit(root),
                         "cores": os.cpu_count()})
