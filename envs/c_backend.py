@@ -434,7 +434,7 @@ class PostConstraintHost:
 
 
 class CTask(Env):
-    """A task as a single-env Brax environment stepped by MuJoCo C (subclasses: the task's JAX side)."""
+    """A task as a single env with Brax's interface (envs/interface.py) stepped by MuJoCo C (subclasses: the task's JAX side)."""
 
     def __init__(self, name, physics, port, host):
         self.name, self.physics, self.port, self.host = name, physics, port, host

@@ -1,4 +1,4 @@
-"""A task trained under domain randomization (envs/randomization.py says what is drawn): a Brax wrapper above the
+"""A task trained under domain randomization (envs/randomization.py says what is drawn): a wrapper (envs/interface.py) above the
 time limit and auto-reset, and the model variants each backend steps.
 
     env = Randomized(envs.make(name, physics=physics), base, spec)   # envs.make(..., randomize=spec) does this

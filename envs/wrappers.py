@@ -1,4 +1,4 @@
-"""Time limit and auto-reset for single (unbatched) Brax environments.
+"""Time limit and auto-reset for single (unbatched) environments with Brax's interface (envs/interface.py).
 
 Like Brax's EpisodeWrapper + AutoResetWrapper (by default an ended episode restarts from the state its env
 was first reset to; `info['truncation']` tells a time-limit end from a termination), with two additions:
