@@ -10,6 +10,7 @@ states in all, which matters for a task that draws its goal at reset.
 
 import jax
 import jax.numpy as jnp
+
 from envs.interface import Wrapper
 from envs.names import RESET_MODES
 

@@ -37,7 +37,8 @@ def test_candidates_are_whole_chunks_nearest_the_halvings():
     q = 20_480
     assert step_budget.candidates(1_000_000, quantum=q) == [61_440, 122_880, 245_760, 491_520, 1_003_520]
     assert all(b % q == 0 for b in step_budget.candidates(1_000_000, floor=24_576, quantum=q))
-    assert step_budget.candidates(30_000, quantum=q) == [20_480]  # at least one chunk; the cap too is its nearest
+    assert step_budget.candidates(30_000, quantum=q) == [20_480, 40_960]  # at least one chunk; the cap rounded up
+    assert step_budget.candidates(19_000, floor=19_000, quantum=2048) == [20_480]  # never below the floor
 
 
 def test_the_rule_picks_the_first_budget_past_the_knee():

@@ -1,8 +1,8 @@
 """The step budget of an answer: train only as long as flat PPO still learns.
 
 `gsa answer` (with --steps auto, its default) trains flat PPO's first-look seeds at doubling budgets
-(candidates: the cap --max-steps halved four times, then doubled: 1M -> 62.5k, 125k, 250k, 500k, 1M) and stops at the
-first budget at which flat PPO
+(candidates: the cap --max-steps halved four times, then doubled: 1M -> 62.5k, 125k, 250k, 500k, 1M, each the nearest
+whole number of chunks of flat PPO's program, the cap rounded up) and stops at the first budget at which flat PPO
 
 - has learned the task: its gain over the random policy is shown positive (verdict.gain_shown) and, where the task
   declares a maximum return, it reaches baseline.LEARNED of the way to it (baseline.learned); and
@@ -25,7 +25,7 @@ HALVINGS = 4  # the smallest candidate is the cap / 2**HALVINGS
 
 def candidates(cap: int, floor: int = 1, quantum: int = 1) -> list:
     """Increasing budgets [env steps]: cap / 2**j for j = HALVINGS .. 0, each rounded to the nearest whole number of
-    `quantum` env steps (at least one; quantum = a chunk of flat PPO's program, so its runs train exactly the budget
+    `quantum` env steps (at least one; the cap rounded up; quantum = a chunk of flat PPO's program, so its runs train exactly the budget
     judged, not the budget rounded up to whole chunks), those at or above `floor` (the smallest budget giving flat PPO
     enough evaluations for the still-learning test); [the cap] if none below it qualifies."""
     q = max(1, int(quantum))
@@ -33,7 +33,7 @@ def candidates(cap: int, floor: int = 1, quantum: int = 1) -> list:
     def snap(steps: float) -> int:
         return max(q, int(round(steps / q)) * q)
 
-    top = snap(cap)
+    top = max(q, -(-int(cap) // q) * q)  # the cap rounded up, as a run of cap steps trains: never below the floor
     below = sorted({snap(cap / 2 ** j) for j in range(HALVINGS, 0, -1)})
     return [b for b in below if floor <= b < top] + [top]
 
