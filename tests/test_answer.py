@@ -239,9 +239,9 @@ def test_every_sweep_of_a_class_has_one_program_shape():
     """Whatever its K, seeds and step budget, every sweep of a class has the same static Config and chunk, so the
     answer compiles one program per class (its runs are trained in parts of the first look's count, each padded to it:
     gsa sweep --runs-per-program); a round runs one sweep per class."""
-    from gsa_jax.analysis.verdicts import step_budget
+    from gsa_jax.analysis.verdicts import baseline, step_budget
     from gsa_jax.commands.answer import build_parser, make_setup
-    from gsa_jax.running.spec import build_grid, check_spec, group_config, group_iterations
+    from gsa_jax.running.spec import build_grid, check_spec, group_config, group_eval_at, group_iterations
 
     setup = make_setup(build_parser().parse_args(["--env", "dmc:cartpole-balance"]))
     for policy, cells in (("mixture", [[1], [2], [4], [1, 2, 4]]), ("mlp", [[]])):
@@ -252,7 +252,14 @@ def test_every_sweep_of_a_class_has_one_program_shape():
                 cfg = group_config(spec, build_grid(spec)[0])
                 shapes.add((cfg, spec.chunk))
                 if policy == "mlp":  # flat PPO's runs train exactly the budget judged: whole chunks, not rounded up
-                    assert group_iterations(spec, cfg, spec.chunk) * cfg.batch_size == steps
+                    iterations = group_iterations(spec, cfg, spec.chunk)
+                    assert iterations * cfg.batch_size == steps
+                    # evaluated only after the chunks the still-learning test reads at this budget, the last included
+                    read = baseline.steps_read(steps, spec.chunk * cfg.batch_size)
+                    assert list(spec.eval_at) == read and read[-1] == steps
+                    assert group_eval_at(spec, cfg.batch_size, spec.chunk) == tuple(s // cfg.batch_size for s in read)
+                else:
+                    assert spec.eval_every == 0 and spec.eval_at is None
         assert len(shapes) == 1, shapes
     sweeps = A.plan_sweeps(setup, {"mlp": ([], list(range(10, 30))), "mixture": ([2, 4], list(range(10, 30)))}, 3)
     assert A.unit(setup) == 10 and sweeps == [("round3-flat_ppo-s10-29", "mlp", [], list(range(10, 30))),

@@ -81,6 +81,22 @@ def test_still_learning_is_reported_and_a_plateau_is_found_where_it_is():
     assert found == pytest.approx(52_000.0)  # the first budget whose last fifth (41.6k .. 52k) lies past the knee at 40k
 
 
+@pytest.mark.parametrize("at_step, every", [(61_440, 20_480), (122_880, 20_480), (245_760, 20_480),
+                                             (1_003_520, 20_480), (100_000, 4_000), (100_000, 7_000)])
+def test_evaluating_only_the_steps_read_gives_the_same_gains(at_step, every):
+    """The answer evaluates flat PPO only where the still-learning test reads (steps_read): the test's gains on those
+    evaluations alone equal its gains on an evaluation after every chunk, and fewer are read than run."""
+    rng = np.random.default_rng(3)
+    steps = np.arange(every, at_step + 1, every, dtype=float)
+    curves = [(steps, rng.standard_normal(len(steps)).cumsum()) for _ in range(6)]
+    read = B.steps_read(at_step, every)
+    sparse = [(s, np.where(np.isin(s, read), r, np.nan)) for s, r in curves]
+    np.testing.assert_array_equal(B.last_fifth_gains(sparse, at_step), B.last_fifth_gains(curves, at_step))
+    assert len(read) < len(steps) and set(read) <= set(steps.astype(int).tolist())
+    dropped = [np.where(np.isin(s, read[:-1]), r, np.nan) for s, r in curves]  # reading fewer changes the gains
+    assert not np.array_equal(B.last_fifth_gains([(steps, r) for r in dropped], at_step), B.last_fifth_gains(curves, at_step))
+
+
 def test_a_task_not_learned_gets_no_answer():
     ok, why = B.learned(30.0, 5.0, 1000.0)
     assert not ok and "does not learn the task" in why

@@ -69,6 +69,13 @@ def test_uninterrupted_run_records_every_metric():
     assert res.timing["env_steps_run"] == 3 * 8 * 5
 
 
+def test_a_plan_with_eval_at_evaluates_after_those_chunks_only():
+    plan = PLAN._replace(eval_every=0, eval_at=(2, 6))
+    res = drive(toy_program(), MemoryStore(), plan, log=lambda m: None)
+    assert (np.where(np.isfinite(res.metrics["eval_return"][0]))[0] + 1).tolist() == [2, 6]
+    assert [eval_due(plan, i) for i in (2, 4, 6, 8)] == [True, False, True, False]
+
+
 def test_stop_and_resume_equals_uninterrupted():
     full = drive(toy_program(), MemoryStore(), PLAN, log=lambda m: None)
     store, lines = MemoryStore(), []

@@ -20,7 +20,9 @@ from golden_runs import arrays_digest, check_fingerprint, summarize, table_diges
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running.runinfo import ResumeRefused
-from gsa_jax.running.spec import SpecError, build_grid, check_spec, group_config, group_name, load_spec
+from gsa_jax.running.spec import (
+    SpecError, build_grid, check_spec, group_config, group_eval_at, group_eval_every, group_name, load_spec,
+)
 from gsa_jax.running.sweeps import SweepOptions, run_sweep
 from gsa_jax.running.tuning import load_tuning
 
@@ -159,10 +161,22 @@ def test_return_vs_k_has_one_curve_per_subpolicy(tmp_path):
       "config": {"value_target": "gae"}}, "value_targets"),
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "config": {"value_target": "td"}}, "config"),
     ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "config": {"retrace_iterations": 0}}, "config"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "eval_at": [5], "eval_every": 2}, "eval_at"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "eval_at": [5, 5]}, "eval_at"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "eval_at": [11]}, "eval_at"),
+    ({"envs": ["hopper"], "policies": ["mlp"], "steps": 10, "eval_at": []}, "eval_at"),
 ])
 def test_malformed_spec_names_the_field(raw, field):
     with pytest.raises(SpecError, match=f"field '{field}'"):
         check_spec(raw, source="x.toml")
+
+
+def test_eval_at_evaluates_after_the_chunks_holding_its_steps():
+    spec = check_spec({"envs": ["hopper"], "policies": ["mlp"], "steps": 1000, "eval_at": [1, 40, 41, 1000]})
+    # batch 10, chunk 2: steps 1 .. 20 lie in the chunk ending at iteration 2, 21 .. 40 in the one ending at 4, ...
+    assert group_eval_at(spec, batch=10, chunk=2) == (2, 4, 6, 100) and group_eval_every(spec, 100) == 0
+    plain = check_spec({"envs": ["hopper"], "policies": ["mlp"], "steps": 1000})
+    assert group_eval_at(plain, batch=10, chunk=2) == () and group_eval_every(plain, 100) == 4
 
 
 def test_bad_toml_file(tmp_path):

@@ -49,6 +49,7 @@ Experiment file (TOML):
   steps = 200_000                         # env steps per run
   chunk = 10                              # PPO iterations per compiled chunk (optional)
   eval_every = 8                          # iterations between deterministic evaluations (default ~25 per run; 0: none)
+                                          # or: eval_at = [40_000, 100_000] (after the chunks holding these env steps)
   eval_seed = 0                           # evaluation start states: the same for every run of the sweep
   [hparams]                               # scalars, or lists to sweep over (every combination)
   lr = 3e-4

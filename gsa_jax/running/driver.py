@@ -46,7 +46,8 @@ class Plan(NamedTuple):
     """What to train: iterations (a multiple of chunk), chunk, batch (env steps per run and iteration),
     real_runs (the program's first real_runs runs are real, the rest padding copies), eval_every (0:
     never), stop_after_chunks (None: to the end; else stop resumably after that many chunks), tag
-    (progress prefix), mixture (progress shows the epsilon / sigma_min schedules)."""
+    (progress prefix), mixture (progress shows the epsilon / sigma_min schedules), eval_at (where not empty, in
+    eval_every's place: the iterations, chunk ends, after which to evaluate)."""
 
     iterations: int
     chunk: int
@@ -56,6 +57,7 @@ class Plan(NamedTuple):
     stop_after_chunks: int | None = None
     tag: str = ""
     mixture: bool = False
+    eval_at: tuple = ()
 
 
 class Result(NamedTuple):
@@ -88,6 +90,8 @@ def failed_mask(metrics: dict, done: int) -> np.ndarray:
 
 def eval_due(plan: Plan, it: int) -> bool:
     """Whether the deterministic controller is evaluated after the chunk that ends at iteration `it`."""
+    if plan.eval_at:
+        return it in plan.eval_at
     return bool(plan.eval_every) and (it % plan.eval_every < plan.chunk or it == plan.iterations)
 
 

@@ -28,7 +28,7 @@ from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.trained import path_part
 
 SPEC_FIELDS = ("name", "envs", "policies", "subpolicies", "partitions", "value_targets", "clusters", "cluster_multipliers", "seeds", "steps", "chunk",
-               "eval_every", "eval_seed", "hparams", "hparam_sets", "config")
+               "eval_every", "eval_at", "eval_seed", "hparams", "hparam_sets", "config")
 _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy"}  # k_max: a floor (group_config)
 # Static options a spec may list to compare (one compiled group each): (spec field, run column = Config field,
 # the policy it applies to or None for every policy, allowed values). Absent from a spec: no column, no group.
@@ -60,6 +60,7 @@ class SweepSpec:
     value_targets: tuple | None = None
     chunk: int | None = None
     eval_every: int | None = None
+    eval_at: tuple | None = None  # env steps after whose chunk the deterministic controller is evaluated (eval_every's place)
     eval_seed: int | None = None
     hparam_sets: tuple | None = None  # ({name: value}, ...): configurations, each run with every hparams combination
 
@@ -212,6 +213,20 @@ def check_counts(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
     for field in ("eval_every", "eval_seed"):
         if field in spec and (not isinstance(spec[field], int) or isinstance(spec[field], bool) or spec[field] < 0):
             bad(field, f"must be an integer >= 0, got {spec[field]!r}")
+    if "eval_at" in spec:
+        check_eval_at(spec, bad)
+
+
+def check_eval_at(spec: dict, bad: Callable[[str, str], NoReturn]) -> None:
+    """eval_at: a non-empty increasing list of env steps in [1, steps]; not beside eval_every."""
+    at = spec["eval_at"]
+    if "eval_every" in spec:
+        bad("eval_at", "give eval_every or eval_at, not both")
+    if (not isinstance(at, list) or not at or any(not isinstance(s, int) or isinstance(s, bool) for s in at)
+            or any(b <= a for a, b in zip(at, at[1:]))):
+        bad("eval_at", f"must be a non-empty increasing list of env steps, got {at!r}")
+    if at[0] < 1 or at[-1] > spec["steps"]:
+        bad("eval_at", f"env steps must lie in [1, steps = {spec['steps']}], got {at!r}")
 
 
 def check_config_table(cfg: dict, env_names: list[str], bad: Callable[[str, str], NoReturn]) -> dict:
@@ -381,5 +396,16 @@ def group_iterations(spec: SweepSpec, cfg: Config, chunk: int) -> int:
 
 
 def group_eval_every(spec: SweepSpec, iterations: int) -> int:
-    """Iterations between deterministic evaluations of a group's runs (0: none); default ~25 per run."""
+    """Iterations between deterministic evaluations of a group's runs (0: none, or eval_at's list); default ~25 per
+    run."""
+    if spec.eval_at is not None:
+        return 0
     return spec.eval_every if spec.eval_every is not None else max(1, iterations // EVALUATIONS_PER_RUN)
+
+
+def group_eval_at(spec: SweepSpec, batch: int, chunk: int) -> tuple:
+    """The iterations after which a group's runs are evaluated where the spec lists env steps (eval_at): each at the
+    end of the chunk holding it (a run evaluates only between chunks); () where it does not."""
+    if spec.eval_at is None:
+        return ()
+    return tuple(sorted({-(-(-(-int(s) // batch)) // chunk) * chunk for s in spec.eval_at}))

@@ -21,7 +21,7 @@ from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
 from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
 from gsa_jax.running.spec import (
-    Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_every, group_iterations, group_name,
+    Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_at, group_eval_every, group_iterations, group_name,
 )
 from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
 from gsa_jax.running.trained import part_dir, run_label
@@ -113,19 +113,19 @@ def run_group(spec: SweepSpec, out: str, group: Group, ctx: GroupContext) -> Res
     iterations = group_iterations(spec, cfg, chunk)
     if os.path.exists(os.path.join(gdir, "DONE")):
         return finished_group(gdir, iterations)
-    eval_every = group_eval_every(spec, iterations)
+    eval_every, eval_at = group_eval_every(spec, iterations), group_eval_at(spec, cfg.batch_size, chunk)
     write_runs_table(gdir, group.runs, spec.id_columns())
-    write_group_record(gdir, spec, cfg, group.runs, (iterations, chunk, eval_every))
+    write_group_record(gdir, spec, cfg, group.runs, (iterations, chunk, eval_every, eval_at))
     t0 = time.perf_counter()
     shape = GroupShape(cfg, chunk, tuple(ctx.devices), ctx.options.run_batch)
     runs = pad_runs(group.runs, len(ctx.devices), at_least=ctx.pad_to)
     program = group_program(shape, GroupRuns(runs, spec.run_hparam_names(), iterations),
-                            (spec.eval_seed or 0) if eval_every else None, ctx.share, ctx.log)
+                            (spec.eval_seed or 0) if eval_every or eval_at else None, ctx.share, ctx.log)
     tag = name.replace(f"{group.env}-", f"{group.env}/", 1)
     ctx.log(f"[{tag}] {len(group.runs)} runs x {iterations} iterations x {cfg.batch_size} steps on "
             f"{len(ctx.devices)} device(s); program {program.how} ({time.perf_counter() - t0:.1f}s)")
     plan = Plan(iterations, chunk, cfg.batch_size, len(group.runs), eval_every,
-                stop_after_chunks=ctx.options.stop_after_chunks, tag=tag)
+                stop_after_chunks=ctx.options.stop_after_chunks, tag=tag, eval_at=eval_at)
     store = GroupStore(gdir, group.runs, iterations, ctx.on_chunk, (ctx.board_dir, [run_label(r) for r in group.runs]))
     result = drive(program, store, plan, ctx.log, ctx.options.heartbeat, clock_start=t0)
     t = result.timing
@@ -138,12 +138,12 @@ def run_group(spec: SweepSpec, out: str, group: Group, ctx: GroupContext) -> Res
 def write_group_record(gdir: str, spec: SweepSpec, cfg: Config, runs: list[dict], schedule: tuple) -> None:
     """config.json of a group: what its runs compute -- the Config, iterations, chunk, evaluation schedule, each
     run's seed and full hyperparameters (gsa_jax.running.trained reads a run's settings from it), physics,
-    versions and commit. schedule: (iterations, chunk, eval_every)."""
-    iterations, chunk, eval_every = schedule
+    versions and commit. schedule: (iterations, chunk, eval_every, eval_at: the iterations evaluated after, or ())."""
+    iterations, chunk, eval_every, eval_at = schedule
     per_run = [{"seed": r["seed"], "hparams": {**HPARAM_DEFAULTS, **{n: r[n] for n in spec.run_hparam_names()}, "K": r["K"],
                                                "total_iterations": iterations}} for r in runs]
     record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, "eval_every": eval_every,
-              "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
+              **({"eval_at_iterations": list(eval_at)} if eval_at else {}), "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
               "physics": physics_record(cfg), "task": cfg.task.source(), **run_metadata()}
     write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
 

@@ -95,7 +95,7 @@ def sweep_spec(setup: Setup, policy: str, ks: list, seeds: list, name: str, step
     return spec
 
 
-EVALUATIONS = 12  # flat PPO's deterministic evaluations per run where the base spec sets none (>= MIN_EVALUATIONS)
+EVALUATIONS = 12  # the calibration floor: flat PPO trains at least this many iterations (>= MIN_EVALUATIONS)
 
 
 def probe_config(setup: Setup, policy: str, spec: dict | None = None) -> tuple:
@@ -114,20 +114,24 @@ def batch_size(setup: Setup, policy: str) -> int:
 
 
 def program_settings(setup: Setup, policy: str, spec: dict) -> dict:
-    """chunk and eval_every of a sweep: the base spec's where it sets them, else one chunk length for every budget of
-    the answer (the cap's default, so every sweep of a class runs one compiled program) and EVALUATIONS evaluations
-    per flat PPO run (the still-learning test's curve; none for the mixtures, whose curves no decision reads)."""
+    """chunk and evaluations of a sweep: the base spec's where it sets them, else one chunk length for every budget of
+    the answer (the cap's default, so every sweep of a class runs one compiled program) and, for flat PPO, evaluations
+    only at the chunk ends the still-learning test reads at the sweep's budget (baseline.steps_read: the same test as
+    with an evaluation after every chunk, without the others' cost); none for the mixtures, whose curves no decision
+    reads."""
     from gsa_jax.running.spec import default_chunk
 
     base = setup.specs[policy]
-    if base.get("chunk") is not None and base.get("eval_every") is not None:
+    given = base.get("eval_every") is not None or base.get("eval_at") is not None
+    if base.get("chunk") is not None and given:
         return {}
     probe, cfg = probe_config(setup, policy, spec)
     chunk = int(base.get("chunk") or default_chunk(probe, cfg))
     out = {"chunk": chunk}
-    if base.get("eval_every") is None:
-        iterations = -(-(-(-int(spec["steps"]) // cfg.batch_size)) // chunk) * chunk
-        out["eval_every"] = max(1, iterations // EVALUATIONS) if policy == MLP else 0
+    if not given and policy == MLP:
+        out["eval_at"] = baseline.steps_read(int(spec["steps"]), chunk * cfg.batch_size)
+    elif not given:
+        out["eval_every"] = 0
     return out
 
 
@@ -170,7 +174,7 @@ def check_evaluations(spec: SweepSpec) -> None:
     group = build_grid(spec)[0]
     cfg = group_config(spec, group)
     iterations = group_iterations(spec, cfg, default_chunk(spec, cfg))
-    every = group_eval_every(spec, iterations)
+    every = 1 if spec.eval_at is not None else group_eval_every(spec, iterations)  # eval_at: any chunk end can be read
     evaluations = iterations // every if every else 0
     if evaluations < MIN_EVALUATIONS:
         need = MIN_EVALUATIONS * cfg.batch_size * (every if spec.eval_every else 1)

@@ -135,6 +135,19 @@ def last_fifth_gains(curves: Sequence[tuple], at_step: float) -> np.ndarray:
     return np.asarray([g for g in out if np.isfinite(g)], np.float64)
 
 
+def steps_read(at_step: int, every: int) -> list:
+    """The env steps, among the multiples of `every` up to `at_step` (a run evaluated every `every` steps), whose
+    evaluations last_fifth_gains(at_step) reads: those inside each end's window, else the last one before it. A run
+    evaluated only there gives the same gains as one evaluated at every multiple."""
+    grid = np.arange(every, at_step + 1, every, dtype=np.int64)
+    width, out = WINDOW * at_step, set()
+    for end in (0.8 * at_step, float(at_step)):
+        inside = grid[(grid > end - width) & (grid <= end)]
+        before = grid[grid <= end]
+        out.update(inside.tolist() if inside.size else before[-1:].tolist())
+    return sorted(int(s) for s in out)
+
+
 class Learning(NamedTuple):
     """Flat PPO over the last fifth of `steps`: its IQM gain over seeds as a fraction of its gain over the random
     policy, the one-sided 95% upper bound of that fraction, and whether it is shown below the margin (stopped)."""
