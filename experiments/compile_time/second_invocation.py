@@ -1,9 +1,10 @@
 """A `gsa train` run twice, identically, from an empty compilation cache: how long the first compiles and how long the
 second takes to load its programs, on MJX and on MuJoCo C in the program ('c').
 
-    .venv/bin/python experiments/compile_time/second_invocation.py [--env inverted_double_pendulum] [--steps 20000]
+    .venv/bin/python experiments/compile_time/second_invocation.py [--env TASK] [--steps 20000]
 
-Per physics: `gsa train --env ENV --physics P --steps STEPS` in a fresh process with XDG_CACHE_HOME an empty
+Per physics: `gsa train --env ENV --physics P --steps STEPS` (ENV: inverted_double_pendulum on MJX, InvertedDoublePendulum-v5 on
+'c', or --env) in a fresh process with XDG_CACHE_HOME an empty
 temporary folder (the user's cache, `gsa_jax.running.xla_cache.user_dir()`, where `gsa train` keeps its programs), then
 the same command again with the same cache. Per invocation: wall seconds of the process, the run's compile seconds
 (`timing.compile_s` in its config.json: tracing, lowering and compiling or loading its programs, before the first
@@ -24,6 +25,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "..", ".."))
 RESULTS = os.path.join(HERE, "results", "second_invocation.csv")
 FIELDS = ["commit", "env", "steps", "physics", "invocation", "wall_s", "compile_s", "cache_files", "load_before"]
+
+
+DEFAULT_ENVS = {"mjx": "inverted_double_pendulum", "c": "InvertedDoublePendulum-v5"}
 
 
 def commit_of() -> str:
@@ -50,12 +54,13 @@ def train_once(env: str, steps: int, physics: str, cache_home: str, out: str) ->
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--env", default="inverted_double_pendulum")
+    ap.add_argument("--env", help="the task on every physics (default: the double pendulum, each physics' own name "
+                                  f"of it: {DEFAULT_ENVS})")
     ap.add_argument("--steps", type=int, default=20_000)
     ap.add_argument("--physics", nargs="+", default=["mjx", "c"])
     args = ap.parse_args()
     os.makedirs(os.path.dirname(RESULTS), exist_ok=True)
-    new = not os.path.exists(RESULTS)
+    new, commit = not os.path.exists(RESULTS), commit_of()  # before the first row makes the checkout dirty
     with open(RESULTS, "a", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=FIELDS)
         if new:
@@ -63,8 +68,9 @@ def main() -> None:
         for physics in args.physics:
             with tempfile.TemporaryDirectory() as tmp:
                 for invocation in (1, 2):
-                    row = {"commit": commit_of(), "env": args.env, "steps": args.steps, "physics": physics,
-                           "invocation": invocation, **train_once(args.env, args.steps, physics, os.path.join(tmp, "cache"),
+                    env = args.env or DEFAULT_ENVS[physics]
+                    row = {"commit": commit, "env": env, "steps": args.steps, "physics": physics,
+                           "invocation": invocation, **train_once(env, args.steps, physics, os.path.join(tmp, "cache"),
                                                                   os.path.join(tmp, f"run{invocation}"))}
                     writer.writerow(row)
                     f.flush()
