@@ -13,7 +13,8 @@ Per case (a `gsa train` command line, CASES), two fresh processes, so nothing is
   the initial state's computation included); trace_s, lower_s and compile_s sum what JAX logs for every program it
   traces, lowers and compiles (programs compiled at once overlap, so their sum can exceed total_s); xla_compiles
   counts the compiles, the small eager ops' included.
-No persistent compilation cache is used (JAX_COMPILATION_CACHE_DIR is unset). Rows go to results/compile_time.csv
+No persistent compilation cache is used (JAX_COMPILATION_CACHE_DIR is unset, and `gsa train`'s own cache, under
+XDG_CACHE_HOME, is a fresh empty folder). Rows go to results/compile_time.csv
 (one per label, round, case and program; earlier rows of the same label, round and case are replaced), with the
 commit, the machine and its load average before and after beside every row: the machine may be shared, so compare
 labels measured alike (interleaved rounds).
@@ -97,6 +98,7 @@ def command_rows(argv: list) -> list:
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     env["JAX_LOG_COMPILES"] = "1"
     with tempfile.TemporaryDirectory() as tmp:
+        env["XDG_CACHE_HOME"] = os.path.join(tmp, "cache")  # gsa train's own cache (xla_cache.user_dir()): empty
         out = os.path.join(tmp, "run")
         cmd = [sys.executable, "-m", "gsa_jax", "train", *argv, "--out", out, "--stop-after", str(chunk),
                "--no-tensorboard", "--quiet"]
