@@ -169,12 +169,16 @@ def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
     return cached("single", (cfg, chunk, evaluate), build)
 
 
+@jax.jit
 def with_run_axis(tree: Any) -> Any:
-    """A leading run axis of one on every leaf: one run as a group of one."""
+    """A leading run axis of one on every leaf: one run as a group of one. Jitted: one compile per tree structure,
+    where eager indexing compiles one small op per leaf shape."""
     return jax.tree.map(lambda x: x[None], tree)
 
 
+@jax.jit
 def first_run(tree: Any) -> Any:
+    """The first run's leaves (the run axis taken off); jitted as with_run_axis."""
     return jax.tree.map(lambda x: x[0], tree)
 
 
