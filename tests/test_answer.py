@@ -235,6 +235,22 @@ def test_a_budget_below_the_first_round_is_refused_in_one_line_before_training(t
     assert json.loads((out / A.STATE).read_text())["random"]["seconds"] > 0
 
 
+def test_a_failed_flat_run_is_left_out_of_the_still_learning_test(tmp_path):
+    """A flat PPO run that stopped at a NaN/inf has a curve that ends early: read as if complete, its last evaluations
+    would make a gain of 0 (stopped learning); the answer leaves it out, as sweep tables do."""
+    sweep = tmp_path / "calibrate"
+    sweep.mkdir()
+    (sweep / "sweep.json").write_text(json.dumps({"failed_runs": [
+        {"run": 1, "env": "task", "policy": "mlp", "K": 1, "seed": 1, "failed_at": 3}]}))
+    head = "env,policy,K,seed,run,iteration,env_steps,episode_return,eval_return,eval_failures,episodes\n"
+    rows = [f"task,mlp,1,{seed},{seed},{it},{10 * it},1.0,{it if seed == 0 or it < 3 else ''},0,1\n"
+            for seed in (0, 1) for it in range(1, 5)]
+    (sweep / "metrics.csv").write_text(head + "".join(rows))
+    last100, curves, _ = A.collect_runs(str(tmp_path), synthetic_setup(), roots=[str(tmp_path)])
+    assert sorted(curves) == [0] and sorted(last100[A.FLAT]) == [0]
+    np.testing.assert_array_equal(curves[0][1], [1.0, 2.0, 3.0, 4.0])
+
+
 def test_every_sweep_of_a_class_has_one_program_shape():
     """Whatever its K, seeds and step budget, every sweep of a class has the same static Config and chunk, so the
     answer compiles one program per class (its runs are trained in parts of the first look's count, each padded to it:
@@ -265,4 +281,8 @@ def test_every_sweep_of_a_class_has_one_program_shape():
     assert A.unit(setup) == 10 and sweeps == [("round3-flat_ppo-s10-29", "mlp", [], list(range(10, 30))),
                                               ("round3-mixture-K2-4-s10-29", "mixture", [2, 4], list(range(10, 30)))]
     assert [A.padded_runs(setup, s) for s in sweeps] == [20, 40]
+    # a budget that is not whole chunks also evaluates its last chunk; one shorter than a chunk, every chunk
+    assert A.flat_evaluations(100_000, 20_480) == {"eval_at": [61_440, 81_920, 100_000]}
+    assert A.flat_evaluations(245_760, 20_480) == {"eval_at": [184_320, 245_760]}
+    assert A.flat_evaluations(10_000, 20_480) == {"eval_every": 1}
     assert A.padded_runs(setup, ("x", "mixture", [1, 2, 4], list(range(5)))) == 20  # 15 runs: parts of 10, padded

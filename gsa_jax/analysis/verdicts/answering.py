@@ -129,10 +129,20 @@ def program_settings(setup: Setup, policy: str, spec: dict) -> dict:
     chunk = int(base.get("chunk") or default_chunk(probe, cfg))
     out = {"chunk": chunk}
     if not given and policy == MLP:
-        out["eval_at"] = baseline.steps_read(int(spec["steps"]), chunk * cfg.batch_size)
+        out.update(flat_evaluations(int(spec["steps"]), chunk * cfg.batch_size))
     elif not given:
         out["eval_every"] = 0
     return out
+
+
+def flat_evaluations(steps: int, every: int) -> dict:
+    """Flat PPO's evaluation settings at a budget of `steps` with a chunk of `every` env steps: eval_at, the steps the
+    still-learning test reads and `steps` itself (the last chunk, where the budget is not whole chunks); a budget
+    shorter than one chunk (one chunk trained) evaluates after every chunk."""
+    read = baseline.steps_read(steps, every)
+    if not read:
+        return {"eval_every": 1}
+    return {"eval_at": read + ([steps] if read[-1] < steps else [])}
 
 
 def check_setup(setup: Setup) -> None:
@@ -174,11 +184,13 @@ def check_evaluations(spec: SweepSpec) -> None:
     group = build_grid(spec)[0]
     cfg = group_config(spec, group)
     iterations = group_iterations(spec, cfg, default_chunk(spec, cfg))
-    every = 1 if spec.eval_at is not None else group_eval_every(spec, iterations)  # eval_at: any chunk end can be read
+    # eval_at (evaluated where the test reads): the curve's resolution is the run's iterations
+    every = 1 if spec.eval_at is not None else group_eval_every(spec, iterations)
     evaluations = iterations // every if every else 0
     if evaluations < MIN_EVALUATIONS:
         need = MIN_EVALUATIONS * cfg.batch_size * (every if spec.eval_every else 1)
-        raise AnswerError(f"--steps {spec.steps} gives flat PPO {evaluations} evaluations per run; the still-learning "
+        what = "iterations" if spec.eval_at is not None else "evaluations"
+        raise AnswerError(f"--steps {spec.steps} gives flat PPO {evaluations} {what} per run; the still-learning "
                           f"test needs at least {MIN_EVALUATIONS}: give --steps {need} or more")
 
 
@@ -239,8 +251,8 @@ def collect_scores(out: str, setup: Setup, roots: Sequence[str] | None = None) -
 def collect_runs(out: str, setup: Setup, roots: Sequence[str] | None = None) -> tuple:
     """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}, the
     mixtures' {K: {seed: (env_steps, training episode return)}}) from the tidy metrics under `roots` (default
-    score_roots)."""
-    from gsa_jax.analysis.sweeps.results import load_sweep
+    score_roots), runs that failed at a NaN/inf left out (their series end early)."""
+    from gsa_jax.analysis.sweeps.results import drop_failed, load_failed, load_sweep
     from gsa_jax.analysis.sweeps.stats import last_episodes_return
 
     last100, curves, training = {}, {}, {}
@@ -248,7 +260,7 @@ def collect_runs(out: str, setup: Setup, roots: Sequence[str] | None = None) -> 
                    for p in glob.glob(os.path.join(root, "**", "sweep.json"), recursive=True)})
     for d in dirs:
         try:
-            cells = load_sweep(d)
+            cells, _ = drop_failed(load_sweep(d), load_failed(d))  # a failed run's curve ends early: never read
         except FileNotFoundError:
             continue
         for cell, seeds in cells.items():
