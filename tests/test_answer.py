@@ -286,3 +286,10 @@ def test_every_sweep_of_a_class_has_one_program_shape():
     assert A.flat_evaluations(245_760, 20_480) == {"eval_at": [184_320, 245_760]}
     assert A.flat_evaluations(10_000, 20_480) == {"eval_every": 1}
     assert A.padded_runs(setup, ("x", "mixture", [1, 2, 4], list(range(5)))) == 20  # 15 runs: parts of 10, padded
+
+
+def test_a_baseline_that_fell_over_its_last_fifth_is_flagged_in_the_report():
+    from gsa_jax.analysis.verdicts.answer_report import falling_text
+
+    assert falling_text({"gain": -0.215, "upper": -0.136}, 0.1)[0].startswith("- **Flat PPO fell back")
+    assert falling_text({"gain": -0.05, "upper": 0.02}, 0.1) == []  # stopped, not shown falling

@@ -228,6 +228,16 @@ def step_budget_text(setup: Setup, state: dict) -> list:
     return lines
 
 
+def falling_text(learn: dict, margin: float) -> list:
+    """A warning line where flat PPO is shown to have fallen over the last fifth (the gain's upper bound below
+    -margin): the still-learning test reads that as stopped, but a falling curve is not shown converged."""
+    if not learn["upper"] < -margin:
+        return []
+    return [f"- **Flat PPO fell back over the last fifth** (upper bound {learn['upper']:+.3f}, below -{margin:g}): 'stopped' "
+            "here means not rising, not converged; the runs may be unstable at this budget, and flat PPO is shown "
+            "adequate only as far as it reaches the task's references."]
+
+
 def baseline_text(setup: Setup, state: dict) -> list:
     """The baseline section: what the verdicts judge against and why; still learning; the references that apply."""
     base, rand = state.get("baseline"), state["random"]
@@ -247,6 +257,7 @@ def baseline_text(setup: Setup, state: dict) -> list:
                      f"{learn['gain']:+.3f} of its gain over the random policy (IQM over {learn['seeds']} seeds; one-sided "
                      f"95% upper bound {learn['upper']:+.3f}; stopped when below the margin {setup.margin:g})"
                      + ("" if learn["stopped"] else "; a longer --steps may move the answer") + ".")
+        lines += falling_text(learn, setup.margin)
     for s in base.get("standings", []):
         lines.append(f"- Reference {s['algorithm']} on {s['published_task']} at {s['steps']:,} steps ({s['metric']}, "
                      f"{s['seeds'] or '?'} seeds): {s['score']:g}; flat PPO {s['ours']:g} on that metric, "
