@@ -389,10 +389,15 @@ def default_chunk(spec: SweepSpec, cfg: Config) -> int:
     return spec.chunk or max(1, min(10, math.ceil(spec.steps / cfg.batch_size) // 20))
 
 
+def chunk_end(steps: int, batch: int, chunk: int) -> int:
+    """The iteration that ends the chunk holding env step `steps` (batch env steps per iteration): steps rounded up
+    to whole chunks of iterations."""
+    return -(-(-(-int(steps) // batch)) // chunk) * chunk
+
+
 def group_iterations(spec: SweepSpec, cfg: Config, chunk: int) -> int:
     """PPO iterations of every run of a group: the spec's steps rounded up to whole chunks."""
-    iters = math.ceil(spec.steps / cfg.batch_size)
-    return math.ceil(iters / chunk) * chunk
+    return chunk_end(spec.steps, cfg.batch_size, chunk)
 
 
 def group_eval_every(spec: SweepSpec, iterations: int) -> int:
@@ -408,4 +413,4 @@ def group_eval_at(spec: SweepSpec, batch: int, chunk: int) -> tuple:
     end of the chunk holding it (a run evaluates only between chunks); () where it does not."""
     if spec.eval_at is None:
         return ()
-    return tuple(sorted({-(-(-(-int(s) // batch)) // chunk) * chunk for s in spec.eval_at}))
+    return tuple(sorted({chunk_end(s, batch, chunk) for s in spec.eval_at}))

@@ -142,8 +142,9 @@ def write_group_record(gdir: str, spec: SweepSpec, cfg: Config, runs: list[dict]
     iterations, chunk, eval_every, eval_at = schedule
     per_run = [{"seed": r["seed"], "hparams": {**HPARAM_DEFAULTS, **{n: r[n] for n in spec.run_hparam_names()}, "K": r["K"],
                                                "total_iterations": iterations}} for r in runs]
-    record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, "eval_every": eval_every,
-              **({"eval_at_iterations": list(eval_at)} if eval_at else {}), "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
+    evals = {"eval_every": eval_every, **({"eval_at_iterations": list(eval_at)} if eval_at else {})}
+    record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, **evals,
+              "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
               "physics": physics_record(cfg), "task": cfg.task.source(), **run_metadata()}
     write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
 
