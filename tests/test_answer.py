@@ -71,6 +71,34 @@ def test_seeds_go_only_to_undecided_cells(tmp_path):
     assert state["stopped"] == "decided" or state["stopped"].startswith("seed cap")
 
 
+# K = 2 exactly at the margin with a wide spread: undecided, and the cap of 40 seeds has little chance to decide it
+AT_MARGIN = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (900.0, 300.0), 4: (1000.0, 5.0)}
+
+
+@pytest.mark.parametrize("futility", [0.1, 0.0])
+def test_futility_stops_adding_seeds_to_a_k_the_cap_cannot_decide(futility, tmp_path):
+    run, calls = synthetic_trainer(AT_MARGIN)
+    setup = A.Setup(**{**synthetic_setup().__dict__, "futility": futility})
+    state = A.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=run)
+    k2 = state["judged"]["2"]
+    assert state["judged"]["4"]["verdict"] == verdict.SUFFICIENT and k2["verdict"] == verdict.UNDECIDED
+    if futility:
+        assert k2["seeds"] < 40 and k2["chance_by_cap"] < futility and len(calls) == 2 * k2["seeds"] // 10
+        assert state["stopped"].startswith("futility") and "K = 2: " in state["stopped"]
+    else:  # every undecided K goes to the cap
+        assert k2["seeds"] == 40 and state["stopped"].startswith("seed cap")
+
+
+def test_an_answer_recorded_before_futility_resumes_as_it_was_designed(tmp_path):
+    """An answer.json without the futility field was designed with every undecided K going to the cap: it resumes with
+    --futility 0 and is refused, naming the field, with another threshold."""
+    old = {k: v for k, v in synthetic_setup().to_json().items() if k != "futility"}
+    (tmp_path / A.STATE).write_text(json.dumps({"setup": old, "rounds": [], "records": {}, "elapsed_s": 0.0}))
+    A.load_state(str(tmp_path), A.Setup(**{**synthetic_setup().__dict__, "futility": 0.0}))
+    with pytest.raises(A.AnswerError, match="other settings .futility."):
+        A.load_state(str(tmp_path), synthetic_setup())
+
+
 def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
     run, _ = synthetic_trainer(TRUTH)
     whole = A.run_answer(str(tmp_path / "whole"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
@@ -121,6 +149,7 @@ def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     (["--env", "dmc:cartpole-swingup", "--budget-minutes", "0"], "--budget-minutes must be > 0"),
     (["--env", "dmc:cartpole-swingup", "--margin", "1.5"], "--margin must be in (0, 1)"),
     (["--env", "dmc:cartpole-swingup", "--margin", "0"], "--margin must be in (0, 1)"),
+    (["--env", "dmc:cartpole-swingup", "--futility", "1"], "--futility must be in [0, 1)"),
     (["--env", "dmc:cartpole-swingup", "--clusters", ""], "--clusters (the K ladder) is empty"),
     (["--env", "no_such_task"], "unknown env 'no_such_task'"),
     (["--env", "inverted_double_pendulum"], "'inverted_double_pendulum' has no MuJoCo C version"),

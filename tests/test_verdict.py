@@ -74,6 +74,28 @@ def test_gap_exactly_minus_margin_is_undecided_and_needs_no_finite_seeds():
     assert g.seeds_observed is None and g.seeds_parity is not None and g.seeds_parity >= 20
 
 
+@pytest.mark.parametrize("estimate", [0.0, 0.6, -0.9, 1.4])
+def test_the_chance_to_be_decided_by_the_cap_is_a_simulated_continuation(estimate):
+    """chance_to_decide against a NumPy simulation of what it claims: the seeds now have a mean `estimate` (unit spread
+    per seed, 10 seeds); 30 more drawn with that true mean, the mean of all 40 tested both ways at the level."""
+    n, cap, level, trials = 10, 40, 0.003, 400_000
+    c = trimmed.Contrast(estimate, 1.0 / np.sqrt(n), 9.0)
+    rng = np.random.default_rng(7)
+    final = (n * estimate + rng.normal(estimate * (cap - n), np.sqrt(cap - n), trials)) / cap
+    edge = 2.7477813854449926 / np.sqrt(cap)  # scipy.stats.norm.isf(0.003) / sqrt(cap): the test at the cap
+    simulated = np.mean(np.abs(final) > edge)
+    assert V.chance_to_decide(c, n, cap, level) == pytest.approx(simulated, abs=3e-3)
+    assert V.chance_to_decide(c, cap, cap, level) is None  # nothing left to add
+
+
+def test_an_undecided_cell_carries_its_chance_and_a_decided_one_none():
+    flat = np.linspace(990.0, 1010.0, 20)
+    at_margin = V.judge(flat - 100.0, flat, 0.0, margin=0.1, final_level=0.003, final_seeds=40)
+    assert at_margin.verdict == V.UNDECIDED and 0.0 <= at_margin.chance_by_cap < V.FUTILITY
+    clear = V.judge(flat, flat, 0.0, margin=0.1, final_level=0.003, final_seeds=40)
+    assert clear.verdict == V.SUFFICIENT and clear.chance_by_cap is None
+
+
 def test_near_deterministic_scores_a_fraction_of_the_margin_apart_are_sufficient():
     """Balance-like: every mixture seed 1 point below flat PPO's 500, a random policy at 100 (scale 400):
     gap -0.0025, far inside a margin of 0.05 although every seed of the mixture loses."""

@@ -17,7 +17,10 @@ a fifth of the return).
 
 Designs: looks 10-20-40 with each spending function (O'Brien-Fleming-type, Pocock-type, Bonferroni over looks) under
 Holm over the K, and Pocock-type spending with Bonferroni or no correction over the K; each spends the default 2%.
-Writes results/error_rates.csv.
+Writes results/error_rates.csv. `--futility P` stops adding seeds to an undecided K whose chance to be decided by
+the seed cap is below P, as `gsa answer --futility` does (the answer's default is verdict.FUTILITY; here the default
+0 keeps results/error_rates.csv the table of the design without it): `--futility 0 --designs pocock:holm --out
+results/futility.csv` and `--futility 0.1` with the same --out compare the two on the same draws.
 """
 
 import argparse
@@ -80,14 +83,15 @@ def run_trial(setup, cells: dict, random_returns: np.ndarray) -> tuple:
 
 
 def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int, seed: int, references: str,
-             alpha: float = sequential.DESIGN_ALPHA) -> dict:
+             alpha: float = sequential.DESIGN_ALPHA, futility: float = 0.0) -> dict:
     """One row: the share of trials whose answer is the smallest truly sufficient K, calls some truly insufficient K
     (gap <= -margin) sufficient, and the mean seeds trained (all cells)."""
     draw, rng = LAWS[law], np.random.default_rng(seed)
     scale = law_iqm(draw)
     spec = {"steps": 1_000_000, "hparams": {}, "config": {}}
     setup = answering.Setup("simulated", LADDER, MARGIN, LOOKS, {"mlp": spec, "mixture": spec}, spending=spending,
-                            multiplicity=multiplicity, references=references, alpha=alpha)
+                            multiplicity=multiplicity, references=references, alpha=alpha,
+                            futility=futility)
     truth = min([k for k, g in gaps.items() if g > -MARGIN + 1e-12], default=None)
     correct = wrong = seeds = 0
     for _ in range(trials):
@@ -99,7 +103,8 @@ def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int
         correct += chosen == truth
         wrong += any(v == verdict.SUFFICIENT and gaps[k] <= -MARGIN + 1e-12 for k, v in verdicts.items())
         seeds += used
-    return {"law": law, "spending": spending, "multiplicity": multiplicity, "alpha": alpha, "trials": trials,
+    return {"law": law, "spending": spending, "multiplicity": multiplicity, "alpha": alpha,
+            **({"futility": futility} if futility else {}), "trials": trials,
             "answer_is_truth": round(correct / trials, 4), "some_K_wrongly_sufficient": round(wrong / trials, 4),
             "mean_seeds_all_cells": round(seeds / trials, 1)}
 
@@ -112,6 +117,8 @@ def main():
     p.add_argument("--laws", default=None, help="laws of the seeds, e.g. normal,bimodal (default all)")
     p.add_argument("--scenario", default=None, help="only this scenario (default all)")
     p.add_argument("--alpha", type=float, default=sequential.DESIGN_ALPHA, help="the error each design spends")
+    p.add_argument("--futility", type=float, default=0.0,
+                   help="the answer's futility threshold (gsa answer --futility; default 0: none)")
     p.add_argument("--out", default=os.path.join(HERE, "results", "error_rates.csv"))
     args = p.parse_args()
     references = args.out + ".no_references.csv"
@@ -133,8 +140,10 @@ def main():
                     continue
                 trials = args.trials if kind == "error" else args.trials // 3
                 row = {"scenario": scenario, "kind": kind,
-                       **simulate(law, gaps, spending, multiplicity, trials, 1000 * i + 7, references, args.alpha)}
-                key = lambda r: (r["scenario"], r["law"], r["spending"], r["multiplicity"], float(r.get("alpha") or sequential.DESIGN_ALPHA))  # noqa: E731
+                       **simulate(law, gaps, spending, multiplicity, trials, 1000 * i + 7, references, args.alpha,
+                                   args.futility)}
+                key = lambda r: (r["scenario"], r["law"], r["spending"], r["multiplicity"],  # noqa: E731
+                                 float(r.get("alpha") or sequential.DESIGN_ALPHA), float(r.get("futility") or 0.0))
                 rows = [r for r in rows if key(r) != key(row)] + [row]
                 print(row, flush=True)
                 write_csv(args.out, rows)

@@ -126,7 +126,7 @@ def make_setup(args: argparse.Namespace) -> Setup:
     ladder = parse_ints(args.clusters, "--clusters (the K ladder)") if args.clusters is not None else default_ladder(args.env)
     setup = Setup(args.env, tuple(sorted(set(ladder))), args.margin, parse_ints(args.looks, "--looks"),
                   base_specs(args, args.env), args.target, tuple(args.start_from or ()), spending=args.spending,
-                  references=os.path.abspath(args.references) if args.references else None,
+                  futility=args.futility, references=os.path.abspath(args.references) if args.references else None,
                   max_steps=args.max_steps if args.steps == AUTO and not args.start_from and args.target is None else None)
     check_setup(setup)
     return setup
@@ -184,6 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"seeds per cell at each look (at least {sequential.MIN_SEEDS}); the last is the seed cap (default %(default)s)")
     p.add_argument("--spending", choices=sequential.SPENDING, default=DEFAULT_SPENDING,
                    help="how each K's error is spread over the looks (default %(default)s: Pocock-type, see docs/answer.md)")
+    p.add_argument("--futility", type=float, default=verdict.FUTILITY, metavar="CHANCE",
+                   help="stop adding seeds to an undecided K whose chance to be decided by the seed cap, if its gap is "
+                        "what it looks, is below CHANCE (0: every undecided K goes to the cap; never decides a K, so "
+                        "the error rate holds; default %(default)s)")
     p.add_argument("--references", default=None, metavar="CSV",
                    help="the PPO references flat PPO must reach (default: the shipped table, gsa_jax/analysis/verdicts/ppo_references.csv)")
     p.add_argument("--steps", type=steps_option, default=AUTO,

@@ -41,7 +41,8 @@ def answer_rows(setup: Setup, state: dict) -> list:
                      "level": rounded(r["level"], 8), "share": rounded(r["share"], 6),
                      "p_sufficient": rounded(r["p_sufficient"], 8), "p_insufficient": rounded(r["p_insufficient"], 8),
                      "seeds_80pct_power_parity": "" if decided or r["seeds_parity"] is None else r["seeds_parity"],
-                     "seeds_80pct_power_observed": "" if decided or r["seeds_observed"] is None else r["seeds_observed"]})
+                     "seeds_80pct_power_observed": "" if decided or r["seeds_observed"] is None else r["seeds_observed"],
+                     "chance_decided_by_cap": "" if decided else rounded(r.get("chance_by_cap"))})
     return rows
 
 
@@ -142,18 +143,21 @@ def export_choice(out: str, results_root: list, env: str, k: int, scores: dict) 
 def table_text(rows: list, flat: tuple | None) -> str:
     """The answer's rows as a markdown table, flat PPO's IQM (95% interval) first where it is the reference."""
     lines = ["| K | verdict | look (frozen?) | seeds: mixture (reference) | gap [interval at the look's level] | level | "
-             "seeds per cell for 80% power: at parity, at the observed gap |", "|---|---|---|---|---|---|---|"]
+             "seeds per cell for 80% power: at parity, at the observed gap | chance the seed cap decides it |",
+             "|---|---|---|---|---|---|---|---|"]
     if flat is not None:
-        lines.append(f"| flat PPO | IQM {flat[0]:.1f} [{flat[1]:.1f}, {flat[2]:.1f}] (95%) |  | {flat[3]} |  |  |  |")
+        lines.append(f"| flat PPO | IQM {flat[0]:.1f} [{flat[1]:.1f}, {flat[2]:.1f}] (95%) |  | {flat[3]} |  |  |  |  |")
     for r in rows:
         if "look" not in r or r["gap"] == "":
-            lines.append(f"| {r['K']} | {r['verdict']} {r.get('why', '')} |  |  |  |  |  |")
+            lines.append(f"| {r['K']} | {r['verdict']} {r.get('why', '')} |  |  |  |  |  |  |")
             continue
-        power = (f"{r['seeds_80pct_power_parity'] or '-'}, {r['seeds_80pct_power_observed'] or '-'}"
-                 if r["verdict"] == verdict.UNDECIDED else "")
+        undecided = r["verdict"] == verdict.UNDECIDED
+        power = f"{r['seeds_80pct_power_parity'] or '-'}, {r['seeds_80pct_power_observed'] or '-'}" if undecided else ""
+        chance = r.get("chance_decided_by_cap", "")
+        chance = f"{chance:.1%}" if undecided and chance != "" else ""
         lines.append(f"| {r['K']} | **{r['verdict']}** | {r['look']} ({'frozen' if r['frozen'] == 'yes' else 'open'}) | "
                      f"{r['seeds']} ({r['reference_seeds']}) | {r['gap']:+.3f} [{r['gap_low']:+.3f}, {r['gap_high']:+.3f}] | "
-                     f"{r['level']:.2g} | {power} |")
+                     f"{r['level']:.2g} | {power} | {chance} |")
     return "\n".join(lines)
 
 
@@ -280,7 +284,9 @@ def design_text(setup: Setup) -> list:
             "exact for the default design only). Per-look levels of a K holding alpha / K: "
             + ", ".join(f"{v:.2g}" for v in levels) + "; a K shown sufficient passes its share on (Holm).",
             "- A decided cell is frozen at its look; seeds are added only to the undecided K below the smallest "
-            "sufficient K (and to flat PPO)."]
+            "sufficient K (and to flat PPO)" + (f", and not to one whose chance to be decided by the seed cap, if its gap "
+            f"is what it looks, is below {setup.futility:.0%} (futility: it never decides a K, so the error rate holds)."
+            if setup.futility > 0 else ".")]
 
 
 def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, sentence: str, choice: dict | None,

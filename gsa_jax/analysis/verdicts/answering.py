@@ -52,7 +52,10 @@ class Setup:
     experiment spec per policy ('mlp', 'mixture': steps, hparams, config); looks: seeds per cell at each look;
     alpha, spending: the design (gsa_jax.analysis.verdicts.sequential); start_from: results directories whose committed
     controllers are the first seeds; references: the references table (None: the shipped one); max_steps: the cap of
-    a step budget chosen by flat PPO's learning (step_budget; None: every run trains its spec's steps)."""
+    a step budget chosen by flat PPO's learning (step_budget; None: every run trains its spec's steps); futility: an
+    undecided K whose chance to be decided by the seed cap (verdict.chance_to_decide) is below it gets no more seeds
+    (0: every undecided K goes on to the cap). Stopping for futility never decides a K, so it cannot raise the
+    answer's error rate (a non-binding futility rule)."""
 
     env: str
     ladder: tuple
@@ -66,6 +69,7 @@ class Setup:
     references: str | None = None
     multiplicity: str = "holm"
     max_steps: int | None = None
+    futility: float = verdict.FUTILITY
 
     def design(self) -> sequential.Design:
         return sequential.Design(tuple(self.looks), self.alpha, self.spending, self.multiplicity)
@@ -153,6 +157,8 @@ def check_setup(setup: Setup) -> None:
         raise AnswerError(f"every K must be >= 1, got {list(setup.ladder)}")
     if not 0.0 < setup.margin < 1.0:
         raise AnswerError(f"--margin must be in (0, 1), got {setup.margin}")
+    if not 0.0 <= setup.futility < 1.0:
+        raise AnswerError(f"--futility must be in [0, 1), got {setup.futility:g}")
     try:
         sequential.check_design(setup.design())
     except ValueError as e:
@@ -202,7 +208,8 @@ def load_state(out: str, setup: Setup) -> dict:
     with open(path) as f:
         state = json.load(f)
     mine = json.loads(json.dumps(setup.to_json()))
-    state["setup"] = {"max_steps": None, **state["setup"]}  # written before the step budget was chosen: fixed steps
+    # written before the step budget was chosen (fixed steps) or before futility stopping (every K to the cap)
+    state["setup"] = {"max_steps": None, "futility": 0.0, **state["setup"]}
     if state["setup"] != mine:
         changed = sorted(k for k in set(state["setup"]) | set(mine) if state["setup"].get(k) != mine.get(k))
         raise AnswerError(f"{out} holds an answer with other settings ({', '.join(changed)}); use another --out")
@@ -354,8 +361,8 @@ def mixtures_learning(setup: Setup, evidence: Evidence, state: dict) -> dict:
     return out
 
 
-def cells_to_extend(setup: Setup, records: dict, scores: dict) -> list:
-    """The K that need more seeds: those not yet at the first look, and the undecided ones below the smallest
+def open_cells(setup: Setup, records: dict, scores: dict) -> list:
+    """The K the answer still asks about: those not yet at the first look, and the undecided ones below the smallest
     sufficient K (none once there is no answer)."""
     verdicts = {k: records[str(k)]["verdict"] for k in setup.ladder if str(k) in records}
     if verdict.NO_SCALE in verdicts.values():
@@ -365,6 +372,19 @@ def cells_to_extend(setup: Setup, records: dict, scores: dict) -> list:
         return untrained
     chosen, below = verdict.smallest_sufficient(verdicts)
     return below if chosen is not None else [k for k, v in verdicts.items() if v == verdict.UNDECIDED]
+
+
+def futile(setup: Setup, record: dict) -> bool:
+    """Whether an undecided K's chance to be decided by the seed cap is below the setup's futility threshold."""
+    chance = record.get("chance_by_cap")
+    return record.get("verdict") == verdict.UNDECIDED and chance is not None and chance < setup.futility
+
+
+def futility_text(setup: Setup, records: dict, ks: list) -> str:
+    """The stop reason of an answer whose open K are all futile."""
+    chances = ", ".join(f"K = {k}: {records[str(k)]['chance_by_cap']:.1%}" for k in ks)
+    return (f"futility (no undecided K has a {setup.futility:.0%} chance to be decided by the seed cap of "
+            f"{setup.looks[-1]} seeds per cell if its gap is what it looks: {chances})")
 
 
 def next_look(setup: Setup, scores: dict, ks: list) -> int | None:
@@ -396,7 +416,10 @@ def decide(setup: Setup, evidence: Evidence, state: dict) -> tuple:
     if "baseline" in state:
         state["records"] = judge_cells(setup, evidence, state)
         state["mixture_learning"] = mixtures_learning(setup, evidence, state)
-    ks = cells_to_extend(setup, state["records"], scores)
+    asked = open_cells(setup, state["records"], scores)
+    ks = [k for k in asked if not futile(setup, state["records"].get(str(k), {}))]
+    if asked and not ks:
+        return state["records"], None, futility_text(setup, state["records"], asked)
     if not ks:
         no = any(r["verdict"] == verdict.NO_SCALE for r in state["records"].values())
         return state["records"], None, "no answer" if no else "decided"

@@ -25,7 +25,7 @@ def judged_record(g: verdict.Gap, look: int, design: sequential.Design, share: f
     return {"verdict": g.verdict, "look": look, "seeds": g.n, "reference_seeds": g.n_ref, "gap": g.point,
             "low": g.low, "high": g.high, "level": g.level, "share": share, "p_sufficient": g.p_sufficient,
             "p_insufficient": g.p_insufficient, "seeds_parity": g.seeds_parity, "seeds_observed": g.seeds_observed,
-            "looks": list(design.looks)}
+            "chance_by_cap": g.chance_by_cap, "looks": list(design.looks)}
 
 
 def judge_cell(scores: dict, reference: "Sequence[float] | trimmed.Summary", random_returns: "Sequence[float] | float", margin: float, design: sequential.Design, look: int,
@@ -35,7 +35,8 @@ def judge_cell(scores: dict, reference: "Sequence[float] | trimmed.Summary", ran
     levels = sequential.look_levels(design, share)
     n = design.looks[look]
     ref = reference if isinstance(reference, trimmed.Summary) else list(reference)[:n]
-    g = verdict.judge(first_seeds(scores, n), ref, random_returns, margin, levels[look], final_level=levels[-1])
+    g = verdict.judge(first_seeds(scores, n), ref, random_returns, margin, levels[look], final_level=levels[-1],
+                      final_seeds=design.looks[-1])
     return judged_record(g, look, design, share)
 
 

@@ -14,7 +14,9 @@ margin delta and the look's one-sided level a (gsa_jax.analysis.verdicts.sequent
 
     sufficient    p(gap <= -delta) < a   (shown within delta of the reference, or better)
     insufficient  p(gap >= -delta) < a   (shown worse than the margin allows)
-    undecided     otherwise, with the seeds per cell for 80% power at parity and at the observed gap
+    undecided     otherwise, with the seeds per cell for 80% power at parity and at the observed gap, and the
+                  chance that the seed cap decides it if the gap is what it looks (chance_by_cap: the answer stops
+                  adding seeds below FUTILITY)
     no answer     the reference's gain over the random policy is not shown positive (one-sided p < GAIN_LEVEL)
 
 The gap's interval [low, high] is the set of gaps no one-sided test at level a rejects (the test inverted, as
@@ -31,6 +33,7 @@ from gsa_jax.analysis.verdicts import trimmed
 ALPHA = 0.025  # the one-sided chance of wrongly calling some K sufficient, over the whole answer
 GAIN_LEVEL = 0.025  # the reference's gain over the random policy must be shown positive at this one-sided level
 POWER = 0.8  # the power the seed estimates aim at
+FUTILITY = 0.05  # the answer stops adding seeds to a K whose chance to be decided by the seed cap is below this
 MARGINS = (0.05, 0.1, 0.2)  # the margins every answer reports (the others as sensitivity, not as the answer)
 DEFAULT_MARGIN = 0.1  # the answer's margin: keep at least 90% of the reference's gain over a random policy
 SUFFICIENT, INSUFFICIENT, UNDECIDED, NO_SCALE = "sufficient", "insufficient", "undecided", "no answer"
@@ -39,7 +42,8 @@ SUFFICIENT, INSUFFICIENT, UNDECIDED, NO_SCALE = "sufficient", "insufficient", "u
 class Gap(NamedTuple):
     """A cell's gap (point, interval low/high at the look's level), its verdict at `margin`, the look's nominal
     one-sided level, the seeds (mixture, reference: 0 for a fixed score), the two one-sided p-values, and the seeds
-    per cell for 80% power at parity (gap 0) and at the observed gap (None where no finite number would do)."""
+    per cell for 80% power at parity (gap 0) and at the observed gap (None where no finite number would do), and the
+    chance that the design's last look decides the cell if its contrast is what it is now (None: not asked)."""
 
     point: float
     low: float
@@ -53,6 +57,7 @@ class Gap(NamedTuple):
     p_insufficient: float
     seeds_parity: int | None
     seeds_observed: int | None
+    chance_by_cap: float | None = None
 
 
 def summarize_reference(reference: "Sequence[float] | trimmed.Summary") -> trimmed.Summary:
@@ -109,12 +114,28 @@ def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float) 
     return max(n, int(math.ceil(n * need * need)))
 
 
+def chance_to_decide(c: trimmed.Contrast, n: int, cap: int, level: float) -> float | None:
+    """The chance that the contrast's test at `cap` seeds per cell rejects either way at the one-sided `level`, given
+    its estimate and standard error at `n` seeds and a true contrast equal to the estimate (conditional power under
+    the current trend; Lachin 2005), the standard error shrinking as 1/sqrt(n) as in seeds_for_power. None where
+    it cannot be said (no finite error, or no seeds to add)."""
+    from scipy import stats
+
+    if cap <= n or not math.isfinite(c.se) or c.se <= 0:
+        return None
+    sigma = c.se * math.sqrt(n)  # one seed's standard deviation of the contrast
+    edge = stats.norm.isf(level) * sigma / math.sqrt(cap)  # |estimate at the cap| beyond which the test rejects
+    spread = sigma * math.sqrt(cap - n) / cap  # of the estimate at the cap given the estimate now
+    return float(stats.norm.sf((edge - c.estimate) / spread) + stats.norm.cdf((-edge - c.estimate) / spread))
+
+
 def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summary", random_returns: "Sequence[float] | float",
           margin: float = DEFAULT_MARGIN, level: float = ALPHA,
-          final_level: float | None = None) -> Gap:
+          final_level: float | None = None, final_seeds: int | None = None) -> Gap:
     """The verdict of one mixture cell (scores [n]) against `reference` (flat PPO's scores [n_f] or a trimmed.Summary)
     with the random policy's episode returns [n_r] (or one exact number), at `margin` and the look's one-sided
-    `level`; the power estimates aim at `final_level` (the design's last look; default `level`)."""
+    `level`; the power estimates aim at `final_level` (the design's last look; default `level`), and an undecided
+    cell's chance_by_cap at `final_seeds` (the seed cap; None: not computed)."""
     if not 0.0 < margin < 1.0:
         raise ValueError(f"the margin must be in (0, 1), got {margin}")
     mix, ref, rand = trimmed.trimmed(mixture), summarize_reference(reference), summarize_random(random_returns)
@@ -130,7 +151,9 @@ def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summar
     final = level if final_level is None else final_level
     parity = seeds_for_power(c, n, margin * scale, final)
     observed = seeds_for_power(c, n, abs(point + margin) * scale, final)
-    return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed)
+    chance = (chance_to_decide(c, n, final_seeds, final) if final_seeds is not None and verdict == UNDECIDED
+              else None)
+    return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed, chance)
 
 
 def smallest_sufficient(verdicts: dict) -> tuple:
