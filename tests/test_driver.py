@@ -109,3 +109,15 @@ def test_interrupt_and_full_disk_keep_the_last_checkpoint():
     with pytest.raises(OSError) as e:
         drive(toy_program(), MemoryStore(fail_save_at=6), PLAN._replace(tag="idp/mixture"), log=lambda m: None)
     assert e.value.last_intact == "iteration 4 of group idp/mixture"
+
+
+def test_a_group_chunk_in_which_no_episode_ended_says_so_not_nan():
+    """Long episodes (dm_control's 1,000 steps) end in some chunks only: the progress line says no episode ended."""
+    from gsa_jax.running.driver import progress_line
+
+    metrics = {"episode_return": np.full((3, 8), np.nan), "eval_return": np.full((3, 8), np.nan),
+               "failed_at": np.full((3, 8), -1)}
+    line = progress_line(PLAN, metrics, 2, 1000.0, 0.5)
+    assert "no episode ended in this chunk" in line and "nan" not in line
+    metrics["episode_return"][:, 1] = [1.0, 2.0, 3.0]
+    assert "return best 3.0 median 2.0" in progress_line(PLAN, metrics, 2, 1000.0, 0.5)

@@ -202,10 +202,10 @@ def progress_line(plan: Plan, metrics: dict, done: int, sps: float, chunk_s: flo
                      f" | clusters used {int(metrics['clusters_used'][0, done - 1])}")
         return prefix(plan) + line + f" | chunk {chunk_s:.1f}s"
     failed = int(failed_mask(metrics, done)[:runs].sum())
-    finite = np.isfinite(per_run)
-    best, median = (np.nanmax(per_run), np.nanmedian(per_run)) if finite.any() else (math.nan, math.nan)
+    returns = (f"best {np.nanmax(per_run):.1f} median {np.nanmedian(per_run):.1f}" if np.isfinite(per_run).any()
+               else "- (no episode ended in this chunk)")
     return (f"{prefix(plan)}it {done}/{plan.iterations} | {sps:,.0f} env-steps/s | ETA {duration(eta)} | return "
-            f"best {best:.1f} median {median:.1f}" + (f" | eval median {np.nanmedian(ev):.1f}" if np.isfinite(ev).any() else "")
+            f"{returns}" + (f" | eval median {np.nanmedian(ev):.1f}" if np.isfinite(ev).any() else "")
             + (f" | {failed} run(s) failed (NaN/inf)" if failed else "") + f" | chunk {chunk_s:.1f}s")
 
 
