@@ -95,8 +95,23 @@ def test_an_answer_recorded_before_futility_resumes_as_it_was_designed(tmp_path)
     old = {k: v for k, v in synthetic_setup().to_json().items() if k != "futility"}
     (tmp_path / A.STATE).write_text(json.dumps({"setup": old, "rounds": [], "records": {}, "elapsed_s": 0.0}))
     A.load_state(str(tmp_path), A.Setup(**{**synthetic_setup().__dict__, "futility": 0.0}))
-    with pytest.raises(A.AnswerError, match="other settings .futility."):
+    with pytest.raises(A.AnswerError, match=r"other settings .futility. .it was started before futility stopping: "
+                                            r"resume it with --futility 0."):
         A.load_state(str(tmp_path), synthetic_setup())
+
+
+def test_a_k_stopped_for_futility_stays_stopped_and_rounds_never_mix_seed_counts():
+    """A K stopped for futility gets no seeds later even where Holm raises its share and its chance (it holds fewer
+    seeds than the K that went on, and one round trains its K the same seeds)."""
+    setup = synthetic_setup()
+    undecided = lambda chance: {"verdict": verdict.UNDECIDED, "chance_by_cap": chance}  # noqa: E731
+    state = {"records": {"1": undecided(0.01), "2": undecided(0.5)}}
+    assert A.stop_futile(setup, state, [1, 2]) == [2] and state["futile"] == {"1": 0.01}
+    state["records"]["1"] = undecided(0.9)  # Holm's larger share, judged again at its look
+    assert A.stop_futile(setup, state, [1, 2]) == [2]
+    assert "K = 1: 1%" in A.futility_text(setup, state, [1])  # the chance when it was stopped
+    with pytest.raises(A.AnswerError, match="hold different numbers of seeds"):
+        A.plan_round(setup, {1: dict.fromkeys(range(10)), 2: dict.fromkeys(range(20))}, [1, 2], 40)
 
 
 def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):

@@ -74,18 +74,32 @@ def test_gap_exactly_minus_margin_is_undecided_and_needs_no_finite_seeds():
     assert g.seeds_observed is None and g.seeds_parity is not None and g.seeds_parity >= 20
 
 
-@pytest.mark.parametrize("estimate", [0.0, 0.6, -0.9, 1.4])
-def test_the_chance_to_be_decided_by_the_cap_is_a_simulated_continuation(estimate):
+@pytest.mark.parametrize("estimate, fixed_var", [(0.0, 0.0), (0.6, 0.0), (-0.9, 0.0), (1.4, 0.0), (0.6, 0.004),
+                                                 (-0.9, 0.01)])
+def test_the_chance_to_be_decided_by_the_cap_is_a_simulated_continuation(estimate, fixed_var):
     """chance_to_decide against a NumPy simulation of what it claims: the seeds now have a mean `estimate` (unit spread
-    per seed, 10 seeds); 30 more drawn with that true mean, the mean of all 40 tested both ways at the level."""
+    per seed, 10 seeds) plus a part of variance fixed_var that more seeds do not change (the random policy's
+    episodes); 30 more seeds drawn with that true mean, the estimate of all 40 tested both ways at the level."""
     n, cap, level, trials = 10, 40, 0.003, 400_000
-    c = trimmed.Contrast(estimate, 1.0 / np.sqrt(n), 9.0)
+    c = trimmed.Contrast(estimate, np.sqrt(1.0 / n + fixed_var), 9.0)
     rng = np.random.default_rng(7)
     final = (n * estimate + rng.normal(estimate * (cap - n), np.sqrt(cap - n), trials)) / cap
-    edge = 2.7477813854449926 / np.sqrt(cap)  # scipy.stats.norm.isf(0.003) / sqrt(cap): the test at the cap
+    edge = 2.7477813854449926 * np.sqrt(1.0 / cap + fixed_var)  # scipy.stats.norm.isf(0.003) x the error at the cap
     simulated = np.mean(np.abs(final) > edge)
-    assert V.chance_to_decide(c, n, cap, level) == pytest.approx(simulated, abs=3e-3)
+    assert V.chance_to_decide(c, n, cap, level, fixed_var) == pytest.approx(simulated, abs=3e-3)
     assert V.chance_to_decide(c, cap, cap, level) is None  # nothing left to add
+
+
+def test_a_cell_whose_reference_alone_is_too_uncertain_has_no_chance():
+    """Against a published score of three seeds (its own error does not shrink with the mixture's seeds), a mixture at
+    parity cannot be shown within the margin however many seeds it gets: its chance is ~0, where taking the whole
+    error as shrinking would give it one."""
+    mix = np.linspace(995.0, 1005.0, 10)
+    published = trimmed.fixed(1000.0, std=200.0, seeds=3)
+    g = V.judge(mix, published, 0.0, margin=0.1, level=0.003, final_level=0.003, final_seeds=40)
+    assert g.verdict == V.UNDECIDED and g.chance_by_cap < 1e-3
+    c = V.margin_contrast(trimmed.trimmed(mix), published, V.summarize_random(0.0), -0.1)
+    assert V.chance_to_decide(c, 10, 40, 0.003) > 0.05  # the whole error taken as shrinking
 
 
 def test_an_undecided_cell_carries_its_chance_and_a_decided_one_none():

@@ -79,6 +79,7 @@ def run_trial(setup, cells: dict, random_returns: np.ndarray) -> tuple:
             return records, sum(have.values())
         for policy, (ks, seeds) in plan.items():
             for key in (ks if ks else [answering.FLAT]):
+                assert seeds[0] == have[key], f"round plans seeds {seeds[0]}.. for {key} holding {have[key]}"
                 have[key] = seeds[-1] + 1
 
 

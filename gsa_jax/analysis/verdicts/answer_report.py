@@ -285,7 +285,8 @@ def design_text(setup: Setup) -> list:
             + ", ".join(f"{v:.2g}" for v in levels) + "; a K shown sufficient passes its share on (Holm).",
             "- A decided cell is frozen at its look; seeds are added only to the undecided K below the smallest "
             "sufficient K (and to flat PPO)" + (f", and not to one whose chance to be decided by the seed cap, if its gap "
-            f"is what it looks, is below {setup.futility:.0%} (futility: it never decides a K, so the error rate holds)."
+            f"is what it looks, is below {100 * setup.futility:.2g}% (futility: it never decides a K, and a stopped K keeps "
+            "its share of the error, so the rate stated holds)."
             if setup.futility > 0 else ".")]
 
 

@@ -54,8 +54,9 @@ class Setup:
     controllers are the first seeds; references: the references table (None: the shipped one); max_steps: the cap of
     a step budget chosen by flat PPO's learning (step_budget; None: every run trains its spec's steps); futility: an
     undecided K whose chance to be decided by the seed cap (verdict.chance_to_decide) is below it gets no more seeds
-    (0: every undecided K goes on to the cap). Stopping for futility never decides a K, so it cannot raise the
-    answer's error rate (a non-binding futility rule)."""
+    (0: every undecided K goes on to the cap). Stopping for futility never decides a K and a stopped K keeps its
+    Holm share, so every test made is one the design without futility makes at the same level (a non-binding
+    futility rule: the stated error holds)."""
 
     env: str
     ladder: tuple
@@ -209,10 +210,14 @@ def load_state(out: str, setup: Setup) -> dict:
         state = json.load(f)
     mine = json.loads(json.dumps(setup.to_json()))
     # written before the step budget was chosen (fixed steps) or before futility stopping (every K to the cap)
+    before_futility = "futility" not in state["setup"]
     state["setup"] = {"max_steps": None, "futility": 0.0, **state["setup"]}
     if state["setup"] != mine:
         changed = sorted(k for k in set(state["setup"]) | set(mine) if state["setup"].get(k) != mine.get(k))
-        raise AnswerError(f"{out} holds an answer with other settings ({', '.join(changed)}); use another --out")
+        hint = (" (it was started before futility stopping: resume it with --futility 0)"
+                if before_futility and "futility" in changed else "")
+        raise AnswerError(f"{out} holds an answer with other settings ({', '.join(changed)}){hint}; use another --out"
+                          + (" or resume it as it was started" if hint else ""))
     return state
 
 
@@ -380,11 +385,26 @@ def futile(setup: Setup, record: dict) -> bool:
     return record.get("verdict") == verdict.UNDECIDED and chance is not None and chance < setup.futility
 
 
-def futility_text(setup: Setup, records: dict, ks: list) -> str:
-    """The stop reason of an answer whose open K are all futile."""
-    chances = ", ".join(f"K = {k}: {records[str(k)]['chance_by_cap']:.1%}" for k in ks)
-    return (f"futility (no undecided K has a {setup.futility:.0%} chance to be decided by the seed cap of "
-            f"{setup.looks[-1]} seeds per cell if its gap is what it looks: {chances})")
+def stop_futile(setup: Setup, state: dict, asked: list) -> list:
+    """The K of `asked` that get more seeds: those not stopped for futility, now or at an earlier look. A stopped K
+    stays stopped (state['futile']: {str(K): its chance when stopped}) even where Holm later raises its share, so
+    the K that go on always hold the same seeds (a round trains them as one sweep)."""
+    stopped = state.setdefault("futile", {})
+    for k in asked:
+        if str(k) not in stopped and futile(setup, state["records"].get(str(k), {})):
+            stopped[str(k)] = state["records"][str(k)]["chance_by_cap"]
+    return [k for k in asked if str(k) not in stopped]
+
+
+def percent(x: float) -> str:
+    return f"{100.0 * x:.2g}%"
+
+
+def futility_text(setup: Setup, state: dict, ks: list) -> str:
+    """The stop reason of an answer whose open K were all stopped for futility."""
+    chances = ", ".join(f"K = {k}: {percent(state['futile'][str(k)])}" for k in ks)
+    return (f"futility (no undecided K had a {percent(setup.futility)} chance to be decided by the seed cap of "
+            f"{setup.looks[-1]} seeds per cell if its gap is what it looked when it was stopped: {chances})")
 
 
 def next_look(setup: Setup, scores: dict, ks: list) -> int | None:
@@ -397,7 +417,10 @@ def next_look(setup: Setup, scores: dict, ks: list) -> int | None:
 def plan_round(setup: Setup, scores: dict, ks: list, look: int) -> dict:
     """{policy: (K list, seeds)} of the round that brings the cells `ks` (and flat PPO, compared with them) to
     `look` seeds per cell: the seeds each lacks."""
-    have = max(len(scores.get(k, {})) for k in ks)
+    counts = {len(scores.get(k, {})) for k in ks}
+    if len(counts) > 1:  # one sweep trains every K the same seeds: K of different seed counts cannot share it
+        raise AnswerError(f"K = {sorted(ks)} hold different numbers of seeds ({sorted(counts)}): cannot plan one round")
+    have = counts.pop()
     plan = {MIXTURE: (sorted(ks), list(range(have, look)))}
     flat = len(scores.get(FLAT, {}))
     if setup.target is None and flat < look:
@@ -417,9 +440,9 @@ def decide(setup: Setup, evidence: Evidence, state: dict) -> tuple:
         state["records"] = judge_cells(setup, evidence, state)
         state["mixture_learning"] = mixtures_learning(setup, evidence, state)
     asked = open_cells(setup, state["records"], scores)
-    ks = [k for k in asked if not futile(setup, state["records"].get(str(k), {}))]
+    ks = stop_futile(setup, state, asked)
     if asked and not ks:
-        return state["records"], None, futility_text(setup, state["records"], asked)
+        return state["records"], None, futility_text(setup, state, asked)
     if not ks:
         no = any(r["verdict"] == verdict.NO_SCALE for r in state["records"].values())
         return state["records"], None, "no answer" if no else "decided"

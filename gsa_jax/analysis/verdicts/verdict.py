@@ -114,19 +114,29 @@ def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float) 
     return max(n, int(math.ceil(n * need * need)))
 
 
-def chance_to_decide(c: trimmed.Contrast, n: int, cap: int, level: float) -> float | None:
+def chance_to_decide(c: trimmed.Contrast, n: int, cap: int, level: float, fixed_var: float = 0.0) -> float | None:
     """The chance that the contrast's test at `cap` seeds per cell rejects either way at the one-sided `level`, given
     its estimate and standard error at `n` seeds and a true contrast equal to the estimate (conditional power under
-    the current trend; Lachin 2005), the standard error shrinking as 1/sqrt(n) as in seeds_for_power. None where
-    it cannot be said (no finite error, or no seeds to add)."""
+    the current trend; Lachin 2005). fixed_var: the part of the squared standard error that more seeds do not
+    shrink (the random policy's episodes, a published reference's error); the rest shrinks as 1/n. A normal
+    approximation at the last look only (Yuen's t there and a decision at a look between both make the true chance
+    a little smaller and larger). None where it cannot be said (no finite error, or no seeds to add)."""
     from scipy import stats
 
     if cap <= n or not math.isfinite(c.se) or c.se <= 0:
         return None
-    sigma = c.se * math.sqrt(n)  # one seed's standard deviation of the contrast
-    edge = stats.norm.isf(level) * sigma / math.sqrt(cap)  # |estimate at the cap| beyond which the test rejects
-    spread = sigma * math.sqrt(cap - n) / cap  # of the estimate at the cap given the estimate now
+    per_seed = max(c.se * c.se - fixed_var, 0.0) * n  # one seed's variance of the contrast's shrinking part
+    edge = stats.norm.isf(level) * math.sqrt(per_seed / cap + fixed_var)  # |estimate at the cap| the test rejects beyond
+    spread = math.sqrt(per_seed * (cap - n)) / cap  # of the estimate at the cap given the estimate now
+    if spread == 0.0:
+        return float(abs(c.estimate) > edge)
     return float(stats.norm.sf((edge - c.estimate) / spread) + stats.norm.cdf((-edge - c.estimate) / spread))
+
+
+def fixed_variance(ref: trimmed.Summary, rand: trimmed.Summary, margin: float, ref_fixed: bool) -> float:
+    """The part of margin_contrast's squared standard error that more seeds do not shrink: the random policy's (its
+    episodes are measured once) and, for a fixed reference (a published score: ref_fixed), the reference's."""
+    return margin * margin * rand.var + ((1.0 - margin) ** 2 * ref.var if ref_fixed else 0.0)
 
 
 def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summary", random_returns: "Sequence[float] | float",
@@ -151,8 +161,8 @@ def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summar
     final = level if final_level is None else final_level
     parity = seeds_for_power(c, n, margin * scale, final)
     observed = seeds_for_power(c, n, abs(point + margin) * scale, final)
-    chance = (chance_to_decide(c, n, final_seeds, final) if final_seeds is not None and verdict == UNDECIDED
-              else None)
+    chance = (chance_to_decide(c, n, final_seeds, final, fixed_variance(ref, rand, margin, isinstance(reference, trimmed.Summary)))
+              if final_seeds is not None and verdict == UNDECIDED else None)
     return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed, chance)
 
 
