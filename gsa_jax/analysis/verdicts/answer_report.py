@@ -15,7 +15,7 @@ from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores, stats
 from gsa_jax.analysis.sweeps.results import write_csv
 from gsa_jax.analysis.verdicts import ladder, sequential, step_budget, trimmed, verdict
-from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, reference_of, trained_steps
+from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, percent, reference_of, trained_steps
 from gsa_jax.running.checkpoint import write_atomic
 
 
@@ -154,7 +154,7 @@ def table_text(rows: list, flat: tuple | None) -> str:
         undecided = r["verdict"] == verdict.UNDECIDED
         power = f"{r['seeds_80pct_power_parity'] or '-'}, {r['seeds_80pct_power_observed'] or '-'}" if undecided else ""
         chance = r.get("chance_decided_by_cap", "")
-        chance = f"{chance:.1%}" if undecided and chance != "" else ""
+        chance = percent(chance) if undecided and chance != "" else ""
         lines.append(f"| {r['K']} | **{r['verdict']}** | {r['look']} ({'frozen' if r['frozen'] == 'yes' else 'open'}) | "
                      f"{r['seeds']} ({r['reference_seeds']}) | {r['gap']:+.3f} [{r['gap_low']:+.3f}, {r['gap_high']:+.3f}] | "
                      f"{r['level']:.2g} | {power} | {chance} |")
@@ -285,7 +285,7 @@ def design_text(setup: Setup) -> list:
             + ", ".join(f"{v:.2g}" for v in levels) + "; a K shown sufficient passes its share on (Holm).",
             "- A decided cell is frozen at its look; seeds are added only to the undecided K below the smallest "
             "sufficient K (and to flat PPO)" + (f", and not to one whose chance to be decided by the seed cap, if its gap "
-            f"is what it looks, is below {100 * setup.futility:.2g}% (futility: it never decides a K, and a stopped K keeps "
+            f"is what it looks, is below {percent(setup.futility)} (futility: it never decides a K, and a stopped K keeps "
             "its share of the error, so the rate stated holds)."
             if setup.futility > 0 else ".")]
 

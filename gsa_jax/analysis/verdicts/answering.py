@@ -397,6 +397,7 @@ def stop_futile(setup: Setup, state: dict, asked: list) -> list:
 
 
 def percent(x: float) -> str:
+    """A chance as the report and the stop reason print it: two significant digits (0.009 -> '0.9%')."""
     return f"{100.0 * x:.2g}%"
 
 

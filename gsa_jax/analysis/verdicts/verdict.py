@@ -161,8 +161,10 @@ def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summar
     final = level if final_level is None else final_level
     parity = seeds_for_power(c, n, margin * scale, final)
     observed = seeds_for_power(c, n, abs(point + margin) * scale, final)
-    chance = (chance_to_decide(c, n, final_seeds, final, fixed_variance(ref, rand, margin, isinstance(reference, trimmed.Summary)))
-              if final_seeds is not None and verdict == UNDECIDED else None)
+    chance = None
+    if final_seeds is not None and verdict == UNDECIDED:
+        fixed = fixed_variance(ref, rand, margin, isinstance(reference, trimmed.Summary))
+        chance = chance_to_decide(c, n, final_seeds, final, fixed)
     return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed, chance)
 
 
