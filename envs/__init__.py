@@ -24,6 +24,10 @@ import os
 GL_FROM_USER = "MUJOCO_GL" in os.environ
 os.environ.setdefault("MUJOCO_GL", "disable")
 
+from envs import mjx_import  # noqa: E402
+
+mjx_import.install()  # mujoco.mjx without its NVIDIA-only warp backend (envs/mjx_import.py)
+
 from envs.build import (  # noqa: E402  (after MUJOCO_GL is set)
     as_gymnasium, check_backend, check_randomize, make, make_base, solver_settings,
 )

@@ -82,3 +82,27 @@ def test_reading_and_deployment_modules_import_without_jax():
     code = ("import sys; import " + ", ".join(f"gsa_jax.{m}" for m in JAX_FREE)
             + "; loaded = [m for m in ('jax', 'brax', 'mujoco.mjx') if m in sys.modules]; assert not loaded, loaded")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
+
+
+def imported(code: str) -> list:
+    """The last line a fresh Python process running `code` prints, as a list (it prints one)."""
+    out = subprocess.run([sys.executable, "-c", code], check=True, timeout=300, capture_output=True, text=True).stdout
+    return eval(out.strip().splitlines()[-1])
+
+
+def test_mjx_imports_without_its_warp_backend_and_warp_stays_importable():
+    """envs/mjx_import.py: after `import envs`, mujoco.mjx loads as where warp-lang is not installed (no MuJoCo Warp
+    module, WARP_INSTALLED False), the hook leaves sys.meta_path, and `import warp` itself still works where the
+    playground extra installed it (the test extras do); a process that imported warp first keeps MJX's warp backend."""
+    import importlib.util
+
+    has_warp = importlib.util.find_spec("warp") is not None
+    after_envs = imported(
+        "import sys, importlib.util, envs, mujoco.mjx\nfrom mujoco.mjx import warp\n"
+        "hooks = [f for f in sys.meta_path if type(f).__module__ == 'envs.mjx_import']\n"
+        "w = importlib.util.find_spec('warp') is not None and __import__('warp').__name__\n"
+        "print([warp.WARP_INSTALLED, 'mujoco.mjx.third_party.mujoco_warp' in sys.modules, len(hooks), w])")
+    assert after_envs == [False, False, 0, "warp" if has_warp else False]
+    if has_warp:
+        first = imported("import warp, envs, mujoco.mjx\nfrom mujoco.mjx import warp as w\nprint([w.WARP_INSTALLED])")
+        assert first == [True]
