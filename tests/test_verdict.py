@@ -102,6 +102,27 @@ def test_a_cell_whose_reference_alone_is_too_uncertain_has_no_chance():
     assert V.chance_to_decide(c, 10, 40, 0.003) > 0.05  # the whole error taken as shrinking
 
 
+def test_seeds_for_power_reach_it_with_a_part_of_the_error_fixed():
+    """seeds_for_power against a NumPy simulation: 10 seeds with unit spread each plus a fixed part of variance 0.01
+    (the random policy's episodes); at the seeds it returns, a true distance of 1 is rejected at the level in at least
+    80% of draws, and at one seed fewer in less. Where the fixed part alone is too large, no number would do (None)."""
+    n, level, fixed, trials = 10, 0.003, 0.02, 400_000
+    c = trimmed.Contrast(0.0, np.sqrt(1.0 / n + fixed), 9.0)
+    need = V.seeds_for_power(c, n, 1.0, level, fixed)
+    rng = np.random.default_rng(11)
+
+    def power(seeds):
+        sd = np.sqrt(1.0 / seeds + fixed)
+        return np.mean(rng.normal(1.0, sd, trials) > 2.7477813854449926 * sd)  # scipy.stats.norm.isf(0.003)
+
+    assert need > n and power(need) >= V.POWER > power(need - 1)
+    assert V.seeds_for_power(c, n, 1.0, level) < need  # the whole error taken as shrinking: too few
+    assert V.seeds_for_power(c, n, 0.4, level, fixed) is None  # (0.4 / 3.59)^2 < 0.02: no seed count reaches it
+    mix = np.linspace(995.0, 1005.0, 10)  # against a published score of three seeds, at parity: none either
+    g = V.judge(mix, trimmed.fixed(1000.0, std=200.0, seeds=3), 0.0, margin=0.1, level=0.003)
+    assert g.verdict == V.UNDECIDED and g.seeds_parity is None
+
+
 def test_an_undecided_cell_carries_its_chance_and_a_decided_one_none():
     flat = np.linspace(990.0, 1010.0, 20)
     at_margin = V.judge(flat - 100.0, flat, 0.0, margin=0.1, final_level=0.003, final_seeds=40)

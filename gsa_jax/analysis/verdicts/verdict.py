@@ -103,15 +103,21 @@ def bound(mix: trimmed.Summary, ref: trimmed.Summary, rand: trimmed.Summary, poi
     return float(0.5 * (inside + outside))
 
 
-def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float) -> int | None:
-    """Seeds per cell for POWER at a true distance (in score units) of the contrast from 0, the contrast's standard
-    error shrinking as 1/sqrt(n) (a normal approximation at the one-sided `level`)."""
+def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float, fixed_var: float = 0.0) -> int | None:
+    """Seeds per cell for POWER at a true distance (in score units) of the contrast from 0 (a normal approximation at
+    the one-sided `level`): the contrast's squared standard error at n seeds less fixed_var (the part more seeds do
+    not shrink: fixed_variance) shrinks as 1/seeds. None where no finite number would do: a distance of 0, no finite
+    error, or a fixed part alone too large for that power."""
     from scipy import stats
 
-    if distance <= 0 or not math.isfinite(c.se) or c.se == 0:
-        return None if distance <= 0 or not math.isfinite(c.se) else n
-    need = (stats.norm.isf(level) + stats.norm.isf(1.0 - POWER)) * c.se / distance
-    return max(n, int(math.ceil(n * need * need)))
+    if distance <= 0 or not math.isfinite(c.se):
+        return None
+    z = stats.norm.isf(level) + stats.norm.isf(1.0 - POWER)
+    per_seed = max(c.se * c.se - fixed_var, 0.0) * n  # one seed's variance of the contrast's shrinking part
+    room = (distance / z) ** 2 - fixed_var  # what the shrinking part's variance may be at the seeds sought
+    if room <= 0:
+        return None
+    return max(n, int(math.ceil(per_seed / room)))
 
 
 def chance_to_decide(c: trimmed.Contrast, n: int, cap: int, level: float, fixed_var: float = 0.0) -> float | None:
@@ -159,11 +165,11 @@ def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summar
     verdict = SUFFICIENT if p_s < level else INSUFFICIENT if p_i < level else UNDECIDED
     low, high = bound(mix, ref, rand, point, level, False), bound(mix, ref, rand, point, level, True)
     final = level if final_level is None else final_level
-    parity = seeds_for_power(c, n, margin * scale, final)
-    observed = seeds_for_power(c, n, abs(point + margin) * scale, final)
+    fixed = fixed_variance(ref, rand, margin, isinstance(reference, trimmed.Summary))
+    parity = seeds_for_power(c, n, margin * scale, final, fixed)
+    observed = seeds_for_power(c, n, abs(point + margin) * scale, final, fixed)
     chance = None
     if final_seeds is not None and verdict == UNDECIDED:
-        fixed = fixed_variance(ref, rand, margin, isinstance(reference, trimmed.Summary))
         chance = chance_to_decide(c, n, final_seeds, final, fixed)
     return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed, chance)
 
