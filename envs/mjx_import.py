@@ -4,12 +4,16 @@ installed (the playground extra brings it), measured in experiments/compile_time
 mujoco.mjx imports NVIDIA Warp and MuJoCo Warp whenever `warp` can be imported, for its `impl="warp"` backend (NVIDIA
 GPUs only). This project steps MJX's JAX implementation everywhere (Playground's environments too), so while
 mujoco.mjx itself is first imported, `import warp` fails as it does where warp-lang is not installed: MJX then
-runs as on such a machine (mujoco.mjx.warp.WARP_INSTALLED is False). Nothing else changes: `warp` stays importable
-afterwards, and a process that imported warp (or mujoco.mjx) before `envs` keeps MJX's warp backend.
+runs as on such a machine (mujoco.mjx.warp.WARP_INSTALLED is False) and prints the same "Failed to import warp"
+notice (the project's builders import MJX with stdout captured). `warp` stays importable afterwards. MJX keeps its
+warp backend in a process that imported warp (or mujoco.mjx) before `envs`, or that sets MJX_GPU_DEFAULT_WARP=true
+(MJX's own switch to it). The hiding is process-wide for the moment of that one import: another thread's first
+`import warp` at that moment fails too.
 """
 
 import importlib.abc
 import importlib.machinery
+import os
 import sys
 
 MJX = "mujoco.mjx"
@@ -24,8 +28,8 @@ class _HiddenWarp(importlib.abc.MetaPathFinder):
 
     def find_spec(self, name, path=None, target=None):
         if self.hiding and (name == "warp" or name.startswith("warp.")):
-            raise ImportError(f"{name}: not imported with mujoco.mjx (envs/mjx_import.py: MJX's warp backend is "
-                              "for NVIDIA GPUs; this project uses its JAX implementation)")
+            raise ModuleNotFoundError(f"{name}: not imported with mujoco.mjx (envs/mjx_import.py: MJX's warp backend "
+                                      "is for NVIDIA GPUs; this project uses its JAX implementation)", name=name)
         if name != MJX or self.hiding:
             return None
         spec = importlib.machinery.PathFinder.find_spec(name, path)
@@ -42,6 +46,8 @@ class _Hiding(importlib.abc.Loader):
         self.loader, self.finder = loader, finder
 
     def __getattr__(self, name):  # get_source, get_code, is_package, ...: the file loader's own
+        if name == "loader":  # not set yet (a copy being made): no recursion
+            raise AttributeError(name)
         return getattr(self.loader, name)
 
     def create_module(self, spec):
@@ -57,8 +63,10 @@ class _Hiding(importlib.abc.Loader):
 
 
 def install() -> None:
-    """Hide `warp` from mujoco.mjx's first import in this process, unless warp or mujoco.mjx is already imported."""
-    if "warp" in sys.modules or MJX in sys.modules or any(isinstance(f, _HiddenWarp) for f in sys.meta_path):
+    """Hide `warp` from mujoco.mjx's first import in this process, unless warp or mujoco.mjx is already imported or
+    MJX_GPU_DEFAULT_WARP asks MJX for its warp backend."""
+    wanted = os.environ.get("MJX_GPU_DEFAULT_WARP", "").lower() == "true"
+    if wanted or "warp" in sys.modules or MJX in sys.modules or any(isinstance(f, _HiddenWarp) for f in sys.meta_path):
         return
     sys.meta_path.insert(0, _HiddenWarp())
 

@@ -84,16 +84,19 @@ def test_reading_and_deployment_modules_import_without_jax():
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
 
 
-def imported(code: str) -> list:
-    """The last line a fresh Python process running `code` prints, as a list (it prints one)."""
-    out = subprocess.run([sys.executable, "-c", code], check=True, timeout=300, capture_output=True, text=True).stdout
+def imported(code: str, **environ) -> list:
+    """The last line a fresh Python process running `code` (with `environ` added to its environment) prints, as a
+    list (it prints one)."""
+    out = subprocess.run([sys.executable, "-c", code], check=True, timeout=300, capture_output=True, text=True,
+                         env={**os.environ, **environ}).stdout
     return eval(out.strip().splitlines()[-1])
 
 
 def test_mjx_imports_without_its_warp_backend_and_warp_stays_importable():
     """envs/mjx_import.py: after `import envs`, mujoco.mjx loads as where warp-lang is not installed (no MuJoCo Warp
     module, WARP_INSTALLED False), the hook leaves sys.meta_path, and `import warp` itself still works where the
-    playground extra installed it (the test extras do); a process that imported warp first keeps MJX's warp backend."""
+    playground extra installed it (the test extras do); a process that imported warp first, or that sets
+    MJX_GPU_DEFAULT_WARP=true, keeps MJX's warp backend."""
     import importlib.util
 
     has_warp = importlib.util.find_spec("warp") is not None
@@ -105,4 +108,6 @@ def test_mjx_imports_without_its_warp_backend_and_warp_stays_importable():
     assert after_envs == [False, False, 0, "warp" if has_warp else False]
     if has_warp:
         first = imported("import warp, envs, mujoco.mjx\nfrom mujoco.mjx import warp as w\nprint([w.WARP_INSTALLED])")
-        assert first == [True]
+        asked = imported("import envs, mujoco.mjx\nfrom mujoco.mjx import warp as w\nprint([w.WARP_INSTALLED])",
+                         MJX_GPU_DEFAULT_WARP="true")
+        assert first == [True] and asked == [True]

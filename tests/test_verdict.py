@@ -103,7 +103,7 @@ def test_a_cell_whose_reference_alone_is_too_uncertain_has_no_chance():
 
 
 def test_seeds_for_power_reach_it_with_a_part_of_the_error_fixed():
-    """seeds_for_power against a NumPy simulation: 10 seeds with unit spread each plus a fixed part of variance 0.01
+    """seeds_for_power against a NumPy simulation: 10 seeds with unit spread each plus a fixed part of variance 0.02
     (the random policy's episodes); at the seeds it returns, a true distance of 1 is rejected at the level in at least
     80% of draws, and at one seed fewer in less. Where the fixed part alone is too large, no number would do (None)."""
     n, level, fixed, trials = 10, 0.003, 0.02, 400_000
