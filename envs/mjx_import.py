@@ -72,5 +72,5 @@ def install() -> None:
 
 
 def uninstall() -> None:
-    """Take the finder off sys.meta_path (after mujoco.mjx's first import; the tests)."""
+    """Take the finder off sys.meta_path (once mujoco.mjx's first import has run, failed or not)."""
     sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _HiddenWarp)]

@@ -103,6 +103,12 @@ def bound(mix: trimmed.Summary, ref: trimmed.Summary, rand: trimmed.Summary, poi
     return float(0.5 * (inside + outside))
 
 
+def shrinking_variance(c: trimmed.Contrast, n: int, fixed_var: float) -> float:
+    """One seed's variance of the part of the contrast's squared standard error at n seeds that more seeds shrink
+    (all of it less fixed_var: fixed_variance)."""
+    return max(c.se * c.se - fixed_var, 0.0) * n
+
+
 def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float, fixed_var: float = 0.0) -> int | None:
     """Seeds per cell for POWER at a true distance (in score units) of the contrast from 0 (a normal approximation at
     the one-sided `level`): the contrast's squared standard error at n seeds less fixed_var (the part more seeds do
@@ -113,7 +119,7 @@ def seeds_for_power(c: trimmed.Contrast, n: int, distance: float, level: float, 
     if distance <= 0 or not math.isfinite(c.se):
         return None
     z = stats.norm.isf(level) + stats.norm.isf(1.0 - POWER)
-    per_seed = max(c.se * c.se - fixed_var, 0.0) * n  # one seed's variance of the contrast's shrinking part
+    per_seed = shrinking_variance(c, n, fixed_var)
     room = (distance / z) ** 2 - fixed_var  # what the shrinking part's variance may be at the seeds sought
     if room <= 0:
         return None
@@ -131,7 +137,7 @@ def chance_to_decide(c: trimmed.Contrast, n: int, cap: int, level: float, fixed_
 
     if cap <= n or not math.isfinite(c.se) or c.se <= 0:
         return None
-    per_seed = max(c.se * c.se - fixed_var, 0.0) * n  # one seed's variance of the contrast's shrinking part
+    per_seed = shrinking_variance(c, n, fixed_var)
     edge = stats.norm.isf(level) * math.sqrt(per_seed / cap + fixed_var)  # |estimate at the cap| the test rejects beyond
     spread = math.sqrt(per_seed * (cap - n)) / cap  # of the estimate at the cap given the estimate now
     if spread == 0.0:
