@@ -58,6 +58,7 @@ def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = 
 
     trainer = make_train(cfg)
     init = jax.vmap(trainer.init)
+    once = xla_cache.once_options(devices[0].platform)
     run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
     if len(devices) > 1:
         # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
@@ -69,15 +70,16 @@ def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = 
     else:
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     place = lambda tree: jax.device_put(tree, sharding)  # noqa: E731
-    return trainer, jax.jit(init), jax.jit(run, donate_argnums=0), place
+    return trainer, jax.jit(init, compiler_options=once), jax.jit(run, donate_argnums=0), place
 
 
 def make_group_evaluate(cfg: Config, run_batch: int = RUN_BATCH) -> Callable:
     """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed
     episodes), vmapped over runs in
-    sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one)."""
+    sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one); compiled as programs
+    run now and then are (xla_cache.once_options)."""
     trainer = make_train(cfg)
-    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch))
+    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch), compiler_options=xla_cache.once_options())
 
 
 def pad_runs(runs: list, multiple: int, at_least: int = 0) -> list:
@@ -157,11 +159,12 @@ def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
 
     def build():
         trainer = make_train(cfg)
-        init = jax.jit(trainer.init)
+        once = xla_cache.once_options()  # init and the evaluation run once or now and then
+        init = jax.jit(trainer.init, compiler_options=once)
         hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
         state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
         run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
-        evaluation = jax.jit(trainer.evaluate)
+        evaluation = jax.jit(trainer.evaluate, compiler_options=once)
         if evaluate:
             evaluation = evaluation.lower(state.params, state.obs_stats, hp, jax.random.PRNGKey(0)).compile()
         return trainer, init, run_chunk, evaluation

@@ -48,6 +48,8 @@ def physics_record(cfg: "Config") -> dict:
 def run_metadata() -> dict:
     import jax
 
+    from gsa_jax.running.xla_cache import once_options
+
     return {
         "versions": {
             "jax": jax.__version__,
@@ -62,6 +64,7 @@ def run_metadata() -> dict:
         "platform": platform.platform(),
         "devices": [str(d) for d in jax.devices()],
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "xla_compiler_options": {"init_and_evaluation": once_options() or {}},
         "started_at": datetime.datetime.now().isoformat(timespec="seconds"),
     }
 
