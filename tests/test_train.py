@@ -96,6 +96,26 @@ def test_evaluate_deterministic_controller(mixture4, mixture_runs):
     assert float(r1) == float(r2) and float(r1) > 0 and int(f1) == int(f2) == 0
 
 
+def test_init_and_evaluation_compiled_as_run_once_programs_compute_what_the_default_does(mixture4, mixture_runs):
+    """init and the evaluation compile with XLA:CPU's older fusion code generation (xla_cache.once_options): the
+    same initial state and, from a trained controller's 61k steps, the same deterministic evaluation as XLA's
+    default code generation, to float rounding."""
+    from gsa_jax.running import xla_cache
+
+    tr, init, _ = mixture4
+    hp, (state, _) = mixture_runs
+    once = xla_cache.once_options("cpu")
+    assert once == {"xla_cpu_use_fusion_emitters": False} and xla_cache.once_options("gpu") is None
+    key = jax.random.PRNGKey(7)
+    for a, b in zip(jax.tree.leaves(init(key, hp)), jax.tree.leaves(jax.jit(tr.init, compiler_options=once)(key, hp))):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
+    args = (state.params, state.obs_stats, hp, jax.random.PRNGKey(3))
+    default, by_once = jax.jit(tr.evaluate)(*args), jax.jit(tr.evaluate, compiler_options=once)(*args)
+    assert float(default[0]) > 350  # episodes long enough for rounding to build up
+    np.testing.assert_allclose(float(by_once[0]), float(default[0]), rtol=1e-4)
+    assert int(by_once[1]) == int(default[1]) == 0
+
+
 def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
     """Two runs' deterministic evaluations from the same starts, vmapped as a sweep group evaluates them,
     equal each run evaluated alone."""

@@ -2,13 +2,15 @@
 training rate and its final deterministic evaluation.
 
     .venv/bin/python experiments/compile_time/demo_compile.py --checkout after=. --checkout before=/tmp/wt --rounds 4
+    [--first-round 5]
 
 Per round, each checkout in turn runs the demo's `gsa train` (DEMO, as the Makefile's demo target) with this
 venv's Python in the checkout's directory (so its gsa_jax and envs are imported), with XDG_CACHE_HOME a fresh empty
 folder (`gsa train`'s persistent cache starts empty) and nothing else from this script running. A row per run goes
 to results/demo_compile.csv: the label, the round, the checkout's commit (with '+dirty' where it has uncommitted
-changes), config.json's timing (compile_s: from the run's start to its first chunk; train_s and eval_s: the seconds of its
-training chunks and of its evaluations), its steps per second and final evaluation, the process's wall seconds and the load average before it (the machine may be shared).
+changes), config.json's timing (compile_s: from the run's start to its first chunk; train_s and eval_s: the seconds
+of its training chunks and of its evaluations), its steps per second and final evaluation, the process's wall
+seconds and the load average before it (the machine may be shared).
 """
 
 import argparse
@@ -74,9 +76,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkout", action="append", required=True, help="LABEL=PATH of a checkout to run the demo in")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--first-round", type=int, default=1, help="the first round's number (to add rounds to a table)")
     args = ap.parse_args()
     checkouts = [c.split("=", 1) for c in args.checkout]
-    for rnd in range(1, args.rounds + 1):
+    for rnd in range(args.first_round, args.first_round + args.rounds):
         for label, path in checkouts:
             row = run_demo(label, os.path.abspath(path), rnd)
             append([row])
