@@ -97,23 +97,27 @@ def test_evaluate_deterministic_controller(mixture4, mixture_runs):
 
 
 def test_init_and_evaluation_compiled_as_run_once_programs_compute_what_the_default_does(mixture4, mixture_runs):
-    """init and the evaluation compile with XLA:CPU's older fusion code generation (xla_cache.once_options): the
-    same initial state and, from a trained controller's 61k steps, the same deterministic evaluation as XLA's
-    default code generation, to float rounding."""
+    """init and the evaluation compile with XLA:CPU's older fusion code generation at level 3 (xla_cache.once_options,
+    whatever level the suite compiles the rest at): the same initial state and, from a trained controller's 61k
+    steps, the same deterministic evaluation as XLA's default code generation at that level, to float rounding."""
     from gsa_jax.running import xla_cache
 
-    tr, init, _ = mixture4
+    tr, _, _ = mixture4
     hp, (state, _) = mixture_runs
     once = xla_cache.once_options("cpu")
-    assert once == {"xla_cpu_use_fusion_emitters": False} and xla_cache.once_options("gpu") is None
+    assert once == {"xla_cpu_use_fusion_emitters": False, "xla_backend_optimization_level": 3}
+    assert xla_cache.once_options("gpu") is None
+    default = {"xla_backend_optimization_level": 3}
     key = jax.random.PRNGKey(7)
-    for a, b in zip(jax.tree.leaves(init(key, hp)), jax.tree.leaves(jax.jit(tr.init, compiler_options=once)(key, hp))):
+    by_default, by_once = (jax.jit(tr.init, compiler_options=o)(key, hp) for o in (default, once))
+    for a, b in zip(jax.tree.leaves(by_default), jax.tree.leaves(by_once)):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
     args = (state.params, state.obs_stats, hp, jax.random.PRNGKey(3))
-    default, by_once = jax.jit(tr.evaluate)(*args), jax.jit(tr.evaluate, compiler_options=once)(*args)
-    assert float(default[0]) > 350  # episodes long enough for rounding to build up
-    np.testing.assert_allclose(float(by_once[0]), float(default[0]), rtol=1e-4)
-    assert int(by_once[1]) == int(default[1]) == 0
+    by_default, by_once = (jax.jit(tr.evaluate, compiler_options=o)(*args) for o in (default, once))
+    assert float(by_default[0]) > 350  # episodes long enough for rounding to build up
+    # rounding moves an episode's end by a step or so: the tolerance of tests/golden_runs.py (RTOL) across builds
+    np.testing.assert_allclose(float(by_once[0]), float(by_default[0]), rtol=1e-3)
+    assert int(by_once[1]) == int(by_default[1]) == 0
 
 
 def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):

@@ -124,8 +124,10 @@ def program_hash(lowered: jax.stages.Lowered) -> str:
 # XLA:CPU's older fusion code generation (before its MLIR fusion emitters) for the programs a run runs once or now
 # and then: init (on MJX, the physics' reset) and the deterministic evaluation (a reset and an episode loop). They
 # compile about 40% faster that way and run no slower; the training chunk keeps XLA's default, with which it runs
-# 1.8x faster (experiments/compile_time/README.md, "Older code generation for init and the evaluation").
-ONCE_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+# 1.8x faster (experiments/compile_time/README.md, "Older code generation for init and the evaluation"). At XLA's
+# default optimization level 3, held whatever XLA_FLAGS says: at level 0 the older code generation computes NaN
+# weights in a vmapped init of one run (measured; the test suite compiles everything else at level 0).
+ONCE_OPTIONS = {"xla_cpu_use_fusion_emitters": False, "xla_backend_optimization_level": 3}
 
 
 def once_options(platform: "str | None" = None) -> "dict | None":
