@@ -34,7 +34,7 @@ demo: $(STAMP)
 	@echo "      .venv/bin/gsa export runs/demo --out controller.h    (the controller as one C header)"
 	@echo "      .venv/bin/tensorboard --logdir runs    (after .venv/bin/pip install tensorboard)"
 
-## test: the pytest suite, one worker per core (at most 4), each test file on one worker (~15-16 min on 2 cores;
+## test: the pytest suite, one worker per core (at most 4), each test file on one worker (~15-18 min on 2 cores;
 ## the 15 slowest tests are listed at the end). One worker: $(BIN)/python -m pytest tests -m "not benchmark"
 test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q tests -m "not benchmark" -n auto --maxprocesses 4 --dist loadfile --durations=15
