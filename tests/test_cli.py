@@ -397,10 +397,14 @@ def test_the_evaluation_compiles_with_the_run(full_run):
     first chunk); one without evaluations leaves it to jit."""
     import jax
 
-    from gsa_jax.running.programs import compile_single
+    from gsa_jax.algorithm.config import make_hparams
     from gsa_jax.commands.train import build_parser, resolve
+    from gsa_jax.running.programs import compile_single
 
     plan = resolve(build_parser().parse_args(SMALL))
     assert plan.eval_every > 0
-    evaluate = compile_single(plan.cfg, plan.chunk)[3]  # the program full_run compiled: reused, not compiled again
+    _, init, _, evaluate = compile_single(plan.cfg, plan.chunk)  # the programs full_run compiled: reused
     assert isinstance(evaluate, jax.stages.Compiled), type(evaluate)
+    # init compiles as a program run once (xla_cache.once_options: XLA:CPU's older fusion code generation)
+    lowered = init.lower(jax.random.PRNGKey(0), make_hparams(**plan.hp))
+    assert ("xla_cpu_use_fusion_emitters", False) in lowered._lowering._compiler_options_kvs  # jax 0.10.1's

@@ -155,6 +155,24 @@ def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
     assert alone[0] != alone[1]
 
 
+def test_a_sweep_groups_init_and_evaluation_compile_as_programs_run_once(mixture4):
+    """A sweep group's init and evaluation carry xla_cache.once_options (its training program does not), and a
+    group of one run's init so compiled is finite (at level 0 that code generation gave NaN weights there)."""
+    from gsa_jax.running import xla_cache
+    from gsa_jax.running.programs import make_group_evaluate, make_group_program
+
+    tr, _, _ = mixture4
+    _, init, run, _ = make_group_program(tr.cfg, 2, jax.devices()[:1])
+    keys, hps = jnp.stack([jax.random.PRNGKey(0)]), jax.tree.map(lambda x: x[None], make_hparams(K=4))
+    states = init(keys, hps)
+    assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(states) if jnp.issubdtype(x.dtype, jnp.floating))
+    evaluate = make_group_evaluate(tr.cfg, platform=jax.devices()[0].platform)
+    options = {name: dict(program.lower(*args)._lowering._compiler_options_kvs)  # jax 0.10.1's
+               for name, program, args in (("init", init, (keys, hps)), ("run", run, (states, hps)),
+                                           ("evaluate", evaluate, (states.params, states.obs_stats, hps, keys)))}
+    assert options["init"] == options["evaluate"] == xla_cache.once_options("cpu") and options["run"] == {}
+
+
 class NaNRewardAtStep5:
     """The evaluation task with the reward of step 5 made NaN in episodes that start with the cart right
     of centre (obs[0] > 0): a physics failure forced on chosen, still-alive episodes."""

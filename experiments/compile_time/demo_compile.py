@@ -6,7 +6,7 @@ training rate and its final deterministic evaluation.
 
 Per round, each checkout in turn runs the demo's `gsa train` (DEMO, as the Makefile's demo target) with this
 venv's Python in the checkout's directory (so its gsa_jax and envs are imported), with XDG_CACHE_HOME a fresh empty
-folder (`gsa train`'s persistent cache starts empty) and nothing else from this script running. A row per run goes
+folder (`gsa train`'s persistent cache starts empty), XLA_FLAGS unset and nothing else from this script running. A row per run goes
 to results/demo_compile.csv: the label, the round, the checkout's commit (with '+dirty' where it has uncommitted
 changes), config.json's timing (compile_s: from the run's start to its first chunk; train_s and eval_s: the seconds
 of its training chunks and of its evaluations), its steps per second and final evaluation, the process's wall
@@ -30,6 +30,7 @@ COLUMNS = ("label", "round", "commit", "compile_s", "train_s", "eval_s", "steps_
 
 
 def commit_of(path: str) -> str:
+    """The checkout's short commit, with '+dirty' where tracked files have uncommitted changes."""
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=path, capture_output=True, text=True).stdout.strip()
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=path, capture_output=True,
                            text=True).stdout.strip()
@@ -37,6 +38,7 @@ def commit_of(path: str) -> str:
 
 
 def final_eval(out: str) -> str:
+    """The run's last deterministic evaluation, as its metrics.csv writes it ('' if none)."""
     with open(os.path.join(out, "metrics.csv")) as f:
         rows = [r for r in csv.DictReader(f) if r.get("eval_return") not in ("", None, "nan")]
     return rows[-1]["eval_return"] if rows else ""
@@ -49,6 +51,7 @@ def run_demo(label: str, path: str, rnd: int) -> dict:
         os.makedirs(cache)
         env = dict(os.environ, XDG_CACHE_HOME=cache)
         env.pop("JAX_COMPILATION_CACHE_DIR", None)
+        env.pop("XLA_FLAGS", None)  # as `make demo` runs: XLA's own defaults
         load = os.getloadavg()[0]
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "gsa_jax.train", *DEMO, "--out", out], cwd=path, env=env, check=True,
@@ -63,6 +66,7 @@ def run_demo(label: str, path: str, rnd: int) -> dict:
 
 
 def append(rows: list) -> None:
+    """Add rows to RESULTS (its header first where the file is new)."""
     os.makedirs(os.path.dirname(RESULTS), exist_ok=True)
     new = not os.path.exists(RESULTS)
     with open(RESULTS, "a", newline="") as f:
@@ -73,6 +77,7 @@ def append(rows: list) -> None:
 
 
 def main() -> None:
+    """Run the demo in each checkout, --rounds times, interleaved; a row per run."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkout", action="append", required=True, help="LABEL=PATH of a checkout to run the demo in")
     ap.add_argument("--rounds", type=int, default=3)

@@ -75,18 +75,21 @@ def program_rows(argv: list) -> list:
     from gsa_jax.algorithm.config import make_hparams
     from gsa_jax.algorithm.ppo import make_train
     from gsa_jax.commands.train import build_parser, resolve
+    from gsa_jax.running import xla_cache
 
     plan = resolve(build_parser().parse_args(argv))
     t0 = time.perf_counter()
     trainer = make_train(plan.cfg)
     rows = [{"program": "setup", "total_s": time.perf_counter() - t0}]
     hp, key = make_hparams(**plan.hp), jax.random.PRNGKey(0)
-    row, _ = split("init", jax.jit(trainer.init), key, hp)
+    once = xla_cache.once_options()  # as compile_single compiles init and the evaluation
+    row, _ = split("init", jax.jit(trainer.init, compiler_options=once), key, hp)
     rows.append(row)
     state = jax.eval_shape(trainer.init, key, hp)
     run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0)
     rows.append(split("run_chunk", run_chunk, state, hp, plan.chunk)[0])
-    rows.append(split("evaluate", jax.jit(trainer.evaluate), state.params, state.obs_stats, hp, key)[0])
+    rows.append(split("evaluate", jax.jit(trainer.evaluate, compiler_options=once), state.params, state.obs_stats, hp,
+                      key)[0])
     return rows
 
 

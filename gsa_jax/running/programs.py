@@ -73,13 +73,14 @@ def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = 
     return trainer, jax.jit(init, compiler_options=once), jax.jit(run, donate_argnums=0), place
 
 
-def make_group_evaluate(cfg: Config, run_batch: int = RUN_BATCH) -> Callable:
+def make_group_evaluate(cfg: Config, run_batch: int = RUN_BATCH, platform: "str | None" = None) -> Callable:
     """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed
     episodes), vmapped over runs in
-    sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one); compiled as programs
-    run now and then are (xla_cache.once_options)."""
+    sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one); compiled for
+    `platform` (default JAX's default backend) as programs run now and then are (xla_cache.once_options)."""
     trainer = make_train(cfg)
-    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch), compiler_options=xla_cache.once_options())
+    once = xla_cache.once_options(platform)
+    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch), compiler_options=once)
 
 
 def pad_runs(runs: list, multiple: int, at_least: int = 0) -> list:
@@ -214,7 +215,8 @@ def compile_group_evaluate(shape: GroupShape, states: Any, hps: Hparams, place: 
 
     def build():
         keys = place(jnp.stack([jax.random.PRNGKey(0)] * runs))
-        lowered = make_group_evaluate(shape.cfg, shape.run_batch).lower(states.params, states.obs_stats, hps, keys)
+        evaluate = make_group_evaluate(shape.cfg, shape.run_batch, shape.devices[0].platform)
+        lowered = evaluate.lower(states.params, states.obs_stats, hps, keys)
         return xla_cache.compile_with(lowered, share, log)[0]
 
     compiled = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs), build)

@@ -6,6 +6,8 @@ in the user's cache (JAX_COMPILATION_CACHE_DIR, else user_dir()), so an identica
 sweep, an answer and the benchmark keep theirs in their own directory. Loads from the cache are quiet
 (quiet_cache_loads). JAX_ENABLE_COMPILATION_CACHE=false turns the cache off.
 
+once_options: the compiler options of the programs a run runs once or now and then (init, the evaluation).
+
 Sweeps and the benchmark run one worker process per core, and every worker builds the same program
 (same shapes; seeds, K and hyperparameters are array arguments). Compiling it in every worker at once
 costs more wall time than compiling it once: the compiles compete for the same cores. So worker 0
@@ -123,11 +125,12 @@ def program_hash(lowered: jax.stages.Lowered) -> str:
 
 # XLA:CPU's older fusion code generation (before its MLIR fusion emitters) for the programs a run runs once or now
 # and then: init (on MJX, the physics' reset) and the deterministic evaluation (a reset and an episode loop). They
-# compile about 40% faster that way and run no slower; the training chunk keeps XLA's default, with which it runs
-# 1.8x faster (experiments/compile_time/README.md, "Older code generation for init and the evaluation").
+# compile faster that way (the demo's whole compile: median 34.8 -> 32.0 s) and its evaluations run no slower; the
+# training chunk keeps XLA's default code generation, which runs it faster (experiments/compile_time/README.md, "Older
+# code generation for init and the evaluation").
 ONCE_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
-# At XLA_FLAGS' --xla_backend_optimization_level=0 (the test suite's) the older code generation computes NaN weights
-# in a vmapped init of one run; at levels 1 and 3 the same bits as the default code generation (measured). Programs
+# At XLA_FLAGS' --xla_backend_optimization_level=0 (the test suite's) the older code generation computed NaN weights
+# in a vmapped init of one run (tests/test_tune.py's tuning sweep), finite ones at levels 1 and 3 (a probe). Programs
 # compiled with ONCE_OPTIONS hold at least this level.
 ONCE_MIN_LEVEL = 1
 _LEVEL_FLAG = re.compile(r"--xla_backend_optimization_level=(\d+)")
