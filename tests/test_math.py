@@ -124,3 +124,19 @@ def test_orthogonal_init_without_lapack():
         np.testing.assert_allclose(g, np.eye(g.shape[0]), atol=2e-6)
     hlo = jax.jit(jax.vmap(lambda k: orthogonal(k, (64, 64)))).lower(jax.random.split(jax.random.PRNGKey(0), 4)).as_text()
     assert "lapack" not in hlo.lower()
+
+
+def test_orthogonal_init_is_newton_schulz_in_one_loop():
+    """The polar factor by Newton-Schulz as a NumPy reference computes it from the same Gaussian draw; and the
+    program holds the iteration once, as a loop (two matmuls), not unrolled into 2 x 60 (what XLA compiles for
+    every init: the run's, a sweep group's)."""
+    from gsa_jax.algorithm.nn import orthogonal
+
+    key, shape = jax.random.PRNGKey(5), (24, 9)
+    x = np.asarray(jax.random.normal(key, (24, 9), jnp.float32), np.float64)
+    x = x / np.linalg.norm(x)
+    for _ in range(60):
+        x = 1.5 * x - 0.5 * x @ (x.T @ x)
+    np.testing.assert_allclose(np.asarray(orthogonal(key, shape, scale=1.5)), 1.5 * x, atol=2e-6)
+    hlo = jax.jit(lambda k: orthogonal(k, (64, 64))).lower(key).as_text()
+    assert hlo.count("stablehlo.dot_general") == 2 and "stablehlo.while" in hlo
