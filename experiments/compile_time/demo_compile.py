@@ -30,10 +30,12 @@ COLUMNS = ("label", "round", "commit", "compile_s", "train_s", "eval_s", "steps_
 
 
 def commit_of(path: str) -> str:
-    """The checkout's short commit, with '+dirty' where tracked files have uncommitted changes."""
+    """The checkout's short commit, with '+dirty' where tracked files other than this script's table have
+    uncommitted changes."""
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=path, capture_output=True, text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=path, capture_output=True,
-                           text=True).stdout.strip()
+    table = os.path.relpath(RESULTS, os.path.join(HERE, "..", ".."))
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", f":!{table}"], cwd=path,
+                           capture_output=True, text=True).stdout.strip()
     return head + ("+dirty" if dirty else "")
 
 

@@ -1,16 +1,17 @@
 """How long does `gsa answer` take to decide, from a cold and from a warm compilation cache?
 
     .venv/bin/python experiments/time_to_answer/run.py [--env dmc:cartpole-balance] [--budget-minutes 30]
-        [--checkout DIR] [--cold-only]
+        [--checkout DIR] [--cold-only] [--answer-args "--futility 0"]
 
 Runs `gsa answer --env ENV` twice in fresh output directories: cold (an empty compilation cache: the answer's own,
 OUT/cold/xla_cache) and warm (JAX_COMPILATION_CACHE_DIR set to the cold answer's cache, so every program loads). Per
 answer: the wall time of the command, the step budget it chose, the answer's sentence; per sweep: its seconds, its
 program's compile or load seconds (slowest worker), and the seconds estimated before it ran (the ETA's accuracy).
 --checkout runs the answers from another checkout of the project (e.g. an earlier commit's `git worktree`, with this
-environment's Python: the checkout's code is imported from its directory), --cold-only skips the warm answer; --recount only writes results/trained_env_steps.csv (the env steps every committed
+environment's Python: the checkout's code is imported from its directory), --cold-only skips the warm answer; --answer-args passes more options to `gsa answer` (recorded in summary.csv's
+answer_args and in the results folder's name); --recount only writes results/trained_env_steps.csv (the env steps every committed
 answer trained).
-Writes results/<date>-<commit>-<task>/{summary.csv, sweeps.csv, <cold|warm>/ (answer.json, report.md, verdicts.csv, results/
+Writes results/<date>-<commit>-<task>[-<answer args>]/{summary.csv, sweeps.csv, <cold|warm>/ (answer.json, report.md, verdicts.csv, results/
 with each sweep's controllers and controller_scores.csv, no training state)}.
 """
 
@@ -22,6 +23,7 @@ import gzip
 import json
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -35,13 +37,13 @@ def commit(root: str = ROOT) -> str:
     return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
 
 
-def run_answer(env: str, out: str, budget: float, cache: str | None, root: str = ROOT) -> dict:
-    """Run gsa answer once -> {wall_s, sentence, state}."""
+def run_answer(env: str, out: str, budget: float, cache: str | None, root: str = ROOT, extra: tuple = ()) -> dict:
+    """Run gsa answer once (with the options `extra` added) -> {wall_s, sentence, state}."""
     environ = dict(os.environ)
     environ.pop("JAX_COMPILATION_CACHE_DIR", None)
     if cache:
         environ["JAX_COMPILATION_CACHE_DIR"] = cache
-    cmd = [sys.executable, "-m", "gsa_jax.answer", "--env", env, "--budget-minutes", str(budget), "--out", out]
+    cmd = [sys.executable, "-m", "gsa_jax.answer", "--env", env, "--budget-minutes", str(budget), "--out", out, *extra]
     t0 = time.monotonic()
     os.makedirs(out, exist_ok=True)
     proc = subprocess.run(cmd, cwd=root, env=environ, capture_output=True, text=True)
@@ -113,18 +115,20 @@ def main() -> None:
     p.add_argument("--budget-minutes", type=float, default=30.0)
     p.add_argument("--checkout", default=ROOT, help="the checkout whose code answers (default: this one)")
     p.add_argument("--cold-only", action="store_true")
+    p.add_argument("--answer-args", default="", help="more options for gsa answer, e.g. '--futility 0'")
     p.add_argument("--recount", action="store_true", help="only write results/trained_env_steps.csv from the committed answers")
     args = p.parse_args()
     if args.recount:
         return recount()
-    root = os.path.abspath(args.checkout)
-    res = os.path.join(HERE, "results", f"{datetime.date.today()}-{commit(root)}-{args.env.replace(':', '_')}")
+    root, extra = os.path.abspath(args.checkout), tuple(shlex.split(args.answer_args))
+    suffix = "".join("-" + re.sub(r"[^\w.]+", "", a) for a in extra)
+    res = os.path.join(HERE, "results", f"{datetime.date.today()}-{commit(root)}-{args.env.replace(':', '_')}{suffix}")
     shutil.rmtree(res, ignore_errors=True)
-    runs = [("cold", run_answer(args.env, os.path.join(res, "cold"), args.budget_minutes, None, root))]
+    runs = [("cold", run_answer(args.env, os.path.join(res, "cold"), args.budget_minutes, None, root, extra))]
     if not args.cold_only:
         cache = os.path.join(res, "cache")
         shutil.copytree(os.path.join(res, "cold", "xla_cache"), cache)
-        runs.append(("warm", run_answer(args.env, os.path.join(res, "warm"), args.budget_minutes, cache, root)))
+        runs.append(("warm", run_answer(args.env, os.path.join(res, "warm"), args.budget_minutes, cache, root, extra)))
         shutil.rmtree(cache)
     rows, summary = [], []
     for kind, r in runs:
@@ -136,7 +140,7 @@ def main() -> None:
                         "step_budget": r["state"].get("steps", {}).get("budget", r["state"]["setup"]["specs"]["mlp"]["steps"]),
                         "env_steps_trained": trained_env_steps(os.path.join(res, kind)),
                         "rounds": len(r["state"]["rounds"]), "stopped": r["state"]["stopped"], "answer": r["sentence"],
-                        "commit": commit(root),
+                        "commit": commit(root), "answer_args": args.answer_args,
                         "cores": os.cpu_count()})
         keep(os.path.join(res, kind))
     for name, table in (("summary.csv", summary), ("sweeps.csv", rows)):
