@@ -29,11 +29,11 @@ COLUMNS = ("label", "round", "commit", "compile_s", "train_s", "eval_s", "steps_
            "machine")
 
 
-def commit_of(path: str) -> str:
-    """The checkout's short commit, with '+dirty' where tracked files other than this script's table have
-    uncommitted changes."""
+def commit_of(path: str, table: str = RESULTS) -> str:
+    """The checkout's short commit, with '+dirty' where tracked files other than `table` (the measuring script's
+    own results, which it writes as it goes) have uncommitted changes."""
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=path, capture_output=True, text=True).stdout.strip()
-    table = os.path.relpath(RESULTS, os.path.join(HERE, "..", ".."))
+    table = os.path.relpath(table, os.path.join(HERE, "..", ".."))
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", f":!{table}"], cwd=path,
                            capture_output=True, text=True).stdout.strip()
     return head + ("+dirty" if dirty else "")
