@@ -132,11 +132,12 @@ def test_orthogonal_init_is_newton_schulz_in_one_loop():
     every init: the run's, a sweep group's)."""
     from gsa_jax.algorithm.nn import orthogonal
 
-    key, shape = jax.random.PRNGKey(5), (24, 9)
+    key = jax.random.PRNGKey(5)
     x = np.asarray(jax.random.normal(key, (24, 9), jnp.float32), np.float64)
     x = x / np.linalg.norm(x)
     for _ in range(60):
         x = 1.5 * x - 0.5 * x @ (x.T @ x)
-    np.testing.assert_allclose(np.asarray(orthogonal(key, shape, scale=1.5)), 1.5 * x, atol=2e-6)
+    np.testing.assert_allclose(np.asarray(orthogonal(key, (24, 9), scale=1.5)), 1.5 * x, atol=2e-6)
+    np.testing.assert_allclose(np.asarray(orthogonal(key, (9, 24), scale=1.5)), 1.5 * x.T, atol=2e-6)  # wide: X^T
     hlo = jax.jit(lambda k: orthogonal(k, (64, 64))).lower(key).as_text()
     assert hlo.count("stablehlo.dot_general") == 2 and "stablehlo.while" in hlo

@@ -7,8 +7,8 @@ training rate and its final deterministic evaluation.
 Per round, each checkout in turn runs the demo's `gsa train` (DEMO, as the Makefile's demo target) with this
 venv's Python in the checkout's directory (so its gsa_jax and envs are imported), with XDG_CACHE_HOME a fresh empty
 folder (`gsa train`'s persistent cache starts empty), XLA_FLAGS unset and nothing else from this script running. A row per run goes
-to results/demo_compile.csv: the label, the round, the checkout's commit (with '+dirty' where it has uncommitted
-changes), config.json's timing (compile_s: from the run's start to its first chunk; train_s and eval_s: the seconds
+to results/demo_compile.csv: the label, the round, the checkout's commit (with '+dirty' where files other than this
+table have uncommitted changes), config.json's timing (compile_s: from the run's start to its first chunk; train_s and eval_s: the seconds
 of its training chunks and of its evaluations), its steps per second and final evaluation, the process's wall
 seconds and the load average before it (the machine may be shared).
 """
@@ -32,10 +32,11 @@ COLUMNS = ("label", "round", "commit", "compile_s", "train_s", "eval_s", "steps_
 def commit_of(path: str, table: str = RESULTS) -> str:
     """The checkout's short commit, with '+dirty' where tracked files other than `table` (the measuring script's
     own results, which it writes as it goes) have uncommitted changes."""
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=path, capture_output=True, text=True).stdout.strip()
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=path, capture_output=True, text=True,
+                          check=True).stdout.strip()
     table = os.path.relpath(table, os.path.join(HERE, "..", ".."))
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", f":!{table}"], cwd=path,
-                           capture_output=True, text=True).stdout.strip()
+                           capture_output=True, text=True, check=True).stdout.strip()
     return head + ("+dirty" if dirty else "")
 
 
@@ -67,12 +68,12 @@ def run_demo(label: str, path: str, rnd: int) -> dict:
                 "wall_s": round(wall, 1), "load_before": round(load, 2), "machine": os.uname().nodename}
 
 
-def append(rows: list) -> None:
-    """Add rows to RESULTS (its header first where the file is new)."""
-    os.makedirs(os.path.dirname(RESULTS), exist_ok=True)
-    new = not os.path.exists(RESULTS)
-    with open(RESULTS, "a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+def append(rows: list, path: str = RESULTS, columns: tuple = COLUMNS) -> None:
+    """Add rows to the table at `path` (its header of `columns` first where the file is new)."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    new = not os.path.exists(path)
+    with open(path, "a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns)
         if new:
             writer.writeheader()
         writer.writerows(rows)

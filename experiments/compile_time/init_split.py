@@ -1,18 +1,18 @@
-"""XLA's compile of the demo's init program and of its two networks' inits alone, in one or more checkouts.
+"""XLA's compile of the demo's init program and of its policy's init alone, in one or more checkouts.
 
     .venv/bin/python experiments/compile_time/init_split.py --checkout loop_init=. --checkout unrolled_init=/tmp/wt
     [--rounds 3]
 
 Per round and checkout, a fresh process (this venv's Python, in the checkout's directory so its gsa_jax is imported)
 builds the demo's run (`make demo`'s arguments) and compiles, as `gsa train` compiles init (jax.jit with
-xla_cache.once_options, no XLA_FLAGS, no persistent cache): the policy's init, the value network's init and the
-whole init (the networks, the optimizer's state and the envs' reset). A row per program goes to
+xla_cache.once_options, no XLA_FLAGS, no persistent cache): the policy's init (its partition network's and
+controllers' parameters) and the whole init (the policy's and the value network's parameters, the optimizer's
+state and the envs' reset). A row per program goes to
 results/init_split.csv: label, round, commit, program, XLA compile seconds (lowered.compile()), the StableHLO
 dot_general count of the lowered program, and the load average before the process.
 """
 
 import argparse
-import csv
 import json
 import os
 import subprocess
@@ -20,7 +20,7 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from demo_compile import DEMO, commit_of  # noqa: E402
+from demo_compile import DEMO, append, commit_of  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "init_split.csv")
 COLUMNS = ("label", "round", "commit", "program", "compile_s", "dot_ops", "load_before")
@@ -28,7 +28,6 @@ CHILD = r"""
 import json, sys, time
 import jax
 from gsa_jax.algorithm.config import make_hparams
-from gsa_jax.algorithm.nn import init_mlp
 from gsa_jax.algorithm.ppo import make_run_parts, make_train
 from gsa_jax.commands.train import build_parser, resolve
 from gsa_jax.running import xla_cache
@@ -37,7 +36,6 @@ plan = resolve(build_parser().parse_args(sys.argv[1].split()))
 parts, trainer = make_run_parts(plan.cfg), make_train(plan.cfg)
 hp, key, once = make_hparams(**plan.hp), jax.random.PRNGKey(0), xla_cache.once_options()
 programs = [("policy_init", lambda k, h: parts.policy.init(k, h)),
-            ("value_init", lambda k, h: init_mlp(k, (parts.obs_size, *plan.cfg.hidden, 1), out_scale=1.0)),
             ("init", trainer.init)]
 for name, fn in programs:
     lowered = jax.jit(fn, compiler_options=once).lower(key, hp)
@@ -66,17 +64,11 @@ def main() -> None:
     ap.add_argument("--checkout", action="append", required=True, help="LABEL=PATH of a checkout")
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
-    new = not os.path.exists(RESULTS)
-    with open(RESULTS, "a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
-        if new:
-            writer.writeheader()
-        for rnd in range(1, args.rounds + 1):
-            for label, path in (c.split("=", 1) for c in args.checkout):
-                rows = measure(label, os.path.abspath(path), rnd)
-                writer.writerows(rows)
-                f.flush()
-                print("\n".join(json.dumps(r) for r in rows), flush=True)
+    for rnd in range(1, args.rounds + 1):
+        for label, path in (c.split("=", 1) for c in args.checkout):
+            rows = measure(label, os.path.abspath(path), rnd)
+            append(rows, RESULTS, COLUMNS)
+            print("\n".join(json.dumps(r) for r in rows), flush=True)
 
 
 if __name__ == "__main__":
