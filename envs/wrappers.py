@@ -63,14 +63,22 @@ class AutoReset(Wrapper):
         self.mode = mode
 
     def reset(self, rng):
-        if self.mode == "fresh":
-            key, rng = jax.random.split(rng)
+        if self.mode == "first":
+            return self.started(self.env.reset(rng))
+        key, rng = jax.random.split(rng)
         state = self.env.reset(rng)
-        if self.mode == "fresh":
-            state.info["reset_key"] = key
-        else:
-            state.info["first_pipeline_state"] = state.pipeline_state
-            state.info["first_obs"] = state.obs
+        state.info["reset_key"] = key
+        state.info["final_obs"] = state.obs
+        return state
+
+    def started(self, state):
+        """A start state of the wrapped env as this env's start state in mode 'first' (reset(rng) is
+        started(self.env.reset(rng))): its episodes restart there. Lets a reset of the wrapped env computed
+        elsewhere (one compiled reset shared with the evaluation: gsa_jax.running.programs) start training."""
+        if self.mode != "first":
+            raise ValueError(f"started() is reset mode 'first''s; this env resets in mode {self.mode!r}")
+        state.info["first_pipeline_state"] = state.pipeline_state
+        state.info["first_obs"] = state.obs
         state.info["final_obs"] = state.obs
         return state
 

@@ -173,6 +173,52 @@ def test_a_sweep_groups_init_and_evaluation_compile_as_programs_run_once(mixture
     assert options["init"] == options["evaluate"] == xla_cache.once_options("cpu") and options["run"] == {}
 
 
+def test_a_single_runs_one_reset_program_gives_init_and_evaluation_what_each_computes_alone(mixture4, mixture_runs):
+    """A single run resets its training envs (32) and its evaluation's (16) with one compiled program over 32 keys
+    (programs.single_run_parts): the same initial state and the same evaluation of a trained controller, bit for
+    bit, as init and evaluate each resetting its own envs, compiled with the same options."""
+    from gsa_jax.algorithm.ppo import shares_starts
+    from gsa_jax.running import xla_cache
+    from gsa_jax.running.programs import single_run_parts
+
+    tr, _, _ = mixture4
+    hp, (state, _) = mixture_runs
+    p = tr.parts
+    assert shares_starts(tr.cfg) and p.eval_env is p.env.env and p.cfg.eval_envs < p.cfg.num_envs
+    once = xla_cache.once_options("cpu")
+    init, evaluation, ahead = single_run_parts(p, once)
+    key = jax.random.PRNGKey(7)
+    alone = jax.jit(tr.init, compiler_options=once)(key, hp)
+    shared = init(key, hp)
+    assert jax.tree.structure(shared) == jax.tree.structure(alone)
+    for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(shared)):
+        np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
+    args = (state.params, state.obs_stats, hp, jax.random.PRNGKey(3))
+    alone = jax.jit(tr.evaluate, compiler_options=once)(*args)
+    assert float(alone[0]) > 350  # long episodes: a different start or step would show
+    compiled = ahead(state.params, state.obs_stats, hp)
+    for shared in (evaluation(*args), compiled(*args)):
+        assert (float(shared[0]), int(shared[1])) == (float(alone[0]), int(alone[1]))
+
+
+def test_a_run_shares_its_reset_only_where_its_evaluation_env_is_its_training_env_without_auto_reset():
+    """ppo.shares_starts: not under a training randomization, nor with reset mode 'fresh' (each episode a new draw);
+    start_keys pads split(key, n) with its last key to max(num_envs, eval_envs)."""
+    from gsa_jax.algorithm.ppo import Parts, shares_starts, start_keys
+
+    assert shares_starts(Config())
+    assert not shares_starts(Config(reset_mode="fresh"))
+    assert not shares_starts(Config(randomize="mass=0.9:1.1"))
+    for num_envs, eval_envs in ((4, 2), (2, 4), (3, 3)):
+        p = Parts(Config(num_envs=num_envs, eval_envs=eval_envs), *[None] * 8)
+        for n in (num_envs, eval_envs):
+            keys = np.asarray(start_keys(p, jax.random.PRNGKey(5), n))
+            split = np.asarray(jax.random.split(jax.random.PRNGKey(5), n))
+            assert keys.shape == (max(num_envs, eval_envs), 2)
+            np.testing.assert_array_equal(keys[:n], split)
+            np.testing.assert_array_equal(keys[n:], np.repeat(split[-1:], len(keys) - n, axis=0))
+
+
 class NaNRewardAtStep5:
     """The evaluation task with the reward of step 5 made NaN in episodes that start with the cart right
     of centre (obs[0] > 0): a physics failure forced on chosen, still-alive episodes."""

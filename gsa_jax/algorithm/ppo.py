@@ -73,6 +73,7 @@ class Trainer(NamedTuple):
     iteration: Callable
     run_chunk: Callable
     evaluate: Callable
+    parts: "Parts"
 
 
 def make_env(cfg: Config, auto_reset: bool = True, task: Any = None, randomized: bool | None = None) -> Any:
@@ -121,9 +122,25 @@ class TrainState(NamedTuple):
     buffer: dict | None = None  # value_target "retrace": the last iterations' samples (gsa_jax/algorithm/retrace.py); else None
 
 
+def start_states(env: Any, key: jax.Array, n: int) -> Any:
+    """[n] start states of `env` (its reset, vmapped) from jax.random.split(key, n)."""
+    return jax.vmap(env.reset)(jax.random.split(key, n))
+
+
+def env_key(key: jax.Array) -> jax.Array:
+    """The key a run's training envs start from: the third of init's four splits of the run's key."""
+    return jax.random.split(key, 4)[2]
+
+
 def init_state(p: Parts, key: jax.Array, hp: Hparams) -> TrainState:
     """The initial TrainState of one run."""
-    k_pol, k_val, k_env, k_run = jax.random.split(key, 4)
+    return init_from(p, key, hp, start_states(p.env, env_key(key), p.cfg.num_envs))
+
+
+def init_from(p: Parts, key: jax.Array, hp: Hparams, env_state: Any) -> TrainState:
+    """The initial TrainState of one run whose num_envs training envs start at env_state (init_state's: drawn from
+    env_key(key)); the other three splits of key draw the parameters and the run's own key."""
+    k_pol, k_val, _, k_run = jax.random.split(key, 4)
     params = {
         "policy": p.policy.init(k_pol, hp),
         "value": init_mlp(k_val, (p.obs_size, *p.cfg.hidden, 1), out_scale=1.0),
@@ -133,7 +150,7 @@ def init_state(p: Parts, key: jax.Array, hp: Hparams) -> TrainState:
         opt=init_adam(params),
         obs_stats=init_stats(p.obs_size),
         ret_stats=init_stats(None),
-        env_state=jax.vmap(p.env.reset)(jax.random.split(k_env, p.cfg.num_envs)),
+        env_state=env_state,
         ep_return=jnp.zeros((p.cfg.num_envs,), jnp.float32),
         disc_return=jnp.zeros((p.cfg.num_envs,), jnp.float32),
         key=k_run,
@@ -373,10 +390,16 @@ def run_chunk(p: Parts, state: TrainState, hp: Hparams, num_iterations: int) -> 
 
 def evaluate(p: Parts, params: dict, obs_stats: dict, hp: Hparams, key: jax.Array) -> tuple:
     """(mean return, failed episodes) of the deterministic controller (most probable cluster, mean action)
-    over p.cfg.eval_envs full episodes from random starts. A failed episode (non-finite reward or
-    observation while alive: gsa_jax.algorithm.episodes) ends at its last finite step; the count says how many."""
+    over p.cfg.eval_envs full episodes from random starts (start_states of the evaluation env from key). A failed
+    episode (non-finite reward or observation while alive: gsa_jax.algorithm.episodes) ends at its last finite
+    step; the count says how many."""
+    return evaluate_from(p, params, obs_stats, hp, start_states(p.eval_env, key, p.cfg.eval_envs))
+
+
+def evaluate_from(p: Parts, params: dict, obs_stats: dict, hp: Hparams, starts: Any) -> tuple:
+    """evaluate's episodes from the evaluation env's start states `starts` (the first p.cfg.eval_envs of them)."""
     sched = schedule(hp, jnp.zeros((), jnp.int32))
-    s0 = jax.vmap(p.eval_env.reset)(jax.random.split(key, p.cfg.eval_envs))
+    s0 = jax.tree.map(lambda x: x[: p.cfg.eval_envs], starts)
 
     def cond(carry):
         _, _, alive, _, t = carry
@@ -411,8 +434,34 @@ def make_run_parts(cfg: Config, task: Any = None) -> Parts:
     if cfg.episode_length is None:
         cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
     cfg.validate(task)
-    return make_parts(cfg, make_env(cfg, task=task),
-                      make_env(cfg, auto_reset=False, task=task, randomized=cfg.eval_randomized))
+    env = make_env(cfg, task=task)
+    if shares_starts(cfg):
+        return make_parts(cfg, env, env.env)
+    return make_parts(cfg, env, make_env(cfg, auto_reset=False, task=task, randomized=cfg.eval_randomized))
+
+
+def shares_starts(cfg: Config) -> bool:
+    """Whether a run's evaluation env is its training env without the auto-reset (no randomization, reset mode
+    'first'): make_run_parts then makes it once, as the training env's inner env, and the training envs' start
+    states are the evaluation env's (AutoReset.started): one reset program can serve both
+    (gsa_jax.running.programs.single_run_parts)."""
+    return not cfg.randomize and cfg.reset_mode == "first"
+
+
+def init_from_starts(p: Parts, key: jax.Array, hp: Hparams, starts: Any) -> TrainState:
+    """init_state where the training envs' start states are the first num_envs of `starts`, start states of the
+    evaluation env that p.env auto-resets (shares_starts). From start_states(p.eval_env, env_key(key), num_envs)
+    and more, it is init_state(p, key, hp)."""
+    first = jax.tree.map(lambda x: x[: p.cfg.num_envs], starts)
+    return init_from(p, key, hp, jax.vmap(p.env.started)(first))
+
+
+def start_keys(p: Parts, key: jax.Array, n: int) -> jax.Array:
+    """jax.random.split(key, n) padded with copies of its last key to max(num_envs, eval_envs): the one batch
+    of the shared reset program (compile_single), so that init's and the evaluation's resets are one program."""
+    keys = jax.random.split(key, n)
+    size = max(p.cfg.num_envs, p.cfg.eval_envs)
+    return jnp.concatenate([keys, jnp.repeat(keys[-1:], size - n, axis=0)])
 
 
 def make_train(cfg: Config, task: Any = None) -> Trainer:
@@ -423,7 +472,8 @@ def make_train(cfg: Config, task: Any = None) -> Trainer:
     once here; cfg.env must be its name (Config(env=...)); cfg.episode_length None: the task's own."""
     p = make_run_parts(cfg, task)
     bind = functools.partial
-    return Trainer(p.cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p))
+    return Trainer(p.cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p),
+                   p)
 
 
 def all_finite(tree: Any) -> jax.Array:

@@ -9,6 +9,7 @@ sharded over them (shard_map). Used by gsa sweep and gsa_jax.bench.
     states, metrics = run(states, hps)          # metrics [R, chunk]
 """
 
+import functools
 from typing import Any, Callable, NamedTuple, Sequence
 
 import jax
@@ -18,6 +19,7 @@ from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from envs import host_call
+from gsa_jax.algorithm import ppo
 from gsa_jax.algorithm.config import Config, Hparams, make_hparams
 from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running import xla_cache
@@ -154,23 +156,54 @@ def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = N
 
 
 def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
-    """(trainer, jitted init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
+    """(trainer, init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
     vmapped: train.py's program), compiled once per process for these shapes; evaluate is compiled with them
-    (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only)."""
+    (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only).
+    Where the training env auto-resets the evaluation env itself (ppo.shares_starts), init and the evaluation
+    reset their envs with one compiled program (single_run_parts)."""
 
     def build():
         trainer = make_train(cfg)
         once = xla_cache.once_options()  # init and the evaluation run once or now and then
-        init = jax.jit(trainer.init, compiler_options=once)
+        init, evaluation, ahead = single_run_parts(trainer.parts, once)
         hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
-        state = jax.eval_shape(init, jax.random.PRNGKey(0), hp)
+        state = jax.eval_shape(trainer.init, jax.random.PRNGKey(0), hp)
         run_chunk = jax.jit(trainer.run_chunk, static_argnums=2, donate_argnums=0).lower(state, hp, chunk).compile()
-        evaluation = jax.jit(trainer.evaluate, compiler_options=once)
         if evaluate:
-            evaluation = evaluation.lower(state.params, state.obs_stats, hp, jax.random.PRNGKey(0)).compile()
+            evaluation = ahead(state.params, state.obs_stats, hp)
         return trainer, init, run_chunk, evaluation
 
     return cached("single", (cfg, chunk, evaluate), build)
+
+
+def single_run_parts(p: Any, once: dict) -> tuple:
+    """(init(key, hp), evaluate(params, obs_stats, hp, key), ahead(params, obs_stats, hp) -> evaluate compiled
+    ahead of its first call) of one run, jitted with `once`. With ppo.shares_starts, the envs' resets are one
+    program over max(num_envs, eval_envs) keys (ppo.start_keys): init takes the first num_envs of its states
+    (ppo.init_from_starts), the evaluation the first eval_envs (ppo.evaluate_from); else init and evaluate
+    each reset their own envs."""
+    if not ppo.shares_starts(p.cfg):
+        evaluation = jax.jit(functools.partial(ppo.evaluate, p), compiler_options=once)
+        ahead = lambda *shapes: evaluation.lower(*shapes, jax.random.PRNGKey(0)).compile()  # noqa: E731
+        return jax.jit(functools.partial(ppo.init_state, p), compiler_options=once), evaluation, ahead
+    resets = jax.vmap(p.eval_env.reset)
+    reset = jax.jit(resets, compiler_options=once)
+    train_keys = jax.jit(lambda key: ppo.start_keys(p, ppo.env_key(key), p.cfg.num_envs))
+    eval_keys = jax.jit(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs))
+    init_rest = jax.jit(functools.partial(ppo.init_from_starts, p), compiler_options=once)
+    evaluate_rest = jax.jit(functools.partial(ppo.evaluate_from, p), compiler_options=once)
+
+    def init(key, hp):
+        return init_rest(key, hp, reset(train_keys(key)))
+
+    def evaluation(params, obs_stats, hp, key, rest=evaluate_rest):
+        return rest(params, obs_stats, hp, reset(eval_keys(key)))
+
+    def ahead(params, obs_stats, hp):
+        starts = jax.eval_shape(lambda key: resets(ppo.start_keys(p, key, p.cfg.eval_envs)), jax.random.PRNGKey(0))
+        return functools.partial(evaluation, rest=evaluate_rest.lower(params, obs_stats, hp, starts).compile())
+
+    return init, evaluation, ahead
 
 
 @jax.jit
