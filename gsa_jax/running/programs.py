@@ -5,7 +5,7 @@ the runs, optionally in sequential sub-batches (sub_batched), and with several d
 sharded over them (shard_map). Used by gsa sweep and gsa_jax.bench.
 
     shape = GroupShape(cfg, chunk, tuple(devices))
-    states, run, hps, place, how = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))
+    states, run, hps, place, how, _, _ = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))
     states, metrics = run(states, hps)          # metrics [R, chunk]
 """
 
@@ -51,38 +51,72 @@ def sub_batched(fn: Callable, size: int) -> Callable:
     return run
 
 
+class GroupInit(NamedTuple):
+    """A group's init, jitted: called as init(keys [R], hps [R]) -> states. rest alone is init_state vmapped over the
+    runs; where the runs' evaluation env is their training env without the auto-reset (ppo.shares_starts), reset is
+    that env's reset over keys [R, N] (N = max(num_envs, eval_envs)), shared with the group's evaluation
+    (compile_group_evaluate), keys_of gives each run's training keys [R, N] (ppo.start_keys), and rest is
+    ppo.init_from_starts vmapped: (keys, hps, starts) -> states."""
+
+    rest: Callable
+    reset: "Callable | None" = None
+    keys_of: "Callable | None" = None
+
+    def __call__(self, keys: jax.Array, hps: Hparams) -> Any:
+        if self.reset is None:
+            return self.rest(keys, hps)
+        return self.rest(keys, hps, self.reset(self.keys_of(keys)))
+
+
+def over_runs(fn: Callable, devices: list) -> Callable:
+    """fn (vmapped over a leading run axis of every argument and result), with several devices shard_mapped over
+    them along that axis; else fn itself."""
+    if len(devices) < 2:
+        return fn
+    # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
+    # type check rejects; every op here is per-run, so nothing needs that check.
+    mesh = jax.sharding.Mesh(np.array(devices), ("runs",))
+    return jax.shard_map(fn, mesh=mesh, in_specs=P("runs"), out_specs=P("runs"), check_vma=False)
+
+
+def make_group_init(trainer: Any, devices: list) -> GroupInit:
+    """The group's init (GroupInit), jitted with xla_cache.once_options and sharded over devices (over_runs)."""
+    once = xla_cache.once_options(devices[0].platform)
+    p = trainer.parts
+    if not ppo.shares_starts(p.cfg):
+        return GroupInit(jax.jit(over_runs(jax.vmap(trainer.init), devices), compiler_options=once))
+    reset = over_runs(jax.vmap(jax.vmap(p.eval_env.reset)), devices)
+    keys_of = jax.vmap(lambda key: ppo.start_keys(p, ppo.env_key(key), p.cfg.num_envs))
+    rest = over_runs(jax.vmap(functools.partial(ppo.init_from_starts, p)), devices)
+    return GroupInit(jax.jit(rest, compiler_options=once), jax.jit(reset, compiler_options=once), jax.jit(keys_of))
+
+
 def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = RUN_BATCH) -> tuple:
-    """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
-    vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
-    run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
-    all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
-    slowest env instead of the whole device's."""
+    """(trainer, init: GroupInit (keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk]),
+    place), jit-compiled, vmapped over runs and, with several devices, sharded over them (R must be a multiple of
+    len(devices)). run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead
+    of all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each
+    sub-batch's slowest env instead of the whole device's."""
 
     trainer = make_train(cfg)
-    init = jax.vmap(trainer.init)
-    once = xla_cache.once_options(devices[0].platform)
-    run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
+    run = over_runs(sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch), devices)
     if len(devices) > 1:
-        # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
-        # type check rejects; every op here is per-run, so nothing needs that check.
-        mesh = jax.sharding.Mesh(np.array(devices), ("runs",))
-        init = jax.shard_map(init, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
-        run = jax.shard_map(run, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
-        sharding = NamedSharding(mesh, P("runs"))
+        sharding = NamedSharding(jax.sharding.Mesh(np.array(devices), ("runs",)), P("runs"))
     else:
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     place = lambda tree: jax.device_put(tree, sharding)  # noqa: E731
-    return trainer, jax.jit(init, compiler_options=once), jax.jit(run, donate_argnums=0), place
+    return trainer, make_group_init(trainer, devices), jax.jit(run, donate_argnums=0), place
 
 
-def make_group_evaluate(cfg: Config, run_batch: int = RUN_BATCH, platform: "str | None" = None) -> Callable:
-    """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed
-    episodes), vmapped over runs in
-    sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one); compiled for
-    `platform` (default JAX's default backend) as programs run now and then are (xla_cache.once_options)."""
-    trainer = make_train(cfg)
+def make_group_evaluate(trainer: Any, run_batch: int = RUN_BATCH, platform: "str | None" = None) -> Callable:
+    """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed episodes) of
+    trainer's runs, vmapped over runs in sequential sub-batches of run_batch (each sub-batch's episodes stop at its
+    own slowest one); compiled for `platform` (default JAX's default backend) as programs run now and then are
+    (xla_cache.once_options). Where the group's init shares its reset (GroupInit.reset), the last argument is
+    the start states [R, N] of that reset in place of keys (ppo.evaluate_from)."""
     once = xla_cache.once_options(platform)
-    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch), compiler_options=once)
+    evaluate = functools.partial(ppo.evaluate_from, trainer.parts) if ppo.shares_starts(trainer.cfg) else trainer.evaluate
+    return jax.jit(sub_batched(jax.vmap(evaluate), run_batch), compiler_options=once)
 
 
 def pad_runs(runs: list, multiple: int, at_least: int = 0) -> list:
@@ -136,23 +170,46 @@ def stacked_inputs(group: GroupRuns, place: Callable) -> tuple:
     return keys, hps
 
 
-def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = None, log: Callable = print) -> tuple:
+class CompiledGroup(NamedTuple):
+    """compile_group's result: the runs' initial states, the compiled run(states, hps) -> (states, metrics [R, chunk]),
+    the stacked hyperparameters, place (onto the group's devices), how the training program was had (compiled,
+    loaded, reused), and the compiled init and its trainer (compile_group_evaluate shares the init's reset)."""
+
+    states: Any
+    run: Callable
+    hps: Hparams
+    place: Callable
+    how: str
+    init: GroupInit
+    trainer: Any
+
+
+def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = None, log: Callable = print) -> CompiledGroup:
     """The group program for `group`, compiled, and its initial state.
     share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
-    inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
-    Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
+    inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process)."""
     how = ["reused (compiled earlier in this process)"]
 
     def build():
-        _, init, run, place = make_group_program(shape.cfg, shape.chunk, list(shape.devices), shape.run_batch)
+        trainer, init, run, place = make_group_program(shape.cfg, shape.chunk, list(shape.devices), shape.run_batch)
         keys, hps = stacked_inputs(group, place)
-        init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
+        init = compile_group_init(init, keys, hps, share, log)
         run, how[0] = xla_cache.compile_with(run.lower(init(keys, hps), hps), share, log)
-        return init, run, place
+        return trainer, init, run, place
 
-    init, run, place = cached("group", (shape, len(group.runs)), build)
+    trainer, init, run, place = cached("group", (shape, len(group.runs)), build)
     keys, hps = stacked_inputs(group, place)
-    return init(keys, hps), run, hps, place, how[0]
+    return CompiledGroup(init(keys, hps), run, hps, place, how[0], init, trainer)
+
+
+def compile_group_init(init: GroupInit, keys: jax.Array, hps: Hparams, share: "tuple | None", log: Callable) -> GroupInit:
+    """init with its programs compiled (xla_cache.compile_with) for these keys and hyperparameters."""
+    if init.reset is None:
+        return GroupInit(xla_cache.compile_with(init.rest.lower(keys, hps), share, log)[0])
+    starts = init.keys_of(keys)
+    reset = xla_cache.compile_with(init.reset.lower(starts), share, log)[0]
+    rest = xla_cache.compile_with(init.rest.lower(keys, hps, reset(starts)), share, log)[0]
+    return GroupInit(rest, reset, init.keys_of)
 
 
 def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
@@ -240,22 +297,28 @@ def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: i
     return Program(1, state, hp, run, evaluate_state, lambda tree: tree), trainer
 
 
-def compile_group_evaluate(shape: GroupShape, states: Any, hps: Hparams, place: Callable, share: "tuple | None" = None,
+def compile_group_evaluate(shape: GroupShape, compiled: CompiledGroup, share: "tuple | None" = None,
                            log: Callable = print) -> Callable:
     """The compiled evaluation of a group's runs: (states, hps, key) -> ([R] mean deterministic returns,
-    [R] failed episodes), every run from the same eval_envs start states (drawn from `key`)."""
+    [R] failed episodes), every run from the same eval_envs start states (drawn from `key`); where the group's
+    init shares its reset (GroupInit.reset), from that reset's states (ppo.start_keys pads the keys)."""
+    states, hps, place, init, p = compiled.states, compiled.hps, compiled.place, compiled.init, compiled.trainer.parts
     runs = jax.tree.leaves(hps)[0].shape[0]
+    keys_of = jax.jit(jax.vmap(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs)))
+
+    def starts_of(key):
+        keys = place(jnp.stack([key] * runs))
+        return keys if init.reset is None else init.reset(keys_of(keys))
 
     def build():
-        keys = place(jnp.stack([jax.random.PRNGKey(0)] * runs))
-        evaluate = make_group_evaluate(shape.cfg, shape.run_batch, shape.devices[0].platform)
-        lowered = evaluate.lower(states.params, states.obs_stats, hps, keys)
+        evaluate = make_group_evaluate(compiled.trainer, shape.run_batch, shape.devices[0].platform)
+        lowered = evaluate.lower(states.params, states.obs_stats, hps, starts_of(jax.random.PRNGKey(0)))
         return xla_cache.compile_with(lowered, share, log)[0]
 
-    compiled = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs), build)
+    program = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs, id(init)), build)
 
     def evaluate(st, h, key):
-        return compiled(st.params, st.obs_stats, h, place(jnp.stack([key] * runs)))
+        return program(st.params, st.obs_stats, h, starts_of(key))
 
     return evaluate
 
@@ -264,10 +327,11 @@ def group_program(shape: GroupShape, group: GroupRuns, eval_seed: "int | None" =
                   log: Callable = print) -> Program:
     """compile_group as a driver Program of len(group.runs) (padded) runs; with an eval_seed, its deterministic
     evaluation after iteration `it` starts every run's episodes from fold_in(PRNGKey(eval_seed), it)."""
-    states, run, hps, place, how = compile_group(shape, group, share, log)
+    compiled = compile_group(shape, group, share, log)
     evaluate = None
     if eval_seed is not None:
-        group_eval = compile_group_evaluate(shape, states, hps, place, share, log)
+        group_eval = compile_group_evaluate(shape, compiled, share, log)
         base = jax.random.PRNGKey(eval_seed)
         evaluate = lambda st, h, it: group_eval(st, h, jax.random.fold_in(base, it))  # noqa: E731
-    return Program(len(group.runs), states, hps, run, evaluate, place, how=how)
+    return Program(len(group.runs), compiled.states, compiled.hps, compiled.run, evaluate, compiled.place,
+                   how=compiled.how)
