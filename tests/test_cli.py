@@ -404,7 +404,11 @@ def test_the_evaluation_compiles_with_the_run(full_run):
     plan = resolve(build_parser().parse_args(SMALL))
     assert plan.eval_every > 0
     _, init, _, evaluate = compile_single(plan.cfg, plan.chunk)  # the programs full_run compiled: reused
-    assert isinstance(evaluate, jax.stages.Compiled), type(evaluate)
-    # init compiles as a program run once (xla_cache.once_options: XLA:CPU's older fusion code generation)
-    lowered = init.lower(jax.random.PRNGKey(0), make_hparams(**plan.hp))
-    assert ("xla_cpu_use_fusion_emitters", False) in lowered._lowering._compiler_options_kvs  # jax 0.10.1's
+    assert isinstance(evaluate.rest, jax.stages.Compiled), type(evaluate.rest)
+    # init and the reset it shares with the evaluation compile as programs run once (xla_cache.once_options:
+    # XLA:CPU's older fusion code generation)
+    key = jax.random.PRNGKey(0)
+    assert init.reset is evaluate.reset is not None
+    for lowered in (init.rest.lower(key, make_hparams(**plan.hp), init.reset(init.keys_of(key))),
+                    init.reset.lower(init.keys_of(key))):
+        assert ("xla_cpu_use_fusion_emitters", False) in lowered._lowering._compiler_options_kvs  # jax 0.10.1's

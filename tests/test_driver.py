@@ -111,6 +111,45 @@ def test_interrupt_and_full_disk_keep_the_last_checkpoint():
     assert e.value.last_intact == "iteration 4 of group idp/mixture"
 
 
+def test_a_ctrl_c_that_lands_in_a_gc_callback_stops_the_run_after_the_chunk_it_came_in():
+    """A SIGINT whose handler runs inside a garbage collector's callback (as JAX's _xla_gc_callback, where Python
+    drops an exception) still stops the run: after the chunk it came in is saved, status 'interrupted'. Before,
+    the run went on to the end. SIGINT's handler is Python's default during the test and after it."""
+    import gc
+    import os
+    import signal
+
+    armed = [True]
+
+    def sigint_inside(phase, info):
+        if phase == "start" and armed:
+            armed.clear()
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(10000):  # the handler runs here, in this callback's frame
+                pass
+
+    program = toy_program()
+
+    def run(state, hps):
+        if state["iteration"][0] == 2:
+            gc.callbacks.append(sigint_inside)
+            try:
+                gc.collect()
+            finally:
+                gc.callbacks.remove(sigint_inside)
+        return program.run(state, hps)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        store = MemoryStore()
+        res = drive(program._replace(run=run), store, PLAN, log=lambda m: None)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert not armed  # the callback sent it
+    assert res.status == "interrupted" and res.intact == 4 and store.saved[2] == 4 and store.finished is None
+
+
 def test_a_group_chunk_in_which_no_episode_ended_says_so_not_nan():
     """Long episodes (dm_control's 1,000 steps) end in some chunks only: the progress line says no episode ended."""
     from gsa_jax.running.driver import progress_line

@@ -134,7 +134,7 @@ def test_init_and_evaluation_compiled_as_run_once_programs_compute_what_the_defa
 
 def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
     """Two runs' deterministic evaluations from the same starts, vmapped as a sweep group evaluates them (from the
-    states of the reset its init shares: programs.GroupInit.reset), equal each run evaluated alone (resetting its own
+    states of the reset its init shares: programs.RunInit.reset), equal each run evaluated alone (resetting its own
     envs)."""
     from gsa_jax.algorithm.ppo import start_keys
     from gsa_jax.running.programs import make_group_evaluate, make_group_init

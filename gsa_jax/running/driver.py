@@ -15,7 +15,11 @@ all iterations are done. Metrics live on the host as {name: float64 [R, iteratio
 compiled program's ITERATION_METRICS and failed_at, plus eval_return, eval_failures and wall_s.
 """
 
+import contextlib
+import gc
 import math
+import signal
+import threading
 import time
 from typing import Any, Callable, NamedTuple
 
@@ -107,7 +111,8 @@ def drive(program: Program, store: Any, plan: Plan, log: Callable = print, heart
             "t_train": time.perf_counter(), "t0": t0, "start": done}
     status = "stopped"
     try:
-        status = chunk_loop(program, store, plan, metrics, loop, log, heartbeat)
+        with interrupts_noted() as noted:
+            status = chunk_loop(program, store, plan, metrics, loop, log, heartbeat, noted)
     except KeyboardInterrupt:
         status = "interrupted"
     except OSError as e:
@@ -139,15 +144,42 @@ def prefix(plan: Plan) -> str:
     return f"[{plan.tag}] " if plan.tag else ""
 
 
+@contextlib.contextmanager
+def interrupts_noted():
+    """Yields {'sigint': bool}. In the main thread, where SIGINT has Python's default handler: a SIGINT while the block
+    runs sets the flag, for chunk_loop to stop at its next check, and raises KeyboardInterrupt as that handler does,
+    except inside a garbage collector's callback (gc.callbacks; JAX keeps one), where Python would drop the exception
+    with a traceback on stderr: a Ctrl-C that landed there stopped nothing before. The previous handler is restored
+    on exit."""
+    noted = {"sigint": False}
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield noted
+        return
+
+    def note(signum, frame):
+        noted["sigint"] = True
+        if frame is None or frame.f_code not in {getattr(fn, "__code__", None) for fn in gc.callbacks}:
+            raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, note)
+    try:
+        yield noted
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def chunk_loop(program: Program, store: Any, plan: Plan, metrics: dict, loop: dict, log: Callable,
-               heartbeat: "Callable | None") -> str:
-    """Chunks until done, stopped as asked, or every run failed; returns the status."""
+               heartbeat: "Callable | None", noted: "dict | None" = None) -> str:
+    """Chunks until done, stopped as asked, or every run failed; returns the status. Raises KeyboardInterrupt
+    after a chunk is saved where noted['sigint'] is set (interrupts_noted)."""
     while loop["done"] < plan.iterations:
         tc = time.perf_counter()
         loop["state"], m = program.run(loop["state"], program.hps)
         done = record_chunk(program, plan, metrics, loop, m)
         store.save(loop["state"], metrics, done)
         loop["intact"] = done
+        if noted and noted["sigint"]:
+            raise KeyboardInterrupt
         if heartbeat:
             heartbeat(time.perf_counter() - tc)
         sps = loop["steps"] / max(time.perf_counter() - loop["t_train"] - loop["eval_s"], 1e-9)

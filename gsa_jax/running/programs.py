@@ -51,21 +51,35 @@ def sub_batched(fn: Callable, size: int) -> Callable:
     return run
 
 
-class GroupInit(NamedTuple):
-    """A group's init, jitted: called as init(keys [R], hps [R]) -> states. rest alone is init_state vmapped over the
-    runs; where the runs' evaluation env is their training env without the auto-reset (ppo.shares_starts), reset is
-    that env's reset over keys [R, N] (N = max(num_envs, eval_envs)), shared with the group's evaluation
-    (compile_group_evaluate), keys_of gives each run's training keys [R, N] (ppo.start_keys), and rest is
-    ppo.init_from_starts vmapped: (keys, hps, starts) -> states."""
+class RunInit(NamedTuple):
+    """A run's or a group's init, jitted: init(key, hp) -> state of a run, init(keys [R], hps [R]) -> states of a
+    group (make_group_init). rest alone is ppo.init_state (vmapped for a group); where the evaluation env is the
+    training env without the auto-reset (ppo.shares_starts), reset is that env's reset over N = max(num_envs,
+    eval_envs) keys ([R, N] for a group), shared with the evaluation (RunEvaluation), keys_of gives a run's training
+    keys (ppo.start_keys), and rest is ppo.init_from_starts: (key, hp, starts) -> state."""
 
     rest: Callable
     reset: "Callable | None" = None
     keys_of: "Callable | None" = None
 
-    def __call__(self, keys: jax.Array, hps: Hparams) -> Any:
+    def __call__(self, key: jax.Array, hp: Hparams) -> Any:
         if self.reset is None:
-            return self.rest(keys, hps)
-        return self.rest(keys, hps, self.reset(self.keys_of(keys)))
+            return self.rest(key, hp)
+        return self.rest(key, hp, self.reset(self.keys_of(key)))
+
+
+class RunEvaluation(NamedTuple):
+    """A single run's evaluation (params, obs_stats, hp, key) -> (mean return, failed episodes): rest alone is
+    ppo.evaluate; with a reset shared with init (RunInit), rest is ppo.evaluate_from, from reset(keys_of(key))."""
+
+    rest: Callable
+    reset: "Callable | None" = None
+    keys_of: "Callable | None" = None
+
+    def __call__(self, params: dict, obs_stats: dict, hp: Hparams, key: jax.Array) -> tuple:
+        if self.reset is None:
+            return self.rest(params, obs_stats, hp, key)
+        return self.rest(params, obs_stats, hp, self.reset(self.keys_of(key)))
 
 
 def over_runs(fn: Callable, devices: list) -> Callable:
@@ -79,20 +93,20 @@ def over_runs(fn: Callable, devices: list) -> Callable:
     return jax.shard_map(fn, mesh=mesh, in_specs=P("runs"), out_specs=P("runs"), check_vma=False)
 
 
-def make_group_init(trainer: Any, devices: list) -> GroupInit:
-    """The group's init (GroupInit), jitted with xla_cache.once_options and sharded over devices (over_runs)."""
+def make_group_init(trainer: Any, devices: list) -> RunInit:
+    """The group's init (RunInit), jitted with xla_cache.once_options and sharded over devices (over_runs)."""
     once = xla_cache.once_options(devices[0].platform)
     p = trainer.parts
     if not ppo.shares_starts(p.cfg):
-        return GroupInit(jax.jit(over_runs(jax.vmap(trainer.init), devices), compiler_options=once))
+        return RunInit(jax.jit(over_runs(jax.vmap(trainer.init), devices), compiler_options=once))
     reset = over_runs(jax.vmap(jax.vmap(p.eval_env.reset)), devices)
     keys_of = jax.vmap(lambda key: ppo.start_keys(p, ppo.env_key(key), p.cfg.num_envs))
     rest = over_runs(jax.vmap(functools.partial(ppo.init_from_starts, p)), devices)
-    return GroupInit(jax.jit(rest, compiler_options=once), jax.jit(reset, compiler_options=once), jax.jit(keys_of))
+    return RunInit(jax.jit(rest, compiler_options=once), jax.jit(reset, compiler_options=once), jax.jit(keys_of))
 
 
 def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = RUN_BATCH) -> tuple:
-    """(trainer, init: GroupInit (keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk]),
+    """(trainer, init: RunInit (keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk]),
     place), jit-compiled, vmapped over runs and, with several devices, sharded over them (R must be a multiple of
     len(devices)). run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead
     of all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each
@@ -112,7 +126,7 @@ def make_group_evaluate(trainer: Any, run_batch: int = RUN_BATCH, platform: "str
     """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed episodes) of
     trainer's runs, vmapped over runs in sequential sub-batches of run_batch (each sub-batch's episodes stop at its
     own slowest one); compiled for `platform` (default JAX's default backend) as programs run now and then are
-    (xla_cache.once_options). Where the group's init shares its reset (GroupInit.reset), the last argument is
+    (xla_cache.once_options). Where the group's init shares its reset (RunInit.reset), the last argument is
     the start states [R, N] of that reset in place of keys (ppo.evaluate_from)."""
     once = xla_cache.once_options(platform)
     evaluate = functools.partial(ppo.evaluate_from, trainer.parts) if ppo.shares_starts(trainer.cfg) else trainer.evaluate
@@ -180,7 +194,7 @@ class CompiledGroup(NamedTuple):
     hps: Hparams
     place: Callable
     how: str
-    init: GroupInit
+    init: RunInit
     trainer: Any
 
 
@@ -202,14 +216,14 @@ def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = N
     return CompiledGroup(init(keys, hps), run, hps, place, how[0], init, trainer)
 
 
-def compile_group_init(init: GroupInit, keys: jax.Array, hps: Hparams, share: "tuple | None", log: Callable) -> GroupInit:
+def compile_group_init(init: RunInit, keys: jax.Array, hps: Hparams, share: "tuple | None", log: Callable) -> RunInit:
     """init with its programs compiled (xla_cache.compile_with) for these keys and hyperparameters."""
     if init.reset is None:
-        return GroupInit(xla_cache.compile_with(init.rest.lower(keys, hps), share, log)[0])
+        return RunInit(xla_cache.compile_with(init.rest.lower(keys, hps), share, log)[0])
     starts = init.keys_of(keys)
     reset = xla_cache.compile_with(init.reset.lower(starts), share, log)[0]
     rest = xla_cache.compile_with(init.rest.lower(keys, hps, reset(starts)), share, log)[0]
-    return GroupInit(rest, reset, init.keys_of)
+    return RunInit(rest, reset, init.keys_of)
 
 
 def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
@@ -234,31 +248,25 @@ def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
 
 
 def single_run_parts(p: Any, once: dict) -> tuple:
-    """(init(key, hp), evaluate(params, obs_stats, hp, key), ahead(params, obs_stats, hp) -> evaluate compiled
-    ahead of its first call) of one run, jitted with `once`. With ppo.shares_starts, the envs' resets are one
-    program over max(num_envs, eval_envs) keys (ppo.start_keys): init takes the first num_envs of its states
+    """(init: RunInit, evaluate: RunEvaluation, ahead(params, obs_stats, hp) -> evaluate with its rest compiled ahead
+    of its first call) of one run, jitted with `once`. With ppo.shares_starts, the envs' resets are one program over
+    max(num_envs, eval_envs) keys (ppo.start_keys): init takes the first num_envs of its states
     (ppo.init_from_starts), the evaluation the first eval_envs (ppo.evaluate_from); else init and evaluate
     each reset their own envs."""
     if not ppo.shares_starts(p.cfg):
-        evaluation = jax.jit(functools.partial(ppo.evaluate, p), compiler_options=once)
-        ahead = lambda *shapes: evaluation.lower(*shapes, jax.random.PRNGKey(0)).compile()  # noqa: E731
-        return jax.jit(functools.partial(ppo.init_state, p), compiler_options=once), evaluation, ahead
-    resets = jax.vmap(p.eval_env.reset)
-    reset = jax.jit(resets, compiler_options=once)
-    train_keys = jax.jit(lambda key: ppo.start_keys(p, ppo.env_key(key), p.cfg.num_envs))
-    eval_keys = jax.jit(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs))
-    init_rest = jax.jit(functools.partial(ppo.init_from_starts, p), compiler_options=once)
-    evaluate_rest = jax.jit(functools.partial(ppo.evaluate_from, p), compiler_options=once)
-
-    def init(key, hp):
-        return init_rest(key, hp, reset(train_keys(key)))
-
-    def evaluation(params, obs_stats, hp, key, rest=evaluate_rest):
-        return rest(params, obs_stats, hp, reset(eval_keys(key)))
+        evaluation = RunEvaluation(jax.jit(functools.partial(ppo.evaluate, p), compiler_options=once))
+        init, last = RunInit(jax.jit(functools.partial(ppo.init_state, p), compiler_options=once)), jax.random.PRNGKey(0)
+    else:
+        reset = jax.jit(jax.vmap(p.eval_env.reset), compiler_options=once)
+        keys_of = jax.jit(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs))
+        evaluation = RunEvaluation(jax.jit(functools.partial(ppo.evaluate_from, p), compiler_options=once), reset, keys_of)
+        init = RunInit(jax.jit(functools.partial(ppo.init_from_starts, p), compiler_options=once), reset,
+                       jax.jit(lambda key: ppo.start_keys(p, ppo.env_key(key), p.cfg.num_envs)))
+        last = jax.eval_shape(lambda key: jax.vmap(p.eval_env.reset)(ppo.start_keys(p, key, p.cfg.eval_envs)),
+                              jax.random.PRNGKey(0))
 
     def ahead(params, obs_stats, hp):
-        starts = jax.eval_shape(lambda key: resets(ppo.start_keys(p, key, p.cfg.eval_envs)), jax.random.PRNGKey(0))
-        return functools.partial(evaluation, rest=evaluate_rest.lower(params, obs_stats, hp, starts).compile())
+        return evaluation._replace(rest=evaluation.rest.lower(params, obs_stats, hp, last).compile())
 
     return init, evaluation, ahead
 
@@ -301,7 +309,7 @@ def compile_group_evaluate(shape: GroupShape, compiled: CompiledGroup, share: "t
                            log: Callable = print) -> Callable:
     """The compiled evaluation of a group's runs: (states, hps, key) -> ([R] mean deterministic returns,
     [R] failed episodes), every run from the same eval_envs start states (drawn from `key`); where the group's
-    init shares its reset (GroupInit.reset), from that reset's states (ppo.start_keys pads the keys)."""
+    init shares its reset (RunInit.reset), from that reset's states (ppo.start_keys pads the keys)."""
     states, hps, place, init, p = compiled.states, compiled.hps, compiled.place, compiled.init, compiled.trainer.parts
     runs = jax.tree.leaves(hps)[0].shape[0]
     keys_of = jax.jit(jax.vmap(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs)))
