@@ -111,7 +111,7 @@ def test_interrupt_and_full_disk_keep_the_last_checkpoint():
     assert e.value.last_intact == "iteration 4 of group idp/mixture"
 
 
-def test_a_ctrl_c_that_lands_in_a_gc_callback_stops_the_run_after_the_chunk_it_came_in():
+def test_a_ctrl_c_that_lands_in_a_gc_callback_stops_the_run_after_the_chunk_it_came_in(capfd):
     """A SIGINT whose handler runs inside a garbage collector's callback (as JAX's _xla_gc_callback, where Python
     drops an exception) still stops the run: after the chunk it came in is saved, status 'interrupted'. Before,
     the run went on to the end. SIGINT's handler is Python's default during the test and after it."""
@@ -148,6 +148,38 @@ def test_a_ctrl_c_that_lands_in_a_gc_callback_stops_the_run_after_the_chunk_it_c
         signal.signal(signal.SIGINT, previous)
     assert not armed  # the callback sent it
     assert res.status == "interrupted" and res.intact == 4 and store.saved[2] == 4 and store.finished is None
+    assert "Exception ignored" not in capfd.readouterr().err  # not raised inside the callback, where Python drops it
+
+
+def test_a_ctrl_c_noted_after_the_last_chunk_is_raised_once_the_result_is_stored():
+    """A SIGINT that lands in a gc callback after the last chunk's check (here in its progress line): the run
+    finishes and is stored, then drive raises KeyboardInterrupt (a sweep does not go on to its next group)."""
+    import gc
+    import os
+    import signal
+
+    def sigint_inside(phase, info):
+        if phase == "start":
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(10000):
+                pass
+
+    def log(line):
+        if line.startswith(f"it {PLAN.iterations}/"):
+            gc.callbacks.append(sigint_inside)
+            try:
+                gc.collect()
+            finally:
+                gc.callbacks.remove(sigint_inside)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    store = MemoryStore()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            drive(toy_program(), store, PLAN._replace(real_runs=1), log=log)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert store.finished == PLAN.iterations and store.saved[2] == PLAN.iterations
 
 
 def test_a_group_chunk_in_which_no_episode_ended_says_so_not_nan():

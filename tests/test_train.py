@@ -211,13 +211,15 @@ def test_a_single_runs_one_reset_program_gives_init_and_evaluation_what_each_com
 
 
 def test_a_run_shares_its_reset_only_where_its_evaluation_env_is_its_training_env_without_auto_reset():
-    """ppo.shares_starts: not under a training randomization, nor with reset mode 'fresh' (each episode a new draw);
-    start_keys pads split(key, n) with its last key to max(num_envs, eval_envs)."""
+    """ppo.shares_starts: not under a training randomization, nor with reset mode 'fresh' (each episode a new draw),
+    nor where an evaluation would reset more than twice its envs; start_keys pads split(key, n) with its last key to
+    max(num_envs, eval_envs)."""
     from gsa_jax.algorithm.ppo import Parts, shares_starts, start_keys
 
     assert shares_starts(Config())
     assert not shares_starts(Config(reset_mode="fresh"))
     assert not shares_starts(Config(randomize="mass=0.9:1.1"))
+    assert shares_starts(Config(num_envs=32, eval_envs=16)) and not shares_starts(Config(num_envs=33, eval_envs=16))
     for num_envs, eval_envs in ((4, 2), (2, 4), (3, 3)):
         p = Parts(Config(num_envs=num_envs, eval_envs=eval_envs), *[None] * 8)
         for n in (num_envs, eval_envs):

@@ -69,7 +69,8 @@ def split(name: str, jitted, *args) -> tuple:
 
 
 def program_rows(argv: list) -> list:
-    """The split of the case's programs, built as compile_single builds them, in its order."""
+    """The split of the case's programs in compile_single's order: init and the evaluation each with its own reset,
+    as compile_single built them before one reset program served both (the rows' commits: 631b605, ca935ab)."""
     import jax
 
     from gsa_jax.algorithm.config import make_hparams

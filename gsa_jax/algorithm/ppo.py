@@ -442,10 +442,17 @@ def make_run_parts(cfg: Config, task: Any = None) -> Parts:
 
 def shares_starts(cfg: Config) -> bool:
     """Whether a run's evaluation env is its training env without the auto-reset (no randomization, reset mode
-    'first'): make_run_parts then makes it once, as the training env's inner env, and the training envs' start
-    states are the evaluation env's (AutoReset.started): one reset program can serve both
-    (gsa_jax.running.programs.single_run_parts)."""
-    return not cfg.randomize and cfg.reset_mode == "first"
+    'first') and at most twice as many envs as it evaluates with train: make_run_parts then makes it once, as the
+    training env's inner env, and the training envs' start states are the evaluation env's (AutoReset.started):
+    one reset program over max(num_envs, eval_envs) keys serves both (resets_shared), and each evaluation resets at
+    most twice the envs it runs."""
+    return not cfg.randomize and cfg.reset_mode == "first" and cfg.num_envs <= 2 * cfg.eval_envs
+
+
+def resets_shared(p: Parts) -> bool:
+    """Whether p's training env auto-resets (mode 'first') its very evaluation env (make_run_parts, shares_starts):
+    then init_from_starts and evaluate_from start both from that env's reset."""
+    return p.eval_env is getattr(p.env, "env", None) and getattr(p.env, "mode", None) == "first"
 
 
 def init_from_starts(p: Parts, key: jax.Array, hp: Hparams, starts: Any) -> TrainState:

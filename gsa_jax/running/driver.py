@@ -102,14 +102,15 @@ def eval_due(plan: Plan, it: int) -> bool:
 def drive(program: Program, store: Any, plan: Plan, log: Callable = print, heartbeat: "Callable | None" = None,
           clock_start: "float | None" = None) -> Result:
     """Train (or resume) the program's runs as the plan says; checkpoint through the store. Returns a
-    Result. A KeyboardInterrupt ends it with status 'interrupted' (everything saved stays saved); a
-    DiskFullError propagates with `.last_intact` naming the last intact iteration."""
+    Result. A KeyboardInterrupt ends it with status 'interrupted' (everything saved stays saved); one noted only
+    after the last chunk (interrupts_noted) is raised after the result is stored. A DiskFullError propagates with
+    `.last_intact` naming the last intact iteration."""
     t0 = clock_start if clock_start is not None else time.perf_counter()
     compile_s = time.perf_counter() - t0
     state, metrics, done = resume(program, store, plan, log)
     loop = {"state": state, "done": done, "intact": done, "chunks": 0, "steps": 0, "eval_s": 0.0,
             "t_train": time.perf_counter(), "t0": t0, "start": done}
-    status = "stopped"
+    status, noted = "stopped", {"sigint": False}
     try:
         with interrupts_noted() as noted:
             status = chunk_loop(program, store, plan, metrics, loop, log, heartbeat, noted)
@@ -124,6 +125,8 @@ def drive(program: Program, store: Any, plan: Plan, log: Callable = print, heart
               "env_steps_per_s": round(loop["steps"] / max(train_s, 1e-9), 1)}
     if (loop["done"] >= plan.iterations and status != "interrupted") or status == "failed":
         store.finish(loop["state"], metrics, loop["done"], timing)
+    if noted["sigint"] and status != "interrupted":  # noted after the last chunk's check: raised once all is saved
+        raise KeyboardInterrupt
     return Result(loop["done"], plan.iterations, metrics, status, timing, loop["intact"])
 
 

@@ -5,8 +5,8 @@ the runs, optionally in sequential sub-batches (sub_batched), and with several d
 sharded over them (shard_map). Used by gsa sweep and gsa_jax.bench.
 
     shape = GroupShape(cfg, chunk, tuple(devices))
-    states, run, hps, place, how, _, _ = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))
-    states, metrics = run(states, hps)          # metrics [R, chunk]
+    group = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))
+    states, metrics = group.run(group.states, group.hps)          # metrics [R, chunk]
 """
 
 import functools
@@ -54,9 +54,10 @@ def sub_batched(fn: Callable, size: int) -> Callable:
 class RunInit(NamedTuple):
     """A run's or a group's init, jitted: init(key, hp) -> state of a run, init(keys [R], hps [R]) -> states of a
     group (make_group_init). rest alone is ppo.init_state (vmapped for a group); where the evaluation env is the
-    training env without the auto-reset (ppo.shares_starts), reset is that env's reset over N = max(num_envs,
-    eval_envs) keys ([R, N] for a group), shared with the evaluation (RunEvaluation), keys_of gives a run's training
-    keys (ppo.start_keys), and rest is ppo.init_from_starts: (key, hp, starts) -> state."""
+    training env without the auto-reset (ppo.resets_shared), reset is that env's reset over N = max(num_envs,
+    eval_envs) keys ([R, N] for a group), shared with the evaluation (a run's RunEvaluation, a group's
+    compile_group_evaluate), keys_of gives a run's training keys (ppo.start_keys), and rest is ppo.init_from_starts:
+    (key, hp, starts) -> state."""
 
     rest: Callable
     reset: "Callable | None" = None
@@ -97,7 +98,7 @@ def make_group_init(trainer: Any, devices: list) -> RunInit:
     """The group's init (RunInit), jitted with xla_cache.once_options and sharded over devices (over_runs)."""
     once = xla_cache.once_options(devices[0].platform)
     p = trainer.parts
-    if not ppo.shares_starts(p.cfg):
+    if not ppo.resets_shared(p):
         return RunInit(jax.jit(over_runs(jax.vmap(trainer.init), devices), compiler_options=once))
     reset = over_runs(jax.vmap(jax.vmap(p.eval_env.reset)), devices)
     keys_of = jax.vmap(lambda key: ppo.start_keys(p, ppo.env_key(key), p.cfg.num_envs))
@@ -129,7 +130,7 @@ def make_group_evaluate(trainer: Any, run_batch: int = RUN_BATCH, platform: "str
     (xla_cache.once_options). Where the group's init shares its reset (RunInit.reset), the last argument is
     the start states [R, N] of that reset in place of keys (ppo.evaluate_from)."""
     once = xla_cache.once_options(platform)
-    evaluate = functools.partial(ppo.evaluate_from, trainer.parts) if ppo.shares_starts(trainer.cfg) else trainer.evaluate
+    evaluate = functools.partial(ppo.evaluate_from, trainer.parts) if ppo.resets_shared(trainer.parts) else trainer.evaluate
     return jax.jit(sub_batched(jax.vmap(evaluate), run_batch), compiler_options=once)
 
 
@@ -230,7 +231,7 @@ def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
     """(trainer, init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
     vmapped: train.py's program), compiled once per process for these shapes; evaluate is compiled with them
     (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only).
-    Where the training env auto-resets the evaluation env itself (ppo.shares_starts), init and the evaluation
+    Where the training env auto-resets the evaluation env itself (ppo.resets_shared), init and the evaluation
     reset their envs with one compiled program (single_run_parts)."""
 
     def build():
@@ -249,11 +250,11 @@ def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
 
 def single_run_parts(p: Any, once: dict) -> tuple:
     """(init: RunInit, evaluate: RunEvaluation, ahead(params, obs_stats, hp) -> evaluate with its rest compiled ahead
-    of its first call) of one run, jitted with `once`. With ppo.shares_starts, the envs' resets are one program over
+    of its first call) of one run, jitted with `once`. With ppo.resets_shared, the envs' resets are one program over
     max(num_envs, eval_envs) keys (ppo.start_keys): init takes the first num_envs of its states
     (ppo.init_from_starts), the evaluation the first eval_envs (ppo.evaluate_from); else init and evaluate
     each reset their own envs."""
-    if not ppo.shares_starts(p.cfg):
+    if not ppo.resets_shared(p):
         evaluation = RunEvaluation(jax.jit(functools.partial(ppo.evaluate, p), compiler_options=once))
         init, last = RunInit(jax.jit(functools.partial(ppo.init_state, p), compiler_options=once)), jax.random.PRNGKey(0)
     else:
@@ -312,21 +313,21 @@ def compile_group_evaluate(shape: GroupShape, compiled: CompiledGroup, share: "t
     init shares its reset (RunInit.reset), from that reset's states (ppo.start_keys pads the keys)."""
     states, hps, place, init, p = compiled.states, compiled.hps, compiled.place, compiled.init, compiled.trainer.parts
     runs = jax.tree.leaves(hps)[0].shape[0]
-    keys_of = jax.jit(jax.vmap(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs)))
 
-    def starts_of(key):
+    def starts_of(key, keys_of):
         keys = place(jnp.stack([key] * runs))
         return keys if init.reset is None else init.reset(keys_of(keys))
 
     def build():
+        keys_of = jax.jit(jax.vmap(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs)))
         evaluate = make_group_evaluate(compiled.trainer, shape.run_batch, shape.devices[0].platform)
-        lowered = evaluate.lower(states.params, states.obs_stats, hps, starts_of(jax.random.PRNGKey(0)))
-        return xla_cache.compile_with(lowered, share, log)[0]
+        lowered = evaluate.lower(states.params, states.obs_stats, hps, starts_of(jax.random.PRNGKey(0), keys_of))
+        return xla_cache.compile_with(lowered, share, log)[0], keys_of
 
-    program = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs, id(init)), build)
+    program, keys_of = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs), build)
 
     def evaluate(st, h, key):
-        return program(st.params, st.obs_stats, h, starts_of(key))
+        return program(st.params, st.obs_stats, h, starts_of(key, keys_of))
 
     return evaluate
 
