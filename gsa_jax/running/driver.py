@@ -21,7 +21,7 @@ import math
 import signal
 import threading
 import time
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, Iterator, NamedTuple
 
 import jax
 import numpy as np
@@ -148,7 +148,7 @@ def prefix(plan: Plan) -> str:
 
 
 @contextlib.contextmanager
-def interrupts_noted():
+def interrupts_noted() -> Iterator[dict]:
     """Yields {'sigint': bool}. In the main thread, where SIGINT has Python's default handler: a SIGINT while the block
     runs sets the flag, for chunk_loop to stop at its next check, and raises KeyboardInterrupt as that handler does,
     except inside a garbage collector's callback (gc.callbacks; JAX keeps one), where Python would drop the exception
