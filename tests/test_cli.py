@@ -398,6 +398,7 @@ def test_the_evaluation_compiles_with_the_run(full_run):
     import jax
 
     from gsa_jax.algorithm.config import make_hparams
+    from gsa_jax.algorithm.ppo import shares_starts
     from gsa_jax.commands.train import build_parser, resolve
     from gsa_jax.running.programs import compile_single
 
@@ -405,10 +406,11 @@ def test_the_evaluation_compiles_with_the_run(full_run):
     assert plan.eval_every > 0
     _, init, _, evaluate = compile_single(plan.cfg, plan.chunk)  # the programs full_run compiled: reused
     assert isinstance(evaluate.rest, jax.stages.Compiled), type(evaluate.rest)
-    # init and the reset it shares with the evaluation compile as programs run once (xla_cache.once_options:
-    # XLA:CPU's older fusion code generation)
-    key = jax.random.PRNGKey(0)
-    assert init.reset is evaluate.reset is not None
-    for lowered in (init.rest.lower(key, make_hparams(**plan.hp), init.reset(init.keys_of(key))),
-                    init.reset.lower(init.keys_of(key))):
+    # init (and the reset it shares with the evaluation where the run shares one) compile as programs run once
+    # (xla_cache.once_options: XLA:CPU's older fusion code generation)
+    key, hp = jax.random.PRNGKey(0), make_hparams(**plan.hp)
+    assert init.reset is evaluate.reset and (init.reset is not None) == shares_starts(plan.cfg)
+    lowered = [init.rest.lower(key, hp)] if init.reset is None else [
+        init.rest.lower(key, hp, init.reset(init.keys_of(key))), init.reset.lower(init.keys_of(key))]
+    for lowered in lowered:
         assert ("xla_cpu_use_fusion_emitters", False) in lowered._lowering._compiler_options_kvs  # jax 0.10.1's

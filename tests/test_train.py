@@ -133,11 +133,11 @@ def test_init_and_evaluation_compiled_as_run_once_programs_compute_what_the_defa
 
 
 def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
-    """Two runs' deterministic evaluations from the same starts, vmapped as a sweep group evaluates them (from the
-    states of the reset its init shares: programs.RunInit.reset), equal each run evaluated alone (resetting its own
-    envs)."""
-    from gsa_jax.algorithm.ppo import start_keys
-    from gsa_jax.running.programs import make_group_evaluate, make_group_init
+    """Two runs' deterministic evaluations from the same starts, vmapped as a sweep group evaluates them,
+    equal each run evaluated alone."""
+    import jax.numpy as jnp
+
+    from gsa_jax.running.programs import make_group_evaluate
 
     tr, init, _ = mixture4
     hps = [make_hparams(K=k) for k in (2, 4)]
@@ -147,20 +147,17 @@ def test_evaluation_in_a_vmapped_group_equals_alone(mixture4):
     key = jax.random.fold_in(jax.random.PRNGKey(0), 5)
     alone = [float(jax.jit(tr.evaluate)(s.params, s.obs_stats, h, key)[0]) for s, h in zip(states, hps)]
     stack = lambda *xs: jnp.stack(xs)  # noqa: E731
-    keys = jnp.stack([start_keys(tr.parts, key, tr.cfg.eval_envs)] * 2)
-    starts = make_group_init(tr, jax.devices()[:1]).reset(keys)
-    group = make_group_evaluate(tr, run_batch=0)(
+    group = make_group_evaluate(tr.cfg, run_batch=0)(
         jax.tree.map(stack, *[s.params for s in states]), jax.tree.map(stack, *[s.obs_stats for s in states]),
-        jax.tree.map(stack, *hps), starts)
+        jax.tree.map(stack, *hps), jnp.stack([key, key]))
     np.testing.assert_allclose(np.asarray(group[0]), alone, rtol=1e-5)
     assert np.asarray(group[1]).tolist() == [0, 0]
     assert alone[0] != alone[1]
 
 
 def test_a_sweep_groups_init_and_evaluation_compile_as_programs_run_once(mixture4):
-    """A sweep group's init, its shared reset and its evaluation carry xla_cache.once_options (its training program
-    does not); a group of one run's init so compiled is finite (at level 0 that code generation gave NaN weights
-    there) and, from the shared reset, the same bits as init vmapped over the runs, each resetting its own envs."""
+    """A sweep group's init and evaluation carry xla_cache.once_options (its training program does not), and a
+    group of one run's init so compiled is finite (at level 0 that code generation gave NaN weights there)."""
     from gsa_jax.running import xla_cache
     from gsa_jax.running.programs import make_group_evaluate, make_group_program
 
@@ -169,17 +166,11 @@ def test_a_sweep_groups_init_and_evaluation_compile_as_programs_run_once(mixture
     keys, hps = jnp.stack([jax.random.PRNGKey(0)]), jax.tree.map(lambda x: x[None], make_hparams(K=4))
     states = init(keys, hps)
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(states) if jnp.issubdtype(x.dtype, jnp.floating))
-    once = xla_cache.once_options("cpu")
-    own_reset = jax.jit(jax.vmap(tr.init), compiler_options=once)(keys, hps)
-    for a, b in zip(jax.tree.leaves(own_reset), jax.tree.leaves(states)):
-        np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
-    starts = init.reset(init.keys_of(keys))
-    evaluate = make_group_evaluate(tr, platform=jax.devices()[0].platform)
+    evaluate = make_group_evaluate(tr.cfg, platform=jax.devices()[0].platform)
     options = {name: dict(program.lower(*args)._lowering._compiler_options_kvs)  # jax 0.10.1's
-               for name, program, args in (("init", init.rest, (keys, hps, starts)), ("reset", init.reset, (init.keys_of(keys),)),
-                                           ("run", run, (states, hps)),
-                                           ("evaluate", evaluate, (states.params, states.obs_stats, hps, starts)))}
-    assert options["init"] == options["reset"] == options["evaluate"] == once and options["run"] == {}
+               for name, program, args in (("init", init, (keys, hps)), ("run", run, (states, hps)),
+                                           ("evaluate", evaluate, (states.params, states.obs_stats, hps, keys)))}
+    assert options["init"] == options["evaluate"] == xla_cache.once_options("cpu") and options["run"] == {}
 
 
 def test_a_single_runs_one_reset_program_gives_init_and_evaluation_what_each_computes_alone(mixture4, mixture_runs):

@@ -70,8 +70,7 @@ def worker(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     runs = pad_runs(group.runs, len(devices))
     shape = GroupShape(cfg, 1, tuple(devices), args.run_batch)
-    group = compile_group(shape, GroupRuns(runs, [], 1000), _share(args))
-    states, run, hps, how = group.states, group.run, group.hps, group.how
+    states, run, hps, _, how = compile_group(shape, GroupRuns(runs, [], 1000), _share(args))
     compile_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     states, _ = run(states, hps)  # first execution (allocations, page faults) is not timed

@@ -5,8 +5,8 @@ the runs, optionally in sequential sub-batches (sub_batched), and with several d
 sharded over them (shard_map). Used by gsa sweep and gsa_jax.bench.
 
     shape = GroupShape(cfg, chunk, tuple(devices))
-    group = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))
-    states, metrics = group.run(group.states, group.hps)          # metrics [R, chunk]
+    states, run, hps, place, how = compile_group(shape, GroupRuns(pad_runs(runs, len(devices)), names, iterations))
+    states, metrics = run(states, hps)          # metrics [R, chunk]
 """
 
 import functools
@@ -51,87 +51,38 @@ def sub_batched(fn: Callable, size: int) -> Callable:
     return run
 
 
-class RunInit(NamedTuple):
-    """A run's or a group's init, jitted: init(key, hp) -> state of a run, init(keys [R], hps [R]) -> states of a
-    group (make_group_init). rest alone is ppo.init_state (vmapped for a group); where the evaluation env is the
-    training env without the auto-reset (ppo.resets_shared), reset is that env's reset over N = max(num_envs,
-    eval_envs) keys ([R, N] for a group), shared with the evaluation (a run's RunEvaluation, a group's
-    compile_group_evaluate), keys_of gives a run's training keys (ppo.start_keys), and rest is ppo.init_from_starts:
-    (key, hp, starts) -> state."""
-
-    rest: Callable
-    reset: "Callable | None" = None
-    keys_of: "Callable | None" = None
-
-    def __call__(self, key: jax.Array, hp: Hparams) -> Any:
-        if self.reset is None:
-            return self.rest(key, hp)
-        return self.rest(key, hp, self.reset(self.keys_of(key)))
-
-
-class RunEvaluation(NamedTuple):
-    """A single run's evaluation (params, obs_stats, hp, key) -> (mean return, failed episodes): rest alone is
-    ppo.evaluate; with a reset shared with init (RunInit), rest is ppo.evaluate_from, from reset(keys_of(key))."""
-
-    rest: Callable
-    reset: "Callable | None" = None
-    keys_of: "Callable | None" = None
-
-    def __call__(self, params: dict, obs_stats: dict, hp: Hparams, key: jax.Array) -> tuple:
-        if self.reset is None:
-            return self.rest(params, obs_stats, hp, key)
-        return self.rest(params, obs_stats, hp, self.reset(self.keys_of(key)))
-
-
-def over_runs(fn: Callable, devices: list) -> Callable:
-    """fn (vmapped over a leading run axis of every argument and result), with several devices shard_mapped over
-    them along that axis; else fn itself."""
-    if len(devices) < 2:
-        return fn
-    # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
-    # type check rejects; every op here is per-run, so nothing needs that check.
-    mesh = jax.sharding.Mesh(np.array(devices), ("runs",))
-    return jax.shard_map(fn, mesh=mesh, in_specs=P("runs"), out_specs=P("runs"), check_vma=False)
-
-
-def make_group_init(trainer: Any, devices: list) -> RunInit:
-    """The group's init (RunInit), jitted with xla_cache.once_options and sharded over devices (over_runs)."""
-    once = xla_cache.once_options(devices[0].platform)
-    p = trainer.parts
-    if not ppo.resets_shared(p):
-        return RunInit(jax.jit(over_runs(jax.vmap(trainer.init), devices), compiler_options=once))
-    reset = over_runs(jax.vmap(jax.vmap(p.eval_env.reset)), devices)
-    keys_of = jax.vmap(lambda key: ppo.start_keys(p, ppo.env_key(key), p.cfg.num_envs))
-    rest = over_runs(jax.vmap(functools.partial(ppo.init_from_starts, p)), devices)
-    return RunInit(jax.jit(rest, compiler_options=once), jax.jit(reset, compiler_options=once), jax.jit(keys_of))
-
-
 def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = RUN_BATCH) -> tuple:
-    """(trainer, init: RunInit (keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk]),
-    place), jit-compiled, vmapped over runs and, with several devices, sharded over them (R must be a multiple of
-    len(devices)). run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead
-    of all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each
-    sub-batch's slowest env instead of the whole device's."""
+    """(init(keys [R], hps [R]) -> states, run(states, hps) -> (states, metrics [R, chunk])), jit-compiled,
+    vmapped over runs and, with several devices, sharded over them (R must be a multiple of len(devices)).
+    run_batch: train each device's runs in sequential sub-batches of this many (sub_batched) instead of
+    all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
+    slowest env instead of the whole device's."""
 
     trainer = make_train(cfg)
-    run = over_runs(sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch), devices)
+    init = jax.vmap(trainer.init)
+    once = xla_cache.once_options(devices[0].platform)
+    run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
     if len(devices) > 1:
-        sharding = NamedSharding(jax.sharding.Mesh(np.array(devices), ("runs",)), P("runs"))
+        # check_vma=False: MJX's solver has lax.cond branches whose outputs shard_map's varying-axis
+        # type check rejects; every op here is per-run, so nothing needs that check.
+        mesh = jax.sharding.Mesh(np.array(devices), ("runs",))
+        init = jax.shard_map(init, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
+        run = jax.shard_map(run, mesh=mesh, in_specs=(P("runs"), P("runs")), out_specs=P("runs"), check_vma=False)
+        sharding = NamedSharding(mesh, P("runs"))
     else:
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
     place = lambda tree: jax.device_put(tree, sharding)  # noqa: E731
-    return trainer, make_group_init(trainer, devices), jax.jit(run, donate_argnums=0), place
+    return trainer, jax.jit(init, compiler_options=once), jax.jit(run, donate_argnums=0), place
 
 
-def make_group_evaluate(trainer: Any, run_batch: int = RUN_BATCH, platform: "str | None" = None) -> Callable:
-    """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed episodes) of
-    trainer's runs, vmapped over runs in sequential sub-batches of run_batch (each sub-batch's episodes stop at its
-    own slowest one); compiled for `platform` (default JAX's default backend) as programs run now and then are
-    (xla_cache.once_options). Where the group's init shares its reset (RunInit.reset), the last argument is
-    the start states [R, N] of that reset in place of keys (ppo.evaluate_from)."""
+def make_group_evaluate(cfg: Config, run_batch: int = RUN_BATCH, platform: "str | None" = None) -> Callable:
+    """jit of evaluate(params, obs_stats, hps, keys) -> ([R] deterministic mean returns, [R] failed
+    episodes), vmapped over runs in
+    sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one); compiled for
+    `platform` (default JAX's default backend) as programs run now and then are (xla_cache.once_options)."""
+    trainer = make_train(cfg)
     once = xla_cache.once_options(platform)
-    evaluate = functools.partial(ppo.evaluate_from, trainer.parts) if ppo.resets_shared(trainer.parts) else trainer.evaluate
-    return jax.jit(sub_batched(jax.vmap(evaluate), run_batch), compiler_options=once)
+    return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch), compiler_options=once)
 
 
 def pad_runs(runs: list, multiple: int, at_least: int = 0) -> list:
@@ -185,46 +136,53 @@ def stacked_inputs(group: GroupRuns, place: Callable) -> tuple:
     return keys, hps
 
 
-class CompiledGroup(NamedTuple):
-    """compile_group's result: the runs' initial states, the compiled run(states, hps) -> (states, metrics [R, chunk]),
-    the stacked hyperparameters, place (onto the group's devices), how the training program was had (compiled,
-    loaded, reused), and the compiled init and its trainer (compile_group_evaluate shares the init's reset)."""
-
-    states: Any
-    run: Callable
-    hps: Hparams
-    place: Callable
-    how: str
-    init: RunInit
-    trainer: Any
-
-
-def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = None, log: Callable = print) -> CompiledGroup:
+def compile_group(shape: GroupShape, group: GroupRuns, share: "tuple | None" = None, log: Callable = print) -> tuple:
     """The group program for `group`, compiled, and its initial state.
     share: None, or (mark_dir, leader) to compile once for all worker processes (xla_cache.compile_with;
-    inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process)."""
+    inside xla_cache.enabled(...) or after xla_cache.enable(...), with the same cache for every process).
+    Returns (states, run, hps, place, how): run(states, hps) -> (states, metrics [R, chunk])."""
     how = ["reused (compiled earlier in this process)"]
 
     def build():
-        trainer, init, run, place = make_group_program(shape.cfg, shape.chunk, list(shape.devices), shape.run_batch)
+        _, init, run, place = make_group_program(shape.cfg, shape.chunk, list(shape.devices), shape.run_batch)
         keys, hps = stacked_inputs(group, place)
-        init = compile_group_init(init, keys, hps, share, log)
+        init, _ = xla_cache.compile_with(init.lower(keys, hps), share, log)
         run, how[0] = xla_cache.compile_with(run.lower(init(keys, hps), hps), share, log)
-        return trainer, init, run, place
+        return init, run, place
 
-    trainer, init, run, place = cached("group", (shape, len(group.runs)), build)
+    init, run, place = cached("group", (shape, len(group.runs)), build)
     keys, hps = stacked_inputs(group, place)
-    return CompiledGroup(init(keys, hps), run, hps, place, how[0], init, trainer)
+    return init(keys, hps), run, hps, place, how[0]
 
 
-def compile_group_init(init: RunInit, keys: jax.Array, hps: Hparams, share: "tuple | None", log: Callable) -> RunInit:
-    """init with its programs compiled (xla_cache.compile_with) for these keys and hyperparameters."""
-    if init.reset is None:
-        return RunInit(xla_cache.compile_with(init.rest.lower(keys, hps), share, log)[0])
-    starts = init.keys_of(keys)
-    reset = xla_cache.compile_with(init.reset.lower(starts), share, log)[0]
-    rest = xla_cache.compile_with(init.rest.lower(keys, hps, reset(starts)), share, log)[0]
-    return RunInit(rest, reset, init.keys_of)
+class RunInit(NamedTuple):
+    """A single run's init, jitted: init(key, hp) -> state. rest alone is ppo.init_state; where the evaluation env is
+    the training env without the auto-reset (ppo.resets_shared), reset is that env's reset over N = max(num_envs,
+    eval_envs) keys, shared with the evaluation (RunEvaluation), keys_of gives the run's training keys
+    (ppo.start_keys), and rest is ppo.init_from_starts: (key, hp, starts) -> state."""
+
+    rest: Callable
+    reset: "Callable | None" = None
+    keys_of: "Callable | None" = None
+
+    def __call__(self, key: jax.Array, hp: Hparams) -> Any:
+        if self.reset is None:
+            return self.rest(key, hp)
+        return self.rest(key, hp, self.reset(self.keys_of(key)))
+
+
+class RunEvaluation(NamedTuple):
+    """A single run's evaluation (params, obs_stats, hp, key) -> (mean return, failed episodes): rest alone is
+    ppo.evaluate; with a reset shared with init (RunInit), rest is ppo.evaluate_from, from reset(keys_of(key))."""
+
+    rest: Callable
+    reset: "Callable | None" = None
+    keys_of: "Callable | None" = None
+
+    def __call__(self, params: dict, obs_stats: dict, hp: Hparams, key: jax.Array) -> tuple:
+        if self.reset is None:
+            return self.rest(params, obs_stats, hp, key)
+        return self.rest(params, obs_stats, hp, self.reset(self.keys_of(key)))
 
 
 def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
@@ -306,28 +264,22 @@ def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: i
     return Program(1, state, hp, run, evaluate_state, lambda tree: tree), trainer
 
 
-def compile_group_evaluate(shape: GroupShape, compiled: CompiledGroup, share: "tuple | None" = None,
+def compile_group_evaluate(shape: GroupShape, states: Any, hps: Hparams, place: Callable, share: "tuple | None" = None,
                            log: Callable = print) -> Callable:
     """The compiled evaluation of a group's runs: (states, hps, key) -> ([R] mean deterministic returns,
-    [R] failed episodes), every run from the same eval_envs start states (drawn from `key`); where the group's
-    init shares its reset (RunInit.reset), from that reset's states (ppo.start_keys pads the keys)."""
-    states, hps, place, init, p = compiled.states, compiled.hps, compiled.place, compiled.init, compiled.trainer.parts
+    [R] failed episodes), every run from the same eval_envs start states (drawn from `key`)."""
     runs = jax.tree.leaves(hps)[0].shape[0]
 
-    def starts_of(key, keys_of):
-        keys = place(jnp.stack([key] * runs))
-        return keys if init.reset is None else init.reset(keys_of(keys))
-
     def build():
-        keys_of = jax.jit(jax.vmap(lambda key: ppo.start_keys(p, key, p.cfg.eval_envs)))
-        evaluate = make_group_evaluate(compiled.trainer, shape.run_batch, shape.devices[0].platform)
-        lowered = evaluate.lower(states.params, states.obs_stats, hps, starts_of(jax.random.PRNGKey(0), keys_of))
-        return xla_cache.compile_with(lowered, share, log)[0], keys_of
+        keys = place(jnp.stack([jax.random.PRNGKey(0)] * runs))
+        evaluate = make_group_evaluate(shape.cfg, shape.run_batch, shape.devices[0].platform)
+        lowered = evaluate.lower(states.params, states.obs_stats, hps, keys)
+        return xla_cache.compile_with(lowered, share, log)[0]
 
-    program, keys_of = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs), build)
+    compiled = cached("group_evaluate", (shape.cfg, shape.devices, shape.run_batch, runs), build)
 
     def evaluate(st, h, key):
-        return program(st.params, st.obs_stats, h, starts_of(key, keys_of))
+        return compiled(st.params, st.obs_stats, h, place(jnp.stack([key] * runs)))
 
     return evaluate
 
@@ -336,11 +288,10 @@ def group_program(shape: GroupShape, group: GroupRuns, eval_seed: "int | None" =
                   log: Callable = print) -> Program:
     """compile_group as a driver Program of len(group.runs) (padded) runs; with an eval_seed, its deterministic
     evaluation after iteration `it` starts every run's episodes from fold_in(PRNGKey(eval_seed), it)."""
-    compiled = compile_group(shape, group, share, log)
+    states, run, hps, place, how = compile_group(shape, group, share, log)
     evaluate = None
     if eval_seed is not None:
-        group_eval = compile_group_evaluate(shape, compiled, share, log)
+        group_eval = compile_group_evaluate(shape, states, hps, place, share, log)
         base = jax.random.PRNGKey(eval_seed)
         evaluate = lambda st, h, it: group_eval(st, h, jax.random.fold_in(base, it))  # noqa: E731
-    return Program(len(group.runs), compiled.states, compiled.hps, compiled.run, evaluate, compiled.place,
-                   how=compiled.how)
+    return Program(len(group.runs), states, hps, run, evaluate, place, how=how)
