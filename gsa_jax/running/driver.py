@@ -172,7 +172,7 @@ def interrupts_noted() -> Iterator[dict]:
 
 
 def chunk_loop(program: Program, store: Any, plan: Plan, metrics: dict, loop: dict, log: Callable,
-               heartbeat: "Callable | None", noted: "dict | None" = None) -> str:
+               heartbeat: "Callable | None", noted: dict) -> str:
     """Chunks until done, stopped as asked, or every run failed; returns the status. Raises KeyboardInterrupt
     after a chunk is saved where noted['sigint'] is set (interrupts_noted)."""
     while loop["done"] < plan.iterations:
@@ -181,7 +181,7 @@ def chunk_loop(program: Program, store: Any, plan: Plan, metrics: dict, loop: di
         done = record_chunk(program, plan, metrics, loop, m)
         store.save(loop["state"], metrics, done)
         loop["intact"] = done
-        if noted and noted["sigint"]:
+        if noted["sigint"]:
             raise KeyboardInterrupt
         if heartbeat:
             heartbeat(time.perf_counter() - tc)
