@@ -332,6 +332,7 @@ def _validate(task, where):
         v = getattr(task, field)
         if v is not None and np.ndim(v) > 0 and np.shape(v) != (size,):
             raise TaskError(f"{where}: {field} has shape {np.shape(v)}; use a scalar or [{size}]")
+    check_hold_fields(task, where)
     for field in ("qpos_noise", "qvel_noise"):
         if getattr(task, field) not in ("uniform", "normal"):
             raise TaskError(f"{where}: {field} must be 'uniform' or 'normal', got {getattr(task, field)!r}")
@@ -362,6 +363,29 @@ def _validate(task, where):
 
 
 KINDS = {"f": "a float array", "b": "a bool array (e.g. a comparison, or xp.zeros(n, bool))"}
+
+
+def check_hold_fields(task: Task, where: str) -> None:
+    """TaskError (one line) unless equilibrium_qpos is None or nq finite numbers and convergence_tolerance None, one
+    number > 0 or 2 nv of them: what gsa verify reads, checked where every command first loads the task."""
+    m, q = task.model, task.equilibrium_qpos
+    if q is not None and (np.shape(q) != (m.nq,) or not np.all(np.isfinite(np.asarray(q, np.float64)))):
+        raise TaskError(f"{where}: equilibrium_qpos has shape {np.shape(q)}; it is the qpos held, nq = {m.nq} finite "
+                        f"numbers (qpos: {', '.join(joint_names(m)) or 'none'}), or None")
+    tol = task.convergence_tolerance
+    if tol is not None and (np.shape(tol) not in ((), (2 * m.nv,)) or not np.all(np.asarray(tol, np.float64) > 0)):
+        raise TaskError(f"{where}: convergence_tolerance has shape {np.shape(tol)}; give one number > 0 or 2 nv = "
+                        f"{2 * m.nv} of them (positions, then velocities), or None")
+
+
+def joint_names(m: mujoco.MjModel) -> list:
+    """Each joint's name with the qpos entries it holds ('slider', 'hinge', 'free (7)'), in qpos order."""
+    widths = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4}
+    out = []
+    for j in range(m.njnt):
+        width, name = widths.get(int(m.jnt_type[j]), 1), m.joint(j).name or f"joint {j}"
+        out.append(name if width == 1 else f"{name} ({width})")
+    return out
 
 
 def check_rows(where: str, function: str, what: str, value: Any, ndim: int, kind: str = "f") -> np.ndarray:

@@ -6,7 +6,8 @@ Exit status: 0 done, 2 bad input (one line on stderr, `gsa COMMAND: error: ...`)
 own further statuses are in its --help."""
 
 import argparse
-import importlib
+import ast
+import importlib.util
 import json
 import os
 import sys
@@ -23,10 +24,40 @@ COMMANDS = {  # command -> its module under gsa_jax.commands
 
 
 class CommandParser(argparse.ArgumentParser):
-    """An argument parser whose errors are one UserError line (argparse prints its usage block otherwise)."""
+    """An argument parser whose errors are one UserError line (argparse prints its usage block otherwise), and which
+    checks the output paths it parsed (`outputs`: the dests of the options naming what the command writes) with
+    check_output, so every command that writes follows one rule before it loads or compiles anything. A command that
+    runs JAX programs sets `runs_jax`: a command line parsed (not --help, which exits first) then loads from a
+    compilation cache the user set (JAX_COMPILATION_CACHE_DIR) quietly (gsa_jax.running.xla_cache; the command
+    imports JAX itself only past its parser, so that --help loads no JAX)."""
+
+    outputs: tuple = ("out",)
+    runs_jax: bool = False
 
     def error(self, message: str) -> None:
         raise UserError(f"{message} (see {self.prog} --help)")
+
+    def parse_known_args(self, args: "list | None" = None, namespace: "argparse.Namespace | None" = None) -> tuple:
+        parsed, rest = super().parse_known_args(args, namespace)
+        for dest in self.outputs:  # as typed: a default (runs/...) is the command's own to create
+            if getattr(parsed, dest, None) != self.get_default(dest):
+                check_output(getattr(parsed, dest, None), "--" + dest.replace("_", "-"))
+        if self.runs_jax and os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+            from gsa_jax.running import xla_cache
+
+            xla_cache.quiet_cache_loads()
+        return parsed, rest
+
+
+def check_output(path: str | None, flag: str) -> None:
+    """UserError (one line) where an output path typed on a command line lies in a folder that does not exist: a
+    command creates its output's last part only, never a mistyped tree of folders (at the root, say)."""
+    if path is None:
+        return
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise UserError(f"{flag} {path!r} is in a folder that does not exist ({parent}); create it first or choose "
+                        "another")
 
 
 def whole_number(text: str) -> int:
@@ -83,13 +114,7 @@ def disk_full(e: OSError, intact: str) -> UserError:
 
 def run_command(name: str, body: Callable[[], int]) -> int:
     """Run a command's body and return its exit status: a UserError is one line on stderr and its status, an
-    interrupt 130. A command that runs JAX (the ones that import it) loads from a compilation cache the user set
-    (JAX_COMPILATION_CACHE_DIR) quietly (gsa_jax.running.xla_cache; one that enables a cache itself does so there);
-    the others do not import JAX."""
-    if os.environ.get("JAX_COMPILATION_CACHE_DIR") and "jax" in sys.modules:
-        from gsa_jax.running import xla_cache
-
-        xla_cache.quiet_cache_loads()
+    interrupt 130."""
     try:
         return body()
     except UserError as e:
@@ -102,10 +127,12 @@ def run_command(name: str, body: Callable[[], int]) -> int:
 
 def summary_line(name: str) -> str:
     """A command's line in `gsa --help`: its module docstring's opening words, up to its usage in parentheses or
-    the first sentence's end."""
+    the first sentence's end. The docstring is read from the module's source, not imported: `gsa --help` loads no
+    command (their imports are JAX's, MuJoCo's, ...)."""
     from gsa_jax.running.runinfo import cli_description
 
-    text = cli_description(importlib.import_module(f"gsa_jax.commands.{COMMANDS[name]}").__doc__)
+    with open(importlib.util.find_spec(f"gsa_jax.commands.{COMMANDS[name]}").origin, encoding="utf-8") as f:
+        text = cli_description(ast.get_docstring(ast.parse(f.read()), clean=False))
     for stop in (" (`gsa ", ". ", ": "):
         text = text.split(stop)[0]
     return text.rstrip(".")

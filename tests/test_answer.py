@@ -21,7 +21,7 @@ def synthetic_trainer(truth):
     decisions are then tested against known truth without training."""
     calls = []
 
-    def run(out, name, spec, log, where="results", runs_per_program=0):
+    def run(out, name, spec, log, where="results", runs_per_program=0, watch=None):
         calls.append((name, spec.get("clusters", []), list(spec["seeds"])))
         results = os.path.join(out, where, name)
         os.makedirs(os.path.join(results, "controllers"), exist_ok=True)
@@ -337,3 +337,65 @@ def test_a_baseline_that_fell_over_its_last_fifth_is_flagged_in_the_report():
 
     assert falling_text({"gain": -0.215, "upper": -0.136}, 0.1)[0].startswith("- **Flat PPO fell back")
     assert falling_text({"gain": -0.05, "upper": 0.02}, 0.1) == []  # stopped, not shown falling
+
+
+def test_one_progress_line_for_the_whole_answer_from_every_workers_chunk_lines():
+    """answer_progress.watch: the workers' chunk lines become the answer's line (a group as far as its slowest
+    process, the sweep's parts summed), at most one per 30 s and one at the sweep's end; other lines print nothing."""
+    from gsa_jax.analysis.verdicts.answer_progress import Where, watch
+
+    where = Where("round 2, sweep 2 of 2 (K=1,2 seeds 10-19)", "round 2", 2, 20, 30, 10, 600.0, 100.0, 0.0, 3600.0)
+    times, lines = iter([0.0, 10.0, 20.0, 30.0, 45.0, 50.0]), []
+    feed = watch(where, lines.append, clock=lambda: next(times))
+    feed("[process 0] [task/mixture] it 5/10 | 900 env-steps/s | ETA 0m10s | return best 1.0 median 1.0 | chunk 1.0s")
+    feed("[process 1] [task/mixture] it 2/10 | 900 env-steps/s | ETA 0m20s | return best 1.0 median 1.0 | chunk 1.0s")
+    feed("[process 0] [task/mixture] program compiled in 3.0s (3.0s)")
+    feed("[process 0] [task/mixture-part2] it 10/10 | 900 env-steps/s | ETA 0m00s | return best 1.0 median 1.0 | chunk 1.0s")
+    feed(None)
+    head = "answer: round 2, sweep 2 of 2 (K=1,2 seeds 10-19) "
+    assert lines == [head + "25% | runs 15/30 | elapsed 10m10s | ~0m30s left in round 2 | budget left 49m50s",
+                     head + "60% | runs 22/30 | elapsed 10m45s | ~0m30s left in round 2 | budget left 49m15s",
+                     head + "100% | runs 30/30 | elapsed 10m50s | ~0m00s left in round 2 | budget left 49m10s"]
+
+
+def test_the_answer_loop_prints_where_each_sweep_is(tmp_path):
+    """run_answer hands each sweep a watch that names its round, its place among the round's sweeps and their runs."""
+    run, _ = synthetic_trainer(TRUTH)
+
+    def talking(out, name, spec, log, where="results", runs_per_program=0, watch=None):
+        watch("[task/x] it 1/2 | ...")
+        watch(None)
+        return run(out, name, spec, log, where, runs_per_program)
+
+    lines = []
+    A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lines.append, train=talking)
+    ours = [line.split(" 100% |")[0] for line in lines if " 100% | runs" in line]
+    assert ours[:2] == ["answer: round 1, sweep 1 of 2 (flat PPO seeds 0-9)", "answer: round 1, sweep 2 of 2 (K=1,2,4 seeds 0-9)"]
+    assert ours[0] + " 50% | runs 5/40 |" in "\n".join(lines)  # its one part half done
+    assert ours[1] + " 17% | runs 15/40 |" in "\n".join(lines)  # 10 runs before it, a sixth of its 3 parts' 30
+
+
+def test_ctrl_c_in_an_answer_prints_the_command_that_resumes_it(tmp_path, monkeypatch, capsys):
+    from gsa_jax.commands import answer as command
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(command, "run_answer", stopped)
+    monkeypatch.chdir(tmp_path)
+    assert command.main(["--env", "InvertedDoublePendulum-v5", "--clusters", "1,2"]) == 130
+    err = capsys.readouterr().err
+    assert "gsa answer: interrupted;" in err and err.rstrip().endswith(
+        "answer --env InvertedDoublePendulum-v5 --clusters 1,2 --out runs/answers/InvertedDoublePendulum-v5)"), err
+
+
+def test_an_undecided_answer_names_the_command_to_run_next():
+    """More minutes resume the answer (the same design); a higher seed cap is a new answer in its own folder."""
+    from gsa_jax.commands.answer import next_steps
+
+    argv, setup = ["--env", "task", "--budget-minutes=30"], synthetic_setup()
+    [line] = next_steps(argv, "runs/answers/task", setup, {"stopped": "budget (30 min; 29.0 used)", "budget_s": 1800.0})
+    assert "answer --env task --out runs/answers/task --budget-minutes 60   (resumes it" in line, line
+    [line] = next_steps(argv + ["--out", "o", "--looks", "10,20,40"], "o", setup, {"stopped": "seed cap (40 seeds per cell)"})
+    assert "answer --env task --budget-minutes=30 --looks 10,20,40,80 --out o-more-seeds   (a seed cap of 80" in line, line
+    assert next_steps(argv, "o", setup, {"stopped": "decided"}) == []

@@ -1,5 +1,6 @@
-"""`gsa`: one entry point lists every command; each command's --help and its `python -m gsa_jax.X` shim work; a bad
-option of any command is one line and exit status 2; counts are written as people write them (1e6)."""
+"""`gsa`: one entry point lists every command; each command's --help and its `python -m gsa_jax.X` shim work, every
+option has a help text, and no help loads JAX, MuJoCo or Matplotlib; a bad option of any command is one line and exit
+status 2; counts are written as people write them (1e6)."""
 
 import argparse
 import importlib
@@ -45,6 +46,36 @@ def test_every_command_has_help(name, capsys):
         cli.main([name, "--help"])
     assert stop.value.code == 0
     assert capsys.readouterr().out.startswith(f"usage: gsa {name} ")
+
+
+def test_every_option_of_every_command_has_a_help_text():
+    """Each command's parser (the module's build_parser, as `gsa NAME` builds it): every option but -h says what it
+    does (a worker-only option hidden with argparse.SUPPRESS counts as said), and the help formats (%(default)s)."""
+    missing = []
+    for name, module in COMMANDS.items():
+        parser = importlib.import_module(f"gsa_jax.commands.{module}").build_parser()
+        parser.format_help()
+        missing += [f"gsa {name} {'/'.join(a.option_strings) or a.dest}" for a in parser._actions
+                    if not isinstance(a, argparse._HelpAction) and not (a.help or "").strip()]
+    assert not missing, f"options without a help text: {', '.join(missing)}"
+
+
+def test_no_help_loads_jax_mujoco_or_matplotlib():
+    """`gsa --help` and every `gsa COMMAND --help`, in one fresh process: none of them imports JAX, MuJoCo, Matplotlib,
+    SciPy or Brax (a command imports them past its parser), and each exits 0."""
+    code = ("import contextlib, io, sys\nfrom gsa_jax import cli\nstatus = {}\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    status['gsa'] = cli.main(['--help'])\n"
+            "    for name in cli.COMMANDS:\n"
+            "        try:\n"
+            "            cli.main([name, '--help'])\n"
+            "        except SystemExit as stop:\n"
+            "            status[name] = stop.code\n"
+            "print([m for m in ('jax', 'mujoco', 'matplotlib', 'scipy', 'brax') if m in sys.modules],"
+            " {k: v for k, v in status.items() if v != 0}, len(status))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["[]", "{}", str(len(COMMANDS) + 1)], done.stdout
 
 
 @pytest.mark.parametrize("name", sorted(COMMANDS))
@@ -136,3 +167,17 @@ def test_render_says_in_one_line_what_mujocos_renderer_refuses(monkeypatch, tmp_
     assert render.main(["inverted_double_pendulum", "--out", str(tmp_path / "x.png"), "--camera", "nosuch"]) == 2
     err = capsys.readouterr().err
     assert err == "gsa render: error: The camera 'nosuch' does not exist.\n"
+
+
+def test_train_on_a_cpu_names_the_faster_physics_where_the_task_has_it(capsys):
+    """MJX stays the default backend; on a CPU, for a task MuJoCo C steps, gsa train says --physics c is the fast
+    path (and nothing for a task MuJoCo C does not step, or for the C backend itself)."""
+    from envs.physics import Physics
+    from gsa_jax.algorithm.config import Config
+    from gsa_jax.commands.train import note_physics
+
+    note_physics(Config(env="Hopper-v5"))
+    assert "--physics c steps this task in MuJoCo C" in capsys.readouterr().err
+    for cfg in (Config(env="inverted_double_pendulum"), Config(env="Hopper-v5", physics=Physics(backend="c"))):
+        note_physics(cfg)
+        assert capsys.readouterr().err == ""

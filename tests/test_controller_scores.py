@@ -24,18 +24,20 @@ def one_controller(tmp_path):
 
 
 def test_controller_score_is_deploys_return_from_the_same_starts(one_controller, tmp_path):
+    """gsa score and gsa deploy without seed options score the same starts (the selection starts,
+    gsa_jax.deployment.starts): the same number."""
     from gsa_jax.deploy import main as deploy
+    from gsa_jax.deployment import starts
     from gsa_jax.score import main as score
 
-    assert score([str(one_controller), "--episodes", "3"]) == 0
+    assert score([str(one_controller)]) == 0
     rows = cs.read_scores(str(one_controller / cs.FILE))
     assert set(rows) == {"InvertedDoublePendulum-v5-mixture-K2-s3", "InvertedDoublePendulum-v5-mlp-s1"}
     for label, row in rows.items():
         out = tmp_path / f"{label}.json"
-        assert deploy([str(one_controller / "controllers" / f"{label}.npz"), "--episodes", "3", "--seed", str(cs.START_SEED),
-                       "--out", str(out)]) == 0
+        assert deploy([str(one_controller / "controllers" / f"{label}.npz"), "--out", str(out)]) == 0
         assert float(row["controller_score"]) == pytest.approx(json.loads(out.read_text())["mujoco_c"]["return_mean"], abs=1e-4)
-        assert row["episodes"] == "3" and row["start_seed"] == str(cs.START_SEED)
+        assert row["episodes"] == str(starts.SELECTION_EPISODES) and row["start_seed"] == str(starts.SELECTION_SEED)
     assert rows["InvertedDoublePendulum-v5-mixture-K2-s3"]["K"] == "2" and rows["InvertedDoublePendulum-v5-mixture-K2-s3"]["seed"] == "3"
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import answering as A
-from gsa_jax.analysis.verdicts import step_budget
+from gsa_jax.analysis.verdicts import step_budget, verdict
 from tests.test_answer import random_policy
 
 KNEE = 100_000  # flat PPO's return rises linearly to its plateau at this step, whatever the budget it trains to
@@ -87,7 +87,7 @@ def write_sweep(results: str, policy: str, ks: list, seeds: list, steps: int) ->
 def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
     calls = []
 
-    def train(out, name, spec, log, where="results", runs_per_program=0):
+    def train(out, name, spec, log, where="results", runs_per_program=0, watch=None):
         calls.append((name, spec["steps"], spec.get("clusters", []), runs_per_program))
         write_sweep(os.path.join(out, where, name), spec["policies"][0], spec.get("clusters", []), spec["seeds"],
                     spec["steps"])
@@ -109,7 +109,13 @@ def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
     from gsa_jax.commands.answer import finish
 
     sentence = finish(str(tmp_path), setup, state, ["--env", ENV])
-    assert f"K = {SLOW_K} still learned" in sentence and "still learning" in (tmp_path / "report.md").read_text()
+    # K = 1 suffices: the slow K above it cannot change the answer, so the sentence does not name it; the report does
+    assert verdict.smallest_sufficient({int(k): r["verdict"] for k, r in state["judged"].items()})[0] == 1
+    assert "still" not in sentence and f"K = {SLOW_K}: last fifth" in (tmp_path / "report.md").read_text()
+    assert "**still learning**" in (tmp_path / "report.md").read_text()
+    state["judged"]["1"]["verdict"] = verdict.INSUFFICIENT  # were K = 1 not sufficient, the slow K could decide it
+    assert (f"The training returns of K = {SLOW_K} were still rising at {second:,} steps: a longer --steps may change "
+            "its verdict.") in finish(str(tmp_path), setup, state, ["--env", ENV])
 
 
 def test_a_sweep_is_estimated_from_the_line_through_the_last_two():

@@ -13,6 +13,8 @@ from gsa_jax.algorithm.ppo import make_train
 
 CHUNK = 10
 LEARN_ITERS = 30  # 30 x 2048 = 61,440 env steps
+EVAL_HORIZON = 40  # steps of an evaluation compared across compilations (2 s of the double pendulum)
+ALIVE_REWARD = 9.0  # at least this per step while both poles are up (at most ~9.36)
 
 
 def compiled(cfg):
@@ -112,7 +114,13 @@ def test_run_once_options_hold_level_1_at_least_and_only_on_the_cpu(monkeypatch)
 def test_init_and_evaluation_compiled_as_run_once_programs_compute_what_the_default_does(mixture4, mixture_runs):
     """init and the evaluation compile with XLA:CPU's older fusion code generation (xla_cache.once_options, at level
     1 where the suite compiles the rest at 0): the same initial state and, from a trained controller's 61k steps,
-    the same deterministic evaluation as XLA's default code generation at that level, to float rounding."""
+    the same deterministic evaluation as XLA's default code generation at that level, to float rounding. The two
+    code generations round differently, and the double pendulum amplifies a rounding difference until an episode
+    ends a step or more apart (on an AVX2 CPU 1,496 against 1,571 over whole episodes): the evaluation is compared
+    over EVAL_HORIZON steps, within which every episode is still up (no end to move) and rounding stays at float
+    precision (measured: equal bits here, 3e-7 apart at 100 steps with XLA_FLAGS=--xla_cpu_max_isa=AVX2)."""
+    import dataclasses
+
     from gsa_jax.running import xla_cache
 
     tr, _, _ = mixture4
@@ -125,10 +133,10 @@ def test_init_and_evaluation_compiled_as_run_once_programs_compute_what_the_defa
     for a, b in zip(jax.tree.leaves(by_default), jax.tree.leaves(by_once)):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
     args = (state.params, state.obs_stats, hp, jax.random.PRNGKey(3))
-    by_default, by_once = (jax.jit(tr.evaluate, compiler_options=o)(*args) for o in (default, once))
-    assert float(by_default[0]) > 350  # episodes long enough for rounding to build up
-    # rounding moves an episode's end by a step or so: the tolerance of tests/golden_runs.py (RTOL) across builds
-    np.testing.assert_allclose(float(by_once[0]), float(by_default[0]), rtol=1e-3)
+    short = make_train(dataclasses.replace(tr.cfg, episode_length=EVAL_HORIZON))
+    by_default, by_once = (jax.jit(short.evaluate, compiler_options=o)(*args) for o in (default, once))
+    assert float(by_default[0]) > 0.9 * ALIVE_REWARD * EVAL_HORIZON  # every episode up through the horizon
+    np.testing.assert_allclose(float(by_once[0]), float(by_default[0]), rtol=1e-5)
     assert int(by_once[1]) == int(by_default[1]) == 0
 
 

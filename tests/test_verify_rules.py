@@ -155,7 +155,7 @@ def test_a_controller_whose_task_changed_is_refused_in_one_line_unless_forced(tm
     err = capsys.readouterr().err
     assert "changed since" in err and "--force" in err and err.count("\n") == 1, err
     assert not (tmp_path / "out").exists()
-    monkeypatch.setattr(verify_command, "QUICK", TINY._replace(nominal_episodes=2, roa_directions=2))
+    monkeypatch.setattr(analysis, "QUICK", TINY._replace(nominal_episodes=2, roa_directions=2))
     assert verify_command.main([path, "--quick", "--force", "--out", str(tmp_path / "out")]) == 0
     assert json.load(open(tmp_path / "out" / "verify.json"))["env"] == f"{mine}:PointMass"
 

@@ -98,6 +98,9 @@ BAD = {
                                              "shape () (float64)"),
     "nan_reward": ("FILE:NanReward", "outcome() returned the reward [nan] at the first state under zero action"),
     "file_without_class": ("FILE", "name the task class it defines, 'path/file.py:Class' or 'module:Class'"),
+    "equilibrium_size": ("FILE:WrongEquilibrium", "equilibrium_qpos has shape (2,); it is the qpos held, nq = 4 finite "
+                                                  "numbers (qpos: "),
+    "tolerance_size": ("FILE:WrongTolerance", "convergence_tolerance has shape (3,); give one number > 0 or 2 nv = 8"),
 }
 BAD_TASKS = '''
 import numpy as np
@@ -163,6 +166,12 @@ class NanReward(Reacher):
         obs, reward, terminated = super().outcome(before, qpos, qvel, derived, action, xp)
         return obs, reward * xp.nan, terminated
 
+class WrongEquilibrium(Reacher):
+    equilibrium_qpos = (0.0, 0.0)
+
+class WrongTolerance(Reacher):
+    convergence_tolerance = (0.1, 0.1, 0.1)
+
 class ScalarReward(Reacher):
     def outcome(self, before, qpos, qvel, derived, action, xp=np):
         obs, reward, terminated = super().outcome(before, qpos, qvel, derived, action, xp)
@@ -181,6 +190,28 @@ def test_a_bad_task_definition_is_one_line_before_anything_compiles(case, tmp_pa
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and message in err, err
     assert not (tmp_path / "run" / "config.json").exists()
+
+
+def test_a_wrong_size_equilibrium_is_one_line_in_answer_and_verify_too(tmp_path, capsys):
+    """The task train refuses (BAD's equilibrium_size) is refused by gsa answer before anything trains and by gsa
+    verify for a controller that names it, each in one line (exit 2): the check is where every command loads a task."""
+    from gsa_jax.commands.answer import main as answer_main
+    from gsa_jax.commands.verify import main as verify_main
+
+    (tmp_path / "bad_tasks.py").write_text(BAD_TASKS)
+    name = f"{tmp_path / 'bad_tasks.py'}:WrongEquilibrium"
+    ctrl = "experiments/your_task_reacher/results/controllers/examples.reacher.Reacher-mixture-K1-s3.npz"
+    with np.load(ctrl) as f:
+        arrays = {k: f[k] for k in f.files}
+    meta = json.loads(str(arrays["config_json"]))
+    meta["config"]["env"] = name
+    np.savez(tmp_path / "c.npz", **{**arrays, "config_json": np.array(json.dumps(meta)), "task": np.array(name)})
+    for main, argv in ((answer_main, ["--env", name, "--out", str(tmp_path / "answer")]),
+                       (verify_main, [str(tmp_path / "c.npz"), "--quick", "--out", str(tmp_path / "verify")])):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "equilibrium_qpos has shape (2,)" in err, err
+    assert not (tmp_path / "answer" / "answer.json").exists() and not (tmp_path / "verify").exists()
 
 
 def test_register_names_a_task_for_library_users():

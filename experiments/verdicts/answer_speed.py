@@ -45,7 +45,7 @@ def pool(env, dirs):
 
 def replay_trainer(env, scores):
     """A round's 'training' that writes the planned runs' committed scores (NotTrained where one is missing)."""
-    def train(out, name, spec, log):
+    def train(out, name, spec, log, **options):
         rows = {}
         for k in spec.get("clusters") or [A.FLAT]:
             for seed in spec["seeds"]:

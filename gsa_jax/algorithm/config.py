@@ -13,16 +13,13 @@ import re
 import typing
 from typing import Any, NamedTuple
 
-import jax.numpy as jnp
-
 import envs
 from envs.families.record import TaskRecord
 from envs.physics import Physics, make_physics, nest_physics
 from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm import partitions, subpolicies
-from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
-from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
-from gsa_jax.algorithm.retrace import VALUE_TARGETS
+from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS, VALUE_TARGETS
+from gsa_jax.algorithm.subpolicies import SUBPOLICY_KINDS
 
 
 def _flag(value: Any, /, *names: str, **keywords: Any) -> Any:
@@ -38,10 +35,12 @@ class Config:
     names its command-line option (CONFIG_OPTIONS)."""
 
     env: str = _flag("inverted_double_pendulum", "--env", help=(
-        f"one of: {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' or 'path/file.py:Class'; or "
+        f"the task (default %(default)s): one of {', '.join(envs.NAMES)}; a task definition of yours, 'module:Class' "
+        "or 'path/file.py:Class'; or "
         "another library's environment: 'brax:<name>' (Brax's registry) or 'playground:<Name>' (MuJoCo Playground's "
         "registry) (docs/your_task.md)"))
-    policy: str = _flag(MIXTURE, "--policy", help="mixture (of linear controllers) or mlp (flat PPO baseline)")
+    policy: str = _flag(MIXTURE, "--policy", help=(
+        "mixture (of linear controllers) or mlp (flat PPO baseline) (default %(default)s)"))
     # mixture sub-policy class: constant | linear | quadratic
     subpolicy: str = _flag(subpolicies.DEFAULT, "--subpolicy", help=(
         "sub-policy class of a mixture: constant (one action per cluster), linear (default), quadratic"))
@@ -50,21 +49,31 @@ class Config:
         "partition class of a mixture: mlp (the paper's tanh MLP, default) or linear (logits = W z + c on the "
         "normalized observation: polyhedral cells)"))
     k_max: int = _flag(8, "--k-max", default=None, help="pad the cluster axis to this size (default: K)")
-    num_envs: int = _flag(32, "--num-envs")
-    unroll_length: int = _flag(64, "--unroll-length")
-    num_epochs: int = _flag(10, "--epochs")
-    num_minibatches: int = _flag(32, "--minibatches")
+    num_envs: int = _flag(32, "--num-envs", help=(
+        "training environments stepped in parallel (default %(default)s); a PPO iteration collects --num-envs x "
+        "--unroll-length env steps"))
+    unroll_length: int = _flag(64, "--unroll-length", help="env steps of each environment per PPO iteration "
+                               "(default %(default)s)")
+    num_epochs: int = _flag(10, "--epochs", help="passes of PPO updates over each iteration's samples "
+                            "(default %(default)s)")
+    num_minibatches: int = _flag(32, "--minibatches", help=(
+        "minibatches (Adam steps) per epoch, each of --num-envs x --unroll-length / N samples; N must divide that "
+        "product (default %(default)s)"))
     hidden: tuple = (64, 64)
     # None: the task's own (envs.default_episode_length)
     episode_length: int | None = _flag(None, "--episode-length", help="time limit in steps (default: the task's own)")
     # where an ended training episode restarts: "first" (the env's first start state, Brax's convention) or
     # "fresh" (a new draw of the task's start law, as gymnasium and dm_control reset; envs/wrappers.py)
     reset_mode: str = _flag("first", "--reset-mode", choices=envs.RESET_MODES, help=(
-        "first: an ended episode restarts from its env's first start (Brax's); fresh: a new draw"))
+        "first: an ended episode restarts from its env's first start (Brax's); fresh: a new draw of the task's "
+        "start states (default %(default)s)"))
     normalize_obs: bool = True
-    normalize_reward: bool = _flag(True, "--no-normalize-reward", help="train on raw rewards")
-    b_init_scale: float = _flag(1.0, "--b-init-scale", help="initial biases spread over [-s, s]^d_a")
-    eval_envs: int = _flag(16, "--eval-envs")
+    normalize_reward: bool = _flag(True, "--no-normalize-reward", help=(
+        "train on raw rewards (default: rewards divided by the running std of the discounted return)"))
+    b_init_scale: float = _flag(1.0, "--b-init-scale", help=(
+        "a mixture's initial biases b_c spread over [-s, s]^d_a, in action units (default %(default)s)"))
+    eval_envs: int = _flag(16, "--eval-envs", help=(
+        "episodes of each deterministic evaluation, from random start states (default %(default)s)"))
     # the value function's targets: "gae" (GAE(lambda) on the iteration's own samples) or "retrace"
     # (the paper's critic: Retrace over the samples of the last retrace_iterations iterations, gsa_jax/algorithm/retrace.py)
     value_target: str = _flag("gae", "--value-target", help=(
@@ -197,16 +206,37 @@ class Hparams(NamedTuple):
 
 
 HPARAM_DEFAULTS = Hparams()._asdict()
+# the help of the Hparams options spelled --<field name>
+_HPARAM_HELP = {
+    "lr": "Adam's learning rate (default %(default)s; it decays linearly to 0 over the run unless --no-anneal-lr)",
+    "gamma": "discount factor per env step (default %(default)s)",
+    "gae_lambda": "the lambda of GAE's (and Retrace's) targets (default %(default)s)",
+    "vf_coef": "weight of the value loss in PPO's loss (default %(default)s)",
+    "max_grad_norm": "the gradients are clipped to this global norm before each Adam step (default %(default)s)",
+    "eps_init": ("a mixture's exploration of its partition at the first iteration: the share of the cluster "
+                 "probabilities spread uniformly over the K clusters (default %(default)s)"),
+    "eps_decay": "--eps-init's factor per PPO iteration (default %(default)s)",
+    "sigma_min_init": ("a mixture's floor on every sub-policy's action std at the first iteration, in action units "
+                       "(default %(default)s)"),
+    "sigma_min_decay": "--sigma-min-init's factor per PPO iteration (default %(default)s)",
+    "sigma_init_scale": "a mixture's initial sub-policy std is this / K, in action units (default %(default)s)",
+    "lr_scale_partition": "a mixture's partition network learns at --lr x this (default %(default)s)",
+    "lr_scale_L": "a mixture's gains L learn at --lr x this (default %(default)s)",
+    "lr_scale_b": "a mixture's offsets b learn at --lr x this (default %(default)s)",
+    "lr_scale_log_sigma": "a mixture's sub-policy log stds learn at --lr x this (default %(default)s)",
+    "lr_scale_log_std": "flat PPO's state-independent log std learns at --lr x this (default %(default)s)",
+    "lr_scale_critic": "the value network (either policy's) learns at --lr x this (default %(default)s)",
+    "init_log_std": "flat PPO's initial log std of its actions (std = e^this, in action units; default %(default)s)",
+}
 # the command-line option of each Hparams field that has one (total_iterations follows from the steps asked for):
 # its spellings and argparse keywords, as a Config field's metadata holds them
 HPARAM_FLAGS = {
-    "K": {"flag": ("--clusters", "-K"), "help": "K, number of linear controllers (mixture)"},
-    "anneal_lr": {"flag": ("--no-anneal-lr",), "help": "keep the learning rate constant"},
-    "clip_eps": {"flag": ("--clip",)},
-    **{name: {"flag": ("--" + name.replace("_", "-"),)} for name in (
-        "lr", "gamma", "gae_lambda", "vf_coef", "max_grad_norm", "eps_init", "eps_decay", "sigma_min_init",
-        "sigma_min_decay", "sigma_init_scale", "lr_scale_partition", "lr_scale_L", "lr_scale_b", "lr_scale_log_sigma",
-        "lr_scale_log_std", "lr_scale_critic", "init_log_std")},
+    "K": {"flag": ("--clusters", "-K"), "help": "K, number of linear controllers of a mixture (default %(default)s)"},
+    "anneal_lr": {"flag": ("--no-anneal-lr",),
+                  "help": "keep the learning rate constant (default: it decays linearly to 0 over the run)"},
+    "clip_eps": {"flag": ("--clip",), "help": "PPO's clip range: the probability ratio is clipped to 1 +- this "
+                 "(default %(default)s)"},
+    **{name: {"flag": ("--" + name.replace("_", "-"),), "help": text} for name, text in _HPARAM_HELP.items()},
 }
 _INT_HPARAMS = ("K", "total_iterations")
 
@@ -217,6 +247,8 @@ def make_hparams(**overrides: Any) -> Hparams:
     unknown = set(overrides) - set(HPARAM_DEFAULTS)
     if unknown:
         raise ValueError(f"unknown hyperparameter(s) {sorted(unknown)}; known: {', '.join(HPARAM_DEFAULTS)}")
+    import jax.numpy as jnp  # here, not at the top: a command's parser reads this module's options without JAX
+
     hp = dict(HPARAM_DEFAULTS, **overrides)
     return Hparams(**{k: jnp.asarray(v, jnp.int32 if k in _INT_HPARAMS else jnp.float32) for k, v in hp.items()})
 

@@ -5,4 +5,5 @@ No JAX: the result readers and deployed controllers import it."""
 MIXTURE = "mixture"
 MLP = "mlp"
 POLICY_KINDS = (MIXTURE, MLP)
+VALUE_TARGETS = ("gae", "retrace")  # the value function's targets: GAE(lambda) or Retrace (algorithm/retrace.py)
 MIXTURE_COLUMNS = ("subpolicy", "partition")  # a mixture's own classes: the group axes of mixtures only (running/spec.py)

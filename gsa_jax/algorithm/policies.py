@@ -35,7 +35,6 @@ from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.nn import apply_mlp, init_mlp
 
-SUBPOLICY_KINDS = subpolicies.SUBPOLICIES.keys()  # the sub-policy classes' names, registered ones included
 _LOG_2PI = float(np.log(2.0 * np.pi))
 _PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79, 83, 89, 97)
 

@@ -23,7 +23,6 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-VALUE_TARGETS = ("gae", "retrace")
 FIELDS = ("raw_obs", "raw_next_obs", "action", "cluster", "logp", "reward", "term", "done")
 
 

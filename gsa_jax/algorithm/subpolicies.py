@@ -85,6 +85,7 @@ QUADRATIC = SubpolicyClass(
 
 SUBPOLICIES = {s.name: s for s in (CONSTANT, LINEAR, QUADRATIC)}  # in the order errors list them
 DEFAULT = LINEAR.name  # a mixture's class where a config or an exported file names none
+SUBPOLICY_KINDS = SUBPOLICIES.keys()  # the sub-policy classes' names, registered ones included
 
 
 def register(entry: SubpolicyClass) -> None:

@@ -13,14 +13,12 @@ import tempfile
 import time
 from typing import Callable, NamedTuple
 
-import mujoco
 import numpy as np
-from mujoco import rollout
 
 import envs
 from gsa_jax.algorithm.config import Config
 from gsa_jax.errors import UserError
-from gsa_jax.running.programs import RUN_BATCH
+from gsa_jax.running.spec import RUN_BATCH
 from gsa_jax.running.supervise import worker_env
 
 SIZES = (1, 16, 64, 256)
@@ -236,6 +234,8 @@ def measure_mujoco_c(env_name: str, batch: int = 256, steps: int = 200, repeats:
     substeps (n_frames) per env step, one MjData per thread. Models with a start keyframe (allegro)
     start there and random-walk their PD targets as the env's actions do (contacts stay active).
     solver: None (the MJCF's settings) or (iterations, ls_iterations) set on a copy of the model."""
+    import mujoco  # here, its one use: the plan's names and checks load without MuJoCo (`gsa bench --help`)
+    from mujoco import rollout
 
     base = envs.make_base(env_name)
     model = envs.mj_model(base)

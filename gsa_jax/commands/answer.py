@@ -154,11 +154,13 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
         sentence = f"{setup.env}: no answer: {state['baseline']['why']}."
     from gsa_jax.analysis.verdicts.answer_report import still_learning
 
-    learning = [k for k in still_learning(state) if verdicts.get(k) != verdict.SUFFICIENT]
-    if learning and state.get("steps", {}).get("mode") == "auto":
-        sentence += (f" At {state['steps']['budget']:,} steps K = {', '.join(map(str, learning))} still learned: a "
-                     "longer --steps may change their verdicts.")
     chosen, _ = verdict.smallest_sufficient(verdicts)
+    # a K whose verdict could change the answer: not sufficient and below the chosen K (any, where none is chosen)
+    learning = [k for k in still_learning(state) if verdicts.get(k) != verdict.SUFFICIENT and (chosen is None or k < chosen)]
+    if learning and state.get("steps", {}).get("mode") == "auto":
+        one = len(learning) == 1
+        sentence += (f" The training returns of K = {', '.join(map(str, learning))} were still rising at "
+                     f"{state['steps']['budget']:,} steps: a longer --steps may change {'its verdict' if one else 'their verdicts'}.")
     choice = None
     if chosen is not None:
         choice = export_choice(out, list(setup.start_from) + [os.path.join(out, "results")], setup.env, chosen,
@@ -167,19 +169,57 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
             choice["K"] = chosen
     command = "gsa answer " + " ".join(shlex.quote(a) for a in argv)
     versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit() or "unknown"}
-    path = write_report(out, setup, state, evidence, sentence, choice, command, versions)
+    steps = next_steps(argv, out, setup, state)
+    path = write_report(out, setup, state, evidence, sentence, choice, (command, steps), versions)
     print(f"wrote {path}")
+    for line in steps:
+        print(f"next: {line}")
     return sentence
+
+
+def without(argv: list, flag: str) -> list:
+    """argv less the option `flag` and its value (either spelling: '--flag V' or '--flag=V')."""
+    out, skip = [], False
+    for a in argv:
+        if skip or a.startswith(flag + "="):
+            skip = False
+            continue
+        skip = a == flag
+        out += [] if skip else [a]
+    return out
+
+
+def next_steps(argv: list, out: str, setup: Setup, state: dict) -> list:
+    """What to run where the answer is not decided, by why it stopped: more minutes resume it (the same design); a
+    higher seed cap or a longer step budget is a new answer in its own folder (another design)."""
+    stopped, typed_out = state.get("stopped", ""), any(a == "--out" or a.startswith("--out=") for a in argv)
+    argv = argv if typed_out else [*argv, "--out", out]
+    if stopped.startswith("budget"):
+        minutes = 2 * state.get("budget_s", 7200.0) / 60
+        return [f"{again(without(argv, '--budget-minutes'), True, out)} --budget-minutes {minutes:g}   (resumes it "
+                "with twice the minutes; the same design)"]
+    fresh = [*without(without(argv, "--out"), "--looks")]
+    if stopped.startswith(("seed cap", "futility")):
+        looks = ",".join(map(str, (*setup.looks, 2 * setup.looks[-1])))
+        return [f"{again([*fresh, '--looks', looks], True, out)} --out {shlex.quote(out + '-more-seeds')}   (a seed cap "
+                f"of {2 * setup.looks[-1]} per cell, from new seeds)"]
+    if stopped == "no answer" and setup.auto_steps():
+        steps = 2 * (setup.max_steps or setup.steps())
+        return [f"{again([*without(fresh, '--max-steps'), '--max-steps', str(steps)], True, out)} --out "
+                f"{shlex.quote(out + '-longer')}   (flat PPO given up to {steps:,} steps to learn the task)"]
+    return []
 
 
 def build_parser() -> argparse.ArgumentParser:
     """`gsa answer`'s options."""
     p = command_parser("answer", __doc__)
+    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
     p.add_argument("--env", required=True, help="the task (any name gsa train takes, your own 'module:Class' too)")
     p.add_argument("--clusters", default=None, help="the K ladder, e.g. 1,2,4 (default: ceil(m d_a), m = 0.5, 1, 2, 4)")
     p.add_argument("--margin", type=float, default=verdict.DEFAULT_MARGIN,
                    help="the margin delta, a fraction of the reference's gain over a random policy (default %(default)s)")
-    p.add_argument("--target", type=float, default=None, help="judge against this score instead of flat PPO")
+    p.add_argument("--target", type=float, default=None,
+                   help="judge against this score (the task's return) instead of flat PPO (default: flat PPO)")
     p.add_argument("--looks", default=",".join(map(str, DEFAULT_LOOKS)),
                    help=f"seeds per cell at each look (at least {sequential.MIN_SEEDS}); the last is the seed cap (default %(default)s)")
     p.add_argument("--spending", choices=sequential.SPENDING, default=DEFAULT_SPENDING,
@@ -204,7 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the runs' config fields as a JSON object, e.g. '{\"num_envs\": 16}' (default: the defaults)")
     p.add_argument("--budget-minutes", type=float, default=120.0, help="stop before a round that would run past it (default %(default)s)")
     p.add_argument("--start-from", nargs="+", default=None, metavar="RESULTS_DIR",
-                   help="committed results whose runs are the first seeds (their sweep.json settings train the rest)")
+                   help="committed results whose runs are the first seeds (their sweep.json settings train the rest; "
+                        "default: none, every seed trained here)")
     p.add_argument("--out", default=None, help="output directory (default runs/answers/<task>)")
     return p
 
@@ -216,9 +257,22 @@ def answer(argv: list) -> int:
     args = build_parser().parse_args(argv)
     setup = make_setup(args)
     out = args.out or os.path.join("runs", "answers", path_part(setup.env))
-    state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup))
+    try:
+        state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup))
+    except KeyboardInterrupt:
+        print(f"\ngsa answer: interrupted; every finished sweep and chunk is saved in {out} (continue with: "
+              f"{again(argv, args.out, out)})", file=sys.stderr)
+        return 130
     print(finish(out, setup, state, argv))
     return 0
+
+
+def again(argv: list, typed_out: "str | None", out: str) -> str:
+    """The command that resumes this answer: the same options (with --out where it was not typed, so it resumes from
+    any folder)."""
+    from gsa_jax.running.runinfo import resume_command
+
+    return resume_command("answer", *argv, *(() if typed_out else ("--out", out)))
 
 
 def main(argv: list | None = None) -> int:

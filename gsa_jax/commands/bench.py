@@ -42,12 +42,10 @@ from gsa_jax.benchmark.measure import (
     measure_mujoco_c, measure_raw, measure_sweep, ratio_ceiling, time_profile,
 )
 from gsa_jax.benchmark.report import plot
-from gsa_jax.benchmark.workers import raw_worker, worker
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.running.checkpoint import write_atomic
-from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import run_metadata
-from gsa_jax.running.spec import check_spec
+from gsa_jax.running.spec import RUN_BATCH, check_spec
 
 
 def parse_solver_variant(text: str | None, quick: bool) -> tuple | None:
@@ -96,17 +94,21 @@ def positive_ints(flag: str, text: str | None, default: list) -> list:
 def build_parser() -> argparse.ArgumentParser:
     """`gsa bench`'s options (and its worker processes')."""
     p = command_parser("bench", __doc__)
+    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
     p.add_argument("--quick", action="store_true",
                    help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
-    p.add_argument("--out", default="runs/bench")
-    p.add_argument("--env", default="hopper", help="any task name: a built-in one, or a task definition 'module:Class' (docs/your_task.md)")
+    p.add_argument("--out", default="runs/bench",
+                   help="output directory of bench.json and bench.png (default %(default)s)")
+    p.add_argument("--env", default="hopper", help="any task name: a built-in one, or a task definition 'module:Class' "
+                   "(docs/your_task.md; default %(default)s)")
     p.add_argument("--sizes", default=None, help="comma-separated run counts (default 1,16,64,256)")
     p.add_argument("--policies", default=None,
                    help="comma-separated (default: mixture at every size, mlp at the largest size)")
     p.add_argument("--processes", default=None, help="comma-separated worker counts (default 1,<cores>)")
     p.add_argument("--raw-batches", default=None, help="comma-separated env batches for raw stepping (default 256,4096)")
     p.add_argument("--profile-runs", type=int, default=0,
-                   help="also profile one PPO iteration (physics / rest of rollout / update) at this many runs, e.g. 64")
+                   help="also profile one PPO iteration (physics / rest of rollout / update) at this many runs, "
+                        "e.g. 64 (default 0: no profile)")
     p.add_argument("--profile-processes", default="1",
                    help="comma-separated worker counts of the time profile (default 1; <cores>: as the sweep's workers "
                         "run, which gives the ceiling the sweep on all cores can reach)")
@@ -293,6 +295,8 @@ def bench(argv: list | None) -> int:
     """Measure the plan (or, in a worker process, its share) and write bench.json and bench.png."""
     args = build_parser().parse_args(argv)
     if args.worker or args.raw_worker:
+        from gsa_jax.benchmark.workers import raw_worker, worker  # loads JAX: not for `gsa bench --help`
+
         args.repeats = args.repeats or 3
         (worker if args.worker else raw_worker)(args)
         return 0

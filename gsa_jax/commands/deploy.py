@@ -1,6 +1,6 @@
 """Run an exported controller in plain MuJoCo C (no MJX, no JAX) and in gymnasium's own tasks.
 
-    gsa deploy controller.npz [--episodes 20] [--gymnasium Hopper-v5] [--compare-mjx RUN_DIR] [--out F]
+    gsa deploy controller.npz [--episodes 10] [--start-seed 10000] [--gymnasium Hopper-v5] [--compare-mjx RUN_DIR] [--out F]
 
 The controller file comes from `gsa export RUN --out controller.npz`; its task is read
 from the file, and a controller that no longer fits it (its observation size, or its definition's sha256: a task file
@@ -18,6 +18,7 @@ import json
 from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, load_controller, open_gymnasium, report_line,
                                            run_gymnasium, run_mujoco_c)
 from gsa_jax.cli import command_parser, run_command
+from gsa_jax.deployment import starts
 
 
 def deploy(args: argparse.Namespace) -> dict:
@@ -45,13 +46,18 @@ def build_parser() -> argparse.ArgumentParser:
     """`gsa deploy`'s options."""
     p = command_parser("deploy", __doc__)
     p.add_argument("controller", help="an exported controller .npz (gsa export)")
-    p.add_argument("--episodes", type=int, default=20)
-    p.add_argument("--episode-length", type=int, default=None, help="default: the run's time limit")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=int, default=starts.SELECTION_EPISODES,
+                   help="deterministic episodes per simulator (default %(default)s: with the default --start-seed, "
+                        "the selection starts `gsa score` scores)")
+    p.add_argument("--episode-length", type=int, default=None, help="steps per episode (default: the run's time limit)")
+    p.add_argument("--start-seed", "--seed", dest="seed", type=int, default=starts.SELECTION_SEED,
+                   help=f"episode i starts from the task's start law drawn with seed START_SEED + i (default "
+                        f"%(default)s: the selection starts, as `gsa score`; {starts.FRESH_SEED}: the fresh starts an "
+                        "answer reports; gsa_jax.deployment.starts)")
     p.add_argument("--gymnasium", default=None, metavar="ENV_ID",
                    help="also run it in gymnasium's own task, e.g. Hopper-v5 (needs the deploy extra)")
     p.add_argument("--compare-mjx", default=None, metavar="RUN_DIR", help="also roll out the run's controller in MJX")
-    p.add_argument("--out", default=None, help="write the results as JSON")
+    p.add_argument("--out", default=None, help="write the results as JSON to this file (default: printed only)")
     p.add_argument("--force", action="store_true",
                    help="run a controller whose task's definition changed since it was trained, or that names another "
                         "task, where the observation sizes agree")

@@ -9,10 +9,9 @@ action bounds, and its action is inside them. RUN is a run directory (train, ext
 """
 
 import argparse
-import os
 
 from gsa_jax.algorithm import partitions, subpolicies
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.cli import check_output, command_parser, run_command
 from gsa_jax.deployment.exporting import SUFFIXES, ExportError, load_arrays, write
 
 
@@ -43,14 +42,14 @@ def export_controller(argv: list | None) -> int:
     args = build_parser().parse_args(argv)
     fmt, out = pick_format(args.format, args.out)
     arrays = load_arrays(args.run_dir)
-    if not os.path.isdir(os.path.dirname(os.path.abspath(out))):
-        raise ExportError(f"the directory of --out {out!r} does not exist")
+    check_output(out, "--out")  # the default name too
     lines = write(arrays, fmt, out)
     k = arrays["L"].shape[0] if "L" in arrays else None
     sub = str(arrays["subpolicy"]) if "subpolicy" in arrays else subpolicies.DEFAULT
     part = str(arrays["partition"]) if "partition" in arrays else partitions.DEFAULT
-    print(f"wrote {out} ({fmt}): {arrays['kind']} controller" + (f" with {k} {sub} pieces" if k else "")
-          + (f", {part} partition" if k and part != partitions.DEFAULT else ""))
+    pieces = f" with one {sub} piece (no partition)" if k == 1 else f" with {k} {sub} pieces" if k else ""
+    print(f"wrote {out} ({fmt}): {arrays['kind']} controller" + pieces
+          + (f", {part} partition" if k and k > 1 and part != partitions.DEFAULT else ""))
     for line in lines:
         print(line)
     return 0

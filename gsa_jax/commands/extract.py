@@ -20,7 +20,8 @@ from gsa_jax.cli import command_parser, run_command
 def build_parser() -> argparse.ArgumentParser:
     """`gsa extract`'s options."""
     p = command_parser("extract", __doc__)
-    p.add_argument("sweep_dir")
+    p.outputs = ("controllers", "results")
+    p.add_argument("sweep_dir", help="a sweep's output directory (gsa sweep --out)")
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--list", action="store_true", help="list the finished runs' addresses (SWEEP_DIR/<run label>)")
     what.add_argument("--controllers", metavar="DIR", default=None,

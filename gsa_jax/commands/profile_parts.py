@@ -18,13 +18,11 @@ import time
 import envs
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.config import Config
-from gsa_jax.benchmark.parts import profile_parts
 from gsa_jax.cli import command_parser, run_command
 from gsa_jax.running.checkpoint import write_atomic
-from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.supervise import SINGLE_THREAD_EIGEN
-from gsa_jax.running.spec import SpecError, single_group
+from gsa_jax.running.spec import RUN_BATCH, SpecError, single_group
 
 DEFAULT_ENVS = "Hopper-v5,Walker2d-v5,HalfCheetah-v5,InvertedDoublePendulum-v5,Ant-v5,dmc:cartpole-swingup"
 
@@ -32,6 +30,7 @@ DEFAULT_ENVS = "Hopper-v5,Walker2d-v5,HalfCheetah-v5,InvertedDoublePendulum-v5,A
 def build_parser() -> argparse.ArgumentParser:
     """`gsa profile`'s options."""
     p = command_parser("profile", __doc__)
+    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
     p.add_argument("--envs", default=DEFAULT_ENVS, help=f"comma-separated task names (default {DEFAULT_ENVS})")
     p.add_argument("--policies", default="mixture,mlp", help="comma-separated: mixture, mlp (default both)")
     p.add_argument("--clusters", type=int, default=6, help="K of the mixture (default 6, as gsa bench)")
@@ -41,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cores", type=int, default=1,
                    help="CPU cores the profile runs on (default 1: one of a sweep's worker processes on its share of "
                         "the machine, with the workers' single-threaded Eigen; 0: all, as XLA and MuJoCo C choose)")
-    p.add_argument("--out", default="runs/profile")
+    p.add_argument("--out", default="runs/profile",
+                   help="output directory of parts.json and parts.md (default %(default)s)")
     return p
 
 
@@ -94,6 +94,8 @@ def profile(argv: list | None) -> int:
         pin_cores(args.cores)  # last: a refused command leaves the calling process as it was
     except ValueError as e:
         raise SpecError(e) from None
+    from gsa_jax.benchmark.parts import profile_parts  # loads JAX: not for `gsa profile --help`
+
     os.makedirs(args.out, exist_ok=True)
     report = {"command": sys.argv, "cores": sorted(os.sched_getaffinity(0)), "profiles": [], **run_metadata()}
     t0 = time.perf_counter()

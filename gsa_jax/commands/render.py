@@ -21,11 +21,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("env", help=f"one of: {', '.join(envs.NAMES)}; a task of yours, 'module:Class'; 'brax:<name>', 'playground:<Name>'")
     p.add_argument("--out", required=True, help="scene.png, or with --run: video.gif / video.mp4")
     p.add_argument("--run", default=None, help="a run directory or SWEEP_DIR/<run label>: render its deterministic controller")
-    p.add_argument("--episodes", type=int, default=1)
+    p.add_argument("--episodes", type=int, default=1, help="episodes in the video (with --run; default %(default)s)")
     p.add_argument("--camera", default=None, help="camera name (default: all cameras side by side / 'front')")
-    p.add_argument("--width", type=int, default=None)
-    p.add_argument("--height", type=int, default=None)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--width", type=int, default=None, help="image width in pixels (default: 640, a video's 480)")
+    p.add_argument("--height", type=int, default=None, help="image height in pixels (default: 480, a video's 360)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the start states drawn (default %(default)s)")
     return p
 
 

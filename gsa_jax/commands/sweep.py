@@ -63,22 +63,21 @@ import os
 import sys
 from typing import Callable
 
-import jax
-
 from gsa_jax.cli import command_parser, disk_full, options_over_saved, run_command
 from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
-from gsa_jax.running.programs import RUN_BATCH
 from gsa_jax.running.runinfo import resume_command
 from gsa_jax.running.runlock import hold
-from gsa_jax.running.spec import SpecError, SweepSpec, build_grid, check_spec, load_spec
+from gsa_jax.running.spec import RUN_BATCH, SpecError, SweepSpec, build_grid, check_spec, load_spec
 from gsa_jax.running.supervise import heartbeat_writer, supervise
-from gsa_jax.running.sweeps import (EXIT_FAILED_RUNS, SweepOptions, check_resumable, recorded_runs_per_program, report_failures,
-                                    run_sweep, spec_tasks)
+
+# JAX and gsa_jax.running.sweeps (which loads it) are imported in the functions that use them: `gsa sweep --help`
+# loads no JAX
 
 
 def build_parser() -> argparse.ArgumentParser:
     """`gsa sweep`'s options (and its worker processes')."""
     p = command_parser("sweep", __doc__)
+    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
     p.add_argument("experiment", nargs="?", default=None,
                    help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml (with --resume: optional)")
     p.add_argument("--resume", metavar="DIR", default=None,
@@ -89,12 +88,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--local-processes", type=int, default=None,
                    help="worker processes on this machine, each with its share of the runs (default: one per CPU core)")
     p.add_argument("--no-watchdog", action="store_true", help="run in this process, without the restarting supervisor")
-    p.add_argument("--watchdog-min", type=float, default=600.0, help="seconds without progress before a restart (at least)")
-    p.add_argument("--max-restarts", type=int, default=5)
-    p.add_argument("--stop-after-chunks", type=int, default=None, help="stop (resumably) after N chunks")
-    p.add_argument("--coordinator", default=None, help="host:port of process 0, for multi-process sweeps")
-    p.add_argument("--num-processes", type=int, default=1)
-    p.add_argument("--process-id", type=int, default=0)
+    p.add_argument("--watchdog-min", type=float, default=600.0,
+                   help="seconds without progress before a restart (at least; default %(default)s)")
+    p.add_argument("--max-restarts", type=int, default=5,
+                   help="restarts of a hung worker before the sweep stops with exit status 3 (default %(default)s)")
+    p.add_argument("--stop-after-chunks", type=int, default=None,
+                   help="stop (resumably) after N chunks (default: train to the end)")
+    p.add_argument("--coordinator", default=None,
+                   help="host:port of process 0, for multi-process sweeps (default: none, this machine alone)")
+    p.add_argument("--num-processes", type=int, default=1,
+                   help="processes of a multi-process sweep, one per host (with --coordinator; default %(default)s)")
+    p.add_argument("--process-id", type=int, default=0,
+                   help="this process's index among --num-processes, 0 the coordinator (default %(default)s)")
     p.add_argument("--run-batch", type=int, default=RUN_BATCH,
                    help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
                         "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
@@ -105,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="resume even if the experiment file changed (continues with the new spec)")
     p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
                    help="no TensorBoard event files (default: OUT/tensorboard/<run>/, open with tensorboard --logdir OUT)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     return p
 
@@ -113,6 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
 def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
     """Option values (dest -> value) that give back a saved sweep's settings (its sweep.json): what --resume DIR
     continues with (the spec is checked apart; a record without one is not a sweep's: KeyError)."""
+    from gsa_jax.running.sweeps import recorded_runs_per_program
+
     if "spec" not in meta:
         raise KeyError("spec")
     saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
@@ -176,6 +183,8 @@ def sweep(argv: list, after_chunk: Callable | None = None) -> int:
     spec, out, local = check_args(args, argv)
     if args.worker:
         return run_worker(args, spec, out, after_chunk)
+    from gsa_jax.running.sweeps import SweepOptions, check_resumable, spec_tasks
+
     lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
     os.makedirs(lock_dir, exist_ok=True)
     with hold(lock_dir, f"gsa_jax.sweep {spec.name}", log=lambda m: print(m, file=sys.stderr)):
@@ -194,6 +203,8 @@ def main(argv: list | None = None, after_chunk: Callable | None = None) -> int:
 
 def supervise_workers(args: argparse.Namespace, argv: list, out: str, local: int) -> int:
     """Start the worker processes under the watchdog; then collect failed runs into sweep.json."""
+    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, report_failures
+
     base = list(argv) + (["--out", out] if args.out is None else [])
     if local > 1:
         argvs = [base + ["--process-id", str(i), "--num-processes", str(local), "--local-processes", "1"] for i in range(local)]
@@ -219,6 +230,10 @@ def supervise_workers(args: argparse.Namespace, argv: list, out: str, local: int
 def run_worker(args: argparse.Namespace, spec: SweepSpec, out: str, after_chunk: Callable | None = None) -> int:
     """Train this process's share in this process (a supervised worker, or --no-watchdog). after_chunk:
     called after every chunk's heartbeat (tests inject faults with it)."""
+    import jax
+
+    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
+
     if args.num_processes > 1 and args.coordinator:
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
         # eager arrays (the MJX model Brax builds) would otherwise land on global device 0, which

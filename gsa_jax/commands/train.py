@@ -18,7 +18,7 @@ import math
 import os
 import sys
 import time
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import envs
 from gsa_jax.algorithm import partitions, subpolicies
@@ -27,18 +27,18 @@ from gsa_jax.algorithm.config import (
     validate_hparams,
 )
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
-from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
+from gsa_jax.algorithm.subpolicies import SUBPOLICY_KINDS
 from gsa_jax.cli import command_parser, disk_full, options_over_saved, run_command, whole_number
 from gsa_jax.errors import UserError
-from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError
 from gsa_jax.running.driver import duration, fmt
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.runinfo import resume_command
 from gsa_jax.running.runlock import hold
-from gsa_jax.running.single import RunOptions, RunPlan, run
 from gsa_jax.running.trained import path_part
 
+if TYPE_CHECKING:  # the modules that load JAX are imported where they are used: `gsa train --help` loads no JAX
+    from gsa_jax.running.single import RunPlan
 
 
 class UsageError(UserError):
@@ -47,9 +47,12 @@ class UsageError(UserError):
 def build_parser() -> argparse.ArgumentParser:
     """`gsa train`'s options."""
     p = command_parser("train", __doc__)
+    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
     add_options(p)
-    p.add_argument("--steps", type=whole_number, default=1_000_000, help="environment steps (rounded up to whole chunks)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=whole_number, default=1_000_000,
+                   help="environment steps to train (rounded up to whole chunks; default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="training seed: initial parameters, start states and every random draw (default %(default)s)")
     p.add_argument("--out", default=None, help="output directory (default: runs/<env>-<policy>-...)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run saved in --out with its saved settings; an option given with it must "
@@ -61,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="evaluation start states: the same for every training seed (default 0)")
     p.add_argument("--chunk", type=int, default=None, help="PPO iterations per compiled chunk (default: auto)")
     p.add_argument("--stop-after", type=whole_number, default=None,
-                   help="stop (resumably) after this many iterations in this invocation; continue with --resume")
+                   help="stop (resumably) after this many iterations in this invocation; continue with --resume "
+                        "(default: train to the end)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
                    help="no TensorBoard event files (default: OUT/tensorboard/, open with tensorboard --logdir OUT)")
@@ -77,8 +81,10 @@ def make_config(args: argparse.Namespace, k_max: int) -> Config:
         raise UsageError(flag_names(str(e))) from None
 
 
-def resolve(args: argparse.Namespace) -> RunPlan:
+def resolve(args: argparse.Namespace) -> "RunPlan":
     """Check every argument and return the RunPlan. No compiling."""
+    from gsa_jax.running.single import RunPlan
+
     if args.policy not in POLICY_KINDS:
         raise UsageError(f"unknown --policy {args.policy!r}; choose mixture or mlp")
     if args.steps <= 0:
@@ -184,6 +190,19 @@ def prepare_out(out: str, resume: bool) -> None:
         raise UsageError(f"--out {out!r} already holds a run; pass --resume to continue it or choose another --out")
 
 
+def note_physics(cfg: Config) -> None:
+    """One line on stderr where MJX (the default backend, what accelerators run) is to train on a CPU a task that
+    MuJoCo C steps too: --physics c is the CPU's speed path (the backend stays as given, and recorded)."""
+    if cfg.physics.backend != "mjx" or not cfg.task.has_c:
+        return
+    import jax
+
+    if jax.default_backend() == "cpu":
+        print("gsa train: note: no accelerator here, and MJX (the default backend, what accelerators run) is the slow "
+              "path on a CPU: --physics c steps this task in MuJoCo C inside the compiled program, the CPU's fast path",
+              file=sys.stderr)
+
+
 def train(argv: list | None) -> int:
     """Check the command line, then train (or resume) the run in its locked output directory."""
     parser = build_parser()
@@ -198,8 +217,13 @@ def train(argv: list | None) -> int:
         raise UsageError(e) from None
     out = args.out or default_out(plan.cfg, plan.hp, plan.seed)
     prepare_out(out, args.resume)
+    if not (args.quiet or args.resume or typed(argv, "--physics")):
+        note_physics(plan.cfg)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     warn = lambda msg: print(f"gsa train: warning: {msg}", file=sys.stderr)  # noqa: E731
+    from gsa_jax.running import xla_cache
+    from gsa_jax.running.single import RunOptions, run
+
     with hold(out, "gsa_jax.train", log=lambda m: print(m, file=sys.stderr)), xla_cache.enabled(xla_cache.user_dir()):
         options = RunOptions(out, args.resume, args.force, args.stop_after, argv, args.tensorboard)
         try:

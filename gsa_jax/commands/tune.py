@@ -169,9 +169,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--phase", choices=("tune", "evaluate", "all", "rank"), default="all",
                    help="tune: the tuning sweeps and selection only; evaluate: the chosen configurations (after tune); "
-                        "rank: do the tuning runs rank configurations as full-length runs would (after tune)")
+                        "rank: do the tuning runs rank configurations as full-length runs would (after tune); "
+                        "all: tune, then evaluate (default %(default)s)")
     p.add_argument("--rank-check", default="1,2,12,24", help="with --phase rank: the ranks checked (default %(default)s)")
-    p.add_argument("--baseline", nargs="*", default=[], help="sweep directories with the defaults on the evaluation seeds")
+    p.add_argument("--baseline", nargs="*", default=[],
+                   help="sweep directories with the defaults on the evaluation seeds (default: none)")
     p.add_argument("--reps", type=int, default=stats.REPS, help="bootstrap resamples (default %(default)s)")
     p.add_argument("--sweep-args", default="--no-tensorboard", help="flags passed to each gsa sweep (default %(default)s)")
     return p

@@ -14,25 +14,31 @@ line, as deploy refuses it (--force verifies it where the sizes agree).
 import argparse
 import os
 import time
+from typing import TYPE_CHECKING
 
 from gsa_jax.cli import command_parser, run_command
-from gsa_jax.verify import certify
-from gsa_jax.verify.analysis import QUICK, Budget, LqrWeights, verify
-from gsa_jax.verify.report import certificate_lines, hold_set_lines, write_all
-from gsa_jax.verify.system import System, VerifyError, equilibrium_guess, load_system
+
+if TYPE_CHECKING:  # gsa_jax.verify loads MuJoCo and SciPy: imported where used, so `gsa verify --help` loads neither
+    from gsa_jax.verify.analysis import LqrWeights
+    from gsa_jax.verify.system import System
 
 
 def parse_weights(text: str, flag: str) -> tuple:
     """Comma-separated numbers of --lqr-q / --lqr-r; VerifyError names the flag."""
+    from gsa_jax.verify.system import VerifyError
+
     try:
         return tuple(float(x) for x in text.split(","))
     except ValueError:
         raise VerifyError(f"{flag} takes comma-separated numbers, got {text!r}") from None
 
 
-def lqr_weights_of(args: argparse.Namespace, system: System) -> "LqrWeights | None":
+def lqr_weights_of(args: argparse.Namespace, system: "System") -> "LqrWeights | None":
     """The LQR's weights of --lqr-q / --lqr-r (both or neither), checked against the task: q one per tangent
     state coordinate (2 nv) and >= 0, r one per action and > 0."""
+    from gsa_jax.verify.analysis import LqrWeights
+    from gsa_jax.verify.system import VerifyError, equilibrium_guess
+
     if args.lqr_q is None and args.lqr_r is None:
         return None
     if args.lqr_q is None or args.lqr_r is None:
@@ -54,13 +60,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("controller", help="an exported controller .npz (gsa export)")
     p.add_argument("--out", default=None, help="output folder (default: verify_<controller name>)")
     p.add_argument("--quick", action="store_true", help="a small budget (under 2 minutes on 2 cores)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seeds the searches and samples; the nominal episodes start from the selection starts shifted "
+                        "by it (seeds 10000 + N + i; default %(default)s: those `gsa score` and `gsa deploy` score)")
     p.add_argument("--lqr-q", default=None, metavar="Q1,...", help="the LQR beside the controller weights the tangent "
                    "state by these (the task's units: positions, then velocities; default: Q = I on scaled states)")
     p.add_argument("--lqr-r", default=None, metavar="R1,...", help="... and the actions by these (default R = I)")
     p.add_argument("--certify", action="store_true", help="a certified region of attraction of the closed loop's "
                    "stable fixed point, and an invariant set of a hold kept by switching between pieces (needs the "
-                   f"optional extra verify: {certify.INSTALL})")
+                   "optional extra verify: pip install 'gsa_jax[verify]')")
     p.add_argument("--force", action="store_true",
                    help="verify a controller whose task's definition changed since it was trained, or that names "
                         "another task, where the observation sizes agree")
@@ -70,6 +78,11 @@ def build_parser() -> argparse.ArgumentParser:
 def verify_controller(argv: list | None) -> int:
     """Analyse the controller and write the report."""
     args = build_parser().parse_args(argv)
+    from gsa_jax.verify import certify
+    from gsa_jax.verify.analysis import QUICK, Budget, verify
+    from gsa_jax.verify.report import certificate_lines, hold_set_lines, write_all
+    from gsa_jax.verify.system import load_system
+
     if args.certify:
         certify.require_solver()
     system = load_system(args.controller, args.force)

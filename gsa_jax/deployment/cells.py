@@ -6,6 +6,7 @@ so cluster i acts on the convex polyhedron {s : (w_i - w_j) . (s - mean) / std +
 j != i}, written here A_i s >= d_i with A_i [K - 1, d_s] in 1 / (the observation's unit) and d_i [K - 1]. Exact
 where the normalizer's clip does not act (|s - mean| <= obs_clip std in every coordinate; outside, a state is in
 the cell of its clipped point). On a shared boundary the controller takes the lower cluster (the first maximum).
+A single piece (K = 1, exported with no partition) has one cell, every state: logits 0, no inequality.
 """
 
 from typing import NamedTuple
@@ -28,7 +29,10 @@ class Cell(NamedTuple):
 
 def raw_logits(ctrl: Controller) -> tuple:
     """(W_raw [d_s, K], c_raw [K]) float64: the linear partition's logits s @ W_raw + c_raw on the raw observation s
-    (the normalization folded in); ValueError for a controller without a linear partition."""
+    (the normalization folded in; a single piece's: zeros, one cell); ValueError for a controller without a linear
+    partition."""
+    if ctrl.single_piece:
+        return np.zeros((ctrl.obs_mean.shape[0], 1)), np.zeros(1)
     if ctrl.kind != MIXTURE or not partitions.get(ctrl.partition).polyhedral:
         raise ValueError("the controller has no linear partition: its cells are not polyhedra")
     (w, c), k = ctrl.layers[0], ctrl.num_clusters

@@ -7,8 +7,9 @@ allocation, only <math.h> (tanhf), declaring
 Single-header style: every file may include it for the declaration; exactly one C file defines
 GSA_CONTROLLER_IMPLEMENTATION before including it to get the definition. The arithmetic is
 numpy_policy's in float32: normalize, the partition's layers (a tanh MLP; one affine layer W z + c for the linear
-partition class), first maximum, the cluster's L_c phi(z) + b_c (gsa_act_raw,
-as act(obs, clip=False)), then gsa_act clamps each action to [gsa_action_low, gsa_action_high] (as act(obs)).
+partition class; none for a single piece, K = 1: no network, no tanhf), first maximum, the cluster's L_c phi(z) + b_c
+(gsa_act_raw, as act(obs, clip=False)), then gsa_act clamps each action to [gsa_action_low, gsa_action_high] (as
+act(obs)).
 """
 
 import json
@@ -40,9 +41,11 @@ def _float(x):
 
 
 def _layers(ctrl):
-    """The MLP layers as evaluated: a mixture's last layer cut to the K active logits."""
+    """The MLP layers as evaluated: a mixture's last layer cut to the K active logits; none for a single piece."""
     if ctrl.kind != MIXTURE:
         return list(ctrl.layers)
+    if ctrl.single_piece:
+        return []
     k = ctrl.num_clusters
     return list(ctrl.layers[:-1]) + [(ctrl.layers[-1][0][:, :k], ctrl.layers[-1][1][:k])]
 
@@ -68,7 +71,9 @@ def _header_comment(ctrl, arrays, layout, c):
     meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
     cfg = meta.get("config", {})
     d_s = ctrl.obs_mean.shape[0]
-    if ctrl.kind == MIXTURE:
+    if ctrl.single_piece:
+        what = f"one {ctrl.subpolicy} controller (K = 1, its mean action): no partition, it acts everywhere"
+    elif ctrl.kind == MIXTURE:
         what = (f"a mixture of K = {ctrl.num_clusters} {ctrl.subpolicy} controllers (most probable cluster, its mean "
                 f"action); {ctrl.partition} partition, {partitions.get(ctrl.partition).rule} (gsa_w*, gsa_b*)")
     else:
@@ -89,7 +94,8 @@ def _header_comment(ctrl, arrays, layout, c):
         lines += ["  The task maps the action onto its actuators' controls: ctrl = low + (action + 1) (high - low) / 2,",
                   f"  low = {np.round(ctrl.ctrl_range[0], 6).tolist()}, high = {np.round(ctrl.ctrl_range[1], 6).tolist()}."]
     lines += [
-              "cluster: index of the active linear piece." if ctrl.kind == MIXTURE else "cluster: 0.", "",
+              "cluster: index of the active linear piece." if ctrl.kind == MIXTURE and not ctrl.single_piece
+              else "cluster: 0.", "",
               f"Constants: {c['constants']} floats ({c['bytes']} bytes). Per call: {c['multiply_adds']} multiply-adds, "
               f"{c['tanh']} tanhf, {c['compares']} compares.", "",
               "Use: every file may include this header; exactly one C file writes",
@@ -133,7 +139,8 @@ def _body(ctrl):
     for i, (w, b) in enumerate(layers):
         out.append(f"static const float gsa_w{i}[{w.shape[0]} * {w.shape[1]}] = {_floats(w)};  /* [in][out] */")
         out.append(f"static const float gsa_b{i}[{b.shape[0]}] = {_floats(b)};")
-    out.append(_layer_function())
+    if layers:
+        out.append(_layer_function())
     code = ["void gsa_act_raw(const float *obs, float *action, int *cluster)", "{",
             f"    float z[{d_s}];"]
     code += [f"    float h{i}[{b.shape[0]}];" for i, (_, b) in enumerate(layers)]
@@ -184,9 +191,9 @@ def _mixture_constants(ctrl):
 def _mixture_code(ctrl, logits):
     k, d_a, d_phi = ctrl.L.shape
     d_s = ctrl.obs_mean.shape[0]
-    code = ["    {", "        int c = 0, a, f;",
-            f"        for (i = 1; i < {k}; ++i) if ({logits}[i] > {logits}[c]) c = i;  /* first maximum */",
-            "        *cluster = c;"]
+    pick = ([f"        for (i = 1; i < {k}; ++i) if ({logits}[i] > {logits}[c]) c = i;  /* first maximum */"]
+            if k > 1 else [])  # a single piece: c = 0, no partition
+    code = ["    {", "        int c = 0, a, f;", *pick, "        *cluster = c;"]
     lines, feat = subpolicies.SUBPOLICIES[ctrl.subpolicy].c(d_s)  # phi from z: the sub-policy class's statements
     code += [f"        {line}" for line in lines]
     code += [f"        for (a = 0; a < {d_a}; ++a) {{", "            float s = 0.0f;"]
@@ -194,7 +201,7 @@ def _mixture_code(ctrl, logits):
         code += [f"            const float *row = gsa_piece_L + (c * {d_a} + a) * {d_phi};",
                  f"            for (f = 0; f < {d_phi}; ++f) s += row[f] * {feat}[f];"]
     else:
-        code += ["            (void)f;"]
+        code += ["            (void)f;" + (" (void)z;  /* one constant piece reads no observation */" if k == 1 else "")]
     code += [f"            action[a] = s + gsa_piece_b[c * {d_a} + a];", "        }", "    }"]
     return code
 

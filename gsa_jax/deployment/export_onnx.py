@@ -6,6 +6,7 @@ bounds, as act(obs, clip=False)); the bounds are also in its metadata (action_lo
 trained on (task, obs_size, task_sha256: the npz's, docs/deploy.md). The graph:
 normalize (subtract the running mean, divide by the std, clip), then for a mixture: the partition's layers (a tanh
 MLP; one affine layer W z + c for the linear partition class) -> logits of the K active clusters -> ArgMax (first maximum, as NumPy's) -> gather that cluster's L_c, b_c -> L_c phi(z) + b_c; for
+a single piece (K = 1) no partition: one Gemm phi(z) L_0^T + b_0 (a constant piece: b_0 expanded), cluster 0; for
 an MLP controller its tanh MLP; then Max / Min with the bounds.
 Needs the optional `deploy` extra (`pip install gsa_jax[deploy]`).
 """
@@ -17,7 +18,7 @@ import numpy as np
 
 from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
-from gsa_jax.deployment.numpy_policy import Controller
+from gsa_jax.deployment.numpy_policy import SINGLE, Controller
 
 if TYPE_CHECKING:
     import onnx
@@ -69,10 +70,37 @@ def _features(nodes, ctrl, z):
     return emit(node, lambda name, value: _const(nodes, name, value), z, ctrl.obs_mean.shape[0])
 
 
+def _zero_cluster(nodes):
+    """Nodes writing 'cluster': int64 zeros [N] (one piece) and 'batch' ([N], obs's first dimension)."""
+    from onnx import TensorProto, helper
+
+    nodes.append(helper.make_node("Shape", ["obs"], ["batch"], start=0, end=1))
+    nodes.append(helper.make_node("ConstantOfShape", ["batch"], ["cluster"],
+                                  value=helper.make_tensor("zero", TensorProto.INT64, [1], [0])))
+
+
+def _single_piece(nodes, ctrl, z):
+    """Nodes of a K = 1 mixture (no partition): 'raw_action' = phi(z) L_0^T + b_0 (one Gemm; b_0 expanded to [N, d_a]
+    for a constant piece), 'cluster' = 0."""
+    from onnx import helper
+
+    _zero_cluster(nodes)
+    if ctrl.L.shape[-1] == 0:
+        d_a = _const(nodes, "action_dim", np.array([ctrl.action_size], np.int64))
+        nodes.append(helper.make_node("Concat", ["batch", d_a], ["action_shape"], axis=0))
+        nodes.append(helper.make_node("Expand", [_const(nodes, "b", ctrl.b[0]), "action_shape"], ["raw_action"]))
+        return
+    phi = _features(nodes, ctrl, z)
+    nodes.append(helper.make_node("Gemm", [phi, _const(nodes, "L", ctrl.L[0]), _const(nodes, "b", ctrl.b[0])],
+                                  ["raw_action"], transB=1))
+
+
 def _mixture(nodes, ctrl, z):
     """Nodes of the mixture's deterministic controller; writes 'raw_action' and 'cluster'."""
     from onnx import helper
 
+    if ctrl.single_piece:
+        return _single_piece(nodes, ctrl, z)
     k = ctrl.num_clusters
     layers = list(ctrl.layers[:-1]) + [(ctrl.layers[-1][0][:, :k], ctrl.layers[-1][1][:k])]  # the K active logits
     logits = _mlp(nodes, z, layers, "partition")
@@ -113,9 +141,7 @@ def build_model(arrays: Mapping, layout: list | None = None) -> "onnx.ModelProto
     else:
         out = _mlp(nodes, z, ctrl.layers, "mlp")
         nodes.append(helper.make_node("Identity", [out], ["raw_action"]))
-        nodes.append(helper.make_node("Shape", ["obs"], ["batch"], start=0, end=1))
-        nodes.append(helper.make_node("ConstantOfShape", ["batch"], ["cluster"],
-                                      value=helper.make_tensor("zero", TensorProto.INT64, [1], [0])))
+        _zero_cluster(nodes)
     _bound(nodes, ctrl)
     graph = helper.make_graph(
         nodes, "gsa_jax_controller",
@@ -148,7 +174,7 @@ def describe(arrays: Mapping) -> str:
     sub = arrays.get("subpolicy", subpolicies.DEFAULT)
     part = arrays.get("partition", partitions.DEFAULT)
     what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {sub} controllers (most probable cluster, mean action), "
-            f"{part} partition" if kind == MIXTURE else "tanh MLP (mean action)")
+            f"{'no' if str(part) == SINGLE else part} partition" if kind == MIXTURE else "tanh MLP (mean action)")
     return (f"gsa_jax deterministic controller: {what}; task {cfg.get('env', '?')}, seed {meta.get('seed', '?')}, "
             f"commit {meta.get('git_commit') or '?'}")
 

@@ -11,7 +11,7 @@ import numpy as np
 from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.export_c import cost, to_source
-from gsa_jax.deployment.numpy_policy import action_bounds, controller_task, map_actions, task_name
+from gsa_jax.deployment.numpy_policy import SINGLE, action_bounds, controller_task, map_actions, task_name
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import save_npz_atomic
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
@@ -114,9 +114,20 @@ def controller_arrays(address: str) -> dict:
 
 def active_partition(arrays: dict) -> dict:
     """A mixture's arrays with the partition network's last layer cut to its K clusters' logits (training pads it to
-    K_max; numpy_policy reads a padded file's first K)."""
+    K_max; numpy_policy reads a padded file's first K); for K = 1, with no network at all (single_piece)."""
+    if int(np.shape(arrays["L"])[0]) == 1:
+        return single_piece(arrays)
     last, k = int(arrays["n_layers"]) - 1, int(np.shape(arrays["L"])[0])
     return {**arrays, f"w{last}": np.asarray(arrays[f"w{last}"])[:, :k], f"b{last}": np.asarray(arrays[f"b{last}"])[:k]}
+
+
+def single_piece(arrays: dict) -> dict:
+    """A K = 1 mixture's arrays without its partition network (it picks the one piece everywhere): n_layers 0, no
+    w{i} / b{i}, partition 'single' (numpy_policy.SINGLE); the same actions, one affine (or quadratic) law."""
+    n = int(arrays["n_layers"])
+    layers = {f"{w}{i}" for i in range(n) for w in "wb"}
+    return {**{key: v for key, v in arrays.items() if key not in layers}, "n_layers": np.array(0),
+            "partition": np.array(SINGLE)}
 
 
 SUFFIXES = {"npz": ".npz", "onnx": ".onnx", "c": ".h"}

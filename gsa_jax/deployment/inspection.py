@@ -1,10 +1,11 @@
 """A trained mixture controller read from its rollouts: cluster usage and dwell times, the active cluster over
-an episode, visited states by cluster, each piece's L and b and, for a linear partition, its cells' inequalities in
-the task's units and their figure (the files `gsa inspect` writes)."""
+an episode, visited states by cluster, each piece as u = u0 + K (x - x*) in the task's units and, for a linear
+partition, its cells' inequalities in the task's units and their figure (the files `gsa inspect` writes); an
+exported controller's pieces and cells without rollouts (inspect_file)."""
 
 import json
 import os
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -18,8 +19,8 @@ from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.ppo import make_env, make_train, schedule
 from gsa_jax.deployment.cells import cell_inequalities, cells_text, plot_cells
-from gsa_jax.deployment.exporting import controller_arrays, task_layout
-from gsa_jax.deployment.numpy_policy import Controller
+from gsa_jax.deployment.exporting import controller_arrays, known_task, load_arrays, task_layout
+from gsa_jax.deployment.numpy_policy import Controller, task_name
 from gsa_jax.errors import UserError
 from gsa_jax.running.trained import FormatError, RunNotFound, read_run
 
@@ -133,27 +134,198 @@ def feature_names(subpolicy: str, obs_names: list) -> list:
     return subpolicies.get(subpolicy).names(obs_names)
 
 
+class Frame(NamedTuple):
+    """The units the pieces' laws are written in: x the raw observation, z = (x - mean) / std, around x*."""
+
+    mean: np.ndarray  # [d_s] float64
+    std: np.ndarray  # [d_s] float64
+    x_star: np.ndarray  # [d_s] the point the laws are expanded around
+    reference: str  # what x* is, in words
+
+
+class PieceLaw(NamedTuple):
+    """A piece's raw action in its frame: u = u0 + K (x - x*) + sum_{i <= j} Q[:, i, j] (x_i - x*_i) (x_j - x*_j)."""
+
+    u0: np.ndarray  # [d_a] the raw action at x*
+    K: np.ndarray  # [d_a, d_s] d u / d x at x*: action per unit of each observation
+    Q: np.ndarray  # [d_a, d_s, d_s] upper triangle: a quadratic piece's second-order terms (else zeros)
+
+
+def piece_laws(L: np.ndarray, b: np.ndarray, subpolicy: str, frame: Frame) -> list:
+    """[PieceLaw] of pieces L [K, d_a, d_phi], b [K, d_a] acting L_c phi(z) + b_c, the normalization folded in: exact
+    for constant, linear and quadratic pieces while the observation clip does not act (to first order otherwise)."""
+    std = np.asarray(frame.std, np.float64)
+    z = (np.asarray(frame.x_star, np.float64) - frame.mean) / std
+    sub, d_s = subpolicies.get(subpolicy), len(z)
+    phi, jac = sub.features(z, np), sub.jacobian(z)
+    i, j = np.triu_indices(d_s)
+    laws = []
+    for l_c, b_c in zip(np.asarray(L, np.float64), np.asarray(b, np.float64)):
+        q = np.zeros((len(b_c), d_s, d_s))
+        if subpolicy == subpolicies.QUADRATIC.name:  # z_i z_j = ... + (dx_i / std_i) (dx_j / std_j)
+            q[:, i, j] = l_c[:, d_s:] / (std[i] * std[j])
+        laws.append(PieceLaw(l_c @ phi + b_c, l_c @ jac / std, q))
+    return laws
+
+
+def reference_point(arrays: dict) -> tuple:
+    """(x* [d_s], what it is): the task's equilibrium observation where it declares one (Task.equilibrium_qpos at
+    rest, observed in MuJoCo C as gsa verify forms it), else the normalization mean."""
+    from envs.task import TaskC
+
+    mean = np.asarray(arrays["obs_mean"], np.float64)
+    record = known_task(arrays)
+    try:
+        task = record.new() if record is not None and record.verifiable else None
+    except (ValueError, ImportError, NotImplementedError):
+        task = None
+    q = None if task is None or task.equilibrium_qpos is None else np.asarray(task.equilibrium_qpos, np.float64)
+    if q is not None:
+        x = np.asarray(TaskC(task).set_start(q, np.zeros(task.model.nv)), np.float64)  # mj_forward there
+        if x.shape == mean.shape:
+            return x, (f"the task's equilibrium observation ({record.name}'s equilibrium_qpos "
+                       f"{np.round(q, 6).tolist()}, at rest)")
+    return mean, "the normalization mean (the task declares no equilibrium)"
+
+
+def action_names(arrays: dict, d_a: int) -> list:
+    """The task's actuator names [d_a] (its MuJoCo model's; an unnamed one by the joint it drives), else act[i]."""
+    import mujoco
+
+    record = known_task(arrays)
+    try:
+        model = None if record is None else record.model()
+    except (ValueError, ImportError, NotImplementedError):
+        model = None
+    if model is None or model.nu != d_a:
+        return [f"act[{i}]" for i in range(d_a)]
+    joint = lambda i: (model.joint(int(model.actuator_trnid[i, 0])).name  # noqa: E731
+                       if model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT else "")
+    return [model.actuator(i).name or joint(i) or f"act[{i}]" for i in range(d_a)]
+
+
+class Readout(NamedTuple):
+    """An exported mixture controller with what its laws are written in."""
+
+    ctrl: Controller
+    obs_names: list
+    act_names: list
+    frame: Frame
+    task: str
+
+
+def readout(arrays: dict) -> Readout:
+    """The Readout of exported mixture arrays: the task's observation layout and actuator names (obs[i] / act[i]
+    where it has none), the task-unit frame around reference_point."""
+    ctrl = Controller(arrays)
+    d_s = ctrl.obs_mean.shape[0]
+    x_star, reference = reference_point(arrays)
+    frame = Frame(ctrl.obs_mean.astype(np.float64), ctrl.obs_std.astype(np.float64), x_star, reference)
+    return Readout(ctrl, task_layout(arrays) or [f"obs[{j}]" for j in range(d_s)],
+                   action_names(arrays, ctrl.action_size), frame, task_name(arrays) or "?")
+
+
+def cell_words(ctrl: Controller) -> str:
+    """Where a piece acts, in words."""
+    if ctrl.single_piece:
+        return "acts on every state (one piece, no partition)"
+    if partitions.get(ctrl.partition).polyhedral:
+        return "acts on its cell of the linear partition (inequalities A x >= d in the task's units: cells.txt)"
+    return "acts where the partition network (a tanh MLP) picks it: a region, in general not a polyhedron"
+
+
+def validity(ctrl: Controller) -> str:
+    """Where the laws hold exactly and what act() does after them."""
+    inside = (f"while every |x_i - mean_i| <= {ctrl.obs_clip:g} std_i (the controller's observation clip; beyond it "
+              "x_i is clipped first)" if np.isfinite(ctrl.obs_clip) else "everywhere (no observation clip)")
+    if ctrl.action_low is None:
+        return f"exact {inside}"
+    low, high = (np.round(v, 6).tolist() for v in ctrl.bounds())
+    return f"exact {inside}; act() then clips u to its bounds, low {low}, high {high}"
+
+
+def _terms(values, names, digits: int = 6) -> str:
+    return "  ".join(f"{v:+.{digits}g} {n}" for v, n in zip(values, names))
+
+
+def laws_text(r: Readout) -> str:
+    """Every piece as u = u0 + K (x - x*) in the task's units, named, with where it acts (gsa inspect prints it)."""
+    ctrl, f = r.ctrl, r.frame
+    laws = piece_laws(ctrl.L, ctrl.b, ctrl.subpolicy, f)
+    law = {subpolicies.CONSTANT.name: "u = u0", subpolicies.LINEAR.name: "u = u0 + K (x - x*)",
+           subpolicies.QUADRATIC.name: "u = u0 + K (x - x*) + sum_{i<=j} Q_ij (x_i - x*_i) (x_j - x*_j)"}
+    k = ctrl.num_clusters
+    other = f"u = u0 + K (x - x*) + the {ctrl.subpolicy} features' terms beyond first order (K: the gradient at x*)"
+    lines = [f"{r.task}: {k} {ctrl.subpolicy} piece{'s' * (k > 1)}, each piece's raw action",
+             f"  {law.get(ctrl.subpolicy, other)}",
+             "x: the task's raw observation in its own units (the normalization z = (x - mean) / std folded in: "
+             f"K = L / std); {validity(ctrl)}.", f"x* = {f.reference}:"]
+    lines += [f"  [{i}] {n} = {v:+.6g}" for i, (n, v) in enumerate(zip(r.obs_names, f.x_star))]
+    still = [n for n, v in zip(r.obs_names, ctrl.obs_std) if v < 1.01e-4]  # var 0: std is the normalizer's 1e-8 floor
+    if still:
+        lines.append(f"note: {len(still)} observation(s) never varied in training ({', '.join(still[:3])}"
+                     f"{', ...' if len(still) > 3 else ''}): std 1e-4, so their gains L / 1e-4 were never exercised.")
+    if np.any(np.abs(f.x_star - f.mean) > ctrl.obs_clip * f.std):
+        lines.append("note: x* lies outside the observation clip: u0 is the law's value there, not act(x*).")
+    pairs = np.triu_indices(len(r.obs_names))
+    for c, law in enumerate(laws):
+        lines += [f"piece {c}: {cell_words(ctrl)}", f"  u0 (the raw action at x*):  {_terms(law.u0, r.act_names)}"]
+        if ctrl.L.shape[-1]:
+            lines.append("  K (action per unit of each observation):")
+            lines += [f"    {a}:  {_terms(row, r.obs_names)}" for a, row in zip(r.act_names, law.K)]
+        if law.Q.any():
+            quad = [f"{r.obs_names[i]}*{r.obs_names[j]}" for i, j in zip(*pairs)]
+            lines.append("  Q (per unit of each observation product):")
+            lines += [f"    {a}:  {_terms(q[pairs], quad)}" for a, q in zip(r.act_names, law.Q)]
+    return "\n".join(lines) + "\n"
+
+
 def controller_table(params: dict, k: int, obs_names: list, act_names: list, subpolicy: str = subpolicies.DEFAULT,
-                     top: int = 3) -> str:
-    L = np.asarray(params["policy"]["L"])[:k]
-    b = np.asarray(params["policy"]["b"])[:k]
-    names = feature_names(subpolicy, obs_names)
-    shown = names[: len(obs_names)]  # quadratic: the table shows the linear terms; "strongest" ranks all
-    rule = subpolicies.get(subpolicy).rule
+                     top: int = 3, frame: Frame | None = None, where: str = "acts where the partition picks it") -> str:
+    """controllers.md: per cluster, u0 and the gains K of u = u0 + K (x - x*) in `frame`'s units (None: the
+    normalized observation z itself, x* = 0), with the inputs that move each action most per observation std."""
+    L, b = np.asarray(params["policy"]["L"])[:k], np.asarray(params["policy"]["b"])[:k]
+    d_s = len(obs_names)
+    frame = frame or Frame(np.zeros(d_s), np.ones(d_s), np.zeros(d_s), "0 (the normalized observation z itself)")
+    quadratic = "; its quadratic terms Q_ij (x_i - x*_i) (x_j - x*_j) under each table" * (
+        subpolicy == subpolicies.QUADRATIC.name)
     lines = [f"# {subpolicy.capitalize()} controllers", "",
-             f"{rule} on the normalized observation z = (obs - mean) / std (clipped to +-10), "
-             "for the cluster c the partition network picks.", ""]
-    for c in range(k):
-        head = ["actuator", "b", *shown] + (["strongest inputs"] if names else [])
-        lines += [f"## cluster {c}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        for i, a in enumerate(act_names):
-            cells = [a, f"{b[c, i]:+.3f}", *(f"{x:+.2f}" for x in L[c, i, : len(shown)])]
-            if names:
-                order = np.argsort(-np.abs(L[c, i]))[:top]
-                cells.append(", ".join(f"{names[j]} ({L[c, i, j]:+.2f})" for j in order))
-            lines.append("| " + " | ".join(cells) + " |")
-        lines.append("")
+             f"{subpolicies.get(subpolicy).rule} on the normalized observation z = (x - mean) / std (clipped to +-10 "
+             "std), written as u = u0 + K (x - x*): u0 the raw action at x*, K = L / std the action per unit of each "
+             f"observation{quadratic}; x* = {frame.reference}.", "",
+             "| | " + " | ".join(obs_names) + " |", "|---|" + "---|" * d_s,
+             "| x* | " + " | ".join(f"{v:+.4g}" for v in frame.x_star) + " |",
+             "| std | " + " | ".join(f"{v:.4g}" for v in frame.std) + " |", ""]
+    for c, law in enumerate(piece_laws(L, b, subpolicy, frame)):
+        lines += [f"## cluster {c}", "", f"{where[0].upper()}{where[1:]}.", ""]
+        lines += _piece_table(law, L[c], obs_names, act_names, feature_names(subpolicy, obs_names), top) + [""]
     return "\n".join(lines)
+
+
+def _piece_table(law: PieceLaw, L: np.ndarray, obs_names: list, act_names: list, names: list, top: int) -> list:
+    """One cluster's markdown rows: action, u0, K per observation, its strongest features (L, per std); then Q."""
+    gains = obs_names if names else []  # constant pieces: u0 alone
+    head = ["action", "u0", *gains] + (["strongest inputs (per std)"] if names else [])
+    rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for a, action in enumerate(act_names):
+        order = np.argsort(-np.abs(L[a]))[:top]  # L: the action's change per feature, in std units
+        strongest = [", ".join(f"{names[j]} ({L[a, j]:+.2f})" for j in order)] if names else []
+        rows.append("| " + " | ".join([action, f"{law.u0[a]:+.4g}", *(f"{x:+.4g}" for x in law.K[a][: len(gains)]),
+                                       *strongest]) + " |")
+    if law.Q.any():
+        i, j = np.triu_indices(len(obs_names))
+        pairs = [f"{obs_names[p]}*{obs_names[q]}" for p, q in zip(i, j)]
+        rows += [""] + [f"- Q of {action}: {_terms(law.Q[a][i, j], pairs, 4)}" for a, action in enumerate(act_names)]
+    return rows
+
+
+def pieces_json(r: Readout) -> dict:
+    """summary.json's pieces: x* (and what it is), names, each piece's u0, K (and Q) in the task's units."""
+    laws = piece_laws(r.ctrl.L, r.ctrl.b, r.ctrl.subpolicy, r.frame)
+    return {"x_star": r.frame.x_star.tolist(), "x_star_is": r.frame.reference, "observations": r.obs_names,
+            "actions": r.act_names, "cell": cell_words(r.ctrl),
+            "pieces": [{"u0": law.u0.tolist(), "K": law.K.tolist(), **({"Q": law.Q.tolist()} if law.Q.any() else {})}
+                       for law in laws]}
 
 
 def plot_time(data: dict, k: int, path: str, episode: int = 0, n_state: int = 6) -> None:
@@ -210,18 +382,50 @@ def plot_pca(data: dict, k: int, path: str) -> None:
     plt.close(fig)
 
 
-def write_cells(address: str, out: str, visited: np.ndarray) -> list:
-    """A linear partition's cells (gsa_jax.deployment.cells) from the run's exported controller: out/cells.txt (named
-    by the task's observation layout where it has one) and out/cells.png with the visited states [n, d_s] ->
-    [{cluster, versus, A, d}] for summary.json."""
-    arrays = controller_arrays(address)
-    ctrl = Controller(arrays)
-    names = task_layout(arrays) or [f"obs[{j}]" for j in range(ctrl.obs_mean.shape[0])]
-    with open(os.path.join(out, "cells.txt"), "w") as f:
-        f.write(cells_text(ctrl, names))
-    if len(names) >= 2:
-        plot_cells(ctrl, names, os.path.join(out, "cells.png"), visited)
-    return [{"cluster": c.cluster, "versus": c.others, "A": c.A.tolist(), "d": c.d.tolist()} for c in cell_inequalities(ctrl)]
+def polyhedral(ctrl: Controller) -> bool:
+    """Whether the controller's cells are a linear partition's polyhedra (cells.txt); a single piece has none."""
+    return not ctrl.single_piece and partitions.get(ctrl.partition).polyhedral
+
+
+def write_readout(r: Readout, out: str, visited: np.ndarray | None = None) -> tuple:
+    """Write out/pieces.txt (laws_text, what gsa inspect prints), out/controllers.md (controller_table in the task's
+    units) and, for a linear partition, out/cells.txt and out/cells.png (with the visited states [n, d_s] where
+    given) -> (summary.json's entries: pieces (pieces_json) and cells [{cluster, versus, A, d}], the names written)."""
+    ctrl = r.ctrl
+    files = {"pieces.txt": laws_text(r), "controllers.md": controller_table(
+        {"policy": {"L": ctrl.L, "b": ctrl.b}}, ctrl.num_clusters, r.obs_names, r.act_names, ctrl.subpolicy,
+        frame=r.frame, where=cell_words(ctrl))}
+    entries = {"pieces": pieces_json(r)}
+    if polyhedral(ctrl):
+        files["cells.txt"] = cells_text(ctrl, r.obs_names)
+        entries["cells"] = [{"cluster": c.cluster, "versus": c.others, "A": c.A.tolist(), "d": c.d.tolist()}
+                            for c in cell_inequalities(ctrl)]
+    for name, text in files.items():
+        with open(os.path.join(out, name), "w") as f:
+            f.write(text)
+    if polyhedral(ctrl) and len(r.obs_names) >= 2:
+        plot_cells(ctrl, r.obs_names, os.path.join(out, "cells.png"), visited)
+        files["cells.png"] = ""
+    return entries, list(files)
+
+
+def inspect_file(path: str, out: str | None = None) -> tuple:
+    """(text, the files written) of an exported controller .npz, no rollouts: every piece's law in the task's units
+    and its cell (laws_text, then a linear partition's inequalities); with out, written there too (write_readout and
+    summary.json; else none)."""
+    arrays = load_arrays(path)
+    if str(arrays["kind"]) != MIXTURE:
+        raise InspectError(f"{path!r} is a flat {str(arrays['kind'])!r} controller; inspect reads mixtures of "
+                           "linear pieces")
+    r = readout(arrays)
+    text = laws_text(r) + (cells_text(r.ctrl, r.obs_names) if polyhedral(r.ctrl) else "")
+    if out is None:
+        return text, []
+    os.makedirs(out, exist_ok=True)
+    entries, written = write_readout(r, out)
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump({"controller": path, "env": r.task, "K": r.ctrl.num_clusters, **entries}, f, indent=1)
+    return text, ["summary.json", *written]
 
 
 def default_out(address: str) -> str:
@@ -250,14 +454,9 @@ def inspect_run(run_dir: str, out: str | None = None, episodes: int = 8, seed: i
         "deterministic": cluster_stats(det["cluster"], det["alive"], k),
         "stochastic": cluster_stats(sto["cluster"], sto["alive"], k),
     }
-    if partitions.get(trainer.cfg.partition).polyhedral:
-        summary["cells"] = write_cells(run_dir, out, det["obs"][det["alive"] > 0.5])
+    summary.update(write_readout(readout(controller_arrays(run_dir)), out, det["obs"][det["alive"] > 0.5])[0])
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)
-    d_s, d_a = det["obs"].shape[-1], det["action"].shape[-1]
-    with open(os.path.join(out, "controllers.md"), "w") as f:
-        f.write(controller_table(params, k, [f"obs[{j}]" for j in range(d_s)], [f"act[{i}]" for i in range(d_a)],
-                                  trainer.cfg.subpolicy))
     plot_time(det, k, os.path.join(out, "clusters_time.png"))
     plot_pca(det, k, os.path.join(out, "clusters_pca.png"))
     return summary, out

@@ -16,8 +16,9 @@ the file that defined the task, '' for a built-in one; envs.task_source), ctrl_l
 its actions onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), action_space
 ('controls' where that map is applied in the file: the actions are the controls; absent: actions in [-1, 1]; see
 unit_actions), and for mixtures subpolicy
-('constant'|'linear'|'quadratic'; absent = linear), partition ('mlp'|'linear'; absent = mlp), L [K, d_a, d_phi],
-b [K, d_a] of the K active clusters.
+('constant'|'linear'|'quadratic'; absent = linear), partition ('mlp'|'linear'; absent = mlp; 'single': a K = 1
+mixture exported with no partition network, n_layers 0: its one piece acts everywhere, cluster() is 0), L [K, d_a,
+d_phi], b [K, d_a] of the K active clusters.
 Files exported before the bounds were stored get their task's (`action_bounds`); docs/deploy.md lists every key.
 `load(path, task=NAME)` refuses (TaskMismatch, one line) a controller that does not fit that task as it is now
 (check_task).
@@ -139,13 +140,22 @@ def map_actions(arrays: Mapping, scale: np.ndarray, offset: np.ndarray, low: np.
     return out
 
 
+SINGLE = "single"  # a K = 1 mixture's partition in an export: no network (n_layers 0), its one piece everywhere
+
+
 def partition_class(arrays: Mapping, layers: list, name: str = "the controller") -> str:
-    """The partition class of a mixture's arrays (absent: mlp, the only one before it was stored): ControllerClassError
-    (one line) for a class this version does not know or whose layer sizes are not that class's."""
+    """The partition class of a mixture's arrays (absent: mlp, the only one before it was stored; SINGLE: no network,
+    one piece): ControllerClassError (one line) for a class this version does not know or whose layer sizes are not
+    that class's."""
     partition = str(arrays["partition"]) if "partition" in arrays else partitions.DEFAULT
-    if partition not in partitions.PARTITIONS:
+    if partition not in (*partitions.PARTITIONS, SINGLE):
         raise ControllerClassError(f"{name} has an unknown partition class {partition!r}; this version knows "
-                                   f"{', '.join(partitions.PARTITIONS)}")
+                                   f"{', '.join(partitions.PARTITIONS)}, {SINGLE} (K = 1)")
+    if partition == SINGLE or not layers:  # no network: a single piece, and only it, has none
+        if partition != SINGLE or layers or np.shape(arrays["L"])[0] != 1:
+            raise ControllerClassError(f"{name} names partition class {partition!r} but has {len(layers)} partition "
+                                       f"layers and K = {np.shape(arrays['L'])[0]} (class {SINGLE!r}: none, K = 1)")
+        return partition
     sizes = (layers[0][0].shape[0], *(w.shape[1] for w, _ in layers))  # (d_s, hidden widths..., K)
     if tuple(partitions.get(partition).sizes(sizes[0], sizes[1:-1], sizes[-1])) != sizes:
         raise ControllerClassError(f"{name} names partition class {partition!r} but its layers have sizes {sizes}")
@@ -206,6 +216,11 @@ class Controller:
     def num_clusters(self) -> int:
         return self.L.shape[0] if self.kind == MIXTURE else 1
 
+    @property
+    def single_piece(self) -> bool:
+        """A mixture of K = 1: its one piece acts everywhere, whatever partition network the file may carry."""
+        return self.kind == MIXTURE and self.num_clusters == 1
+
     def bounds(self) -> tuple:
         """(action_low [d_a], action_high [d_a]); ValueError where the controller has none."""
         if self.action_low is None:
@@ -227,9 +242,9 @@ class Controller:
         return subpolicies.SUBPOLICIES[self.subpolicy].features(z, np)
 
     def cluster(self, obs: np.ndarray) -> np.ndarray:
-        """Active cluster for obs [..., d_s] -> int array [...] (0 for an MLP controller)."""
+        """Active cluster for obs [..., d_s] -> int array [...] (0 for an MLP controller and a single piece)."""
         z = self.normalize(obs)
-        if self.kind == MLP:
+        if self.kind == MLP or self.single_piece:  # one piece: the argmax over one logit, without the network
             return np.zeros(z.shape[:-1], np.int64)
         return np.argmax(self._mlp(z)[..., : self.num_clusters], axis=-1)
 

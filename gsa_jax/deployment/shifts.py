@@ -21,10 +21,8 @@ patched), and every episode starts from the same fixed start states as the nomin
 
 from typing import Any, NamedTuple
 
-import mujoco
 import numpy as np
 
-from envs.mujoco_c import make_c
 from envs.randomization import DEFAULT_PUSH_RATE, push_force
 
 OTHER_SIMULATOR = {"Hopper-v5": "hopper", "Walker2d-v5": "walker2d", "HalfCheetah-v5": "halfcheetah",
@@ -56,6 +54,10 @@ def applies(env_name: str, shift: Shift) -> bool:
 def shifted_task(env_name: str, shift: Shift) -> Any:
     """A fresh MuJoCo C task (envs.mujoco_c.make_c: reset(seed), step(action), .model, .data) of env_name
     with the shift's model change; derived constants recomputed (mj_setConst)."""
+    import mujoco  # here, where a task is made: the shifts' names load without MuJoCo (`gsa robustness --help`)
+
+    from envs.mujoco_c import make_c
+
     task = make_c(OTHER_SIMULATOR[env_name] if shift.kind == "simulator" else env_name)
     m = task.model
     if shift.kind == "mass":

@@ -13,13 +13,14 @@ import re
 import zipfile
 from typing import Any, Callable
 
-import jax
 import numpy as np
 
 from gsa_jax.errors import UserError
 
 
 def _flat(tree):
+    import jax  # here and in load_pytree, which walk pytrees: the rest loads without JAX (a command's --help)
+
     leaves, treedef = jax.tree_util.tree_flatten_with_path(tree)
     return {jax.tree_util.keystr(path): np.asarray(x) for path, x in leaves}, treedef
 
@@ -126,6 +127,8 @@ def dict_spelling(key: str) -> str:
 
 def load_pytree(path: str, like: Any) -> Any:
     """Load arrays saved by save_pytree into the structure of `like` (shapes and dtypes must match)."""
+    import jax
+
     with np.load(path) as data:
         leaves, treedef = jax.tree_util.tree_flatten_with_path(like)
         out = []

@@ -23,7 +23,6 @@ import threading
 import time
 from typing import Any, Callable, Iterator, NamedTuple
 
-import jax
 import numpy as np
 
 from gsa_jax.running.metrics import EVAL_METRICS, ITERATION_METRICS
@@ -196,6 +195,8 @@ def chunk_loop(program: Program, store: Any, plan: Plan, metrics: dict, loop: di
 
 def record_chunk(program: Program, plan: Plan, metrics: dict, loop: dict, m: dict) -> int:
     """A chunk's metrics into the host arrays, its evaluation when due, steps and clocks. Returns done."""
+    import jax  # here, its one use: the formatting helpers (fmt, duration) load without JAX (a command's --help)
+
     m = jax.device_get(m)
     done, chunk, runs = loop["done"], plan.chunk, program.runs
     for k in ITERATION_METRICS + ("failed_at",):

@@ -24,6 +24,7 @@ from gsa_jax.algorithm.config import Config, Hparams, make_hparams
 from gsa_jax.algorithm.ppo import make_train
 from gsa_jax.running import xla_cache
 from gsa_jax.running.driver import Program
+from gsa_jax.running.spec import RUN_BATCH
 
 
 def stack_hparams(runs: list, names: Sequence[str], iterations: int) -> Hparams:
@@ -31,9 +32,6 @@ def stack_hparams(runs: list, names: Sequence[str], iterations: int) -> Hparams:
 
     per_run = [make_hparams(K=r["K"], total_iterations=iterations, **{n: r[n] for n in names}) for r in runs]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *per_run)
-
-
-RUN_BATCH = 8  # runs per sub-batch (make_group_program); measured in experiments/bench_run_batch/
 
 
 def sub_batched(fn: Callable, size: int) -> Callable:

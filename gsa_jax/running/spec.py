@@ -19,10 +19,9 @@ import envs
 from envs.physics import FLAT_CONFIG_FIELDS, Physics, nest_physics
 from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam
-from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS
+from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS, VALUE_TARGETS
 from gsa_jax.algorithm.partitions import PARTITIONS
-from gsa_jax.algorithm.policies import SUBPOLICY_KINDS
-from gsa_jax.algorithm.retrace import VALUE_TARGETS
+from gsa_jax.algorithm.subpolicies import SUBPOLICY_KINDS
 from gsa_jax.errors import UserError
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
 from gsa_jax.running.trained import path_part
@@ -35,6 +34,9 @@ _STATIC_FIELDS = {f.name for f in dataclasses.fields(Config)} - {"env", "policy"
 GROUP_AXES = (("subpolicies", "subpolicy", MIXTURE, SUBPOLICY_KINDS), ("partitions", "partition", MIXTURE, tuple(PARTITIONS)),
               ("value_targets", "value_target", None, VALUE_TARGETS))
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+# runs per sequential sub-batch of a group's program (gsa_jax.running.programs; gsa sweep --run-batch), here where
+# the commands' parsers read it without JAX; measured in experiments/bench_run_batch/
+RUN_BATCH = 8
 
 
 class SpecError(UserError, ValueError):

@@ -18,10 +18,11 @@ from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
 from gsa_jax.running.driver import Plan, Result, drive, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
-from gsa_jax.running.programs import RUN_BATCH, GroupRuns, GroupShape, group_program, pad_runs
+from gsa_jax.running.programs import GroupRuns, GroupShape, group_program, pad_runs
 from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
 from gsa_jax.running.spec import (
-    Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_at, group_eval_every, group_iterations, group_name,
+    RUN_BATCH, Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_at,
+    group_eval_every, group_iterations, group_name,
 )
 from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
 from gsa_jax.running.trained import part_dir, run_label

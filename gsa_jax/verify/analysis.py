@@ -8,6 +8,7 @@ import numpy as np
 
 from envs.task import Task
 from gsa_jax.algorithm.kinds import MIXTURE
+from gsa_jax.deployment import starts
 from gsa_jax.deployment.numpy_policy import Controller
 from gsa_jax.verify import certify, falsify, invariant, roa, simulate, switching
 from gsa_jax.verify import linearize as lin
@@ -161,7 +162,7 @@ def roa_of(system: System, policy: simulate.Policy, qref: np.ndarray, scale: np.
 
 def nominal(system: System, budget: Budget) -> tuple:
     task = system.task
-    qpos, qvel = falsify.start_law_states(task, budget.nominal_episodes, 10_000 + budget.seed)
+    qpos, qvel = falsify.start_law_states(task, budget.nominal_episodes, starts.SELECTION_SEED + budget.seed)
     ep = simulate.run(task, simulate.controller_policy(system.ctrl), qpos, qvel, int(task.episode_length), record=True)
     r = ep.returns
     return {"episodes": len(r), "return_mean": float(r.mean()), "return_p05": float(np.percentile(r, 5)),
@@ -187,7 +188,8 @@ def falsification(system: System, budget: Budget, threshold: "float | None" = No
                      "starts_from": narrower}
     rule = {"failure": f"a return below {threshold:.6g}, the nominal episodes' worst", "failure_return": threshold,
             "neighbours": judge.neighbours, "perturbation_scaled": falsify.PERTURBATION,
-            "knife_edge_share": falsify.KNIFE_EDGE, "robustness": falsify.robustness_measure(task)}
+            "knife_edge_share": falsify.KNIFE_EDGE, "robustness": falsify.robustness_measure(task),
+            "horizon": horizon}
     return {"rule": rule, **out}
 
 

@@ -72,8 +72,11 @@ def logit_rows(ctrl: Controller, obs: np.ndarray) -> tuple:
     """(logits [K], d logits / d obs [K, d_s], exact) of a mixture's partition at obs [d_s] over its K active
     pieces: for a linear partition with no observation at the normalizer's clip, its own W and c with the
     normalization folded in (deployment.cells.raw_logits: the logits are exactly affine in obs there, so the cells
-    these rows give are the partition's, exactly); otherwise the network's linearization at obs."""
+    these rows give are the partition's, exactly); for a single piece (K = 1) one logit, 0 everywhere (exact);
+    otherwise the network's linearization at obs."""
     k = ctrl.num_clusters
+    if ctrl.single_piece:
+        return np.zeros(1), np.zeros((1, len(obs))), True
     z, dz = normalized(ctrl, obs)
     if partitions.get(ctrl.partition).polyhedral and np.all(dz > 0):
         w_raw, c_raw = raw_logits(ctrl)

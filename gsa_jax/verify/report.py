@@ -106,8 +106,8 @@ def certificate_lines(cert: dict) -> list:
             f"A^k' P A^k <= rho_P^2 P, rho_P = {cert['rho_linearization']:.4g}",
             f"- level {cert['level']:.4g} ({verdict}); {cert['level_linearization']:.4g} on the linearization, "
             f"bounded by {cert['bounded_by']}",
-            f"- inscribed radius {cert['inscribed_radius']:.3g} (SI units); semi-axes "
-            f"{', '.join(f'{a:.3g}' for a in cert['semi_axes'])}; extent {extent}",
+            f"- extent (each coordinate's largest excursion inside the set, in its units): {extent}; the semi-axes "
+            "and the inscribed radius, which mix units, are in verify.json",
             f"- plant test ({cert['samples']} starts, each stepped k control steps in MuJoCo C with the exported "
             f"controller): {rounds}"]
 
@@ -139,9 +139,8 @@ def hold_set_lines(rec: dict) -> list:
         f"{rec['rho_linearization']:.4g}",
         f"- level {rec['level']:.4g} ({verdict}); {rec['level_linearization']:.4g} on the linearization, bounded by "
         f"{rec['bounded_by']}; every start in the set enters the inner set V <= {rec['inner_level']:.4g} and stays",
-        f"- inscribed radius {rec['inscribed_radius']:.3g} (SI units); semi-axes "
-        f"{', '.join(f'{a:.3g}' for a in rec['semi_axes'])}; extent {extent('extent')}; the inner set's extent "
-        f"{extent('inner_extent')}",
+        f"- extent (each coordinate's largest excursion inside the set, in its units): {extent('extent')}; the inner "
+        f"set's: {extent('inner_extent')}; the semi-axes and the inscribed radius, which mix units, are in verify.json",
         f"- plant test ({rec['samples']} starts, each stepped one control step in MuJoCo C with the exported "
         f"controller): {rounds_text(rec['rounds'])}"]
 
@@ -157,9 +156,13 @@ def searches(doc: dict) -> dict:
     return {k: v for k, v in doc["falsification"].items() if k != "rule"}
 
 
-def counterexample_line(c: dict) -> str:
-    verdict = ("knife-edge, kept out of the worst return" if c["knife_edge"] else "fails" if c["fails"]
-               else "does not fail")
+def counterexample_line(c: dict, threshold: "float | None" = None, horizon: "int | None" = None) -> str:
+    """One counterexample in words: below the failure threshold (the nominal episodes' worst return, stated) or not,
+    and whether it terminated (an episode shorter than the task's horizon) or only scored less."""
+    ended = f"terminated at step {c['steps']}" if horizon is not None and c["steps"] < horizon else "did not terminate"
+    below = "below" if c["fails"] else "not below"
+    bar = f"the failure threshold {threshold:.1f}" if threshold is not None else "the failure threshold"
+    verdict = f"{below} {bar}, {ended}" + ("; knife-edge, kept out of the worst return" if c["knife_edge"] else "")
     inherited = " (inherited)" if c["inherited"] else ""
     return (f"  - return {c['return']:.1f} in {c['steps']} steps from qpos {np.round(c['qpos'], 3).tolist()}, qvel "
             f"{np.round(c['qvel'], 3).tolist()}, {push_text(c['push'])}: {verdict}; neighbours failing "
@@ -170,7 +173,8 @@ def falsification_lines(doc: dict) -> list:
     n, rule = doc["nominal"], doc["falsification"]["rule"]
     lines = [f"Nominal (start law, {n['episodes']} episodes): mean return {n['return_mean']:.1f}, "
              f"5th percentile {n['return_p05']:.1f}, worst {n['return_min']:.1f}.", "",
-             f"A counterexample fails with {rule['failure']}; {rule['neighbours']} neighbours within "
+             f"A counterexample counts as failing with {rule['failure']} (a score threshold: it need not terminate); "
+             f"{rule['neighbours']} neighbours within "
              f"{rule['perturbation_scaled']:g} scaled units give the share that fail too, knife-edge below "
              f"{rule['knife_edge_share']:g}; robustness: {rule['robustness']}.", ""]
     for name, f in searches(doc).items():
@@ -179,7 +183,7 @@ def falsification_lines(doc: dict) -> list:
         lines.append(f"- {name.replace('_', ' ')}: {f['episodes']} episodes{start}, worst return {worst} "
                      f"({f['worst_return_with_knife_edges']:.1f} with {f['knife_edge_counterexamples']} knife-edge "
                      f"counterexamples; 5th percentile of the first iteration's draws {f['first_iteration_p05']:.1f})")
-        lines += [counterexample_line(c) for c in f["counterexamples"]]
+        lines += [counterexample_line(c, rule["failure_return"], rule.get("horizon")) for c in f["counterexamples"]]
     return lines
 
 

@@ -18,9 +18,8 @@ from gsa_jax.analysis.sweeps.results import read_csv, write_csv
 from gsa_jax.deployment.evaluation import DeployError, load_controller
 from gsa_jax.deployment.numpy_policy import Controller, action_size
 from gsa_jax.deployment.shifts import Shift, applies, run_shifted
+from gsa_jax.deployment.starts import SELECTION_SEED as START_SEED  # the selection starts
 from gsa_jax.running.runinfo import run_metadata
-
-START_SEED = 10_000
 
 
 def load_controllers(paths: Sequence[str]) -> list:

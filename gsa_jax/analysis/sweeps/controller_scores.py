@@ -24,15 +24,16 @@ import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.analysis.sweeps import columns as C
+from gsa_jax.deployment import starts
 from gsa_jax.errors import UserError
 
 if TYPE_CHECKING:
     from envs.families.record import TaskRecord
 
-EPISODES = 10  # start states per controller: the episode noise of the mean is small beside the seed spread
-START_SEED = 10_000  # the start states of experiments/robustness/ (seed = 10_000 + i); not those training evaluated
-FRESH_EPISODES = 50  # an answer's chosen controller re-scored on starts it was not picked on ...
-FRESH_START_SEED = 20_000  # ... from this seed
+# the selection starts (every score and verdict) and the fresh starts (an answer's chosen controller re-scored on
+# starts it was not picked on): gsa_jax.deployment.starts names them for every command
+EPISODES, START_SEED = starts.SELECTION_EPISODES, starts.SELECTION_SEED
+FRESH_EPISODES, FRESH_START_SEED = starts.FRESH_EPISODES, starts.FRESH_SEED
 FILE = "controller_scores.csv"
 COLUMNS = ("label", "env", "policy", "K", "seed", "sha256", "episodes", "start_seed", C.CONTROLLER_SCORE,
            "episode_std", "length_mean", "simulator", "mujoco_version")

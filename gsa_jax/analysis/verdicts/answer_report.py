@@ -7,6 +7,7 @@ fresh start states."""
 import glob
 import math
 import os
+from typing import Any
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores, stats
 from gsa_jax.analysis.sweeps.results import write_csv
 from gsa_jax.analysis.verdicts import ladder, sequential, step_budget, trimmed, verdict
+from gsa_jax.deployment import starts
 from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, percent, reference_of, trained_steps
 from gsa_jax.running.checkpoint import write_atomic
 
@@ -107,11 +109,51 @@ def plot_answer(setup: Setup, scores: dict, random_mean: float, path: str) -> No
                label=f"margin: {setup.margin:g} of the gain over a random policy ({random_mean:.0f})")
     ax.set_xticks(([-1] if flat_tick else []) + list(range(len(ks))), (["flat PPO"] if flat_tick else []) + [str(k) for k in ks])
     ax.set(xlabel="K (linear controllers)", ylabel="controller score (MuJoCo C, fixed starts)", title=setup.env)
+    save_figure(fig, ax, path)
+
+
+def save_figure(fig: "Any", ax: "Any", path: str) -> None:
+    """The report's figures' finish (a matplotlib Figure and its Axes): grid, legend, written at 110 dpi, closed."""
+    import matplotlib.pyplot as plt
+
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def class_curves(runs: dict) -> tuple:
+    """(env_steps [T], the seeds' training returns [seeds, T]) of one class's {seed: (env_steps, returns)}: the seeds
+    with the most common curve length (those trained to the answer's step budget)."""
+    lengths = [len(steps) for steps, _ in runs.values()]
+    common = max(set(lengths), key=lengths.count)
+    picked = [runs[s] for s in sorted(runs) if len(runs[s][0]) == common]
+    return np.asarray(picked[0][0], float), np.array([np.asarray(r, float) for _, r in picked])
+
+
+def plot_learning(setup: Setup, training: dict, random_mean: float, path: str) -> None:
+    """Every class's learning curve: the median over seeds of the stochastic policy's training episode return
+    against env steps, the interquartile range shaded (flat PPO in black, the K in colour), the random policy dotted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    cells = ([FLAT] if training.get(FLAT) else []) + [k for k in setup.ladder if training.get(k)]
+    ks = [cell for cell in cells if cell != FLAT]
+    colours = dict(zip(ks, plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(len(ks), 1)))))
+    for cell in cells:
+        steps, returns = class_curves(training[cell])
+        colour = "k" if cell == FLAT else colours[cell]
+        q1, mid, q3 = np.nanpercentile(returns, [25, 50, 75], axis=0)
+        label = f"{'flat PPO' if cell == FLAT else f'K = {cell}'} ({len(returns)} seeds)"
+        ax.plot(steps, mid, color=colour, lw=1.5, label=label)
+        ax.fill_between(steps, q1, q3, color=colour, alpha=0.15, lw=0)
+    ax.axhline(random_mean, color="grey", ls=":", lw=1, label="random policy")
+    ax.set(xlabel="env steps", ylabel="training episode return (median, IQR over seeds)", title=setup.env)
+    save_figure(fig, ax, path)
 
 
 def export_choice(out: str, results_root: list, env: str, k: int, scores: dict) -> dict | None:
@@ -291,21 +333,28 @@ def design_text(setup: Setup) -> list:
 
 
 def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, sentence: str, choice: dict | None,
-                 command: str, versions: dict) -> str:
-    """out/report.md (and verdicts.csv, score_vs_k.png) -> its path."""
+                 commands: tuple, versions: dict) -> str:
+    """out/report.md (and verdicts.csv, score_vs_k.png, learning_curves.png) -> its path. commands: (the command that
+    reproduces it, the next commands to run where it is not decided)."""
+    command, steps = commands
     rows, sens = answer_rows(setup, state), sensitivity_rows(setup, evidence, state)
-    plot_answer(setup, evidence.scores, float(np.mean(state["random"]["returns"])), os.path.join(out, "score_vs_k.png"))
+    random_mean = float(np.mean(state["random"]["returns"]))
+    plot_answer(setup, evidence.scores, random_mean, os.path.join(out, "score_vs_k.png"))
+    if evidence.training:
+        plot_learning(setup, evidence.training, random_mean, os.path.join(out, "learning_curves.png"))
     write_csv(os.path.join(out, "verdicts.csv"), rows + sens)
     flat = evidence.scores.get(FLAT, {})
     flat_row = (*iqm_interval(list(flat.values())), len(flat)) if setup.target is None and len(flat) >= 2 else None
     rounds, share = rounds_text(state)
     lines = [f"# How many linear controllers does {setup.env} need?", "", f"**{sentence}**", "",
              f"Stopped: {state['stopped']}. Scores are the committed controllers' deterministic returns in MuJoCo C from "
-             f"fixed start states ({controller_scores.EPISODES} from seed {controller_scores.START_SEED}; "
-             "controller_scores.csv beside each controllers/ folder).", "", "## Step budget", ""]
+             f"{starts.describe(controller_scores.START_SEED, controller_scores.EPISODES)} "
+             "(controller_scores.csv beside each controllers/ folder).", "", "## Step budget", ""]
     lines += step_budget_text(setup, state) + ["", "## Baseline", ""] + baseline_text(setup, state)
     lines += ["", "## Design", ""] + design_text(setup) + ["", "![score against K](score_vs_k.png)", "", "## Verdicts", "",
                                                            table_text(rows, flat_row), ""]
+    if evidence.training:
+        lines += ["![learning curves per class](learning_curves.png)", ""]
     lines += learning_text(setup, state)
     if sens:
         lines += ["## Other margins (sensitivity, not the answer)", "",
@@ -317,7 +366,8 @@ def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, senten
     if state["rounds"] and share == share:
         lines += [f"Compiling or loading programs: {share:.0%} of the sweeps' wall time (each sweep's slowest worker; every "
                   "sweep of a class runs one program, compiled once and loaded after).", ""]
-    lines += choice_text(out, choice) + ["## Reproduce", "", f"    {command}", "",
+    lines += choice_text(out, choice) + (["## Next", "", *(f"    {step}" for step in steps), ""] if steps else [])
+    lines += ["## Reproduce", "", f"    {command}", "",
                                          "Versions: " + ", ".join(f"{k} {v}" for k, v in versions.items()), ""]
     path = os.path.join(out, "report.md")
     write_atomic(path, "\n".join(lines))
@@ -329,11 +379,11 @@ def choice_text(out: str, choice: dict | None) -> list:
         return []
     fresh = choice["fresh"]
     return ["## The chosen controller", "",
-            f"K = {choice.get('K')}, seed {choice['seed']}: the best of its seeds on the selection starts "
-            f"({choice['score']:.1f} over {controller_scores.EPISODES} episodes from seed {controller_scores.START_SEED}); "
-            f"on {fresh['episodes']} fresh starts from seed {fresh['start_seed']} it scores {fresh['controller_score']:.1f} "
+            f"K = {choice.get('K')}, seed {choice['seed']}: the best of its seeds on "
+            f"{starts.describe(controller_scores.START_SEED, controller_scores.EPISODES)} ({choice['score']:.1f}); "
+            f"on {starts.describe(fresh['start_seed'], fresh['episodes'])} it scores {fresh['controller_score']:.1f} "
             f"(episode std {fresh['episode_std']:.1f}): the fresh score is what to expect, the selection score carries "
             f"the best-of-seeds pick. From `{choice['source']}`: "
             + ", ".join(f"`{os.path.relpath(f, out)}`" for f in choice["files"]), "",
             f"Re-score it: `gsa deploy {os.path.join(out, 'controller', 'controller.npz')} "
-            f"--episodes {fresh['episodes']} --seed {fresh['start_seed']}`", ""]
+            f"--episodes {fresh['episodes']} --start-seed {fresh['start_seed']}`", ""]

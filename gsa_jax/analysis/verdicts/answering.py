@@ -30,7 +30,7 @@ from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.sweeps.extraction import collect_results
 from gsa_jax.analysis.sweeps.results import task_records
-from gsa_jax.analysis.verdicts import baseline, ladder, round_time, sequential, step_budget, trimmed, verdict
+from gsa_jax.analysis.verdicts import answer_progress, baseline, ladder, round_time, sequential, step_budget, trimmed, verdict
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
@@ -234,7 +234,7 @@ class Evidence(NamedTuple):
     scores: dict
     last100: dict
     curves: dict
-    training: dict = {}  # {K: {seed: (env_steps [T], training episode return [T])}}: the mixtures' training curves
+    training: dict = {}  # {FLAT or K: {seed: (env_steps [T], training episode return [T])}}: every class's training curves
 
 
 def score_roots(out: str, setup: Setup) -> list:
@@ -261,8 +261,8 @@ def collect_scores(out: str, setup: Setup, roots: Sequence[str] | None = None) -
 
 
 def collect_runs(out: str, setup: Setup, roots: Sequence[str] | None = None) -> tuple:
-    """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}, the
-    mixtures' {K: {seed: (env_steps, training episode return)}}) from the tidy metrics under `roots` (default
+    """({FLAT or K: {seed: last-100-episode training return}}, flat PPO's {seed: (env_steps, eval_return)}, every
+    class's {FLAT or K: {seed: (env_steps, training episode return)}}) from the tidy metrics under `roots` (default
     score_roots), runs that failed at a NaN/inf left out (their series end early)."""
     from gsa_jax.analysis.sweeps.results import drop_failed, load_failed, load_sweep
     from gsa_jax.analysis.sweeps.stats import last_episodes_return
@@ -283,8 +283,7 @@ def collect_runs(out: str, setup: Setup, roots: Sequence[str] | None = None) -> 
                 last100.setdefault(key, {})[seed] = last_episodes_return(s["episode_return"], s["episodes"])
                 if key == FLAT:
                     curves[seed] = (s["env_steps"], s["eval_return"])
-                else:
-                    training.setdefault(key, {})[seed] = (s["env_steps"], s["episode_return"])
+                training.setdefault(key, {})[seed] = (s["env_steps"], s["episode_return"])
     return last100, curves, training
 
 
@@ -458,13 +457,14 @@ COMPILE_LINE = re.compile(r"program ((?:compiled|loaded).*?) \(([\d.]+)s\)")  # 
 
 
 def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str = "results",
-                    runs_per_program: int = 0) -> dict:
+                    runs_per_program: int = 0, watch: Callable = lambda line: None) -> dict:
     """Train one sweep in a subprocess (gsa_jax.sweep: resumes if interrupted; its runs trained in parts of
     `runs_per_program`, each padded to it, so a class's sweeps share one program: compiled once, reused by the sweep's
     later parts, loaded from the answer's compilation cache by its later sweeps), collect its
     results (sweep.json, tidy metrics, controllers) into out/<where>/<name> and score its controllers ->
-    {seconds, compile_s (summed over the worker processes), compile_wall_s (the slowest worker's), status}."""
-    for d in ("specs", "logs"):
+    {seconds, compile_s (summed over the worker processes), compile_wall_s (the slowest worker's), status}.
+    watch: handed every line the sweep prints, then None at its end (answer_progress.watch)."""
+    for d in ("specs", "logs", "sweeps"):
         os.makedirs(os.path.join(out, d), exist_ok=True)
     toml = os.path.join(out, "specs", name + ".toml")
     write_atomic(toml, to_toml(spec, f"gsa answer's sweep {name}"))
@@ -473,23 +473,28 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
            "--runs-per-program", str(runs_per_program)]
     env = dict(os.environ)  # a compilation cache the user configured, else the answer's own (shared by its sweeps)
     env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.abspath(os.path.join(out, "xla_cache")))
-    t0, compiles, last = time.monotonic(), [], 0.0
+    t0, compiles = time.monotonic(), []
     with open(os.path.join(out, "logs", name + ".log"), "a") as logf:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-        for line in proc.stdout:
-            logf.write(line)
-            logf.flush()
-            m = COMPILE_LINE.search(line)
-            compiles += [float(m.group(2))] if m else []
-            if "ETA" in line and time.monotonic() - last > 60:  # the sweep's chunk lines, one a minute
-                log("    " + line.rstrip())
-                last = time.monotonic()
+        try:
+            for line in proc.stdout:
+                logf.write(line)
+                logf.flush()
+                m = COMPILE_LINE.search(line)
+                compiles += [float(m.group(2))] if m else []
+                watch(line)
+        except KeyboardInterrupt:  # the sweep had the Ctrl-C too: it saves its chunk and stops
+            proc.wait()
+            raise
         status = proc.wait()
+    if status == 130:  # the sweep was interrupted (a Ctrl-C that reached it alone): so is the answer
+        raise KeyboardInterrupt
     if status not in (0, 1):  # 1: some runs failed (NaN/inf): they are left out, as gsa_jax.plot leaves them out
         raise AnswerError(f"the sweep {name} stopped with exit status {status} (log: {os.path.join(out, 'logs', name + '.log')}); "
                           "run the same command again to resume", exit_status=3)
     collect_results(sweep_dir, results)
     controller_scores.score_directory(results, log=None, jobs=controller_scores.default_jobs())
+    watch(None)
     return {"seconds": round(time.monotonic() - t0, 1), "compile_s": round(sum(compiles), 1),
             "compile_wall_s": round(max(compiles, default=0.0), 1), "status": status}
 
@@ -531,10 +536,34 @@ def train_sweep(out: str, setup: Setup, state: dict, sweep: tuple, steps: int, l
     padded runs, steps and the seconds estimated before it ran: eta_s, None before any sweep)."""
     name, policy, ks, seeds = sweep
     eta = sweeps_seconds(setup, state, [sweep], steps)
+    feed = answer_progress.watch(whereabouts(setup, state, sweep, steps, eta, where), log)
     record = train(out, name, sweep_spec(setup, policy, ks, seeds, name, steps), log, where=where,
-                   runs_per_program=unit(setup))
+                   runs_per_program=unit(setup), watch=feed)
     return {**record, "policy": policy, "runs": padded_runs(setup, sweep), "steps": int(steps),
             "eta_s": None if eta is None else round(eta, 1)}
+
+
+def whereabouts(setup: Setup, state: dict, sweep: tuple, steps: int, eta: "float | None",
+                where: str) -> answer_progress.Where:
+    """Where a planned sweep is in the answer, for its progress line: the step budget's calibration, or the running
+    round's sweep i of n (with the round's runs and the seconds of its sweeps done and still to come)."""
+    name, policy, ks, seeds = sweep
+    cells = f"{'flat PPO' if policy == MLP else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
+    parts, runs = padded_runs(setup, sweep) // unit(setup), max(len(ks), 1) * len(seeds)
+    budget, elapsed = state.get("budget_s", float("inf")), state["elapsed_s"]
+    if where != "results":
+        return answer_progress.Where(f"step budget: {cells} at {steps:,} steps", "the step budget", parts, runs, runs, 0,
+                                     elapsed, eta, 0.0, budget)
+    record = state["rounds"][-1]
+    planned = plan_sweeps(setup, record["plan"], record["round"])
+    index = [s[0] for s in planned].index(name)
+    done = [record["sweeps"][s[0]] for s in planned[:index] if s[0] in record["sweeps"]]
+    later = sweeps_seconds(setup, state, planned[index + 1:], steps) if index + 1 < len(planned) else 0.0
+    return answer_progress.Where(
+        f"round {record['round']}, sweep {index + 1} of {len(planned)} ({cells})", f"round {record['round']}", parts,
+        runs, sum(max(len(s[2]), 1) * len(s[3]) for s in planned),
+        sum(max(len(s[2]), 1) * len(s[3]) for s in planned[:index]), elapsed + sum(d["seconds"] for d in done), eta,
+        later, budget)
 
 
 def run_round(out: str, setup: Setup, state: dict, plan: dict, log: Callable, verdicts_before: dict | None = None,
@@ -716,6 +745,7 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_policy: Callable,
     run_round."""
     os.makedirs(out, exist_ok=True)
     state, train = load_state(out, setup), train or run_class_sweep
+    state["budget_s"] = budget_s  # this invocation's budget: the progress lines say what is left of it
     t0, before = time.monotonic(), state["elapsed_s"]
     clock = lambda: state.update(elapsed_s=round(before + time.monotonic() - t0, 1))  # noqa: E731
     for d in controller_dirs_of(setup.start_from):
