@@ -7,11 +7,16 @@ STAMP := $(VENV)/.installed
 .PHONY: install demo test answer score sweep figures bench bench-quick profile profile-bench scene clean
 EXP ?= experiments/fig1_small/fig1_small.toml
 
+# pip's own lines (warnings of the build backend and of the machine's pip configuration included) go to a log, shown
+# where an install fails
+PIP_LOG := $(VENV)/pip.log
+PIP := $(BIN)/python -m pip install -q
 $(STAMP): pyproject.toml
-	$(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[test,deploy]"
-	touch $(STAMP)
+	@echo "installing gsa_jax and its dependencies into $(VENV) (minutes, the first time; pip's log: $(PIP_LOG))"
+	@$(PY) -m venv $(VENV)
+	@$(PIP) --upgrade pip > $(PIP_LOG) 2>&1 || { tail -n 30 $(PIP_LOG); exit 1; }
+	@$(PIP) -e ".[test,deploy]" >> $(PIP_LOG) 2>&1 || { tail -n 30 $(PIP_LOG); exit 1; }
+	@touch $(STAMP)
 
 install: $(STAMP)
 
@@ -20,8 +25,9 @@ install: $(STAMP)
 # installed; dm_control ~60 MB; cvxpy and Clarabel ~175 MB)
 TEST_STAMP := $(VENV)/.installed-test
 $(TEST_STAMP): $(STAMP) pyproject.toml
-	$(BIN)/python -m pip install -q -e ".[test,deploy,playground,dmc,verify]"
-	touch $(TEST_STAMP)
+	@echo "installing the test extras into $(VENV) (MuJoCo Playground, dm_control, cvxpy; pip's log: $(PIP_LOG))"
+	@$(PIP) -e ".[test,deploy,playground,dmc,verify]" >> $(PIP_LOG) 2>&1 || { tail -n 30 $(PIP_LOG); exit 1; }
+	@touch $(TEST_STAMP)
 
 ## demo: a short real training run (mixture of 4 linear controllers on inverted_double_pendulum, ~2 min)
 demo: $(STAMP)
@@ -45,8 +51,9 @@ ENV ?= InvertedDoublePendulum-v5
 ARGS ?=
 DMC_STAMP := $(VENV)/.installed-dmc
 $(DMC_STAMP): $(STAMP) pyproject.toml
-	$(BIN)/python -m pip install -q -e ".[test,deploy,dmc]"
-	touch $(DMC_STAMP)
+	@echo "installing dm_control into $(VENV) (pip's log: $(PIP_LOG))"
+	@$(PIP) -e ".[test,deploy,dmc]" >> $(PIP_LOG) 2>&1 || { tail -n 30 $(PIP_LOG); exit 1; }
+	@touch $(DMC_STAMP)
 
 answer: $(DMC_STAMP)
 	$(BIN)/gsa answer --env $(ENV) $(ARGS)
