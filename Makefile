@@ -36,7 +36,7 @@ demo: $(STAMP)
 	@echo
 	@echo "'eval' is the deterministic controller (4 linear pieces: most probable cluster, mean action) over 16 episodes;"
 	@echo "the task's maximum is ~9,360 (1000 steps holding both poles up), a random policy scores ~176."
-	@echo "Next: .venv/bin/gsa inspect runs/demo    (clusters, each piece's L and b -> runs/demo/inspect/)"
+	@echo "Next: .venv/bin/gsa inspect runs/demo    (clusters, each piece as u = u0 + K (x - x*) -> runs/demo/inspect/)"
 	@echo "      .venv/bin/gsa export runs/demo --out controller.h    (the controller as one C header)"
 	@echo "      .venv/bin/tensorboard --logdir runs    (after .venv/bin/pip install tensorboard)"
 

@@ -50,14 +50,21 @@ class CommandParser(argparse.ArgumentParser):
 
 
 def check_output(path: str | None, flag: str) -> None:
-    """UserError (one line) where an output path typed on a command line lies in a folder that does not exist: a
-    command creates its output's last part only, never a mistyped tree of folders (at the root, say)."""
+    """UserError (one line) where an output path typed on a command line lies in a folder that does not exist outside
+    the working directory: a command never creates a mistyped tree of folders (at the root, say). Missing folders
+    inside the working directory (runs/ in a fresh clone) are created here, for every command alike."""
     if path is None:
         return
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
+    parent, here = os.path.dirname(os.path.abspath(path)), os.path.abspath(os.getcwd())
+    if os.path.isdir(parent):
+        return
+    if os.path.commonpath([parent, here]) != here:
         raise UserError(f"{flag} {path!r} is in a folder that does not exist ({parent}); create it first or choose "
-                        "another")
+                        "another (only folders inside the working directory are created)")
+    try:
+        os.makedirs(parent, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"{flag} {path!r}: its folder {parent} cannot be created ({e.strerror or e})") from None
 
 
 def whole_number(text: str) -> int:

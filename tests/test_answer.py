@@ -397,5 +397,5 @@ def test_an_undecided_answer_names_the_command_to_run_next():
     [line] = next_steps(argv, "runs/answers/task", setup, {"stopped": "budget (30 min; 29.0 used)", "budget_s": 1800.0})
     assert "answer --env task --out runs/answers/task --budget-minutes 60   (resumes it" in line, line
     [line] = next_steps(argv + ["--out", "o", "--looks", "10,20,40"], "o", setup, {"stopped": "seed cap (40 seeds per cell)"})
-    assert "answer --env task --budget-minutes=30 --looks 10,20,40,80 --out o-more-seeds   (a seed cap of 80" in line, line
+    assert "answer --env task --budget-minutes=30 --looks 10,20,40,80 --out o-more-seeds   (a new answer with a seed cap of 80" in line, line
     assert next_steps(argv, "o", setup, {"stopped": "decided"}) == []

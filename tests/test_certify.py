@@ -145,7 +145,8 @@ def test_certify_writes_its_record_and_prints_it(tmp_path, capsys):
     report = (tmp_path / "out" / "report.md").read_text()
     for text in (printed, report):
         assert "Exact on the linearization, tested on the plant (not proved on it)." in text
-        assert f"inscribed radius {cert['inscribed_radius']:.3g} (SI units)" in text
+        extent = ", ".join(f"{name} +-{e:.3g}" for name, e in zip(cert["coordinates"], cert["extent"]))
+        assert f"in its units): {extent}" in text and "(SI units)" not in text  # per axis, each in its own units
     recheck(load_system(path), cert, seed=2024)
 
 

@@ -193,5 +193,6 @@ def test_certify_writes_the_hold_set_and_prints_it(tmp_path, capsys):
     report = (tmp_path / "out" / "report.md").read_text()
     for text in (printed, report):
         assert "Exact on the linearization, tested on the plant (not proved on it)." in text
-        assert f"inscribed radius {rec['inscribed_radius']:.3g} (SI units)" in text
+        extent = ", ".join(f"{name} +-{e:.3g}" for name, e in zip(rec["coordinates"], rec["extent"]))
+        assert f"in its units): {extent}" in text and "(SI units)" not in text  # per axis, each in its own units
         assert f"inner set V <= {rec['inner_level']:.4g}" in text

@@ -1,8 +1,10 @@
-"""One rule for what every command writes: an output path in a folder that does not exist is one line before anything
-loads or compiles (gsa_jax.cli.CommandParser.outputs, check_output)."""
+"""One rule for what every command writes: an output path in a folder that does not exist outside the working directory
+is one line before anything loads or compiles, and one inside it has its folders made (gsa_jax.cli.CommandParser.outputs,
+check_output)."""
 
 import argparse
 import importlib
+import os
 
 import pytest
 
@@ -45,6 +47,16 @@ def test_an_output_in_a_missing_folder_is_one_line(name, tmp_path):
     assert not (tmp_path / "no").exists()
     parsed = parser.parse_args(minimal_argv(parser) + [flag, str(tmp_path / "out")])  # its last part is created later
     assert getattr(parsed, dest) == str(tmp_path / "out")
+
+
+@pytest.mark.parametrize("name", WRITERS)
+def test_missing_folders_inside_the_working_directory_are_created(name, tmp_path, monkeypatch):
+    """runs/ does not exist in a fresh clone: `--out runs/x/out` works there, its folders made before anything runs."""
+    parser = parser_of(name)
+    dest = next(d for d in parser.outputs if any(a.dest == d for a in parser._actions))
+    monkeypatch.chdir(tmp_path)
+    parser.parse_args(minimal_argv(parser) + ["--" + dest.replace("_", "-"), os.path.join("runs", "x", "out")])
+    assert (tmp_path / "runs" / "x").is_dir() and not (tmp_path / "runs" / "x" / "out").exists()
 
 
 def test_train_refuses_a_missing_folder_before_it_creates_anything(tmp_path, capsys):

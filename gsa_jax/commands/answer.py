@@ -198,15 +198,16 @@ def next_steps(argv: list, out: str, setup: Setup, state: dict) -> list:
         minutes = 2 * state.get("budget_s", 7200.0) / 60
         return [f"{again(without(argv, '--budget-minutes'), True, out)} --budget-minutes {minutes:g}   (resumes it "
                 "with twice the minutes; the same design)"]
-    fresh = [*without(without(argv, "--out"), "--looks")]
+    fresh, base = [*without(without(argv, "--out"), "--looks")], os.path.normpath(out)
     if stopped.startswith(("seed cap", "futility")):
-        looks = ",".join(map(str, (*setup.looks, 2 * setup.looks[-1])))
-        return [f"{again([*fresh, '--looks', looks], True, out)} --out {shlex.quote(out + '-more-seeds')}   (a seed cap "
-                f"of {2 * setup.looks[-1]} per cell, from new seeds)"]
+        cap = 2 * setup.looks[-1]
+        looks = ",".join(map(str, (*setup.looks, cap)))
+        return [f"{again([*fresh, '--looks', looks], True, out)} --out {shlex.quote(base + '-more-seeds')}   (a new "
+                f"answer with a seed cap of {cap} per cell, in its own folder: it trains seeds 0-{cap - 1} again)"]
     if stopped == "no answer" and setup.auto_steps():
         steps = 2 * (setup.max_steps or setup.steps())
         return [f"{again([*without(fresh, '--max-steps'), '--max-steps', str(steps)], True, out)} --out "
-                f"{shlex.quote(out + '-longer')}   (flat PPO given up to {steps:,} steps to learn the task)"]
+                f"{shlex.quote(base + '-longer')}   (a new answer whose flat PPO has up to {steps:,} steps to learn the task)"]
     return []
 
 

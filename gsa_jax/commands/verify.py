@@ -61,8 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output folder (default: verify_<controller name>)")
     p.add_argument("--quick", action="store_true", help="a small budget (under 2 minutes on 2 cores)")
     p.add_argument("--seed", type=int, default=0,
-                   help="seeds the searches and samples; the nominal episodes start from the selection starts shifted "
-                        "by it (seeds 10000 + N + i; default %(default)s: those `gsa score` and `gsa deploy` score)")
+                   help="seeds the searches and samples; nominal episode i starts from seed 10000 + N + i (default "
+                        "%(default)s: its first 10 are the selection starts `gsa score` and `gsa deploy` score)")
     p.add_argument("--lqr-q", default=None, metavar="Q1,...", help="the LQR beside the controller weights the tangent "
                    "state by these (the task's units: positions, then velocities; default: Q = I on scaled states)")
     p.add_argument("--lqr-r", default=None, metavar="R1,...", help="... and the actions by these (default R = I)")

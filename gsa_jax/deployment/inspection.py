@@ -180,12 +180,13 @@ def reference_point(arrays: dict) -> tuple:
     except (ValueError, ImportError, NotImplementedError):
         task = None
     q = None if task is None or task.equilibrium_qpos is None else np.asarray(task.equilibrium_qpos, np.float64)
-    if q is not None:
-        x = np.asarray(TaskC(task).set_start(q, np.zeros(task.model.nv)), np.float64)  # mj_forward there
-        if x.shape == mean.shape:
-            return x, (f"the task's equilibrium observation ({record.name}'s equilibrium_qpos "
-                       f"{np.round(q, 6).tolist()}, at rest)")
-    return mean, "the normalization mean (the task declares no equilibrium)"
+    try:  # mj_forward there (a task with a goal drawn at reset has no one observation of it)
+        x = None if q is None else np.asarray(TaskC(task).set_start(q, np.zeros(task.model.nv)), np.float64)
+    except ValueError:
+        x = None
+    if x is not None and x.shape == mean.shape:
+        return x, f"the task's equilibrium observation ({record.name}'s equilibrium_qpos {np.round(q, 6).tolist()}, at rest)"
+    return mean, "the normalization mean (no equilibrium observation of the task here)"
 
 
 def action_names(arrays: dict, d_a: int) -> list:

@@ -4,8 +4,8 @@ Episode i of a start set begins from the task's start law drawn with seed FIRST 
 MuJoCo C), so anyone re-running a controller from the same seeds gets the same return.
 
 - The selection starts (SELECTION_SEED + i, SELECTION_EPISODES of them): `gsa score`'s controller_score, the one
-  every verdict and the answer's choice of its best seed use; `gsa deploy` without seed options; `gsa verify`'s
-  nominal episodes; experiments/robustness/.
+  every verdict and the answer's choice of its best seed use; `gsa deploy` without seed options. `gsa verify`'s
+  nominal episodes (50; 16 with --quick) and `gsa robustness`'s (20) begin at the same seed.
 - The fresh starts (FRESH_SEED + i, FRESH_EPISODES of them): an answer's chosen controller re-scored on starts it was
   not picked on (`gsa deploy --start-seed 20000 --episodes 50` gives the same number).
 
@@ -17,10 +17,11 @@ SELECTION_EPISODES = 10  # the episode noise of their mean is small beside the s
 FRESH_SEED = 20_000
 FRESH_EPISODES = 50
 
-NAMES = {SELECTION_SEED: "selection starts", FRESH_SEED: "fresh starts"}
+NAMES = {(SELECTION_SEED, SELECTION_EPISODES): "the selection starts", (FRESH_SEED, FRESH_EPISODES): "the fresh starts"}
 
 
 def describe(first: int, episodes: int) -> str:
-    """'the selection starts (seeds 10000-10009)': a start set in words, for reports and printed lines."""
-    name = NAMES.get(int(first), "starts")
-    return f"the {name} (seeds {first}-{first + episodes - 1})" if episodes > 1 else f"the {name} (seed {first})"
+    """'the selection starts (seeds 10000-10009)': a start set in words, for reports and printed lines (named where it
+    is one of the two, else 'the starts')."""
+    name = NAMES.get((int(first), int(episodes)), "the starts")
+    return f"{name} (seeds {first}-{first + episodes - 1})" if episodes > 1 else f"{name} (seed {first})"

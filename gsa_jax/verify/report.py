@@ -159,10 +159,11 @@ def searches(doc: dict) -> dict:
 def counterexample_line(c: dict, threshold: "float | None" = None, horizon: "int | None" = None) -> str:
     """One counterexample in words: below the failure threshold (the nominal episodes' worst return, stated) or not,
     and whether it terminated (an episode shorter than the task's horizon) or only scored less."""
-    ended = f"terminated at step {c['steps']}" if horizon is not None and c["steps"] < horizon else "did not terminate"
+    ended = "" if horizon is None else (f", terminated at step {c['steps']}" if c["steps"] < horizon else
+                                        ", did not terminate")
     below = "below" if c["fails"] else "not below"
     bar = f"the failure threshold {threshold:.1f}" if threshold is not None else "the failure threshold"
-    verdict = f"{below} {bar}, {ended}" + ("; knife-edge, kept out of the worst return" if c["knife_edge"] else "")
+    verdict = f"{below} {bar}{ended}" + ("; knife-edge, kept out of the worst return" if c["knife_edge"] else "")
     inherited = " (inherited)" if c["inherited"] else ""
     return (f"  - return {c['return']:.1f} in {c['steps']} steps from qpos {np.round(c['qpos'], 3).tolist()}, qvel "
             f"{np.round(c['qvel'], 3).tolist()}, {push_text(c['push'])}: {verdict}; neighbours failing "

@@ -483,8 +483,8 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
                 m = COMPILE_LINE.search(line)
                 compiles += [float(m.group(2))] if m else []
                 watch(line)
-        except KeyboardInterrupt:  # the sweep had the Ctrl-C too: it saves its chunk and stops
-            proc.wait()
+        except KeyboardInterrupt:  # the sweep had the Ctrl-C too: it saves its chunk and stops; its last lines logged
+            logf.write(proc.communicate()[0] or "")
             raise
         status = proc.wait()
     if status == 130:  # the sweep was interrupted (a Ctrl-C that reached it alone): so is the answer
