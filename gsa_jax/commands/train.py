@@ -199,7 +199,8 @@ def note_physics(cfg: Config) -> None:
 
     if jax.default_backend() == "cpu":
         print("gsa train: note: no accelerator here, and MJX (the default backend, what accelerators run) is the slow "
-              "path on a CPU: --physics c steps this task in MuJoCo C inside the compiled program, the CPU's fast path",
+              "path on a CPU: --physics c steps this task in MuJoCo C inside the compiled program, the CPU's fast path "
+              "(experiments/bench_c_backend/)",
               file=sys.stderr)
 
 
