@@ -192,21 +192,22 @@ def without(argv: list, flag: str) -> list:
 def next_steps(argv: list, out: str, setup: Setup, state: dict) -> list:
     """What to run where the answer is not decided, by why it stopped: more minutes resume it (the same design); a
     higher seed cap or a longer step budget is a new answer in its own folder (another design)."""
-    stopped, typed_out = state.get("stopped", ""), any(a == "--out" or a.startswith("--out=") for a in argv)
-    argv = argv if typed_out else [*argv, "--out", out]
+    from gsa_jax.running.runinfo import resume_command
+
+    stopped, argv = state.get("stopped", ""), [*without(argv, "--out"), "--out", out]  # resumable from any folder
     if stopped.startswith("budget"):
         minutes = 2 * state.get("budget_s", 7200.0) / 60
-        return [f"{again(without(argv, '--budget-minutes'), True, out)} --budget-minutes {minutes:g}   (resumes it "
+        return [f"{resume_command('answer', *without(argv, '--budget-minutes'))} --budget-minutes {minutes:g}   (resumes it "
                 "with twice the minutes; the same design)"]
     fresh, base = [*without(without(argv, "--out"), "--looks")], os.path.normpath(out)
     if stopped.startswith(("seed cap", "futility")):
         cap = 2 * setup.looks[-1]
         looks = ",".join(map(str, (*setup.looks, cap)))
-        return [f"{again([*fresh, '--looks', looks], True, out)} --out {shlex.quote(base + '-more-seeds')}   (a new "
+        return [f"{resume_command('answer', *fresh, '--looks', looks)} --out {shlex.quote(base + '-more-seeds')}   (a new "
                 f"answer with a seed cap of {cap} per cell, in its own folder: it trains seeds 0-{cap - 1} again)"]
     if stopped == "no answer" and setup.auto_steps():
         steps = 2 * (setup.max_steps or setup.steps())
-        return [f"{again([*without(fresh, '--max-steps'), '--max-steps', str(steps)], True, out)} --out "
+        return [f"{resume_command('answer', *without(fresh, '--max-steps'), '--max-steps', str(steps))} --out "
                 f"{shlex.quote(base + '-longer')}   (a new answer whose flat PPO has up to {steps:,} steps to learn the task)"]
     return []
 

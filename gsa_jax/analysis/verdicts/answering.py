@@ -518,10 +518,15 @@ def plan_sweeps(setup: Setup, plan: dict, index: int) -> list:
     return out
 
 
+def sweep_runs(sweep: tuple) -> int:
+    """The runs a planned sweep (name, policy, ks, seeds) trains: its K x seeds (flat PPO: its seeds)."""
+    _, _, ks, seeds = sweep
+    return max(len(ks), 1) * len(seeds)
+
+
 def padded_runs(setup: Setup, sweep: tuple) -> int:
     """The runs a planned sweep's program calls train: its K x seeds in parts of unit(setup), each padded to it."""
-    _, _, ks, seeds = sweep
-    return -(-max(len(ks), 1) * len(seeds) // unit(setup)) * unit(setup)
+    return -(-sweep_runs(sweep) // unit(setup)) * unit(setup)
 
 
 def sweeps_seconds(setup: Setup, state: dict, sweeps: list, steps: int) -> float | None:
@@ -549,7 +554,7 @@ def whereabouts(setup: Setup, state: dict, sweep: tuple, steps: int, eta: "float
     round's sweep i of n (with the round's runs and the seconds of its sweeps done and still to come)."""
     name, policy, ks, seeds = sweep
     cells = f"{'flat PPO' if policy == MLP else 'K=' + ','.join(map(str, ks))} seeds {seeds[0]}-{seeds[-1]}"
-    parts, runs = padded_runs(setup, sweep) // unit(setup), max(len(ks), 1) * len(seeds)
+    parts, runs = padded_runs(setup, sweep) // unit(setup), sweep_runs(sweep)
     budget, elapsed = state.get("budget_s", float("inf")), state["elapsed_s"]
     if where != "results":
         return answer_progress.Where(f"step budget: {cells} at {steps:,} steps", "the step budget", parts, runs, runs, 0,
@@ -561,8 +566,7 @@ def whereabouts(setup: Setup, state: dict, sweep: tuple, steps: int, eta: "float
     later = sweeps_seconds(setup, state, planned[index + 1:], steps) if index + 1 < len(planned) else 0.0
     return answer_progress.Where(
         f"round {record['round']}, sweep {index + 1} of {len(planned)} ({cells})", f"round {record['round']}", parts,
-        runs, sum(max(len(s[2]), 1) * len(s[3]) for s in planned),
-        sum(max(len(s[2]), 1) * len(s[3]) for s in planned[:index]), elapsed + sum(d["seconds"] for d in done), eta,
+        runs, sum(map(sweep_runs, planned)), sum(map(sweep_runs, planned[:index])), elapsed + sum(d["seconds"] for d in done), eta,
         later, budget)
 
 
