@@ -126,6 +126,41 @@ def test_orthogonal_init_without_lapack():
     assert "lapack" not in hlo.lower()
 
 
+def test_gaussians_are_each_shapes_own_draw_in_one_draw():
+    """nn.gaussians gives, bit for bit, the numbers jax.random.normal draws for each key and shape alone (JAX's
+    partitionable threefry: an element's bits depend on its key and flat index only), vmapped over runs too; and an
+    MLP's init draws them once: one threefry in its program where each layer drew its own (what made a run's init
+    compile slower than its training chunk)."""
+    from gsa_jax.algorithm.nn import gaussians, init_mlp
+
+    shapes = [(64, 11), (64, 64), (64, 1), (3, 2)]
+    keys = jax.random.split(jax.random.PRNGKey(7), len(shapes))
+    alone = [np.asarray(jax.jit(lambda k, s=s: jax.random.normal(k, s, jnp.float32))(k)) for k, s in zip(keys, shapes)]
+    for got, want in zip(jax.jit(lambda ks: gaussians(ks, shapes))(keys), alone):
+        np.testing.assert_array_equal(np.asarray(got), want)
+    runs = jnp.stack([keys] * 2)
+    for got, want in zip(jax.jit(jax.vmap(lambda ks: gaussians(ks, shapes)))(runs), alone):
+        np.testing.assert_array_equal(np.asarray(got)[1], want)
+    hlo = jax.jit(lambda k: init_mlp(k, (11, 64, 64, 1))).lower(jax.random.PRNGKey(0)).as_text()
+    assert hlo.count("func.func private @threefry2x32") == 2  # the key split's and the one draw
+
+
+def test_mlp_init_layers_are_orthogonal_draws_of_their_keys():
+    """init_mlp's layer i is orthogonal(key_i) of its own split key, scaled (equal up to float rounding: the draw is
+    shared, the arithmetic the same); a zero out_scale gives a zero last layer; biases are zero."""
+    from gsa_jax.algorithm.nn import init_mlp, orthogonal
+
+    key, sizes = jax.random.PRNGKey(4), (11, 64, 64, 3)
+    layers = init_mlp(key, sizes, hidden_scale=2.0, out_scale=0.5)
+    for i, (k, d_in, d_out) in enumerate(zip(jax.random.split(key, 3), sizes[:-1], sizes[1:])):
+        scale = 0.5 if i == 2 else 2.0
+        np.testing.assert_allclose(np.asarray(layers[i]["w"]), np.asarray(orthogonal(k, (d_in, d_out), scale)), atol=2e-6)
+        np.testing.assert_array_equal(np.asarray(layers[i]["b"]), np.zeros(d_out))
+    zero_last = init_mlp(key, sizes, out_scale=0.0)
+    np.testing.assert_array_equal(np.asarray(zero_last[-1]["w"]), np.zeros((64, 3)))
+    np.testing.assert_allclose(np.asarray(zero_last[0]["w"]), np.asarray(layers[0]["w"]) / 2.0 * np.sqrt(2.0), atol=2e-6)
+
+
 def test_orthogonal_init_is_newton_schulz_in_one_loop():
     """The polar factor by Newton-Schulz as a NumPy reference computes it from the same Gaussian draw; and the
     program holds the iteration once, as a loop (two matmuls), not unrolled into 2 x 60 (what XLA compiles for
