@@ -46,7 +46,7 @@ import pytest
 GOLDEN = os.path.join(os.path.dirname(__file__), "golden", "fixed_runs.json")
 WALL_CLOCK = ("wall_s",)
 RECORD = os.environ.get("GSA_RECORD_GOLDEN") == "1"
-RECORD_COMMAND = ("GSA_RECORD_GOLDEN=1 .venv/bin/python -m pytest -p no:xdist tests/test_cli.py tests/test_sweep.py "
+RECORD_COMMAND = ("GSA_RECORD_GOLDEN=1 .venv/bin/python -m pytest -p no:xdist tests/test_train_command.py tests/test_sweep.py "
                   "-k computes_what_it_computed")
 # A summary quantity passes where |got - recorded| <= RTOL * its scale (a metric: its largest |value| over
 # runs and iterations; a parameter array's norm or projection: that array's norm in that run). Measured on an

@@ -11,6 +11,7 @@ import envs
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import answering as A
 from gsa_jax.analysis.verdicts import verdict
+from gsa_jax.orchestration import answer_loop as L
 
 SMALL_CONFIG = {"num_envs": 16, "unroll_length": 32, "num_minibatches": 8, "num_epochs": 2, "episode_length": 200}
 
@@ -57,7 +58,7 @@ TRUTH = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (940.0, 120.0), 4: (1000.0
 
 def test_seeds_go_only_to_undecided_cells(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
-    state = A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
+    state = L.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
     assert calls[0][1:] == ([], list(range(10)))  # the first look: flat PPO, then one sweep of every K (one program)
     assert calls[1][1:] == ([1, 2, 4], list(range(10)))
     for r in state["rounds"][1:]:
@@ -79,7 +80,7 @@ AT_MARGIN = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (900.0, 300.0), 4: (10
 def test_futility_stops_adding_seeds_to_a_k_the_cap_cannot_decide(futility, tmp_path):
     run, calls = synthetic_trainer(AT_MARGIN)
     setup = A.Setup(**{**synthetic_setup().__dict__, "futility": futility})
-    state = A.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=run)
+    state = L.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=run)
     k2 = state["judged"]["2"]
     assert state["judged"]["4"]["verdict"] == verdict.SUFFICIENT and k2["verdict"] == verdict.UNDECIDED
     if futility:
@@ -116,7 +117,7 @@ def test_a_k_stopped_for_futility_stays_stopped_and_rounds_never_mix_seed_counts
 
 def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
     run, _ = synthetic_trainer(TRUTH)
-    whole = A.run_answer(str(tmp_path / "whole"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
+    whole = L.run_answer(str(tmp_path / "whole"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
 
     def interrupted(out, name, spec, log, **kw):  # the second round's mixture sweep is killed
         if name.startswith("round2-mixture"):
@@ -124,10 +125,10 @@ def test_a_stopped_answer_resumes_to_the_same_result(tmp_path):
         return run(out, name, spec, log, **kw)
 
     with pytest.raises(KeyboardInterrupt):
-        A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=interrupted)
+        L.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=interrupted)
     saved = json.loads((tmp_path / "stopped" / A.STATE).read_text())
     assert saved["rounds"][-1]["status"] == "running" and any(n.startswith("round2-flat_ppo") for n in saved["rounds"][-1]["sweeps"])
-    resumed = A.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
+    resumed = L.run_answer(str(tmp_path / "stopped"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
     assert resumed["judged"] == whole["judged"] and resumed["stopped"] == whole["stopped"]
     assert [r["plan"] for r in resumed["rounds"]] == [r["plan"] for r in whole["rounds"]]
 
@@ -143,20 +144,20 @@ def test_a_round_started_with_other_sweeps_is_refused_not_trained_again(tmp_path
         return run(out, name, spec, log, **kw)
 
     with pytest.raises(KeyboardInterrupt):
-        A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=interrupted)
+        L.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=interrupted)
     path = tmp_path / A.STATE
     saved = json.loads(path.read_text())
     saved["rounds"][-1]["sweeps"]["round1-mixture-K1-s0-9"] = {"seconds": 1.0, "policy": "mixture"}
     path.write_text(json.dumps(saved))
     calls.clear()
     with pytest.raises(A.AnswerError, match="round 1 was started with other sweeps .round1-mixture-K1-s0-9."):
-        A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
+        L.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run)
     assert calls == []
 
 
 def test_the_budget_stops_before_a_round_that_would_run_past_it(tmp_path):
     run, calls = synthetic_trainer(TRUTH)
-    state = A.run_answer(str(tmp_path), synthetic_setup(), 0.5, random_policy(), log=lambda m: None, train=run)
+    state = L.run_answer(str(tmp_path), synthetic_setup(), 0.5, random_policy(), log=lambda m: None, train=run)
     assert len(calls) == 2 and state["stopped"].startswith("budget")  # the first round ran; the second would pass it
 
 
@@ -207,7 +208,7 @@ def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
     out = str(tmp_path / "answer")
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "cache"))  # the sweeps' programs: not the suite's
     measure = lambda: controller_scores.random_policy(out, envs.resolve(setup.env), log=None)  # noqa: E731
-    state = A.run_answer(out, setup, 1e9, measure, log=lambda m: None)
+    state = L.run_answer(out, setup, 1e9, measure, log=lambda m: None)
     scores = A.collect_scores(out, setup)
     assert set(scores) == {1, 2} and all(len(v) == 10 for v in scores.values())
     assert state["random"]["episodes"] == controller_scores.RANDOM_EPISODES
@@ -217,7 +218,7 @@ def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
     assert sentence.startswith("InvertedDoublePendulum-v5:")
     report = open(os.path.join(out, "report.md")).read()
     assert "## Verdicts" in report and "## Baseline" in report and os.path.getsize(os.path.join(out, "score_vs_k.png")) > 5000
-    again = A.run_answer(out, setup, 1e9, measure, log=lambda m: None)
+    again = L.run_answer(out, setup, 1e9, measure, log=lambda m: None)
     assert again["judged"] == state["judged"] and len(again["rounds"]) == len(state["rounds"])
     # one program for the class: the round's one mixture sweep trains K = 1 and K = 2 as two parts of 10 runs; the first
     # part's program is compiled once (worker 0) and loaded by worker 1, the second part reuses it in both
@@ -226,7 +227,7 @@ def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
     assert log_text.count("program reused") == 2
     # a second answer's round with the same program (here K = 2 alone, k_max 2) loads it from the cache
     second, out2 = A.Setup(**{**setup.__dict__, "ladder": (2,)}), str(tmp_path / "second")
-    A.run_answer(out2, second, 1e9, lambda: controller_scores.random_policy(out2, envs.resolve(setup.env), log=None),
+    L.run_answer(out2, second, 1e9, lambda: controller_scores.random_policy(out2, envs.resolve(setup.env), log=None),
                  log=lambda m: None)
     log_text = open(tmp_path / "second" / "logs" / "round1-mixture-K2-s0-9.log").read()
     assert log_text.count("program loaded") == 2 and "program compiled" not in log_text
@@ -306,9 +307,9 @@ def test_every_sweep_of_a_class_has_one_program_shape():
     setup = make_setup(build_parser().parse_args(["--env", "dmc:cartpole-balance"]))
     for policy, cells in (("mixture", [[1], [2], [4], [1, 2, 4]]), ("mlp", [[]])):
         shapes = set()
-        for steps in step_budget.candidates(setup.steps(), A.calibration_floor(setup), A.budget_quantum(setup)):
+        for steps in step_budget.candidates(setup.steps(), L.calibration_floor(setup), L.budget_quantum(setup)):
             for ks in cells:
-                spec = check_spec(A.sweep_spec(setup, policy, ks, list(range(10, 20)), "x", steps))
+                spec = check_spec(L.sweep_spec(setup, policy, ks, list(range(10, 20)), "x", steps))
                 cfg = group_config(spec, build_grid(spec)[0])
                 shapes.add((cfg, spec.chunk))
                 if policy == "mlp":  # flat PPO's runs train exactly the budget judged: whole chunks, not rounded up
@@ -321,15 +322,15 @@ def test_every_sweep_of_a_class_has_one_program_shape():
                 else:
                     assert spec.eval_every == 0 and spec.eval_at is None
         assert len(shapes) == 1, shapes
-    sweeps = A.plan_sweeps(setup, {"mlp": ([], list(range(10, 30))), "mixture": ([2, 4], list(range(10, 30)))}, 3)
-    assert A.unit(setup) == 10 and sweeps == [("round3-flat_ppo-s10-29", "mlp", [], list(range(10, 30))),
+    sweeps = L.plan_sweeps(setup, {"mlp": ([], list(range(10, 30))), "mixture": ([2, 4], list(range(10, 30)))}, 3)
+    assert L.unit(setup) == 10 and sweeps == [("round3-flat_ppo-s10-29", "mlp", [], list(range(10, 30))),
                                               ("round3-mixture-K2-4-s10-29", "mixture", [2, 4], list(range(10, 30)))]
-    assert [A.padded_runs(setup, s) for s in sweeps] == [20, 40]
+    assert [L.padded_runs(setup, s) for s in sweeps] == [20, 40]
     # a budget that is not whole chunks also evaluates its last chunk; one shorter than a chunk, every chunk
-    assert A.flat_evaluations(100_000, 20_480) == {"eval_at": [61_440, 81_920, 100_000]}
-    assert A.flat_evaluations(245_760, 20_480) == {"eval_at": [184_320, 245_760]}
-    assert A.flat_evaluations(10_000, 20_480) == {"eval_every": 1}
-    assert A.padded_runs(setup, ("x", "mixture", [1, 2, 4], list(range(5)))) == 20  # 15 runs: parts of 10, padded
+    assert L.flat_evaluations(100_000, 20_480) == {"eval_at": [61_440, 81_920, 100_000]}
+    assert L.flat_evaluations(245_760, 20_480) == {"eval_at": [184_320, 245_760]}
+    assert L.flat_evaluations(10_000, 20_480) == {"eval_every": 1}
+    assert L.padded_runs(setup, ("x", "mixture", [1, 2, 4], list(range(5)))) == 20  # 15 runs: parts of 10, padded
 
 
 def test_a_baseline_that_fell_over_its_last_fifth_is_flagged_in_the_report():
@@ -342,7 +343,7 @@ def test_a_baseline_that_fell_over_its_last_fifth_is_flagged_in_the_report():
 def test_one_progress_line_for_the_whole_answer_from_every_workers_chunk_lines():
     """answer_progress.watch: the workers' chunk lines become the answer's line (a group as far as its slowest
     process, the sweep's parts summed), at most one per 30 s and one at the sweep's end; other lines print nothing."""
-    from gsa_jax.analysis.verdicts.answer_progress import Where, watch
+    from gsa_jax.orchestration.answer_progress import Where, watch
 
     where = Where("round 2, sweep 2 of 2 (K=1,2 seeds 10-19)", "round 2", 2, 20, 30, 10, 600.0, 100.0, 0.0, 3600.0)
     times, lines = iter([0.0, 10.0, 20.0, 30.0, 45.0, 50.0]), []
@@ -368,7 +369,7 @@ def test_the_answer_loop_prints_where_each_sweep_is(tmp_path):
         return run(out, name, spec, log, where, runs_per_program)
 
     lines = []
-    A.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lines.append, train=talking)
+    L.run_answer(str(tmp_path), synthetic_setup(), 1e9, random_policy(), log=lines.append, train=talking)
     ours = [line.split(" 100% |")[0] for line in lines if " 100% | runs" in line]
     assert ours[:2] == ["answer: round 1, sweep 1 of 2 (flat PPO seeds 0-9)", "answer: round 1, sweep 2 of 2 (K=1,2,4 seeds 0-9)"]
     assert ours[0] + " 50% | runs 5/40 |" in "\n".join(lines)  # its one part half done

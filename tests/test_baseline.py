@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from gsa_jax.analysis.verdicts import answering as A
+from gsa_jax.orchestration import answer_loop as L
 from gsa_jax.analysis.verdicts import baseline as B
 from gsa_jax.analysis.verdicts import verdict
 
@@ -38,7 +39,7 @@ def test_the_shipped_table_covers_every_v5_and_dmc_task_at_1m_steps():
     (HEADER + "Hopper-v5,Hopper-v4,100,1,3,,deterministic,x,src,\n", "line 2: missing steps"),
 ])
 def test_a_malformed_table_is_refused_in_one_line(tmp_path, text, message):
-    with pytest.raises(B.ReferenceError, match=message.replace("(", r"\(").replace(")", r"\)")) as e:
+    with pytest.raises(B.ReferencesError, match=message.replace("(", r"\(").replace(")", r"\)")) as e:
         B.load_references(write(tmp_path, text))
     assert "\n" not in str(e.value)
 
@@ -119,7 +120,7 @@ def test_a_baseline_below_its_reference_is_replaced_by_it(tmp_path, mixture_mean
     spec = {"steps": 1000, "chunk": 1, "eval_every": 0, "hparams": {}, "config": {}}
     setup = A.Setup("task", (4,), 0.1, (10, 20), {"mlp": spec, "mixture": spec}, references=refs)
     run, _ = synthetic_trainer({A.FLAT: (1000.0, 20.0), 4: (mixture_mean, 5.0)})
-    state = A.run_answer(str(tmp_path / "a"), setup, 1e9, random_policy(), log=lambda m: None, train=run)
+    state = L.run_answer(str(tmp_path / "a"), setup, 1e9, random_policy(), log=lambda m: None, train=run)
     assert state["baseline"]["entry"]["score"] == 2000.0 and state["baseline"]["binding"]["below"]
     assert state["judged"]["4"]["verdict"] == expect and state["judged"]["4"]["reference_seeds"] == 10
 
@@ -134,7 +135,7 @@ def test_flat_ppo_within_the_random_returns_interval_gives_no_answer(tmp_path):
     setup = A.Setup("task", (1, 2), 0.1, (10, 20), {"mlp": spec, "mixture": spec})
     run, calls = synthetic_trainer({A.FLAT: (80.0, 10.0), 1: (85.0, 10.0), 2: (90.0, 10.0)})
     out = str(tmp_path / "a")
-    state = A.run_answer(out, setup, 1e9, random_policy(80.0, 100.0), log=lambda m: None, train=run)
+    state = L.run_answer(out, setup, 1e9, random_policy(80.0, 100.0), log=lambda m: None, train=run)
     assert state["stopped"] == "no answer" and len(calls) == 2  # flat PPO, then K = 1, 2 in one sweep
     assert {r["verdict"] for r in state["judged"].values()} == {verdict.NO_SCALE}
     assert "no answer" in finish(out, setup, state, ["--env", "task"])

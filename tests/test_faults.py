@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 import pytest
-from test_cli import SMALL, read_csv, strip_wall
+from test_train_command import SMALL, read_csv, strip_wall
 
 from gsa_jax.running import checkpoint
 from gsa_jax.train import main

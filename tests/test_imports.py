@@ -11,7 +11,11 @@ import subprocess
 import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
-LAYERS = ("errors", "algorithm", "running", "deployment", "analysis", "benchmark", "commands")  # lowest first
+LAYERS = ("errors", "algorithm", "running", "deployment", "analysis", "benchmark", "orchestration", "commands")  # lowest first
+# what trains (the run driver, the programs, sweeps and single runs, their stores, workers and compile cache, PPO itself):
+# analysis reads and judges results and imports none of it; what trains many runs as jobs is orchestration's
+TRAINING = ("running.driver", "running.programs", "running.single", "running.store", "running.supervise",
+            "running.sweeps", "running.tuning", "running.xla_cache", "algorithm.ppo")
 JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "algorithm.partitions", "deployment.numpy_policy", "deployment.cells", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
@@ -63,6 +67,17 @@ def test_every_module_lives_in_a_layer_folder_and_imports_only_downward():
     unknown = sorted(d for p in mods.values() for d in gsa_imports(p)
                      if d not in mods and d not in LAYERS and d.rsplit(".", 1)[0] not in mods)
     assert not unknown, f"imports of modules that do not exist: {unknown}"
+
+
+def test_analysis_imports_nothing_that_trains():
+    """analysis/ is statistics, tables and decisions: none of its modules imports (even inside a function) what
+    trains a run (TRAINING); the answer loop that trains its rounds lives in orchestration/."""
+    mods = modules()
+    trains = lambda d: any(d == t or d.startswith(t + ".") for t in TRAINING)  # noqa: E731
+    wrong = [f"{m} imports {d}" for m, p in sorted(mods.items()) if layer(m) == "analysis"
+             for d in sorted(gsa_imports(p)) if trains(d)]
+    assert not wrong, "; ".join(wrong)
+    assert all(t in mods for t in TRAINING), [t for t in TRAINING if t not in mods]
 
 
 def test_analysis_folders_import_only_sweeps_and_nothing_imports_the_sweep_report():

@@ -11,6 +11,7 @@ import pytest
 
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import answering as A
+from gsa_jax.orchestration import answer_loop as L
 from gsa_jax.analysis.verdicts import step_budget, verdict
 from tests.test_answer import random_policy
 
@@ -95,8 +96,8 @@ def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
 
     spec = {"steps": 1_000_000, "chunk": 1, "eval_every": 1, "hparams": {}, "config": {}}
     setup = A.Setup(ENV, (1, 2), 0.1, (10, 20), {"mlp": spec, "mixture": spec}, max_steps=1_000_000)
-    state = A.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=train)
-    q = A.budget_quantum(setup)  # a chunk of 1 iteration here: the budgets are whole iterations of flat PPO's batch
+    state = L.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=train)
+    q = L.budget_quantum(setup)  # a chunk of 1 iteration here: the budgets are whole iterations of flat PPO's batch
     first, second = round(62_500 / q) * q, round(125_000 / q) * q
     assert state["steps"]["budget"] == second and [c["steps"] for c in state["steps"]["calibration"]] == [first, second]
     assert [c[1] for c in calls[:2]] == [first, second] and {c[1] for c in calls[2:]} == {second}  # equal steps

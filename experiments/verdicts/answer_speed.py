@@ -18,6 +18,7 @@ from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.sweeps.results import write_csv
 from gsa_jax.analysis.verdicts import answering as A
 from gsa_jax.analysis.verdicts import verdict
+from gsa_jax.orchestration import answer_loop as L
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.join(HERE, "..")
@@ -78,7 +79,7 @@ def replay(env, ladder, scores, random_return, looks):
     setup = A.Setup(env, ladder, verdict.DEFAULT_MARGIN, looks, {"mlp": spec, "mixture": spec})
     with tempfile.TemporaryDirectory() as out:
         try:
-            state = A.run_answer(out, setup, 1e12, lambda: random_return, log=lambda m: None,
+            state = L.run_answer(out, setup, 1e12, lambda: random_return, log=lambda m: None,
                                  train=replay_trainer(env, scores))
         except NotTrained as e:
             return json.load(open(os.path.join(out, A.STATE))), f"needs runs nobody trained ({e})"

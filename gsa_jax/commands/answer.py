@@ -39,10 +39,9 @@ import envs
 from gsa_jax.algorithm import partitions
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import sequential, verdict
-from gsa_jax.analysis.verdicts.answering import (
-    DEFAULT_LOOKS, DEFAULT_SPENDING, AnswerError, Setup, check_setup, run_answer,
-)
+from gsa_jax.analysis.verdicts.answering import DEFAULT_LOOKS, DEFAULT_SPENDING, AnswerError, Setup
 from gsa_jax.cli import command_parser, run_command, whole_number
+from gsa_jax.orchestration.answer_loop import check_setup, run_answer
 from gsa_jax.running.runinfo import git_commit
 
 MULTIPLIERS = (0.5, 1, 2, 4)

@@ -36,37 +36,37 @@ WINDOW = 0.05  # the share of the steps each end of the last fifth averages its 
 LEARNING_LEVEL = 0.05  # one-sided: 'stopped learning' when the last fifth's gain is shown below the margin at this level
 
 
-class ReferenceError(UserError, ValueError):
-    pass
+class ReferencesError(UserError, ValueError):
+    """A references table that cannot be read: the file, its line and the bad field in one line."""
 
 
 def parse_reference(row: dict, where: str) -> dict:
-    """One checked entry of a references table (ReferenceError naming the line and the field)."""
+    """One checked entry of a references table (ReferencesError naming the line and the field)."""
     missing = [c for c in ("task", "score", "steps", "metric", "source") if not (row.get(c) or "").strip()]
     if missing:
-        raise ReferenceError(f"{where}: missing {', '.join(missing)}")
+        raise ReferencesError(f"{where}: missing {', '.join(missing)}")
     if row["metric"] not in METRICS:
-        raise ReferenceError(f"{where}: metric {row['metric']!r} is not one of {', '.join(METRICS)}")
+        raise ReferencesError(f"{where}: metric {row['metric']!r} is not one of {', '.join(METRICS)}")
     try:
         score, steps = float(row["score"]), int(float(row["steps"]))
         std = float(row["std"]) if (row.get("std") or "").strip() else 0.0
         seeds = int(row["seeds"]) if (row.get("seeds") or "").strip() else 0
     except ValueError as e:
-        raise ReferenceError(f"{where}: {e}") from None
+        raise ReferencesError(f"{where}: {e}") from None
     if not (math.isfinite(score) and steps > 0 and std >= 0 and seeds >= 0):
-        raise ReferenceError(f"{where}: score must be finite, steps > 0, std and seeds >= 0")
+        raise ReferencesError(f"{where}: score must be finite, steps > 0, std and seeds >= 0")
     return {**{c: (row.get(c) or "").strip() for c in COLUMNS}, "score": score, "std": std, "seeds": seeds, "steps": steps}
 
 
 def load_references(path: str = REFERENCES) -> list:
-    """The checked entries of a references table (CSV with COLUMNS); ReferenceError in one line if it is malformed."""
+    """The checked entries of a references table (CSV with COLUMNS); ReferencesError in one line if it is malformed."""
     if not os.path.exists(path):
-        raise ReferenceError(f"references table {path!r} does not exist")
+        raise ReferencesError(f"references table {path!r} does not exist")
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
         absent = [c for c in ("task", "score", "steps", "metric", "source") if c not in (reader.fieldnames or [])]
         if absent:
-            raise ReferenceError(f"references table {path!r} lacks the column(s) {', '.join(absent)}")
+            raise ReferencesError(f"references table {path!r} lacks the column(s) {', '.join(absent)}")
         return [parse_reference(r, f"{path} line {i + 2}") for i, r in enumerate(reader)]
 
 

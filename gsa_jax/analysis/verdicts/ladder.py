@@ -90,8 +90,3 @@ def judge_ladder(ladder: Sequence[int], scores: dict, reference: "Sequence[float
             return records
         holm_pass(ladder, scores, reference, random_returns, margin, design, records)
     return records
-
-
-def verdicts_of(records: dict) -> dict:
-    """{K: verdict} of judge_ladder's records."""
-    return {int(k): r["verdict"] for k, r in records.items()}
