@@ -23,7 +23,7 @@ import threading
 import time
 import weakref
 from concurrent.futures import ThreadPoolExecutor
-from typing import NamedTuple
+from typing import Any, Callable, Iterator, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -43,7 +43,7 @@ _HOSTS = weakref.WeakSet()  # this process's live hosts, read by host_seconds()
 CLOCK_FIELDS = ("calls", "host_s", "mujoco_c_s")
 
 
-def host_seconds():
+def host_seconds() -> dict:
     """{"calls", "host_s", "mujoco_c_s"} summed over this process's live hosts since they were made: host calls
     run, seconds inside them (the host function: state copies in and out, the task's derived values) and,
     of those, inside MuJoCo C. For benchmarks (gsa_jax.bench splits a sweep's time with it); no result
@@ -82,7 +82,7 @@ class HostBatches:
         self.clock = dict.fromkeys(CLOCK_FIELDS, 0)  # see host_seconds()
         _HOSTS.add(self)
 
-    def reset_row(self):
+    def reset_row(self) -> np.ndarray:
         """The mjSTATE_INTEGRATION row every reset starts from [n_mj]: mj_resetData's state, or the keyframe's."""
         data = mujoco.MjData(self.model)
         if self.keyframe is not None:
@@ -91,7 +91,7 @@ class HostBatches:
         mujoco.mj_getState(self.model, data, row, STATE_SPEC)
         return row
 
-    def carry(self, b, before):
+    def carry(self, b: mj_batch.Batch, before: Any) -> np.ndarray:
         """float64 [nsim, n_carry]: what each row carries to the next call, from the batch after a call (before: what
         the call's write returned)."""
         return np.zeros((b.state.shape[0], 0))
@@ -99,7 +99,7 @@ class HostBatches:
     variant_fields = ()  # ((MjModel field, column or None, scale index), ...): enable_variants
     push_body = None  # the body a step's push acts on (None: no pushes)
 
-    def enable_variants(self, spec, push_body):
+    def enable_variants(self, spec: Any, push_body: "int | None") -> None:
         """Step each simulation with its own model fields (envs/randomization.py's spec.model_fields scaled by the
         scales a call passes) and pushes on push_body: per-simulation fields of the batch (Batch.expand), written
         only for the simulations whose scales changed, then mj_setConst for them where a field feeds it."""
@@ -109,7 +109,7 @@ class HostBatches:
         self.push_body = push_body if spec.push else None
         self._held = {}  # nsim -> float64 [nsim, n_scales]: the scales each simulation of that batch holds
 
-    def apply_variants(self, b, scales):
+    def apply_variants(self, b: mj_batch.Batch, scales: np.ndarray) -> None:
         """Give batch b's simulations the model fields of scales [nsim, n_scales] (writes only what changed)."""
         if not self.variant_fields:
             return
@@ -123,7 +123,7 @@ class HostBatches:
                 b.set_const(changed)
             held[changed] = scales[changed]
 
-    def set_push(self, b, push):
+    def set_push(self, b: mj_batch.Batch, push: np.ndarray) -> None:
         """Horizontal forces push [nsim, 2] on the push body for the coming call (zeros: none)."""
         if self.push_body is not None:
             b.xfrc_applied[:, self.push_body, :2] = np.asarray(push, np.float64).reshape(-1, 2)
@@ -137,7 +137,7 @@ class HostBatches:
                 self._batches[nsim] = (b, threading.Lock())
             return self._batches[nsim]
 
-    def extra(self, b, before):
+    def extra(self, b: mj_batch.Batch, before: Any) -> np.ndarray:
         """float64 [nsim, n_extra] derived values after a call; before: what the call's write returned."""
         raise NotImplementedError
 
@@ -163,7 +163,7 @@ class HostBatches:
 
     stage = 0  # mjtStage computed at the new state after a step (mjSTAGE_VEL: as mj_step1, Task.derived_after)
 
-    def step_rows(self, rows, action, fn, variant=None):
+    def step_rows(self, rows: np.ndarray, action: np.ndarray, fn: Callable, variant: "tuple | None" = None) -> tuple:
         """n_frames mj_steps of every row [..., 2 nstate], after fn(b, action [nsim, nu] float64, carried
         [nsim, n_carry] float64) set the controls; fn's return value is passed to extra(). variant: (scales
         [..., n_scales], push [..., 2]) the simulations step with (enable_variants), the push for this call only."""
@@ -190,7 +190,7 @@ class NoisyStartHost(HostBatches):
 
     start_qpos = None
 
-    def reset(self, dq, dv, scales=None):
+    def reset(self, dq: np.ndarray, dv: np.ndarray, scales: "np.ndarray | None" = None) -> tuple:
         """Rows at start_qpos + dq [..., nq], qvel dv [..., nv] after mj_forward (under the model variant of scales
         [..., n_scales], enable_variants) -> SimState fields."""
         m = self.model
@@ -221,12 +221,12 @@ class AllegroHost(HostBatches):
         self.lo, self.hi = model.actuator_ctrlrange.T.copy()
         super().__init__(model, allegro_task.SUBSTEPS, threads)
 
-    def extra(self, b, before):
+    def extra(self, b: mj_batch.Batch, before: np.ndarray) -> np.ndarray:
         """before: the hinge angles [nsim] the call started from."""
         omega = (b.qpos[:, self.hinge] - before) / (allegro_task.TIMESTEP * allegro_task.SUBSTEPS)
         return np.concatenate([allegro_task.tactile_from_sensordata(b.sensordata, self.slots), omega[:, None]], 1)
 
-    def reset(self, noise, angle):
+    def reset(self, noise: np.ndarray, angle: np.ndarray) -> tuple:
         """Rows at the keyframe with PD targets ctrl0 + TARGET_NOISE * noise [..., nu] (clipped) and the
         cylinder at `angle` [...], after mj_forward -> SimState fields."""
         m = self.model
@@ -240,7 +240,7 @@ class AllegroHost(HostBatches):
 
         return self._run(angle.shape, write, lambda b: b.forward())
 
-    def step(self, rows, action):
+    def step(self, rows: np.ndarray, action: np.ndarray) -> tuple:
         """action [..., nu], already clipped to [-1, 1], moves the PD targets by ACTION_SCALE per unit."""
         def move_targets(b, a, carried):
             b.ctrl[:] = np.clip(b.ctrl + allegro_task.ACTION_SCALE * a, self.lo, self.hi)
@@ -277,11 +277,11 @@ class TaskHost(NoisyStartHost):
         """[nsim, goal_size] the goals the call's rows carried (zeros after a noise-law reset)."""
         return np.zeros((nsim, self.task.goal_size)) if before is None else before[0][:, self.n_before:]
 
-    def carry(self, b, before):
+    def carry(self, b: mj_batch.Batch, before: "tuple | None") -> np.ndarray:
         goal = self._goals(before, b.qpos.shape[0])
         return np.concatenate([self.task.before(b.qpos, self._goal_derived(b, goal, lambda x: x)), goal], axis=1)
 
-    def extra(self, b, before):
+    def extra(self, b: mj_batch.Batch, before: "tuple | None") -> np.ndarray:
         """before: (the carried values [n, n_carry], action [n, nu] float64); None after a reset."""
         derived = self._goal_derived(b, self._goals(before, b.qpos.shape[0]), lambda x: x)
         if before is None:
@@ -290,7 +290,7 @@ class TaskHost(NoisyStartHost):
         obs, reward, terminated = self.task.outcome(before[0][:, : self.n_before], b.qpos, b.qvel, derived, before[1])
         return np.concatenate([obs, reward[:, None], terminated[:, None].astype(np.float64)], axis=1)
 
-    def reset_init(self, seeds, needed):
+    def reset_init(self, seeds: np.ndarray, needed: np.ndarray) -> tuple:
         """Resets by the task's initialize() (envs/task.py) from seeds [..., 2] uint32, on the host's own MjData, for
         the envs where needed [...] is nonzero (the others get the template row, which the caller discards)
         -> SimState fields."""
@@ -316,7 +316,8 @@ class TaskHost(NoisyStartHost):
         return (rows.view(np.uint32).reshape(*lead, 2 * self.nstate), qpos.astype(np.float32).reshape(*lead, m.nq),
                 qvel.astype(np.float32).reshape(*lead, m.nv), extra.astype(np.float32).reshape(*lead, self.n_extra))
 
-    def step(self, rows, action, scales=None, push=None):
+    def step(self, rows: np.ndarray, action: np.ndarray, scales: "np.ndarray | None" = None,
+             push: "np.ndarray | None" = None) -> tuple:
         """Every row [..., 2 nstate] one env step with controls from action [..., nu] (and the model variant of
         scales [..., n_scales] with pushes push [..., 2]: enable_variants)."""
         def set_ctrl(b, a, carried):
@@ -377,7 +378,7 @@ class PostConstraintHost:
         qpos, qvel = np.stack([r[1] for r in results]), np.stack([r[2] for r in results])
         return qpos, qvel, derived
 
-    def reset(self, dq, dv):
+    def reset(self, dq: np.ndarray, dv: np.ndarray) -> tuple:
         """Rows at start_qpos + dq [..., nq], qvel dv [..., nv] after mj_resetData and mj_forward -> SimState fields."""
         t0 = time.perf_counter()
         m, lead = self.model, dq.shape[:-1]
@@ -399,7 +400,7 @@ class PostConstraintHost:
         self._count(time.perf_counter() - t0, 0.0)
         return out
 
-    def step(self, rows, ctrl):
+    def step(self, rows: np.ndarray, ctrl: np.ndarray) -> tuple:
         """n_frames mj_steps and mj_rnePostConstraint of every row [..., 2 nstate] with controls ctrl [..., nu]."""
         t0 = time.perf_counter()
         m, lead = self.model, rows.shape[:-1]
@@ -445,15 +446,15 @@ class CTask(Env):
                         jax.ShapeDtypeStruct((m.nv,), f32), jax.ShapeDtypeStruct((host.n_extra,), f32))
 
     @property
-    def observation_size(self):
+    def observation_size(self) -> int:
         return int(jax.eval_shape(self.reset, jax.random.PRNGKey(0)).obs.shape[-1])
 
     @property
-    def action_size(self):
+    def action_size(self) -> int:
         return int(self.mj_model.nu)
 
     @property
-    def backend(self):
+    def backend(self) -> str:
         return "c"
 
     def _call(self, fn, *args):
@@ -478,7 +479,7 @@ class AllegroCTask(CTask):
     def _observe(self, sim):
         return jnp.concatenate([sim.qpos[self._finger_qpos], sim.extra[:2]])
 
-    def reset(self, rng):
+    def reset(self, rng: jax.Array) -> State:
         k_targets, k_angle = jax.random.split(rng)
         noise = jax.random.normal(k_targets, (self.mj_model.nu,))
         angle = jax.random.uniform(k_angle, (), minval=-jnp.pi, maxval=jnp.pi)
@@ -486,7 +487,7 @@ class AllegroCTask(CTask):
         zero = jnp.zeros((), jnp.float32)
         return State(sim, self._observe(sim), zero, zero, {}, {})
 
-    def step(self, state, action):
+    def step(self, state: State, action: jax.Array) -> State:
         self._check_action(action)
         a = jnp.clip(action.astype(jnp.float32), -1.0, 1.0)
         sim = self._call(self.host.step, state.pipeline_state.rows, a)
@@ -507,13 +508,13 @@ class TaskCEnv(CTask):
         self._nominal = None  # with variants enabled: (scales [P], push [2]) outside variant()
         self._active = None  # (scales, push) while variant() is open
 
-    def enable_variants(self, spec, push_body):
+    def enable_variants(self, spec: Any, push_body: "int | None") -> None:
         """Step with per-simulation model fields and pushes (envs/randomized_env.py); see TaskHost.enable_variants."""
         self.host.enable_variants(spec, push_body)
         self._nominal = (jnp.ones(len(spec.scales), jnp.float32), jnp.zeros(2, jnp.float32))
 
     @contextlib.contextmanager
-    def variant(self, scales, push):
+    def variant(self, scales: jax.Array, push: "jax.Array | None") -> Iterator[None]:
         """Inside (while traced): resets and steps run the model variant of scales [P] and push [2] (None: none)."""
         self._active = (scales, self._nominal[1] if push is None else push)
         try:
@@ -525,7 +526,7 @@ class TaskCEnv(CTask):
         """The (scales, push) of the call being traced: variant()'s, else the nominal ones; () without variants."""
         return () if self._nominal is None else (self._active or self._nominal)
 
-    def reset(self, rng):
+    def reset(self, rng: jax.Array) -> State:
         task = self.port
         if task.has_initialize:
             return self.reset_where(rng, jnp.ones((), bool))
@@ -533,7 +534,7 @@ class TaskCEnv(CTask):
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
 
-    def reset_where(self, rng, needed):
+    def reset_where(self, rng: jax.Array, needed: jax.Array) -> State:
         """A reset where `needed` (a bool) holds, else an unused placeholder state: a task whose start law is code
         (initialize()) runs it on the host only for the envs that restart (envs/wrappers.py's AutoReset)."""
         if not self.port.has_initialize:
@@ -543,14 +544,14 @@ class TaskCEnv(CTask):
         zero = jnp.zeros((), jnp.float32)
         return State(sim, sim.extra[: self._n_obs], zero, zero, {}, {})
 
-    def step(self, state, action):
+    def step(self, state: State, action: jax.Array) -> State:
         self._check_action(action)
         sim = self._call(self.host.step, state.pipeline_state.rows, action.astype(jnp.float32), *self._variant_args())
         n = self._n_obs
         return state.replace(pipeline_state=sim, obs=sim.extra[:n], reward=sim.extra[n], done=sim.extra[n + 1])
 
 
-def float64_rows(rows):
+def float64_rows(rows: np.ndarray) -> np.ndarray:
     """The float64 rows [..., nstate] of SimState.rows [..., 2 nstate] (host arrays): the mjSTATE_INTEGRATION row,
     then what the host carries (HostBatches.n_carry)."""
     return np.ascontiguousarray(np.asarray(rows)).view(np.float64)

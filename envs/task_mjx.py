@@ -12,6 +12,7 @@ import contextlib
 import copy
 import dataclasses
 import functools
+from typing import Any, Iterator
 
 import jax
 import jax.numpy as jnp
@@ -24,12 +25,12 @@ from mujoco import mjx
 from envs.starts import start_noise, task_start_noise  # noqa: F401 - re-exported
 
 
-def mjx_model_fields():
+def mjx_model_fields() -> set:
     """The names of MJX's model fields (model scales on MJX apply to these)."""
     return {f.name for f in dataclasses.fields(mjx.Model)}
 
 
-def step1(sys, data):
+def step1(sys: Any, data: mjx.Data) -> mjx.Data:
     """mj_step1 on MJX: position- and velocity-dependent fields and sensors of the current state (acceleration
     sensors untouched), as dm_control's legacy step leaves them (Task.derived_after 'step1')."""
     data = mjx.fwd_position(sys, data)
@@ -38,7 +39,7 @@ def step1(sys, data):
     return mjx.sensor_vel(sys, data)
 
 
-def mjx_model(model):
+def mjx_model(model: mujoco.MjModel) -> mujoco.MjModel:
     """The MjModel MJX steps: the task's, less its energy flag (dm_control's MJCFs enable it; it computes
     data.energy for display and changes no dynamics; MJX refuses it)."""
     energy = int(mujoco.mjtEnableBit.mjENBL_ENERGY)
@@ -57,23 +58,23 @@ class WithGoal:
     def __init__(self, data, goal):
         self.data, self.goal = data, goal
 
-    def tree_flatten(self):
+    def tree_flatten(self) -> tuple:
         return (self.data, self.goal), None
 
     @classmethod
-    def tree_unflatten(cls, _, children):
+    def tree_unflatten(cls, _: None, children: tuple) -> "WithGoal":
         return cls(*children)
 
     @property
-    def qpos(self):
+    def qpos(self) -> jax.Array:
         return self.data.qpos
 
     @property
-    def qvel(self):
+    def qvel(self) -> jax.Array:
         return self.data.qvel
 
 
-def host_start(task, seeds, needed):
+def host_start(task: Any, seeds: np.ndarray, needed: np.ndarray) -> tuple:
     """(qpos [..., nq], qvel [..., nv], goal [..., goal_size]) float32 of task.initialize() from seeds [..., 2] where
     needed [...] (elsewhere qpos0, at rest: a placeholder the caller discards): the host side of an MJX reset whose
     start law is code."""
@@ -112,14 +113,14 @@ class TaskMjx(PipelineEnv):
         zero = jnp.zeros((), jnp.float32)
         return State(WithGoal(data, goal) if self.task.goal_size else data, obs.astype(jnp.float32), zero, zero, {}, {})
 
-    def reset(self, rng):
+    def reset(self, rng: jax.Array) -> State:
         task = self.task
         if task.has_initialize:
             return self.reset_where(rng, jnp.ones((), bool))
         dq, dv = task_start_noise(rng, task)
         return self._state(self.pipeline_init(jnp.asarray(task.start_qpos, jnp.float32) + dq, dv), None)
 
-    def reset_where(self, rng, needed):
+    def reset_where(self, rng: jax.Array, needed: jax.Array) -> State:
         """The reset where `needed` holds (else an unused placeholder): initialize() on the host by a callback."""
         if not self.task.has_initialize:
             return self.reset(rng)
@@ -129,7 +130,7 @@ class TaskMjx(PipelineEnv):
                                              jax.random.bits(rng, (2,), jnp.uint32), needed, vmap_method="broadcast_all")
         return self._state(self.pipeline_init(qpos, qvel), goal)
 
-    def step(self, state, action):
+    def step(self, state: State, action: jax.Array) -> State:
         d0, goal = state.pipeline_state, None
         if self.task.goal_size:
             d0, goal = d0.data, d0.goal
@@ -148,7 +149,7 @@ class TaskMjx(PipelineEnv):
 
 
 @contextlib.contextmanager
-def process_local_devices():
+def process_local_devices() -> Iterator[None]:
     """mjx.put_model places the model on jax.devices()[0], which in a multi-process (jax.distributed) run
     is process 0's device; while an env is built, let jax.devices() name this process's devices."""
     if jax.process_count() == 1:
