@@ -8,7 +8,7 @@ import os
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 MODULES = ("gsa_jax/algorithm/*.py", "gsa_jax/deployment/*.py", "gsa_jax/analysis/*.py", "gsa_jax/analysis/*/*.py",
            "gsa_jax/inspect/*.py", "gsa_jax/commands/*.py", "gsa_jax/cli.py", "gsa_jax/errors.py",
-           "gsa_jax/running/*.py", "gsa_jax/benchmark/*.py", "gsa_jax/verify/*.py", "envs/dmc/*.py",
+           "gsa_jax/running/*.py", "gsa_jax/benchmark/*.py", "gsa_jax/orchestration/*.py", "gsa_jax/verify/*.py", "envs/dmc/*.py",
            "envs/__init__.py", "envs/registry.py", "envs/families/*.py", "envs/randomization.py", "envs/build.py",
            "envs/names.py", "envs/task.py", "envs/physics.py", "envs/mujoco_c.py", "envs/c_backend.py",
            "envs/task_mjx.py")

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from gsa_jax.analysis.verdicts import answering as A
-from gsa_jax.orchestration import answer_loop as L
 from gsa_jax.analysis.verdicts import baseline as B
 from gsa_jax.analysis.verdicts import verdict
+from gsa_jax.orchestration import answer_loop as L
 
 HEADER = "task,published_task,score,std,seeds,steps,metric,algorithm,source,note\n"
 

@@ -1,7 +1,8 @@
 """The package's layers, as folders: every gsa_jax module imports only from its own layer or lower ones (the
 user-error base class, gsa_jax/errors.py, below all of them; the commands, gsa_jax/commands/ with the entry point
-and the `python -m` shims at the top level, above all of them), and the result-reading and deployment modules load
-without JAX (reading results and running a controller must not pay JAX's import or need it installed as it
+and the `python -m` shims at the top level, above all of them; orchestration, what trains many runs as jobs, just
+below them), no analysis module imports directly what trains (TRAINING), and the result-reading and deployment modules
+load without JAX (reading results and running a controller must not pay JAX's import or need it installed as it
 trains)."""
 
 import ast
@@ -12,14 +13,15 @@ import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
 LAYERS = ("errors", "algorithm", "running", "deployment", "analysis", "benchmark", "orchestration", "commands")  # lowest first
-# what trains (the run driver, the programs, sweeps and single runs, their stores, workers and compile cache, PPO itself):
-# analysis reads and judges results and imports none of it; what trains many runs as jobs is orchestration's
+# what trains or sets up training (the run driver, the programs, sweeps and single runs, their stores, workers, compile
+# cache and tuning budgets, PPO itself): analysis reads and judges results and imports none of it directly (what it
+# reaches through a lower layer's function-level import is that layer's); what trains many runs as jobs is orchestration's
 TRAINING = ("running.driver", "running.programs", "running.single", "running.store", "running.supervise",
             "running.sweeps", "running.tuning", "running.xla_cache", "algorithm.ppo")
 JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "algorithm.partitions", "deployment.numpy_policy", "deployment.cells", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
-            "analysis.sweeps.figures", "analysis.sweep_report", "analysis.verdicts.grid", "analysis.robustness.retention",
+            "analysis.sweeps.figures", "analysis.sweep_report", "analysis.verdicts.grid", "analysis.verdicts.answering", "analysis.robustness.retention",
             "analysis.robustness.retention_eval", "analysis.robustness.retention_stats", "analysis.robustness.retention_plots",
             "analysis.robustness.shift_rows", "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained",
             "commands.plot",
@@ -70,8 +72,8 @@ def test_every_module_lives_in_a_layer_folder_and_imports_only_downward():
 
 
 def test_analysis_imports_nothing_that_trains():
-    """analysis/ is statistics, tables and decisions: none of its modules imports (even inside a function) what
-    trains a run (TRAINING); the answer loop that trains its rounds lives in orchestration/."""
+    """analysis/ is statistics, tables and decisions: none of its modules imports directly (even inside a function)
+    what trains a run (TRAINING); the answer loop that trains its rounds lives in orchestration/."""
     mods = modules()
     trains = lambda d: any(d == t or d.startswith(t + ".") for t in TRAINING)  # noqa: E731
     wrong = [f"{m} imports {d}" for m, p in sorted(mods.items()) if layer(m) == "analysis"

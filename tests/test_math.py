@@ -138,9 +138,12 @@ def test_gaussians_are_each_shapes_own_draw_in_one_draw():
     alone = [np.asarray(jax.jit(lambda k, s=s: jax.random.normal(k, s, jnp.float32))(k)) for k, s in zip(keys, shapes)]
     for got, want in zip(jax.jit(lambda ks: gaussians(ks, shapes))(keys), alone):
         np.testing.assert_array_equal(np.asarray(got), want)
-    runs = jnp.stack([keys] * 2)
-    for got, want in zip(jax.jit(jax.vmap(lambda ks: gaussians(ks, shapes)))(runs), alone):
-        np.testing.assert_array_equal(np.asarray(got)[1], want)
+    other = jax.random.split(jax.random.PRNGKey(8), len(shapes))
+    alone_other = [np.asarray(jax.random.normal(k, s, jnp.float32)) for k, s in zip(other, shapes)]
+    for got, want, want_other in zip(jax.jit(jax.vmap(lambda ks: gaussians(ks, shapes)))(jnp.stack([keys, other])),
+                                     alone, alone_other):
+        np.testing.assert_array_equal(np.asarray(got)[0], want)
+        np.testing.assert_array_equal(np.asarray(got)[1], want_other)
     hlo = jax.jit(lambda k: init_mlp(k, (11, 64, 64, 1))).lower(jax.random.PRNGKey(0)).as_text()
     assert hlo.count("func.func private @threefry2x32") == 2  # the key split's and the one draw
 

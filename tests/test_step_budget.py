@@ -11,8 +11,8 @@ import pytest
 
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import answering as A
-from gsa_jax.orchestration import answer_loop as L
 from gsa_jax.analysis.verdicts import step_budget, verdict
+from gsa_jax.orchestration import answer_loop as L
 from tests.test_answer import random_policy
 
 KNEE = 100_000  # flat PPO's return rises linearly to its plateau at this step, whatever the budget it trains to

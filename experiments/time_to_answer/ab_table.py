@@ -1,7 +1,8 @@
 """The first answer's wall and compile times before and after a change, from interleaved cold answers
 (`run.py --cold-only --checkout <worktree>` per side and round, both sides in each round): each round's summary.csv and
 sweeps.csv under results/<ab>/<side>-round<r>/ -> results/<ab>/ab.csv (a row per side and round, then each side's
-median: wall, compile or load, its share, and each sweep's compile or load seconds).
+median: wall, compile or load, its share, the calibration sweep's and the first round's mixture sweep's compile or
+load seconds; a side's first calibration sweep where it ran several).
 
     .venv/bin/python experiments/time_to_answer/ab_table.py results/2026-12-02-init-draw-ab
 """
@@ -15,7 +16,7 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 COLUMNS = ["side", "round", "commit", "wall_s", "compile_or_load_s", "compile_share", "calibration_compile_s",
-           "round1_compile_s"]
+           "round1_mixture_compile_s"]
 
 
 def read_round(path: str) -> dict:
@@ -28,7 +29,7 @@ def read_round(path: str) -> dict:
     pick = lambda prefix: next(v for k, v in sweeps.items() if k.startswith(prefix))  # noqa: E731
     return {"side": side, "round": int(r), "commit": s["commit"], "wall_s": float(s["wall_s"]),
             "compile_or_load_s": float(s["compile_or_load_s"]), "compile_share": float(s["compile_share"]),
-            "calibration_compile_s": pick("calibrate-"), "round1_compile_s": pick("round1-")}
+            "calibration_compile_s": pick("calibrate-"), "round1_mixture_compile_s": pick("round1-mixture-")}
 
 
 def medians(rows: list) -> list:

@@ -10,11 +10,12 @@ import jax.numpy as jnp
 def gaussians(keys: jax.Array, shapes: Sequence[tuple]) -> list:
     """[jax.random.normal(keys[i], shapes[i]) for each i] (float32), drawn as one batched draw of the largest size.
 
-    Why: XLA:CPU compiles each draw's threefry and inverse-erf code anew, about a third of a second per shape, which
-    made a run's init program slower to compile than its training chunk. With JAX's partitionable threefry (its
-    default) an element's bits depend only on its key and flat index, so each slice of the larger draw holds the very
-    numbers of its own draw (tests/test_math.py); without it, each shape is drawn alone."""
-    if not jax.config.jax_threefry_partitionable:
+    Why: XLA:CPU compiles each draw's threefry and inverse-erf code anew; with a draw per layer, a sweep worker's init
+    program compiled for longer than its training chunk (experiments/compile_time/README.md, "One draw for a network's
+    Gaussians"). With JAX's partitionable threefry keys (its default) an element's bits depend only on its key and flat
+    index, so each slice of the larger draw holds the very numbers of its own draw (tests/test_math.py); with other
+    keys or threefry settings, each shape is drawn alone."""
+    if not (jax.config.jax_threefry_partitionable and jax.config.jax_default_prng_impl == "threefry2x32"):
         return [jax.random.normal(k, s, jnp.float32) for k, s in zip(keys, shapes)]
     n = max(math.prod(s) for s in shapes)
     flat = jax.vmap(lambda k: jax.random.normal(k, (n,), jnp.float32))(keys)

@@ -131,8 +131,9 @@ def program_hash(lowered: jax.stages.Lowered) -> str:
 ONCE_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 # At XLA_FLAGS' --xla_backend_optimization_level=0 (the test suite's) the older code generation computed NaN weights
 # in a vmapped init of one run whose orthogonal init was unrolled (tests/test_tune.py's tuning sweep), finite ones at
-# levels 1 and 3 (a probe); with that init as one loop (gsa_jax.algorithm.nn.orthogonal) it is finite at level 0 too
-# (a probe). Programs compiled with ONCE_OPTIONS still hold at least this level: a miscompile, not understood.
+# levels 1 and 3 (a probe); with that init as one loop (gsa_jax.algorithm.nn.orthogonal_from) it is finite at level 0
+# too (a probe, made before init_mlp drew its layers' Gaussians in one draw). Programs compiled with ONCE_OPTIONS
+# still hold at least this level: a miscompile, not understood.
 ONCE_MIN_LEVEL = 1
 _LEVEL_FLAG = re.compile(r"--xla_backend_optimization_level=(\d+)")
 

@@ -1,6 +1,6 @@
-"""What `gsa answer` decides, as pure functions of its runs' values: the answer's setup and state (DIR/answer.json),
-the evidence read from its results (controller scores, training returns, learning curves), and the decisions of a
-round (decide): flat PPO and a ladder of K judged at the design's looks (gsa_jax.analysis.verdicts.ladder: Yuen's
+"""What `gsa answer` decides: the answer's setup and state (DIR/answer.json), the evidence read from its results
+(controller scores, training returns, learning curves), and the decisions of a round (decide, a pure function of the
+runs' values): flat PPO and a ladder of K judged at the design's looks (gsa_jax.analysis.verdicts.ladder: Yuen's
 trimmed-mean t, an alpha-spending function over the looks, Holm over the K) against a baseline shown adequate
 (gsa_jax.analysis.verdicts.baseline), and the next round's seeds only where the smallest sufficient K is not decided
 yet. The loop that trains those rounds is gsa_jax.orchestration.answer_loop; experiments/verdicts/error_rates.py

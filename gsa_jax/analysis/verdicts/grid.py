@@ -14,6 +14,7 @@ from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import Cell, final_scores, write_csv
 from gsa_jax.analysis.sweeps.tables import flat_cell
 from gsa_jax.analysis.verdicts import verdict
+from gsa_jax.analysis.verdicts.answering import DEFAULT_LOOKS, FLAT, Evidence, Setup, decide
 
 
 def cell_setting(cell: Cell, settings: Sequence[str]) -> tuple:
@@ -25,8 +26,6 @@ def cell_setting(cell: Cell, settings: Sequence[str]) -> tuple:
 def grid_evidence(data: dict, scores: dict, cells: list) -> tuple:
     """answering.Evidence of one task's fixed grid: flat PPO's and each K's scores (final_scores: the committed
     controllers' where scored), last-100-episode training returns and flat PPO's learning curves."""
-    from gsa_jax.analysis.verdicts.answering import FLAT, Evidence  # imports JAX: not at module level, which plot reads
-
     values, last100, curves = {}, {}, {}
     for cell in cells:
         key = FLAT if cell.policy == MLP else cell.k
@@ -43,7 +42,6 @@ def grid_verdicts(env_name: str, cells: list, data: dict, scores: dict, random_p
     """(answer rows, sensitivity rows, baseline record) of one task's fixed grid, judged exactly as gsa_jax.answer
     judges its first look (answering.decide with the default design): a table of n seeds is the look n reaches."""
     from gsa_jax.analysis.verdicts.answer_report import answer_rows, sensitivity_rows
-    from gsa_jax.analysis.verdicts.answering import DEFAULT_LOOKS, Setup, decide
 
     ladder = tuple(sorted(c.k for c in cells if c.policy == MIXTURE))
     spec = {"steps": int(steps), "hparams": {}, "config": {}}
