@@ -13,7 +13,7 @@ import os
 import sys
 from typing import Callable
 
-from gsa_jax.errors import UserError
+from gsa_jax.errors import EXIT_DISK_FULL, UserError
 
 COMMANDS = {  # command -> its module under gsa_jax.commands
     "train": "train", "sweep": "sweep", "answer": "answer", "score": "score", "plot": "plot", "inspect": "inspect_run",
@@ -108,9 +108,6 @@ def options_over_saved(parser: argparse.ArgumentParser, argv: list | None, path:
     saved, defaults = read_saved(path, error, options_of)
     parser.set_defaults(**defaults)
     return parser.parse_args(argv), saved
-
-
-EXIT_DISK_FULL = 4
 
 
 def disk_full(e: OSError, intact: str) -> UserError:

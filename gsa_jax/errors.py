@@ -2,6 +2,9 @@
 `gsa` prints such an error as one line and exits with its status (gsa_jax.cli.run_command)."""
 
 
+EXIT_DISK_FULL = 4  # a command's exit status where a write ran out of space (running/checkpoint.py's DiskFullError)
+
+
 class UserError(Exception):
     """An error in what the user asked for, ending a command with `exit_status` (2: bad input, unless a command
     says otherwise, e.g. 4: disk full)."""

@@ -168,6 +168,28 @@ def test_write_atomic_keeps_previous_and_cleans_up(tmp_path, monkeypatch):
     assert open(p, "rb").read() == b"two" and open(checkpoint.previous_path(p), "rb").read() == b"one"
 
 
+def test_a_full_disk_that_no_command_names_is_one_line_and_exit_status_4(tmp_path, monkeypatch, capsys):
+    """DiskFullError is an OSError and a UserError: where a command does not turn it into its own line (cli.disk_full
+    names the intact checkpoint), gsa still prints one line and exits 4, no traceback."""
+    from gsa_jax.cli import run_command
+    from gsa_jax.errors import UserError
+
+    p = str(tmp_path / "f.npz")
+    DiskFull(monkeypatch, "f.npz", 1)
+    with pytest.raises(checkpoint.DiskFullError) as e:
+        checkpoint.write_atomic(p, b"x" * 100, "wb")
+    assert isinstance(e.value, OSError) and isinstance(e.value, UserError) and e.value.errno == errno.ENOSPC
+
+    def body():
+        checkpoint.write_atomic(p, b"x" * 100, "wb")
+        return 0
+
+    DiskFull(monkeypatch, "f.npz", 1)
+    assert run_command("train", body) == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"gsa train: error: [Errno {errno.ENOSPC}] no space left writing {p}"]
+
+
 def test_the_supervisor_sees_a_worker_exit_without_waiting_out_its_poll(monkeypatch):
     """wait_for_exit returns once a worker has exited (a sweep ends when its last worker does), and sleeps its whole
     interval while every worker runs."""

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from gsa_jax.errors import UserError
+from gsa_jax.errors import EXIT_DISK_FULL, UserError
 
 
 def _flat(tree):
@@ -25,10 +25,13 @@ def _flat(tree):
     return {jax.tree_util.keystr(path): np.asarray(x) for path, x in leaves}, treedef
 
 
-class DiskFullError(OSError):
-    """A write ran out of space (ENOSPC / EDQUOT); the file it replaces is intact."""
+class DiskFullError(UserError, OSError):
+    """A write ran out of space (ENOSPC / EDQUOT); the file it replaces is intact. An OSError, and a UserError with
+    exit status 4, so a command that does not name the intact checkpoint (cli.disk_full does) still ends in one line."""
 
-    def __init__(self, path, needed):
+    exit_status = EXIT_DISK_FULL
+
+    def __init__(self, path: str, needed: int) -> None:
         super().__init__(errno.ENOSPC, f"no space left writing {path}")
         self.path, self.needed = path, needed
 
