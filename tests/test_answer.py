@@ -66,7 +66,9 @@ def test_seeds_go_only_to_undecided_cells(tmp_path):
         chosen, below = verdict.smallest_sufficient({int(k): v for k, v in before.items()})
         assert r["plan"]["mixture"][0] == below and all(before[str(k)] == verdict.UNDECIDED for k in below)
     scores = A.collect_scores(str(tmp_path), synthetic_setup())
-    assert len(scores[1]) == 10 and len(scores[4]) == 10  # decided at the first look: never trained again
+    # K = 1 decided at the first look, never trained again; K = 4, on par, is shown sufficient at the last look: only
+    # 40 seeds can show that its seeds fail no more often than flat PPO's (verdict.SHARE_MARGIN)
+    assert len(scores[1]) == 10 and len(scores[4]) == 40
     assert state["judged"]["1"]["verdict"] == verdict.INSUFFICIENT and state["judged"]["4"]["verdict"] == verdict.SUFFICIENT
     assert len(state["rounds"]) >= 2 and len(scores[2]) > 10  # K = 2 got more seeds
     assert state["stopped"] == "decided" or state["stopped"].startswith("seed cap")
@@ -84,7 +86,8 @@ def test_futility_stops_adding_seeds_to_a_k_the_cap_cannot_decide(futility, tmp_
     k2 = state["judged"]["2"]
     assert state["judged"]["4"]["verdict"] == verdict.SUFFICIENT and k2["verdict"] == verdict.UNDECIDED
     if futility:
-        assert k2["seeds"] < 40 and k2["chance_by_cap"] < futility and len(calls) == 2 * k2["seeds"] // 10
+        assert k2["seeds"] < 40 and k2["chance_by_cap"] < futility
+        assert all(2 not in c[1] or max(c[2]) < k2["seeds"] for c in calls)  # no seed for K = 2 once stopped
         assert state["stopped"].startswith("futility") and "K = 2: " in state["stopped"]
     else:  # every undecided K goes to the cap
         assert k2["seeds"] == 40 and state["stopped"].startswith("seed cap")
@@ -233,13 +236,38 @@ def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
     assert log_text.count("program loaded") == 2 and "program compiled" not in log_text
 
 
-def simulated_error(setup, trials: int, seed: int) -> float:
-    """The share of simulated answers (every K's true gap exactly at -margin; normal seeds, coefficient of variation
-    0.3; 128 random episodes) in which gsa_jax.answer's own decisions call some K sufficient."""
+def normal_cells(rng, setup):
+    """Every K's true gap exactly at -margin: normal seeds, coefficient of variation 0.3."""
+    cells = {A.FLAT: 1.0 + 0.3 * rng.standard_normal(setup.looks[-1])}
+    cells.update({k: 1.0 - setup.margin + 0.3 * rng.standard_normal(setup.looks[-1]) for k in setup.ladder})
+    return cells
+
+
+def failing_cells(rng, setup, fail=0.29):
+    """The mixtures fail (at the random policy's 0) on `fail` of their seeds, flat PPO on none, tight modes; the
+    mixtures' others so far above flat PPO that their mean gap is exactly -margin (their IQM gap is above 0)."""
+    n = setup.looks[-1]
+    high = (1.0 - setup.margin) / (1.0 - fail)
+    cells = {A.FLAT: 1.0 + 0.02 * rng.standard_normal(n)}
+    cells.update({k: np.where(rng.random(n) < fail, 0.0, high) + 0.02 * rng.standard_normal(n) for k in setup.ladder})
+    return cells
+
+
+def tied_failing_cells(rng, setup):
+    """Ties at the ceiling: flat PPO's seeds all at 1.0, the mixtures' at 1.0 but 30% failing at 0 (their IQM gap
+    exactly -margin; Yuen's error is 0 wherever the trimmed seeds tie)."""
+    n = setup.looks[-1]
+    cells = {A.FLAT: np.ones(n)}
+    cells.update({k: np.where(rng.random(n) < 0.3, 0.0, 1.0) for k in setup.ladder})
+    return cells
+
+
+def simulated_error(setup, trials: int, seed: int, draw=normal_cells) -> float:
+    """The share of simulated answers (cells from `draw`, no K truly sufficient; 128 random episodes) in which
+    gsa_jax.answer's own decisions call some K sufficient."""
     rng, wrong = np.random.default_rng(seed), 0
     for _ in range(trials):
-        cells = {A.FLAT: 1.0 + 0.3 * rng.standard_normal(setup.looks[-1])}
-        cells.update({k: 1.0 - setup.margin + 0.3 * rng.standard_normal(setup.looks[-1]) for k in setup.ladder})
+        cells = draw(rng, setup)
         have = {key: setup.looks[0] for key in cells}
         state = {"records": {}, "random": {"returns": list(0.05 * rng.standard_normal(128))}, "rounds": []}
         while True:
@@ -254,17 +282,32 @@ def simulated_error(setup, trials: int, seed: int) -> float:
     return wrong / trials
 
 
-def test_the_whole_answers_error_stays_at_the_stated_rate(tmp_path):
-    """Every K exactly at the margin, looks at 10, 20, 40 seeds, the answer loop's own decisions: some K is called
-    sufficient in at most verdict.ALPHA (2.5%) of 1,200 simulated answers; without the correction over the K it is
-    called so far more often (experiments/verdicts/error_rates.py has the full table)."""
+def simulated_setup(tmp_path):
     refs = tmp_path / "none.csv"
     refs.write_text("task,published_task,score,std,seeds,steps,metric,algorithm,source,note\n")
     spec = {"steps": 1000, "chunk": 1, "eval_every": 0, "hparams": {}, "config": {}}
-    setup = A.Setup("simulated", (1, 2, 4), 0.1, (10, 20, 40), {"mlp": spec, "mixture": spec}, references=str(refs))
-    assert simulated_error(setup, 1200, seed=5) <= verdict.ALPHA
-    uncorrected = A.Setup(**{**setup.__dict__, "multiplicity": "none", "alpha": verdict.ALPHA})
-    assert simulated_error(uncorrected, 400, seed=6) > 1.5 * verdict.ALPHA
+    return A.Setup("simulated", (1, 2, 4), 0.1, (10, 20, 40), {"mlp": spec, "mixture": spec}, references=str(refs))
+
+
+def test_the_whole_answers_error_stays_at_the_stated_rate(tmp_path):
+    """Every K exactly at the margin, looks at 10, 20, 40 seeds, the answer loop's own decisions: some K is called
+    sufficient in at most verdict.ALPHA (2.5%) of 1,200 simulated answers (experiments/verdicts/error_rates.py has
+    the full table)."""
+    assert simulated_error(simulated_setup(tmp_path), 1200, seed=5) <= verdict.ALPHA
+
+
+@pytest.mark.parametrize("draw", [failing_cells, tied_failing_cells])
+def test_mixtures_that_fail_on_some_seeds_are_not_called_sufficient(draw, tmp_path):
+    """The laws the IQM alone does not see: mixtures failing on 29% of seeds (their IQM above flat PPO's), and ties
+    at the ceiling with 30% failing. Some K is called sufficient in at most 2.5% of 600 simulated answers (the IQM
+    verdict alone called it so in most of them)."""
+    setup = simulated_setup(tmp_path)
+    assert simulated_error(setup, 600, seed=7, draw=draw) <= verdict.ALPHA
+    if draw is failing_cells:  # one such answer's IQM test alone shows the mixture sufficient: the failure share stops it
+        rng = np.random.default_rng(7)
+        cells = draw(rng, setup)
+        g = verdict.judge(cells[1], cells[A.FLAT], 0.05 * rng.standard_normal(128), 0.1, level=0.003)
+        assert g.p_sufficient < 0.003 and g.p_share > 0.003 and g.verdict != verdict.SUFFICIENT
 
 
 def test_a_budget_below_the_first_round_is_refused_in_one_line_before_training(tmp_path, capsys):
@@ -326,9 +369,10 @@ def test_every_sweep_of_a_class_has_one_program_shape():
     assert L.unit(setup) == 10 and sweeps == [("round3-flat_ppo-s10-29", "mlp", [], list(range(10, 30))),
                                               ("round3-mixture-K2-4-s10-29", "mixture", [2, 4], list(range(10, 30)))]
     assert [L.padded_runs(setup, s) for s in sweeps] == [20, 40]
-    # a budget that is not whole chunks also evaluates its last chunk; one shorter than a chunk, every chunk
-    assert L.flat_evaluations(100_000, 20_480) == {"eval_at": [61_440, 81_920, 100_000]}
-    assert L.flat_evaluations(245_760, 20_480) == {"eval_at": [184_320, 245_760]}
+    # a budget that is not whole chunks also evaluates its last chunk; one shorter than a chunk, every chunk; each end
+    # of the last fifth reads the (up to three) chunks within a tenth of the budget of it
+    assert L.flat_evaluations(100_000, 20_480) == {"eval_at": [81_920, 100_000]}
+    assert L.flat_evaluations(245_760, 20_480) == {"eval_at": [184_320, 204_800, 225_280, 245_760]}
     assert L.flat_evaluations(10_000, 20_480) == {"eval_every": 1}
     assert L.padded_runs(setup, ("x", "mixture", [1, 2, 4], list(range(5)))) == 20  # 15 runs: parts of 10, padded
 

@@ -47,10 +47,10 @@ def test_plain_mean_and_a_published_score_as_groups():
 
 
 def test_clear_win_and_clear_loss():
-    flat, rand = noisy(1000.0, 50.0, 10, 1), noisy(0.0, 5.0, 128, 0)
-    win = V.judge(noisy(1200.0, 50.0, 10, 2), flat, rand, level=0.005)
-    loss = V.judge(noisy(500.0, 50.0, 10, 3), flat, rand, level=0.005)
-    assert win.verdict == V.SUFFICIENT and win.low > 0.0
+    flat, rand = noisy(1000.0, 50.0, 40, 1), noisy(0.0, 5.0, 128, 0)
+    win = V.judge(noisy(1200.0, 50.0, 40, 2), flat, rand, level=0.005)
+    loss = V.judge(noisy(500.0, 50.0, 40, 3), flat, rand, level=0.005)
+    assert win.verdict == V.SUFFICIENT and win.low > 0.0 and win.p_share < 0.005
     assert loss.verdict == V.INSUFFICIENT and loss.high < -V.DEFAULT_MARGIN
     assert -0.6 < loss.point < -0.4
 
@@ -131,10 +131,28 @@ def test_an_undecided_cell_carries_its_chance_and_a_decided_one_none():
     assert clear.verdict == V.SUFFICIENT and clear.chance_by_cap is None
 
 
+def test_ten_seeds_cannot_show_that_a_mixture_fails_no_more_often():
+    """A clear IQM win at 10 seeds is not 'sufficient': had the mixture failed on 29% of its seeds, all 10 would
+    succeed 3% of the time, so 10 of 10 cannot show its failure share within SHARE_MARGIN of flat PPO's."""
+    flat, rand = noisy(1000.0, 50.0, 10, 1), noisy(0.0, 5.0, 128, 0)
+    win = V.judge(noisy(1200.0, 50.0, 10, 2), flat, rand, level=0.005)
+    assert win.p_sufficient < 1e-4 and win.p_share > 0.1 and win.verdict == V.UNDECIDED
+
+
+def test_a_mixture_whose_seeds_fail_is_not_sufficient_whatever_its_iqm():
+    """Tied at the ceiling but failing on 10 of 40 seeds: Yuen's error collapses (the IQM ignores them), the
+    failure share does not."""
+    flat = np.full(40, 1000.0)
+    mix = np.r_[np.full(30, 1000.0), np.full(10, 5.0)]
+    g = V.judge(mix, flat, np.zeros(128), level=0.01)
+    assert g.p_sufficient == 0.0 and g.p_share > 0.5 and g.verdict == V.UNDECIDED
+    assert V.judge(mix, trimmed.fixed(1000.0), np.zeros(128), level=0.01).verdict == V.SUFFICIENT  # no shares there
+
+
 def test_near_deterministic_scores_a_fraction_of_the_margin_apart_are_sufficient():
     """Balance-like: every mixture seed 1 point below flat PPO's 500, a random policy at 100 (scale 400):
-    gap -0.0025, far inside a margin of 0.05 although every seed of the mixture loses."""
-    flat = 500.0 + np.random.default_rng(4).uniform(0.0, 0.01, 10)
+    gap -0.0025, far inside a margin of 0.05 although every seed of the mixture loses (40 seeds: the last look)."""
+    flat = 500.0 + np.random.default_rng(4).uniform(0.0, 0.01, 40)
     g = V.judge(flat - 1.0, flat, 100.0, margin=0.05, level=0.001)
     assert g.verdict == V.SUFFICIENT and g.point == pytest.approx(-1.0 / 400.0, rel=1e-3)
 
@@ -206,11 +224,11 @@ def test_designs_refuse_too_few_seeds_and_unknown_rules():
 
 def test_holm_passes_a_sufficient_ks_share_on():
     """K = 4 clearly sufficient frees its share: K = 2, just short of the alpha / 3 level, passes at alpha / 2."""
-    design = sequential.Design((10,), 0.025, "obf")
+    design = sequential.Design((40,), 0.025, "obf")
     rand = np.zeros(128)
-    flat = noisy(1000.0, 60.0, 10, 20)
-    scores = {1: dict(enumerate(noisy(400.0, 60.0, 10, 21))), 4: dict(enumerate(noisy(1100.0, 30.0, 10, 22)))}
-    base2 = noisy(0.0, 60.0, 10, 23)
+    flat = noisy(1000.0, 60.0, 40, 20)
+    scores = {1: dict(enumerate(noisy(400.0, 60.0, 40, 21))), 4: dict(enumerate(noisy(1100.0, 30.0, 40, 22)))}
+    base2 = noisy(0.0, 60.0, 40, 23)
     for shift in np.linspace(900.0, 1100.0, 401):  # find a K = 2 whose p lies between alpha / 3 and alpha / 2
         scores[2] = dict(enumerate(base2 + shift))
         p = V.judge(list(scores[2].values()), flat, rand).p_sufficient

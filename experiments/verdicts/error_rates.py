@@ -7,7 +7,11 @@ look for every cell, then seeds only for the undecided K below the smallest suff
 it stops. A cell's true gap is set by shifting flat PPO's law by gap x its IQM (the random policy's law has mean 0, so
 the scale is flat PPO's IQM). Laws of the seeds: normal (coefficient of variation 0.3, the issue's realistic spread),
 bimodal (half the seeds 0.6 apart, tight modes), right-skewed (exponential), and 'some fail' (a fifth of the seeds at
-a fifth of the return).
+a fifth of the return); and laws where the mixtures' seeds follow another law than flat PPO's (PAIRS): three times
+flat PPO's spread, failing on 29% of seeds (at the random policy's return; the others so high that the mean gap is
+the margin, or three times it, while the IQM gap is above it), ties at the ceiling with 30% failing (IQM gap exactly
+the margin), and near-ties at the ceiling a margin apart. A K is not sufficient under any of them: its IQM gap is at
+the margin, or its seeds fail more often than flat PPO's by more than verdict.SHARE_MARGIN.
 
 - error rows: every K exactly at the margin (gap -0.1): the share of trials in which the answer calls some K
   sufficient (the error the design must keep at or below 2.5%), per law and design;
@@ -53,6 +57,28 @@ def some_fail(rng, n):
 
 
 LAWS = {"normal": normal, "bimodal": bimodal, "skewed": skewed, "some_fail": some_fail}
+
+
+# laws where the mixtures' seeds follow another law than flat PPO's (every K at the margin; the random policy at 0):
+# {name: (flat PPO's draw, a mixture's draw)}. A seed "fails" below half of flat PPO's gain (verdict.FAIL_GAIN).
+def tight(rng, n):
+    return 1.0 + 0.02 * rng.standard_normal(n)
+
+
+def failing(fail, gap):
+    """A mixture failing (at 0) on `fail` of its seeds, its others so high that its mean gap is `gap`."""
+    high = (1.0 + gap) / (1.0 - fail)
+    return lambda rng, n: np.where(rng.random(n) < fail, 0.0, high) + 0.02 * rng.standard_normal(n)
+
+
+PAIRS = {
+    "spread_3x": (lambda rng, n: 1.0 + 0.1 * rng.standard_normal(n), lambda rng, n: 0.9 + 0.3 * rng.standard_normal(n)),
+    "failing_mixture": (tight, failing(0.29, -MARGIN)),  # its IQM gap above 0; 29% of seeds fail, flat PPO's none
+    "failing_mixture_3x_gap": (tight, failing(0.29, -3 * MARGIN)),
+    "ties_failing": (lambda rng, n: np.ones(n), lambda rng, n: np.where(rng.random(n) < 0.3, 0.0, 1.0)),  # IQM gap -0.1
+    "near_ties": (lambda rng, n: 1.0 - np.abs(0.001 * rng.standard_normal(n)),
+                  lambda rng, n: 0.9 - np.abs(0.001 * rng.standard_normal(n))),  # at the ceiling, a margin apart
+}
 SCENARIOS = {  # true gap per K
     "every K at the margin": {1: -0.1, 2: -0.1, 4: -0.1},
     "K = 2 at parity": {1: -0.5, 2: 0.0, 4: 0.0},
@@ -66,6 +92,15 @@ DESIGNS = [("pocock", "holm"), ("obf", "holm"), ("bonferroni", "holm"), ("pocock
 
 def law_iqm(draw) -> float:
     return stats.iqm(draw(np.random.default_rng(99), 2_000_000))
+
+
+def draw_cells(law: str, gaps: dict, rng, n: int, scale: float) -> dict:
+    """Every cell's seeds [n]: flat PPO's law shifted by gap x scale per K, or a PAIRS law's two draws."""
+    if law in PAIRS:
+        flat, mix = PAIRS[law]
+        return {answering.FLAT: flat(rng, n), **{k: mix(rng, n) for k in gaps}}
+    draw = LAWS[law]
+    return {answering.FLAT: draw(rng, n), **{k: draw(rng, n) + g * scale for k, g in gaps.items()}}
 
 
 def run_trial(setup, cells: dict, random_returns: np.ndarray) -> tuple:
@@ -87,8 +122,8 @@ def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int
              alpha: float = sequential.DESIGN_ALPHA, futility: float = 0.0) -> dict:
     """One row: the share of trials whose answer is the smallest truly sufficient K, calls some truly insufficient K
     (gap <= -margin) sufficient, and the mean seeds trained (all cells)."""
-    draw, rng = LAWS[law], np.random.default_rng(seed)
-    scale = law_iqm(draw)
+    rng = np.random.default_rng(seed)
+    scale = 1.0 if law in PAIRS else law_iqm(LAWS[law])
     spec = {"steps": 1_000_000, "hparams": {}, "config": {}}
     setup = answering.Setup("simulated", LADDER, MARGIN, LOOKS, {"mlp": spec, "mixture": spec}, spending=spending,
                             multiplicity=multiplicity, references=references, alpha=alpha,
@@ -96,8 +131,7 @@ def simulate(law: str, gaps: dict, spending: str, multiplicity: str, trials: int
     truth = min([k for k, g in gaps.items() if g > -MARGIN + 1e-12], default=None)
     correct = wrong = seeds = 0
     for _ in range(trials):
-        cells = {answering.FLAT: draw(rng, LOOKS[-1])}
-        cells.update({k: draw(rng, LOOKS[-1]) + g * scale for k, g in gaps.items()})
+        cells = draw_cells(law, gaps, rng, LOOKS[-1], scale)
         records, used = run_trial(setup, cells, 0.05 * scale * rng.standard_normal(128))
         verdicts = {int(k): r["verdict"] for k, r in records.items()}
         chosen, _ = verdict.smallest_sufficient(verdicts)
@@ -133,7 +167,7 @@ def main():
         kind = "error" if scenario == "every K at the margin" else "power"
         if (args.only and kind != args.only) or (args.scenario and scenario != args.scenario):
             continue
-        laws = LAWS if kind == "error" else ("normal",)
+        laws = list(LAWS) + list(PAIRS) if kind == "error" else ("normal",)
         designs = [tuple(d.split(":")) for d in args.designs.split(",")] if args.designs else DESIGNS
         for law in [w for w in laws if not args.laws or w in args.laws.split(",")]:
             for spending, multiplicity in designs:

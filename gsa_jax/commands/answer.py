@@ -39,7 +39,8 @@ import envs
 from gsa_jax.algorithm import partitions
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import sequential, verdict
-from gsa_jax.analysis.verdicts.answering import DEFAULT_LOOKS, DEFAULT_SPENDING, AnswerError, Setup
+from gsa_jax.analysis.verdicts.answering import (DEFAULT_LOOKS, DEFAULT_SPENDING, FLAT, AnswerError, Evidence, Setup,
+                                              save_state)
 from gsa_jax.cli import command_parser, run_command, whole_number
 from gsa_jax.orchestration.answer_loop import check_setup, run_answer
 from gsa_jax.running.runinfo import git_commit
@@ -160,20 +161,41 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
         one = len(learning) == 1
         sentence += (f" The training returns of K = {', '.join(map(str, learning))} were still rising at "
                      f"{state['steps']['budget']:,} steps: a longer --steps may change {'its verdict' if one else 'their verdicts'}.")
+    built = constructive_part(out, setup, state, evidence)
+    shown = built["smallest"] if built else None
     choice = None
-    if chosen is not None:
-        choice = export_choice(out, list(setup.start_from) + [os.path.join(out, "results")], setup.env, chosen,
+    if shown is not None or chosen is not None:
+        k = shown if shown is not None else chosen
+        choice = export_choice(out, list(setup.start_from) + [os.path.join(out, "results")], setup.env, k,
                                evidence.scores)
         if choice:
-            choice["K"] = chosen
+            choice["K"] = k
     command = "gsa answer " + " ".join(shlex.quote(a) for a in argv)
     versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit() or "unknown"}
     steps = next_steps(argv, out, setup, state)
     path = write_report(out, setup, state, evidence, sentence, choice, (command, steps), versions)
+    if built:
+        sentence += "\n" + built["sentence"]
     print(f"wrote {path}")
     for line in steps:
         print(f"next: {line}")
     return sentence
+
+
+def constructive_part(out: str, setup: Setup, state: dict, evidence: "Evidence") -> dict | None:
+    """The constructive answer of the answer's runs, kept in answer.json ('constructive') -> its record, or None where
+    flat PPO or every mixture has no controller to exhibit."""
+    from gsa_jax.analysis.verdicts import constructive
+    from gsa_jax.orchestration.constructive_answer import judge_constructive, record, search_words
+
+    built, _ = judge_constructive(out, setup, state, evidence)
+    if built is None:
+        return None
+    search = search_words({cls: s.seeds for cls, s in built.shares.items()},
+                          int(state["steps"]["budget"]))
+    state["constructive"] = record(built, constructive.sentence(setup.env, built, search, FLAT), search)
+    save_state(out, state)
+    return state["constructive"]
 
 
 def without(argv: list, flag: str) -> list:

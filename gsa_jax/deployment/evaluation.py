@@ -62,10 +62,10 @@ def controller_record(arrays: dict, env_name: str) -> "TaskRecord":
         raise DeployError(f"the controller is for {env_name!r}: {' '.join(str(e).split())}") from None
 
 
-def run_mujoco_c(ctrl: numpy_policy.Controller, task: "TaskRecord", config: dict, episodes: int,
-                 episode_length: int | None = None, seed: int = 0) -> dict:
-    """Summary of the controller's deterministic episodes in our MuJoCo C port of its task (task: its record,
-    load_controller's)."""
+def mujoco_c_episodes(ctrl: numpy_policy.Controller, task: "TaskRecord", config: dict, episodes: int,
+                      episode_length: int | None = None, seed: int = 0) -> tuple:
+    """The controller's deterministic episodes in our MuJoCo C port of its task (task: its record, load_controller's)
+    from seeds seed .. seed + episodes - 1 -> (returns [episodes] float64, lengths [episodes], the length limit)."""
     from envs.mujoco_c import run_episodes
 
     try:  # a task defined outside the package is imported here: its errors in one line
@@ -74,7 +74,14 @@ def run_mujoco_c(ctrl: numpy_policy.Controller, task: "TaskRecord", config: dict
     except ValueError as e:
         raise DeployError(f"the controller is for {task.name!r}: {e}") from None
     returns, lengths = run_episodes(twin, ctrl, episodes, int(length), seed)
-    return {**summarize(returns, lengths), "episode_length_limit": int(length)}
+    return np.asarray(returns, np.float64), np.asarray(lengths), int(length)
+
+
+def run_mujoco_c(ctrl: numpy_policy.Controller, task: "TaskRecord", config: dict, episodes: int,
+                 episode_length: int | None = None, seed: int = 0) -> dict:
+    """Summary of the controller's deterministic episodes in MuJoCo C (mujoco_c_episodes)."""
+    returns, lengths, length = mujoco_c_episodes(ctrl, task, config, episodes, episode_length, seed)
+    return {**summarize(returns, lengths), "episode_length_limit": length}
 
 
 def open_gymnasium(ctrl: numpy_policy.Controller, env_name: str, env_id: str, seed: int = 0) -> tuple:

@@ -7,7 +7,7 @@ MuJoCo C), so anyone re-running a controller from the same seeds gets the same r
   every verdict and the answer's choice of its best seed use; `gsa deploy` without seed options. `gsa verify`'s
   nominal episodes (50; 16 with --quick) and `gsa robustness`'s (20) begin at the same seed.
 - The fresh starts (FRESH_SEED + i, FRESH_EPISODES of them): an answer's chosen controller re-scored on starts it was
-  not picked on (`gsa deploy --start-seed 20000 --episodes 50` gives the same number).
+  not picked on (`gsa deploy --start-seed 20000 --episodes 100` gives the same number).
 
 Training's own evaluations draw their starts from JAX keys (`gsa train --eval-seed`), none of these.
 """
@@ -15,7 +15,7 @@ Training's own evaluations draw their starts from JAX keys (`gsa train --eval-se
 SELECTION_SEED = 10_000
 SELECTION_EPISODES = 10  # the episode noise of their mean is small beside the spread over training seeds
 FRESH_SEED = 20_000
-FRESH_EPISODES = 50
+FRESH_EPISODES = 100  # the constructive answer's least: its exhibited controllers are compared on these
 
 NAMES = {(SELECTION_SEED, SELECTION_EPISODES): "the selection starts", (FRESH_SEED, FRESH_EPISODES): "the fresh starts"}
 

@@ -11,6 +11,7 @@ and gsa_jax.answer read the scores (per_run_scores.csv `controller_score`) and e
 
 import concurrent.futures
 import csv
+import functools
 import glob
 import hashlib
 import io
@@ -69,29 +70,37 @@ def write_scores(path: str, rows: dict) -> None:
     write_atomic(path, buf.getvalue())
 
 
-def score_controller(path: str, episodes: int = EPISODES, start_seed: int = START_SEED) -> dict:
-    """One controller's row: its deterministic episodes in MuJoCo C from seeds start_seed .. start_seed +
-    episodes - 1 (gsa_jax.deployment.evaluation.run_mujoco_c, what gsa_jax.deploy runs)."""
-    import mujoco
-
-    from gsa_jax.deployment.evaluation import DeployError, load_controller, run_mujoco_c
+def controller_episodes(path: str, episodes: int, start_seed: int) -> tuple:
+    """One controller's deterministic episodes in MuJoCo C from seeds start_seed .. start_seed + episodes - 1
+    (gsa_jax.deployment.evaluation.mujoco_c_episodes, what gsa_jax.deploy runs) -> (identity {label, env, policy, K,
+    seed, sha256}, returns [episodes], lengths [episodes])."""
+    from gsa_jax.deployment.evaluation import DeployError, load_controller, mujoco_c_episodes
 
     try:
         ctrl, task, config = load_controller(path)
         env_name = task.name
         if not task.has_c:
             raise ScoreError(f"{env_name!r} has no MuJoCo C version: its controllers cannot be scored outside training")
-        summary = run_mujoco_c(ctrl, task, config, episodes, seed=start_seed)
+        returns, lengths, _ = mujoco_c_episodes(ctrl, task, config, episodes, seed=start_seed)
     except DeployError as e:
         raise ScoreError(str(e)) from None
     k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""
     with np.load(path, allow_pickle=False) as f:
         seed = json.loads(str(f["config_json"])).get("seed", "")
-    return {"label": os.path.basename(path)[: -len(".npz")], "env": env_name, "policy": ctrl.kind,
-            "K": k, "seed": seed, "sha256": file_sha256(path), "episodes": episodes, "start_seed": start_seed,
-            C.CONTROLLER_SCORE: round(summary["return_mean"], 4),
-            "episode_std": round(float(np.std(summary["returns"], ddof=1)) if episodes > 1 else 0.0, 4),
-            "length_mean": round(summary["length_mean"], 2), "simulator": "mujoco_c", "mujoco_version": mujoco.__version__}
+    identity = {"label": os.path.basename(path)[: -len(".npz")], "env": env_name, "policy": ctrl.kind, "K": k,
+                "seed": seed, "sha256": file_sha256(path)}
+    return identity, returns, lengths
+
+
+def score_controller(path: str, episodes: int = EPISODES, start_seed: int = START_SEED) -> dict:
+    """One controller's row: the mean of its deterministic episodes (controller_episodes) and their spread."""
+    import mujoco
+
+    identity, returns, lengths = controller_episodes(path, episodes, start_seed)
+    return {**identity, "episodes": episodes, "start_seed": start_seed,
+            C.CONTROLLER_SCORE: round(float(returns.mean()), 4),
+            "episode_std": round(float(np.std(returns, ddof=1)) if episodes > 1 else 0.0, 4),
+            "length_mean": round(float(lengths.mean()), 2), "simulator": "mujoco_c", "mujoco_version": mujoco.__version__}
 
 
 def controller_dirs(roots: Sequence[str]) -> list:
@@ -114,21 +123,26 @@ def default_jobs() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
-def scored_rows(todo: Sequence[str], episodes: int, start_seed: int, jobs: int) -> Iterator[dict]:
-    """Each controller's row (score_controller) as it finishes: in this process, or in `jobs` fresh processes where
-    there is more than one controller (each controller is scored alone, so the rows are the same either way)."""
-    if jobs <= 1 or len(todo) <= 1:
-        yield from (score_controller(f, episodes, start_seed) for f in todo)
+def parallel_map(fn: Callable, items: Sequence, jobs: int) -> Iterator:
+    """fn(item) for each item, yielded as each finishes: in this process, or in `jobs` fresh processes where there is
+    more than one item (fn must be picklable; each item runs alone, so the results are the same either way)."""
+    if jobs <= 1 or len(items) <= 1:
+        yield from (fn(x) for x in items)
         return
     context = multiprocessing.get_context("spawn")  # not fork: the caller may hold JAX's threads
-    with concurrent.futures.ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=context) as pool:
-        futures = [pool.submit(score_controller, f, episodes, start_seed) for f in todo]
+    with concurrent.futures.ProcessPoolExecutor(max_workers=min(jobs, len(items)), mp_context=context) as pool:
+        futures = [pool.submit(fn, x) for x in items]
         try:
             for future in concurrent.futures.as_completed(futures):
                 yield future.result()
         finally:
             for future in futures:
                 future.cancel()
+
+
+def scored_rows(todo: Sequence[str], episodes: int, start_seed: int, jobs: int) -> Iterator[dict]:
+    """Each controller's row (score_controller) as it finishes, in `jobs` processes (parallel_map)."""
+    yield from parallel_map(functools.partial(score_controller, episodes=episodes, start_seed=start_seed), todo, jobs)
 
 
 def score_directory(results_dir: str, episodes: int = EPISODES, start_seed: int = START_SEED,

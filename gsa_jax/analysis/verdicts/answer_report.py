@@ -42,6 +42,7 @@ def answer_rows(setup: Setup, state: dict) -> list:
                      "gap": rounded(r["gap"]), "gap_low": rounded(r["low"]), "gap_high": rounded(r["high"]),
                      "level": rounded(r["level"], 8), "share": rounded(r["share"], 6),
                      "p_sufficient": rounded(r["p_sufficient"], 8), "p_insufficient": rounded(r["p_insufficient"], 8),
+                     "p_failure_share": rounded(r.get("p_share"), 8),
                      "seeds_80pct_power_parity": "" if decided or r["seeds_parity"] is None else r["seeds_parity"],
                      "seeds_80pct_power_observed": "" if decided or r["seeds_observed"] is None else r["seeds_observed"],
                      "chance_decided_by_cap": "" if decided else rounded(r.get("chance_by_cap"))})
@@ -163,7 +164,7 @@ def export_choice(out: str, results_root: list, env: str, k: int, scores: dict) 
     from gsa_jax.deployment.exporting import load_arrays, write
     from gsa_jax.running.trained import path_part
 
-    seed = max(scores[k], key=lambda s: scores[k][s])
+    seed = min(scores[k], key=lambda s: (-scores[k][s], s))  # the best, ties to the lower seed (constructive.exhibit)
     label = f"{path_part(env)}-mixture-K{k}-s{seed}.npz"
     hits = [p for root in results_root for p in glob.glob(os.path.join(root, "**", "controllers", label), recursive=True)]
     if not hits:
@@ -299,16 +300,21 @@ def baseline_text(setup: Setup, state: dict) -> list:
     learn = base.get("learning")
     if learn:
         state_word = "has stopped learning" if learn["stopped"] else "**is not shown to have stopped learning**"
+        low = learn.get("lower")
+        interval = (f"90% interval [{low:+.3f}, {learn['upper']:+.3f}]; stopped when inside ±{setup.margin:g}"
+                    if low is not None and low == low else f"one-sided 95% upper bound {learn['upper']:+.3f}")
         lines.append(f"- Flat PPO {state_word} at {trained_steps(setup, state):,} steps: the last fifth of training gained "
-                     f"{learn['gain']:+.3f} of its gain over the random policy (IQM over {learn['seeds']} seeds; one-sided "
-                     f"95% upper bound {learn['upper']:+.3f}; stopped when below the margin {setup.margin:g})"
+                     f"{learn['gain']:+.3f} of its gain over the random policy (IQM over {learn['seeds']} seeds, each end "
+                     f"averaging up to three evaluations; {interval})"
                      + ("" if learn["stopped"] else "; a longer --steps may move the answer") + ".")
         lines += falling_text(learn, setup.margin)
     for s in base.get("standings", []):
+        shown = "**shown below**" if s["below"] else "not shown below"
+        p = "" if s.get("p_below") is None else f", p = {s['p_below']:.2g}"
         lines.append(f"- Reference {s['algorithm']} on {s['published_task']} at {s['steps']:,} steps ({s['metric']}, "
                      f"{s['seeds'] or '?'} seeds): {s['score']:g}; flat PPO {s['ours']:g} on that metric, "
-                     f"{s['ratio']:.2f} of its gain over the random policy{' — **below it**' if s['below'] else ''}. "
-                     f"Source: {s['source']}.")
+                     f"{s['ratio']:.2f} of its gain over the random policy: {shown} 1 - margin of it (one-sided "
+                     f"5%{p}). Source: {s['source']}.")
     if setup.target is None and not base.get("standings"):
         lines.append("- No published or tuned PPO score is known for this task at this budget: the verdicts rest on this "
                      "flat PPO alone.")
@@ -346,7 +352,9 @@ def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, senten
     flat = evidence.scores.get(FLAT, {})
     flat_row = (*iqm_interval(list(flat.values())), len(flat)) if setup.target is None and len(flat) >= 2 else None
     rounds, share = rounds_text(state)
-    lines = [f"# How many linear controllers does {setup.env} need?", "", f"**{sentence}**", "",
+    lines = [f"# How many linear controllers does {setup.env} need?", "", f"**{sentence}**", ""]
+    lines += constructive_text(state.get("constructive"))
+    lines += [
              f"Stopped: {state['stopped']}. Scores are the committed controllers' deterministic returns in MuJoCo C from "
              f"{starts.describe(controller_scores.START_SEED, controller_scores.EPISODES)} "
              "(controller_scores.csv beside each controllers/ folder).", "", "## Step budget", ""]
@@ -372,6 +380,41 @@ def write_report(out: str, setup: Setup, state: dict, evidence: Evidence, senten
     path = os.path.join(out, "report.md")
     write_atomic(path, "\n".join(lines))
     return path
+
+
+def signed(x: float | None) -> str:
+    """'+0.012', or 'unbounded' for a bound answer.json keeps as null (an infinite interval end)."""
+    return "unbounded" if x is None else f"{x:+.3f}"
+
+
+def class_row(cls: str, r: dict, bar_is_flat: bool) -> str:
+    """One class of the constructive answer as a table row."""
+    gap = "no scale" if r["gap"] is None else f"{r['gap']:+.3f} [{signed(r['low'])}, {signed(r['high'])}]"
+    flat = cls == FLAT
+    judged = ("the bar" if bar_is_flat else "") if flat else r["verdict"]
+    p = "" if r["share_p"] is None else format(r["share_p"], ".3g")
+    return (f"| {'flat PPO' if flat else f'K = {cls}'} | {r['seed']} | {r['selection']:.1f} | {r['fresh']:.1f} "
+            f"({r['episodes']}) | {gap} | {judged} | {r['reached']} of {r['seeds']} ({r['share']:.2f} "
+            f"[{r['share_low']:.2f}, {r['share_high']:.2f}]) | {p} | {r['share_verdict'] or ''} |")
+
+
+def constructive_text(c: dict | None) -> list:
+    """The constructive answer's section: its sentence, how it is judged, and a row per class."""
+    if not c:
+        return []
+    last = c["fresh_start_seed"] + c["exhibit_episodes"] - 1
+    head = ["| class | exhibited seed | selection | fresh (episodes) | gap [interval] | verdict | seeds reaching "
+            f"{c['threshold']:.1f} [exact interval] | share test p | share verdict |", "|" + "---|" * 9]
+    rows = [class_row(cls, r, c["bar"].startswith("the best flat")) for cls, r in c["classes"].items()]
+    return ["## The constructive answer", "", f"**{c['sentence']}**", "",
+            f"Each class's best run on the selection starts is exhibited; only its score on {c['exhibit_episodes']} fresh "
+            f"starts (seeds {c['fresh_start_seed']}-{last}, the same for every class: paired) is reported. The bar is "
+            f"{c['bar']} ({c['bar_score']:.1f}); a K suffices by construction when its exhibited controller is shown "
+            f"within {c['margin']:.0%} of the bar's gain over the random policy ({c['random_mean']:.1f}). A seed reaches "
+            f"when its controller's mean over the first {c['share_episodes']} fresh starts is at least "
+            f"{c['threshold']:.1f}; 'as often' is the exact test that K's share is not more than {c['margin']:.0%} "
+            "below flat PPO's. Every exhibit and share test shares one error rate (Holm's step-down at 2.5%). "
+            f"Search: {c['search']}.", "", *head, *rows, ""]
 
 
 def choice_text(out: str, choice: dict | None) -> list:

@@ -8,6 +8,7 @@ same function judges a fixed grid (gsa_jax.plot's tables: the look its seed coun
 gsa_jax.answer, so an answer continued from a committed table (--start-from) is one design from its first look.
 """
 
+import math
 from typing import Sequence
 
 from gsa_jax.analysis.verdicts import sequential, trimmed, verdict
@@ -24,7 +25,8 @@ def judged_record(g: verdict.Gap, look: int, design: sequential.Design, share: f
     """A cell's record (what answer.json and the tables keep) from its Gap at `look` with Holm share `share`."""
     return {"verdict": g.verdict, "look": look, "seeds": g.n, "reference_seeds": g.n_ref, "gap": g.point,
             "low": g.low, "high": g.high, "level": g.level, "share": share, "p_sufficient": g.p_sufficient,
-            "p_insufficient": g.p_insufficient, "seeds_parity": g.seeds_parity, "seeds_observed": g.seeds_observed,
+            "p_insufficient": g.p_insufficient, "p_share": None if math.isnan(g.p_share) else g.p_share,
+            "seeds_parity": g.seeds_parity, "seeds_observed": g.seeds_observed,
             "chance_by_cap": g.chance_by_cap, "looks": list(design.looks)}
 
 

@@ -46,7 +46,7 @@ def judge_budget(steps: int, scores: Sequence[float], curves: Sequence[tuple], r
     rand = verdict.summarize_random(random_returns)
     iqm = stats.iqm(list(scores)) if len(scores) else float("nan")
     shown = len(scores) >= 2 and verdict.gain_shown(trimmed.trimmed(list(scores)), rand)
-    ok, why = baseline.learned(iqm, rand.mean, max_return)
+    ok, why = baseline.learned(list(scores), rand, max_return)
     if not shown:
         ok, why = False, f"flat PPO's gain over the random policy is not shown positive (IQM {iqm:.1f}, random {rand.mean:.1f})"
     learn = baseline.learning(curves, steps, iqm - rand.mean, margin)

@@ -12,7 +12,13 @@ trimmed-mean t for a contrast (gsa_jax.analysis.verdicts.trimmed): the random re
 published reference's are in the test, and no resampling is involved, so a verdict does not depend on a seed. At
 margin delta and the look's one-sided level a (gsa_jax.analysis.verdicts.sequential: the design's share for this K and look):
 
-    sufficient    p(gap <= -delta) < a   (shown within delta of the reference, or better)
+    sufficient    p(gap <= -delta) < a   (shown within delta of the reference, or better), and against flat PPO's seeds
+                  also p_share < a: the mixture's seeds are shown to fail no more often than flat PPO's, within
+                  SHARE_MARGIN (a seed fails when it keeps less than FAIL_GAIN of flat PPO's IQM gain over the
+                  random policy; gsa_jax.analysis.verdicts.shares.share_p, exact). Both at the same level: the
+                  claim is their conjunction, so the pair errs no more than either (an intersection-union test).
+                  The IQM alone does not see failing seeds: a mixture failing on 29% of its seeds, its others far
+                  above flat PPO, has an IQM above flat PPO's; and ties at the ceiling collapse Yuen's error
     insufficient  p(gap >= -delta) < a   (shown worse than the margin allows)
     undecided     otherwise, with the seeds per cell for 80% power at parity and at the observed gap, and the
                   chance that the seed cap decides it if the gap is what it looks (chance_by_cap: the answer stops
@@ -24,11 +30,11 @@ Fieller's interval for a ratio): unbounded where the scale itself is uncertain.
 """
 
 import math
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from gsa_jax.analysis.verdicts import trimmed
+from gsa_jax.analysis.verdicts import shares, trimmed
 
 ALPHA = 0.025  # the one-sided chance of wrongly calling some K sufficient, over the whole answer
 GAIN_LEVEL = 0.025  # the reference's gain over the random policy must be shown positive at this one-sided level
@@ -36,6 +42,8 @@ POWER = 0.8  # the power the seed estimates aim at
 FUTILITY = 0.05  # the answer stops adding seeds to a K whose chance to be decided by the seed cap is below this
 MARGINS = (0.05, 0.1, 0.2)  # the margins every answer reports (the others as sensitivity, not as the answer)
 DEFAULT_MARGIN = 0.1  # the answer's margin: keep at least 90% of the reference's gain over a random policy
+FAIL_GAIN = 0.5  # a seed fails when its score keeps less than this share of flat PPO's IQM gain over the random policy
+SHARE_MARGIN = 0.2  # 'sufficient' against flat PPO also needs the mixture's failures shown at most this much more frequent
 SUFFICIENT, INSUFFICIENT, UNDECIDED, NO_SCALE = "sufficient", "insufficient", "undecided", "no answer"
 
 
@@ -43,7 +51,8 @@ class Gap(NamedTuple):
     """A cell's gap (point, interval low/high at the look's level), its verdict at `margin`, the look's nominal
     one-sided level, the seeds (mixture, reference: 0 for a fixed score), the two one-sided p-values, and the seeds
     per cell for 80% power at parity (gap 0) and at the observed gap (None where no finite number would do), and the
-    chance that the design's last look decides the cell if its contrast is what it is now (None: not asked)."""
+    chance that the design's last look decides the cell if its contrast is what it is now (None: not asked), and the
+    failure-share test's p-value against flat PPO's seeds (failure_share_p; NaN against a fixed score)."""
 
     point: float
     low: float
@@ -58,6 +67,7 @@ class Gap(NamedTuple):
     seeds_parity: int | None
     seeds_observed: int | None
     chance_by_cap: float | None = None
+    p_share: float = math.nan  # the failure-share test's p-value (NaN: not asked, against a fixed score)
 
 
 def summarize_reference(reference: "Sequence[float] | trimmed.Summary") -> trimmed.Summary:
@@ -86,9 +96,16 @@ def bound(mix: trimmed.Summary, ref: trimmed.Summary, rand: trimmed.Summary, poi
           upper: bool) -> float:
     """The gap at which the one-sided test at `level` stops rejecting: the interval's low (upper=False) or high end;
     +-inf where no finite gap does (the scale is not shown positive at that level)."""
+    return invert(lambda g: margin_contrast(mix, ref, rand, g), point, level, upper)
+
+
+def invert(contrast_at: Callable[[float], trimmed.Contrast], point: float, level: float, upper: bool) -> float:
+    """The gap g at which the one-sided test of contrast_at(g) at `level` stops rejecting, searched outwards from the
+    point estimate: the interval's low (upper=False) or high end (the test inverted, as Fieller's interval);
+    +-inf where no finite gap does."""
 
     def rejects(g: float) -> bool:
-        c = margin_contrast(mix, ref, rand, g)
+        c = contrast_at(g)
         return (trimmed.p_below(c) if upper else trimmed.p_above(c)) < level
 
     inside, step = point, max(abs(point), 1.0) * 0.5
@@ -151,6 +168,15 @@ def fixed_variance(ref: trimmed.Summary, rand: trimmed.Summary, margin: float, r
     return margin * margin * rand.var + ((1.0 - margin) ** 2 * ref.var if ref_fixed else 0.0)
 
 
+def failure_share_p(mixture: Sequence[float], reference: Sequence[float], rand: trimmed.Summary,
+                    ref: trimmed.Summary) -> float:
+    """p-value of 'the mixture's seeds fail more often than flat PPO's by SHARE_MARGIN or more' (shares.share_p): a
+    seed fails below R + FAIL_GAIN (IQM(flat PPO) - R)."""
+    bar = rand.mean + FAIL_GAIN * (ref.mean - rand.mean)
+    mine, theirs = shares.share_of(mixture, bar), shares.share_of(reference, bar)
+    return shares.share_p(mine.reached, mine.seeds, theirs.reached, theirs.seeds, SHARE_MARGIN)
+
+
 def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summary", random_returns: "Sequence[float] | float",
           margin: float = DEFAULT_MARGIN, level: float = ALPHA,
           final_level: float | None = None, final_seeds: int | None = None) -> Gap:
@@ -168,16 +194,19 @@ def judge(mixture: Sequence[float], reference: "Sequence[float] | trimmed.Summar
     point = (mix.mean - ref.mean) / scale
     c = margin_contrast(mix, ref, rand, -margin)
     p_s, p_i = trimmed.p_above(c), trimmed.p_below(c)
-    verdict = SUFFICIENT if p_s < level else INSUFFICIENT if p_i < level else UNDECIDED
+    fixed_ref = isinstance(reference, trimmed.Summary)
+    p_share = math.nan if fixed_ref else failure_share_p(mixture, reference, rand, ref)
+    shown = p_s < level and (fixed_ref or p_share < level)
+    verdict = SUFFICIENT if shown else INSUFFICIENT if p_i < level else UNDECIDED
     low, high = bound(mix, ref, rand, point, level, False), bound(mix, ref, rand, point, level, True)
     final = level if final_level is None else final_level
-    fixed = fixed_variance(ref, rand, margin, isinstance(reference, trimmed.Summary))
+    fixed = fixed_variance(ref, rand, margin, fixed_ref)
     parity = seeds_for_power(c, n, margin * scale, final, fixed)
     observed = seeds_for_power(c, n, abs(point + margin) * scale, final, fixed)
     chance = None
     if final_seeds is not None and verdict == UNDECIDED:
         chance = chance_to_decide(c, n, final_seeds, final, fixed)
-    return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed, chance)
+    return Gap(point, low, high, verdict, margin, level, n, n_ref, p_s, p_i, parity, observed, chance, p_share)
 
 
 def smallest_sufficient(verdicts: dict) -> tuple:
