@@ -179,3 +179,15 @@ def test_the_answers_fresh_scores_equal_deploy_and_are_not_run_twice(tmp_path, m
     assert json.loads(json.dumps(rec)) == rec  # answer.json keeps it as it is
     text = "\n".join(constructive_text(rec))
     assert "## The constructive answer" in text and "| K = 1 | 0 | 500.0 |" in text
+
+
+def test_no_constructive_answer_against_a_bar_that_has_not_learned_the_task():
+    """A task whose maximum is 1000 (random at 0): a best flat PPO controller at 30 is shown below a tenth of the way
+    to it, so a mixture at 60 is not 'found'; the same bar on a task without a declared maximum lets it be."""
+    flat = [np.full(100, 30.0) + np.linspace(-1, 1, 100)]
+    mix = [np.full(100, 60.0) + np.linspace(-1, 1, 100)]
+    classes = {"flat": cands([30.0], flat), 1: cands([60.0], mix)}
+    a = C.judge(classes, np.linspace(-1, 1, 128), 0.1, max_return=1000.0)
+    assert a.smallest is None and a.exhibits[1].verdict == C.NOT_LEARNED
+    assert "has not learned the task" in C.sentence("t", a, "1 seed")
+    assert C.judge(classes, np.linspace(-1, 1, 128), 0.1).smallest == 1

@@ -26,6 +26,7 @@ sys.path.insert(0, os.path.join(HERE, "..", ".."))
 from gsa_jax.analysis.sweeps.results import read_csv, write_csv  # noqa: E402
 from gsa_jax.analysis.verdicts import baseline  # noqa: E402
 from gsa_jax.analysis.verdicts import constructive as C  # noqa: E402
+from gsa_jax.analysis.verdicts.answering import task_max_return  # noqa: E402
 from gsa_jax.analysis.verdicts.verdict import DEFAULT_MARGIN  # noqa: E402
 
 from fresh_episodes import OUT, ROOT, TABLES  # noqa: E402
@@ -100,11 +101,16 @@ def exhibit_rows(env: str, a: C.Answer, runs: dict, where: dict) -> list:
 def task_row(family: str, env: str, a: C.Answer, proc: dict, search: str) -> dict:
     """One task's row: the constructive answer beside the procedure's."""
     ks = sorted(k for k in a.exhibits if k != FLAT)
+    shown = a.smallest if a.smallest is not None else max(ks, key=lambda k: a.exhibits[k].gap if a.exhibits[k].gap == a.exhibits[k].gap else -1e9)
+    e, share = a.exhibits[shown], a.shares[shown]
+    gap = "" if e.gap != e.gap else f"{e.gap:+.3f} [{e.low:+.3f}, {e.high:+.3f}]"
     return {"family": family, "env": env, "search": search, "bar": a.bar.name, "bar_score": round(a.bar.summary.mean, 2),
             "random_return": round(a.random.mean, 2), "threshold": round(a.threshold, 2),
             "constructive_K": "" if a.smallest is None else a.smallest,
             "found": " ".join(str(k) for k in ks if a.exhibits[k].verdict == C.FOUND),
             "as_often": " ".join(str(k) for k in ks if a.share_verdicts.get(k) == C.AS_OFTEN),
+            "shown_K": shown, "shown_seed": e.seed, "shown_fresh": round(e.fresh, 1), "shown_gap": gap,
+            "shown_share": f"{share.reached}/{share.seeds}", "shown_verdict": e.verdict,
             "flat_share": f"{a.shares[FLAT].reached}/{a.shares[FLAT].seeds}",
             "shares": " ".join(f"{k}:{a.shares[k].reached}/{a.shares[k].seeds}" for k in ks),
             "procedure_K": proc.get("K_margin_0.1", ""), "procedure_status": proc.get("status", ""),
@@ -119,7 +125,7 @@ def main() -> None:
         randoms = json.load(open(os.path.join(table, "random_policy.json")))[env]
         reference, name = highest_reference(env)
         a = C.judge(runs, json.loads(randoms["returns"]) if isinstance(randoms["returns"], str) else randoms["returns"],
-                    DEFAULT_MARGIN, reference, name, SHARE_EPISODES, flat_key=FLAT)
+                    DEFAULT_MARGIN, reference, name, SHARE_EPISODES, flat_key=FLAT, max_return=task_max_return(env))
         search = f"{len(runs[FLAT])} seeds x {STEPS:,} steps per class"
         rows.append(task_row(family, env, a, proc.get(env, {}), search))
         exhibits += exhibit_rows(env, a, runs, where)

@@ -16,7 +16,7 @@ import numpy as np
 
 from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import baseline, constructive, trimmed
-from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, score_roots
+from gsa_jax.analysis.verdicts.answering import FLAT, Evidence, Setup, score_roots, task_max_return
 from gsa_jax.deployment import starts
 
 EXHIBIT, SHARE = starts.FRESH_EPISODES, 20
@@ -96,7 +96,8 @@ def judge_constructive(out: str, setup: Setup, state: dict, evidence: Evidence, 
     for (cls, seed), returns in sorted(fresh.items(), key=lambda kv: (str(kv[0][0]), kv[0][1])):
         classes.setdefault(cls, []).append(constructive.Candidate(seed, evidence.scores[cls][seed], returns))
     ref, name = bar_reference(setup, state)
-    answer = constructive.judge(classes, state["random"]["returns"], setup.margin, ref, name, SHARE, flat_key=FLAT)
+    answer = constructive.judge(classes, state["random"]["returns"], setup.margin, ref, name, SHARE, flat_key=FLAT,
+                                max_return=task_max_return(setup.env))
     shown = {cls: jobs[(cls, e.seed)][0] for cls, e in answer.exhibits.items()}
     return answer, shown
 

@@ -31,6 +31,8 @@ from gsa_jax.analysis.verdicts.shares import Share, holm, share_of, share_p
 
 ALPHA = verdict.ALPHA  # one-sided: the chance that any claim of the answer is wrong
 FOUND, NOT_FOUND, NO_SCALE = "suffices by construction", "not found at this search", "no answer"
+NOT_LEARNED = "no answer: the bar has not learned the task"
+LEARNED = 0.1  # where a task declares its maximum return, the bar must not be shown below this share of the way to it
 AS_OFTEN, NOT_SHOWN = "as often", "not shown as often"
 
 
@@ -114,6 +116,17 @@ def threshold(bar: Bar, rand: trimmed.Summary, margin: float) -> float:
     return float(rand.mean + (1.0 - margin) * (bar.summary.mean - rand.mean))
 
 
+def bar_learned(bar: Bar, rand: trimmed.Summary, max_return: "float | None", level: float) -> bool:
+    """Whether the bar counts as having learned the task: where the task declares its maximum return, the bar is not
+    shown below LEARNED of the way from the random return to it (one-sided at `level`; its episodes' mean, or the
+    published score with its error). Being as good as a controller that has not learned the task says nothing."""
+    if max_return is None:
+        return True
+    summary = trimmed.plain(bar.episodes) if bar.episodes is not None else bar.summary
+    c = trimmed.contrast([(1.0, summary), (-(1.0 - LEARNED), rand)])
+    return not trimmed.p_below(trimmed.Contrast(c.estimate - LEARNED * max_return, c.se, c.df)) < level
+
+
 class Answer(NamedTuple):
     """The constructive answer at one margin: the bar (Bar), the random return's Summary, the threshold a seed must
     reach, per class (FLAT and each K) its Exhibit and Share, per K its share test's p-value and verdict (AS_OFTEN or
@@ -137,10 +150,12 @@ def seed_scores(candidates: Sequence[Candidate], episodes: "int | None") -> np.n
 
 def judge(classes: dict, random_returns: "Sequence[float] | float", margin: float = verdict.DEFAULT_MARGIN,
           reference: "trimmed.Summary | None" = None, reference_name: str = "the published reference",
-          share_episodes: "int | None" = None, alpha: float = ALPHA, flat_key: str = "flat") -> Answer:
+          share_episodes: "int | None" = None, alpha: float = ALPHA, flat_key: str = "flat",
+          max_return: "float | None" = None) -> Answer:
     """The constructive answer from {flat_key: [Candidate], K: [Candidate], ...} and the random policy's returns
     [n_r] (or one exact number): every exhibit and every share test under one Holm step-down at alpha. Shares count
-    each run's mean over its first share_episodes fresh starts (all where None)."""
+    each run's mean over its first share_episodes fresh starts (all where None); max_return: the task's declared
+    maximum (bar_learned), None where it declares none."""
     if not 0.0 < margin < 1.0:
         raise ValueError(f"the margin must be in (0, 1), got {margin}")
     ks = sorted(k for k in classes if k != flat_key)
@@ -156,6 +171,9 @@ def judge(classes: dict, random_returns: "Sequence[float] | float", margin: floa
     bar_score = threshold(bar, rand, margin)
     shares = {c: share_of(seed_scores(classes[c], share_episodes), bar_score, alpha) for c in judged}
     if not verdict.gain_shown(bar.summary, rand):
+        return Answer(bar, rand, bar_score, exhibits, shares, {}, {}, None, margin)
+    if not bar_learned(bar, rand, max_return, alpha):
+        exhibits = {c: e._replace(verdict=NOT_LEARNED) for c, e in exhibits.items()}
         return Answer(bar, rand, bar_score, exhibits, shares, {}, {}, None, margin)
     ref = shares.get(flat_key)
     share_ps = {} if ref is None else {k: share_p(shares[k].reached, shares[k].seeds, ref.reached, ref.seeds, margin)
@@ -180,6 +198,10 @@ def sentence(task: str, answer: Answer, search: str, flat_key: str = "flat") -> 
     if any(e.verdict == NO_SCALE for e in answer.exhibits.values()):
         return (f"{task}: no constructive answer: {answer.bar.name} is not shown to score above a random policy, "
                 f"so no margin can be set.")
+    if any(e.verdict == NOT_LEARNED for e in answer.exhibits.values()):
+        return (f"{task}: no constructive answer: {answer.bar.name} ({answer.bar.summary.mean:.1f}) is shown below "
+                f"{LEARNED:.0%} of the way from the random policy ({answer.random.mean:.1f}) to the task's maximum "
+                f"at this search ({search}): it has not learned the task.")
     if answer.smallest is None:
         best = max(ks, key=lambda k: answer.exhibits[k].gap)
         e = answer.exhibits[best]
