@@ -131,7 +131,7 @@ def test_judge_against_a_higher_published_bar_and_no_scale():
     flat = [rng.normal(50.0, 1.0, 100) for _ in range(3)]
     k1 = [rng.normal(95.0, 1.0, 100) for _ in range(3)]
     classes = {"flat": cands([f.mean() for f in flat], flat), 1: cands([f.mean() for f in k1], k1)}
-    a = C.judge(classes, 0.0, 0.1, reference=trimmed.fixed(100.0, 5.0, 10), reference_name="PPO paper")
+    a = C.judge(classes, 0.0, 0.1, reference=C.Bar("PPO paper", trimmed.fixed(100.0, 5.0, 10), None))
     assert a.bar.name == "PPO paper" and a.bar.episodes is None and a.smallest == 1
     assert math.isclose(a.threshold, 90.0)
     same = {"flat": cands([0.0] * 3, [np.zeros(100)] * 3), 1: classes[1]}

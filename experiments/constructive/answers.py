@@ -60,12 +60,6 @@ def classes_of(table: str, env: str, fresh: dict) -> dict:
     return out
 
 
-def highest_reference(env: str) -> tuple:
-    """The highest published reference at this budget: (Summary, its name) or (None, '')."""
-    top = baseline.highest(baseline.load_references(), env, STEPS)
-    return (None, "") if top is None else (baseline.reference_summary(top), baseline.reference_name(top))
-
-
 def procedure() -> dict:
     """{env: the procedure's answer row} (experiments/verdicts/results/rejudged.csv)."""
     return {r["env"]: r for r in read_csv(os.path.join(ROOT, "verdicts", "results", "rejudged.csv"))}
@@ -123,9 +117,9 @@ def main() -> None:
     for family, table, env in task_envs():
         runs = classes_of(table, env, fresh)
         randoms = json.load(open(os.path.join(table, "random_policy.json")))[env]
-        reference, name = highest_reference(env)
         a = C.judge(runs, json.loads(randoms["returns"]) if isinstance(randoms["returns"], str) else randoms["returns"],
-                    DEFAULT_MARGIN, reference, name, SHARE_EPISODES, flat_key=FLAT, max_return=task_max_return(env))
+                    DEFAULT_MARGIN, C.published_bar(baseline.load_references(), env, STEPS), SHARE_EPISODES,
+                    flat_key=FLAT, max_return=task_max_return(env))
         search = f"{len(runs[FLAT])} seeds x {STEPS:,} steps per class"
         rows.append(task_row(family, env, a, proc.get(env, {}), search))
         exhibits += exhibit_rows(env, a, runs, where)

@@ -95,21 +95,19 @@ def judge_constructive(out: str, setup: Setup, state: dict, evidence: Evidence, 
     classes = {}
     for (cls, seed), returns in sorted(fresh.items(), key=lambda kv: (str(kv[0][0]), kv[0][1])):
         classes.setdefault(cls, []).append(constructive.Candidate(seed, evidence.scores[cls][seed], returns))
-    ref, name = bar_reference(setup, state)
-    answer = constructive.judge(classes, state["random"]["returns"], setup.margin, ref, name, SHARE, flat_key=FLAT,
-                                max_return=task_max_return(setup.env))
+    answer = constructive.judge(classes, state["random"]["returns"], setup.margin, bar_reference(setup, state), SHARE,
+                                flat_key=FLAT, max_return=task_max_return(setup.env))
     shown = {cls: jobs[(cls, e.seed)][0] for cls, e in answer.exhibits.items()}
     return answer, shown
 
 
-def bar_reference(setup: Setup, state: dict) -> tuple:
-    """(Summary, name) of what may set the bar above flat PPO's best controller: the user's target, else the highest
-    published reference at the answer's budget; (None, '') where there is neither."""
+def bar_reference(setup: Setup, state: dict) -> "constructive.Bar | None":
+    """What may set the bar above flat PPO's best controller: the user's target, else the highest published
+    reference at the answer's budget; None where there is neither."""
     if setup.target is not None:
-        return trimmed.fixed(float(setup.target)), f"the target score {setup.target:g}"
+        return constructive.Bar(f"the target score {setup.target:g}", trimmed.fixed(float(setup.target)), None)
     refs = baseline.load_references(setup.references or baseline.REFERENCES)
-    top = baseline.highest(refs, setup.env, int(state["steps"]["budget"]))
-    return (None, "") if top is None else (baseline.reference_summary(top), baseline.reference_name(top))
+    return constructive.published_bar(refs, setup.env, int(state["steps"]["budget"]))
 
 
 def record(answer: constructive.Answer, sentence: str, search: str) -> dict:

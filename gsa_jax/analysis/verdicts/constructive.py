@@ -26,7 +26,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from gsa_jax.analysis.verdicts import trimmed, verdict
+from gsa_jax.analysis.verdicts import baseline, trimmed, verdict
 from gsa_jax.analysis.verdicts.shares import Share, holm, share_of, share_p
 
 ALPHA = verdict.ALPHA  # one-sided: the chance that any claim of the answer is wrong
@@ -78,12 +78,19 @@ def exhibit(candidates: Sequence[Candidate]) -> Candidate:
     return min(candidates, key=lambda c: (-c.selection, c.seed))
 
 
-def bar_of(flat: Candidate, reference: "trimmed.Summary | None", reference_name: str = "the published reference") -> Bar:
-    """The higher bar: flat PPO's exhibited controller on the fresh starts, or a published score above it."""
+def bar_of(flat: Candidate, reference: "Bar | None") -> Bar:
+    """The higher bar: flat PPO's exhibited controller on the fresh starts, or a fixed score (reference) above it."""
     mine = Bar("the best flat PPO controller", trimmed.plain(flat.fresh), np.asarray(flat.fresh, np.float64))
-    if reference is not None and reference.mean > mine.summary.mean:
-        return Bar(reference_name, reference, None)
+    if reference is not None and reference.summary.mean > mine.summary.mean:
+        return reference
     return mine
+
+
+def published_bar(references: Sequence[dict], task: str, steps: int) -> "Bar | None":
+    """The highest entry of a references table that applies to the task at `steps` as a fixed bar (its score with
+    its error over its seeds); None where none applies."""
+    top = baseline.highest(references, task, steps)
+    return None if top is None else Bar(baseline.reference_name(top), baseline.reference_summary(top), None)
 
 
 def gap_contrast(returns: np.ndarray, bar: Bar, rand: trimmed.Summary, gap: float) -> trimmed.Contrast:
@@ -149,8 +156,7 @@ def seed_scores(candidates: Sequence[Candidate], episodes: "int | None") -> np.n
 
 
 def judge(classes: dict, random_returns: "Sequence[float] | float", margin: float = verdict.DEFAULT_MARGIN,
-          reference: "trimmed.Summary | None" = None, reference_name: str = "the published reference",
-          share_episodes: "int | None" = None, alpha: float = ALPHA, flat_key: str = "flat",
+          reference: "Bar | None" = None, share_episodes: "int | None" = None, alpha: float = ALPHA, flat_key: str = "flat",
           max_return: "float | None" = None) -> Answer:
     """The constructive answer from {flat_key: [Candidate], K: [Candidate], ...} and the random policy's returns
     [n_r] (or one exact number): every exhibit and every share test under one Holm step-down at alpha. Shares count
@@ -161,9 +167,9 @@ def judge(classes: dict, random_returns: "Sequence[float] | float", margin: floa
     ks = sorted(k for k in classes if k != flat_key)
     rand = verdict.summarize_random(random_returns)
     if flat_key in classes:
-        bar = bar_of(exhibit(classes[flat_key]), reference, reference_name)
+        bar = bar_of(exhibit(classes[flat_key]), reference)
     elif reference is not None:  # a target alone (no flat PPO trained): the bar, and no share to compare with
-        bar = Bar(reference_name, reference, None)
+        bar = reference
     else:
         raise ValueError("the constructive answer needs flat PPO's runs or a reference score")
     judged = ([flat_key] if flat_key in classes else []) + ks
