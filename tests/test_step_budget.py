@@ -49,9 +49,45 @@ def test_the_rule_picks_the_first_budget_past_the_knee():
         chosen, nxt = step_budget.next_budget(judged, budgets)
         if chosen is None:
             runs = [curve(nxt, s) for s in range(10)]
-            judged.append(step_budget.judge_budget(nxt, [r[1][-1] for r in runs], runs, [0.0] * 128 + [1.0], 0.1, None))
-    # 62.5k: still rising over its last fifth (50k .. 62.5k); 125k: its last fifth (100k .. 125k) is past the knee
-    assert chosen == 125_000 and [j["stopped"] for j in judged] == [False, True]
+            judged.append(step_budget.judge_budget(nxt, [r[1][-1] for r in runs], runs, [0.0] * 128 + [1.0], 0.1, None,
+                                                   (judged or [None])[-1]))
+    # 62.5k: still rising over its last fifth (50k .. 62.5k); 125k: its last fifth (100k .. 125k) is past the knee,
+    # and the controllers trained to 250k confirm it (no better by the margin)
+    assert chosen == 125_000 and [j["stopped"] for j in judged] == [False, True, True]
+    assert judged[1]["confirms"] is None and judged[2]["confirms"]["confirmed"]
+
+
+def judged_at(steps: int, level: float) -> tuple:
+    """A candidate whose runs' curves are flat at `level` over their whole budget (stopped learning there), judged
+    after the previous record (the confirmation)."""
+    runs = [(np.linspace(steps / 12, steps, 12), np.full(12, level) + 1.0 * s) for s in range(10)]
+    return [r[1][-1] for r in runs], runs
+
+
+def test_a_curve_flat_for_a_while_is_not_chosen_where_longer_training_is_shown_better():
+    """A plateau that the next budget leaves (a second rise the first budget's curves never show): the curve's test
+    says stopped at both budgets, the controllers at the next budget refuse the first, and the rule goes on."""
+    budgets, rand = step_budget.candidates(1_000_000), [0.0] * 128 + [1.0]
+    judged = []
+    for steps, level in ((62_500, 500.0), (125_000, 1000.0)):
+        scores, runs = judged_at(steps, level)
+        judged.append(step_budget.judge_budget(steps, scores, runs, rand, 0.1, None, (judged or [None])[-1]))
+    assert all(j["enough"] for j in judged)
+    assert not judged[1]["confirms"]["confirmed"] and judged[1]["confirms"]["gain"] > 0.9
+    assert step_budget.next_budget(judged, budgets) == (None, 250_000)  # 125k itself awaits its confirmation
+    scores, runs = judged_at(250_000, 1000.0)
+    judged.append(step_budget.judge_budget(250_000, scores, runs, rand, 0.1, None, judged[-1]))
+    assert step_budget.next_budget(judged, budgets) == (125_000, None)
+
+
+def test_the_cap_needs_no_confirmation_and_a_small_gain_confirms():
+    rand = [0.0] * 128 + [1.0]
+    scores, runs = judged_at(1_000_000, 1000.0)
+    at_cap = step_budget.judge_budget(1_000_000, scores, runs, rand, 0.1, None)
+    assert step_budget.next_budget([at_cap], [1_000_000]) == (1_000_000, None)
+    later = [x + 20.0 for x in scores]  # 2% of the gain better: not shown above by the 10% margin
+    assert step_budget.confirm(scores, later, rand, 0.1)["confirmed"]
+    assert not step_budget.confirm(scores, [x + 300.0 for x in scores], rand, 0.1)["confirmed"]
 
 
 def test_a_task_not_learned_is_not_stopped_at_a_flat_curve():
@@ -98,9 +134,10 @@ def test_the_answer_trains_every_class_to_the_chosen_budget(tmp_path):
     setup = A.Setup(ENV, (1, 2), 0.1, (10, 40), {"mlp": spec, "mixture": spec}, max_steps=1_000_000)
     state = L.run_answer(str(tmp_path), setup, 1e9, random_policy(), log=lambda m: None, train=train)
     q = L.budget_quantum(setup)  # a chunk of 1 iteration here: the budgets are whole iterations of flat PPO's batch
-    first, second = round(62_500 / q) * q, round(125_000 / q) * q
-    assert state["steps"]["budget"] == second and [c["steps"] for c in state["steps"]["calibration"]] == [first, second]
-    assert [c[1] for c in calls[:2]] == [first, second] and {c[1] for c in calls[2:]} == {second}  # equal steps
+    first, second, third = (round(b / q) * q for b in (62_500, 125_000, 250_000))
+    assert state["steps"]["budget"] == second  # confirmed by the controllers trained to the next budget
+    assert [c["steps"] for c in state["steps"]["calibration"]] == [first, second, third]
+    assert [c[1] for c in calls[:3]] == [first, second, third] and {c[1] for c in calls[3:]} == {second}  # equal steps
     assert all(c[3] == 10 for c in calls)  # every sweep padded to one program's run count
     scores = A.collect_scores(str(tmp_path), setup)
     flat = sorted(scores[A.FLAT])  # the 125k calibration runs are flat PPO's first look, once; later looks add seeds

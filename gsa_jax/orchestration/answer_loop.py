@@ -327,7 +327,8 @@ def check_budget_floor(setup: Setup, state: dict, budget_s: float) -> None:
 
 def calibrate(out: str, setup: Setup, state: dict, budget_s: float, log: Callable, train: Callable) -> None:
     """Choose the step budget (step_budget): flat PPO's first look trained at doubling budgets until it has learned
-    the task and stopped learning; the chosen budget's results become the first look (out/results/<name>)."""
+    the task and stopped learning, confirmed by its controllers at the next budget; the chosen budget's results become
+    the first look (out/results/<name>)."""
     fresh = step_budget.candidates(setup.steps(), calibration_floor(setup), budget_quantum(setup))
     steps = state.setdefault("steps", {"mode": "auto", "budget": None, "calibration": [], "candidates": fresh})
     budgets = steps.get("candidates") or fresh  # a resumed answer keeps the budgets it started with
@@ -384,11 +385,20 @@ def calibration_sweep(out: str, setup: Setup, state: dict, steps: int, log: Call
     evidence = collect_evidence_in([os.path.join(out, "calibration", name)], setup)
     scores = [evidence.scores.get(FLAT, {})[s] for s in sorted(evidence.scores.get(FLAT, {}))]
     curves = [evidence.curves[s] for s in sorted(evidence.curves)]
+    before = (state["steps"]["calibration"] or [None])[-1]
     judged = step_budget.judge_budget(steps, scores, curves, state["random"]["returns"], setup.margin,
-                                      task_max_return(setup.env))
+                                      task_max_return(setup.env), before)
     log(f"answer: at {steps:,} steps flat PPO has {'learned' if judged['learned'] else 'not learned'} the task and "
-        f"{'stopped' if judged['stopped'] else 'not stopped'} learning")
+        f"{'stopped' if judged['stopped'] else 'not stopped'} learning" + confirmation_words(before, judged))
     return {**judged, "name": name, "sweep": sweep}
+
+
+def confirmation_words(before: dict | None, judged: dict) -> str:
+    """'; its controllers confirm (or do not confirm) N steps' where this budget judged the one before it."""
+    if judged.get("confirms") is None:
+        return ""
+    return (f"; its controllers {'confirm' if judged['confirms']['confirmed'] else 'do not confirm'} "
+            f"{int(before['steps']):,} steps")
 
 
 def adopt_calibration(out: str, steps: dict, chosen: int) -> None:

@@ -257,22 +257,41 @@ def step_budget_text(setup: Setup, state: dict) -> list:
     if steps.get("mode") != "auto":
         return [f"- Every run trained {budget:,} env steps (fixed: --steps, --target or the committed runs' settings)."]
     tried = steps.get("candidates") or step_budget.candidates(setup.steps())
-    calibration = steps.get("calibration", [])
-    if calibration and calibration[-1]["enough"]:
-        how = "the first budget at which flat PPO's first-look seeds, trained to it, had learned the task and stopped learning"
-    elif steps.get("limited"):
-        how = f"the largest budget tried before {steps['limited']} stopped the search"
-    else:
-        how = "the cap (--max-steps): flat PPO's first-look seeds had not both learned the task and stopped learning below it"
-    lines = [f"- Every run trained **{budget:,} env steps**: {how} (of {', '.join(f'{c:,}' for c in tried)}; "
-             "gsa_jax.analysis.verdicts.step_budget)."]
+    lines = [f"- Every run trained **{budget:,} env steps**: {budget_how(steps, budget, tried)} (of "
+             f"{', '.join(f'{c:,}' for c in tried)}; gsa_jax.analysis.verdicts.step_budget)."]
     for c in steps.get("calibration", []):
         learn = c["learning"]
-        gain = (f"last fifth's gain {learn['gain']:+.3f} of the gain over random (upper bound {learn['upper']:+.3f}): "
-                f"{'stopped' if c['stopped'] else 'still learning'}" if learn["gain"] == learn["gain"] else
-                "no gain over random to judge learning on")
-        lines.append(f"- At {c['steps']:,}: {'learned' if c['learned'] else 'not learned (' + c['why'] + ')'}; {gain}.")
+        gain = (f"last fifth's gain {learn['gain']:+.3f} of the gain over random (bounds {learn.get('lower', math.nan):+.3f}, "
+                f"{learn['upper']:+.3f}): {'stopped' if c['stopped'] else 'still learning'}"
+                if learn["gain"] == learn["gain"] else "no gain over random to judge learning on")
+        lines.append(f"- At {c['steps']:,}: {'learned' if c['learned'] else 'not learned (' + c['why'] + ')'}; {gain}"
+                     f"{confirms_words(c)}.")
     return lines
+
+
+def budget_how(steps: dict, budget: int, tried: list) -> str:
+    """How the step budget was chosen: confirmed by the next budget's controllers, at the cap, or where the time
+    budget stopped the search (the chosen budget unconfirmed where it was enough)."""
+    chosen = next((c for c in steps.get("calibration", []) if int(c["steps"]) == budget), None)
+    enough = bool(chosen and chosen["enough"])
+    if steps.get("limited"):
+        return (f"the largest budget tried before {steps['limited']} stopped the search"
+                + (" (learned and stopped, **not confirmed** by the controllers at the next budget)" if enough else ""))
+    if enough and budget < int(tried[-1]):
+        return ("the first budget at which flat PPO's first-look seeds, trained to it, had learned the task and stopped "
+                "learning, confirmed by their controllers trained to the next budget")
+    if enough:
+        return "the cap (--max-steps), at which flat PPO's first-look seeds had learned the task and stopped learning"
+    return "the cap (--max-steps): flat PPO's first-look seeds had not both learned the task and stopped learning below it"
+
+
+def confirms_words(record: dict) -> str:
+    """'; its controllers' IQM +0.012 of the budget before's gain (p 0.41): confirm it' for a confirming record."""
+    c = record.get("confirms")
+    if not c:
+        return ""
+    return (f"; its controllers' IQM {c['gain']:+.3f} of the budget before's gain over random (p {c['p']:.3g}): "
+            f"{'confirm it' if c['confirmed'] else 'shown above it by more than the margin: it is not chosen'}")
 
 
 def falling_text(learn: dict, margin: float) -> list:

@@ -6,13 +6,17 @@ whole number of chunks of flat PPO's program, the cap rounded up) and stops at t
 
 - has learned the task: its gain over the random policy is shown positive (verdict.gain_shown) and, where the task
   declares a maximum return, it reaches baseline.LEARNED of the way to it (baseline.learned); and
-- has stopped learning: the verdict's own still-learning test (baseline.learning: the last fifth's gain shown below the
-  margin) passes at that budget.
+- has stopped learning: the verdict's own still-learning test (baseline.learning: the last fifth's gain shown inside
+  plus or minus the margin) passes at that budget; and
+- is confirmed by its controllers at the next budget: flat PPO's first-look seeds trained to the next candidate are
+  not shown above the chosen budget's controllers by more than the margin of its gain over the random policy
+  (confirm: a curve that flattens only for a while, or falls and recovers, is caught by what training longer gives).
 
 Every class then trains to that budget (equal steps), and the runs trained at it are flat PPO's first look. Each
 candidate budget is a run of its own (the learning rate anneals over the run's budget), so the test reads curves of runs
-that trained exactly to the budget it judges. At the cap the budget is the cap whatever the test says: the baseline
-check then reports flat PPO as still learning.
+that trained exactly to the budget it judges. At the cap the budget is the cap whatever the test says (no next budget
+confirms it): the baseline check then reports flat PPO as still learning. Where the next budget would not fit the
+answer's time, the budget is the last one tried, unconfirmed, and the report says so.
 """
 
 from typing import Sequence
@@ -39,10 +43,12 @@ def candidates(cap: int, floor: int = 1, quantum: int = 1) -> list:
 
 
 def judge_budget(steps: int, scores: Sequence[float], curves: Sequence[tuple], random_returns: Sequence[float],
-                 margin: float, max_return: float | None) -> dict:
+                 margin: float, max_return: float | None, before: dict | None = None) -> dict:
     """Whether flat PPO's runs trained to `steps` have learned the task and stopped learning. scores: their controller
-    scores [n]; curves: [(env_steps [T], eval_return [T])] per run; random_returns: the random policy's episodes [n_r].
-    -> {"steps", "learned", "why", "learning": {...}, "stopped", "enough"} (enough: both hold)."""
+    scores [n]; curves: [(env_steps [T], eval_return [T])] per run; random_returns: the random policy's episodes [n_r];
+    before: the previous candidate's record (its confirmation by these controllers is judged where it was enough).
+    -> {"steps", "learned", "why", "learning": {...}, "stopped", "enough" (both hold), "scores", "confirms" (None, or
+    confirm's record of `before`)}."""
     rand = verdict.summarize_random(random_returns)
     iqm = stats.iqm(list(scores)) if len(scores) else float("nan")
     shown = len(scores) >= 2 and verdict.gain_shown(trimmed.trimmed(list(scores)), rand)
@@ -51,16 +57,40 @@ def judge_budget(steps: int, scores: Sequence[float], curves: Sequence[tuple], r
         ok, why = False, f"flat PPO's gain over the random policy is not shown positive (IQM {iqm:.1f}, random {rand.mean:.1f})"
     learn = baseline.learning(curves, steps, iqm - rand.mean, margin)
     record = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in learn._asdict().items()}
+    confirms = (confirm(before["scores"], scores, random_returns, margin)
+                if before is not None and before["enough"] and "scores" in before else None)
     return {"steps": int(steps), "learned": bool(ok), "why": why, "learning": record, "stopped": bool(learn.stopped),
-            "enough": bool(ok and learn.stopped)}
+            "enough": bool(ok and learn.stopped), "scores": [float(x) for x in scores], "confirms": confirms}
+
+
+def confirm(chosen: Sequence[float], later: Sequence[float], random_returns: Sequence[float], margin: float) -> dict:
+    """Whether the controllers trained to the next budget (later [n']) confirm the chosen budget's (chosen [n]): their
+    IQM is not shown above the chosen IQM by more than `margin` of its gain over the random policy (Yuen's one-sided
+    test at baseline.LEARNING_LEVEL, the still-learning test's level). -> {"gain": the later IQM's gain over the chosen
+    on that scale, "p": the test's p-value (small: training longer is shown to help), "confirmed"}."""
+    rand = verdict.summarize_random(random_returns)
+    now, then = trimmed.trimmed(list(chosen)), trimmed.trimmed(list(later))
+    scale = now.mean - rand.mean
+    p = trimmed.p_above(verdict.margin_contrast(then, now, rand, margin))
+    gain = (then.mean - now.mean) / scale if scale > 0 else float("nan")
+    return {"gain": round(float(gain), 4), "p": float(p), "confirmed": bool(p >= baseline.LEARNING_LEVEL)}
 
 
 def next_budget(judged: Sequence[dict], budgets: Sequence[int]) -> tuple:
     """(the chosen budget or None, the next budget to try or None) after the judged candidates (in order): the first
-    one judged enough, else the cap once it is judged, else the next candidate."""
-    for record in judged:
-        if record["enough"]:
+    one judged enough whose next candidate confirms it (the cap needs none), else the cap once it is judged, else the
+    next candidate."""
+    for i, record in enumerate(judged):
+        at_cap = int(record["steps"]) >= int(budgets[-1])
+        if record["enough"] and (at_cap or (i + 1 < len(judged) and confirmed(judged[i + 1]))):
             return int(record["steps"]), None
     if judged and int(judged[-1]["steps"]) >= int(budgets[-1]):
         return int(budgets[-1]), None
     return None, int(budgets[len(judged)])
+
+
+def confirmed(record: dict) -> bool:
+    """Whether a candidate's record confirms the enough budget before it (a record without a confirmation, judged
+    after one kept no controller scores, confirms: the curve's test alone decides, as it did for such records)."""
+    confirms = record.get("confirms")
+    return True if confirms is None else bool(confirms["confirmed"])
