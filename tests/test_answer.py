@@ -74,6 +74,20 @@ def test_seeds_go_only_to_undecided_cells(tmp_path):
     assert state["stopped"] == "decided" or state["stopped"].startswith("seed cap")
 
 
+def test_the_answer_so_far_is_handed_out_before_each_further_round(tmp_path):
+    """interim gets, before every round after the first, the verdicts the answer would end with now and which round
+    comes next; the saved state and the final answer are those of an answer run without it."""
+    run, _ = synthetic_trainer(TRUTH)
+    seen = []
+    state = L.run_answer(str(tmp_path / "a"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None, train=run,
+                         interim=lambda now: seen.append((len(now["rounds"]), now["judged"], now["stopped"])))
+    plain = L.run_answer(str(tmp_path / "b"), synthetic_setup(), 1e9, random_policy(), log=lambda m: None,
+                         train=synthetic_trainer(TRUTH)[0])
+    assert [n for n, _, _ in seen] == list(range(1, len(state["rounds"])))  # none before the first look has run
+    assert seen[0][1]["1"]["verdict"] == verdict.INSUFFICIENT and seen[0][2].startswith("not yet: round 2 is training")
+    assert state["judged"] == plain["judged"] and state["rounds"] == plain["rounds"]
+
+
 # K = 2 exactly at the margin with a wide spread: undecided, and the cap of 40 seeds has little chance to decide it
 AT_MARGIN = {A.FLAT: (1000.0, 20.0), 1: (300.0, 20.0), 2: (900.0, 300.0), 4: (1000.0, 5.0)}
 

@@ -5,7 +5,9 @@
 
 Runs `gsa answer --env ENV` twice in fresh output directories: cold (an empty compilation cache: the answer's own,
 OUT/cold/xla_cache) and warm (JAX_COMPILATION_CACHE_DIR set to the cold answer's cache, so every program loads). Per
-answer: the wall time of the command, the step budget it chose, the answer's sentence; per sweep: its seconds, its
+answer: the wall time of the command, the seconds until it first printed an answer (the answer so far, printed before
+a further round trains; the whole wall time where the first look decided) and that answer, the step budget it chose,
+the answer's sentence; per sweep: its seconds, its
 program's compile or load seconds (slowest worker), and the seconds estimated before it ran (the ETA's accuracy).
 --checkout runs the answers from another checkout of the project (e.g. an earlier commit's `git worktree`, with this
 environment's Python: the checkout's code is imported from its directory), --cold-only skips the warm answer; --answer-args passes more options to `gsa answer` (recorded in summary.csv's
@@ -44,17 +46,44 @@ def run_answer(env: str, out: str, budget: float, cache: str | None, root: str =
     if cache:
         environ["JAX_COMPILATION_CACHE_DIR"] = cache
     cmd = [sys.executable, "-m", "gsa_jax.answer", "--env", env, "--budget-minutes", str(budget), "--out", out, *extra]
-    t0 = time.monotonic()
     os.makedirs(out, exist_ok=True)
-    proc = subprocess.run(cmd, cwd=root, env=environ, capture_output=True, text=True)
+    t0, timed = time.monotonic(), []
+    with subprocess.Popen(cmd, cwd=root, env=environ, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc:
+        for line in proc.stdout:  # each line with the seconds since the start: when the answer so far was first printed
+            timed.append((time.monotonic() - t0, line.rstrip("\n")))
     wall = time.monotonic() - t0
     with open(os.path.join(out, "command.log"), "w") as f:
-        f.write(proc.stdout + proc.stderr)
+        f.write("".join(f"{t:8.1f}  {line}\n" for t, line in timed))
     if proc.returncode != 0:
         raise SystemExit(f"gsa answer failed ({proc.returncode}); see {out}/command.log")
     with open(os.path.join(out, "answer.json")) as f:
         state = json.load(f)
-    return {"wall_s": wall, "sentence": proc.stdout.strip().splitlines()[-1], "state": state}
+    first_s, first = first_answer(timed)
+    return {"wall_s": wall, "sentence": final_answer(timed), "state": state, "first_answer_s": first_s if first else wall,
+            "first_answer": first or final_answer(timed)}
+
+
+SO_FAR = "answer so far"  # gsa answer's header of the answer printed before a further round trains
+
+
+def first_answer(timed: list) -> tuple:
+    """(seconds, the answer's lines) of the first answer so far gsa answer printed; (None, '') where it printed none
+    (the first look decided): its lines are those after the header up to the next progress line."""
+    for i, (t, line) in enumerate(timed):
+        if line.startswith(SO_FAR):
+            block = []
+            for _, later in timed[i + 1:]:
+                if later.startswith(("answer:", "wrote ", "next: ")):
+                    break
+                block.append(later)
+            return t, " ".join(block)
+    return None, ""
+
+
+def final_answer(timed: list) -> str:
+    """The answer's closing lines: those after the last 'wrote' or 'next:' line."""
+    last = max((i for i, (_, line) in enumerate(timed) if line.startswith(("wrote ", "next: "))), default=-1)
+    return " ".join(line for _, line in timed[last + 1:])
 
 
 def log_compiles(out: str, name: str) -> float:
@@ -136,6 +165,7 @@ def main() -> None:
         rows += mine
         comp = sum(float(x["compile_or_load_s"] or 0) for x in mine)
         summary.append({"env": args.env, "cache": kind, "wall_s": round(r["wall_s"], 1),
+                        "first_answer_s": round(r["first_answer_s"], 1), "first_answer": r["first_answer"],
                         "compile_or_load_s": round(comp, 1), "compile_share": round(comp / r["wall_s"], 3),
                         "step_budget": r["state"].get("steps", {}).get("budget", r["state"]["setup"]["specs"]["mlp"]["steps"]),
                         "env_steps_trained": trained_env_steps(os.path.join(res, kind)),

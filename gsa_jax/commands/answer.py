@@ -281,13 +281,19 @@ def answer(argv: list) -> int:
     setup = make_setup(args)
     out = args.out or os.path.join("runs", "answers", path_part(setup.env))
     try:
-        state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup))
+        state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup),
+                           interim=lambda now: print(interim_text(finish(out, setup, now, argv))))
     except KeyboardInterrupt:
         print(f"\ngsa answer: interrupted; every finished sweep and chunk is saved in {out} (continue with: "
               f"{again(argv, args.out, out)})", file=sys.stderr)
         return 130
     print(finish(out, setup, state, argv))
     return 0
+
+
+def interim_text(sentence: str) -> str:
+    """The answer so far, printed before a further round trains (its report is written, as at the end)."""
+    return "answer so far (more seeds are training; report.md holds it until the answer ends):\n" + sentence
 
 
 def again(argv: list, typed_out: "str | None", out: str) -> str:

@@ -443,11 +443,12 @@ def prepare(out: str, setup: Setup, state: dict, budget_s: float, random_policy:
 
 
 def run_answer(out: str, setup: Setup, budget_s: float, random_policy: Callable, log: Callable = print,
-               train: Callable | None = None) -> dict:
+               train: Callable | None = None, interim: Callable | None = None) -> dict:
     """The answer loop (resumable): the step budget, then rounds until the smallest sufficient K is decided, the seed
     cap or the budget -> the final state (with 'judged' and 'stopped'). random_policy: a function measuring the random
     policy's episodes (controller_scores.score_random_policy's record; called once, the state keeps it); train: see
-    run_round."""
+    run_round; interim: called before each further round with the state as it would end now ('judged' and 'stopped'
+    saying which round comes next), once runs are in hand: the answer so far, readable while more seeds train."""
     os.makedirs(out, exist_ok=True)
     state, train = load_state(out, setup), train or run_class_sweep
     state["budget_s"] = budget_s  # this invocation's budget: the progress lines say what is left of it
@@ -471,6 +472,9 @@ def run_answer(out: str, setup: Setup, budget_s: float, random_policy: Callable,
             save_state(out, state)
             return state
         save_state(out, state)
+        if interim is not None and (state["rounds"] or setup.start_from):
+            interim({**state, "judged": records, "stopped": f"not yet: round {len(state['rounds']) + 1} is training "
+                     f"(~{eta / 60:.1f} min)"})
         run_round(out, setup, state, plan, log, {k: r["verdict"] for k, r in records.items()}, train)
 
 
