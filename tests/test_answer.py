@@ -231,9 +231,14 @@ def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
     assert state["random"]["episodes"] == controller_scores.RANDOM_EPISODES
     expect = ladder.judge_ladder((1, 2), scores, trimmed.fixed(60.0), state["random"]["returns"], 0.2, setup.design())
     assert {k: r["verdict"] for k, r in state["judged"].items()} == {k: r["verdict"] for k, r in expect.items()}
+    verified = []  # gsa verify --quick on the exported controller (InvertedDoublePendulum-v5 declares its upright)
+    monkeypatch.setattr("gsa_jax.commands.verify.verify_controller", lambda argv: verified.append(argv) or 0)
     sentence = finish(out, setup, state, ["--env", "InvertedDoublePendulum-v5"])
     assert sentence.startswith("InvertedDoublePendulum-v5:")
     report = open(os.path.join(out, "report.md")).read()
+    exported = os.path.join(out, "controller", "controller.npz")
+    assert verified == ([[exported, "--quick", "--out", os.path.join(out, "verify")]] if os.path.exists(exported) else [])
+    assert ("`verify/report.md`" in report) == bool(verified)
     assert "## Verdicts" in report and "## Baseline" in report and os.path.getsize(os.path.join(out, "score_vs_k.png")) > 5000
     again = L.run_answer(out, setup, 1e9, measure, log=lambda m: None)
     assert again["judged"] == state["judged"] and len(again["rounds"]) == len(state["rounds"])

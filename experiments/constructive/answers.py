@@ -111,7 +111,8 @@ def task_row(family: str, env: str, a: C.Answer, proc: dict, search: str) -> dic
             "answer": C.sentence(env, a, search)}
 
 
-def main() -> None:
+def answer_rows(log=print) -> tuple:
+    """(a row per task, a row per task and class) of the constructive answers on the committed fresh episodes."""
     fresh, where = fresh_returns()
     proc, rows, exhibits = procedure(), [], []
     for family, table, env in task_envs():
@@ -123,7 +124,12 @@ def main() -> None:
         search = f"{len(runs[FLAT])} seeds x {STEPS:,} steps per class"
         rows.append(task_row(family, env, a, proc.get(env, {}), search))
         exhibits += exhibit_rows(env, a, runs, where)
-        print(rows[-1]["answer"], flush=True)
+        log(rows[-1]["answer"])
+    return rows, exhibits
+
+
+def main() -> None:
+    rows, exhibits = answer_rows()
     write_csv(os.path.join(RESULTS, "constructive.csv"), rows)
     write_csv(os.path.join(RESULTS, "exhibits.csv"), exhibits)
     write_summary(rows)

@@ -5,8 +5,9 @@ controller score in MuJoCo C, and random_policy.json); beside it, each partition
 plot gave it (its verdicts.csv: the project's answer, flat PPO's adequacy included).
 
 The MLP partition is a reference only where it learned the task by the project's rule for flat PPO
-(baseline.learned: its IQM a tenth of the way from the random policy's return to the task's maximum), else 'no
-answer'. One error rate for the linear-vs-MLP rows: every such row of every task is one test of the family, at the
+(baseline.learned: its IQM not shown below a tenth of the way from the random policy's return to the task's
+maximum), else 'no answer'; 'sufficient' also needs the linear partition's failing seeds shown no more frequent than
+the MLP partition's (verdict.judge's failure-share condition against seeds). One error rate for the linear-vs-MLP rows: every such row of every task is one test of the family, at the
 one-sided level ALPHA / (rows of the family) (Bonferroni), so the chance of any wrong 'sufficient' or 'insufficient'
 among them is at most ALPHA.
 
@@ -23,10 +24,10 @@ from collections import defaultdict
 import envs
 from gsa_jax.analysis.verdicts import trimmed
 from gsa_jax.analysis.verdicts.baseline import learned
-from gsa_jax.analysis.verdicts.verdict import ALPHA, DEFAULT_MARGIN, NO_SCALE, judge
+from gsa_jax.analysis.verdicts.verdict import ALPHA, DEFAULT_MARGIN, NO_SCALE, judge, summarize_random
 
 COLUMNS = ("env", "K", "lr_scale_partition", "linear_iqm", "mlp_iqm", "random_mean", "gap", "gap_low", "gap_high",
-           "level", "linear_vs_mlp", "linear_vs_flat_ppo", "mlp_vs_flat_ppo", "seeds")
+           "p_failure_share", "level", "linear_vs_mlp", "linear_vs_flat_ppo", "mlp_vs_flat_ppo", "seeds")
 
 
 def read_scores(task_dir: str) -> tuple:
@@ -60,8 +61,7 @@ def pairs(cells: dict) -> list:
 
 def judge_pair(linear: list, mlp: list, random_returns: list, max_return: "float | None", level: float) -> tuple:
     """(Gap or None, verdict) of the linear partition's scores against the MLP partition's."""
-    rand = sum(random_returns) / len(random_returns)
-    ok, why = learned(trimmed.trimmed(mlp).mean, rand, max_return)
+    ok, why = learned(mlp, summarize_random(random_returns), max_return)
     if not ok:
         return None, "no answer: " + why.replace("flat PPO", "the MLP partition")
     gap = judge(linear, mlp, random_returns, DEFAULT_MARGIN, level)
@@ -86,6 +86,7 @@ def judge_rows(task_dirs: list) -> list:
                          "random_mean": round(sum(random_returns) / len(random_returns), 2),
                          **{c: "" if gap is None else round(getattr(gap, a), 3)
                             for c, a in (("gap", "point"), ("gap_low", "low"), ("gap_high", "high"))},
+                         "p_failure_share": "" if gap is None else f"{gap.p_share:.3g}",
                          "level": f"{level:.5f}", "linear_vs_mlp": verdict,
                          "linear_vs_flat_ppo": flat.get((k, "linear", lr), ""),
                          "mlp_vs_flat_ppo": flat.get((k, "mlp", lr), ""), "seeds": f"{len(lin)} / {len(mlp)}"})

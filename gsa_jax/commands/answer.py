@@ -138,8 +138,9 @@ def random_policy(out: str, setup: Setup) -> dict:
     return controller_scores.random_policy(out, envs.resolve(setup.env))
 
 
-def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
-    """The answer's sentence, report and exported controller -> the sentence."""
+def finish(out: str, setup: Setup, state: dict, argv: list, final: bool = True) -> str:
+    """The answer's sentence, report and exported controller (verified where its task declares an equilibrium and the
+    answer has ended: `final`) -> the sentence."""
     import jax
     import mujoco
 
@@ -170,6 +171,7 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
                                evidence.scores)
         if choice:
             choice["K"] = k
+            choice["verify"] = verify_export(out, setup, choice) if final else None
     command = "gsa answer " + " ".join(shlex.quote(a) for a in argv)
     versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit() or "unknown"}
     steps = next_steps(argv, out, setup, state)
@@ -180,6 +182,19 @@ def finish(out: str, setup: Setup, state: dict, argv: list) -> str:
     for line in steps:
         print(f"next: {line}")
     return sentence
+
+
+def verify_export(out: str, setup: Setup, choice: dict) -> "str | None":
+    """gsa verify --quick on the exported controller where the task declares an equilibrium (Task.equilibrium_qpos):
+    its closed loop's fixed points, region of attraction and worst starts in out/verify -> that folder, or None."""
+    from gsa_jax.commands.verify import verify_controller
+    from gsa_jax.verify.system import equilibrium_guess
+
+    if equilibrium_guess(envs.resolve_task(setup.env)) is None:
+        return None
+    where = os.path.join(out, "verify")
+    verify_controller([choice["files"][0], "--quick", "--out", where])
+    return where
 
 
 def constructive_part(out: str, setup: Setup, state: dict, evidence: "Evidence") -> dict | None:
@@ -282,7 +297,7 @@ def answer(argv: list) -> int:
     out = args.out or os.path.join("runs", "answers", path_part(setup.env))
     try:
         state = run_answer(out, setup, args.budget_minutes * 60.0, lambda: random_policy(out, setup),
-                           interim=lambda now: print(interim_text(finish(out, setup, now, argv))))
+                           interim=lambda now: print(interim_text(finish(out, setup, now, argv, final=False))))
     except KeyboardInterrupt:
         print(f"\ngsa answer: interrupted; every finished sweep and chunk is saved in {out} (continue with: "
               f"{again(argv, args.out, out)})", file=sys.stderr)

@@ -7,6 +7,7 @@ fresh start states."""
 import glob
 import math
 import os
+import warnings
 from typing import Any
 
 import numpy as np
@@ -148,7 +149,9 @@ def plot_learning(setup: Setup, training: dict, random_mean: float, path: str) -
     for cell in cells:
         steps, returns = class_curves(training[cell])
         colour = "k" if cell == FLAT else colours[cell]
-        q1, mid, q3 = np.nanpercentile(returns, [25, 50, 75], axis=0)
+        with warnings.catch_warnings():  # a point before any seed finished an episode is NaN: a gap in the curve
+            warnings.simplefilter("ignore", RuntimeWarning)
+            q1, mid, q3 = np.nanpercentile(returns, [25, 50, 75], axis=0)
         label = f"{'flat PPO' if cell == FLAT else f'K = {cell}'} ({len(returns)} seeds)"
         ax.plot(steps, mid, color=colour, lw=1.5, label=label)
         ax.fill_between(steps, q1, q3, color=colour, alpha=0.15, lw=0)
@@ -448,4 +451,16 @@ def choice_text(out: str, choice: dict | None) -> list:
             f"the best-of-seeds pick. From `{choice['source']}`: "
             + ", ".join(f"`{os.path.relpath(f, out)}`" for f in choice["files"]), "",
             f"Re-score it: `gsa deploy {os.path.join(out, 'controller', 'controller.npz')} "
-            f"--episodes {fresh['episodes']} --start-seed {fresh['start_seed']}`", ""]
+            f"--episodes {fresh['episodes']} --start-seed {fresh['start_seed']}`", "", *verify_lines(out, choice)]
+
+
+def verify_lines(out: str, choice: dict) -> list:
+    """Where gsa verify checked the exported controller's closed loop at the task's equilibrium (verify.json's fixed
+    points, region of attraction and worst starts), and how to certify it."""
+    where = choice.get("verify")
+    if not where:
+        return []
+    npz = os.path.join(out, "controller", "controller.npz")
+    return [f"Its closed loop at the task's equilibrium (`gsa verify --quick`): `{os.path.relpath(where, out)}/report.md` "
+            f"(fixed points, region of attraction, the worst starts found). A certified region of attraction: "
+            f"`gsa verify {npz} --certify`.", ""]
