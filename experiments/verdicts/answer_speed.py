@@ -97,7 +97,8 @@ def random_return_of(env, dirs):
     raise FileNotFoundError(f"no random_policy.json for {env} (run experiments/verdicts/regenerate.sh)")
 
 
-def main():
+def speed_rows(log=print) -> list:
+    """A row per task and design: the runs the replayed answer trains, where it stopped, its seeds, verdicts and answer."""
     rows = []
     for env, (ladder, dirs) in TASKS.items():
         scores, rnd = pool(env, dirs), random_return_of(env, dirs)
@@ -123,8 +124,12 @@ def main():
                                                     state.get("baseline", {}).get("versus", "flat PPO")) if verdicts else "",
                          "seconds_per_run": round(per_run, 1) if per_run else "",
                          "minutes_on_this_machine": round(runs * per_run / 60, 1) if per_run else ""})
-            print(rows[-1], flush=True)
-    write_csv(os.path.join(HERE, "results", "answer_speed.csv"), rows)
+            log(rows[-1])
+    return rows
+
+
+def main():
+    write_csv(os.path.join(HERE, "results", "answer_speed.csv"), speed_rows())
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 # controller_scores.csv), then every table regenerated from those scores with the verdicts (gsa_jax.plot: the random
 # policy measured over 128 episodes in MuJoCo C into random_policy.json, each table judged as gsa_jax.answer's first
 # look against a baseline shown adequate), the atlas table, the re-judged answers and the chosen controllers on fresh
-# starts. Run from the repository root:  bash experiments/verdicts/regenerate.sh
+# starts; the committed answers judged anew on their runs (regenerate_answers.py). Run from the repository root:  bash experiments/verdicts/regenerate.sh
 set -euo pipefail
 py=.venv/bin/python
 v5=experiments/fig1_v5/results
@@ -20,5 +20,7 @@ $py -m gsa_jax.plot $v5/fig1_v5_InvertedDoublePendulum-v5 $v5/fig1_v5_Hopper-v5 
   --out $v5/merged
 $py -m gsa_jax.plot experiments/atlas_dmc/results/quadruped-walk/flat_ppo $checks/mixture --out $checks
 $py experiments/atlas_dmc/atlas.py > /dev/null
+$py experiments/verdicts/regenerate_answers.py
 $py experiments/verdicts/rejudge.py
 $py experiments/verdicts/fresh_scores.py
+$py experiments/verdicts/answer_speed.py

@@ -146,8 +146,8 @@ def noise_rows():
 
 
 def answer_rows():
-    """Per committed answer (answers/<task>/answer.json): the answer at its margin, why it stopped, the verdicts,
-    the seeds per cell and the rounds' minutes."""
+    """Per committed answer (answers/<task>/answer.json, longer_budget/answer): the answer at its margin, its
+    constructive answer, why it stopped, the verdicts, the seeds per cell and the rounds' minutes."""
     import glob
     import json
 
@@ -168,6 +168,7 @@ def answer_rows():
                      "looks": " ".join(map(str, setup["looks"])), "design": "sequential" if "records" in state else "bootstrap rule",
                      "answer": verdict.sentence(setup["env"], verdicts, setup["margin"],
                                                 state.get("baseline", {}).get("versus", "flat PPO")),
+                     "constructive": state.get("constructive", {}).get("sentence", ""),
                      "stopped": state["stopped"], "verdicts": " ".join(f"{k}:{v}" for k, v in sorted(verdicts.items())),
                      "seeds": " ".join(f"{k}:{judged[str(k)].get('seeds', judged[str(k)].get('n'))}" for k in sorted(verdicts)),
                      "rounds": len(state["rounds"]), "training_minutes": round(minutes, 1),
