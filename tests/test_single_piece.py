@@ -197,10 +197,9 @@ def test_the_printed_law_is_the_controllers_raw_action_inside_the_clip(tmp_path,
 
 
 def test_inspect_reads_an_answers_controller(capsys):
-    """The answer's own controller/controller.npz (exported before K = 1 dropped its network) is inspected: one piece
-    on every state."""
-    path = os.path.join(ROOT, "experiments", "verdicts", "answers", "InvertedDoublePendulum-v5", "controller",
-                        "controller.npz")
+    """A K = 1 controller.npz as gsa answer exported it before K = 1 dropped its network (kept in tests/golden/controllers)
+    is inspected: one piece on every state."""
+    path = os.path.join(ROOT, "tests", "golden", "controllers", "InvertedDoublePendulum-v5-K1-answer-export.npz")
     assert inspect_main([path]) == 0
     out = capsys.readouterr().out
     assert "1 linear piece," in out and "piece 0: acts on every state" in out and "slide:  " in out
