@@ -51,10 +51,11 @@ def test_the_rule_picks_the_first_budget_past_the_knee():
             runs = [curve(nxt, s) for s in range(10)]
             judged.append(step_budget.judge_budget(nxt, [r[1][-1] for r in runs], runs, [0.0] * 128 + [1.0], 0.1, None,
                                                    (judged or [None])[-1]))
-    # 62.5k: still rising over its last fifth (50k .. 62.5k); 125k: its last fifth (100k .. 125k) is past the knee,
-    # and the controllers trained to 250k confirm it (no better by the margin)
+    # 62.5k: still rising over its last fifth (50k .. 62.5k), not falling, and the controllers trained to 125k are
+    # shown better by more than the margin; 125k: its last fifth (100k .. 125k) is past the knee, and the controllers
+    # trained to 250k confirm it (no better by the margin)
     assert chosen == 125_000 and [j["stopped"] for j in judged] == [False, True, True]
-    assert judged[1]["confirms"] is None and judged[2]["confirms"]["confirmed"]
+    assert judged[0]["candidate"] and not judged[1]["confirms"]["confirmed"] and judged[2]["confirms"]["confirmed"]
 
 
 def judged_at(steps: int, level: float) -> tuple:
@@ -78,6 +79,41 @@ def test_a_curve_flat_for_a_while_is_not_chosen_where_longer_training_is_shown_b
     scores, runs = judged_at(250_000, 1000.0)
     judged.append(step_budget.judge_budget(250_000, scores, runs, rand, 0.1, None, judged[-1]))
     assert step_budget.next_budget(judged, budgets) == (125_000, None)
+
+
+def rising_then(steps: int, end: float, rise: float, later: float) -> tuple:
+    """Two judged budgets: runs trained to `steps` whose last fifth rose by `rise` (seed to seed by 0 .. 45% of it:
+    the curve's upper bound is far above the margin) to `end`, then runs trained to twice as long ending at `later`."""
+    rand = [0.0] * 128 + [1.0]
+    runs = [(np.linspace(steps / 12, steps, 12), np.r_[np.full(10, end - rise * (1 + 0.1 * s)), end - 0.1 * s, end])
+            for s in range(10)]
+    first = step_budget.judge_budget(steps, [end - 0.1 * s for s in range(10)], runs, rand, 0.1, None)
+    flat = [(np.linspace(steps / 6, 2 * steps, 12), np.full(12, later) - 0.1 * s) for s in range(10)]
+    second = step_budget.judge_budget(2 * steps, [later - 0.1 * s for s in range(10)], flat, rand, 0.1, None, first)
+    return first, second
+
+
+def test_a_last_fifth_that_rose_is_chosen_where_the_next_budget_is_shown_no_better():
+    """An annealed run refines to its end (the last fifth rose 10-15% of the gain: the curve's test says still
+    learning), but the controllers trained twice as long are shown within the margin above it: that budget is chosen;
+    where they are shown better by more than the margin, it is not."""
+    budgets = step_budget.candidates(1_000_000, floor=200_000)  # 250k, 500k, 1M
+    first, second = rising_then(250_000, 995.0, 120.0, 999.0)
+    assert first["learning"]["upper"] > 0.1 and not first["stopped"] and not first["enough"] and first["candidate"]
+    assert second["confirms"]["shown_within"] and second["confirms"]["confirmed"]
+    assert step_budget.next_budget([first, second], budgets) == (250_000, None)
+    first, second = rising_then(250_000, 995.0, 120.0, 995.0 * 1.2)
+    assert not second["confirms"]["shown_within"] and not second["confirms"]["confirmed"]
+    assert step_budget.next_budget([first, second], budgets) == (None, 1_000_000)
+
+
+def test_a_falling_curve_is_never_stopped_whatever_the_next_budget_gives():
+    """A last fifth that fell by 20-29% of the gain is neither stopped nor a candidate, even where the controllers
+    trained twice as long score exactly as these."""
+    budgets = step_budget.candidates(1_000_000, floor=200_000)  # 250k, 500k, 1M
+    first, second = rising_then(250_000, 995.0, -250.0, 995.0)
+    assert first["learning"]["upper"] < -0.1 and not first["stopped"] and not first["candidate"]
+    assert second["confirms"] is None and step_budget.next_budget([first, second], budgets) == (None, 1_000_000)
 
 
 def test_the_cap_needs_no_confirmation_and_a_small_gain_confirms():

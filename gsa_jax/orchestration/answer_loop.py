@@ -397,8 +397,10 @@ def confirmation_words(before: dict | None, judged: dict) -> str:
     """'; its controllers confirm (or do not confirm) N steps' where this budget judged the one before it."""
     if judged.get("confirms") is None:
         return ""
-    return (f"; its controllers {'confirm' if judged['confirms']['confirmed'] else 'do not confirm'} "
-            f"{int(before['steps']):,} steps")
+    c = judged["confirms"]
+    within = " (shown within the margin above them)" if c.get("shown_within") else ""
+    return (f"; its controllers {'confirm' if step_budget.chosen_by(before, judged) else 'do not confirm'} "
+            f"{int(before['steps']):,} steps{within}")
 
 
 def adopt_calibration(out: str, steps: dict, chosen: int) -> None:

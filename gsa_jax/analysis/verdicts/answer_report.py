@@ -262,39 +262,57 @@ def step_budget_text(setup: Setup, state: dict) -> list:
     tried = steps.get("candidates") or step_budget.candidates(setup.steps())
     lines = [f"- Every run trained **{budget:,} env steps**: {budget_how(steps, budget, tried)} (of "
              f"{', '.join(f'{c:,}' for c in tried)}; gsa_jax.analysis.verdicts.step_budget)."]
-    for c in steps.get("calibration", []):
+    records = steps.get("calibration", [])
+    for i, c in enumerate(records):
         learn = c["learning"]
         gain = (f"last fifth's gain {learn['gain']:+.3f} of the gain over random (bounds {learn.get('lower', math.nan):+.3f}, "
                 f"{learn['upper']:+.3f}): {'stopped' if c['stopped'] else 'still learning'}"
                 if learn["gain"] == learn["gain"] else "no gain over random to judge learning on")
         lines.append(f"- At {c['steps']:,}: {'learned' if c['learned'] else 'not learned (' + c['why'] + ')'}; {gain}"
-                     f"{confirms_words(c)}.")
+                     f"{confirms_words(c, records[i - 1] if i else None)}.")
     return lines
 
 
 def budget_how(steps: dict, budget: int, tried: list) -> str:
-    """How the step budget was chosen: confirmed by the next budget's controllers, at the cap, or where the time
-    budget stopped the search (the chosen budget unconfirmed where it was enough)."""
-    chosen = next((c for c in steps.get("calibration", []) if int(c["steps"]) == budget), None)
+    """How the step budget was chosen: confirmed by the next budget's controllers (after the curve's two-sided test,
+    or shown within the margin by them), at the cap, or where the time budget stopped the search (the chosen budget
+    unconfirmed where it was enough)."""
+    records = steps.get("calibration", [])
+    at = next((i for i, c in enumerate(records) if int(c["steps"]) == budget), None)
+    chosen = records[at] if at is not None else None
     enough = bool(chosen and chosen["enough"])
     if steps.get("limited"):
         return (f"the largest budget tried before {steps['limited']} stopped the search"
                 + (" (learned and stopped, **not confirmed** by the controllers at the next budget)" if enough else ""))
-    if enough and budget < int(tried[-1]):
-        return ("the first budget at which flat PPO's first-look seeds, trained to it, had learned the task and stopped "
-                "learning, confirmed by their controllers trained to the next budget")
+    later = records[at + 1] if at is not None and at + 1 < len(records) else None
+    if later is not None and step_budget.chosen_by(chosen, later) and budget < int(tried[-1]):
+        if enough:
+            return ("the first budget at which flat PPO's first-look seeds, trained to it, had learned the task and "
+                    "stopped learning, confirmed by their controllers trained to the next budget")
+        return ("the first budget at which flat PPO's first-look seeds, trained to it, had learned the task, their "
+                "curve was shown not falling, and their controllers trained to the next budget were shown within the "
+                "margin above them (training longer is shown not to help by the margin)")
     if enough:
         return "the cap (--max-steps), at which flat PPO's first-look seeds had learned the task and stopped learning"
     return "the cap (--max-steps): flat PPO's first-look seeds had not both learned the task and stopped learning below it"
 
 
-def confirms_words(record: dict) -> str:
-    """'; its controllers' IQM +0.012 of the budget before's gain (p 0.41): confirm it' for a confirming record."""
+def confirms_words(record: dict, before: dict | None = None) -> str:
+    """'; its controllers' IQM +0.012 of the budget before's gain (p 0.41; shown within the margin: p 0.003): confirm
+    it' for a record judged after a budget that could be chosen (before: that budget's record)."""
     c = record.get("confirms")
     if not c:
         return ""
-    return (f"; its controllers' IQM {c['gain']:+.3f} of the budget before's gain over random (p {c['p']:.3g}): "
-            f"{'confirm it' if c['confirmed'] else 'shown above it by more than the margin: it is not chosen'}")
+    if not c["confirmed"]:
+        word = "shown above it by more than the margin: it is not chosen"
+    elif before is None or step_budget.chosen_by(before, record):
+        word = "confirm it"
+    else:
+        word = "not shown within the margin above it, and its curve was not shown stopped: it is not chosen"
+    within = "" if "p_within" not in c else (f"; shown within the margin: p {c['p_within']:.3g}" if c["shown_within"]
+                                             else f"; not shown within the margin: p {c['p_within']:.3g}")
+    return (f"; its controllers' IQM {c['gain']:+.3f} of the budget before's gain over random (p {c['p']:.3g}{within}): "
+            f"{word}")
 
 
 def falling_text(learn: dict, margin: float) -> list:
@@ -305,6 +323,19 @@ def falling_text(learn: dict, margin: float) -> list:
     return [f"- **Flat PPO fell back over the last fifth** (upper bound {learn['upper']:+.3f}, below -{margin:g}): 'stopped' "
             "here means not rising, not converged; the runs may be unstable at this budget, and flat PPO is shown "
             "adequate only as far as it reaches the task's references."]
+
+
+def longer_words(state: dict, budget: int) -> str:
+    """What training longer gives where flat PPO's curve still rose at the budget: its controllers at the next budget
+    where the step budget read them and showed them within the margin, else that a longer --steps may move the answer."""
+    records = (state.get("steps") or {}).get("calibration", [])
+    at = next((i for i, c in enumerate(records) if int(c["steps"]) == budget), None)
+    later = records[at + 1] if at is not None and at + 1 < len(records) else None
+    c = (later or {}).get("confirms") or {}
+    if not c.get("shown_within"):
+        return "; a longer --steps may move the answer"
+    return (f"; but its controllers trained to {int(later['steps']):,} steps score {c['gain']:+.3f} of that gain more, "
+            f"shown within the margin (p {c['p_within']:.3g}): training longer is shown not to help by the margin")
 
 
 def baseline_text(setup: Setup, state: dict) -> list:
@@ -328,7 +359,7 @@ def baseline_text(setup: Setup, state: dict) -> list:
         lines.append(f"- Flat PPO {state_word} at {trained_steps(setup, state):,} steps: the last fifth of training gained "
                      f"{learn['gain']:+.3f} of its gain over the random policy (IQM over {learn['seeds']} seeds, each end "
                      f"averaging up to three evaluations; {interval})"
-                     + ("" if learn["stopped"] else "; a longer --steps may move the answer") + ".")
+                     + ("" if learn["stopped"] else longer_words(state, trained_steps(setup, state))) + ".")
         lines += falling_text(learn, setup.margin)
     for s in base.get("standings", []):
         shown = "**shown below**" if s["below"] else "not shown below"
