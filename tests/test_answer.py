@@ -212,13 +212,13 @@ def test_partition_sets_the_mixtures_class_only():
     assert setup.specs["mixture"]["config"]["partition"] == "linear" and "partition" not in setup.specs["mlp"]["config"]
 
 
-def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
+def test_a_small_real_task_end_to_end(tmp_path, monkeypatch, capsys):
     """One look of K = 1, 2 against a target on InvertedDoublePendulum-v5 (a few iterations each): every run trained,
     exported and scored in MuJoCo C, the random policy measured there; the verdicts follow from those scores; the
     report and the chosen controller written; running the same command again changes nothing; the round's one mixture
     sweep compiles one program, and another answer's round of that program loads it."""
     from gsa_jax.analysis.verdicts import ladder, trimmed
-    from gsa_jax.commands.answer import finish
+    from gsa_jax.commands.answer import BEFORE_VERIFY, finish
 
     spec = {"steps": 1024, "chunk": 1, "eval_every": 0, "hparams": {}, "config": dict(SMALL_CONFIG, physics={"backend": "c"})}
     setup = A.Setup("InvertedDoublePendulum-v5", (1, 2), 0.2, (10,), {"mlp": spec, "mixture": spec}, target=60.0)
@@ -231,10 +231,13 @@ def test_a_small_real_task_end_to_end(tmp_path, monkeypatch):
     assert state["random"]["episodes"] == controller_scores.RANDOM_EPISODES
     expect = ladder.judge_ladder((1, 2), scores, trimmed.fixed(60.0), state["random"]["returns"], 0.2, setup.design())
     assert {k: r["verdict"] for k, r in state["judged"].items()} == {k: r["verdict"] for k, r in expect.items()}
-    verified = []  # gsa verify --quick on the exported controller (InvertedDoublePendulum-v5 declares its upright)
-    monkeypatch.setattr("gsa_jax.commands.verify.verify_controller", lambda argv: verified.append(argv) or 0)
+    verified, printed = [], []  # gsa verify --quick on the exported controller (the task declares its upright)
+    monkeypatch.setattr("gsa_jax.commands.verify.verify_controller",
+                        lambda argv: verified.append(argv) or printed.append(capsys.readouterr().out) or 0)
     sentence = finish(out, setup, state, ["--env", "InvertedDoublePendulum-v5"])
     assert sentence.startswith("InvertedDoublePendulum-v5:")
+    # the answer is printed before its controller is verified, and printed whole
+    assert all(p.endswith(BEFORE_VERIFY + "\n" + sentence + "\n") for p in printed) and len(printed) == len(verified)
     report = open(os.path.join(out, "report.md")).read()
     exported = os.path.join(out, "controller", "controller.npz")
     assert verified == ([[exported, "--quick", "--out", os.path.join(out, "verify")]] if os.path.exists(exported) else [])

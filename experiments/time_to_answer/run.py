@@ -64,13 +64,15 @@ def run_answer(env: str, out: str, budget: float, cache: str | None, root: str =
 
 
 SO_FAR = "answer so far"  # gsa answer's header of the answer printed before a further round trains
+BEFORE_VERIFY = "answer (its exported"  # its header of the ended answer printed before its controller's gsa verify
 
 
 def first_answer(timed: list) -> tuple:
-    """(seconds, the answer's lines) of the first answer so far gsa answer printed; (None, '') where it printed none
-    (the first look decided): its lines are those after the header up to the next progress line."""
+    """(seconds, the answer's lines) of the first answer gsa answer printed (so far, before a further round; or ended,
+    before its controller's verification); (None, '') where it printed none: its lines are those after the header up
+    to the next progress line."""
     for i, (t, line) in enumerate(timed):
-        if line.startswith(SO_FAR):
+        if line.startswith((SO_FAR, BEFORE_VERIFY)):
             block = []
             for _, later in timed[i + 1:]:
                 if later.startswith(("answer:", "wrote ", "next: ")):

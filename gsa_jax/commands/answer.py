@@ -171,27 +171,37 @@ def finish(out: str, setup: Setup, state: dict, argv: list, final: bool = True) 
                                evidence.scores)
         if choice:
             choice["K"] = k
-            choice["verify"] = verify_export(out, setup, choice) if final else None
+            choice["verify"] = None
     command = "gsa answer " + " ".join(shlex.quote(a) for a in argv)
     versions = {"jax": jax.__version__, "mujoco": mujoco.__version__, "git commit": git_commit() or "unknown"}
     steps = next_steps(argv, out, setup, state)
     path = write_report(out, setup, state, evidence, sentence, choice, (command, steps), versions)
-    if built:
-        sentence += "\n" + built["sentence"]
+    whole = sentence + ("\n" + built["sentence"] if built else "")
+    if final and choice and has_equilibrium(setup):  # the answer first, then its controller's check
+        print(BEFORE_VERIFY + "\n" + whole, flush=True)
+        choice["verify"] = verify_export(out, choice)
+        path = write_report(out, setup, state, evidence, sentence, choice, (command, steps), versions)
     print(f"wrote {path}")
     for line in steps:
         print(f"next: {line}")
-    return sentence
+    return whole
 
 
-def verify_export(out: str, setup: Setup, choice: dict) -> "str | None":
-    """gsa verify --quick on the exported controller where the task declares an equilibrium (Task.equilibrium_qpos):
-    its closed loop's fixed points, region of attraction and worst starts in out/verify -> that folder, or None."""
-    from gsa_jax.commands.verify import verify_controller
+BEFORE_VERIFY = "answer (its exported controller's gsa verify --quick runs next; report.md holds the answer):"
+
+
+def has_equilibrium(setup: Setup) -> bool:
+    """Whether the task declares an equilibrium (Task.equilibrium_qpos) for gsa verify to check the controller at."""
     from gsa_jax.verify.system import equilibrium_guess
 
-    if equilibrium_guess(envs.resolve_task(setup.env)) is None:
-        return None
+    return equilibrium_guess(envs.resolve_task(setup.env)) is not None
+
+
+def verify_export(out: str, choice: dict) -> str:
+    """gsa verify --quick on the exported controller (a task with an equilibrium: has_equilibrium): its closed loop's
+    fixed points, region of attraction and worst starts in out/verify -> that folder."""
+    from gsa_jax.commands.verify import verify_controller
+
     where = os.path.join(out, "verify")
     verify_controller([choice["files"][0], "--quick", "--out", where])
     return where
