@@ -35,7 +35,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from gsa_jax.errors import UserError
+from envs.errors import UserError
 
 # scale name -> (MjModel fields it scales, the column it scales or None for every entry)
 ALIASES = {"mass": (("body_mass", None), ("body_inertia", None)), "friction": (("geom_friction", 0),),

@@ -45,7 +45,7 @@ from typing import Any, Sequence
 import mujoco
 import numpy as np
 
-from gsa_jax.errors import UserError
+from envs.errors import UserError
 
 
 class TaskError(UserError, ValueError):

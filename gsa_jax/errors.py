@@ -1,17 +1,8 @@
-"""The user-error base class: input a user can correct (a bad option, a missing file, a run that cannot resume).
-`gsa` prints such an error as one line and exits with its status (gsa_jax.cli.run_command)."""
+"""The user-error base class (envs/errors.py, below both packages: envs/ imports nothing of gsa_jax/) and the exit
+status of a full disk. `gsa` prints a UserError as one line and exits with its status (gsa_jax.cli.run_command)."""
 
+from envs.errors import UserError
 
 EXIT_DISK_FULL = 4  # a command's exit status where a write ran out of space (running/checkpoint.py's DiskFullError)
 
-
-class UserError(Exception):
-    """An error in what the user asked for, ending a command with `exit_status` (2: bad input, unless a command
-    says otherwise, e.g. 4: disk full)."""
-
-    exit_status = 2
-
-    def __init__(self, *args: object, exit_status: int | None = None) -> None:
-        super().__init__(*args)
-        if exit_status is not None:
-            self.exit_status = exit_status
+__all__ = ["EXIT_DISK_FULL", "UserError"]

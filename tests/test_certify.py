@@ -142,12 +142,55 @@ def test_certify_writes_its_record_and_prints_it(tmp_path, capsys):
     assert {"P", "rho", "k", "level", "semi_axes", "inscribed_radius", "samples", "violations", "rule"} <= set(cert)
     assert cert["claim"] == "exact on the linearization, tested on the plant (not proved on it)"
     assert cert["coordinates"] == ["x (m)", "x velocity (m/s)"] and "certificate" in doc["cost_seconds"]
+    assert cert["held_equilibrium"] and cert["counted"] and cert["held_why"] == ""  # the LQR holds x = 0 itself
     report = (tmp_path / "out" / "report.md").read_text()
     for text in (printed, report):
         assert "Exact on the linearization, tested on the plant (not proved on it)." in text
         extent = ", ".join(f"{name} +-{e:.3g}" for name, e in zip(cert["coordinates"], cert["extent"]))
         assert f"in its units): {extent}" in text and "(SI units)" not in text  # per axis, each in its own units
     recheck(load_system(path), cert, seed=2024)
+
+
+def test_a_certificate_away_from_the_held_equilibrium_is_never_counted():
+    """dmc:pendulum-swingup declares the pendulum upright: a certified fixed point hanging down (3.058 rad, as
+    committed seed 1 of K = 1 was) is not the held equilibrium, whether or not the closed loop holds upright; one at the
+    hold it keeps upright is."""
+    import envs
+
+    task = envs.resolve_task("dmc:pendulum-swingup")
+    qref = equilibrium_guess(task)
+    down = {"qpos": [3.058], "qvel": [0.0], "certified": True}
+    at_down, upright = (certify.tangent_state(task, qref, q, [0.0]) for q in ([3.058], [0.01]))
+    for hold_x, holds in ((at_down, False), (upright, True), (upright, False)):
+        rec = certify.held_equilibrium(task, qref, hold_x, holds, down)
+        assert not rec["held_equilibrium"] and not rec["counted"] and rec["held_why"]
+    rec = certify.held_equilibrium(task, qref, upright, True, {**down, "qpos": [0.0]})
+    assert rec["held_equilibrium"] and rec["counted"] and rec["held_offset"] < 1.0
+    assert not certify.held_equilibrium(task, qref, upright, True, {**down, "qpos": [0.0], "certified": False})["counted"]
+
+
+def test_the_committed_certified_tables_count_only_the_held_equilibrium():
+    """experiments/verify/results/certified/: summary.csv and per_controller.csv are what summarize_certified.py
+    computes from the committed verify.json files, and the certificates around another fixed point (the pendulum
+    hanging down, K = 1 seeds 1 and 3; InvertedDoublePendulum-v5's flat PPO seed 1, which does not hold) are counted
+    apart, not as certified."""
+    import csv
+    import importlib.util
+
+    path = os.path.join(ROOT, "experiments", "verify", "summarize_certified.py")
+    spec = importlib.util.spec_from_file_location("summarize_certified", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    import glob
+
+    rows = [mod.row(p) for p in sorted(glob.glob(os.path.join(mod.RESULTS, "*", "*", "verify.json")))]
+    elsewhere = sorted(r["controller"] for r in rows if r["certified_elsewhere"])
+    assert elsewhere == ["InvertedDoublePendulum-v5-mlp-s1", "dmc.pendulum-swingup-mixture-K1-s1",
+                         "dmc.pendulum-swingup-mixture-K1-s3"]
+    assert not any(r["fixed_point_certified"] for r in rows if r["certified_elsewhere"])
+    text = lambda rs: [{k: str(v) for k, v in r.items()} for r in rs]  # noqa: E731 - as csv reads them back
+    with open(os.path.join(mod.RESULTS, "summary.csv"), newline="") as f:
+        assert text(mod.summary(rows)) == list(csv.DictReader(f))
 
 
 @pytest.mark.parametrize("case, expect", [

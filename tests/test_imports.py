@@ -71,6 +71,22 @@ def test_every_module_lives_in_a_layer_folder_and_imports_only_downward():
     assert not unknown, f"imports of modules that do not exist: {unknown}"
 
 
+def test_envs_imports_nothing_of_gsa_jax():
+    """envs/ sits below gsa_jax/: none of its modules imports gsa_jax (even inside a function); the user-error base
+    both raise is envs/errors.py, which gsa_jax/errors.py re-exports, and importing it loads no other module of envs/."""
+    root = os.path.join(os.path.dirname(__file__), "..", "envs")
+    up = []
+    for path in sorted(glob.glob(os.path.join(root, "**", "*.py"), recursive=True)):
+        for n in ast.walk(ast.parse(open(path).read())):
+            names = ([n.module or ""] if isinstance(n, ast.ImportFrom) else
+                     [a.name for a in n.names] if isinstance(n, ast.Import) else [])
+            up += [f"{os.path.relpath(path, root)} imports {m}" for m in names if m.split(".")[0] == "gsa_jax"]
+    assert not up, "; ".join(up)
+    code = ("import sys\nfrom gsa_jax.errors import UserError\nloaded = sorted(m for m in sys.modules if m.startswith('envs'))\n"
+            "from envs.task import TaskError\nprint([loaded, issubclass(TaskError, UserError)])")
+    assert imported(code) == [["envs", "envs.errors", "envs.mjx_import"], True]
+
+
 def test_analysis_imports_nothing_that_trains():
     """analysis/ is statistics, tables and decisions: none of its modules imports directly (even inside a function)
     what trains a run (TRAINING); the answer loop that trains its rounds lives in orchestration/."""

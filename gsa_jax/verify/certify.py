@@ -35,9 +35,10 @@ from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify import roa
 from gsa_jax.verify.simulate import controller_policy
-from gsa_jax.verify.system import System, VerifyError, to_tangent, wrap
+from gsa_jax.verify.system import System, VerifyError, state_scale, to_tangent, wrap
 
 if TYPE_CHECKING:
+    from envs.task import Task
     from gsa_jax.deployment import numpy_policy
 
 CLAIM = "exact on the linearization, tested on the plant (not proved on it)"
@@ -389,3 +390,29 @@ def certificate(system: System, qref: np.ndarray, local: dict, budget: CertifyBu
             "rho_linearization": lc.rho_p, "spectral_radius": lc.rho_a,
             "level_linearization": lc.level, "bounded_by": lc.bounded_by, "level": level,
             **ellipsoid_fields(lc.P, level), **plant_fields(rounds, budget)}
+
+
+HELD_SCALE = 1.0  # the certified fixed point is the held equilibrium within this many state-scale units of the hold
+
+
+def tangent_state(task: "Task", qref: np.ndarray, qpos: list, qvel: list) -> np.ndarray:
+    """[2 nv] verify's tangent state of a recorded qpos [nq] and qvel [nv] (unlimited hinges wrapped)."""
+    dq = to_tangent(task.model, qref, np.array(qpos, np.float64))[0]
+    return wrap(task.model, np.concatenate([dq, np.array(qvel, np.float64)]))
+
+
+def held_equilibrium(task: "Task", qref: np.ndarray, hold_x: np.ndarray, holds: bool, cert: dict) -> dict:
+    """Whether a certificate's fixed point is the equilibrium the task declares held: the closed loop holds it from
+    the task's equilibrium (holds: roa.find_hold's, the run goes on, stays within a scale unit, its angles upright)
+    and the fixed point's positions lie within HELD_SCALE state-scale units (system.state_scale) of that hold
+    (hold_x [2 nv], tangent). A certificate elsewhere (a pendulum hanging down) is reported as such and never
+    counted. -> {"held_equilibrium", "held_offset" (the largest position offset from the hold, in scale units),
+    "held_why" ('' where held), "counted"}."""
+    nv = task.model.nv
+    x = tangent_state(task, qref, cert["qpos"], cert["qvel"])
+    offset = float(np.max(np.abs(wrap(task.model, x - np.asarray(hold_x)))[:nv] / state_scale(task)[:nv]))
+    at = bool(holds and offset <= HELD_SCALE)
+    why = ("" if at else "the closed loop does not hold the task's equilibrium from it" if not holds else
+           f"its fixed point lies {offset:.3g} state-scale units from where the closed loop holds the equilibrium")
+    return {"held_equilibrium": at, "held_offset": round(offset, 4), "held_why": why,
+            "counted": bool(cert["certified"] and at)}

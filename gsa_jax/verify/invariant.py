@@ -46,7 +46,7 @@ import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment import numpy_policy  # noqa: F401 - annotations
-from gsa_jax.verify import certify, roa, switching
+from gsa_jax.verify import certify, margins, roa, switching
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify.simulate import controller_policy
 from gsa_jax.verify.system import System, VerifyError, to_qpos, wrap
@@ -309,6 +309,8 @@ def certify_hold(system: System, qref: np.ndarray, local: dict, hold: roa.Hold, 
     out, fixed = {}, None
     try:
         out["certificate"] = certify.certificate(system, qref, local, budget)
+        out["certificate"].update(certify.held_equilibrium(system.task, qref, hold.x, hold.holds, out["certificate"]))
+        out["certificate"]["margins"] = margins.certificate_margins(system, qref, out["certificate"], budget.seed)
     except VerifyError as e:
         fixed = str(e)
     if not hold.holds:

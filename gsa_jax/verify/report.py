@@ -98,7 +98,7 @@ def certificate_lines(cert: dict) -> list:
     rounds = rounds_text(cert["rounds"])
     verdict = ("certified: the last round found no violation" if cert["certified"] else
                f"nothing certified: every one of {len(cert['rounds'])} rounds found violations")
-    return [f"{cert['claim'][0].upper()}{cert['claim'][1:]}.",
+    return [f"{cert['claim'][0].upper()}{cert['claim'][1:]}.", *held_lines(cert), *margin_flag_lines(cert),
             f"- fixed point: {where}'s at qpos {np.round(cert['qpos'], 4).tolist()}, qvel "
             f"{np.round(cert['qvel'], 4).tolist()}; spectral radius {cert['spectral_radius']:.4f}",
             f"- V(x) = (x - x*)' P (x - x*) falls by rho^2 over k = {cert['k']} control steps ({cert['k_seconds']:.3g} "
@@ -109,7 +109,55 @@ def certificate_lines(cert: dict) -> list:
             f"- extent (each coordinate's largest excursion inside the set, in its units): {extent}; the semi-axes "
             "and the inscribed radius, which mix units, are in verify.json",
             f"- plant test ({cert['samples']} starts, each stepped k control steps in MuJoCo C with the exported "
-            f"controller): {rounds}"]
+            f"controller): {rounds}", *margin_lines(cert.get("margins"))]
+
+
+def margin_flag_lines(cert: dict) -> list:
+    """The headline's warning where a margin is below its threshold (gsa_jax.verify.margins)."""
+    m = cert.get("margins")
+    if not m or not m["flags"]:
+        return []
+    t = m["thresholds"]
+    return [f"- **Low robustness margins**: {'; '.join(m['flags'])} (flagged below a gain margin of {t['gain']:g}x "
+            f"either way, {t['delay_steps']} control step of delay, a disk margin of {t['disk']:g})."]
+
+
+def plant_words(check: "dict | None", kind: str) -> str:
+    """A margin's plant check in words (margins.checked_gain / checked_delay)."""
+    if check is None:
+        return "nothing to cross on the plant"
+    if kind == "delay":
+        a, b = check["holds_at"], check["holds_past"]
+        said = (f"{check['at']} steps: {'holds' if a['holds'] else 'does not hold'}; {check['past']}: "
+                f"{'holds' if b['holds'] else 'does not hold'}")
+    else:
+        a, b = check["holds_inside"], check["holds_outside"]
+        said = (f"x{check['inside']:.4g}: {'holds' if a['holds'] else 'does not hold'} (growth {a['growth']:.3g}); "
+                f"x{check['outside']:.4g}: {'holds' if b['holds'] else 'does not hold'} (growth {b['growth']:.3g})")
+    return f"on the plant {said}: {'confirmed' if check['confirmed'] else '**not confirmed**'}"
+
+
+def margin_lines(m: "dict | None") -> list:
+    """The certificate's robustness margins (gsa_jax.verify.margins) with their plant checks."""
+    if not m:
+        return []
+    disk, plant = m["disk"], m["plant"]
+    return [f"- gain margins (every action channel scaled around the fixed point's action): lower {m['gain_lower']:.4g}x "
+            f"({plant_words(plant['gain_lower'], 'gain')}), upper {m['gain_upper']:.4g}x "
+            f"({plant_words(plant['gain_upper'], 'gain')})",
+            f"- delay margin: {m['delay_steps']} control steps ({plant_words(plant['delay'], 'delay')})",
+            f"- disk margin {disk['alpha']:.3g} (symmetric; gains {disk['gain_range'][0]:.3g}x to "
+            f"{disk['gain_range'][1]:.3g}x and phase +-{disk['phase_deg']:.3g} degrees at once; with several action "
+            "channels a lower bound for perturbations of all at once)"]
+
+
+def held_lines(cert: dict) -> list:
+    """A warning where the certified fixed point is not the task's held equilibrium (certify.held_equilibrium); [] for
+    a record without the check."""
+    if "held_equilibrium" not in cert or cert["held_equilibrium"]:
+        return []
+    return [f"- **Not the held equilibrium: not counted as certified** ({cert['held_why']}); the set below is about "
+            "that fixed point only."]
 
 
 def rounds_text(rounds: list) -> str:
