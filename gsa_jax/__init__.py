@@ -19,3 +19,22 @@ def _check_envs_package():
 
 
 _check_envs_package()
+
+# The public API (gsa_jax/api.py), loaded on first use so that `import gsa_jax` stays light (no JAX).
+API = ("answer", "load_controller", "options_argv", "read_csv", "run_metadata", "score", "sweep", "train", "verify",
+       "write_csv")
+__all__ = ["__version__", *API]
+
+
+def __getattr__(name: str):
+    """A name of the public API (gsa_jax.api), or a submodule of gsa_jax (gsa_jax.cli, ...)."""
+    if name in API:
+        from gsa_jax import api
+
+        return getattr(api, name)
+    try:
+        return importlib.import_module(f"gsa_jax.{name}")
+    except ModuleNotFoundError as e:
+        if e.name != f"gsa_jax.{name}":
+            raise
+        raise AttributeError(f"module 'gsa_jax' has no attribute {name!r}") from None

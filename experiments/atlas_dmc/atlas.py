@@ -15,7 +15,7 @@ results/atlas.md (the same as a Markdown table) and results/atlas.png.
 import json
 import os
 
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax import read_csv, write_csv
 from gsa_jax.analysis.verdicts.verdict import MARGINS
 
 HERE = os.path.dirname(os.path.abspath(__file__))

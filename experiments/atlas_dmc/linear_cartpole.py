@@ -14,7 +14,7 @@ import numpy as np
 import scipy.linalg as sla
 
 import envs
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 
 Q, R, EPS, RESETS = np.diag([1.0, 10.0, 0.1, 0.1]), np.eye(1) * 0.1, 1e-6, 20
 

@@ -12,7 +12,7 @@ import math
 import os
 
 import envs
-from gsa_jax.analysis.sweeps.results import read_csv
+from gsa_jax import read_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CROSS_TASK = os.path.join(HERE, "..", "tuning", "results", "cross_task.csv")

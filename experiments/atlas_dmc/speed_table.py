@@ -10,7 +10,7 @@ import glob
 import json
 import os
 
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SPEED = os.path.join(HERE, "results", "speed")

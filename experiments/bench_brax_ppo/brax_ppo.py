@@ -17,7 +17,7 @@ from brax import envs
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import train as ppo
 
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax import run_metadata
 
 
 def replicate(tree, devices):

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from envs.physics import Physics
 from gsa_jax.running.programs import make_group_program, stack_hparams
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax import run_metadata
 from gsa_jax.running.spec import build_grid, check_spec, group_config
 
 

@@ -27,7 +27,7 @@ from gsa_jax.algorithm import ppo
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.nn import init_mlp
 from gsa_jax.algorithm.optim import init_adam
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax import run_metadata
 
 
 def update_inputs(p, hp, runs, key):

@@ -4,7 +4,7 @@ import sys
 import time
 
 from gsa_jax.benchmark import measure
-from gsa_jax.running.runinfo import run_metadata
+from gsa_jax import run_metadata
 
 out = sys.argv[1]; res = []
 FLAG = "--xla_cpu_multi_thread_eigen=false"

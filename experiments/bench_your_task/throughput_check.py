@@ -11,7 +11,7 @@ import json
 import os
 import re
 
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 
 HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "throughput_check")
 

@@ -23,7 +23,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", ".."))
 
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv  # noqa: E402
+from gsa_jax import read_csv, write_csv  # noqa: E402
 from gsa_jax.analysis.verdicts import baseline  # noqa: E402
 from gsa_jax.analysis.verdicts import constructive as C  # noqa: E402
 from gsa_jax.analysis.verdicts.answering import task_max_return  # noqa: E402

@@ -23,7 +23,7 @@ ROOT = os.path.join(HERE, "..")
 sys.path.insert(0, os.path.join(ROOT, ".."))
 
 from gsa_jax.analysis.sweeps import controller_scores as S  # noqa: E402
-from gsa_jax.analysis.sweeps.results import read_csv  # noqa: E402
+from gsa_jax import read_csv  # noqa: E402
 from gsa_jax.deployment import starts  # noqa: E402
 
 TABLES = {"v5": os.path.join(ROOT, "fig1_v5", "results", "merged")}

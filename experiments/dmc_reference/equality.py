@@ -12,7 +12,7 @@ import os
 import numpy as np
 
 import envs
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 
 GOLDEN = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "tests", "golden", "dmc")
 

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 
 HORIZONS = (10, 50)
 

@@ -16,7 +16,7 @@ import subprocess
 
 import numpy as np
 
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax import read_csv, write_csv
 from gsa_jax.analysis.sweeps.stats import improvement_probability, iqm_ci
 
 HERE = os.path.dirname(os.path.abspath(__file__))

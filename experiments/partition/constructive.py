@@ -32,7 +32,7 @@ ROOT = os.path.abspath(os.path.join(HERE, "..", ".."))
 sys.path.insert(0, ROOT)
 
 from gsa_jax.analysis.sweeps import controller_scores as S  # noqa: E402
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv  # noqa: E402
+from gsa_jax import read_csv, write_csv  # noqa: E402
 from gsa_jax.analysis.verdicts import baseline  # noqa: E402
 from gsa_jax.analysis.verdicts import constructive as C  # noqa: E402
 from gsa_jax.analysis.verdicts.answering import task_max_return  # noqa: E402

@@ -10,7 +10,7 @@ import glob
 import json
 import os
 
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 from gsa_jax.benchmark.parts import summarize
 from gsa_jax.commands.profile_parts import table
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from gsa_jax.analysis.robustness.paired import aggregate_pushes
 from gsa_jax.analysis.robustness.retention_eval import START_SEED, load_controllers
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 from gsa_jax.deployment.pushes import PER_EPISODE, WINDOWS, PushPlan, evaluate_pushes
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -14,7 +14,7 @@ and how many of them survive).
 
 import os
 
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax import read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))

@@ -12,7 +12,7 @@ import glob
 import json
 import os
 
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 from gsa_jax.analysis.verdicts import step_budget
 
 HERE = os.path.dirname(os.path.abspath(__file__))

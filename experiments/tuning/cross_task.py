@@ -10,7 +10,7 @@ configuration's knobs.
 import glob
 import os
 
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax import read_csv, write_csv
 
 HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 

@@ -15,7 +15,7 @@ import os
 import tempfile
 
 from gsa_jax.analysis.sweeps import controller_scores
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 from gsa_jax.analysis.verdicts import answering as A
 from gsa_jax.analysis.verdicts import verdict
 from gsa_jax.orchestration import answer_loop as L

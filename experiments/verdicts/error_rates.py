@@ -33,7 +33,7 @@ import os
 import numpy as np
 
 from gsa_jax.analysis.sweeps import stats
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax import read_csv, write_csv
 from gsa_jax.analysis.verdicts import answering, sequential, verdict
 
 HERE = os.path.dirname(os.path.abspath(__file__))

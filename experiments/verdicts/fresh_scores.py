@@ -11,7 +11,7 @@ import glob
 import os
 
 from gsa_jax.analysis.sweeps import controller_scores as C
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax import read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.join(HERE, "..")

@@ -17,7 +17,7 @@ from collections import Counter
 
 import numpy as np
 
-from gsa_jax.analysis.sweeps.results import read_csv, write_csv
+from gsa_jax import read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.join(HERE, "..")

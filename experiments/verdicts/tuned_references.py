@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from gsa_jax.analysis.sweeps.results import read_csv
+from gsa_jax import read_csv
 from gsa_jax.analysis.verdicts import baseline
 
 HERE = os.path.dirname(os.path.abspath(__file__))

@@ -15,7 +15,7 @@ import os
 
 import numpy as np
 
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 from gsa_jax.verify.__main__ import main as verify_main
 from gsa_jax.verify.analysis import state_scale
 from gsa_jax.verify.system import load_system

@@ -19,7 +19,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from summarize_certified import RESULTS, cls, held_of  # noqa: E402
 
-from gsa_jax.analysis.sweeps.results import write_csv  # noqa: E402
+from gsa_jax import write_csv  # noqa: E402
 from gsa_jax.verify import margins  # noqa: E402
 from gsa_jax.verify.system import equilibrium_guess, load_system  # noqa: E402
 

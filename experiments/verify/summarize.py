@@ -20,7 +20,7 @@ import numpy as np
 import scipy.stats
 
 from gsa_jax.analysis.sweeps import stats
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 METRICS = ("nominal_mean", "nominal_p05", "worst_start_law", "worst_twice_the_spread", "worst_with_pushes",

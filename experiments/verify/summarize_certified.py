@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from gsa_jax.analysis.sweeps.results import write_csv
+from gsa_jax import write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results", "certified")
