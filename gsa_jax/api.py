@@ -1,15 +1,17 @@
 """The public API: what the `gsa` commands do, from Python, re-exported by `gsa_jax` (docs/library.md, "Python API").
 
     import gsa_jax
-    run = gsa_jax.train("dmc:cartpole-balance", "runs/cp", policy="mixture", clusters=2, steps=100_000)
-    sweep = gsa_jax.sweep("experiments/fig1_v5/hopper.toml", "runs/hopper")
-    state = gsa_jax.answer("dmc:cartpole-balance", "runs/answer", budget_minutes=30)
+    run = gsa_jax.train_run("dmc:cartpole-balance", "runs/cp", policy="mixture", clusters=2, steps=100_000)
+    sweep = gsa_jax.run_sweep("experiments/fig1_v5/hopper.toml", "runs/hopper")
+    state = gsa_jax.answer_task("dmc:cartpole-balance", "runs/answer", budget_minutes=30)
     ctrl = gsa_jax.load_controller("runs/cp/controller.npz")      # act(obs) in NumPy
-    scored = gsa_jax.score("runs/cp/controller.npz", episodes=100)  # MuJoCo C, fixed start seeds
-    doc = gsa_jax.verify("runs/cp/controller.npz", "runs/cp/verify", quick=True)
+    scored = gsa_jax.score_controller("runs/cp/controller.npz", episodes=100)  # MuJoCo C, fixed start seeds
+    doc = gsa_jax.verify_controller("runs/cp/controller.npz", "runs/cp/verify", quick=True)
 
-train, sweep, answer and verify run the command itself with the keyword options as its flags (options_argv: the
-same checks, files and resumption as on the command line); a bad input raises gsa_jax.errors.UserError (one line).
+train_run, run_sweep, answer_task and verify_controller run the command itself with the keyword options as its flags
+(options_argv: the same checks, files and resumption as on the command line); a bad input raises
+gsa_jax.errors.UserError (one line). The names are not the commands' own (gsa_jax.train, gsa_jax.verify, ... are the
+`python -m` modules and packages, which an import binds on the package).
 """
 
 import json
@@ -18,8 +20,8 @@ from typing import Any
 
 from gsa_jax.errors import UserError
 
-__all__ = ["answer", "load_controller", "options_argv", "read_csv", "run_metadata", "score", "sweep", "train", "verify",
-           "write_csv"]
+__all__ = ["answer_task", "load_controller", "options_argv", "read_csv", "run_metadata", "run_sweep", "score_controller",
+           "train_run", "verify_controller", "write_csv"]
 
 
 def options_argv(options: dict) -> list:
@@ -41,7 +43,7 @@ def ran(name: str, status: int) -> None:
         raise UserError(f"gsa {name} ended with status {status}", exit_status=int(status))
 
 
-def train(env: str, out: str, **options: Any) -> str:
+def train_run(env: str, out: str, **options: Any) -> str:
     """`gsa train --env ENV --out OUT [options]` (resumes where OUT holds a run) -> OUT."""
     from gsa_jax.commands.train import train as command
 
@@ -49,7 +51,7 @@ def train(env: str, out: str, **options: Any) -> str:
     return out
 
 
-def sweep(experiment: str, out: str, **options: Any) -> str:
+def run_sweep(experiment: str, out: str, **options: Any) -> str:
     """`gsa sweep EXPERIMENT --out OUT [options]` (EXPERIMENT: a spec .toml) -> OUT."""
     from gsa_jax.commands.sweep import sweep as command
 
@@ -57,7 +59,7 @@ def sweep(experiment: str, out: str, **options: Any) -> str:
     return out
 
 
-def answer(env: str, out: str, **options: Any) -> dict:
+def answer_task(env: str, out: str, **options: Any) -> dict:
     """`gsa answer --env ENV --out OUT [options]` -> its state (OUT/answer.json: the verdicts, the constructive answer,
     the step budget, the rounds)."""
     from gsa_jax.commands.answer import answer as command
@@ -67,11 +69,11 @@ def answer(env: str, out: str, **options: Any) -> dict:
         return json.load(f)
 
 
-def verify(controller: str, out: str, **options: Any) -> dict:
+def verify_controller(controller: str, out: str, **options: Any) -> dict:
     """`gsa verify CONTROLLER --out OUT [options]` (quick=True, certify=True, ...) -> OUT/verify.json's record."""
-    from gsa_jax.commands.verify import verify_controller
+    from gsa_jax.commands.verify import verify_controller as command
 
-    ran("verify", verify_controller([controller, "--out", out, *options_argv(options)]))
+    ran("verify", command([controller, "--out", out, *options_argv(options)]))
     with open(os.path.join(out, "verify.json")) as f:
         return json.load(f)
 
@@ -84,7 +86,7 @@ def load_controller(path: str) -> Any:
     return numpy_policy.load(path)
 
 
-def score(controller: str, episodes: int = 10, start_seed: "int | None" = None) -> dict:
+def score_controller(controller: str, episodes: int = 10, start_seed: "int | None" = None) -> dict:
     """The controller's deterministic episodes in MuJoCo C from start seeds start_seed .. + episodes - 1 (default
     gsa score's), as gsa score and the answer's fresh starts run them -> {"returns" [episodes], "lengths", "mean",
     "sha256", "label", "start_seed"}."""

@@ -1,5 +1,6 @@
 """The public API (gsa_jax/api.py, re-exported by gsa_jax): each function runs its command with the keyword options
-as flags, a nonzero status is a UserError, `import gsa_jax` loads no JAX, and score() is gsa score's episodes."""
+as flags, a nonzero status is a UserError, `import gsa_jax` loads no JAX, and score_controller() is gsa score's
+episodes."""
 
 import json
 import os
@@ -10,6 +11,8 @@ import numpy as np
 import pytest
 
 import gsa_jax
+import gsa_jax.train  # noqa: F401 - the commands' modules, imported before the API is used: their names are not its
+import gsa_jax.verify.system  # noqa: F401
 from gsa_jax.errors import UserError
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -22,18 +25,27 @@ def test_options_become_the_commands_flags():
         "--clusters", "2", "--steps", "1000", "--quick", "--looks", "10,20", "--budget-minutes", "1.5"]
 
 
-@pytest.mark.parametrize("name, module, attr, args, argv", [
-    ("train", "gsa_jax.commands.train", "train", ("dmc:cartpole-balance", "OUT"),
+@pytest.mark.parametrize("name, command, module, attr, args, argv", [
+    ("train_run", "train", "gsa_jax.commands.train", "train", ("dmc:cartpole-balance", "OUT"),
      ["--env", "dmc:cartpole-balance", "--out", "OUT", "--clusters", "2"]),
-    ("sweep", "gsa_jax.commands.sweep", "sweep", ("spec.toml", "OUT"), ["spec.toml", "--out", "OUT", "--clusters", "2"]),
+    ("run_sweep", "sweep", "gsa_jax.commands.sweep", "sweep", ("spec.toml", "OUT"),
+     ["spec.toml", "--out", "OUT", "--clusters", "2"]),
 ])
-def test_each_function_runs_its_command_and_a_failure_is_a_user_error(monkeypatch, name, module, attr, args, argv):
+def test_each_function_runs_its_command_and_a_failure_is_a_user_error(monkeypatch, name, command, module, attr, args,
+                                                                      argv):
     seen = []
     monkeypatch.setattr(f"{module}.{attr}", lambda a, *rest: seen.append(a) or 0)
     assert getattr(gsa_jax, name)(*args, clusters=2) == "OUT" and seen == [argv]
     monkeypatch.setattr(f"{module}.{attr}", lambda a, *rest: 2)
-    with pytest.raises(UserError, match=f"gsa {name} ended with status 2"):
+    with pytest.raises(UserError, match=f"gsa {command} ended with status 2"):
         getattr(gsa_jax, name)(*args)
+
+
+def test_the_api_names_survive_importing_the_commands_modules():
+    """gsa_jax.train and gsa_jax.verify are the `python -m` module and package (imported above): the API's functions
+    have names of their own, so they stay callable whatever was imported first."""
+    assert callable(gsa_jax.train_run) and callable(gsa_jax.verify_controller) and callable(gsa_jax.answer_task)
+    assert not callable(gsa_jax.train) and not callable(gsa_jax.verify)
 
 
 def test_answer_and_verify_return_their_records(monkeypatch, tmp_path):
@@ -48,9 +60,9 @@ def test_answer_and_verify_return_their_records(monkeypatch, tmp_path):
 
     monkeypatch.setattr("gsa_jax.commands.answer.answer", write("answer.json", {"judged": {}}))
     monkeypatch.setattr("gsa_jax.commands.verify.verify_controller", write("verify.json", {"nominal": {}}))
-    state = gsa_jax.answer("dmc:cartpole-balance", str(tmp_path / "a"), budget_minutes=3)
+    state = gsa_jax.answer_task("dmc:cartpole-balance", str(tmp_path / "a"), budget_minutes=3)
     assert state["argv"] == ["--env", "dmc:cartpole-balance", "--out", str(tmp_path / "a"), "--budget-minutes", "3"]
-    doc = gsa_jax.verify("c.npz", str(tmp_path / "v"), quick=True, certify=False)
+    doc = gsa_jax.verify_controller("c.npz", str(tmp_path / "v"), quick=True, certify=False)
     assert doc["argv"] == ["c.npz", "--out", str(tmp_path / "v"), "--quick"] and "nominal" in doc
 
 
@@ -66,7 +78,7 @@ def test_import_loads_no_jax_and_unknown_names_are_attribute_errors():
 def test_score_and_load_controller_are_gsa_scores_episodes():
     from gsa_jax.analysis.sweeps import controller_scores
 
-    scored = gsa_jax.score(CONTROLLER, episodes=2, start_seed=20_000)
+    scored = gsa_jax.score_controller(CONTROLLER, episodes=2, start_seed=20_000)
     _, returns, lengths = controller_scores.controller_episodes(CONTROLLER, 2, 20_000)
     assert scored["returns"] == [float(r) for r in returns] and scored["lengths"] == [int(n) for n in lengths]
     assert scored["sha256"] == controller_scores.file_sha256(CONTROLLER)

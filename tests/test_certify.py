@@ -164,6 +164,9 @@ def test_a_certificate_away_from_the_held_equilibrium_is_never_counted():
     for hold_x, holds in ((at_down, False), (upright, True), (upright, False)):
         rec = certify.held_equilibrium(task, qref, hold_x, holds, down)
         assert not rec["held_equilibrium"] and not rec["counted"] and rec["held_why"]
+    # upright, but the closed loop does not hold the equilibrium (as InvertedDoublePendulum-v5's flat PPO seed 1)
+    rec = certify.held_equilibrium(task, qref, upright, False, {**down, "qpos": [0.01]})
+    assert not rec["counted"] and rec["held_why"] == "the closed loop does not hold the task's equilibrium from it"
     rec = certify.held_equilibrium(task, qref, upright, True, {**down, "qpos": [0.0]})
     assert rec["held_equilibrium"] and rec["counted"] and rec["held_offset"] < 1.0
     assert not certify.held_equilibrium(task, qref, upright, True, {**down, "qpos": [0.0], "certified": False})["counted"]
@@ -184,13 +187,14 @@ def test_the_committed_certified_tables_count_only_the_held_equilibrium():
     import glob
 
     rows = [mod.row(p) for p in sorted(glob.glob(os.path.join(mod.RESULTS, "*", "*", "verify.json")))]
-    elsewhere = sorted(r["controller"] for r in rows if r["certified_elsewhere"])
+    elsewhere = sorted(r["controller"] for r in rows if r["certified_not_held"])
     assert elsewhere == ["InvertedDoublePendulum-v5-mlp-s1", "dmc.pendulum-swingup-mixture-K1-s1",
                          "dmc.pendulum-swingup-mixture-K1-s3"]
-    assert not any(r["fixed_point_certified"] for r in rows if r["certified_elsewhere"])
+    assert not any(r["fixed_point_certified"] for r in rows if r["certified_not_held"])
     text = lambda rs: [{k: str(v) for k, v in r.items()} for r in rs]  # noqa: E731 - as csv reads them back
-    with open(os.path.join(mod.RESULTS, "summary.csv"), newline="") as f:
-        assert text(mod.summary(rows)) == list(csv.DictReader(f))
+    for name, table in (("summary.csv", mod.summary(rows)), ("per_controller.csv", rows)):
+        with open(os.path.join(mod.RESULTS, name), newline="") as f:
+            assert text(table) == list(csv.DictReader(f)), name
 
 
 @pytest.mark.parametrize("case, expect", [

@@ -1,7 +1,8 @@
 """Robustness margins of a certificate's fixed point (gsa_jax.verify.margins): on a discretized double integrator
-(PointMass, tests/verify_tasks.py) under its LQR gain the gain margins equal their analytic values (Jury's test on
-the characteristic polynomial), the delay margin and the disk margin equal independent computations, and the plant
-check holds inside each margin and fails past it."""
+(PointMass, tests/verify_tasks.py) and an open-loop unstable step under their LQR gains the gain margins equal their
+analytic values (Jury's test on the characteristic polynomial), the delay margin and the disk margin equal independent
+computations, the disk's phase is a guaranteed margin, and the plant check holds inside each margin and fails past
+it."""
 
 import math
 
@@ -38,12 +39,26 @@ def jury_margins(loop: margins.Loop) -> tuple:
     return lower, upper
 
 
+def unstable_plant() -> margins.Loop:
+    """An open-loop unstable linear step (eigenvalues 1 +- 0.032) under its discrete LQR gain: its lower gain margin is
+    positive (without enough feedback it diverges)."""
+    import scipy.linalg
+
+    A, B = np.array([[1.0, 0.02], [0.05, 1.0]]), np.array([[0.0], [0.02]])
+    P = scipy.linalg.solve_discrete_are(A, B, np.eye(2), np.eye(1))
+    return margins.Loop(A, B, -np.linalg.solve(np.eye(1) + B.T @ P @ B, B.T @ P @ A))
+
+
 def test_gain_margins_equal_jurys_analytic_interval():
-    loop = double_integrator()
+    loop = unstable_plant()
     lower, upper = margins.gain_margins(loop)
     want = jury_margins(loop)
-    assert 0 < want[0] < 1 < want[1] < margins.GAIN_MAX
-    assert lower == pytest.approx(want[0], rel=1e-9) and upper == pytest.approx(want[1], rel=1e-9)
+    assert 0.01 < want[0] < 1 < want[1] < margins.GAIN_MAX
+    assert lower == pytest.approx(want[0], rel=1e-9, abs=0) and upper == pytest.approx(want[1], rel=1e-9, abs=0)
+    # the damped double integrator keeps an integrator: marginal without feedback, its lower margin 0
+    di = double_integrator()
+    assert margins.gain_margins(di)[0] == 0.0 and jury_margins(di)[0] < margins.MARGINAL
+    assert margins.gain_margins(di)[1] == pytest.approx(jury_margins(di)[1], rel=1e-9, abs=0)
     unstable = margins.Loop(loop.A, loop.Bu, 2 * want[1] * loop.M)  # its g = 1 is the first loop's 2 x upper
     assert all(math.isnan(g) for g in margins.gain_margins(unstable)) and margins.delay_margin(unstable) == -1
 
@@ -80,15 +95,25 @@ def test_disk_margin_equals_a_fine_sweep_and_lies_inside_the_gain_margins():
     assert 0 < disk["phase_deg"] < 90
 
 
+@pytest.mark.parametrize("loop", [double_integrator(), unstable_plant()], ids=["double_integrator", "unstable"])
+def test_the_disk_margins_phase_is_a_guaranteed_margin(loop):
+    """A phase shift e^{j phi} on the action, |phi| at 0.9 of the disk margin's phase margin, keeps the loop stable
+    (the disk's phase is a guaranteed margin, so also a check of L's and S's signs)."""
+    phi = 0.9 * np.radians(margins.disk_margin(loop)["phase_deg"])
+    for sign in (1, -1):
+        assert margins.spectral_radius(loop.A + np.exp(1j * sign * phi) * loop.Bu @ loop.M) < 1.0
+
+
 def test_the_plant_check_holds_inside_each_margin_and_fails_past_it(tmp_path):
-    """PointMass in MuJoCo C under the exported LQR controller: the loop holds at 0.9 of each gain margin's distance
-    from 1 and at the delay margin, and does not at 1.1 of it or one step past the delay margin."""
+    """PointMass in MuJoCo C under the exported LQR controller: the loop holds at 0.9 of the upper gain margin's
+    distance from 1 and at the delay margin, and does not at 1.1 of it or one step past the delay margin."""
     system = load_system(export(tmp_path / "lqr.npz", POINT_MASS, -lqr_gain()[None], [[0.0]]))
     cert = {"qpos": [0.0], "qvel": [0.0], "piece": 0}
     m = margins.certificate_margins(system, np.zeros(1), cert)
     want = jury_margins(double_integrator())
-    assert m["gain_lower"] == pytest.approx(want[0], rel=1e-4) and m["gain_upper"] == pytest.approx(want[1], rel=1e-4)
-    for name in ("gain_lower", "gain_upper", "delay"):
+    assert m["gain_lower"] == 0.0 and m["plant"]["gain_lower"] is None  # an integrator: nothing to cross
+    assert m["gain_upper"] == pytest.approx(want[1], rel=1e-4)
+    for name in ("gain_upper", "delay"):
         check = m["plant"][name]
         assert check is not None and check["confirmed"], (name, check)
-    assert not m["flags"] or all("margin" in f for f in m["flags"])
+    assert m["flags"] == [] and m["channels"] == 1  # 9x, 0x, 5 steps, disk 1.47: none below its threshold

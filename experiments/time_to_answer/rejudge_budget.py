@@ -24,8 +24,8 @@ def rejudged(records: list, random_returns: list, margin: float) -> list:
     out = []
     for c in records:
         c = dict(c)
-        lower = c["learning"].get("lower", float("nan"))
-        c["candidate"] = bool(c["learned"] and (c["stopped"] or lower > -margin))
+        c["candidate"] = step_budget.could_choose(c["learned"], c["stopped"], c["learning"].get("lower", float("nan")),
+                                                  margin)
         before = out[-1] if out else None
         c["confirms"] = (step_budget.confirm(before["scores"], c["scores"], random_returns, margin)
                          if before is not None and step_budget.candidate(before) and "scores" in before else None)
@@ -37,7 +37,8 @@ def row(path: str) -> "dict | None":
     with open(path) as f:
         state = json.load(f)
     steps = state.get("steps") or {}
-    if steps.get("mode") != "auto" or not all("scores" in c for c in steps.get("calibration", [])):
+    if (steps.get("mode") != "auto" or "candidates" not in steps
+            or not all("scores" in c for c in steps.get("calibration", []))):
         return None
     margin = float(state["setup"]["margin"])
     records = rejudged(steps["calibration"], state["random"]["returns"], margin)

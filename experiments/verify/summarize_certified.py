@@ -1,7 +1,7 @@
 """Tables of the certified runs (results/certified/, `run.py --certify`): `.venv/bin/python experiments/verify/summarize_certified.py`
 
 Writes results/certified/per_controller.csv (one row per controller: nominal return, the fixed-point certificate,
-counted only at the task's held equilibrium, one elsewhere counted apart; the switching hold's invariant set, the region of attraction at the task's one convergence rule, the LQR's beside it,
+counted only at the task's held equilibrium, one that is not counted apart; the switching hold's invariant set, the region of attraction at the task's one convergence rule, the LQR's beside it,
 the falsification's knife-edge counts) and results/certified/summary.csv (per task and class: how many controllers
 got each certificate, the certified sets' median inscribed radius in SI units, the regions' medians).
 """
@@ -40,10 +40,11 @@ def held_of(doc: dict) -> dict:
 
 def certificate_part(doc: dict) -> dict:
     """The fixed-point certificate's and the hold set's columns: certified (and counted) only at the task's held
-    equilibrium (certify.held_equilibrium); a certificate around another fixed point is counted apart."""
+    equilibrium (certify.held_equilibrium); a certificate that is not (its fixed point elsewhere, or the closed loop
+    not holding the equilibrium: not_held_why says which) is counted apart."""
     c, h, held = doc.get("certificate") or {}, doc.get("hold_set") or {}, held_of(doc)
     return {"fixed_point_certified": bool(held.get("counted")),
-            "certified_elsewhere": bool(c.get("certified") and not held.get("held_equilibrium")),
+            "certified_not_held": bool(c.get("certified") and not held.get("held_equilibrium")),
             "not_held_why": held.get("held_why", ""), "cert_level": c.get("level", ""),
             "cert_inscribed_radius_si": c.get("inscribed_radius", "") if held.get("counted") else "",
             "cert_extent_si": " ".join(f"{x:.4g}" for x in c.get("extent", [])) if held.get("counted") else "",
@@ -105,7 +106,7 @@ def summary(rows: list) -> list:
         out.append({"task": key[0], "class": key[1], "controllers": len(rs),
                     "nominal_return_median": median([r["nominal_return"] for r in rs]),
                     "fixed_point_certified": sum(r["fixed_point_certified"] for r in rs),
-                    "certified_elsewhere": sum(r["certified_elsewhere"] for r in rs),
+                    "certified_not_held": sum(r["certified_not_held"] for r in rs),
                     "cert_inscribed_radius_si_median": median([r["cert_inscribed_radius_si"] for r in rs]),
                     "hold_set_applies": sum(r["hold_set_applies"] for r in rs),
                     "hold_set_certified": sum(r["hold_set_certified"] for r in rs),

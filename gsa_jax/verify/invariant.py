@@ -309,10 +309,11 @@ def certify_hold(system: System, qref: np.ndarray, local: dict, hold: roa.Hold, 
     out, fixed = {}, None
     try:
         out["certificate"] = certify.certificate(system, qref, local, budget)
-        out["certificate"].update(certify.held_equilibrium(system.task, qref, hold.x, hold.holds, out["certificate"]))
-        out["certificate"]["margins"] = margins.certificate_margins(system, qref, out["certificate"], budget.seed)
     except VerifyError as e:
         fixed = str(e)
+    if "certificate" in out:  # after the certificate, so that nothing here can undo it
+        out["certificate"].update(certify.held_equilibrium(system.task, qref, hold.x, hold.holds, out["certificate"]))
+        out["certificate"]["margins"] = margins.certificate_margins(system, qref, out["certificate"], budget.seed)
     if not hold.holds:
         if fixed:
             raise VerifyError(f"{fixed}; {no_hold(system.task, qref, hold)}")

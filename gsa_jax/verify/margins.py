@@ -16,10 +16,13 @@ pi(obs_{t-d}) (d control steps of delay). Linear margins:
   perturbations of all of them), its gain range ((1 - alpha/2) / (1 + alpha/2), (1 + alpha/2) / (1 - alpha/2)) and
   phase margin 2 atan(alpha / 2).
 
-The plant check runs the exported controller in MuJoCo C from the fixed point plus small offsets (PLANT_OFFSET state
-scale units in random directions) under a gain or a delay: it holds where no episode terminates and the offsets
-shrink over the horizon (the median of the last tenth's deviation below the start's), and each margin is checked at
-CHECK_INSIDE and CHECK_OUTSIDE times itself (the delay at the margin and one step past it).
+The plant check runs the exported controller in MuJoCo C from the fixed point plus small offsets (PLANT_STARTS starts
+PLANT_OFFSET state-scale units away in random directions) under a gain or a delay: it holds where no episode ends
+early and the median over the starts of each start's largest deviation over the horizon's last tenth, relative to
+its start's, is below 1 (so up to half the starts may still grow). A gain margin g is checked at
+1 + CHECK_INSIDE (g - 1) (it should hold) and 1 + CHECK_OUTSIDE (g - 1) (it should not), the delay margin at itself and
+one step past it; a margin is `confirmed` where both come out so. A lower gain margin below MARGINAL (a loop that
+needs no feedback to stay marginally bounded, e.g. an integrator) is 0 and not checked.
 """
 
 import math
@@ -32,6 +35,7 @@ if TYPE_CHECKING:
     from gsa_jax.verify.simulate import Policy
 
 GAIN_MAX = 100.0  # the upper gain margin is inf where the loop is stable up to this gain
+MARGINAL = 1e-9  # a lower gain margin below this is 0
 GAIN_GRID = 400  # gains scanned on each side of 1 before bisection
 DELAY_MAX = 50  # control steps
 FREQUENCIES = 4096  # points on the upper unit circle for the disk margin
@@ -81,7 +85,7 @@ def gain_margins(loop: Loop) -> tuple:
         return math.nan, math.nan
     upper = first_unstable(loop, np.geomspace(1.0, GAIN_MAX, GAIN_GRID))
     lower = first_unstable(loop, np.linspace(1.0, 0.0, GAIN_GRID))
-    return (0.0 if lower is None else lower), (math.inf if upper is None else upper)
+    return (0.0 if lower is None or lower < MARGINAL else lower), (math.inf if upper is None else upper)
 
 
 def delayed(loop: Loop, d: int) -> np.ndarray:
@@ -107,21 +111,37 @@ def delay_margin(loop: Loop, max_steps: int = DELAY_MAX) -> int:
     return max_steps
 
 
+def peak_at(loop: Loop, w: float) -> float:
+    """sigma_max(S - I/2) at z = e^{jw} (0 where the open loop has a pole there: L unbounded, S = 0)."""
+    n, m = loop.Bu.shape
+    z = np.exp(1j * w)
+    try:
+        L = -loop.M @ np.linalg.solve(z * np.eye(n) - loop.A, loop.Bu)
+        S = np.linalg.inv(np.eye(m) + L)
+    except np.linalg.LinAlgError:
+        S = np.zeros((m, m))
+    return float(np.linalg.svd(S - 0.5 * np.eye(m), compute_uv=False)[0])
+
+
+def refined_peak(loop: Loop, lo: float, hi: float, iters: int = 60) -> float:
+    """The largest sigma_max(S - I/2) between two grid frequencies around the grid's peak (golden-section search)."""
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    for _ in range(iters):
+        c, d = b - g * (b - a), a + g * (b - a)
+        a, b = (a, d) if peak_at(loop, c) > peak_at(loop, d) else (c, b)
+    return peak_at(loop, 0.5 * (a + b))
+
+
 def disk_margin(loop: Loop, points: int = FREQUENCIES) -> dict:
     """The symmetric disk margin (module docstring) -> {"alpha", "gain_range": [low, high], "phase_deg"}; alpha 0
     where the loop is unstable."""
     if not stable_at(loop, 1.0):
         return {"alpha": 0.0, "gain_range": [1.0, 1.0], "phase_deg": 0.0}
-    n, m = loop.Bu.shape
-    worst = 0.0
-    for w in np.linspace(0.0, np.pi, points):
-        z = np.exp(1j * w)
-        try:
-            L = -loop.M @ np.linalg.solve(z * np.eye(n) - loop.A, loop.Bu)
-            S = np.linalg.inv(np.eye(m) + L)
-        except np.linalg.LinAlgError:  # a pole of the open loop on the circle: L is unbounded there, S = 0
-            S = np.zeros((m, m))
-        worst = max(worst, float(np.linalg.svd(S - 0.5 * np.eye(m), compute_uv=False)[0]))
+    grid = np.linspace(0.0, np.pi, points)
+    peaks = [peak_at(loop, w) for w in grid]
+    i = int(np.argmax(peaks))
+    worst = max(peaks[i], refined_peak(loop, grid[max(i - 1, 0)], grid[min(i + 1, points - 1)]))
     alpha = 1.0 / worst if worst > 0 else math.inf
     half = alpha / 2.0
     low, high = ((1 - half) / (1 + half), (1 + half) / (1 - half)) if half < 1 else (0.0, math.inf)
@@ -132,12 +152,14 @@ def linear_margins(loop: Loop) -> dict:
     """Every linear margin of the loop, and whether it is flagged (below FLAG_GAIN, FLAG_DELAY or FLAG_DISK)."""
     lower, upper = gain_margins(loop)
     delay, disk = delay_margin(loop), disk_margin(loop)
-    checks = ((not upper >= FLAG_GAIN, f"upper gain margin {upper:.3g}x"),
-              (not lower <= 1.0 / FLAG_GAIN, f"lower gain margin {lower:.3g}x"),
+    checks = ((not upper >= FLAG_GAIN, f"upper gain margin {upper:.4g}x"),
+              (not lower <= 1.0 / FLAG_GAIN, f"lower gain margin {lower:.4g}x"),
               (delay < FLAG_DELAY, f"delay margin {delay} control steps"),
               (not disk["alpha"] >= FLAG_DISK, f"disk margin {disk['alpha']:.3g}"))
     flags = [words for low, words in checks if low]
-    return {"gain_lower": lower, "gain_upper": upper, "delay_steps": delay, "disk": disk, "flags": flags,
+    channels = int(loop.Bu.shape[1])
+    return {"gain_lower": lower, "gain_upper": upper, "delay_steps": delay, "disk": disk, "channels": channels,
+            "flags": flags,
             "thresholds": {"gain": FLAG_GAIN, "delay_steps": FLAG_DELAY, "disk": FLAG_DISK}}
 
 

@@ -147,8 +147,9 @@ def margin_lines(m: "dict | None") -> list:
             f"({plant_words(plant['gain_upper'], 'gain')})",
             f"- delay margin: {m['delay_steps']} control steps ({plant_words(plant['delay'], 'delay')})",
             f"- disk margin {disk['alpha']:.3g} (symmetric; gains {disk['gain_range'][0]:.3g}x to "
-            f"{disk['gain_range'][1]:.3g}x and phase +-{disk['phase_deg']:.3g} degrees at once; with several action "
-            "channels a lower bound for perturbations of all at once)"]
+            f"{disk['gain_range'][1]:.3g}x and phase +-{disk['phase_deg']:.3g} degrees at once"
+            + ("; with several action channels a lower bound for perturbations of all at once)"
+               if m.get("channels", 2) > 1 else ")")]
 
 
 def held_lines(cert: dict) -> list:

@@ -17,15 +17,13 @@ whole number of chunks of flat PPO's program, the cap rounded up) and stops at t
 
 The second test of the rising side reads what a budget is chosen for: with an annealed learning rate a run refines
 until its last iteration, so its last fifth can rise in runs that a longer budget does not improve
-(dmc:cartpole-balance at 245,760 steps: the last fifth +0.14 of the gain, its upper bound +0.31, while the controllers
-trained to 491,520 score +0.006 of it more). Either test may call a budget stopped, so a wrong 'stopped' is at most
-twice LEARNING_LEVEL; the confirmation holds in both.
-
-Every class then trains to that budget (equal steps), and the runs trained at it are flat PPO's first look. Each
-candidate budget is a run of its own (the learning rate anneals over the run's budget), so the test reads curves of runs
-that trained exactly to the budget it judges. At the cap the budget is the cap whatever the test says (no next budget
-confirms it): the baseline check then reports flat PPO as still learning. Where the next budget would not fit the
-answer's time, the budget is the last one tried, unconfirmed, and the report says so.
+(dmc:cartpole-balance at 245,760 steps in 7442423's committed calibration: the last fifth +0.14 of the gain, its upper
+bound +0.31, while the controllers trained to 491,520 score +0.015 of it more, shown within the margin:
+experiments/time_to_answer/results/budget_rejudged.csv). Each test runs at LEARNING_LEVEL; the two test different
+things (the last fifth's slope; what the next budget gives), so where neither holds a candidate is called stopped
+wrongly at most twice LEARNING_LEVEL, while where only the slope is within the margin and longer training does help,
+the curve's path is guarded by the confirmation alone (not shown above: its power, not a level). The rule reads flat
+PPO only: a mixture still rising at the budget is reported as such beside its verdict.
 """
 
 from typing import Sequence
@@ -69,10 +67,15 @@ def judge_budget(steps: int, scores: Sequence[float], curves: Sequence[tuple], r
     record = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in learn._asdict().items()}
     confirms = (confirm(before["scores"], scores, random_returns, margin)
                 if before is not None and candidate(before) and "scores" in before else None)
-    not_falling = bool(learn.lower > -margin)  # False for a nan bound (no gain to judge)
     return {"steps": int(steps), "learned": bool(ok), "why": why, "learning": record, "stopped": bool(learn.stopped),
-            "enough": bool(ok and learn.stopped), "candidate": bool(ok and (learn.stopped or not_falling)),
+            "enough": bool(ok and learn.stopped), "candidate": could_choose(ok, learn.stopped, learn.lower, margin),
             "scores": [float(x) for x in scores], "confirms": confirms}
+
+
+def could_choose(learned: bool, stopped: bool, lower: float, margin: float) -> bool:
+    """Whether a budget can be chosen once the next budget's controllers are read: learned, and its curve stopped or
+    shown not falling (the last fifth's lower bound above -margin; a nan bound, no gain to judge, is not)."""
+    return bool(learned and (stopped or lower > -margin))
 
 
 def candidate(record: dict) -> bool:
@@ -115,7 +118,7 @@ def chosen_by(record: dict, later: dict) -> bool:
     """Whether `record`'s budget is chosen once the next candidate `later` is judged: enough (the curve's two-sided
     test) and confirmed by later's controllers, or a candidate whose later controllers are shown within the margin."""
     confirms = later.get("confirms")
-    within = bool(confirms and confirms.get("shown_within") and confirms["confirmed"])
+    within = bool(confirms and confirms.get("shown_within"))  # shown within the margin implies not shown above it
     return bool((record["enough"] and confirmed(later)) or (candidate(record) and within))
 
 
