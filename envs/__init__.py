@@ -50,6 +50,8 @@ def __getattr__(name: str):
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
+    if name.startswith("_"):  # dunder and private lookups (copy, pickle, hasattr probes) import nothing
+        raise AttributeError(f"module 'envs' has no attribute {name!r}")
     try:
         return importlib.import_module(f"envs.{name}")
     except ModuleNotFoundError as e:

@@ -32,6 +32,8 @@ def __getattr__(name: str):
         from gsa_jax import api
 
         return getattr(api, name)
+    if name.startswith("_"):  # dunder and private lookups (copy, pickle, hasattr probes) import nothing
+        raise AttributeError(f"module 'gsa_jax' has no attribute {name!r}")
     try:
         return importlib.import_module(f"gsa_jax.{name}")
     except ModuleNotFoundError as e:
