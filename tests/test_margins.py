@@ -117,3 +117,22 @@ def test_the_plant_check_holds_inside_each_margin_and_fails_past_it(tmp_path):
         check = m["plant"][name]
         assert check is not None and check["confirmed"], (name, check)
     assert m["flags"] == [] and m["channels"] == 1  # 9x, 0x, 5 steps, disk 1.47: none below its threshold
+
+
+def test_the_committed_margin_summary_is_its_rows_summary():
+    """experiments/verify/results/certified/margins_summary.csv is margins_of_certified.summary of margins.csv (the
+    per-certificate rows the README's class medians and counts quote)."""
+    import csv
+    import importlib.util
+    import os
+
+    here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments", "verify")
+    spec = importlib.util.spec_from_file_location("margins_of_certified", os.path.join(here, "margins_of_certified.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    booleans = ("certified", "counted", "flagged", "gain_upper_confirmed", "gain_lower_confirmed", "delay_confirmed")
+    with open(os.path.join(mod.RESULTS, "margins.csv"), newline="") as f:
+        rows = [{k: {"True": True, "False": False}.get(v, v) if k in booleans else v for k, v in r.items()}
+                for r in csv.DictReader(f)]
+    with open(os.path.join(mod.RESULTS, "margins_summary.csv"), newline="") as f:
+        assert [{k: str(v) for k, v in r.items()} for r in mod.summary(rows)] == list(csv.DictReader(f))

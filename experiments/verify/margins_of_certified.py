@@ -13,11 +13,9 @@ import json
 import os
 import sys
 
-import numpy as np
-
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from summarize_certified import RESULTS, cls, held_of  # noqa: E402
+from summarize_certified import RESULTS, cls, held_of, median  # noqa: E402
 
 from gsa_jax import write_csv  # noqa: E402
 from gsa_jax.verify import margins  # noqa: E402
@@ -58,11 +56,6 @@ def row(path: str) -> "dict | None":
             "gain_upper": round(m["gain_upper"], 5), "delay_steps": m["delay_steps"],
             "disk_alpha": round(m["disk"]["alpha"], 5), "disk_phase_deg": round(m["disk"]["phase_deg"], 3),
             "flagged": bool(m["flags"]), "flags": "; ".join(m["flags"]), **plant_columns(m["plant"])}
-
-
-def median(values: list) -> "float | str":
-    v = [float(x) for x in values if x not in ("", None)]
-    return round(float(np.median(v)), 4) if v else ""
 
 
 def summary(rows: list) -> list:
