@@ -231,13 +231,15 @@ def test_a_small_real_task_end_to_end(tmp_path, monkeypatch, capsys):
     assert state["random"]["episodes"] == controller_scores.RANDOM_EPISODES
     expect = ladder.judge_ladder((1, 2), scores, trimmed.fixed(60.0), state["random"]["returns"], 0.2, setup.design())
     assert {k: r["verdict"] for k, r in state["judged"].items()} == {k: r["verdict"] for k, r in expect.items()}
-    verified, printed = [], []  # gsa verify --quick on the exported controller (the task declares its upright)
+    verified, printed, reported = [], [], []  # gsa verify --quick on the exported controller (the task's upright)
     monkeypatch.setattr("gsa_jax.commands.verify.verify_controller",
-                        lambda argv: verified.append(argv) or printed.append(capsys.readouterr().out) or 0)
+                        lambda argv: verified.append(argv) or printed.append(capsys.readouterr().out)
+                        or reported.append(os.path.exists(os.path.join(out, "report.md"))) or 0)
     sentence = finish(out, setup, state, ["--env", "InvertedDoublePendulum-v5"])
     assert sentence.startswith("InvertedDoublePendulum-v5:")
     # the answer is printed before its controller is verified, and printed whole
     assert all(p.endswith(BEFORE_VERIFY + "\n" + sentence + "\n") for p in printed) and len(printed) == len(verified)
+    assert all(reported) and len(reported) == len(verified)  # the report was written before the check ran
     report = open(os.path.join(out, "report.md")).read()
     exported = os.path.join(out, "controller", "controller.npz")
     assert verified == ([[exported, "--quick", "--out", os.path.join(out, "verify")]] if os.path.exists(exported) else [])
