@@ -1,6 +1,7 @@
 """Check an exported controller's closed loop in its task's MuJoCo C twin.
 
     gsa verify CONTROLLER.npz [--out DIR] [--quick] [--seed N] [--certify] [--force]
+    gsa verify CONTROLLER.npz --pwa VERIFY_JSON [--out DIR]
 
 Writes DIR/verify.json (docs/verify.md), DIR/report.md and DIR/verify.png: fixed points and closed-loop eigenvalues
 per piece, the region of attraction of the task's equilibrium (with an LQR beside it), the lowest-return start
@@ -8,7 +9,10 @@ states and pushes a cross-entropy search finds (replayable), and how the control
 a certified region of attraction of the closed loop's stable fixed point and, for a hold kept by switching between
 pieces, an invariant set around it: exact on the linearization, tested on the plant (the optional extra verify:
 pip install 'gsa_jax[verify]'). A controller whose task's definition changed since it was trained is refused in one
-line, as deploy refuses it (--force verifies it where the sizes agree).
+line, as deploy refuses it (--force verifies it where the sizes agree). --pwa hands a linear-partition controller's
+certificate (its verify.json) to the field's verifiers: DIR/pwa/ holds the piecewise-affine closed loop, an ONNX graph
+with VNN-LIB properties of the certificate's decrease and a mixed-integer bound (HiGHS), each checked on the same
+points (gsa_jax.verify.pwa_export).
 """
 
 import argparse
@@ -69,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--certify", action="store_true", help="a certified region of attraction of the closed loop's "
                    "stable fixed point, and an invariant set of a hold kept by switching between pieces (needs the "
                    "optional extra verify: pip install 'gsa_jax[verify]')")
+    p.add_argument("--pwa", default=None, metavar="VERIFY_JSON",
+                   help="instead of the analyses: export this controller's certificate (a verify.json written by "
+                        "--certify) as a piecewise-affine model, ONNX + VNN-LIB and a mixed-integer bound into DIR/pwa/")
     p.add_argument("--force", action="store_true",
                    help="verify a controller whose task's definition changed since it was trained, or that names "
                         "another task, where the observation sizes agree")
@@ -86,10 +93,12 @@ def verify_controller(argv: list | None) -> int:
     if args.certify:
         certify.require_solver()
     system = load_system(args.controller, args.force)
+    out = args.out or f"verify_{os.path.splitext(os.path.basename(args.controller))[0]}"
+    if args.pwa:
+        return export_pwa_files(system, args.pwa, out)
     weights = lqr_weights_of(args, system)
     budget = (QUICK if args.quick else Budget())._replace(seed=args.seed)
     cert_budget = (certify.QUICK if args.quick else certify.CertifyBudget())._replace(seed=args.seed)
-    out = args.out or f"verify_{os.path.splitext(os.path.basename(args.controller))[0]}"
     t0 = time.perf_counter()
     result = verify(system, budget, weights, cert_budget if args.certify else None)
     doc = write_all(out, system, result, budget, args.quick)
@@ -98,6 +107,16 @@ def verify_controller(argv: list | None) -> int:
     if "hold_set" in doc:
         print("\n".join(["Invariant set of the hold kept by switching.", *hold_set_lines(doc["hold_set"])]))
     print(f"wrote {out}/verify.json, report.md, verify.png ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+def export_pwa_files(system: "System", cert_path: str, out: str) -> int:
+    """Write OUT/pwa/ and print what its checks found."""
+    from gsa_jax.verify.pwa_export import export_pwa
+    from gsa_jax.verify.report import pwa_lines
+
+    print("\n".join(["The certificate as a piecewise-affine closed loop.", *pwa_lines(export_pwa(system, cert_path, out))]))
+    print(f"wrote {out}/pwa/: pwa.json, certificate.onnx, decrease.vnnlib, cells.vnnlib (where it has cells), checks.json")
     return 0
 
 

@@ -327,3 +327,21 @@ def write_all(out_dir: str, system: System, result: dict, budget: Budget, quick:
     write_markdown(os.path.join(out_dir, "report.md"), doc)
     write_figure(os.path.join(out_dir, "verify.png"), doc)
     return doc
+
+
+def pwa_lines(check: dict) -> list:
+    """The checks of a certificate's piecewise-affine export (gsa_jax.verify.pwa_export) as report lines."""
+    c, box = check["controller"], check["box_image_milp"]
+    found = ", ".join(f"{name}: {n} of {check['points']}" for name, n in check["counterexamples"].items())
+    image = ("maps into itself" if box["value"] <= 1.0 else "does not map into itself")
+    return [f"- The PWA model against the NumPy controller at the linearized observations ({c['points']} points in E "
+            f"and on its boundary): the same piece at {100 * c['same_piece']:.2f}% of them, actions within "
+            f"{c['action_max_abs_diff']:.3g}.",
+            f"- onnxruntime's output against NumPy's on the same points: within {check['onnx_max_rel_diff']:.3g} "
+            "of each output's largest value.",
+            f"- Counterexamples of the VNN-LIB properties among those points (0: the certificate holds there on the "
+            f"linearization): {found}.",
+            f"- E's bounding box under one step of the PWA loop, every piece and its cell ({box['solver']}, "
+            f"{box['programs']} mixed-integer programs, exact for the model): its image reaches {box['value']:.4g} "
+            f"box widths (at most 1: the box maps into itself), so the box {image} in one control step; the model "
+            f"stepped at the maximizer gives {box['pwa_value_there']:.4g}."]
