@@ -6,10 +6,12 @@ import sys
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 from envs.task import TaskC
 from gsa_jax.commands.verify import main as verify_main
 from gsa_jax.verify import analysis, certify, roa, simulate
+from gsa_jax.verify.boundary import settle_steps
 from gsa_jax.verify.system import equilibrium_guess, load_system, state_scale
 from verify_tasks import analytic_step, export, lqr_gain
 
@@ -91,10 +93,18 @@ def test_lqr_on_a_linear_task_gets_the_largest_ellipsoid_of_its_p(tmp_path):
     rows = np.concatenate([gain, np.eye(2) / system.ctrl.obs_clip])  # |row x| <= 1
     images = np.concatenate([rows @ np.linalg.matrix_power(a_cl, j) for j in range(k)])
     analytic = 1.0 / np.einsum("mi,ij,mj->m", images, np.linalg.inv(P), images).max()
-    assert cert["level"] == cert["level_linearization"]
-    assert abs(cert["level"] - analytic) <= LEVEL_TOL * analytic
+    assert cert["level_clean"] == cert["level_linearization"] and cert["level"] == certify.ROOM * cert["level_clean"]
+    assert abs(cert["level_clean"] - analytic) <= LEVEL_TOL * analytic
     assert cert["bounded_by"] == "action 0's clip at step 0"
-    assert cert["certified"] and cert["violations"] == [0] and cert["samples"] == 500 + 500 + 32 * 4
+    assert cert["certified"] and cert["violations"] == [0, 0] and cert["samples"] == 2 * (500 + 500 + 32 * 4)
+    assert [r["confirmation"] for r in cert["rounds"]] == [False, True] and cert["first_violating_v0"] is None
+    between = cert["between_instants"]  # exactly linear: no boundary start exceeds the linearization's peak
+    peaks = [scipy.linalg.eigh(np.linalg.matrix_power(a_cl, j).T @ P @ np.linalg.matrix_power(a_cl, j), P,
+                               eigvals_only=True).max() for j in range(1, k + 1)]
+    assert between["linearization_peak"] == pytest.approx(max(peaks), rel=1e-9)
+    assert between["linearization_peak_step"] == int(np.argmax(peaks)) + 1
+    assert between["plant_peak"] <= between["linearization_peak"] * (1 + 1e-6)
+    assert between["converged"] == between["starts"] and between["invariant"] == (max(peaks) <= 1.0)
     axes = np.sqrt(cert["level"] / np.linalg.eigvalsh(P))
     np.testing.assert_allclose(cert["semi_axes"], axes, rtol=1e-12)  # largest first
     assert cert["inscribed_radius"] == pytest.approx(axes.min(), rel=1e-12)
@@ -117,6 +127,32 @@ def test_planted_instability_is_certified_no_further_than_its_radius(tmp_path):
     recheck(system, cert, seed=54321)
     one_round = certify_system(system, certify.QUICK._replace(rounds=1))  # violations in its only round
     assert not one_round["certified"] and one_round["level"] == 0.0 and one_round["inscribed_radius"] == 0.0
+    assert one_round["between_instants"] is None and one_round["level_clean"] is None
+
+
+def test_the_room_fields_name_the_clean_level_and_the_first_violation():
+    """room_fields: the certified level's last clean level is the round before the confirmation; the first
+    violation is the smallest V(x_0) of a violation over every round, the level's share of it beside it."""
+    r = lambda level, bad, v0=None, confirmation=False: {"level": level, "violations": bad,
+                                                         "smallest_violating_v0": v0, "confirmation": confirmation}
+    rounds = [r(1.0, 3, 0.5), r(0.45, 0), r(0.36, 0, None, True)]
+    got = certify.room_fields(rounds, 0.36)
+    assert got["level_clean"] == 0.45 and got["room"] == pytest.approx(0.8) and got["first_violating_v0"] == 0.5
+    assert got["level_share_of_first_violation"] == pytest.approx(0.72)
+    nothing = certify.room_fields([r(1.0, 3, 0.5)], 0.0)
+    assert nothing["level_clean"] is None and nothing["level_share_of_first_violation"] is None
+
+
+def test_the_spare_level_keeps_its_room_above_the_floor():
+    assert certify.spare_level(1.0, 0.0) == certify.ROOM
+    assert certify.spare_level(1.0, 0.9) == pytest.approx(0.95)  # ROOM x 1 would reach the inner level 0.9
+
+
+def test_the_settling_step_is_the_first_after_the_last_step_outside():
+    ok = np.array([[0, 0, 1, 0], [1, 0, 1, 1], [0, 1, 1, 1], [1, 1, 1, 0]], bool)  # [T + 1 = 4, B = 4]
+    alive = np.array([True, True, True, True])
+    assert settle_steps(ok, alive).tolist() == [3, 2, 0, -1]  # the last ends outside: none
+    assert settle_steps(ok, np.array([True, False, True, True])).tolist() == [3, -1, 0, -1]
 
 
 def test_a_committed_controllers_certificate_holds_on_an_independent_recheck():

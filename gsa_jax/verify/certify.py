@@ -21,8 +21,11 @@ units (rad, m, rad/s, m/s; gsa_jax.verify.system), the closed loop's Jacobian A 
 - The plant test: uniform samples in E and on its boundary and a cross-entropy search for the largest
   V(x_k) / V(x_0) inside it, each start stepped k control steps in MuJoCo C with the exported controller (float32,
   clipped, its partition): a violation is V(x_k) > rho^2 V(x_0) + DECREASE_TOL level, or an episode that terminates.
-  A violation sets the level to SHRINK x the smallest V(x_0) among them and a fresh round runs; the level is
-  certified when a round finds none (after CertifyBudget.rounds rounds with violations, nothing is).
+  A violation sets the level to SHRINK x the smallest V(x_0) among them and a fresh round runs. After a round that
+  finds none the level is set to ROOM x that clean level (spare_level) and a confirmation round of fresh samples
+  runs there; the
+  level is certified when it finds none too (after CertifyBudget.rounds + 1 rounds, nothing is). Recorded beside it
+  (gsa_jax.verify.boundary): V's peak between the k-step instants and the convergence time from E's boundary.
 """
 
 from typing import TYPE_CHECKING, Callable, NamedTuple
@@ -33,7 +36,8 @@ import scipy.linalg
 
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.verify import linearize as lin
-from gsa_jax.verify import roa
+from gsa_jax.verify import boundary, roa
+from gsa_jax.verify.boundary import Plant
 from gsa_jax.verify.simulate import controller_policy
 from gsa_jax.verify.system import System, VerifyError, state_scale, to_tangent, wrap
 
@@ -47,13 +51,15 @@ HALF = 0.5  # k: the fewest steps whose linear contraction rho_A^k is at most th
 K_MAX = 1000  # control steps
 AXIS_CAP = 100.0  # SI units: the largest semi-axis where no validity bound limits a direction
 SHRINK = 0.9  # a violation at V(x_0) = v sets the level to SHRINK v
+ROOM = 0.8  # the certified level's share of the last clean level, confirmed by a round of fresh samples
 DECREASE_TOL = 1e-6  # x level: the float32 controller's rounding
 RULE = (f"k: the fewest control steps with rho_A^k <= {HALF} (at most {K_MAX}); rho: (1 + rho_A^k) / 2, tested on "
         "the plant; P: the largest inscribed ball subject to A^k' P A^k <= rho_P^2 P, rho_P = (rho_A^k + rho) / 2 "
         "with the ellipsoid and its images over the k steps inside the linearization's validity bounds (action "
         "clips, normalizer clips, partition boundaries, joint ranges, +-pi on unlimited hinges; semi-axes at most "
         f"{AXIS_CAP:g}); level: the largest those bounds allow, then {SHRINK} x the smallest V(x_0) of a violation "
-        f"found on the plant (V(x_k) > rho^2 V(x_0) + {DECREASE_TOL:g} level, or termination) until a round finds none")
+        f"found on the plant (V(x_k) > rho^2 V(x_0) + {DECREASE_TOL:g} level, or termination) until a round finds none, "
+        f"then {ROOM} x that clean level, confirmed by a round of fresh samples")
 
 
 class CertifyBudget(NamedTuple):
@@ -263,14 +269,6 @@ def offsets(P: np.ndarray, level: float, u: np.ndarray) -> np.ndarray:
     return np.sqrt(level) * (u / np.sqrt(lam)) @ W.T
 
 
-class Plant(NamedTuple):
-    """The closed loop as the plant test steps it: the task, the exported controller, x* around qref."""
-
-    system: System
-    qref: np.ndarray
-    x_star: np.ndarray
-
-
 class PlantTest(NamedTuple):
     """What the plant test checks, V(x) = (x - x*)' P (x - x*): V(x_k) <= rho^2 V(x_0) + gamma from every start in
     {V <= level} (gamma > 0: an invariant set around a hold that does not rest at x*, gsa_jax.verify.invariant)."""
@@ -333,18 +331,39 @@ def check_round(test: PlantTest, level: float, budget: CertifyBudget, r: int) ->
 
 
 def check_on_plant(test: PlantTest, level: float, budget: CertifyBudget, floor: float = 0.0) -> tuple:
-    """(level, certified, rounds): the plant test's rounds from `level`, shrinking at each violation, until one finds
-    none (certified) or budget.rounds have run or the level would fall to floor or below (level 0: nothing
-    certified)."""
-    rounds = []
-    for r in range(budget.rounds):
-        rounds.append(check_round(test, level, budget, r))
+    """(level, certified, rounds): the plant test's rounds from `level`, shrinking at each violation; after a round
+    that finds none, the level is set below that clean level (spare_level) and a confirmation round of fresh samples
+    runs there (each round draws its own); certified when it finds none too (a violation there shrinks on), else
+    after budget.rounds + 1 rounds or where the level would fall to floor or below, nothing is (level 0)."""
+    rounds, confirming = [], False
+    for r in range(budget.rounds + 1):
+        rounds.append({**check_round(test, level, budget, r), "confirmation": confirming})
         if not rounds[-1]["violations"]:
-            return level, True, rounds
-        level = SHRINK * rounds[-1]["smallest_violating_v0"]
+            if confirming:
+                return level, True, rounds
+            confirming, level = True, spare_level(level, floor)
+        else:
+            confirming, level = False, SHRINK * rounds[-1]["smallest_violating_v0"]
         if level <= floor:
             break
     return 0.0, False, rounds
+
+
+def spare_level(clean: float, floor: float) -> float:
+    """The level certified below a clean one: ROOM x it, or where that would reach the floor (a hold set's inner
+    level), halfway between the floor and it."""
+    return ROOM * clean if ROOM * clean > floor else 0.5 * (floor + clean)
+
+
+def room_fields(rounds: list, level: float) -> dict:
+    """The certified level's room: the last clean level before the confirmation and the certified level's share of
+    it (null where nothing is certified), the smallest V(x_0) of a violation any round found (null: none) and the
+    certified level's share of that."""
+    clean = rounds[-2]["level"] if level > 0 and len(rounds) > 1 else None
+    bad = [r["smallest_violating_v0"] for r in rounds if r["smallest_violating_v0"] is not None]
+    first = min(bad) if bad else None
+    return {"room": level / clean if clean else None, "level_clean": clean, "first_violating_v0": first,
+            "level_share_of_first_violation": level / first if first and level > 0 else None}
 
 
 def ellipsoid_fields(P: np.ndarray, level: float) -> dict:
@@ -356,10 +375,12 @@ def ellipsoid_fields(P: np.ndarray, level: float) -> dict:
             "extent": np.sqrt(level * np.diag(np.linalg.inv(P))).tolist()}
 
 
-def plant_fields(rounds: list, budget: CertifyBudget) -> dict:
-    """The plant test's record: starts tested in all, violations per round, the rounds, the budget."""
+def plant_fields(rounds: list, budget: CertifyBudget, level: float) -> dict:
+    """The plant test's record: starts tested in all, violations per round, the rounds, the budget, the room of the
+    certified level (room_fields)."""
     return {"samples": int(sum(r["samples"] + r["boundary_samples"] + r["falsifier_episodes"] for r in rounds)),
-            "violations": [r["violations"] for r in rounds], "rounds": rounds, "budget": budget._asdict()}
+            "violations": [r["violations"] for r in rounds], "rounds": rounds, "budget": budget._asdict(),
+            **room_fields(rounds, level)}
 
 
 def coordinates(model: mujoco.MjModel) -> list:
@@ -383,13 +404,19 @@ def certificate(system: System, qref: np.ndarray, local: dict, budget: CertifyBu
     obs = lin.observe_at(task, np.array(fp["qpos"]), np.array(fp["qvel"]))
     bounds = join_bounds(controller_bounds(ctrl, fp["piece"], obs, L.C), joint_bounds(task.model, qref, x))
     lc = certify_linear(L.closed, bounds)
-    level, certified, rounds = check_on_plant(PlantTest(Plant(system, qref, x), lc.P, lc.k, lc.rho), lc.level, budget)
+    plant = Plant(system, qref, x)
+    level, certified, rounds = check_on_plant(PlantTest(plant, lc.P, lc.k, lc.rho), lc.level, budget)
+    between = None
+    if certified:
+        rng = np.random.default_rng(budget.seed + boundary.SEED_OFFSET)
+        d0 = offsets(lc.P, level, roa.sphere(rng, boundary.BOUNDARY_STARTS, len(lc.P)))
+        between = boundary.behaviour(plant, L.closed, lc.P, level, lc.k, d0)
     return {"claim": CLAIM, "rule": RULE, "certified": certified, "piece": fp["piece"],
             "qpos": fp["qpos"], "qvel": fp["qvel"], "coordinates": coordinates(task.model), "P": lc.P.tolist(),
             "k": lc.k, "k_seconds": lc.k * float(task.dt), "rho": lc.rho, "rho_per_step": lc.rho ** (1.0 / lc.k),
             "rho_linearization": lc.rho_p, "spectral_radius": lc.rho_a,
             "level_linearization": lc.level, "bounded_by": lc.bounded_by, "level": level,
-            **ellipsoid_fields(lc.P, level), **plant_fields(rounds, budget)}
+            **ellipsoid_fields(lc.P, level), **plant_fields(rounds, budget, level), "between_instants": between}
 
 
 HELD_SCALE = 1.0  # the certified fixed point is the held equilibrium within this many state-scale units of the hold

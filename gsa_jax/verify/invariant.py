@@ -35,8 +35,9 @@ point): the state chatters across the partition's boundaries. States are verify'
 - The plant test is certify's (certify.check_on_plant): samples inside {V <= level} and on its boundary and the
   falsifier, each start stepped one control step in MuJoCo C with the exported controller; a violation is
   V(x_1) > rho^2 V(x_0) + gamma + DECREASE_TOL level (a start that leaves the set is one), rho = rho_P +
-  (1 - rho_P) / 3 (certify's margin for the plant's nonlinearity); the level shrinks as certify's does, and nothing
-  is certified where it would fall to the plant's inner level gamma / (1 - rho^2) or below.
+  (1 - rho_P) / 3 (certify's margin for the plant's nonlinearity); the level shrinks and is confirmed with room as
+  certify's is, and nothing is certified where it would fall to the plant's inner level gamma / (1 - rho^2) or
+  below.
 """
 
 import warnings
@@ -61,6 +62,8 @@ RULE = ("pieces: those picked over the hold's last tenth, each affine at its mea
         f"{certify.AXIS_CAP:g}); level: the largest those bounds allow, then tested on the plant over one control "
         f"step with rho = rho_P + (1 - rho_P) / 3: V(x_1) > rho^2 V(x_0) + gamma + {certify.DECREASE_TOL:g} level is "
         f"a violation, the level shrinking to {certify.SHRINK} x the smallest V(x_0) of one until a round finds none, "
+        f"then {certify.ROOM} x that clean level (halfway to the inner level where that would reach it) confirmed "
+        "by a round of fresh samples, "
         "nothing certified at or below the inner level gamma / (1 - rho^2)")
 
 
@@ -265,12 +268,14 @@ def tested_set(system: System, qref: np.ndarray, x_c: np.ndarray, p: Pieces, bud
             "rho": rho, "rho_linearization": shape.rho_p, "gamma": shape.gamma, "inner_level": inner,
             "inner_extent": np.sqrt(inner * np.diag(np.linalg.inv(shape.P))).tolist(),
             "level_linearization": float(level_lin), "bounded_by": by, "level": float(level),
-            **certify.ellipsoid_fields(shape.P, level), **certify.plant_fields(rounds, budget)}
+            **certify.ellipsoid_fields(shape.P, level), **certify.plant_fields(rounds, budget, level)}
 
 
 def falsified(rounds: list, inner: float) -> str:
     """Why the plant test certified nothing, in words."""
     last = rounds[-1]
+    if not last["violations"]:  # clean, at or below the inner level
+        return f"the last clean level {last['level']:.4g} is not above the inner level {inner:.4g}"
     shrunk = certify.SHRINK * last["smallest_violating_v0"]
     if shrunk <= inner:
         return (f"plant falsified at level {last['level']:.4g}: a violation at V(x_0) = "

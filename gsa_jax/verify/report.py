@@ -96,7 +96,7 @@ def certificate_lines(cert: dict) -> list:
     where = "the network" if cert["piece"] is None else f"piece {cert['piece']}"
     extent = ", ".join(f"{name} +-{e:.3g}" for name, e in zip(cert["coordinates"], cert["extent"]))
     rounds = rounds_text(cert["rounds"])
-    verdict = ("certified: the last round found no violation" if cert["certified"] else
+    verdict = ("certified: the confirmation round found no violation" if cert["certified"] else
                f"nothing certified: every one of {len(cert['rounds'])} rounds found violations")
     return [f"{cert['claim'][0].upper()}{cert['claim'][1:]}.", *held_lines(cert), *margin_flag_lines(cert),
             f"- fixed point: {where}'s at qpos {np.round(cert['qpos'], 4).tolist()}, qvel "
@@ -109,7 +109,8 @@ def certificate_lines(cert: dict) -> list:
             f"- extent (each coordinate's largest excursion inside the set, in its units): {extent}; the semi-axes "
             "and the inscribed radius, which mix units, are in verify.json",
             f"- plant test ({cert['samples']} starts, each stepped k control steps in MuJoCo C with the exported "
-            f"controller): {rounds}", *margin_lines(cert.get("margins"))]
+            f"controller): {rounds}", *room_lines(cert), *between_lines(cert.get("between_instants")),
+            *margin_lines(cert.get("margins"))]
 
 
 def margin_flag_lines(cert: dict) -> list:
@@ -163,9 +164,36 @@ def held_lines(cert: dict) -> list:
 
 def rounds_text(rounds: list) -> str:
     """The plant test's rounds (gsa_jax.verify.certify.check_round) in words."""
-    return "; ".join(f"level {r['level']:.4g}: {r['samples']} samples inside, {r['boundary_samples']} on the "
-                     f"boundary, {r['falsifier_episodes']} falsifier starts, {r['violations']} violations"
-                     for r in rounds)
+    return "; ".join(f"level {r['level']:.4g}{' (confirmation)' if r.get('confirmation') else ''}: {r['samples']} "
+                     f"samples inside, {r['boundary_samples']} on the boundary, {r['falsifier_episodes']} falsifier "
+                     f"starts, {r['violations']} violations" for r in rounds)
+
+
+def room_lines(rec: dict) -> list:
+    """The certified level's room (certify.room_fields) in words; nothing for a record without it."""
+    if "room" not in rec or not rec.get("level_clean"):
+        return []
+    first = rec["first_violating_v0"]
+    where = ("no round found a violation" if first is None else
+             f"the first violation found lies at V = {first:.4g}, {1 / rec['level_share_of_first_violation']:.3g}x "
+             "the certified level")
+    return [f"- room to spare: the level is {rec['room']:.3g} x the last clean level {rec['level_clean']:.4g}, confirmed "
+            f"by a round of fresh samples; {where}"]
+
+
+def between_lines(b: "dict | None") -> list:
+    """V between the k-step instants and the convergence from E's boundary (gsa_jax.verify.boundary) in words."""
+    if not b:
+        return []
+    inv = ("invariant at every step" if b["invariant"] else
+           "not invariant between the k-step instants: V rises above the level before it falls")
+    conv = (f"{b['converged']} of {b['starts']} starts on E's boundary settle within the task's convergence tolerance "
+            f"in the horizon of {b['horizon_seconds']:.3g} s")
+    if b["converged"]:
+        conv += f" (median {b['seconds_median']:.3g} s, slowest {b['seconds_max']:.3g} s)"
+    return [f"- between the instants: the set is {inv} (peak of V / level over the k steps {b['linearization_peak']:.3g} "
+            f"on the linearization, at step {b['linearization_peak_step']}; {b['plant_peak']:.3g} over {b['starts']} "
+            f"boundary starts on the plant); {conv}"]
 
 
 def hold_set_lines(rec: dict) -> list:
@@ -180,7 +208,7 @@ def hold_set_lines(rec: dict) -> list:
     if "P" not in rec:
         return lines + [f"- nothing certified: {rec['reason']}"]
     extent = lambda key: ", ".join(f"{name} +-{e:.3g}" for name, e in zip(rec["coordinates"], rec[key]))
-    verdict = ("certified: the last round found no violation" if rec["certified"] else
+    verdict = ("certified: the confirmation round found no violation" if rec["certified"] else
                f"nothing certified: {rec['reason']}")
     return lines + [
         f"- V(x) = (x - x_c)' P (x - x_c): V(x_1) <= rho^2 V(x_0) + gamma over one control step ({rec['k_seconds']:.3g} "
@@ -191,7 +219,7 @@ def hold_set_lines(rec: dict) -> list:
         f"- extent (each coordinate's largest excursion inside the set, in its units): {extent('extent')}; the inner "
         f"set's: {extent('inner_extent')}; the semi-axes and the inscribed radius, which mix units, are in verify.json",
         f"- plant test ({rec['samples']} starts, each stepped one control step in MuJoCo C with the exported "
-        f"controller): {rounds_text(rec['rounds'])}"]
+        f"controller): {rounds_text(rec['rounds'])}", *room_lines(rec)]
 
 
 def push_text(push: "dict | None") -> str:
