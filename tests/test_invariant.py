@@ -196,3 +196,30 @@ def test_certify_writes_the_hold_set_and_prints_it(tmp_path, capsys):
         extent = ", ".join(f"{name} +-{e:.3g}" for name, e in zip(rec["coordinates"], rec["extent"]))
         assert f"in its units): {extent}" in text and "(SI units)" not in text  # per axis, each in its own units
         assert f"inner set V <= {rec['inner_level']:.4g}" in text
+
+
+def test_a_piece_that_grows_far_from_the_hold_is_certified_inside_the_bounds():
+    """1-D: piece 0 (d <= 0) d' = 1.1 d + 0.01 grows away from the hold beyond |d| = 0.1, piece 1 (d >= 0)
+    d' = 0.5 d - 0.01 contracts; the hold chatters across 0. Asked on every whole cell the decrease fails along
+    piece 0's growing mode at every rho_P; asked inside the validity bound |d| <= 0.05 only (the bounds' slabs among
+    the S-procedure's rows), it holds, and V(d') <= rho_P^2 V(d) + gamma at every point of the set."""
+    c = 0.01
+    F = np.array([[[1.1, c]], [[0.5, -c]]])
+    rows = [np.array([[-1.0, 0.0]]), np.array([[1.0, 0.0]])]
+    H = np.array([[1 / 0.05]])
+    assert all(invariant.invariant_shape(F, rows, H, 1.0 - gap) is None for gap in invariant.RHO_GAPS)
+    shapes = invariant.grid_shapes(F, rows, H)
+    assert shapes and all(s.within for s in shapes)
+    best = invariant.least_gamma(F, rows, max(shapes, key=lambda s: s.radius), H)
+    P = best.P[0, 0]
+    d = np.linspace(-1.0, 1.0, 20_001) / np.sqrt(P)  # E at level 1
+    f = np.where(d <= 0, 1.1 * d + c, 0.5 * d - c)
+    assert np.all(P * f ** 2 <= best.rho_p ** 2 * P * d ** 2 + best.gamma + 1e-9)
+    assert 1.0 / np.sqrt(P) <= 0.05 * (1 + 1e-6)  # inside the bound
+
+
+def test_the_slab_rows_are_nonnegative_exactly_inside_the_bounds():
+    H = np.array([[2.0, 0.0], [0.0, 0.5]])
+    rows = invariant.slab_rows(H)
+    inside, outside = np.array([0.4, -1.9, 1.0]), np.array([0.6, 0.0, 1.0])
+    assert np.all(rows @ inside >= 0) and np.any(rows @ outside < 0)

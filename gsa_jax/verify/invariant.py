@@ -31,7 +31,9 @@ point): the state chatters across the partition's boundaries. States are verify'
   (certify.largest_level). Solved with cvxpy and Clarabel.
 - Over one control step: the pieces alternate from one step to the next, and a k-step map would be one affine map
   per switching sequence. A piece with a mode that grows (spectral radius above 1) along which it can stay in its
-  own cell admits no such P: the inequality has to hold along that mode.
+  own cell admits no such P over the whole cell: the inequality has to hold along that mode. Where no grid point
+  solves so, the grid is solved again with the decrease asked inside the validity bounds only (grid_shapes: their
+  slabs 1 -+ h d >= 0 among each transition's rows R; E lies inside them, so the conclusion above holds for E).
 - The plant test is certify's (certify.check_on_plant): samples inside {V <= level} and on its boundary and the
   falsifier, each start stepped one control step in MuJoCo C with the exported controller; a violation is
   V(x_1) > rho^2 V(x_0) + gamma + DECREASE_TOL level (a start that leaves the set is one), rho = rho_P +
@@ -145,14 +147,22 @@ def transition_constraint(cp: Any, P: Any, gamma: Any, F: np.ndarray, rows: np.n
     return [(lhs + lhs.T) / 2 << 0, U >= 0, cp.diag(U) == 0]
 
 
-def transitions(F: np.ndarray, rows: list) -> list:
+def slab_rows(H: np.ndarray) -> np.ndarray:
+    """[2 M, n + 1] the validity bounds |h d| <= 1 (H [M, n]) as rows nonnegative inside them: 1 - h d, 1 + h d."""
+    ones = np.ones((len(H), 1))
+    return np.concatenate([np.hstack([-H, ones]), np.hstack([H, ones])])
+
+
+def transitions(F: np.ndarray, rows: list, H: "np.ndarray | None" = None) -> list:
     """[(F_i [n, n + 1], rows [m, n + 1])] per active piece i and cell j it may step into: piece i's cell's rows and
-    cell j's rows at i's next state (the active pieces' cells cover the state space, so every step is one of them)."""
+    cell j's rows at i's next state (the active pieces' cells cover the state space, so every step is one of them),
+    and where H [M, n] is given the slabs of the validity bounds (slab_rows: the transition inside them only)."""
     n = F.shape[1]
+    extra = slab_rows(H) if H is not None else np.zeros((0, n + 1))
     out = []
     for f, r_i in zip(F, rows):
         step = np.concatenate([f, np.eye(1, n + 1, n)])  # (d, 1) -> (d', 1)
-        out += [(f, np.concatenate([r_i.reshape(-1, n + 1), r_j.reshape(-1, n + 1) @ step])) for r_j in rows]
+        out += [(f, np.concatenate([r_i.reshape(-1, n + 1), r_j.reshape(-1, n + 1) @ step, extra])) for r_j in rows]
     return out
 
 
@@ -161,6 +171,7 @@ class Shape(NamedTuple):
     gamma: float
     rho_p: float
     radius: float  # E's inscribed radius (level 1)
+    within: bool = False  # the decrease asked inside the validity bounds only (their slabs among the S-procedure's rows)
 
 
 def solved(cp: Any, objective: Any, cons: list) -> bool:
@@ -176,33 +187,46 @@ def solved(cp: Any, objective: Any, cons: list) -> bool:
     return problem.status == "optimal"
 
 
-def invariant_shape(F: np.ndarray, rows: list, H: np.ndarray, rho_p: float) -> "Shape | None":
+def invariant_shape(F: np.ndarray, rows: list, H: np.ndarray, rho_p: float, within: bool = False) -> "Shape | None":
     """The program (module docstring) at one rho_P: F [p, n, n + 1], rows [p] of [m, n + 1], H [M, n] the
-    bounds' rows g / margin; None where Clarabel finds no solution."""
+    bounds' rows g / margin; within: the decrease asked inside the bounds only; None where Clarabel finds no
+    solution."""
     import cvxpy as cp
 
     n = F.shape[1]
     P, s, gamma, eye = cp.Variable((n, n), symmetric=True), cp.Variable(), cp.Variable(nonneg=True), np.eye(n)
     cons = [P << s * eye, P >> eye / certify.AXIS_CAP ** 2, gamma <= INNER * (1.0 - rho_p ** 2)]
     cons += [cp.bmat([[P, h[:, None]], [h[None, :], np.ones((1, 1))]]) >> 0 for h in H]
-    for f, r in transitions(F, rows):
+    for f, r in transitions(F, rows, H if within else None):
         cons += transition_constraint(cp, P, gamma, f, r, rho_p)
     if not solved(cp, cp.Minimize(s), cons) or P.value is None:
         return None
     Pv = 0.5 * (P.value + P.value.T)
-    return Shape(Pv, float(max(gamma.value, 0.0)), rho_p, float(1.0 / np.sqrt(np.linalg.eigvalsh(Pv)[-1])))
+    return Shape(Pv, float(max(gamma.value, 0.0)), rho_p, float(1.0 / np.sqrt(np.linalg.eigvalsh(Pv)[-1])), within)
 
 
-def least_gamma(F: np.ndarray, rows: list, shape: Shape) -> Shape:
+def least_gamma(F: np.ndarray, rows: list, shape: Shape, H: np.ndarray) -> Shape:
     """shape with the least gamma its P and rho_P admit (the smallest inner set; unchanged where Clarabel finds
     none smaller)."""
     import cvxpy as cp
 
     gamma = cp.Variable(nonneg=True)
-    cons = [c for f, r in transitions(F, rows) for c in transition_constraint(cp, shape.P, gamma, f, r, shape.rho_p)]
+    cons = [c for f, r in transitions(F, rows, H if shape.within else None)
+            for c in transition_constraint(cp, shape.P, gamma, f, r, shape.rho_p)]
     if not solved(cp, cp.Minimize(gamma), cons) or gamma.value is None or gamma.value >= shape.gamma:
         return shape
     return shape._replace(gamma=float(max(gamma.value, 0.0)))
+
+
+def grid_shapes(F: np.ndarray, rows: list, H: np.ndarray) -> list:
+    """The program's solutions over the grid of rho_P, the decrease asked on every whole cell; only where none
+    solves, inside the validity bounds only (where a piece may grow far from the hold, outside them)."""
+    for within in (False, True):
+        shapes = [invariant_shape(F, rows, H, 1.0 - gap, within) for gap in RHO_GAPS]
+        shapes = [s for s in shapes if s is not None and np.all(np.linalg.eigvalsh(s.P) > 0)]
+        if shapes:
+            return shapes
+    return []
 
 
 def design(p: Pieces, rows: list, bounds: certify.Bounds) -> tuple:
@@ -210,16 +234,15 @@ def design(p: Pieces, rows: list, bounds: certify.Bounds) -> tuple:
     line) where the program has no solution at any grid point."""
     H, names = certify.slab_rows(bounds, "the hold's centre")
     F = np.concatenate([p.A, p.a[:, :, None]], axis=2)
-    shapes = [invariant_shape(F, rows, H, 1.0 - gap) for gap in RHO_GAPS]
-    shapes = [s for s in shapes if s is not None and np.all(np.linalg.eigvalsh(s.P) > 0)]
+    shapes = grid_shapes(F, rows, H)
     if not shapes:
         radii = ", ".join(f"{r:.4f}" for r in spectral_radii(p))
         grow = "; ".join(f"piece {i} can stay in its own cell along a growing mode (eigenvalue {lam:.4f})"
                          for i, lam in growing_modes(p, rows))
-        raise VerifyError(f"the invariant-set LMI has no solution Clarabel finds at any rho_P of the grid (the active "
-                          f"pieces' closed loops at the hold's centre have spectral radii {radii}{'; ' if grow else ''}"
-                          f"{grow})")
-    return least_gamma(F, rows, max(shapes, key=lambda s: s.radius)), H, names
+        raise VerifyError(f"the invariant-set LMI has no solution Clarabel finds at any rho_P of the grid, over the "
+                          f"whole cells or inside the validity bounds only (the active pieces' closed loops at the "
+                          f"hold's centre have spectral radii {radii}{'; ' if grow else ''}{grow})")
+    return least_gamma(F, rows, max(shapes, key=lambda s: s.radius), H), H, names
 
 
 def growing_modes(p: Pieces, rows: list) -> list:
@@ -265,7 +288,7 @@ def tested_set(system: System, qref: np.ndarray, x_c: np.ndarray, p: Pieces, bud
     test = certify.PlantTest(certify.Plant(system, qref, x_c), shape.P, 1, rho, shape.gamma)
     level, certified, rounds = certify.check_on_plant(test, level_lin, budget, floor=inner)
     return {"certified": certified, "reason": None if certified else falsified(rounds, inner), "P": shape.P.tolist(),
-            "rho": rho, "rho_linearization": shape.rho_p, "gamma": shape.gamma, "inner_level": inner,
+            "rho": rho, "rho_linearization": shape.rho_p, "gamma": shape.gamma, "within_bounds": shape.within, "inner_level": inner,
             "inner_extent": np.sqrt(inner * np.diag(np.linalg.inv(shape.P))).tolist(),
             "level_linearization": float(level_lin), "bounded_by": by, "level": float(level),
             **certify.ellipsoid_fields(shape.P, level), **certify.plant_fields(rounds, budget, level)}
