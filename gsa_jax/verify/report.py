@@ -24,9 +24,12 @@ def public(obj: Any) -> Any:
 def write_json(path: str, system: System, result: dict, budget: Budget, quick: bool) -> dict:
     import mujoco
 
+    from gsa_jax.running.runinfo import git_commit
+
     doc = {"schema": SCHEMA, "controller": system.path, "env": system.env, "kind": system.ctrl.kind,
            "clusters": int(system.ctrl.num_clusters), "quick": bool(quick), "budget": budget._asdict(),
-           "versions": {"mujoco": mujoco.__version__, "numpy": np.__version__}, **public(result)}
+           "versions": {"mujoco": mujoco.__version__, "numpy": np.__version__}, "commit": git_commit(),
+           **public(result)}
     with open(path, "w") as f:
         json.dump(doc, f, indent=1)
     return doc
