@@ -1,5 +1,5 @@
 """The user-error base class: input a user can correct (a bad option, a missing file, a task that cannot be used).
-`gsa` prints such an error as one line and exits with its status (gsa_jax.cli.run_command). It lives here, at the
+`gsa` prints such an error as one line and exits with its status (gsa_jax.errors.run_command). It lives here, at the
 bottom of the house, so that envs/ and gsa_jax/ both import it downward (gsa_jax/errors.py re-exports it); importing
 it loads nothing else (envs/__init__.py is lazy)."""
 

@@ -6,7 +6,7 @@ time limit and auto-reset, and the model variants each backend steps.
 The wrapper keeps the episode's draw in state.info ('randomize_scales' [P], 'randomize_delay', the action queue
 [D, nu] and its own key), draws a new one where an episode ended, and runs every call of the wrapped env inside
 `variant(scales, push)`: on MJX the base env's model (env.sys) with the scaled fields and a pipeline_step that
-applies the push; on 'c' the host steps each simulation with its own model fields (c_backend.TaskHost). A
+applies the push; on 'c' the host steps each simulation with its own model fields (c_hosts.TaskHost). A
 restarted episode's start state is computed in the step that ended the previous one (under its draw); the first
 start of a run under the nominal model.
 """

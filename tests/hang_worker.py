@@ -1,6 +1,6 @@
 """A sweep worker that stalls once, like an XLA:CPU hang (alive, no progress), for the watchdog test:
 
-    python tests/hang_worker.py N MARKER <gsa_jax.sweep arguments ... --worker>
+    python tests/hang_worker.py N MARKER JOB      (JOB: a sweep worker's job, gsa_jax.orchestration.sweep_job)
 
 After its N-th chunk it sleeps forever, unless MARKER exists (it creates MARKER first, so the
 restarted worker runs through). supervise_stalling_worker runs one under the watchdog, as the tests do."""
@@ -9,17 +9,18 @@ import os
 import sys
 import time
 
-from gsa_jax.commands import sweep
+from gsa_jax.orchestration import sweep_job
 
 
 def supervise_stalling_worker(hang_after, marker, spec_file, out):
     """One such worker training spec_file into out (an existing folder), under gsa_jax.running.supervise's watchdog
     (8 s without progress, at most 2 restarts) -> (supervise's exit code, the watchdog's log lines)."""
+    from gsa_jax.running.spec import load_spec
     from gsa_jax.running.supervise import supervise
 
     lines = []
-    cmd = [sys.executable, os.path.abspath(__file__), str(hang_after), str(marker), str(spec_file), "--out", str(out),
-           "--quiet", "--local-processes", "1", "--worker"]
+    job = sweep_job.SweepJob(load_spec(str(spec_file)), str(out), worker=True, quiet=True)
+    cmd = [sys.executable, os.path.abspath(__file__), str(hang_after), str(marker), sweep_job.job_to_json(job)]
     return supervise([cmd], [str(out)], watchdog_min_s=8, max_restarts=2, log=lines.append), lines
 
 
@@ -33,7 +34,7 @@ def main():
             open(marker, "w").close()
             time.sleep(1e9)
 
-    return sweep.main(argv, after_chunk=after_chunk)
+    return sweep_job.main(argv, after_chunk=after_chunk)
 
 
 if __name__ == "__main__":

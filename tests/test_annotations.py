@@ -10,7 +10,8 @@ MODULES = ("gsa_jax/algorithm/*.py", "gsa_jax/deployment/*.py", "gsa_jax/analysi
            "gsa_jax/inspect/*.py", "gsa_jax/commands/*.py", "gsa_jax/cli.py", "gsa_jax/errors.py",
            "gsa_jax/running/*.py", "gsa_jax/benchmark/*.py", "gsa_jax/orchestration/*.py", "gsa_jax/verify/*.py", "envs/dmc/*.py",
            "envs/__init__.py", "envs/registry.py", "envs/families/*.py", "envs/randomization.py", "envs/build.py",
-           "envs/names.py", "envs/task.py", "envs/physics.py", "envs/mujoco_c.py", "envs/c_backend.py",
+           "envs/names.py", "envs/task.py", "envs/task_checks.py", "envs/physics.py", "envs/mujoco_c.py", "envs/c_backend.py",
+           "envs/c_hosts.py", "envs/c_post_constraint.py",
            "envs/task_mjx.py")
 NOT_YET = ()  # files of MODULES still to be annotated
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import envs
-from envs.c_backend import STATE_SPEC, float64_rows
+from envs.c_hosts import STATE_SPEC, float64_rows
 from envs.mujoco_c import C_TASKS, make_c
 from envs.physics import Physics
 from gsa_jax.algorithm.config import Config, make_hparams
@@ -245,7 +245,7 @@ def test_threads_zero_takes_this_process_share_of_the_cores(monkeypatch):
 def test_host_seconds_count_the_calls_and_the_time_inside_mujoco_c():
     """host_seconds(): every host call is counted once, with its seconds inside MuJoCo C a part of its seconds
     in the host function, summed over the process's live hosts (what gsa_jax.bench splits a sweep with)."""
-    from envs.c_backend import TaskHost, host_seconds
+    from envs.c_hosts import TaskHost, host_seconds
     from envs.mujoco_c import BRAX_PORTS
 
     port = BRAX_PORTS["hopper"]()
@@ -268,7 +268,7 @@ import hashlib, json, sys
 import jax, numpy as np
 from jax._src import monitoring
 import envs
-import gsa_jax.running.driver, gsa_jax.sweep
+import gsa_jax.running.driver, gsa_jax.orchestration.sweep_job
 from envs.physics import Physics
 from gsa_jax.running import xla_cache
 

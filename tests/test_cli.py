@@ -12,7 +12,8 @@ import tomllib
 import pytest
 
 from gsa_jax import cli
-from gsa_jax.cli import COMMANDS, whole_number
+from gsa_jax.cli import COMMANDS
+from gsa_jax.commands.command_line import whole_number
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 SHIMS = {  # python -m <module> -> the command it runs
@@ -23,8 +24,8 @@ SHIMS = {  # python -m <module> -> the command it runs
 
 
 def test_gsa_help_lists_every_command_with_one_line(capsys):
-    """`gsa --help` names every command of gsa_jax/commands/ once, each with a line of words."""
-    modules = {n[:-3] for n in os.listdir(os.path.join(ROOT, "gsa_jax", "commands")) if n.endswith(".py")} - {"__init__"}
+    """`gsa --help` names every command of gsa_jax/commands/ once (command_line: what they share), each with a line of words."""
+    modules = {n[:-3] for n in os.listdir(os.path.join(ROOT, "gsa_jax", "commands")) if n.endswith(".py")} - {"__init__", "command_line"}
     assert set(COMMANDS.values()) == modules
     assert cli.main(["--help"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -136,7 +137,7 @@ def test_the_physics_option_has_one_name_in_every_command():
 def test_the_wrapper_maps_errors_and_interrupts_to_exit_statuses(capsys):
     """A UserError is its exit status and one line naming the command; Ctrl-C is 130; any other error is not
     swallowed (a traceback, as for a bug)."""
-    from gsa_jax.cli import run_command
+    from gsa_jax.errors import run_command
     from gsa_jax.errors import UserError
 
     def fail(error):

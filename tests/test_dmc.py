@@ -20,7 +20,7 @@ import pytest
 from scipy import stats as sps
 
 import envs
-from envs.c_backend import STATE_SPEC, float64_rows
+from envs.c_hosts import STATE_SPEC, float64_rows
 from envs.physics import Physics
 from mjx_vs_c import assert_mjx_follows_mujoco_c
 

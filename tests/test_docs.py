@@ -99,7 +99,8 @@ def test_your_task_page_gives_the_signatures_as_called_and_its_example_runs_as_w
 
     import numpy as np
 
-    from envs.task import Task, check_jax_agrees, validate
+    from envs.task import Task
+    from envs.task_checks import check_jax_agrees, validate
 
     blocks = python_blocks("your_task.md")
     reference = next(b for b in blocks if b.startswith("class Task:"))

@@ -169,9 +169,9 @@ def test_write_atomic_keeps_previous_and_cleans_up(tmp_path, monkeypatch):
 
 
 def test_a_full_disk_that_no_command_names_is_one_line_and_exit_status_4(tmp_path, monkeypatch, capsys):
-    """DiskFullError is an OSError and a UserError: where a command does not turn it into its own line (cli.disk_full
+    """DiskFullError is an OSError and a UserError: where a command does not turn it into its own line (errors.disk_full
     names the intact checkpoint), gsa still prints one line and exits 4, no traceback."""
-    from gsa_jax.cli import run_command
+    from gsa_jax.errors import run_command
     from gsa_jax.errors import UserError
 
     p = str(tmp_path / "f.npz")

@@ -13,7 +13,8 @@ import pytest
 from scipy import stats as sps
 
 import envs
-from envs.c_backend import STATE_SPEC, SimState
+from envs.c_backend import SimState
+from envs.c_hosts import STATE_SPEC
 from envs.v5_tasks import V5_TASKS
 from envs.physics import Physics
 from mjx_vs_c import assert_mjx_follows_mujoco_c

@@ -12,12 +12,14 @@ import subprocess
 import sys
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "gsa_jax")
-LAYERS = ("errors", "algorithm", "running", "deployment", "analysis", "benchmark", "orchestration", "commands")  # lowest first
+LAYERS = ("errors", "algorithm", "running", "deployment", "verify", "analysis", "benchmark", "orchestration",
+          "commands")  # lowest first
 # what trains or sets up training (the run driver, the programs, sweeps and single runs, their stores, workers, compile
 # cache and tuning budgets, PPO itself): analysis reads and judges results and imports none of it directly (what it
 # reaches through a lower layer's function-level import is that layer's); what trains many runs as jobs is orchestration's
 TRAINING = ("running.driver", "running.programs", "running.single", "running.store", "running.supervise",
-            "running.sweeps", "running.tuning", "running.xla_cache", "algorithm.ppo")
+            "running.sweeps", "running.tuning", "running.xla_cache", "algorithm.ppo", "algorithm.ppo_update",
+            "algorithm.run_parts")
 JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "algorithm.partitions", "deployment.numpy_policy", "deployment.cells", "deployment.export_onnx", "deployment.export_c", "deployment.gymnasium_rollout",
             "deployment.shifts", "deployment.evaluation", "running.runinfo", "running.metrics", "running.curve",
             "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
@@ -40,9 +42,11 @@ def modules():
 
 
 def layer(name):
-    """A module's layer: its folder, 'errors' for gsa_jax/errors.py, or 'commands' for the rest of the top level
-    (inspect/__main__ included)."""
+    """A module's layer: its folder, 'errors' for gsa_jax/errors.py, or 'commands' for the rest of the top level and
+    for a package's `python -m` shim (inspect/__main__, verify/__main__)."""
     head = name.split(".")[0]
+    if name.endswith("__main__"):
+        return "commands"
     return head if head in LAYERS and ("." in name or head == "errors") else "commands"
 
 
@@ -115,6 +119,22 @@ def test_reading_and_deployment_modules_import_without_jax():
     code = ("import sys; import " + ", ".join(f"gsa_jax.{m}" for m in JAX_FREE)
             + "; loaded = [m for m in ('jax', 'brax', 'mujoco.mjx') if m in sys.modules]; assert not loaded, loaded")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
+
+
+def test_nothing_below_the_commands_names_a_command_module_and_cli_only_routes():
+    """Below the command layer no module names a command's module in a string (a `python -m gsa_jax.sweep` spawn, an
+    importlib load): worker processes run their own layer's entry points (gsa_jax.orchestration.sweep_job,
+    gsa_jax.benchmark.workers); and gsa_jax/cli.py only routes a command line to a command (what the commands share
+    is gsa_jax/commands/command_line.py)."""
+    mods = modules()
+    named = {f"gsa_jax.{m}" for m in mods if layer(m) == "commands"} | {"gsa_jax.commands"}
+    wrong = [f"{m}: {n.value!r}" for m, p in sorted(mods.items()) if layer(m) != "commands"
+             for n in ast.walk(ast.parse(open(p).read())) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+             and (n.value in named or n.value.startswith("gsa_jax.commands."))]
+    assert not wrong, "; ".join(wrong)
+    tree = ast.parse(open(os.path.join(ROOT, "cli.py")).read())
+    defined = {n.name for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+    assert defined == {"summary_line", "usage", "main"}, defined
 
 
 def imported(code: str, **environ) -> list:

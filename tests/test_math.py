@@ -104,7 +104,7 @@ def test_checkpoint_round_trip(tmp_path):
 
 def test_checkpoint_of_a_dict_state_loads_into_the_named_tuple(tmp_path):
     """A state.npz written when the training state was a dict of the same fields resumes as TrainState."""
-    from gsa_jax.algorithm.ppo import TrainState
+    from gsa_jax.algorithm.run_parts import TrainState
 
     fields = {f: {"a": np.arange(3.0) + i} if f == "params" else np.float32(i) for i, f in enumerate(TrainState._fields)}
     save_pytree(str(tmp_path / "old.npz"), fields)

@@ -1,5 +1,5 @@
 """One rule for what every command writes: an output path in a folder that does not exist outside the working directory
-is one line before anything loads or compiles, and one inside it has its folders made (gsa_jax.cli.CommandParser.outputs,
+is one line before anything loads or compiles, and one inside it has its folders made (gsa_jax.commands.command_line.CommandParser.outputs,
 check_output)."""
 
 import argparse
@@ -8,7 +8,8 @@ import os
 
 import pytest
 
-from gsa_jax.cli import COMMANDS, CommandParser
+from gsa_jax.cli import COMMANDS
+from gsa_jax.commands.command_line import CommandParser
 from gsa_jax.errors import UserError
 
 

@@ -11,7 +11,9 @@ import pytest
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.nn import init_mlp
 from gsa_jax.algorithm.optim import adam_step, clip_by_global_norm, init_adam
-from gsa_jax.algorithm.ppo import Parts, TrainState, ppo_loss, rollout, schedule, sgd_update, shuffle, shuffle_by_sorts
+from gsa_jax.algorithm.ppo import rollout, schedule
+from gsa_jax.algorithm.ppo_update import ppo_loss, sgd_update, shuffle, shuffle_by_sorts
+from gsa_jax.algorithm.run_parts import Parts, TrainState
 from gsa_jax.running.metrics import ITERATION_METRICS
 
 HP = make_hparams(K=1, clip_eps=0.2, vf_coef=0.5, gamma=0.9, max_grad_norm=0.5)

@@ -11,7 +11,9 @@ import pytest
 from gsa_jax.commands import profile_parts as profile
 from gsa_jax.algorithm.config import Config
 from gsa_jax.algorithm.optim import init_adam
-from gsa_jax.algorithm.ppo import TrainState, apply_gradients, epoch_minibatches, minibatch_gradients, schedule
+from gsa_jax.algorithm.ppo import schedule
+from gsa_jax.algorithm.ppo_update import apply_gradients, epoch_minibatches, minibatch_gradients
+from gsa_jax.algorithm.run_parts import TrainState
 from gsa_jax.benchmark import parts as parts_module
 from gsa_jax.benchmark.parts import PARTS, PPO_PARTS, op_seconds, split_seconds, update_parts
 from tests.test_ppo_parts import HP, minibatch, toy_params, toy_parts

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import envs
-from envs.c_backend import STATE_SPEC, float64_rows
+from envs.c_hosts import STATE_SPEC, float64_rows
 from envs.physics import Physics
 from envs.randomization import RandomizeError, parse
 from gsa_jax.algorithm.config import Config

@@ -509,7 +509,7 @@ def test_default_out_is_runs_sweeps_name(tmp_path, monkeypatch):
     spec.write_text('name = "tiny_default_out"\nenvs = ["hopper"]\npolicies = ["mlp"]\nsteps = 100\n')
     monkeypatch.chdir(tmp_path)
     args = build_parser().parse_args([str(spec)])
-    _, out, _ = check_args(args, [str(spec)])
+    _, out, _ = check_args(args)
     assert out == os.path.join("runs", "sweeps", "tiny_default_out")
     assert (tmp_path / "runs" / "sweeps" / "tiny_default_out").is_dir()
 
@@ -702,3 +702,21 @@ def test_group_of_an_older_file_format_refused_in_one_line(tiny_spec_file, inpro
     assert sweep_main(tiny_spec_file, out) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "older gsa_jax (no failed_at)" in err and "git_commit" in err
+
+
+def test_a_sweep_job_travels_to_its_workers_as_json_and_splits_over_the_local_processes(tiny_spec_file, tmp_path):
+    """gsa sweep's settings become one SweepJob (gsa_jax.orchestration.sweep_job); its JSON text, a worker's argument,
+    reads back as the same job, and its local workers are one job each (process i of N, each a worker of one
+    process); a text that is not a job is one line and exit status 2, before anything trains."""
+    from gsa_jax.commands.sweep import job_of, parse_args
+    from gsa_jax.orchestration.sweep_job import job_from_json, job_to_json, main, worker_dir, worker_jobs
+
+    job = job_of(parse_args([tiny_spec_file, "--out", str(tmp_path / "s"), "--local-processes", "3",
+                             "--runs-per-program", "4", "--no-tensorboard"]))
+    assert (job.local, job.watchdog, job.worker, job.runs_per_program, job.tensorboard) == (3, True, False, 4, False)
+    assert job_from_json(job_to_json(job)) == job
+    workers = worker_jobs(job)
+    assert [(w.process_id, w.num_processes, w.local, w.worker) for w in workers] == [(i, 3, 1, True) for i in range(3)]
+    assert [worker_dir(w) for w in workers] == [os.path.join(job.out, f"process-{i}") for i in range(3)]
+    assert worker_jobs(job._replace(local=1)) == [job._replace(local=1, worker=True)]
+    assert main(["{not json"]) == 2 and main([]) == 2

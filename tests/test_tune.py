@@ -14,7 +14,8 @@ import pytest
 
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.optim import adam_step, init_adam
-from gsa_jax.algorithm.ppo import group_learning_rates, make_train
+from gsa_jax.algorithm.ppo import make_train
+from gsa_jax.algorithm.ppo_update import group_learning_rates
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import check_tuning, draw_configurations
 from gsa_jax.tune import main

@@ -27,11 +27,11 @@ if TYPE_CHECKING:  # annotations only: MuJoCo and Brax load when a record is ask
 
 
 def mujoco_side() -> types.SimpleNamespace:
-    """The records' MuJoCo C side: envs/task.py (Task, TaskC, validate), envs/brax_ports.py,
-    envs/allegro_task.py and envs/v5_tasks.py."""
-    from envs import allegro_task, brax_ports, task, v5_tasks  # MuJoCo: `import envs` loads none
+    """The records' MuJoCo C side: envs/task.py (Task, TaskC), envs/task_checks.py (validate, check_jax_agrees),
+    envs/brax_ports.py, envs/allegro_task.py and envs/v5_tasks.py."""
+    from envs import allegro_task, brax_ports, task, task_checks, v5_tasks  # MuJoCo: `import envs` loads none
 
-    return types.SimpleNamespace(allegro=allegro_task, ports=brax_ports, task=task, v5=v5_tasks)
+    return types.SimpleNamespace(allegro=allegro_task, ports=brax_ports, task=task, checks=task_checks, v5=v5_tasks)
 
 
 def mjx_side() -> types.SimpleNamespace:

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
 class Definition(TaskRecord):
     """A task definition. factory: a Task subclass or a callable returning a Task, checked once
-    (envs.task.validate)."""
+    (envs.task_checks.validate)."""
 
     family = "definition"
     has_c = True
@@ -49,7 +49,7 @@ class Definition(TaskRecord):
 
     def check_traced(self) -> None:
         if not self.builtin and not self._traced:  # the v5 tasks are checked against gymnasium by the test suite
-            mujoco_side().task.check_jax_agrees(self.task(), f"task {self.name!r}")
+            mujoco_side().checks.check_jax_agrees(self.task(), f"task {self.name!r}")
             self._traced = True
 
     def load(self) -> None:
@@ -129,7 +129,7 @@ def make_definition(name: str, factory: Callable[[], Any]) -> "Task":
     if not isinstance(task, Task):
         raise TaskError(f"task {name!r}: {factory!r} gave a {type(task).__name__}, not an envs.task.Task")
     task.name = name
-    mujoco_side().task.validate(task, f"task {name!r}")
+    mujoco_side().checks.validate(task, f"task {name!r}")
     return task
 
 

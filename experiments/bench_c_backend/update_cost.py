@@ -1,9 +1,9 @@
-"""What the PPO update costs, and how close to the CPU's matrix-product rate it runs: ppo.sgd_update alone (10 epochs
+"""What the PPO update costs, and how close to the CPU's matrix-product rate it runs: ppo_update.sgd_update alone (10 epochs
 x 32 minibatches of 64 on 2,048 samples per run) for R vmapped mixture runs with a task's shapes, one core, in one
 process, variants alternating (machine drift hits each alike):
 
 - `paper`: the update as the trainer runs it;
-- `no_shuffle`: the minibatches in sample order (ppo.shuffle replaced by arange): what the shuffle costs;
+- `no_shuffle`: the minibatches in sample order (ppo_update.shuffle replaced by arange): what the shuffle costs;
 - `plain_sgd`: a plain gradient step instead of global-norm clipping + Adam: what the optimizer costs;
 the update's rate (XLA's FLOP count of the loss gradient over its time); then float32 matrix products alone at the update's shapes ([R, 64, 64] x [R, 64, 64], a tanh between products, as in the
 update's hidden layers) and at a large shape (1024^3), for the rate this core reaches.
@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from envs.physics import Physics
-from gsa_jax.algorithm import ppo
+from gsa_jax.algorithm import ppo, ppo_update
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.nn import init_mlp
 from gsa_jax.algorithm.optim import init_adam
@@ -59,10 +59,10 @@ def plain_sgd(params, grads, opt, lr):
 def compile_update(p, hp, inputs, keys, variant):
     """sgd_update for every run (vmapped), compiled with the variant's parts in place -> compiled function."""
     sched = ppo.schedule(hp, jnp.zeros((), jnp.int32))
-    fn = jax.jit(jax.vmap(lambda prm, opt, batch, k: ppo.sgd_update(p, prm, opt, batch, hp, sched, 3e-4, k)))
+    fn = jax.jit(jax.vmap(lambda prm, opt, batch, k: ppo_update.sgd_update(p, prm, opt, batch, hp, sched, 3e-4, k)))
     patches = {"paper": {}, "no_shuffle": {"shuffle": sequential_order},
                "plain_sgd": {"adam_step": plain_sgd, "clip_by_global_norm": lambda g, m: (g, jnp.zeros(()))}}[variant]
-    with mock.patch.multiple(ppo, **patches) if patches else contextlib.nullcontext():
+    with mock.patch.multiple(ppo_update, **patches) if patches else contextlib.nullcontext():
         return fn.lower(*inputs, keys).compile()
 
 
@@ -72,7 +72,7 @@ def minibatch_flops(p, hp, inputs):
     sched = ppo.schedule(hp, jnp.zeros((), jnp.int32))
     params, _, samples = inputs
     mb = jax.tree.map(lambda x: x[:, :p.cfg.minibatch_size], samples)
-    grad = jax.vmap(jax.grad(lambda prm, b: ppo.ppo_loss(p, prm, b, hp, sched)[0]))
+    grad = jax.vmap(jax.grad(lambda prm, b: ppo_update.ppo_loss(p, prm, b, hp, sched)[0]))
     cost = jax.jit(grad).lower(params, mb).compile().cost_analysis()
     return float((cost[0] if isinstance(cost, list) else cost)["flops"])
 

@@ -5,7 +5,7 @@ its program. Every sweep of an answer starts one such process per core, and its 
 
 Per round and checkout (this one, labelled --label; --checkout DIR runs another checkout's code, e.g. an earlier
 commit's `git worktree`, with this environment's Python), interleaved: one fresh process that imports what a sweep
-worker imports (gsa_jax.sweep, the run driver), makes the task on backend 'c' (envs.make) and reads its observation
+worker imports (gsa_jax.orchestration.sweep_job, or an older checkout's gsa_jax.sweep; the run driver), makes the task on backend 'c' (envs.make) and reads its observation
 size (a traced reset). Rows go to results/worker_start.csv (label, commit, round, wall_s, which of Brax, Flax and
 MJX the process imported, load average before).
 """
@@ -24,7 +24,11 @@ RESULTS = os.path.join(HERE, "results", "worker_start.csv")
 FIELDS = ["label", "commit", "round", "task", "wall_s", "heavy_imports", "load_before"]
 WORKER = """
 import json, sys
-import envs, gsa_jax.running.driver, gsa_jax.sweep
+import envs, gsa_jax.running.driver
+try:
+    import gsa_jax.orchestration.sweep_job
+except ImportError:  # a checkout from before the sweep job
+    import gsa_jax.sweep
 from envs.physics import Physics
 env = envs.make(sys.argv[1], physics=Physics(backend="c"))
 size = env.observation_size

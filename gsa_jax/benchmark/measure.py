@@ -25,6 +25,7 @@ SIZES = (1, 16, 64, 256)
 QUICK_SIZES = (1, 16)
 RAW_BATCHES = (256, 4096)
 RAW_UNROLL = 20  # env steps per timed raw-stepping chunk
+WORKER = (sys.executable, "-m", "gsa_jax.benchmark.workers")  # a worker process: its kind (sweep or raw), then its cell
 SOLVER_VARIANT = (1, 4)  # (solver iterations, line-search iterations) of the extra "cheaper solver" lines
 
 
@@ -117,7 +118,7 @@ class SweepCell(NamedTuple):
 
 def worker_command(cell: SweepCell, runs: int, seed0: int, repeats: int) -> list:
     """The command line of one bench worker training `runs` runs of the cell from seed seed0."""
-    return ([sys.executable, "-m", "gsa_jax.bench", "--worker", "--env", cell.env, "--policy", cell.policy,
+    return ([*WORKER, "sweep", "--env", cell.env, "--policy", cell.policy,
              "--clusters", str(cell.clusters), "--runs", str(runs), "--seed0", str(seed0), "--repeats", str(repeats)]
             + (["--epochs", str(cell.epochs)] if cell.epochs else []) + _solver_args(cell.solver)
             + ["--run-batch", str(cell.run_batch)]
@@ -188,7 +189,7 @@ def in_run_ceiling(split: dict, mujoco_c: dict) -> dict:
 def measure_raw(env: str, batch: int, processes: int, repeats: int, solver: "tuple | None" = None,
                 log: Callable = print, backend: str = "mjx", physics_threads: int = 0) -> dict:
     """Raw stepping throughput (physics backend `backend`) of `batch` envs split over `processes` workers."""
-    cmds = [[sys.executable, "-m", "gsa_jax.bench", "--raw-worker", "--env", env, "--batch", str(b), "--seed0", str(i),
+    cmds = [[*WORKER, "raw", "--env", env, "--batch", str(b), "--seed0", str(i),
              "--repeats", str(repeats), "--physics", backend, "--physics-threads", str(physics_threads)] + _solver_args(solver)
             for i, b in enumerate(_split(batch, processes))]
     results = run_workers(cmds, log=log)

@@ -5,7 +5,7 @@ its parts, each compiled and timed alone, with the floating-point operations eac
 Parts (all vmapped over the runs, as a sweep worker runs them), in seconds per iteration of all the runs:
 - mujoco_c, host_other, env_step_program: the rollout's env steps alone (its actions replayed): with backend
   'c' the time inside MuJoCo C, the rest of the host calls (copies in and out, derived values;
-  envs.c_backend.host_seconds) and the compiled program's side of the env step; with MJX all of it is
+  envs.c_hosts.host_seconds) and the compiled program's side of the env step; with MJX all of it is
   env_step_program
 - PPO's own program (the parts of the update carry the parameters from step to step, update_parts):
   rollout_policy (observation normalization and the policy's sampling at every rollout
@@ -39,10 +39,11 @@ import jax.numpy as jnp
 
 import envs
 from envs.physics import C
-from gsa_jax.algorithm import ppo
+from gsa_jax.algorithm import ppo, ppo_update
 from gsa_jax.algorithm.config import Config, Hparams, make_hparams
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import draw_noise
+from gsa_jax.algorithm.run_parts import Parts, TrainState, norm_obs
 
 PHYSICS_PARTS = ("mujoco_c", "host_other", "env_step_program")
 PPO_PARTS = ("rollout_policy", "rollout_rest", "targets", "shuffle_gather", "gradients", "optimizer", "update_loop", "rest")
@@ -57,7 +58,7 @@ def setup(cfg: Config, runs: int, K: int, seed: int = 0) -> tuple:
     return p, states, hps
 
 
-def whole_programs(p: ppo.Parts) -> dict:
+def whole_programs(p: Parts) -> dict:
     """The whole pieces, vmapped over runs: iteration (as run_chunk runs one), rollout, targets, update."""
     def iteration(s, h):
         return ppo.run_chunk(p, s, h, 1)
@@ -69,12 +70,12 @@ def whole_programs(p: ppo.Parts) -> dict:
         return ppo.make_batch(p, s, traj, h, ppo.schedule(h, s.iteration), 1.0)[0]
 
     def update(s, h, batch):
-        return ppo.sgd_update(p, s.params, s.opt, batch, h, ppo.schedule(h, s.iteration), h.lr, s.key)
+        return ppo_update.sgd_update(p, s.params, s.opt, batch, h, ppo.schedule(h, s.iteration), h.lr, s.key)
 
     return {"iteration": iteration, "rollout": rollout, "targets": targets, "update": update}
 
 
-def rollout_parts(p: ppo.Parts) -> dict:
+def rollout_parts(p: Parts) -> dict:
     """The rollout's physics (its actions replayed from the rollout's start) and policy (sampling on its observations)."""
     def physics(s, actions):
         def step(env_state, a):
@@ -90,15 +91,15 @@ def rollout_parts(p: ppo.Parts) -> dict:
     return {"physics": physics, "rollout_policy": policy}
 
 
-def policy_step(p: ppo.Parts, s: ppo.TrainState, sched: dict, raw_obs: jax.Array, noise: dict) -> tuple:
+def policy_step(p: Parts, s: TrainState, sched: dict, raw_obs: jax.Array, noise: dict) -> tuple:
     """One rollout step's policy work: normalize [N, d_s] observations, sample (action, cluster, logp)."""
-    return p.v_sample(s.params["policy"], ppo.norm_obs(p.cfg, s.obs_stats, raw_obs), noise, sched)
+    return p.v_sample(s.params["policy"], norm_obs(p.cfg, s.obs_stats, raw_obs), noise, sched)
 
 
 NUDGE = 1e-30  # the size of the stand-in parameter step of the gradients part (update_parts)
 
 
-def update_parts(p: ppo.Parts) -> dict:
+def update_parts(p: Parts) -> dict:
     """The update's parts over all num_epochs x num_minibatches steps: shuffles and gathers; gradients, each at
     the parameters the step before left (moved by NUDGE x the gradients: as in the update, parameter-only work
     cannot be hoisted out of the loop, which made a fixed-parameter loop 2.4x faster than the update's on
@@ -106,10 +107,10 @@ def update_parts(p: ppo.Parts) -> dict:
     Also one step of each, loop-free, for FLOP counts."""
     def shuffle_gather(s, batch):
         keys = jax.random.split(s.key, p.cfg.num_epochs)
-        return jax.lax.map(lambda k: ppo.epoch_minibatches(p, batch, k), keys)
+        return jax.lax.map(lambda k: ppo_update.epoch_minibatches(p, batch, k), keys)
 
     def grad_one(s, h, mb):
-        return ppo.minibatch_gradients(p, s.params, mb, h, ppo.schedule(h, s.iteration))
+        return ppo_update.minibatch_gradients(p, s.params, mb, h, ppo.schedule(h, s.iteration))
 
     def gradients(s, h, mbs):
         def body(params, mb):
@@ -118,7 +119,7 @@ def update_parts(p: ppo.Parts) -> dict:
         return jax.lax.scan(body, s.params, jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), mbs))
 
     def opt_one(s, h, grads):
-        return ppo.apply_gradients(s.params, s.opt, grads, h, ppo.group_learning_rates(s.params, h, h.lr))
+        return ppo_update.apply_gradients(s.params, s.opt, grads, h, ppo_update.group_learning_rates(s.params, h, h.lr))
 
     def optimizer(s, h, grads):
         def body(carry, _):
@@ -133,9 +134,9 @@ def update_parts(p: ppo.Parts) -> dict:
 
 
 def host_clock(cfg: Config) -> Callable:
-    """The host clock of backend 'c' (envs.c_backend.host_seconds), or one that reads zero."""
+    """The host clock of backend 'c' (envs.c_hosts.host_seconds), or one that reads zero."""
     if cfg.physics.backend == C:
-        from envs.c_backend import host_seconds
+        from envs.c_hosts import host_seconds
         return host_seconds
     return no_host_clock
 
@@ -173,7 +174,7 @@ def matmul_rate(repeats: int = 10, n: int = 1024) -> float:
     return 2 * n**3 / t
 
 
-def inputs(p: ppo.Parts, states: ppo.TrainState, hps: Hparams, programs: dict) -> dict:
+def inputs(p: Parts, states: TrainState, hps: Hparams, programs: dict) -> dict:
     """Every part's arguments, made by running the pieces before it once: the rollout's trajectory, the batch,
     the minibatches and one minibatch's gradients."""
     traj = programs["rollout"](states, hps)[1]
@@ -189,7 +190,7 @@ def inputs(p: ppo.Parts, states: ppo.TrainState, hps: Hparams, programs: dict) -
             "policy_one": (states, hps, traj["raw_obs"][:, 0])}
 
 
-def programs_of(p: ppo.Parts) -> dict:
+def programs_of(p: Parts) -> dict:
     """Every timed or counted piece, jit(vmap(...)) over runs."""
     def policy_one(s, h, raw_obs):
         noise = draw_noise(s.key, (p.cfg.num_envs,), p.env.action_size)
@@ -222,7 +223,7 @@ def split_seconds(t: dict) -> dict:
     }
 
 
-def count_flops(p: ppo.Parts, programs: dict, args: dict) -> dict:
+def count_flops(p: Parts, programs: dict, args: dict) -> dict:
     """Floating-point operations per iteration of all the runs, per part that does arithmetic."""
     steps = p.cfg.num_epochs * p.cfg.num_minibatches
     one = lambda name: flops_of(programs[name], args[name])  # noqa: E731

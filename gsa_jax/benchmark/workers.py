@@ -1,5 +1,6 @@
-"""The benchmark's worker processes (`gsa bench --worker` / `--raw-worker`): compile, then
-time chunks together with the other workers and report the medians as one JSON line."""
+"""The benchmark's worker processes, `python -m gsa_jax.benchmark.workers {sweep,raw} ...` (what
+gsa_jax.benchmark.measure starts; not a command): compile, then time chunks together with the other workers and report
+the medians as one JSON line."""
 
 import argparse
 import dataclasses
@@ -7,6 +8,7 @@ import json
 import os
 import resource
 import statistics
+import sys
 import time
 
 import jax
@@ -14,10 +16,11 @@ import jax
 import envs
 from envs.physics import C, Physics
 from gsa_jax.benchmark.measure import RAW_UNROLL
+from gsa_jax.errors import run_command
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.programs import GroupRuns, GroupShape, compile_group, pad_runs
-from gsa_jax.running.spec import single_group
+from gsa_jax.running.spec import RUN_BATCH, single_group
 
 
 def _beat(args, payload=None):
@@ -79,7 +82,7 @@ def worker(args: argparse.Namespace) -> None:
     _wait_barrier(args)
     clock = None
     if args.physics == C:  # where the chunks' time goes: MuJoCo C, the rest of the host calls, the program
-        from envs.c_backend import host_seconds as clock
+        from envs.c_hosts import host_seconds as clock
     times, host = _time_chunks(args, lambda st: jax.block_until_ready(run(st, hps)[0]), states, clock)
     steps = len(runs) * cfg.batch_size
     print(json.dumps({
@@ -132,3 +135,37 @@ def raw_worker(args: argparse.Namespace) -> None:
     print(json.dumps({"compile_s": compile_s, "compile": how, "chunk_s": times, "env_steps_per_chunk": b * RAW_UNROLL,
                       "env_steps_per_s": b * RAW_UNROLL / statistics.median(times),
                       "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}), flush=True)
+
+
+def worker_parser() -> argparse.ArgumentParser:
+    """The workers' command line: the kind (sweep: PPO iterations of a group program; raw: the task alone), the cell
+    and the barrier measure.run_workers gives every worker."""
+    p = argparse.ArgumentParser(prog="python -m gsa_jax.benchmark.workers", description=__doc__)
+    p.add_argument("kind", choices=("sweep", "raw"))
+    p.add_argument("--env", required=True)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--run-batch", type=int, default=RUN_BATCH)
+    p.add_argument("--value-target", default="gae")
+    p.add_argument("--physics", default="mjx")
+    p.add_argument("--physics-threads", type=int, default=0)
+    p.add_argument("--randomize", default="")
+    p.add_argument("--compile-each", action="store_true")
+    for a in ("--policy", "--barrier"):
+        p.add_argument(a, default=None)
+    for a in ("--clusters", "--runs", "--seed0", "--worker-id", "--num-workers", "--batch", "--epochs",
+              "--solver-iterations", "--ls-iterations"):
+        p.add_argument(a, type=int, default=None)
+    return p
+
+
+def main(argv: "list | None" = None) -> int:
+    """One worker process: its measurement as one JSON line on stdout (exit status 0; a user error is one line and
+    its status, as gsa bench's own)."""
+    args = worker_parser().parse_args(argv)
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):  # a cache the user set: loaded from quietly, as the commands do
+        xla_cache.quiet_cache_loads()
+    return run_command("bench", lambda: (worker if args.kind == "sweep" else raw_worker)(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

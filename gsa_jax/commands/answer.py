@@ -41,7 +41,8 @@ from gsa_jax.analysis.sweeps import controller_scores
 from gsa_jax.analysis.verdicts import sequential, verdict
 from gsa_jax.analysis.verdicts.answering import (DEFAULT_LOOKS, DEFAULT_SPENDING, FLAT, AnswerError, Evidence, Setup,
                                               save_state)
-from gsa_jax.cli import command_parser, run_command, whole_number
+from gsa_jax.commands.command_line import command_parser, whole_number
+from gsa_jax.errors import run_command
 from gsa_jax.orchestration.answer_loop import check_setup, run_answer
 from gsa_jax.running.runinfo import git_commit
 
@@ -261,7 +262,7 @@ def next_steps(argv: list, out: str, setup: Setup, state: dict) -> list:
 def build_parser() -> argparse.ArgumentParser:
     """`gsa answer`'s options."""
     p = command_parser("answer", __doc__)
-    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
+    p.runs_jax = True  # it runs JAX programs (command_line.CommandParser)
     p.add_argument("--env", required=True, help="the task (any name gsa train takes, your own 'module:Class' too)")
     p.add_argument("--clusters", default=None, help="the K ladder, e.g. 1,2,4 (default: ceil(m d_a), m = 0.5, 1, 2, 4)")
     p.add_argument("--margin", type=float, default=verdict.DEFAULT_MARGIN,

@@ -16,7 +16,7 @@ For a task (`--env`, default hopper; also allegro_cylinder) it measures, in one 
 - with --physics mjx,c, the raw stepping, sweeps and profile for each physics backend (envs/physics.py;
   'c': MuJoCo C stepped from inside the compiled program), in the same invocation; every 'c' sweep also
   splits its own timed chunks (MuJoCo C / the rest of the host calls / the rest of the program, from
-  envs.c_backend.host_seconds) and puts its ceiling on them (in_run_ceiling): no separate profile;
+  envs.c_hosts.host_seconds) and puts its ceiling on them (in_run_ceiling): no separate profile;
 - the same largest raw batch and largest mixture sweep on all cores again with a cheaper MJX solver
   (`--solver-variant ITER,LS`, default 1,4: 1 Newton iteration, 4 line-search iterations), and MuJoCo C
   with those settings too -- a changed simulator, offered as the explicit `--solver-iterations` /
@@ -42,7 +42,8 @@ from gsa_jax.benchmark.measure import (
     measure_mujoco_c, measure_raw, measure_sweep, ratio_ceiling, time_profile,
 )
 from gsa_jax.benchmark.report import plot
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.spec import RUN_BATCH, check_spec
@@ -92,9 +93,9 @@ def positive_ints(flag: str, text: str | None, default: list) -> list:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """`gsa bench`'s options (and its worker processes')."""
+    """`gsa bench`'s options."""
     p = command_parser("bench", __doc__)
-    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
+    p.runs_jax = True  # it runs JAX programs (command_line.CommandParser)
     p.add_argument("--quick", action="store_true",
                    help="1 run on 1 process and 16 runs on all cores, mixture only, raw batch 256 on all cores (~3 min)")
     p.add_argument("--out", default="runs/bench",
@@ -130,14 +131,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--randomize", default=None, metavar="TEXT",
                    help="also measure every sweep trained under this domain randomization (envs/randomization.py's "
                         "text), right after its nominal twin; bench.json gives each one's ratio_vs_nominal")
-    # worker-only arguments
-    p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
-    p.add_argument("--raw-worker", action="store_true", help=argparse.SUPPRESS)
-    p.add_argument("--compile-each", action="store_true", help=argparse.SUPPRESS)
-    for a, t in (("--policy", str), ("--clusters", int), ("--runs", int), ("--seed0", int), ("--barrier", str),
-                 ("--worker-id", int), ("--num-workers", int), ("--batch", int), ("--epochs", int),
-                 ("--solver-iterations", int), ("--ls-iterations", int)):
-        p.add_argument(a, type=t, default=None, help=argparse.SUPPRESS)
     return p
 
 
@@ -292,14 +285,8 @@ def measure_profile(args: argparse.Namespace, repeats: int, mujoco_c: dict, back
 
 
 def bench(argv: list | None) -> int:
-    """Measure the plan (or, in a worker process, its share) and write bench.json and bench.png."""
+    """Measure the plan (its worker processes: gsa_jax.benchmark.workers) and write bench.json and bench.png."""
     args = build_parser().parse_args(argv)
-    if args.worker or args.raw_worker:
-        from gsa_jax.benchmark.workers import raw_worker, worker  # loads JAX: not for `gsa bench --help`
-
-        args.repeats = args.repeats or 3
-        (worker if args.worker else raw_worker)(args)
-        return 0
     try:
         info = make_plan(args)
     except ValueError as e:

@@ -17,7 +17,8 @@ import json
 
 from gsa_jax.deployment.evaluation import (DeployError, compare_mjx, load_controller, open_gymnasium, report_line,
                                            run_gymnasium, run_mujoco_c)
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 from gsa_jax.deployment import starts
 
 

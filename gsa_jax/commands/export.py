@@ -11,7 +11,8 @@ action bounds, and its action is inside them. RUN is a run directory (train, ext
 import argparse
 
 from gsa_jax.algorithm import partitions, subpolicies
-from gsa_jax.cli import check_output, command_parser, run_command
+from gsa_jax.commands.command_line import check_output, command_parser
+from gsa_jax.errors import run_command
 from gsa_jax.deployment.exporting import SUFFIXES, ExportError, load_arrays, write
 
 

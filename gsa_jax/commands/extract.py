@@ -14,7 +14,8 @@ import argparse
 import os
 
 from gsa_jax.analysis.sweeps.extraction import collect_results, export_controllers, sweep_runs
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 
 
 def build_parser() -> argparse.ArgumentParser:

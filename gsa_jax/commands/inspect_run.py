@@ -30,13 +30,14 @@ and, for a linear partition (--partition linear), printed too:
 import argparse
 import os
 
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 
 
 def build_parser() -> argparse.ArgumentParser:
     """`gsa inspect`'s options."""
     p = command_parser("inspect", __doc__)
-    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
+    p.runs_jax = True  # it runs JAX programs (command_line.CommandParser)
     p.add_argument("run_dir", metavar="RUN", help="a run directory (gsa train), SWEEP_DIR/<run label> or an "
                    "exported controller .npz (its pieces and cells only, no rollouts)")
     p.add_argument("--out", default=None, help="output directory (default: <run dir>/inspect/, "

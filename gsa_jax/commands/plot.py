@@ -32,7 +32,8 @@ import argparse
 from gsa_jax.analysis.sweep_report import plot_sweep
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import PlotError
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,7 +18,8 @@ import time
 import envs
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.config import Config
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 from gsa_jax.running.checkpoint import write_atomic
 from gsa_jax.running.runinfo import run_metadata
 from gsa_jax.running.supervise import SINGLE_THREAD_EIGEN
@@ -30,7 +31,7 @@ DEFAULT_ENVS = "Hopper-v5,Walker2d-v5,HalfCheetah-v5,InvertedDoublePendulum-v5,A
 def build_parser() -> argparse.ArgumentParser:
     """`gsa profile`'s options."""
     p = command_parser("profile", __doc__)
-    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
+    p.runs_jax = True  # it runs JAX programs (command_line.CommandParser)
     p.add_argument("--envs", default=DEFAULT_ENVS, help=f"comma-separated task names (default {DEFAULT_ENVS})")
     p.add_argument("--policies", default="mixture,mlp", help="comma-separated: mixture, mlp (default both)")
     p.add_argument("--clusters", type=int, default=6, help="K of the mixture (default 6, as gsa bench)")

@@ -8,7 +8,8 @@ import argparse
 
 from gsa_jax.analysis.quoting.published import compare
 from gsa_jax.analysis.sweeps.results import read_csv, write_csv
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 from gsa_jax.errors import UserError
 
 

@@ -9,7 +9,8 @@ import argparse
 import os
 
 from gsa_jax.analysis.quoting.quote import QuoteError, requote
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -11,7 +11,8 @@ import os
 
 import envs
 from gsa_jax.deployment.rendering import RenderError, render_run, render_scene
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 from gsa_jax.running.trained import read_run
 
 

@@ -46,7 +46,8 @@ from gsa_jax.analysis.robustness.retention import analyse
 from gsa_jax.analysis.robustness.retention_eval import START_SEED, evaluate_all, load_controllers, write_settings
 from gsa_jax.analysis.robustness.shift_rows import RobustnessError
 from gsa_jax.analysis.sweeps import stats
-from gsa_jax.cli import command_parser, read_saved, run_command
+from gsa_jax.commands.command_line import command_parser, read_saved
+from gsa_jax.errors import run_command
 from gsa_jax.deployment.pushes import PER_EPISODE, PUSH_SIZES, WINDOWS
 from gsa_jax.deployment.shifts import DEFAULT_SHIFTS, KINDS, Shift
 

@@ -14,7 +14,8 @@ import os
 
 from gsa_jax.analysis.sweeps.controller_scores import (EPISODES, START_SEED, ScoreError, controller_dirs, default_jobs,
                                                        score_directory)
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -63,21 +63,20 @@ import os
 import sys
 from typing import Callable
 
-from gsa_jax.cli import command_parser, disk_full, options_over_saved, run_command
-from gsa_jax.running.checkpoint import CheckpointError, DiskFullError
-from gsa_jax.running.runinfo import resume_command
-from gsa_jax.running.runlock import hold
-from gsa_jax.running.spec import RUN_BATCH, SpecError, SweepSpec, build_grid, check_spec, load_spec
-from gsa_jax.running.supervise import heartbeat_writer, supervise
+from gsa_jax.commands.command_line import command_parser, options_over_saved
+from gsa_jax.errors import run_command
+from gsa_jax.orchestration.sweep_job import SweepJob, run_job
+from gsa_jax.running.spec import SpecError, check_spec, load_spec
 
 # JAX and gsa_jax.running.sweeps (which loads it) are imported in the functions that use them: `gsa sweep --help`
 # loads no JAX
+DEFAULTS = SweepJob._field_defaults
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """`gsa sweep`'s options (and its worker processes')."""
+    """`gsa sweep`'s options (its worker processes run gsa_jax.orchestration.sweep_job)."""
     p = command_parser("sweep", __doc__)
-    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
+    p.runs_jax = True  # it runs JAX programs (command_line.CommandParser)
     p.add_argument("experiment", nargs="?", default=None,
                    help="experiment file (TOML), e.g. experiments/fig1_small/fig1_small.toml (with --resume: optional)")
     p.add_argument("--resume", metavar="DIR", default=None,
@@ -88,9 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--local-processes", type=int, default=None,
                    help="worker processes on this machine, each with its share of the runs (default: one per CPU core)")
     p.add_argument("--no-watchdog", action="store_true", help="run in this process, without the restarting supervisor")
-    p.add_argument("--watchdog-min", type=float, default=600.0,
+    p.add_argument("--watchdog-min", type=float, default=DEFAULTS["watchdog_min"],
                    help="seconds without progress before a restart (at least; default %(default)s)")
-    p.add_argument("--max-restarts", type=int, default=5,
+    p.add_argument("--max-restarts", type=int, default=DEFAULTS["max_restarts"],
                    help="restarts of a hung worker before the sweep stops with exit status 3 (default %(default)s)")
     p.add_argument("--stop-after-chunks", type=int, default=None,
                    help="stop (resumably) after N chunks (default: train to the end)")
@@ -100,8 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="processes of a multi-process sweep, one per host (with --coordinator; default %(default)s)")
     p.add_argument("--process-id", type=int, default=0,
                    help="this process's index among --num-processes, 0 the coordinator (default %(default)s)")
-    p.add_argument("--run-batch", type=int, default=RUN_BATCH,
-                   help=f"train each device's runs in sequential sub-batches of N (default {RUN_BATCH}; 0: all at once). "
+    p.add_argument("--run-batch", type=int, default=DEFAULTS["run_batch"],
+                   help=f"train each device's runs in sequential sub-batches of N (default {DEFAULTS['run_batch']}; 0: all at once). "
                         "Same runs; MJX's batched solver loops stop at each sub-batch's slowest env")
     p.add_argument("--runs-per-program", type=int, default=0, metavar="N",
                    help="every compiled program trains N runs: a group of more is trained in consecutive parts of N (one "
@@ -111,7 +110,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-tensorboard", dest="tensorboard", action="store_false",
                    help="no TensorBoard event files (default: OUT/tensorboard/<run>/, open with tensorboard --logdir OUT)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     return p
 
 
@@ -151,7 +149,7 @@ def parse_args(argv: list) -> argparse.Namespace:
     return args
 
 
-def check_args(args: argparse.Namespace, argv: list) -> tuple:
+def check_args(args: argparse.Namespace) -> tuple:
     """(spec, out, local worker count) after checking every argument; raises SpecError. Nothing compiles."""
     if args.experiment is None:
         spec = check_spec(args.saved_spec, source=os.path.join(args.resume, "sweep.json"))
@@ -165,7 +163,7 @@ def check_args(args: argparse.Namespace, argv: list) -> tuple:
     except OSError as e:
         raise SpecError(f"--out {out!r} cannot be created: {e.strerror or e}") from None
     local = args.local_processes if args.local_processes is not None else (1 if args.no_watchdog else (os.cpu_count() or 1))
-    if args.num_processes > 1 or args.worker:
+    if args.num_processes > 1:
         local = 1  # multi-host: one process per host runs here, as launched
     if local < 1:
         raise SpecError("--local-processes must be >= 1")
@@ -176,99 +174,21 @@ def check_args(args: argparse.Namespace, argv: list) -> tuple:
     return spec, out, local
 
 
-def sweep(argv: list, after_chunk: Callable | None = None) -> int:
-    """Check the command line, then train this process's share or supervise the workers. after_chunk: see
-    run_worker."""
-    args = parse_args(argv)
-    spec, out, local = check_args(args, argv)
-    if args.worker:
-        return run_worker(args, spec, out, after_chunk)
-    from gsa_jax.running.sweeps import SweepOptions, check_resumable, spec_tasks
+def job_of(args: argparse.Namespace) -> SweepJob:
+    """The sweep's job (gsa_jax.orchestration.sweep_job) from the checked command line; raises SpecError."""
+    spec, out, local = check_args(args)
+    return SweepJob(spec, out, local, not args.no_watchdog, False, args.devices, args.coordinator, args.num_processes,
+                    args.process_id, args.run_batch, args.runs_per_program, args.force, args.tensorboard, args.quiet,
+                    args.stop_after_chunks, args.watchdog_min, args.max_restarts)
 
-    lock_dir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
-    os.makedirs(lock_dir, exist_ok=True)
-    with hold(lock_dir, f"gsa_jax.sweep {spec.name}", log=lambda m: print(m, file=sys.stderr)):
-        if local > 1 or not args.no_watchdog:  # every worker finds what process 0 would refuse: refused before them
-            check_resumable(out, spec, spec_tasks(spec, build_grid(spec))[1],
-                            SweepOptions(force=args.force, runs_per_program=args.runs_per_program))
-            return supervise_workers(args, argv, out, local)
-        return run_worker(args, spec, out, after_chunk)
+
+def sweep(argv: list, after_chunk: Callable | None = None) -> int:
+    """Check the command line, then run its job (gsa_jax.orchestration.sweep_job.run_job: this process's share or
+    the supervised workers) -> the exit status. after_chunk: see sweep_job.run_worker."""
+    return run_job(job_of(parse_args(argv)), after_chunk)
 
 
 def main(argv: list | None = None, after_chunk: Callable | None = None) -> int:
-    """`gsa sweep` (exit statuses: the module docstring). after_chunk: see run_worker."""
+    """`gsa sweep` (exit statuses: the module docstring). after_chunk: see sweep_job.run_worker."""
     argv = list(sys.argv[1:] if argv is None else argv)
     return run_command("sweep", lambda: sweep(argv, after_chunk))
-
-
-def supervise_workers(args: argparse.Namespace, argv: list, out: str, local: int) -> int:
-    """Start the worker processes under the watchdog; then collect failed runs into sweep.json."""
-    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, report_failures
-
-    base = list(argv) + (["--out", out] if args.out is None else [])
-    if local > 1:
-        argvs = [base + ["--process-id", str(i), "--num-processes", str(local), "--local-processes", "1"] for i in range(local)]
-        dirs = [os.path.join(out, f"process-{i}") for i in range(local)]
-        print(f"sweep: {local} local worker processes (one XLA CPU device each); logs prefixed [process i]", flush=True)
-    else:
-        argvs = [base]
-        dirs = [out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")]
-    for d in dirs:
-        os.makedirs(d, exist_ok=True)
-    cmds = [[sys.executable, "-m", "gsa_jax.sweep", *a, "--worker"] for a in argvs]
-    status = supervise(cmds, dirs, args.watchdog_min, args.max_restarts)
-    if status == 0:
-        try:
-            if report_failures(out, dirs):
-                return EXIT_FAILED_RUNS
-        except DiskFullError as e:
-            raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
-        print(f"sweep complete: {out}", flush=True)
-    return status
-
-
-def run_worker(args: argparse.Namespace, spec: SweepSpec, out: str, after_chunk: Callable | None = None) -> int:
-    """Train this process's share in this process (a supervised worker, or --no-watchdog). after_chunk:
-    called after every chunk's heartbeat (tests inject faults with it)."""
-    import jax
-
-    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
-
-    if args.num_processes > 1 and args.coordinator:
-        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
-        # eager arrays (the MJX model Brax builds) would otherwise land on global device 0, which
-        # belongs to process 0; each process works on its own devices only
-        jax.config.update("jax_default_device", jax.local_devices()[0])
-    devices = jax.local_devices()
-    if args.devices is not None:
-        if not 1 <= args.devices <= len(devices):
-            raise SpecError(f"--devices must be in 1..{len(devices)}")
-        devices = devices[: args.devices]
-    wdir = out if args.num_processes == 1 else os.path.join(out, f"process-{args.process_id}")
-    os.makedirs(wdir, exist_ok=True)
-    beat = heartbeat_writer(wdir)
-
-    def heartbeat(duration):
-        beat(duration)
-        if after_chunk:
-            after_chunk()
-
-    try:
-        options = SweepOptions(tuple(devices), args.quiet, args.stop_after_chunks, args.process_id, args.num_processes,
-                               heartbeat, args.run_batch, local_workers=args.coordinator is None, force=args.force,
-                               tensorboard=args.tensorboard, runs_per_program=args.runs_per_program)
-        complete = run_sweep(spec, out, options)
-    except CheckpointError as e:
-        raise CheckpointError(f"{e} (a sweep resumes with the same --devices as the interrupted one)") from None
-    except DiskFullError as e:
-        raise disk_full(e, getattr(e, "last_intact", "none (nothing trained yet)")) from None
-    if not args.quiet:
-        again = "" if args.coordinator else f" or: {resume_command('sweep', '--resume', out)}"
-        done_msg = f"done: {out}" if complete else f"stopped: {out}; continue with the same command{again}"
-        print((f"[process {args.process_id}] " if args.num_processes > 1 else "sweep ") + done_msg, flush=True)
-    if args.worker or args.num_processes > 1:
-        return 0
-    try:
-        return EXIT_FAILED_RUNS if report_failures(out, [wdir], log=print) else 0
-    except DiskFullError as e:
-        raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None

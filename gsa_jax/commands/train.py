@@ -28,8 +28,8 @@ from gsa_jax.algorithm.config import (
 )
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.subpolicies import SUBPOLICY_KINDS
-from gsa_jax.cli import command_parser, disk_full, options_over_saved, run_command, whole_number
-from gsa_jax.errors import UserError
+from gsa_jax.commands.command_line import command_parser, options_over_saved, whole_number
+from gsa_jax.errors import UserError, disk_full, run_command
 from gsa_jax.running.checkpoint import DiskFullError
 from gsa_jax.running.driver import duration, fmt
 from gsa_jax.running.metrics import EVALUATIONS_PER_RUN
@@ -47,7 +47,7 @@ class UsageError(UserError):
 def build_parser() -> argparse.ArgumentParser:
     """`gsa train`'s options."""
     p = command_parser("train", __doc__)
-    p.runs_jax = True  # it runs JAX programs (cli.CommandParser)
+    p.runs_jax = True  # it runs JAX programs (command_line.CommandParser)
     add_options(p)
     p.add_argument("--steps", type=whole_number, default=1_000_000,
                    help="environment steps to train (rounded up to whole chunks; default %(default)s)")

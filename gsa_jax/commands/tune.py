@@ -26,7 +26,8 @@ import numpy as np
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.analysis.sweeps.results import Cell, final_scores, load_sweep, load_sweeps, read_csv, write_csv
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import TuningSpec, class_experiment, draw_configurations, load_tuning, to_toml
 

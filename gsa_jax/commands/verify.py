@@ -20,7 +20,8 @@ import os
 import time
 from typing import TYPE_CHECKING
 
-from gsa_jax.cli import command_parser, run_command
+from gsa_jax.commands.command_line import command_parser
+from gsa_jax.errors import run_command
 
 if TYPE_CHECKING:  # gsa_jax.verify loads MuJoCo and SciPy: imported where used, so `gsa verify --help` loads neither
     from gsa_jax.verify.analysis import LqrWeights

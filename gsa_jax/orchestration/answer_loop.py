@@ -4,7 +4,7 @@ experiments/verdicts/error_rates.py simulates this very loop), with seeds added 
 not decided yet.
 
 First the step budget (step_budget: flat PPO's first seeds at doubling budgets until it has learned the task and
-stopped learning; every class then trains to it). A round trains one sweep per class (gsa_jax.sweep in a subprocess,
+stopped learning; every class then trains to it). A round trains one sweep per class (a sweep job in a subprocess,
 resumable: flat PPO's new seeds, then every K's), whose runs are trained in parts of the first look's seed count, each
 padded to it, so every sweep of a class runs one program: compiled by its first part, reused by the sweep's later
 parts, loaded from the answer's compilation cache by its later sweeps. Each exports every run's controller and
@@ -17,7 +17,6 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 import time
 from typing import Callable, Sequence
 
@@ -30,8 +29,9 @@ from gsa_jax.analysis.verdicts.answering import (
     trained_steps,
 )
 from gsa_jax.orchestration import answer_progress
+from gsa_jax.orchestration.sweep_job import SweepJob, job_command
 from gsa_jax.running.checkpoint import write_atomic
-from gsa_jax.running.spec import SpecError, SweepSpec, check_spec
+from gsa_jax.running.spec import SpecError, SweepSpec, check_spec, load_spec
 from gsa_jax.running.tuning import to_toml
 
 
@@ -154,7 +154,7 @@ COMPILE_LINE = re.compile(r"program ((?:compiled|loaded).*?) \(([\d.]+)s\)")  # 
 
 def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str = "results",
                     runs_per_program: int = 0, watch: Callable = lambda line: None) -> dict:
-    """Train one sweep in a subprocess (gsa_jax.sweep: resumes if interrupted; its runs trained in parts of
+    """Train one sweep in a subprocess (gsa_jax.orchestration.sweep_job, as gsa sweep: resumes if interrupted; its runs trained in parts of
     `runs_per_program`, each padded to it, so a class's sweeps share one program: compiled once, reused by the sweep's
     later parts, loaded from the answer's compilation cache by its later sweeps), collect its
     results (sweep.json, tidy metrics, controllers) into out/<where>/<name> and score its controllers ->
@@ -165,8 +165,9 @@ def run_class_sweep(out: str, name: str, spec: dict, log: Callable, where: str =
     toml = os.path.join(out, "specs", name + ".toml")
     write_atomic(toml, to_toml(spec, f"gsa answer's sweep {name}"))
     sweep_dir, results = os.path.join(out, "sweeps", name), os.path.join(out, where, name)
-    cmd = [sys.executable, "-m", "gsa_jax.sweep", toml, "--out", sweep_dir, "--no-tensorboard",
-           "--runs-per-program", str(runs_per_program)]
+    job = SweepJob(load_spec(toml), sweep_dir, local=os.cpu_count() or 1, tensorboard=False,
+                   runs_per_program=runs_per_program)  # as `gsa sweep TOML --out DIR --no-tensorboard` runs it
+    cmd = job_command(job)
     env = dict(os.environ)  # a compilation cache the user configured, else the answer's own (shared by its sweeps)
     env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.abspath(os.path.join(out, "xla_cache")))
     t0, compiles = time.monotonic(), []

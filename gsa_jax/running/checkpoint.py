@@ -27,7 +27,7 @@ def _flat(tree):
 
 class DiskFullError(UserError, OSError):
     """A write ran out of space (ENOSPC / EDQUOT); the file it replaces is intact. An OSError, and a UserError with
-    exit status 4, so a command that does not name the intact checkpoint (cli.disk_full does) still ends in one line."""
+    exit status 4, so a command that does not name the intact checkpoint (errors.disk_full does) still ends in one line."""
 
     exit_status = EXIT_DISK_FULL
 

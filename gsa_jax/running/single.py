@@ -19,7 +19,7 @@ from envs import solver_settings
 from envs.physics import C, resolve_threads
 from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.kinds import MIXTURE
-from gsa_jax.algorithm.ppo import Trainer
+from gsa_jax.algorithm.run_parts import Trainer
 from gsa_jax.algorithm.retrace import buffer_bytes
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
 from gsa_jax.running.curve import plot_curve
