@@ -1,9 +1,9 @@
 """Robustness margins of every committed certificate (results/certified/, `run.py --certify`), without certifying
 again: `.venv/bin/python experiments/verify/margins_of_certified.py`
 
-For each verify.json with a fixed-point certificate, gsa_jax.verify.margins at its fixed point (qpos, qvel, piece),
-each margin checked on the plant in MuJoCo C with the committed controller, as `gsa verify --certify` now records
-them. Writes results/certified/margins.csv (one row per certificate: whether it counts at the held equilibrium, the
+For each verify.json with a fixed-point certificate, its margins as `gsa verify --certify` records them, or for a file
+written before, gsa_jax.verify.margins at its fixed point (qpos, qvel, piece), each margin checked on the plant in
+MuJoCo C with the committed controller, as `gsa verify --certify` computes them. Writes results/certified/margins.csv (one row per certificate: whether it counts at the held equilibrium, the
 gain, delay and disk margins, each plant check's verdict and growths, the flags) and margins_summary.csv (per task
 and class: certificates, counted ones, medians of the margins, flagged and plant-confirmed counts).
 """
@@ -44,9 +44,11 @@ def row(path: str) -> "dict | None":
     cert = doc.get("certificate")
     if not cert:
         return None
-    controller = doc["controller"] if os.path.isabs(doc["controller"]) else os.path.join(ROOT, doc["controller"])
-    system = load_system(controller)
-    m = margins.certificate_margins(system, equilibrium_guess(system.task), cert, seed=0)
+    m = cert.get("margins")  # recorded by gsa verify --certify; computed here for a file written before
+    if m is None:
+        controller = doc["controller"] if os.path.isabs(doc["controller"]) else os.path.join(ROOT, doc["controller"])
+        system = load_system(controller)
+        m = margins.certificate_margins(system, equilibrium_guess(system.task), cert, seed=0)
     group = os.path.basename(os.path.dirname(os.path.dirname(path)))
     held = held_of(doc)
     return {"task": group[:-4] if group.endswith("-lqr") else group,

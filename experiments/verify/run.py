@@ -41,8 +41,14 @@ GROUPS = {
 def controllers(group, seeds=None, only=None):
     """The group's controller paths, of the seeds given and with one of the `only` strings in their names."""
     paths = [p for g in GROUPS[group] for p in sorted(glob.glob(os.path.join(ROOT, g)))]
-    return [p for p in paths if (seeds is None or int(os.path.splitext(p)[0].rsplit("-s", 1)[1]) in seeds)
+    return [p for p in paths if (seeds is None or seed_of(p) is None or seed_of(p) in seeds)
             and (only is None or any(o in os.path.basename(p) for o in only))]
+
+
+def seed_of(path):
+    """The seed of a controller named ...-s<seed>.npz; None for one without (the LQR controller)."""
+    tail = os.path.splitext(os.path.basename(path))[0].rsplit("-s", 1)
+    return int(tail[1]) if len(tail) == 2 and tail[1].isdigit() else None
 
 
 def run_group(group, full=False, seeds=None, only=None, certified=False):

@@ -51,7 +51,20 @@ def certificate_part(doc: dict) -> dict:
             "cert_rho_per_step": c.get("rho_per_step", ""), "hold_set_applies": bool(h),
             "hold_set_certified": bool(h.get("certified")),
             "hold_set_inscribed_radius_si": h.get("inscribed_radius", "") if h.get("certified") else "",
-            "hold_set_reason": (h.get("reason") or "")[:160], "refused": (doc.get("certify_refused") or "")[:160]}
+            "hold_set_reason": (h.get("reason") or "")[:160], "hold_set_within_bounds": h.get("within_bounds", ""),
+            "refused": (doc.get("certify_refused") or "")[:160], **room_part(c if held.get("counted") else {})}
+
+
+def room_part(c: dict) -> dict:
+    """A counted certificate's room (its level's share of the last clean level and of the first violation found)
+    and its behaviour between the k-step instants and from its boundary (gsa_jax.verify.boundary); blank where the
+    file has none (written before they were recorded) or nothing is counted."""
+    b = c.get("between_instants") or {}
+    return {"cert_room": c.get("room", ""), "cert_share_of_first_violation": c.get("level_share_of_first_violation") or "",
+            "between_invariant": b.get("invariant", ""), "between_peak_linearization": b.get("linearization_peak", ""),
+            "between_peak_plant": b.get("plant_peak", ""),
+            "boundary_converged": f"{b['converged']}/{b['starts']}" if b else "",
+            "boundary_settle_median_s": b.get("seconds_median", "") if b else ""}
 
 
 def region_part(doc: dict) -> dict:
@@ -110,6 +123,10 @@ def summary(rows: list) -> list:
                     "cert_inscribed_radius_si_median": median([r["cert_inscribed_radius_si"] for r in rs]),
                     "hold_set_applies": sum(r["hold_set_applies"] for r in rs),
                     "hold_set_certified": sum(r["hold_set_certified"] for r in rs),
+                    "invariant_between_instants": sum(r["between_invariant"] is True for r in rs),
+                    "between_peak_linearization_median": median([r["between_peak_linearization"] for r in rs]),
+                    "boundary_all_converged": sum(bool(r["boundary_converged"]) and r["boundary_converged"].split("/")[0]
+                                                  == r["boundary_converged"].split("/")[1] for r in rs),
                     "refused": sum(bool(r["refused"]) for r in rs),
                     "roa_radius_median_median": median([r["roa_radius_median"] for r in rs]),
                     "roa_volume_sampled_median": median([r["roa_volume_sampled"] for r in rs]),
