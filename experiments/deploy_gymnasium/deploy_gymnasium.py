@@ -159,7 +159,7 @@ def main(argv=None):
 
     import gymnasium
 
-    from gsa_jax.running.runinfo import run_metadata
+    from gsa_jax import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     rows, details = [], {}

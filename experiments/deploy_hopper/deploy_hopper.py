@@ -28,7 +28,7 @@ def main(argv=None):
     from gsa_jax.deployment.evaluation import load_controller, run_mjx, run_mujoco_c
     from gsa_jax.deployment.exporting import controller_arrays
     from gsa_jax.running.checkpoint import save_npz_atomic
-    from gsa_jax.running.runinfo import run_metadata
+    from gsa_jax import run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     seeds = sorted({int(r["seed"]) for _, _, _, r in sweep_runs(args.sweep_dir) if r["env"] == args.env

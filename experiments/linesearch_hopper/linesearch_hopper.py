@@ -91,7 +91,7 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     from envs.physics import Physics
-    from gsa_jax.running.runinfo import run_metadata
+    from gsa_jax import run_metadata
     from rescoring import mean_ci, score_sweep, write_rows
 
     os.makedirs(args.out, exist_ok=True)

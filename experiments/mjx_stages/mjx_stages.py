@@ -72,7 +72,7 @@ def main(argv=None):
     p = argparse.ArgumentParser()
     p.add_argument("--out", default="experiments/mjx_stages/results")
     args = p.parse_args(argv)
-    from gsa_jax.running.runinfo import run_metadata
+    from gsa_jax import run_metadata
 
     res = {"unit": "us per env per physics step, batch 256, 1 process", **run_metadata()}
     for mode in ("exact", "iterative"):
