@@ -110,7 +110,7 @@ def worker_jobs(job: SweepJob) -> list:
 
 def supervise_workers(job: SweepJob) -> int:
     """Start the worker processes under the watchdog; then collect failed runs into sweep.json."""
-    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, report_failures
+    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS
 
     jobs = worker_jobs(job)
     if job.local > 1:
@@ -120,13 +120,21 @@ def supervise_workers(job: SweepJob) -> int:
         os.makedirs(d, exist_ok=True)
     status = supervise([job_command(j) for j in jobs], dirs, job.watchdog_min, job.max_restarts)
     if status == 0:
-        try:
-            if report_failures(job.out, dirs):
-                return EXIT_FAILED_RUNS
-        except DiskFullError as e:
-            raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
+        if failed_runs_reported(job.out, dirs):
+            return EXIT_FAILED_RUNS
         print(f"sweep complete: {job.out}", flush=True)
     return status
+
+
+def failed_runs_reported(out: str, dirs: list, log: Callable = print) -> list:
+    """The runs that failed (NaN/inf) in dirs, written into out/sweep.json and summarized by log
+    (running.sweeps.report_failures); a full disk there is one line naming what is intact (training is done)."""
+    from gsa_jax.running.sweeps import report_failures
+
+    try:
+        return report_failures(out, dirs, log=log)
+    except DiskFullError as e:
+        raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
 
 
 def worker_devices(job: SweepJob) -> tuple:
@@ -149,7 +157,7 @@ def worker_devices(job: SweepJob) -> tuple:
 def run_worker(job: SweepJob, after_chunk: Callable | None = None) -> int:
     """Train this process's share in this process (a supervised worker, or no watchdog). after_chunk: called after
     every chunk's heartbeat (tests inject faults with it)."""
-    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, SweepOptions, report_failures, run_sweep
+    from gsa_jax.running.sweeps import EXIT_FAILED_RUNS, SweepOptions, run_sweep
 
     devices, wdir = worker_devices(job), worker_dir(job)
     os.makedirs(wdir, exist_ok=True)
@@ -175,10 +183,7 @@ def run_worker(job: SweepJob, after_chunk: Callable | None = None) -> int:
         print((f"[process {job.process_id}] " if job.num_processes > 1 else "sweep ") + done_msg, flush=True)
     if job.worker or job.num_processes > 1:
         return 0
-    try:
-        return EXIT_FAILED_RUNS if report_failures(job.out, [wdir], log=print) else 0
-    except DiskFullError as e:
-        raise disk_full(e, "the final one of every group (training is done; only sweep.json is behind)") from None
+    return EXIT_FAILED_RUNS if failed_runs_reported(job.out, [wdir], log=print) else 0
 
 
 def main(argv: "list | None" = None, after_chunk: Callable | None = None) -> int:
