@@ -14,7 +14,6 @@ gsa_jax.errors.UserError (one line). The names are not the commands' own (gsa_ja
 `python -m` modules and packages, which an import binds on the package).
 """
 
-import json
 import os
 from typing import Any
 
@@ -65,8 +64,9 @@ def answer_task(env: str, out: str, **options: Any) -> dict:
     from gsa_jax.commands.answer import answer as command
 
     ran("answer", command(["--env", env, "--out", out, *options_argv(options)]))
-    with open(os.path.join(out, "answer.json")) as f:
-        return json.load(f)
+    from gsa_jax.running.formats import read_json
+
+    return read_json(os.path.join(out, "answer.json"), "answer")
 
 
 def verify_controller(controller: str, out: str, **options: Any) -> dict:
@@ -74,8 +74,9 @@ def verify_controller(controller: str, out: str, **options: Any) -> dict:
     from gsa_jax.commands.verify import verify_controller as command
 
     ran("verify", command([controller, "--out", out, *options_argv(options)]))
-    with open(os.path.join(out, "verify.json")) as f:
-        return json.load(f)
+    from gsa_jax.running.formats import read_json
+
+    return read_json(os.path.join(out, "verify.json"), "verify")
 
 
 def load_controller(path: str) -> Any:

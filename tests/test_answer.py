@@ -36,7 +36,7 @@ def synthetic_trainer(truth):
                 rows[label] = {"label": label, "env": "task", "policy": policy, "K": "" if k == A.FLAT else k,
                                "seed": seed, "controller_score": mean + spread * rng.standard_normal()}
         controller_scores.write_scores(os.path.join(results, controller_scores.FILE), rows)
-        return {"seconds": 1.0, "compile_s": 0.0, "status": 0}
+        return {"seconds": 1.0, "compile_s": 0.0, "compile_wall_s": 0.0, "status": 0}
 
     return run, calls
 

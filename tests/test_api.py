@@ -14,6 +14,7 @@ import gsa_jax
 import gsa_jax.train  # noqa: F401 - the commands' modules, imported before the API is used: their names are not its
 import gsa_jax.verify.system  # noqa: F401
 from gsa_jax.errors import UserError
+from gsa_jax.running.formats import FORMAT_VERSION
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CONTROLLER = os.path.join(ROOT, "tests", "golden", "controllers", "InvertedDoublePendulum-v5-K1-answer-export.npz")
@@ -54,7 +55,7 @@ def test_answer_and_verify_return_their_records(monkeypatch, tmp_path):
             out = argv[argv.index("--out") + 1]
             os.makedirs(out, exist_ok=True)
             with open(os.path.join(out, name), "w") as f:
-                json.dump({"argv": argv, **record}, f)
+                json.dump({"format_version": FORMAT_VERSION, "argv": argv, **record}, f)  # stamped as written
             return 0
         return command
 

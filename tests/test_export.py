@@ -19,6 +19,7 @@ from gsa_jax.algorithm.policies import make_policy
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.export import main as export_main
 from gsa_jax.running.checkpoint import save_pytree
+from gsa_jax.running.formats import FORMAT_VERSION, read_controller
 
 D_S, D_A = 6, 2  # the fake runs' sizes; their task (Hopper-v5) only names their action bounds, [-1, 1]
 ROOT = os.path.join(os.path.dirname(__file__), "..")
@@ -434,11 +435,12 @@ def test_export_records_its_task_and_exactly_k_clusters(tmp_path, capsys):
     assert (props["task"], props["obs_size"], props["task_sha256"]) == ("Hopper-v5", str(D_S), "ab" * 32)
     padded = os.path.join(ROOT, COMMITTED["Ant-v5"])
     assert export_main([padded, "--out", out["npz"]]) == 0
-    with np.load(out["npz"]) as f, np.load(padded) as old:
-        last = int(f["n_layers"]) - 1
-        assert old[f"w{last}"].shape[-1] > 4 and f[f"w{last}"].shape[-1] == 4 and str(f["task_sha256"]) == ""
-        obs = far_observations(numpy_policy.Controller(f))
-        np.testing.assert_array_equal(numpy_policy.Controller(f).act(obs), numpy_policy.Controller(old).act(obs))
+    f, old = read_controller(out["npz"]), read_controller(padded)  # the committed file: format_version 0
+    last = int(f["n_layers"]) - 1
+    assert old[f"w{last}"].shape[-1] > 4 and f[f"w{last}"].shape[-1] == 4 and str(f["task_sha256"]) == ""
+    assert int(f["format_version"]) == FORMAT_VERSION and str(f["partition"]) == "mlp"
+    obs = far_observations(numpy_policy.Controller(f))
+    np.testing.assert_array_equal(numpy_policy.Controller(f).act(obs), numpy_policy.Controller(old).act(obs))
 
 
 def deploy_lines(controller, *flags, out=None):

@@ -25,7 +25,7 @@ JAX_FREE = ("algorithm.kinds", "algorithm.subpolicies", "algorithm.partitions", 
             "running.tensorboard", "analysis.sweeps.stats", "analysis.sweeps.results", "analysis.sweeps.tables",
             "analysis.sweeps.figures", "analysis.sweep_report", "analysis.verdicts.grid", "analysis.verdicts.answering", "analysis.robustness.retention",
             "analysis.robustness.retention_eval", "analysis.robustness.retention_stats", "analysis.robustness.retention_plots",
-            "analysis.robustness.shift_rows", "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained",
+            "analysis.robustness.shift_rows", "analysis.robustness.paired", "analysis.robustness.fairness", "running.trained", "running.formats",
             "commands.plot",
             "commands.robustness", "commands.deploy", "plot", "robustness", "deploy", "cli", "errors")
 

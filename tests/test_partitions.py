@@ -17,6 +17,7 @@ from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import make_train, schedule
 from gsa_jax.deployment import numpy_policy
+from gsa_jax.running.formats import FORMAT_VERSION
 from gsa_jax.deployment.cells import cell_inequalities, informative_coordinates
 from gsa_jax.export import main as export_main
 
@@ -160,8 +161,12 @@ def test_inspect_prints_cells_that_pick_the_controllers_cluster(run, states, tmp
 
 
 def test_an_old_controller_reads_as_mlp_and_an_unknown_class_is_one_line(tmp_path, capsys):
-    old = numpy_policy.load(f"{ROOT}/{COMMITTED['Ant-v5']}")
-    assert "partition" not in old.arrays and old.partition == "mlp" and len(old.layers) == 3
+    path = f"{ROOT}/{COMMITTED['Ant-v5']}"  # exported before the partition class was stored (format_version 0)
+    with np.load(path) as f:
+        assert "partition" not in f.files and "format_version" not in f.files
+    old = numpy_policy.load(path)
+    assert old.arrays["partition"] == "mlp" and old.partition == "mlp" and len(old.layers) == 3
+    assert int(old.arrays["format_version"]) == FORMAT_VERSION
     for bad, message in (("cubic", "unknown partition class 'cubic'; this version knows mlp, linear"),
                          ("linear", "names partition class 'linear' but its layers have sizes")):
         path = tmp_path / f"{bad}.npz"

@@ -8,6 +8,7 @@ import pytest
 
 from envs.physics import Physics, make_physics, nest_physics, record_backend
 from gsa_jax.algorithm.config import Config, config_defaults, config_record
+from gsa_jax.running.formats import current
 from gsa_jax.running.runinfo import ResumeRefused
 from gsa_jax.running.single import check_resume_config
 from gsa_jax.running.spec import SpecError, check_spec
@@ -40,7 +41,7 @@ def test_an_old_config_json_reads_as_the_same_config():
     new = Config(env="hopper", num_envs=16, physics=Physics(backend="c", threads=2))
     old = {k: v for k, v in json.loads(json.dumps(dataclasses.asdict(new))).items() if k not in ("physics", "randomize")}
     old.update(backend="c", physics_threads=2, solver_iterations=None, linesearch="exact")
-    record = config_record(old)
+    record = config_record(current({"config": old}, "run", "config.json")["config"])  # read as running.formats does
     assert set(record) == set(config_defaults()) and record["randomize"] == ""
     assert Config(**{**record, "hidden": tuple(record["hidden"])}) == new
 
@@ -51,17 +52,18 @@ def test_resume_of_a_run_saved_with_flat_physics_fields():
     config = {"config": json.loads(json.dumps(dataclasses.asdict(cfg))), "seed": 0}
     old = {"config": {**{k: v for k, v in config["config"].items() if k != "physics"}, "backend": "c",
                       "physics_threads": 0}, "seed": 0}
-    check_resume_config(old, config, False, cfg.task.source())
+    check_resume_config(current(old, "run", "config.json"), config, False, cfg.task.source())
     old["config"]["backend"] = "mjx"
     with pytest.raises(ResumeRefused, match=r"config.physics.backend: \"mjx\" -> \"c\""):
-        check_resume_config(old, config, False, cfg.task.source())
+        check_resume_config(current(old, "run", "config.json"), config, False, cfg.task.source())
 
 
 def test_experiment_files_and_sweep_json_in_either_layout():
     raw = {"envs": ["hopper"], "policies": ["mlp"], "seeds": 1, "steps": 100}
     flat, nested = check_spec({**raw, "config": FLAT}), check_spec({**raw, "config": NESTED})
     assert flat == nested and nested.to_json()["config"] == NESTED
-    assert recorded_spec({**raw, "config": FLAT}) == nested.to_json()  # a sweep.json written before resumes
+    old = current({"spec": {**raw, "config": FLAT}}, "sweep", "sweep.json")  # a sweep.json written before resumes
+    assert recorded_spec(old["spec"]) == nested.to_json() and old["runs_per_program"] == 0
     with pytest.raises(SpecError, match="unknown physics option 'threds'"):
         check_spec({**raw, "config": {"physics": {"threds": 1}}})
     with pytest.raises(SpecError, match="config.backnd"):

@@ -27,7 +27,7 @@ def controller_arrays(kind, k=3, d_s=11, d_a=3, seed=0):
         arrays[f"w{i}"] = rng.normal(0, 0.5, sizes[i:i + 2]).astype(np.float32)
         arrays[f"b{i}"] = rng.normal(0, 0.1, sizes[i + 1]).astype(np.float32)
     if kind == "mixture":
-        arrays.update(subpolicy=np.array("linear"), L=rng.normal(0, 0.3, (k, d_a, d_s)).astype(np.float32),
+        arrays.update(subpolicy=np.array("linear"), partition=np.array("mlp"), L=rng.normal(0, 0.3, (k, d_a, d_s)).astype(np.float32),
                       b=rng.normal(0, 0.3, (k, d_a)).astype(np.float32))
     return arrays
 

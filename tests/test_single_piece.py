@@ -13,6 +13,7 @@ from gsa_jax.commands.inspect_run import main as inspect_main
 from gsa_jax.deployment import cells, export_c, numpy_policy
 from gsa_jax.deployment.exporting import load_arrays
 from gsa_jax.export import main as export_main
+from gsa_jax.running.formats import read_controller
 from tests.test_docs import python_blocks
 from tests.test_export import assert_same_controller, run_c_header, test_observations
 
@@ -107,10 +108,7 @@ def test_partition_single_is_checked_and_verify_reads_it_exactly(tmp_path):
     piece are one exact 0."""
     from gsa_jax.verify.linearize import logit_rows
 
-    with np.load(K1) as f:
-        arrays = {k: f[k] for k in f.files}
-    with np.load(K4) as f:
-        four = {k: f[k] for k in f.files}
+    arrays, four = read_controller(K1), read_controller(K4)  # the committed files in the current layout
     no_layers = {"n_layers": np.array(0), "partition": np.array("single")}
     for bad, message in (({**arrays, "partition": np.array("single")}, "names partition class 'single' but has 3"),
                          ({**four, **no_layers}, "but has 0 partition layers and K = 4"),

@@ -47,7 +47,8 @@ def controller_arrays(sub, seed=0):
     """An exported mixture controller of Hopper-v5's action bounds with random arrays (numpy_policy's layout)."""
     rng = np.random.default_rng(seed)
     d_phi = subpolicies.get(sub).size(D_S)
-    arrays = {"kind": np.array("mixture"), "subpolicy": np.array(sub), "obs_mean": rng.normal(0, 0.1, D_S).astype(np.float32),
+    arrays = {"kind": np.array("mixture"), "subpolicy": np.array(sub), "partition": np.array("mlp"),
+              "obs_mean": rng.normal(0, 0.1, D_S).astype(np.float32),
               "obs_var": rng.uniform(0.5, 2.0, D_S).astype(np.float32), "obs_clip": np.array(10.0, np.float32),
               "config_json": np.array(json.dumps({"config": {"env": "Hopper-v5", "policy": "mixture"}, "seed": seed})),
               "action_low": -np.ones(D_A, np.float32), "action_high": np.ones(D_A, np.float32), "n_layers": np.array(2),

@@ -216,15 +216,20 @@ def inprocess(tiny_spec_file, tmp_path_factory):
 
 
 def test_a_resumed_sweep_keeps_its_runs_per_program():
-    """--resume DIR continues with the runs per program DIR/sweep.json recorded (an older record's pad_runs too)."""
+    """--resume DIR continues with the runs per program DIR/sweep.json recorded (an older record's pad_runs, read by
+    running.formats, too)."""
     from gsa_jax.commands.sweep import saved_options
+    from gsa_jax.running.formats import FormatError, current
 
-    assert saved_options({"spec": {}, "runs_per_program": 10, "num_processes": 2}, "d", None) == {
+    def saved(meta):
+        return saved_options(current(meta, "sweep", "sweep.json"), "d", None)
+
+    assert saved({"spec": {}, "runs_per_program": 10, "num_processes": 2}) == {
         "out": "d", "runs_per_program": 10, "local_processes": 2}
     runs = [{"env": "e", "policy": "mixture", "K": 1, "seed": s} for s in range(10)]
-    assert saved_options({"spec": {}, "pad_runs": 10, "runs": runs}, "d", None) == {"out": "d", "runs_per_program": 10}
-    with pytest.raises(ResumeRefused, match="a group of 11 runs, which it trained whole"):  # parts would retrain it
-        saved_options({"spec": {}, "pad_runs": 10, "runs": runs + [{**runs[0], "seed": 10}]}, "d", None)
+    assert saved({"spec": {}, "pad_runs": 10, "runs": runs}) == {"out": "d", "runs_per_program": 10}
+    with pytest.raises(FormatError, match="a group of 11 runs, which its gsa_jax trained whole"):  # parts would retrain
+        saved({"spec": {}, "pad_runs": 10, "runs": runs + [{**runs[0], "seed": 10}]})
 
 
 def test_every_experiment_file_is_valid():
@@ -256,6 +261,8 @@ def test_tidy_table(inprocess):
     meta = json.loads((inprocess / "sweep.json").read_text())
     assert meta["physics"]["inverted_double_pendulum-mixture"]["linesearch_in_force"] == "exact"
     assert meta["run_batch"] == 8  # the default runs per sub-batch, as the program used
+    group = json.loads((inprocess / "groups" / "inverted_double_pendulum-mixture" / "config.json").read_text())
+    assert meta["format_version"] == group["format_version"] == 1  # running.formats.FORMAT_VERSION
     assert os.path.exists(inprocess / "groups" / "inverted_double_pendulum-mixture" / "params.npz")
 
 
@@ -282,6 +289,8 @@ def test_every_finished_runs_controller_exported(inprocess, tmp_path):
     assert extract_main([str(inprocess), "--results", str(res)]) == 0
     assert {p.name for p in res.iterdir()} == {"sweep.json", "metrics.csv.gz", "failed_runs.json", "controllers"}
     assert len(list((res / "controllers").iterdir())) == 4 and not list(res.glob("**/state.npz"))
+    with np.load(next((res / "controllers").iterdir())) as f:
+        assert int(f["format_version"]) == 1  # every exported controller is stamped
     from gsa_jax.analysis.sweeps.results import load_sweep
 
     ours, theirs = load_sweep(str(res)), load_sweep(str(inprocess))

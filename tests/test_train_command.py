@@ -79,6 +79,7 @@ def test_outputs(full_run):
     assert [r["eval_return"] != "" for r in rows] == [False, True, False, True]
     cfg = json.loads((full_run / "config.json").read_text())
     assert cfg["versions"]["jax"] and cfg["versions"]["mujoco"] and "git_commit" in cfg
+    assert cfg["format_version"] == 1  # running.formats.FORMAT_VERSION, which every writer stamps
     assert cfg["config"]["env"] == "inverted_double_pendulum" and cfg["hparams"]["K"] == 4
     assert cfg["result"]["status"] == "finished" and cfg["timing"]["compile_s"] >= 0 and cfg["timing"]["train_s"] > 0
     with np.load(full_run / "params.npz") as p:
@@ -214,6 +215,8 @@ def test_resume_run_saved_before_solver_fields(full_run, tmp_path):
     old = tmp_path / "old"
     shutil.copytree(full_run, old)
     meta = json.loads((old / "config.json").read_text())
+    for key in ("format_version", "eval_seed", "tensorboard"):  # a version-0 record (running.formats) lacks them
+        meta.pop(key)
     physics = meta["config"].pop("physics")
     meta["config"].update({k: v for k, v in physics.items() if k not in ("solver_iterations", "ls_iterations", "threads")},
                           physics_threads=physics["threads"])

@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 
 import envs
 from envs.families.record import TaskRecord
-from envs.physics import Physics, make_physics, nest_physics
+from envs.physics import Physics, make_physics
 from envs.randomization import parse as parse_randomize
 from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS, VALUE_TARGETS
@@ -170,10 +170,10 @@ def config_defaults() -> dict:
 
 
 def config_record(saved: dict) -> dict:
-    """A saved config record (config.json's 'config', sweep.json's, an exported controller's) in this version's
-    layout: the physics options one record (envs.physics.nest_physics moves the flat fields of records written
-    before), and the fields it lacks (written before they existed) at their defaults, which is how it ran."""
-    defaults, saved = config_defaults(), nest_physics(saved)
+    """A saved config record (config.json's 'config' or sweep.json's, read into the current layout by
+    running.formats) with every field: those it lacks (written before they existed) at their defaults, which is how
+    it ran."""
+    defaults = config_defaults()
     return {**defaults, **saved, "physics": {**defaults["physics"], **saved.get("physics", {})}}
 
 

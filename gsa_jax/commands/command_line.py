@@ -76,22 +76,28 @@ def command_parser(name: str, doc: str) -> CommandParser:
     return CommandParser(prog=f"gsa {name}", description=cli_description(doc))
 
 
-def read_saved(path: str, error: type, options_of: Callable = dict) -> tuple:
-    """(the settings a run, sweep or evaluation saved in the JSON file `path`, options_of(them)); an unreadable
-    record, or one options_of cannot read, is `error` (a UserError class) in one line."""
+def read_saved(path: str, error: type, options_of: Callable = dict, kind: str | None = None) -> tuple:
+    """(the settings a run, sweep or evaluation saved in the JSON file `path`, options_of(them)); a record of a
+    versioned kind (running.formats.KINDS) read into the current layout. An unreadable record, or one options_of
+    cannot read, is `error` (a UserError class) in one line; one of a newer format is a FormatError."""
+    from gsa_jax.running.formats import read_json
+
     try:
-        with open(path) as f:
-            saved = json.load(f)
+        if kind is None:
+            with open(path) as f:
+                saved = json.load(f)
+        else:
+            saved = read_json(path, kind)
         return saved, options_of(saved)
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise error(f"{path} is not a gsa_jax record to continue ({type(e).__name__}: {e})") from None
 
 
 def options_over_saved(parser: argparse.ArgumentParser, argv: list | None, path: str, options_of: Callable,
-                       error: type) -> tuple:
+                       error: type, kind: str | None = None) -> tuple:
     """(argv parsed over the settings saved in the JSON file `path`, the saved record): options_of(record) gives
     option values (dest -> value) that replace the parser's defaults, so the options typed win and the rest
     continue as saved (read_saved: an unreadable record is `error` in one line)."""
-    saved, defaults = read_saved(path, error, options_of)
+    saved, defaults = read_saved(path, error, options_of, kind)
     parser.set_defaults(**defaults)
     return parser.parse_args(argv), saved

@@ -116,13 +116,10 @@ def build_parser() -> argparse.ArgumentParser:
 def saved_options(meta: dict, out: str, coordinator: str | None) -> dict:
     """Option values (dest -> value) that give back a saved sweep's settings (its sweep.json): what --resume DIR
     continues with (the spec is checked apart; a record without one is not a sweep's: KeyError)."""
-    from gsa_jax.running.sweeps import recorded_runs_per_program
-
     if "spec" not in meta:
         raise KeyError("spec")
     saved = {k: meta[k] for k in ("run_batch", "tensorboard") if k in meta}
-    if "runs_per_program" in meta or "pad_runs" in meta:  # pad_runs: an older sweep.json's
-        saved["runs_per_program"] = recorded_runs_per_program(meta)
+    saved["runs_per_program"] = int(meta["runs_per_program"])
     if coordinator is None and meta.get("num_processes"):  # the same split of the runs over local workers
         saved["local_processes"] = meta["num_processes"]
     return {"out": out, **saved}
@@ -144,7 +141,8 @@ def parse_args(argv: list) -> argparse.Namespace:
         raise SpecError(f"--resume {args.resume}: no sweep there (no sweep.json); start one with gsa sweep "
                         f"EXPERIMENT --out {args.resume}")
     coordinator = args.coordinator
-    args, meta = options_over_saved(parser, argv, path, lambda m: saved_options(m, args.resume, coordinator), SpecError)
+    args, meta = options_over_saved(parser, argv, path, lambda m: saved_options(m, args.resume, coordinator), SpecError,
+                                      "sweep")
     args.saved_spec = meta["spec"]
     return args
 

@@ -129,8 +129,8 @@ def saved_options(saved: dict) -> dict:
     c, hp = config_record(saved["config"]), saved["hparams"]
     opts = saved_option_values(c, hp)
     opts.update({"seed": saved["seed"], "steps": saved["iterations"] * c["num_envs"] * c["unroll_length"],
-                 "eval_every": saved.get("eval_every"), "eval_seed": saved.get("eval_seed", 0),
-                 "chunk": saved["chunk"], "tensorboard": saved.get("tensorboard", True)})
+                 "eval_every": saved.get("eval_every"), "eval_seed": saved["eval_seed"],
+                 "chunk": saved["chunk"], "tensorboard": saved["tensorboard"]})
     return opts
 
 
@@ -146,7 +146,7 @@ def resume_args(parser: argparse.ArgumentParser, argv: list | None, out: str | N
         if not typed(argv, "--env"):
             raise UsageError(f"no run in {out} to resume (to start one there with --resume, name its task: --env NAME)")
         return parser.parse_args(argv)
-    return options_over_saved(parser, argv, path, saved_options, UsageError)[0]
+    return options_over_saved(parser, argv, path, saved_options, UsageError, "run")[0]
 
 
 def typed(argv: list | None, *flags: str) -> bool:

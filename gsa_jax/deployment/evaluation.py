@@ -11,6 +11,7 @@ import numpy as np
 
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.errors import UserError
+from gsa_jax.running.formats import read_controller
 
 if TYPE_CHECKING:
     from envs.families.record import TaskRecord
@@ -38,8 +39,7 @@ def load_controller(controller_path: str, force: bool = False) -> tuple:
     if not zipfile.is_zipfile(controller_path):
         raise DeployError(f"{controller_path!r} is not an exported controller (not an .npz archive)")
     try:
-        with np.load(controller_path, allow_pickle=False) as f:
-            arrays = {k: f[k] for k in f.files}
+        arrays = read_controller(controller_path)  # an older file in the current layout (running.formats)
         ctrl = numpy_policy.Controller(arrays, name=str(controller_path))
         config = json.loads(str(arrays["config_json"]))["config"]
     except (OSError, KeyError, ValueError) as e:

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from gsa_jax.algorithm import partitions, subpolicies
+from gsa_jax.algorithm import subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment.numpy_policy import SINGLE, Controller
 
@@ -171,10 +171,11 @@ def describe(arrays: Mapping) -> str:
     meta = json.loads(str(arrays["config_json"])) if "config_json" in arrays else {}
     cfg = meta.get("config", {})
     kind = str(arrays["kind"])
-    sub = arrays.get("subpolicy", subpolicies.DEFAULT)
-    part = arrays.get("partition", partitions.DEFAULT)
-    what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {sub} controllers (most probable cluster, mean action), "
-            f"{'no' if str(part) == SINGLE else part} partition" if kind == MIXTURE else "tanh MLP (mean action)")
+    what = "tanh MLP (mean action)"
+    if kind == MIXTURE:
+        sub, part = str(arrays["subpolicy"]), str(arrays["partition"])
+        what = (f"mixture of K={np.asarray(arrays['L']).shape[0]} {sub} controllers (most probable cluster, mean "
+                f"action), {'no' if part == SINGLE else part} partition")
     return (f"gsa_jax deterministic controller: {what}; task {cfg.get('env', '?')}, seed {meta.get('seed', '?')}, "
             f"commit {meta.get('git_commit') or '?'}")
 

@@ -14,7 +14,8 @@ from gsa_jax.deployment.export_c import cost, to_source
 from gsa_jax.deployment.numpy_policy import SINGLE, action_bounds, controller_task, map_actions, task_name
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import save_npz_atomic
-from gsa_jax.running.trained import FormatError, RunNotFound, read_run
+from gsa_jax.running.formats import FormatError, read_controller, stamped_arrays
+from gsa_jax.running.trained import RunNotFound, read_run
 
 if TYPE_CHECKING:
     from envs.families.record import TaskRecord
@@ -53,7 +54,7 @@ def identity_arrays(arrays: Mapping) -> dict:
     the task as it is); task_sha256 as stored (a run's: its config.json's), else '' (a built-in task, or a file
     exported before it was stored)."""
     return {"task": np.array(task_name(arrays) or ""), "obs_size": np.array(int(np.shape(arrays["obs_mean"])[0])),
-            "task_sha256": np.array(str(arrays["task_sha256"]) if "task_sha256" in arrays else "")}
+            "task_sha256": np.array(str(arrays["task_sha256"]))}
 
 
 def known_task(arrays: Mapping) -> "TaskRecord | None":
@@ -141,8 +142,7 @@ def load_arrays(source: str) -> dict:
         if not zipfile.is_zipfile(source):
             raise ExportError(f"{source!r} is not an exported controller (not an .npz archive)")
         try:
-            with np.load(source, allow_pickle=False) as f:
-                arrays = {k: f[k] for k in f.files}
+            arrays = read_controller(source)  # an older file in the current layout (running.formats)
         except (OSError, ValueError) as e:
             raise ExportError(f"{source!r} is not an exported controller ({e})") from None
         if "kind" not in arrays or "obs_mean" not in arrays:
@@ -161,12 +161,17 @@ def task_layout(arrays: Mapping) -> list | None:
     return layout if layout is not None and len(layout) == np.asarray(arrays["obs_mean"]).shape[0] else None
 
 
+def save_controller(path: str, arrays: Mapping) -> None:
+    """An exported controller .npz at `path` (atomic), stamped with this version's format_version."""
+    save_npz_atomic(path, **stamped_arrays(arrays))
+
+
 def write(arrays: dict, fmt: str, out: str) -> list:
     """Write the controller in `fmt`; returns the lines to print."""
     from gsa_jax.running.checkpoint import write_atomic
 
     if fmt == "npz":
-        save_npz_atomic(out, **arrays)
+        save_controller(out, arrays)
         return []
     layout = task_layout(arrays)
     if fmt == "onnx":

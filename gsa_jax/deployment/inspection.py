@@ -22,7 +22,8 @@ from gsa_jax.deployment.cells import cell_inequalities, cells_text, plot_cells
 from gsa_jax.deployment.exporting import controller_arrays, known_task, load_arrays, task_layout
 from gsa_jax.deployment.numpy_policy import Controller, task_name
 from gsa_jax.errors import UserError
-from gsa_jax.running.trained import FormatError, RunNotFound, read_run
+from gsa_jax.running.formats import FormatError
+from gsa_jax.running.trained import RunNotFound, read_run
 
 
 class InspectError(UserError):

@@ -15,11 +15,11 @@ config_json (the run's config: its task is config.env), task (its name), obs_siz
 the file that defined the task, '' for a built-in one; envs.task_source), ctrl_low, ctrl_high [d_a] where the task maps
 its actions onto its actuators' ctrlrange (envs/task.py's ctrl_range 'model': controls(action)), action_space
 ('controls' where that map is applied in the file: the actions are the controls; absent: actions in [-1, 1]; see
-unit_actions), and for mixtures subpolicy
-('constant'|'linear'|'quadratic'; absent = linear), partition ('mlp'|'linear'; absent = mlp; 'single': a K = 1
-mixture exported with no partition network, n_layers 0: its one piece acts everywhere, cluster() is 0), L [K, d_a,
-d_phi], b [K, d_a] of the K active clusters.
-Files exported before the bounds were stored get their task's (`action_bounds`); docs/deploy.md lists every key.
+unit_actions), format_version (running.formats), and for mixtures subpolicy
+('constant'|'linear'|'quadratic'), partition ('mlp'|'linear'; 'single': a K = 1 mixture exported with no partition
+network, n_layers 0: its one piece acts everywhere, cluster() is 0), L [K, d_a, d_phi], b [K, d_a] of the K active
+clusters. `load` reads a file of an older format_version into this layout (running.formats.read_controller); files
+exported before the bounds were stored get their task's (`action_bounds`); docs/deploy.md lists every key.
 `load(path, task=NAME)` refuses (TaskMismatch, one line) a controller that does not fit that task as it is now
 (check_task).
 """
@@ -33,6 +33,7 @@ import numpy as np
 from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.errors import UserError
+from gsa_jax.running.formats import read_controller
 
 if TYPE_CHECKING:
     from envs.families.record import TaskRecord
@@ -88,7 +89,7 @@ class ControllerClassError(UserError, ValueError):
 
 def stored_sha256(arrays: Mapping) -> str | None:
     """The sha256 of the task definition an exported controller was trained on, or None where it has none."""
-    return str(arrays["task_sha256"]) or None if "task_sha256" in arrays else None
+    return str(arrays["task_sha256"]) or None
 
 
 def check_task(arrays: Mapping, task: "TaskRecord", force: bool = False, name: str = "the controller") -> None:
@@ -96,7 +97,7 @@ def check_task(arrays: Mapping, task: "TaskRecord", force: bool = False, name: s
     now: the same observation size, and (unless force) the same task name and, where both are recorded, the same
     definition sha256 (TaskRecord.source(), what `train --resume` compares)."""
     d_s = int(np.shape(arrays["obs_mean"])[0])
-    mine = (str(arrays["task"]) if "task" in arrays else "") or task_name(arrays)  # task: as exported
+    mine = str(arrays["task"]) or task_name(arrays)  # task: as exported
     size = task.observation_size()
     if size != d_s:
         raise TaskMismatch(f"{name} takes {d_s} observation values and task {task.name!r} now observes {size}: it "
@@ -144,10 +145,9 @@ SINGLE = "single"  # a K = 1 mixture's partition in an export: no network (n_lay
 
 
 def partition_class(arrays: Mapping, layers: list, name: str = "the controller") -> str:
-    """The partition class of a mixture's arrays (absent: mlp, the only one before it was stored; SINGLE: no network,
-    one piece): ControllerClassError (one line) for a class this version does not know or whose layer sizes are not
-    that class's."""
-    partition = str(arrays["partition"]) if "partition" in arrays else partitions.DEFAULT
+    """The partition class of a mixture's arrays (SINGLE: no network, one piece): ControllerClassError (one line) for
+    a class this version does not know or whose layer sizes are not that class's."""
+    partition = str(arrays["partition"])
     if partition not in (*partitions.PARTITIONS, SINGLE):
         raise ControllerClassError(f"{name} has an unknown partition class {partition!r}; this version knows "
                                    f"{', '.join(partitions.PARTITIONS)}, {SINGLE} (K = 1)")
@@ -172,7 +172,7 @@ class Controller:
         n = int(arrays["n_layers"])
         self.layers = [(np.asarray(arrays[f"w{i}"], np.float32), np.asarray(arrays[f"b{i}"], np.float32)) for i in range(n)]
         if self.kind == MIXTURE:
-            self.subpolicy = str(arrays["subpolicy"]) if "subpolicy" in arrays else subpolicies.DEFAULT
+            self.subpolicy = str(arrays["subpolicy"])
             if self.subpolicy not in subpolicies.SUBPOLICIES:
                 raise ControllerClassError(f"{name} has an unknown sub-policy class {self.subpolicy!r}; this version "
                                            f"knows {', '.join(subpolicies.SUBPOLICIES)}")
@@ -270,8 +270,7 @@ def load(path: str, task: "str | TaskRecord | None" = None, force: bool = False)
     """The controller of an exported .npz; one warning line where it has no action bounds and names no known task.
     task: a task (its name, resolved here, or its record) it must fit (check_task: TaskMismatch, one line, where it
     does not; force: only its observation size is checked)."""
-    with np.load(path, allow_pickle=False) as f:
-        arrays = {k: f[k] for k in f.files}
+    arrays = read_controller(path)  # an older file in the current layout (running.formats)
     if task is not None:
         import envs
 

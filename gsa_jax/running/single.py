@@ -29,7 +29,7 @@ from gsa_jax.running.metrics import RUN_COLUMNS as METRIC_COLUMNS
 from gsa_jax.running.programs import single_program
 from gsa_jax.running.runinfo import ResumeRefused, check_unchanged, physics_record, run_metadata
 from gsa_jax.running.store import GroupStore, write_runs_table
-from gsa_jax.running.trained import check_layout
+from gsa_jax.running.formats import check_run_directory, read_json, stamped
 
 
 class RunPlan(NamedTuple):
@@ -142,14 +142,13 @@ def run(plan: RunPlan, options: RunOptions, log: Callable, warn: Callable) -> Ru
     try:
         config_path = os.path.join(out, "config.json")
         if options.resume and os.path.exists(config_path):
-            check_layout(out)
-            with open(config_path) as f:
-                check_resume_config(json.load(f), config, options.force, cfg.task.source())
+            check_run_directory(out)
+            check_resume_config(read_json(config_path, "run"), config, options.force, cfg.task.source())
             if os.path.exists(os.path.join(out, "DONE")):
                 return RunEnd(report_ended(out, log), config)
         config.update(physics=physics_record(cfg), task=cfg.task.source(), **run_metadata())
         write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
-        write_atomic(config_path, json.dumps(config, indent=2))
+        write_atomic(config_path, json.dumps(stamped(config), indent=2))
         return RunEnd(train_run(plan, options, config, (log, warn)), config)
     except DiskFullError as e:  # the command says so; the newest intact checkpoint goes with it
         e.last_intact = getattr(e, "last_intact", None) or f"iteration {saved_iteration(out)}"
@@ -238,4 +237,4 @@ def record_result(plan: RunPlan, out: str, config: dict, ended: tuple, warn: Cal
         "final_eval_return_iteration": int(evals[-1]["iteration"]) if evals else None,
         "status": status,
     }
-    write_atomic(os.path.join(out, "config.json"), json.dumps(config, indent=2))
+    write_atomic(os.path.join(out, "config.json"), json.dumps(stamped(config), indent=2))

@@ -24,7 +24,7 @@ from gsa_jax.running.checkpoint import load_pytree, read_with_fallback, save_npz
 from gsa_jax.running.driver import Result, failed_mask
 from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.tensorboard import Board, follow
-from gsa_jax.running.trained import LAYOUT_FILE, FormatError, check_layout
+from gsa_jax.running.formats import LAYOUT_FILE, check_metrics, check_run_directory
 
 # per run and iteration in metrics.npz: what resumes every view (failed_at is no CSV column; wall_s is a run's
 # metrics.csv's wall clock, kept so a resumed run's table loses none of it)
@@ -49,14 +49,6 @@ def failed_runs(runs: list, metrics: dict, upto: int) -> list:
     return [{**r, "failed_at": int(metrics["failed_at"][i, upto - 1])} for i, r in enumerate(runs) if failed[i]]
 
 
-def check_format(path: str, names: Sequence[str]) -> None:
-    """Refuse (one line) a metrics file written by a gsa_jax that tracked fewer metrics."""
-    missing = [k for k in TRACKED if k not in names]
-    if missing:
-        raise FormatError(f"{path} was written by an older gsa_jax (no {', '.join(missing)}); finish it with the "
-                          "commit in its sweep.json or config.json (git_commit), or start over in another --out")
-
-
 def load_group_checkpoint(root: str, states: Any, iterations: int, log: Callable) -> tuple:
     """(states, metrics arrays [R, iterations], done) of a group's last intact checkpoint: state.npz
     (or state.prev.npz) and the metrics covering its iteration (metrics.npz or metrics.prev.npz)."""
@@ -71,7 +63,7 @@ def load_group_checkpoint(root: str, states: Any, iterations: int, log: Callable
         with np.load(p) as m:
             if int(m["__done__"]) < done:
                 raise ValueError(f"holds {int(m['__done__'])} iterations, the state {done}")
-            check_format(p, m.files)
+            check_metrics(p, m.files, TRACKED)
             return {k: m[k][:, :done] for k in TRACKED}
 
     saved, _ = read_with_fallback(os.path.join(root, "metrics.npz"), read_metrics, log)
@@ -90,7 +82,7 @@ def save_params(root: str, states: Any, runs: int) -> None:
 def finished_group(root: str, iterations: int) -> Result:
     """The driver Result of a group whose DONE marker exists, from its metrics.npz."""
     with np.load(os.path.join(root, "metrics.npz")) as m:
-        check_format(os.path.join(root, "metrics.npz"), m.files)
+        check_metrics(os.path.join(root, "metrics.npz"), m.files, TRACKED)
         saved = {k: m[k] for k in m.files if k != "__done__"}
     done = saved["iteration"].shape[1]
     return Result(done, iterations, saved, "finished" if done >= iterations else "failed", {}, done)
@@ -120,7 +112,7 @@ class GroupStore:
         return follow(self.board, self.load_checkpoint(template) if self.has_checkpoint() else None)
 
     def load_checkpoint(self, template: Any) -> tuple:
-        check_layout(self.root)
+        check_run_directory(self.root)
         return load_group_checkpoint(self.root, template, self.iterations, warn)
 
     def save(self, states: Any, metrics: dict, done: int) -> None:

@@ -1,7 +1,6 @@
 """A sweep's groups trained one after the other: group checkpoints (GroupStore), the tidy metrics table,
 sweep.json and the failed-runs report; `gsa sweep` is its command (workers, watchdog)."""
 
-import collections
 import dataclasses
 import json
 import math
@@ -16,6 +15,7 @@ import numpy as np
 from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
+from gsa_jax.running.formats import read_json, stamped
 from gsa_jax.running.driver import Plan, Result, drive, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import GroupRuns, GroupShape, group_program, pad_runs
@@ -147,7 +147,7 @@ def write_group_record(gdir: str, spec: SweepSpec, cfg: Config, runs: list[dict]
     record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, **evals,
               "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
               "physics": physics_record(cfg), "task": cfg.task.source(), **run_metadata()}
-    write_atomic(os.path.join(gdir, "config.json"), json.dumps(record, indent=1))
+    write_atomic(os.path.join(gdir, "config.json"), json.dumps(stamped(record), indent=1))
 
 
 def write_tidy(out: str, spec: SweepSpec, results: list[tuple]) -> None:
@@ -161,27 +161,12 @@ def write_tidy(out: str, spec: SweepSpec, results: list[tuple]) -> None:
 
 
 def recorded_spec(raw: dict) -> dict:
-    """sweep.json's spec as this version writes it (a sweep.json written before the physics options were one
-    record has them flat), for comparing with the experiment file; as recorded where it no longer checks."""
+    """sweep.json's spec as this version writes it (check_spec: what the file left out at its defaults), for
+    comparing with the experiment file; as recorded where it no longer checks."""
     try:
         return check_spec(raw).to_json()
     except SpecError:
         return raw
-
-
-def recorded_runs_per_program(old: dict) -> int:
-    """A sweep.json's runs per program; an older one's pad_runs where no group had more runs than it (that sweep
-    padded smaller groups as runs_per_program does, and trained a larger one whole, which parts would split under
-    other directories: ResumeRefused)."""
-    if "pad_runs" not in old:
-        return int(old.get("runs_per_program", 0))
-    n = int(old["pad_runs"])
-    sizes = collections.Counter(group_name(Group(r["env"], r["policy"], [r])) for r in old.get("runs", []))
-    if n and sizes and max(sizes.values()) > n:
-        raise ResumeRefused(f"this sweep.json was written by an older gsa_jax (pad_runs {n}) and has a group of "
-                            f"{max(sizes.values())} runs, which it trained whole; resume it with its own commit "
-                            f"(git_commit {old.get('git_commit', '?')})")
-    return n
 
 
 def check_resumable(root: str, spec: SweepSpec, tasks: dict, options: SweepOptions) -> None:
@@ -191,13 +176,12 @@ def check_resumable(root: str, spec: SweepSpec, tasks: dict, options: SweepOptio
     meta_path = os.path.join(root, "sweep.json")
     if not os.path.exists(meta_path):
         return
-    with open(meta_path) as f:
-        old = json.load(f)
+    old = read_json(meta_path, "sweep")
     check_unchanged({"spec": recorded_spec(old.get("spec", {})), "tasks": old.get("tasks", tasks)},
                     {"spec": spec.to_json(), "tasks": tasks},
                     options.force, f"{root} holds a sweep with a different spec or task code",
                     "use another --out, or --force to continue it with the new spec")
-    before = recorded_runs_per_program(old)
+    before = int(old["runs_per_program"])
     if before != options.runs_per_program:
         raise ResumeRefused(f"{root} holds a sweep trained with --runs-per-program {before}, not "
                             f"{options.runs_per_program}: resume it with {before} (or --resume {root} alone), "
@@ -220,7 +204,7 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
             "run_batch": options.run_batch, "tensorboard": options.tensorboard, "runs_per_program": options.runs_per_program,
             "physics": physics, "tasks": tasks, **run_metadata()}
-    write_atomic(os.path.join(root, "sweep.json"), json.dumps(meta, indent=1))
+    write_atomic(os.path.join(root, "sweep.json"), json.dumps(stamped(meta), indent=1))
 
 
 def run_sweep(spec: SweepSpec, out: str, options: SweepOptions = SweepOptions()) -> bool:

@@ -16,16 +16,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from envs.physics import nest_physics
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.errors import UserError
-
-LAYOUT_FILE = "runs.csv"  # what marks a group directory (a run directory of an older gsa_jax has none)
-
-
-class FormatError(UserError):
-    """A run file written by a gsa_jax of another file format: intact, so no fallback to its previous version;
-    the message says how to go on."""
+from gsa_jax.running.formats import LAYOUT_FILE, check_group_directory, check_run_directory, read_json
 
 
 class RunNotFound(UserError, ValueError):
@@ -40,14 +33,6 @@ class TrainedRun(NamedTuple):
     address: str
     meta: dict
     params: dict
-
-
-def check_layout(root: str) -> None:
-    """Refuse (one line) a run directory written before runs were stored as groups of one."""
-    if os.path.exists(os.path.join(root, "config.json")) and not os.path.exists(os.path.join(root, LAYOUT_FILE)):
-        raise FormatError(f"{root} holds a run of an older gsa_jax (metrics.csv and params.npz without a run axis, "
-                          "no runs.csv); read or continue it with the commit in its config.json (git_commit), or train "
-                          "it again")
 
 
 def read_rows(root: str) -> list:
@@ -104,21 +89,17 @@ def finished_runs(sweep_dir: str) -> list:
                            key=group_order):
         root = os.path.dirname(runs_csv)
         if os.path.exists(os.path.join(root, "DONE")):
-            if not os.path.exists(os.path.join(root, "config.json")):
-                raise FormatError(f"{sweep_dir} was written by an older gsa_jax (its groups have no config.json); read "
-                                  "its runs with the commit in its sweep.json (git_commit)")
+            check_group_directory(root, sweep_dir)
             out.extend((run_label(row), root, i, row) for i, row in enumerate(read_rows(root)))
     return out
 
 
 def group_meta(root: str, index: int) -> dict:
     """The settings of run `index` of a group directory: its config.json with the run's own entry of
-    "runs" (seed, hparams) merged in, and its result (finished, or stopped at a NaN/inf: failed.json). The config
-    with its physics options as one record (envs.physics.nest_physics: runs written before kept them flat)."""
-    with open(os.path.join(root, "config.json")) as f:
-        meta = json.load(f)
-    if isinstance(meta.get("config"), dict):
-        meta["config"] = nest_physics(meta["config"])
+    "runs" (seed, hparams) merged in, and its result (finished, or stopped at a NaN/inf: failed.json), in the current
+    layout (running.formats)."""
+    meta = read_json(os.path.join(root, "config.json"), "run")
+    meta.pop("format_version")
     per_run = meta.pop("runs", None)
     if per_run is None:  # a run directory: config.json is the run's own
         return meta
@@ -142,7 +123,7 @@ def locate(address: str) -> tuple:
     """(group directory, index) of a run directory or of SWEEP_DIR/<run label>."""
     address = os.path.normpath(address)
     if os.path.isdir(address) and os.path.exists(os.path.join(address, "config.json")):
-        check_layout(address)
+        check_run_directory(address)
         return address, 0
     sweep_dir, label = os.path.split(address)
     if os.path.exists(os.path.join(sweep_dir, "sweep.json")):

@@ -15,6 +15,7 @@ import os
 
 import numpy as np
 
+from gsa_jax.running.formats import FormatError, read_json
 from gsa_jax.verify import certify, milp, pwa, roa, vnnlib
 from gsa_jax.verify.report import pwa_lines
 from gsa_jax.verify.system import System, VerifyError, equilibrium_guess
@@ -25,9 +26,8 @@ POINTS = 2000  # samples inside E, and as many on its boundary
 def read_certificate(path: str) -> dict:
     """The certificate of a verify.json written by --certify; VerifyError (one line) where it has none."""
     try:
-        with open(path) as f:
-            doc = json.load(f)
-    except (OSError, ValueError) as e:
+        doc = read_json(path, "verify")
+    except (OSError, ValueError, FormatError) as e:
         raise VerifyError(f"cannot read {path!r}: {' '.join(str(e).split())}") from None
     cert = doc.get("certificate") if isinstance(doc, dict) else None
     if not cert or "P" not in cert:

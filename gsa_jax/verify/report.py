@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from gsa_jax.running.formats import FORMAT_VERSION
 from gsa_jax.verify.analysis import Budget
 from gsa_jax.verify.system import System
 
@@ -26,7 +27,8 @@ def write_json(path: str, system: System, result: dict, budget: Budget, quick: b
 
     from gsa_jax.running.runinfo import git_commit
 
-    doc = {"schema": SCHEMA, "controller": system.path, "env": system.env, "kind": system.ctrl.kind,
+    doc = {"format_version": FORMAT_VERSION, "schema": SCHEMA, "controller": system.path, "env": system.env,
+           "kind": system.ctrl.kind,
            "clusters": int(system.ctrl.num_clusters), "quick": bool(quick), "budget": budget._asdict(),
            "versions": {"mujoco": mujoco.__version__, "numpy": np.__version__}, "commit": git_commit(),
            **public(result)}

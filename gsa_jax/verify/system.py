@@ -68,8 +68,7 @@ def _load_controller(path):
         raise VerifyError(f"{path!r} is not an exported controller (not an .npz archive)")
     try:
         ctrl = numpy_policy.load(path)
-        with np.load(path, allow_pickle=False) as f:
-            env = str(json.loads(str(f["config_json"]))["config"]["env"])
+        env = str(json.loads(str(ctrl.arrays["config_json"]))["config"]["env"])
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise VerifyError(f"{path!r} is not an exported controller ({' '.join(str(e).split())})") from None
     return ctrl, env

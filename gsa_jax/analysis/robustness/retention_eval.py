@@ -39,8 +39,7 @@ def load_controllers(paths: Sequence[str]) -> list:
         try:
             ctrl, task, _ = load_controller(f)  # a task defined outside the package: importable here, one line if not
             env_name = task.name
-            with np.load(f, allow_pickle=False) as z:
-                meta = json.loads(str(z["config_json"]))
+            meta = json.loads(str(ctrl.arrays["config_json"]))
         except (DeployError, ValueError) as e:
             raise RobustnessError(f"{f}: {e}") from None
         k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""

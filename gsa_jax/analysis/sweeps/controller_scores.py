@@ -85,8 +85,7 @@ def controller_episodes(path: str, episodes: int, start_seed: int) -> tuple:
     except DeployError as e:
         raise ScoreError(str(e)) from None
     k = ctrl.num_clusters if ctrl.kind == MIXTURE else ""
-    with np.load(path, allow_pickle=False) as f:
-        seed = json.loads(str(f["config_json"])).get("seed", "")
+    seed = json.loads(str(ctrl.arrays["config_json"])).get("seed", "")
     identity = {"label": os.path.basename(path)[: -len(".npz")], "env": env_name, "policy": ctrl.kind, "K": k,
                 "seed": seed, "sha256": file_sha256(path)}
     return identity, returns, lengths

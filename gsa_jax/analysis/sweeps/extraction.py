@@ -8,10 +8,11 @@ import json
 import os
 
 from gsa_jax.algorithm.kinds import MIXTURE
-from gsa_jax.deployment.exporting import controller_arrays
+from gsa_jax.deployment.exporting import controller_arrays, save_controller
 from gsa_jax.errors import UserError
-from gsa_jax.running.checkpoint import save_npz_atomic, write_atomic
-from gsa_jax.running.trained import FormatError, RunNotFound, finished_runs
+from gsa_jax.running.checkpoint import write_atomic
+from gsa_jax.running.formats import FormatError
+from gsa_jax.running.trained import RunNotFound, finished_runs
 
 
 class ExtractError(UserError):
@@ -48,7 +49,7 @@ def export_controllers(sweep_dir: str, out_dir: str) -> list:
     paths = []
     for label, *_ in runs:
         paths.append(os.path.join(out_dir, label + ".npz"))
-        save_npz_atomic(paths[-1], **controller_arrays(os.path.join(sweep_dir, label)))
+        save_controller(paths[-1], controller_arrays(os.path.join(sweep_dir, label)))
     return paths
 
 

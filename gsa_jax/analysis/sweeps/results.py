@@ -13,11 +13,12 @@ from typing import Callable, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from envs.physics import nest_physics, record_backend
+from envs.physics import record_backend
 from gsa_jax.algorithm.kinds import MIXTURE_COLUMNS
 from gsa_jax.analysis.sweeps import columns as C
 from gsa_jax.analysis.sweeps import stats
 from gsa_jax.errors import UserError
+from gsa_jax.running.formats import read_json
 from gsa_jax.running.metrics import TIDY_METRICS
 from gsa_jax.running.runinfo import describe_changes
 
@@ -80,12 +81,10 @@ def load_sweep(sweep_dir: str, columns: Sequence[str] = _SERIES) -> dict:
 
 
 def sweep_metas(sweep_dir: str) -> list:
-    """The contents of every sweep.json under sweep_dir (one per sweep; merged results may hold several)."""
-    out = []
-    for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"), recursive=True)):
-        with open(path) as f:
-            out.append(json.load(f))
-    return out
+    """The contents of every sweep.json under sweep_dir (one per sweep; merged results may hold several), in the
+    current layout (running.formats)."""
+    return [read_json(path, "sweep") for path in sorted(glob.glob(os.path.join(sweep_dir, "**", "sweep.json"),
+                                                                     recursive=True))]
 
 
 def group_settings(sweep_dir: str) -> dict:
@@ -94,7 +93,7 @@ def group_settings(sweep_dir: str) -> dict:
     out = {}
     for meta in sweep_metas(sweep_dir):
         spec = meta.get("spec", {})
-        config = nest_physics(spec.get("config") or {})
+        config = spec.get("config") or {}
         for critic in spec.get("value_targets") or [config.get("value_target", "gae")]:
             # retrace_iterations does not change a GAE run
             kept = {k: v for k, v in config.items() if k != "value_target" and (critic != "gae" or k != "retrace_iterations")}

@@ -228,7 +228,7 @@ def rounds_text(state: dict) -> tuple:
         rows.append((r["round"], what, list(r["sweeps"].values())))
     for label, what, sweeps in rows:
         secs = sum(s["seconds"] for s in sweeps)
-        comp = sum(s.get("compile_wall_s", s["compile_s"]) for s in sweeps)
+        comp = sum(s["compile_wall_s"] for s in sweeps)
         total, compile_s = total + secs, compile_s + comp
         lines.append(f"| {label} | {what} | {secs:.0f} | {comp:.0f} s |")
     return "\n".join(lines), (compile_s / total if total else float("nan"))

@@ -19,6 +19,7 @@ from gsa_jax.analysis.sweeps.results import task_records
 from gsa_jax.analysis.verdicts import baseline, ladder, sequential, trimmed, verdict
 from gsa_jax.errors import UserError
 from gsa_jax.running.checkpoint import write_atomic
+from gsa_jax.running.formats import read_json, stamped
 
 
 # ----------------------------------------------------------------------------------------------- the setup and its state
@@ -79,12 +80,9 @@ def load_state(out: str, setup: Setup) -> dict:
     path = os.path.join(out, STATE)
     if not os.path.exists(path):
         return {"setup": setup.to_json(), "rounds": [], "records": {}, "elapsed_s": 0.0}
-    with open(path) as f:
-        state = json.load(f)
+    state = read_json(path, "answer")  # an older answer.json in the current layout (running.formats)
     mine = json.loads(json.dumps(setup.to_json()))
-    # written before the step budget was chosen (fixed steps) or before futility stopping (every K to the cap)
-    before_futility = "futility" not in state["setup"]
-    state["setup"] = {"max_steps": None, "futility": 0.0, **state["setup"]}
+    before_futility = state.pop("before_futility", False)  # started before futility stopping: every K to the cap
     if state["setup"] != mine:
         changed = sorted(k for k in set(state["setup"]) | set(mine) if state["setup"].get(k) != mine.get(k))
         hint = (" (it was started before futility stopping: resume it with --futility 0)"
@@ -95,7 +93,7 @@ def load_state(out: str, setup: Setup) -> dict:
 
 
 def save_state(out: str, state: dict) -> None:
-    write_atomic(os.path.join(out, STATE), json.dumps(state, indent=1))
+    write_atomic(os.path.join(out, STATE), json.dumps(stamped(state), indent=1))
 
 
 # ----------------------------------------------------------------------------------------------- evidence

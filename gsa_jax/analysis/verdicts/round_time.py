@@ -16,7 +16,7 @@ from gsa_jax.analysis.sweeps import controller_scores
 
 def fixed_seconds(sweep: dict) -> float:
     """A sweep's seconds that do not grow with its runs x steps: its program's compile or load."""
-    return min(float(sweep.get("compile_wall_s", sweep.get("compile_s", 0.0))), float(sweep["seconds"]))
+    return min(float(sweep.get("compile_wall_s", 0.0)), float(sweep["seconds"]))
 
 
 def work(sweep: dict) -> int:

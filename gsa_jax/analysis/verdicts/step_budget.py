@@ -79,9 +79,8 @@ def could_choose(learned: bool, stopped: bool, lower: float, margin: float) -> b
 
 
 def candidate(record: dict) -> bool:
-    """Whether a judged budget can be chosen once the next budget's controllers are read (a record from before the
-    two-sided rule had no 'candidate': its 'enough' says it)."""
-    return bool(record.get("candidate", record["enough"]))
+    """Whether a judged budget can be chosen once the next budget's controllers are read."""
+    return bool(record["candidate"])
 
 
 def confirm(chosen: Sequence[float], later: Sequence[float], random_returns: Sequence[float], margin: float) -> dict:
