@@ -21,8 +21,8 @@ def _check_envs_package():
 _check_envs_package()
 
 # The public API (gsa_jax/api.py), loaded on first use so that `import gsa_jax` stays light (no JAX).
-API = ("answer_task", "load_controller", "options_argv", "read_csv", "run_metadata", "run_sweep", "score_controller",
-       "train_run", "verify_controller", "write_csv")
+API = ("answer_task", "export_controller", "load_controller", "options_argv", "read_csv", "read_record", "run_metadata",
+       "run_sweep", "score_controller", "train_run", "verify_controller", "write_csv")
 __all__ = ["__version__", *API]
 
 

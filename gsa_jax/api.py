@@ -7,8 +7,10 @@
     ctrl = gsa_jax.load_controller("runs/cp/controller.npz")      # act(obs) in NumPy
     scored = gsa_jax.score_controller("runs/cp/controller.npz", episodes=100)  # MuJoCo C, fixed start seeds
     doc = gsa_jax.verify_controller("runs/cp/controller.npz", "runs/cp/verify", quick=True)
+    gsa_jax.export_controller("runs/cp", "runs/cp/controller.npz")       # gsa export
+    state = gsa_jax.read_record("runs/answer/answer.json", "answer")    # any saved record, an older one's too
 
-train_run, run_sweep, answer_task and verify_controller run the command itself with the keyword options as its flags
+train_run, run_sweep, export_controller, answer_task and verify_controller run the command itself with the keyword options as its flags
 (options_argv: the same checks, files and resumption as on the command line); a bad input raises
 gsa_jax.errors.UserError (one line). The names are not the commands' own (gsa_jax.train, gsa_jax.verify, ... are the
 `python -m` modules and packages, which an import binds on the package).
@@ -19,8 +21,8 @@ from typing import Any
 
 from gsa_jax.errors import UserError
 
-__all__ = ["answer_task", "load_controller", "options_argv", "read_csv", "run_metadata", "run_sweep", "score_controller",
-           "train_run", "verify_controller", "write_csv"]
+__all__ = ["answer_task", "export_controller", "load_controller", "options_argv", "read_csv", "read_record",
+           "run_metadata", "run_sweep", "score_controller", "train_run", "verify_controller", "write_csv"]
 
 
 def options_argv(options: dict) -> list:
@@ -77,6 +79,23 @@ def verify_controller(controller: str, out: str, **options: Any) -> dict:
     from gsa_jax.running.formats import read_json
 
     return read_json(os.path.join(out, "verify.json"), "verify")
+
+
+def export_controller(run: str, out: str, **options: Any) -> str:
+    """`gsa export RUN --out OUT [options]` (RUN: a run directory or SWEEP_DIR/<run label>; OUT's suffix the format:
+    .npz, .onnx, .h) -> OUT."""
+    from gsa_jax.commands.export import export_controller as command
+
+    ran("export", command([run, "--out", out, *options_argv(options)]))
+    return out
+
+
+def read_record(path: str, kind: str) -> dict:
+    """A saved record of `kind` ('run', 'sweep', 'answer', 'verify': a JSON file; 'controller': an exported .npz's
+    arrays) in the current layout, an older file's too (gsa_jax.running.formats; a newer one is a FormatError)."""
+    from gsa_jax.running.formats import read_controller, read_json
+
+    return read_controller(path) if kind == "controller" else read_json(path, kind)
 
 
 def load_controller(path: str) -> Any:

@@ -31,6 +31,8 @@ def test_options_become_the_commands_flags():
      ["--env", "dmc:cartpole-balance", "--out", "OUT", "--clusters", "2"]),
     ("run_sweep", "sweep", "gsa_jax.commands.sweep", "sweep", ("spec.toml", "OUT"),
      ["spec.toml", "--out", "OUT", "--clusters", "2"]),
+    ("export_controller", "export", "gsa_jax.commands.export", "export_controller", ("RUN", "OUT"),
+     ["RUN", "--out", "OUT", "--clusters", "2"]),
 ])
 def test_each_function_runs_its_command_and_a_failure_is_a_user_error(monkeypatch, name, command, module, attr, args,
                                                                       argv):

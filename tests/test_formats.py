@@ -49,7 +49,8 @@ def test_an_older_run_config_reads_as_the_settings_it_ran():
 
 def test_an_older_sweep_json_resumes_with_its_runs_per_program_and_physics():
     from gsa_jax.commands.sweep import saved_options
-    from gsa_jax.running.spec import check_spec
+    from gsa_jax.running.formats import GROUP_COLUMNS
+    from gsa_jax.running.spec import GROUP_AXES, check_spec
     from gsa_jax.running.sweeps import recorded_spec
 
     padded = read_json(fixture("sweep-pad_runs.v0.json"), "sweep")
@@ -57,13 +58,13 @@ def test_an_older_sweep_json_resumes_with_its_runs_per_program_and_physics():
     assert saved_options(padded, "d", None)["runs_per_program"] == 10
     flat = read_json(fixture("sweep-flat-physics.v0.json"), "sweep")
     assert flat["runs_per_program"] == 0 and flat["spec"]["config"]["physics"] == {"backend": "c"}
-    assert "backend" not in flat["spec"]["config"]
+    assert "backend" not in flat["spec"]["config"] and check_spec(flat["spec"]).config["physics"]["backend"] == "c"
     assert recorded_spec(flat["spec"]) == check_spec(flat["spec"]).to_json()
+    assert GROUP_COLUMNS == ("env", "policy", *(c for _, c, _, _ in GROUP_AXES))  # how pad_runs' groups are counted
     with open(fixture("sweep-pad_runs.v0.json")) as f:
         raw = json.load(f)
     raw["runs"] = raw["runs"] + [{**raw["runs"][0], "seed": 99}]  # a group larger than pad_runs: trained whole then
-    with pytest.raises(FormatError, match="a group of 11 runs, which its gsa_jax trained whole"):
-        current(raw, "sweep", "sweep.json")
+    assert current(raw, "sweep", "sweep.json")["trained_whole"] == 11  # read; its resume is refused (test_sweep.py)
 
 
 def test_an_older_answer_reads_with_its_settings_and_times():
@@ -75,9 +76,23 @@ def test_an_older_answer_reads_with_its_settings_and_times():
     assert sweeps and all(s["compile_wall_s"] == s["compile_s"] for s in sweeps)
     table, share = rounds_text(state)
     assert table.count("\n") == 1 + len(state["rounds"]) and 0 < share < 1
+    with open(fixture("answer.v0.json")) as f:
+        raw = json.load(f)
+    assert "steps" not in raw and "compile_wall_s" not in json.dumps(raw)  # truly older: read as the report reads it
+    step = {"steps": 1000, "enough": True, "sweep": {"seconds": 9.0, "compile_s": 2.0, "runs": 10}}
+    older = current({**raw, "steps": {"calibration": [step]}}, "answer", "answer.json")  # a step budget's record
+    assert older["steps"]["calibration"][0]["candidate"] is True
+    assert older["steps"]["calibration"][0]["sweep"]["compile_wall_s"] == 2.0 and "candidate" not in step  # no change
 
 
-def test_older_controllers_act_as_they_did():
+def test_an_older_run_config_with_flat_physics_reads_nested():
+    record = current({"config": {"env": "hopper", "backend": "c", "physics_threads": 2}, "iterations": 1}, "run", "c")
+    assert record["config"] == {"env": "hopper", "physics": {"backend": "c", "threads": 2}}
+    with pytest.raises(FormatError, match="backend is set both as a config field and as physics.backend"):
+        current({"config": {"backend": "c", "physics": {"backend": "mjx"}}}, "run", "config.json")
+
+
+def test_older_controllers_act_as_they_did(tmp_path):
     """A mixture from before partition classes reads as the mlp class with the linear sub-policy; both controllers
     name no task record ('') and act on their task's observations."""
     mixture = numpy_policy.load(fixture("controller-mixture.v0.npz"))
@@ -92,7 +107,11 @@ def test_older_controllers_act_as_they_did():
     with np.load(fixture("controller-mixture.v0.npz")) as f:  # the same arrays as stored, and nothing dropped
         stored = {k: f[k] for k in f.files}
     read = read_controller(fixture("controller-mixture.v0.npz"))
-    assert set(stored) < set(read) and all(np.array_equal(read[k], v) for k, v in stored.items())
+    assert set(read) - set(stored) == {"format_version", "partition", "task", "task_sha256"}
+    assert all(np.array_equal(read[k], v) for k, v in stored.items())
+    path = tmp_path / "no-subpolicy.npz"  # exported before sub-policy classes: linear
+    np.savez(path, **{k: v for k, v in stored.items() if k != "subpolicy"})
+    assert numpy_policy.load(str(path)).subpolicy == "linear"
 
 
 def test_an_older_verify_json_reads_and_a_current_record_reads_unchanged():
@@ -101,13 +120,15 @@ def test_an_older_verify_json_reads_and_a_current_record_reads_unchanged():
     for kind, name in (("run", "run-config.v0.json"), ("sweep", "sweep-pad_runs.v0.json"), ("answer", "answer.v0.json"),
                        ("verify", "verify.v0.json")):
         once = read_json(fixture(name), kind)
-        assert current(json.loads(json.dumps(once)), kind, name) == once  # a stamped record has nothing to carry over
+        assert current(json.loads(json.dumps(once)), kind, name) == once  # stamped: read as it is
+        unstamped = {k: v for k, v in json.loads(json.dumps(once)).items() if k != "format_version"}
+        assert current(unstamped, kind, name) == once  # the steps leave a record of the current layout unchanged
 
 
 def test_a_newer_or_unreadable_version_is_one_line(tmp_path):
     with pytest.raises(FormatError, match=r"written by a newer gsa_jax \(format_version 2; this one reads up to 1\)"):
         current({"format_version": FORMAT_VERSION + 1}, "run", "config.json")
-    for bad in ("1", 1.5, True, -1):
+    for bad in ("1", 1.5, True, -1, np.bool_(True), [1]):
         with pytest.raises(FormatError, match="not a version number"):
             current({"format_version": bad}, "sweep", "sweep.json")
     path = tmp_path / "newer.npz"

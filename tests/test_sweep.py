@@ -215,11 +215,12 @@ def inprocess(tiny_spec_file, tmp_path_factory):
     return out
 
 
-def test_a_resumed_sweep_keeps_its_runs_per_program():
+def test_a_resumed_sweep_keeps_its_runs_per_program(tmp_path):
     """--resume DIR continues with the runs per program DIR/sweep.json recorded (an older record's pad_runs, read by
     running.formats, too)."""
     from gsa_jax.commands.sweep import saved_options
-    from gsa_jax.running.formats import FormatError, current
+    from gsa_jax.running.formats import current
+    from gsa_jax.running.sweeps import check_resumable
 
     def saved(meta):
         return saved_options(current(meta, "sweep", "sweep.json"), "d", None)
@@ -228,8 +229,13 @@ def test_a_resumed_sweep_keeps_its_runs_per_program():
         "out": "d", "runs_per_program": 10, "local_processes": 2}
     runs = [{"env": "e", "policy": "mixture", "K": 1, "seed": s} for s in range(10)]
     assert saved({"spec": {}, "pad_runs": 10, "runs": runs}) == {"out": "d", "runs_per_program": 10}
-    with pytest.raises(FormatError, match="a group of 11 runs, which its gsa_jax trained whole"):  # parts would retrain
-        saved({"spec": {}, "pad_runs": 10, "runs": runs + [{**runs[0], "seed": 10}]})
+    whole = {"spec": {}, "pad_runs": 10, "runs": runs + [{**runs[0], "seed": 10}]}
+    assert current(whole, "sweep", "sweep.json")["trained_whole"] == 11  # it reads; resuming it is refused
+    root = tmp_path / "old"
+    root.mkdir()
+    (root / "sweep.json").write_text(json.dumps(whole))
+    with pytest.raises(ResumeRefused, match="a group of 11 runs, which it trained whole"):  # parts would retrain it
+        check_resumable(str(root), None, {}, None)
 
 
 def test_every_experiment_file_is_valid():

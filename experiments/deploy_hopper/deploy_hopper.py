@@ -26,9 +26,7 @@ def main(argv=None):
 
     from gsa_jax.analysis.sweeps.extraction import select, sweep_runs
     from gsa_jax.deployment.evaluation import load_controller, run_mjx, run_mujoco_c
-    from gsa_jax.deployment.exporting import controller_arrays
-    from gsa_jax.running.checkpoint import save_npz_atomic
-    from gsa_jax import run_metadata
+    from gsa_jax import export_controller, run_metadata
 
     os.makedirs(args.out, exist_ok=True)
     seeds = sorted({int(r["seed"]) for _, _, _, r in sweep_runs(args.sweep_dir) if r["env"] == args.env
@@ -38,7 +36,7 @@ def main(argv=None):
         address = select(args.sweep_dir, args.env, "mixture", args.clusters, seed)
         ctrl = os.path.join(args.out, "runs", f"{args.env}-K{args.clusters}-s{seed}", "controller.npz")
         os.makedirs(os.path.dirname(ctrl), exist_ok=True)
-        save_npz_atomic(ctrl, **controller_arrays(address))
+        export_controller(address, ctrl)
         c = run_mujoco_c(*load_controller(ctrl), args.episodes)
         _, j = run_mjx(address, args.episodes)
         rows.append({"seed": seed, "mujoco_c_return": round(c["return_mean"], 1), "mujoco_c_ci95": round(c["return_ci95"], 1),

@@ -14,15 +14,14 @@ import numpy as np
 
 import envs
 from envs.physics import Physics
+from gsa_jax import export_controller
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.kinds import MIXTURE, MLP
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.ppo import schedule
 from gsa_jax.analysis.sweeps.extraction import select, sweep_runs
 from gsa_jax.deployment.evaluation import load_controller, run_mujoco_c
-from gsa_jax.deployment.exporting import controller_arrays
 from gsa_jax.deployment.inspection import last_iteration, load_run
-from gsa_jax.running.checkpoint import save_npz_atomic
 
 
 def load_cell(sweep_dir: str, env_name: str, policy: str, k: int) -> list:
@@ -107,7 +106,7 @@ def score_sweep(sweep: str, env_name: str, clusters: int, episodes: int, variant
                 row[name] = round(float(res[name][i].mean()), 1)
             if policy == MIXTURE:
                 ctrl = os.path.join(tmp, os.path.basename(c[6]) + ".npz")
-                save_npz_atomic(ctrl, **controller_arrays(c[6]))
+                export_controller(c[6], ctrl)
                 row["mujoco_c"] = round(run_mujoco_c(*load_controller(ctrl), episodes)["return_mean"], 1)
             else:
                 row["mujoco_c"] = ""

@@ -11,7 +11,6 @@ further round, it is not trained here: the report's "Stopped" line names that ro
 resumes the answer from these runs.
 """
 
-import json
 import os
 import shutil
 import sys
@@ -20,6 +19,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "..", ".."))
 sys.path.insert(0, ROOT)
 
+import gsa_jax  # noqa: E402
 from gsa_jax.analysis.verdicts.answering import STATE, collect_evidence, decide, load_state, save_state  # noqa: E402
 from gsa_jax.commands.answer import build_parser, finish, make_setup, random_policy  # noqa: E402
 
@@ -38,10 +38,7 @@ WRITTEN = ("report.md", "verdicts.csv", "score_vs_k.png", "learning_curves.png")
 def rounds_of(folder: str) -> list:
     """The rounds the folder's answer trained (their records: plan, sweeps, seconds), as its answer.json keeps them."""
     path = os.path.join(folder, STATE)
-    if not os.path.exists(path):
-        return []
-    with open(path) as f:
-        return json.load(f)["rounds"]
+    return gsa_jax.read_record(path, "answer")["rounds"] if os.path.exists(path) else []  # an older one's too
 
 
 def plan_words(plan: dict) -> str:

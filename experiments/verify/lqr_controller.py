@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg as sla
 
 import envs
+import gsa_jax
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.running.checkpoint import save_npz_atomic
 
@@ -38,7 +39,7 @@ def atlas_gain() -> np.ndarray:
 
 def write_controller() -> np.ndarray:
     """Write OUT from TEMPLATE with the LQR as its piece -> the gain on the raw observation [5]."""
-    arrays = dict(np.load(TEMPLATE))
+    arrays = gsa_jax.read_record(TEMPLATE, "controller")  # in the current layout, stamped with its format_version
     k = atlas_gain()
     g = -np.array([k[0], 0.0, k[1], k[2], k[3]])  # on (x, cos, sin, xdot, thetadot)
     std = np.sqrt(arrays["obs_var"].astype(np.float64))

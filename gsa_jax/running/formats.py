@@ -8,9 +8,10 @@ controller must not need JAX. docs/library.md lists what each version changed.
 """
 
 import collections
+import copy
 import json
 import os
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from gsa_jax.errors import UserError
 FORMAT_VERSION = 1  # the version this gsa_jax writes
 VERSION_KEY = "format_version"
 KINDS = ("run", "sweep", "controller", "answer", "verify")
+GROUP_COLUMNS = ("env", "policy", "subpolicy", "partition", "value_target")  # a run row's group (running.spec)
 LAYOUT_FILE = "runs.csv"  # what marks a group directory (a run directory of an older layout has none)
 
 
@@ -43,11 +45,9 @@ def version_of(record: Mapping, what: str) -> int:
     """A record's format_version (0 where it has none); FormatError for one newer than this gsa_jax or not an
     integer."""
     raw = record.get(VERSION_KEY, 0)
-    try:
-        version = int(np.asarray(raw).item()) if not isinstance(raw, (bool, str)) else None
-    except (TypeError, ValueError):
-        version = None
-    if version is None or version < 0 or version != np.asarray(raw).item():
+    value = np.asarray(raw)
+    version = int(value.item()) if value.shape == () and value.dtype.kind in "iu" else None  # no bool, float, str
+    if version is None or version < 0:
         raise FormatError(f"{what} has format_version {raw!r}, not a version number")
     if version > FORMAT_VERSION:
         raise FormatError(f"{what} was written by a newer gsa_jax (format_version {version}; this one reads up to "
@@ -78,20 +78,18 @@ def run_from_0(record: dict, what: str) -> dict:
 
 def sweep_from_0(record: dict, what: str) -> dict:
     """sweep.json: the spec's config with its physics nested; pad_runs (runs per program of version 0, which
-    trained a group larger than it whole) as runs_per_program where no group was larger, else FormatError."""
+    trained a group larger than it whole) as runs_per_program, and where a group was larger its size as
+    trained_whole (such a sweep reads, and resuming it is refused: parts would train that group again)."""
     out = dict(record)
     spec = out.get("spec")
     if isinstance(spec, dict) and isinstance(spec.get("config"), dict):
         out["spec"] = {**spec, "config": physics_nested(what, spec["config"])}
     if "pad_runs" in out:
         n = int(out.pop("pad_runs"))
-        from gsa_jax.running.spec import Group, group_name  # lazy: the spec module needs the task registry
-
-        sizes = collections.Counter(group_name(Group(r["env"], r["policy"], [r])) for r in out.get("runs", []))
+        sizes = collections.Counter(tuple(r.get(c) for c in GROUP_COLUMNS) for r in out.get("runs", []))
         largest = max(sizes.values(), default=0)
         if n and largest > n:
-            raise FormatError(f"{what} (pad_runs {n}) has a group of {largest} runs, which its gsa_jax trained "
-                              f"whole; continue it with its own commit (git_commit {out.get('git_commit', '?')})")
+            out["trained_whole"] = largest
         out["runs_per_program"] = n
     out.setdefault("runs_per_program", 0)
     return out
@@ -111,9 +109,9 @@ def controller_from_0(arrays: dict, what: str) -> dict:
 
 def answer_from_0(state: dict, what: str) -> dict:
     """answer.json: the setup's max_steps (None: fixed steps) and futility (0: every K to the cap), marked
-    before_futility where it had none; every sweep's compile_wall_s (its compile_s); a step-budget record's
-    candidate (its 'enough': the rule before the two-sided one)."""
-    out = dict(state)
+    before_futility (true) where it had none (its resume hint says so); every sweep's compile_wall_s (its
+    compile_s); a step-budget record's candidate (its 'enough': the rule before the two-sided one)."""
+    out = copy.deepcopy(state)
     setup = dict(out["setup"])
     if "futility" not in setup:
         out["before_futility"] = True
@@ -138,6 +136,7 @@ STEPS: dict[str, list[Callable]] = {  # kind -> [the step from version i to i + 
     "run": [run_from_0], "sweep": [sweep_from_0], "controller": [controller_from_0], "answer": [answer_from_0],
     "verify": [verify_from_0],
 }
+assert all(len(steps) == FORMAT_VERSION for steps in STEPS.values()), "a step to the current version for every kind"
 
 
 def current(record: dict, kind: str, what: str) -> dict:
@@ -148,7 +147,7 @@ def current(record: dict, kind: str, what: str) -> dict:
     for step in STEPS[kind][version:]:
         try:
             out = step(out, what)
-        except (KeyError, TypeError, AttributeError) as e:  # a record of another kind, or cut short
+        except (KeyError, TypeError, ValueError, AttributeError) as e:  # a record of another kind, or cut short
             raise FormatError(f"{what} is not a gsa_jax {kind} record of format_version {version} "
                               f"({type(e).__name__}: {e})") from None
     return stamped_arrays(out) if kind == "controller" else stamped(out)
@@ -173,6 +172,15 @@ def read_controller(path: str) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------- layouts refused
+def refuse_trained_whole(meta: dict, where: str, error: type) -> None:
+    """`error` (one line) for a sweep.json of version 0 that trained a group larger than its pad_runs whole
+    (trained_whole): parts would train that group's runs again."""
+    if meta.get("trained_whole"):
+        raise error(f"{where} was written by an older gsa_jax (pad_runs {meta['runs_per_program']}) and has a group of "
+                    f"{meta['trained_whole']} runs, which it trained whole; resume it with its own commit "
+                    f"(git_commit {meta.get('git_commit', '?')})")
+
+
 def check_run_directory(root: str) -> None:
     """FormatError (one line) for a run directory written before runs were stored as groups of one."""
     if os.path.exists(os.path.join(root, "config.json")) and not os.path.exists(os.path.join(root, LAYOUT_FILE)):
@@ -188,7 +196,7 @@ def check_group_directory(root: str, sweep_dir: str) -> None:
                           "its runs with the commit in its sweep.json (git_commit)")
 
 
-def check_metrics(path: str, names, tracked) -> None:
+def check_metrics(path: str, names: Sequence[str], tracked: Sequence[str]) -> None:
     """FormatError (one line) for a metrics file written by a gsa_jax that tracked fewer metrics than `tracked`."""
     missing = [k for k in tracked if k not in names]
     if missing:

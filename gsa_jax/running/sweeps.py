@@ -15,7 +15,7 @@ import numpy as np
 from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config
 from gsa_jax.running import xla_cache
 from gsa_jax.running.checkpoint import DiskFullError, write_atomic
-from gsa_jax.running.formats import read_json, stamped
+from gsa_jax.running.formats import read_json, refuse_trained_whole, stamped
 from gsa_jax.running.driver import Plan, Result, drive, rows_before_failure
 from gsa_jax.running.metrics import INTEGER_METRICS, TIDY_METRICS
 from gsa_jax.running.programs import GroupRuns, GroupShape, group_program, pad_runs
@@ -177,6 +177,7 @@ def check_resumable(root: str, spec: SweepSpec, tasks: dict, options: SweepOptio
     if not os.path.exists(meta_path):
         return
     old = read_json(meta_path, "sweep")
+    refuse_trained_whole(old, root, ResumeRefused)
     check_unchanged({"spec": recorded_spec(old.get("spec", {})), "tasks": old.get("tasks", tasks)},
                     {"spec": spec.to_json(), "tasks": tasks},
                     options.force, f"{root} holds a sweep with a different spec or task code",

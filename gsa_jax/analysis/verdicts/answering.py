@@ -82,7 +82,7 @@ def load_state(out: str, setup: Setup) -> dict:
         return {"setup": setup.to_json(), "rounds": [], "records": {}, "elapsed_s": 0.0}
     state = read_json(path, "answer")  # an older answer.json in the current layout (running.formats)
     mine = json.loads(json.dumps(setup.to_json()))
-    before_futility = state.pop("before_futility", False)  # started before futility stopping: every K to the cap
+    before_futility = state.get("before_futility", False)  # started before futility stopping: every K to the cap
     if state["setup"] != mine:
         changed = sorted(k for k in set(state["setup"]) | set(mine) if state["setup"].get(k) != mine.get(k))
         hint = (" (it was started before futility stopping: resume it with --futility 0)"
