@@ -23,9 +23,10 @@ from envs.c_hosts import STATE_SPEC, float64_rows
 from envs.mujoco_c import C_TASKS, make_c
 from envs.physics import Physics
 from gsa_jax.algorithm.config import Config, make_hparams
-from gsa_jax.algorithm.ppo import make_train
+from gsa_jax.running.tasks import trainer_for
 from gsa_jax.running.spec import load_spec
 from gsa_jax.running.sweeps import SweepOptions, run_sweep
+from gsa_jax.running.tasks import config_for
 
 C = Physics(backend="c")
 
@@ -117,7 +118,7 @@ def test_batch_equals_each_env_alone_at_any_thread_count(hopper_batch):
 ])
 def test_bad_physics_options_are_refused_before_compiling(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        Config(**kwargs).validate()
+        config_for(Config(**kwargs))
 
 
 def test_cli_physics_flag_errors_in_one_line():
@@ -187,7 +188,7 @@ def test_sweep_records_the_backend_and_its_run_equals_the_run_alone(sweep, env, 
     physics = json.loads((out / "sweep.json").read_text())["physics"][f"{path_part(env)}-mixture"]
     assert physics["backend"] == "c" and physics["linesearch_in_force"] == "mujoco_c"
     rows = [r for r in read_rows(out / "metrics.csv") if r["K"] == "2" and r["seed"] == "1"]
-    tr = make_train(Config(env=env, policy="mixture", k_max=2, physics=Physics(backend="c"), **SMALL))
+    tr = trainer_for(Config(env=env, policy="mixture", k_max=2, physics=Physics(backend="c"), **SMALL))
     hp = make_hparams(K=2, total_iterations=4)
     _, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, 2)
     for col in ("episode_return", "episodes", "policy_loss", "value_loss", "approx_kl"):

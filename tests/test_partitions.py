@@ -15,7 +15,8 @@ from test_export import COMMITTED, ROOT, run_c_header
 
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.normalize import normalize
-from gsa_jax.algorithm.ppo import make_train, schedule
+from gsa_jax.algorithm.ppo import schedule
+from gsa_jax.running.tasks import trainer_for
 from gsa_jax.deployment import numpy_policy
 from gsa_jax.running.formats import FORMAT_VERSION
 from gsa_jax.deployment.cells import cell_inequalities, informative_coordinates
@@ -72,7 +73,7 @@ def test_linear_partition_k4_inside_k16_program_equals_k4_program():
     hp = make_hparams(K=4, total_iterations=3)
     out = {}
     for k_max in (4, 16):
-        tr = make_train(Config(k_max=k_max, **TINY))
+        tr = trainer_for(Config(k_max=k_max, **TINY))
         state, metrics = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(3), hp), hp, 3)
         out[k_max] = jax.device_get(state.params["policy"]), jax.device_get(metrics)
     (p4, m4), (p16, m16) = out[4], out[16]

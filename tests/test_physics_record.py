@@ -13,6 +13,7 @@ from gsa_jax.running.runinfo import ResumeRefused
 from gsa_jax.running.single import check_resume_config
 from gsa_jax.running.spec import SpecError, check_spec
 from gsa_jax.running.sweeps import recorded_spec
+from gsa_jax.running.tasks import task_of
 
 FLAT = {"backend": "c", "physics_threads": 2, "num_envs": 16}  # a [config] table / config.json as written before
 NESTED = {"physics": {"backend": "c", "threads": 2}, "num_envs": 16}
@@ -52,10 +53,10 @@ def test_resume_of_a_run_saved_with_flat_physics_fields():
     config = {"config": json.loads(json.dumps(dataclasses.asdict(cfg))), "seed": 0}
     old = {"config": {**{k: v for k, v in config["config"].items() if k != "physics"}, "backend": "c",
                       "physics_threads": 0}, "seed": 0}
-    check_resume_config(current(old, "run", "config.json"), config, False, cfg.task.source())
+    check_resume_config(current(old, "run", "config.json"), config, False, task_of(cfg).source())
     old["config"]["backend"] = "mjx"
     with pytest.raises(ResumeRefused, match=r"config.physics.backend: \"mjx\" -> \"c\""):
-        check_resume_config(current(old, "run", "config.json"), config, False, cfg.task.source())
+        check_resume_config(current(old, "run", "config.json"), config, False, task_of(cfg).source())
 
 
 def test_experiment_files_and_sweep_json_in_either_layout():

@@ -173,9 +173,9 @@ def test_rollout_draws_fresh_noise_for_every_step_and_env():
 
 
 def test_iteration_returns_exactly_the_listed_metrics():
-    from gsa_jax.algorithm.ppo import make_train
+    from gsa_jax.running.tasks import trainer_for
 
-    tr = make_train(Config(num_envs=2, unroll_length=4, num_minibatches=2, num_epochs=1))
+    tr = trainer_for(Config(num_envs=2, unroll_length=4, num_minibatches=2, num_epochs=1))
     hp = make_hparams(K=2)
     state = jax.eval_shape(tr.init, jax.random.PRNGKey(0), hp)
     _, metrics = jax.eval_shape(lambda s, h: tr.run_chunk(s, h, 1), state, hp)  # guarded: with failed_at

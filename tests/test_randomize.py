@@ -17,6 +17,7 @@ from envs.physics import Physics
 from envs.randomization import RandomizeError, parse
 from gsa_jax.algorithm.config import Config
 from gsa_jax.running.spec import SpecError, check_spec
+from gsa_jax.running.tasks import config_for
 from tests.verify_tasks import DAMPING, GEAR, MASS, TIMESTEP, PointMass
 
 C = Physics(backend="c", threads=1)
@@ -67,7 +68,7 @@ def test_parse_canonical_text_and_one_line_errors():
 def test_config_refuses_before_compiling(text, backend, message):
     env = "Ant-v5" if "Ant" in message else "Hopper-v5"
     with pytest.raises(ValueError, match=message) as e:
-        Config(env=env, physics=Physics(backend=backend), randomize=text).validate()
+        config_for(Config(env=env, physics=Physics(backend=backend), randomize=text))
     assert "\n" not in str(e.value)
 
 
@@ -81,8 +82,8 @@ def test_mjx_refuses_a_field_it_lacks_and_names_backend_c():
     lacking = next(f for f in dir(model) if not f.startswith(("_", "opt", "stat")) and f not in have
                    and isinstance(getattr(model, f), np.ndarray) and getattr(model, f).dtype.kind == "f")
     with pytest.raises(ValueError, match=f"MJX's model has no field {lacking}.*backend 'c'"):
-        Config(env="Hopper-v5", randomize=f"{lacking}=0.9:1.1").validate()
-    Config(env="Hopper-v5", physics=Physics(backend="c"), randomize=f"{lacking}=0.9:1.1").validate()  # 'c' scales it
+        config_for(Config(env="Hopper-v5", randomize=f"{lacking}=0.9:1.1"))
+    config_for(Config(env="Hopper-v5", physics=Physics(backend="c"), randomize=f"{lacking}=0.9:1.1"))  # 'c' scales it
 
 
 def test_spec_randomize_table_goes_to_config_text():
@@ -231,7 +232,7 @@ def test_playground_registry_randomizer_equals_playgrounds_own_wrapper(monkeypat
     with pytest.raises(ValueError, match="has no domain randomizer for 'playground:CartpoleBalance'"):
         envs.make(name, randomize="playground")
     with pytest.raises(ValueError, match="applies to playground:<Name> tasks"):
-        Config(env="Hopper-v5", randomize="playground").validate()
+        config_for(Config(env="Hopper-v5", randomize="playground"))
     reg = playground_adapter.registry()
     monkeypatch.setattr(reg, "get_domain_randomizer", lambda n: doubled_masses if n == "CartpoleBalance" else None)
     env = envs.make(name, episode_length=1000, randomize="playground")

@@ -182,6 +182,7 @@ def test_solver_option_rejects_bad_values(bad):
     with pytest.raises(ValueError, match="ls_iterations must be an integer >= 1"):
         Physics(ls_iterations=bad).validate()
     from gsa_jax.algorithm.config import Config
+    from gsa_jax.running.tasks import config_for
 
     with pytest.raises(ValueError, match="ls_iterations"):
-        Config(env="hopper", physics=Physics(ls_iterations=bad)).validate()
+        config_for(Config(env="hopper", physics=Physics(ls_iterations=bad)))

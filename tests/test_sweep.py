@@ -18,7 +18,7 @@ import pytest
 from golden_runs import arrays_digest, check_fingerprint, summarize, table_digest
 
 from gsa_jax.algorithm.config import Config, make_hparams
-from gsa_jax.algorithm.ppo import make_train
+from gsa_jax.running.tasks import trainer_for
 from gsa_jax.running.runinfo import ResumeRefused
 from gsa_jax.running.spec import (
     SpecError, build_grid, check_spec, group_config, group_eval_at, group_eval_every, group_name, load_spec,
@@ -348,7 +348,7 @@ ALONE_COLUMNS = ("episode_return", "episodes", "policy_loss", "value_loss", "app
 def train_alone(iterations=3):
     """{column: [iterations]} and the final parameters ("param<i>", flattened leaves) of K=3, seed 1 of the
     tiny grid trained alone (as train.py does), as this process compiles it."""
-    tr = make_train(Config(env="inverted_double_pendulum", policy="mixture", k_max=3, **SMALL_CONFIG))
+    tr = trainer_for(Config(env="inverted_double_pendulum", policy="mixture", k_max=3, **SMALL_CONFIG))
     hp = make_hparams(K=3, total_iterations=ITERS)
     state, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(1), hp), hp, iterations)
     out = {c: np.asarray(m[c], np.float64) for c in ALONE_COLUMNS + ("grad_norm",)}

@@ -22,12 +22,9 @@ LOOKUPS = {"resolve", "check_name", "check_task", "is_name", "resolve_task", "ta
            "action_bounds", "control_range", "task_randomize", "make_c", "observation_layout"}
 ALLOWED = {  # module -> why it still looks a name up: a library entry that takes a name, or the one reader of a kind
     # of file that names its task (where that name becomes the record code below is handed)
-    "gsa_jax/algorithm/config.py": "Config is the run's settings as config.json and experiment files write them: it "
-                                   "names its task, and resolves it once (Config.task, the record everything below "
-                                   "asks); when built it fills the task's defaults (episode length, declared "
-                                   "randomization) from the record",
-    "gsa_jax/algorithm/ppo.py": "make_train(cfg, task) is the library's entry, taking a name, a record or a Task as "
-                                "Brax's train takes an environment (default: cfg.task)",
+    "gsa_jax/running/tasks.py": "a Config names its task (config.json and experiment files write it so): task_of is "
+                                "the running layer's one way from that name to the record the programs build their "
+                                "environments from (the algorithm is handed the record or the environments)",
     "envs/build.py": "envs.make, make_base, check_backend, check_randomize, as_gymnasium: the library's entry, taking "
                      "a name or a record (resolve() returns a record as it is); make resolves once and passes it on",
     "envs/mujoco_c.py": "make_c(name), observation_layout(name): the library's entry to plain MuJoCo C by name",

@@ -8,8 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import envs
 from gsa_jax.algorithm.config import Config, make_hparams
-from gsa_jax.algorithm.ppo import make_train
+from gsa_jax.running.tasks import trainer_for
 
 CHUNK = 10
 LEARN_ITERS = 30  # 30 x 2048 = 61,440 env steps
@@ -18,7 +19,7 @@ ALIVE_REWARD = 9.0  # at least this per step while both poles are up (at most ~9
 
 
 def compiled(cfg):
-    tr = make_train(cfg)
+    tr = trainer_for(cfg)
     return tr, jax.jit(tr.init), jax.jit(tr.run_chunk, static_argnums=2)
 
 
@@ -133,7 +134,7 @@ def test_init_and_evaluation_compiled_as_run_once_programs_compute_what_the_defa
     for a, b in zip(jax.tree.leaves(by_default), jax.tree.leaves(by_once)):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
     args = (state.params, state.obs_stats, hp, jax.random.PRNGKey(3))
-    short = make_train(dataclasses.replace(tr.cfg, episode_length=EVAL_HORIZON))
+    short = trainer_for(dataclasses.replace(tr.cfg, episode_length=EVAL_HORIZON))
     by_default, by_once = (jax.jit(short.evaluate, compiler_options=o)(*args) for o in (default, once))
     assert float(by_default[0]) > 0.9 * ALIVE_REWARD * EVAL_HORIZON  # every episode up through the horizon
     np.testing.assert_allclose(float(by_once[0]), float(by_default[0]), rtol=1e-5)
@@ -254,8 +255,9 @@ def test_evaluation_with_a_forced_non_finite_episode_counts_it_and_scores_it_to_
 
     tr, _, _ = mixture4
     hp, (state, _) = mixture_runs
-    eval_env = make_env(tr.cfg, auto_reset=False)
-    parts = make_parts(tr.cfg, make_env(tr.cfg), NaNRewardAtStep5(eval_env))
+    task = envs.resolve(tr.cfg.env)
+    eval_env = make_env(tr.cfg, task, auto_reset=False)
+    parts = make_parts(tr.cfg, make_env(tr.cfg, task), NaNRewardAtStep5(eval_env))
     key = jax.random.PRNGKey(11)
     mean, failures = jax.jit(lambda p, o, h, k: evaluate(parts, p, o, h, k))(state.params, state.obs_stats, hp, key)
 

@@ -14,7 +14,7 @@ import pytest
 
 from gsa_jax.algorithm.config import Config, make_hparams
 from gsa_jax.algorithm.optim import adam_step, init_adam
-from gsa_jax.algorithm.ppo import make_train
+from gsa_jax.running.tasks import trainer_for
 from gsa_jax.algorithm.ppo_update import group_learning_rates
 from gsa_jax.running.spec import SpecError
 from gsa_jax.running.tuning import check_tuning, draw_configurations
@@ -100,7 +100,7 @@ def test_tuning_selects_evaluates_and_a_vmapped_configuration_equals_it_alone(tm
     assert json.loads(row["chosen"]) == {k: float(selection[0][k]) for k in ("lr_scale_L", "eps_init", "lr")}
     # the drawn configuration (set 1) in the vmapped tuning sweep equals it trained alone
     drawn = draw_configurations(check_tuning(TUNING), "mix")[1]
-    tr = make_train(Config(env="InvertedDoublePendulum-v5", policy="mixture", k_max=3, physics={"backend": "c"}, **SMALL))
+    tr = trainer_for(Config(env="InvertedDoublePendulum-v5", policy="mixture", k_max=3, physics={"backend": "c"}, **SMALL))
     hp = make_hparams(K=3, total_iterations=3, **drawn)
     _, m = jax.jit(tr.run_chunk, static_argnums=2)(jax.jit(tr.init)(jax.random.PRNGKey(5), hp), hp, 3)
     rows = []

@@ -229,26 +229,26 @@ def test_register_names_a_task_for_library_users():
     assert not envs.is_name("my_reacher")
 
 
-def test_make_train_takes_a_task_object_and_trains_it_as_its_name_does():
-    """make_train(cfg, task) with the Task class itself (no name registered): two iterations on backend 'c' equal,
+def test_a_trainer_takes_a_task_object_and_trains_it_as_its_name_does():
+    """trainer_for(cfg, task) with the Task class itself (no name registered): two iterations on backend 'c' equal,
     bit for bit, the run of the same class named 'module:Class'; a Config naming another task is one line."""
     from examples.reacher import Reacher
 
     from gsa_jax.algorithm.config import Config, make_hparams
-    from gsa_jax.algorithm.ppo import make_train
+    from gsa_jax.running.tasks import trainer_for
 
     small = dict(policy="mixture", k_max=2, num_envs=4, unroll_length=8, num_minibatches=2, num_epochs=1,
                  eval_envs=2, physics=Physics(backend="c"))
     key, hp = jax.random.PRNGKey(0), make_hparams(K=2)
     runs = []
     for cfg, task in ((Config(env="Reacher", **small), Reacher), (Config(env=TASK, **small), None)):
-        tr = make_train(cfg, task)
+        tr = trainer_for(cfg, task)
         assert tr.cfg.episode_length == 200
         runs.append(jax.jit(tr.run_chunk, static_argnums=2)(tr.init(key, hp), hp, 2))
     for a, b in zip(jax.tree.leaves(runs[0]), jax.tree.leaves(runs[1])):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     with pytest.raises(ValueError, match="names env 'hopper' but the task given is 'Reacher'"):
-        make_train(Config(env="hopper", **small), Reacher)
+        trainer_for(Config(env="hopper", **small), Reacher)
     mine = Reacher()  # an instance: every use gets its own copy (its own MjModel), the user's object stays as it was
     record = envs.resolve(mine)
     assert record.name == "Reacher" and record.new() is not mine and record.new().model is not mine.model
@@ -385,6 +385,7 @@ def test_reset_mode_fresh_starts_every_episode_from_a_new_draw_and_first_from_th
     with pytest.raises(ValueError, match="reset mode must be one of first, fresh"):
         envs.make(TASK, reset_mode="again")
     from gsa_jax.algorithm.config import Config
+    from gsa_jax.running.tasks import config_for
 
     with pytest.raises(ValueError, match="unknown reset_mode 'again'; choose one of first, fresh"):
-        Config(env=TASK, reset_mode="again").validate()
+        config_for(Config(env=TASK, reset_mode="again"))

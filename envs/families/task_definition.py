@@ -103,7 +103,7 @@ class Definition(TaskRecord):
 
 def definition_record(task: Any, name: str = "") -> Definition:
     """The record of a task definition given as an object (a Task instance or subclass, envs/task.py) rather
-    than a name: for library users who train a task without registering it (make_train(cfg, task)). name:
+    than a name: for library users who train a task without registering it (gsa_jax.running.tasks.trainer_for(cfg, task)). name:
     what results call it (default: the class's name). Validated here (TaskError in one line)."""
     Task, TaskError = mujoco_side().task.Task, mujoco_side().task.TaskError
     if isinstance(task, type) and issubclass(task, Task):

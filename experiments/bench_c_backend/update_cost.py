@@ -22,9 +22,10 @@ from unittest import mock
 import jax
 import jax.numpy as jnp
 
+import envs
 from envs.physics import Physics
 from gsa_jax.algorithm import ppo, ppo_update
-from gsa_jax.algorithm.config import Config, make_hparams
+from gsa_jax.algorithm.config import Config, for_task, make_hparams
 from gsa_jax.algorithm.nn import init_mlp
 from gsa_jax.algorithm.optim import init_adam
 from gsa_jax import run_metadata
@@ -106,8 +107,9 @@ def main():
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
-    cfg = Config(env=args.env, k_max=6, physics=Physics(backend="c", threads=1))
-    p = ppo.make_parts(cfg, ppo.make_env(cfg), ppo.make_env(cfg, auto_reset=False))
+    task = envs.resolve(args.env)
+    cfg = for_task(Config(env=args.env, k_max=6, physics=Physics(backend="c", threads=1)), task)
+    p = ppo.make_parts(cfg, ppo.make_env(cfg, task), ppo.make_env(cfg, task, auto_reset=False))
     hp = make_hparams(K=6)
     inputs = update_inputs(p, hp, args.runs, jax.random.PRNGKey(0))
     keys = jax.random.split(jax.random.PRNGKey(1), args.runs)

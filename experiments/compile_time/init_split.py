@@ -28,12 +28,13 @@ CHILD = r"""
 import json, sys, time
 import jax
 from gsa_jax.algorithm.config import make_hparams
-from gsa_jax.algorithm.ppo import make_run_parts, make_train
+from gsa_jax.algorithm.ppo import make_run_parts
 from gsa_jax.commands.train import build_parser, resolve
 from gsa_jax.running import xla_cache
+from gsa_jax.running.tasks import trainer_for
 
 plan = resolve(build_parser().parse_args(sys.argv[1].split()))
-parts, trainer = make_run_parts(plan.cfg), make_train(plan.cfg)
+parts, trainer = make_run_parts(plan.cfg, plan.task), trainer_for(plan.cfg, plan.task)
 hp, key, once = make_hparams(**plan.hp), jax.random.PRNGKey(0), xla_cache.once_options()
 programs = [("policy_init", lambda k, h: parts.policy.init(k, h)),
             ("init", trainer.init)]

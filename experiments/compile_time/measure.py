@@ -74,13 +74,13 @@ def program_rows(argv: list) -> list:
     import jax
 
     from gsa_jax.algorithm.config import make_hparams
-    from gsa_jax.algorithm.ppo import make_train
     from gsa_jax.commands.train import build_parser, resolve
     from gsa_jax.running import xla_cache
+    from gsa_jax.running.tasks import trainer_for
 
     plan = resolve(build_parser().parse_args(argv))
     t0 = time.perf_counter()
-    trainer = make_train(plan.cfg)
+    trainer = trainer_for(plan.cfg, plan.task)
     rows = [{"program": "setup", "total_s": time.perf_counter() - t0}]
     hp, key = make_hparams(**plan.hp), jax.random.PRNGKey(0)
     once = xla_cache.once_options()  # as compile_single compiles init and the evaluation

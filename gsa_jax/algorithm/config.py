@@ -6,7 +6,6 @@ options_hparams read a parsed command line, saved_option_values gives back a sav
 
 import argparse
 import dataclasses
-import functools
 import json
 import math
 import re
@@ -60,7 +59,7 @@ class Config:
         "minibatches (Adam steps) per epoch, each of --num-envs x --unroll-length / N samples; N must divide that "
         "product (default %(default)s)"))
     hidden: tuple = (64, 64)
-    # None: the task's own (envs.default_episode_length)
+    # None: the task's own (filled in by for_task)
     episode_length: int | None = _flag(None, "--episode-length", help="time limit in steps (default: the task's own)")
     # where an ended training episode restarts: "first" (the env's first start state, Brax's convention) or
     # "fresh" (a new draw of the task's start law, as gymnasium and dm_control reset; envs/wrappers.py)
@@ -97,29 +96,13 @@ class Config:
     def __post_init__(self):
         if isinstance(self.physics, dict):
             object.__setattr__(self, "physics", make_physics(self.physics))
-        if self.episode_length is None and envs.is_name(self.env):
-            object.__setattr__(self, "episode_length", envs.default_episode_length(self.env))
-        if self.randomize == "task" and envs.is_name(self.env):  # the task's own declared randomization
-            object.__setattr__(self, "randomize", envs.task_randomize(self.env))
+        if self.randomize == "task":  # the task's own: for_task fills it in from the task's record
+            return
         try:  # the canonical text of a text, a table ({name: value}) or a Randomize; validate() names a bad one
             object.__setattr__(self, "randomize", parse_randomize(self.randomize).text())
         except ValueError:
             if not isinstance(self.randomize, str):
                 raise
-
-    @functools.cached_property
-    def task(self) -> TaskRecord:
-        """The record of the task this Config names (envs/registry.py), resolved once per Config: code below the
-        command layer asks it (cfg.task.source(), .model(), .has_c, ...) instead of looking the name up again.
-        ValueError (one line) where env names no task."""
-        return envs.resolve(self.env)
-
-    def __getstate__(self) -> dict:
-        """The fields only: the resolved record is not pickled (a worker resolves its own)."""
-        return {k: v for k, v in self.__dict__.items() if k != "task"}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
 
     @property
     def batch_size(self) -> int:
@@ -129,14 +112,17 @@ class Config:
     def minibatch_size(self) -> int:
         return self.batch_size // self.num_minibatches
 
-    def validate(self, task: Any = None) -> "Config":
+    def validate(self, task: TaskRecord) -> "Config":
         """Raise ValueError naming the first bad field (before anything is compiled). task: the task's record
-        (envs/registry.py; default: self.task), whose name must be self.env."""
-        task = self.task if task is None else task
+        (resolved by the caller, envs.resolve), whose name must be self.env; the Config is for_task's (its
+        episode_length and randomize filled in)."""
         if task.name != self.env:
             raise ValueError(f"the Config names env {self.env!r} but the task given is {task.name!r}: make the Config "
                              "with env=<the task's name>")
-        envs.check_task(task)
+        task.check_traced()  # a task definition's observation with jax.numpy equal to NumPy's (once per process)
+        if self.episode_length is None or self.randomize == "task":
+            raise ValueError("the Config leaves the task's own episode_length or randomize to fill in: make it "
+                             "with for_task(cfg, task)")
         if self.policy not in POLICY_KINDS:
             raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICY_KINDS)}")
         if self.subpolicy not in SUBPOLICY_KINDS:
@@ -159,6 +145,24 @@ class Config:
                 f"num_envs*unroll_length = {self.batch_size} is not divisible by num_minibatches = {self.num_minibatches}"
             )
         return self
+
+
+def for_task(cfg: Config, task: TaskRecord) -> Config:
+    """cfg with what it leaves to its task filled in from the task's record (resolved by the caller at the edge,
+    envs.resolve; never a name): episode_length None -> the task's own time limit, randomize 'task' -> the
+    randomization the task declares (ValueError if none). The one place a Config takes anything from its task."""
+    if task.name != cfg.env:
+        raise ValueError(f"the Config names env {cfg.env!r} but the task given is {task.name!r}")
+    fields = {}
+    if cfg.episode_length is None:
+        fields["episode_length"] = int(task.episode_length())
+    if cfg.randomize == "task":
+        declared = task.declared_randomize()
+        if not declared:
+            raise ValueError(f"task {task.name!r} declares no randomization (Task.randomize); give one, e.g. "
+                             "randomize='mass=0.9:1.1, delay=1'")
+        fields["randomize"] = parse_randomize(declared).text()
+    return dataclasses.replace(cfg, **fields) if fields else cfg
 
 
 def config_defaults() -> dict:

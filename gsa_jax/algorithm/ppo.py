@@ -1,9 +1,11 @@
 """PPO for the mixture-of-linear and flat-MLP policies, as pure functions.
 
-    trainer = make_train(Config(...))
+    task = envs.resolve("hopper")                       # at the edge: a name to its record, once
+    cfg = for_task(Config(env="hopper", ...), task)     # the task's own time limit and randomization
+    trainer = make_train(cfg, *make_envs(cfg, task))    # as Brax's train, handed its environments
     state = trainer.init(key, hp)                       # everything a run carries
     state, metrics = trainer.run_chunk(state, hp, n)    # n PPO iterations in one lax.scan
-    state, metrics = train(Config(...), key, hp, n)     # a whole run
+    state, metrics = train(cfg, task, key, hp, n)       # a whole run
 
 `Config` is static (it changes shapes or program structure). `hp` is a dict of array
 scalars (`Hparams`, see `make_hparams`): everything a sweep varies (seed via the key, K, lr, clip,
@@ -18,7 +20,6 @@ clipping; then update the observation and return normalizers; epsilon and sigma_
 by their factors every iteration.
 """
 
-import dataclasses
 import functools
 from typing import Any, Callable
 
@@ -26,6 +27,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from envs.families.record import TaskRecord
 from gsa_jax.algorithm.config import Config, Hparams
 from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.nn import init_mlp
@@ -67,11 +69,11 @@ def compute_gae(rewards: jax.Array, values: jax.Array, next_values: jax.Array, t
     return adv, adv + values
 
 
-def make_env(cfg: Config, auto_reset: bool = True, task: Any = None, randomized: bool | None = None) -> Any:
-    """The task (its record, default: cfg.env's) as a Config describes it: time limit, physics options and (where
-    randomized, default auto_reset: the training env) its domain randomization."""
+def make_env(cfg: Config, task: TaskRecord, auto_reset: bool = True, randomized: bool | None = None) -> Any:
+    """The task (its record: resolved by the caller, never a name) as a Config describes it: time limit, physics
+    options and (where randomized, default auto_reset: the training env) its domain randomization."""
     randomized = auto_reset if randomized is None else randomized
-    return envs.make(cfg.env if task is None else task, cfg.episode_length, auto_reset, cfg.physics, cfg.reset_mode,
+    return envs.make(task, cfg.episode_length, auto_reset, cfg.physics, cfg.reset_mode,
                      cfg.randomize if randomized else None)
 
 
@@ -281,16 +283,23 @@ def make_parts(cfg: Config, env: Any, eval_env: Any) -> Parts:
                  jax.vmap(policy.mode, in_axes=(None, 0, None)), jax.vmap(policy.partition_probs, in_axes=(None, 0, None)))
 
 
-def make_run_parts(cfg: Config, task: Any = None) -> Parts:
-    """The Parts of a run of cfg on `task` (as make_train takes it), validated; gsa_jax.benchmark.parts times them."""
-    task = cfg.task if task is None else envs.resolve(task)
-    if cfg.episode_length is None:
-        cfg = dataclasses.replace(cfg, episode_length=task.episode_length())
+def make_envs(cfg: Config, task: TaskRecord) -> tuple:
+    """(training env, evaluation env) of a run of cfg on `task`, its record (envs.resolve at the edge; a task
+    definition's too: envs.resolve(MyTask)), cfg validated against it (cfg.env its name; episode_length and
+    randomize filled in: config.for_task). Where the run shares its start states (shares_starts), the evaluation
+    env is the training env's inner env."""
+    if isinstance(task, str):
+        raise TypeError(f"make_envs takes a task's record, not its name: envs.resolve({task!r})")
     cfg.validate(task)
-    env = make_env(cfg, task=task)
+    env = make_env(cfg, task)
     if shares_starts(cfg):
-        return make_parts(cfg, env, env.env)
-    return make_parts(cfg, env, make_env(cfg, auto_reset=False, task=task, randomized=cfg.eval_randomized))
+        return env, env.env
+    return env, make_env(cfg, task, auto_reset=False, randomized=cfg.eval_randomized)
+
+
+def make_run_parts(cfg: Config, task: TaskRecord) -> Parts:
+    """The Parts of a run of cfg on `task` (its record, as make_envs takes it); gsa_jax.benchmark.parts times them."""
+    return make_parts(cfg, *make_envs(cfg, task))
 
 
 def shares_starts(cfg: Config) -> bool:
@@ -324,13 +333,11 @@ def start_keys(p: Parts, key: jax.Array, n: int) -> jax.Array:
     return jnp.concatenate([keys, jnp.repeat(keys[-1:], size - n, axis=0)])
 
 
-def make_train(cfg: Config, task: Any = None) -> Trainer:
-    """Bind the pieces of one training run to a static Config: Trainer(init, iteration, run_chunk, evaluate, ...).
-
-    task: what to train, as Brax's train takes an environment: a task name, its record (envs.resolve) or a
-    task definition (an envs.task.Task instance or subclass, named for its class); default: cfg.env. Resolved
-    once here; cfg.env must be its name (Config(env=...)); cfg.episode_length None: the task's own."""
-    p = make_run_parts(cfg, task)
+def make_train(cfg: Config, env: Any, eval_env: Any) -> Trainer:
+    """Bind the pieces of one training run to a static Config and its environments, as Brax's train takes an
+    environment: Trainer(init, iteration, run_chunk, evaluate, ...). env: the training env (it auto-resets),
+    eval_env: the evaluation env (episodes end); make_envs(cfg, task) builds both from a task's record."""
+    p = make_parts(cfg, env, eval_env)
     bind = functools.partial
     return Trainer(p.cfg, p.env, p.policy, bind(init_state, p), bind(ppo_iteration, p), bind(run_chunk, p), bind(evaluate, p),
                    p)
@@ -353,7 +360,8 @@ def guarded_iteration(iteration: Callable, state: TrainState, hp: Hparams) -> tu
     return kept._replace(failed_at=failed_at), dict(metrics, failed_at=failed_at)
 
 
-def train(cfg: Config, key: jax.Array, hp: Hparams, num_iterations: int) -> tuple:
-    """A whole run as one pure function: (final state, metrics stacked over iterations)."""
-    trainer = make_train(cfg)
+def train(cfg: Config, task: TaskRecord, key: jax.Array, hp: Hparams, num_iterations: int) -> tuple:
+    """A whole run of cfg on `task` (its record) as one pure function: (final state, metrics stacked over
+    iterations)."""
+    trainer = make_train(cfg, *make_envs(cfg, task))
     return trainer.run_chunk(trainer.init(key, hp), hp, num_iterations)

@@ -44,6 +44,7 @@ from gsa_jax.algorithm.config import Config, Hparams, make_hparams
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.policies import draw_noise
 from gsa_jax.algorithm.run_parts import Parts, TrainState, norm_obs
+from gsa_jax.running.tasks import task_of
 
 PHYSICS_PARTS = ("mujoco_c", "host_other", "env_step_program")
 PPO_PARTS = ("rollout_policy", "rollout_rest", "targets", "shuffle_gather", "gradients", "optimizer", "update_loop", "rest")
@@ -52,7 +53,7 @@ PARTS = PHYSICS_PARTS + PPO_PARTS
 
 def setup(cfg: Config, runs: int, K: int, seed: int = 0) -> tuple:
     """(Parts, TrainState [runs], Hparams [runs]) of `runs` runs of cfg, initialized as a sweep does."""
-    p = ppo.make_run_parts(cfg)
+    p = ppo.make_run_parts(cfg, task_of(cfg))
     hps = jax.tree.map(lambda *x: jnp.stack(x), *[make_hparams(K=K, total_iterations=1000) for _ in range(runs)])
     states = jax.jit(jax.vmap(functools.partial(ppo.init_state, p)))(jax.random.split(jax.random.PRNGKey(seed), runs), hps)
     return p, states, hps

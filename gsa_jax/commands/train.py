@@ -21,10 +21,11 @@ import time
 from typing import TYPE_CHECKING, Any, Callable
 
 import envs
+from envs.families.record import TaskRecord
 from gsa_jax.algorithm import partitions, subpolicies
 from gsa_jax.algorithm.config import (
-    Config, add_options, config_record, flag_names, make_hparams, options_config, options_hparams, saved_option_values,
-    validate_hparams,
+    Config, add_options, config_record, flag_names, for_task, make_hparams, options_config, options_hparams,
+    saved_option_values, validate_hparams,
 )
 from gsa_jax.algorithm.kinds import MIXTURE, MLP, POLICY_KINDS
 from gsa_jax.algorithm.subpolicies import SUBPOLICY_KINDS
@@ -72,19 +73,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def make_config(args: argparse.Namespace, k_max: int) -> Config:
-    """The run's validated Config; a bad field is a UsageError naming its flag."""
-    cfg = options_config(args, k_max=max(k_max, 1))
+def make_config(args: argparse.Namespace, k_max: int, task: TaskRecord) -> Config:
+    """The run's validated Config on `task` (its record); a bad field is a UsageError naming its flag."""
     try:
-        return cfg.validate()
+        return for_task(options_config(args, k_max=max(k_max, 1)), task).validate(task)
     except ValueError as e:
         raise UsageError(flag_names(str(e))) from None
 
 
 def resolve(args: argparse.Namespace) -> "RunPlan":
-    """Check every argument and return the RunPlan. No compiling."""
+    """Check every argument and return the RunPlan. No compiling. The one lookup of --env: everything below is
+    handed the task's record (plan.task)."""
     from gsa_jax.running.single import RunPlan
 
+    task = envs.resolve(args.env)
+    envs.check_task(task)
     if args.policy not in POLICY_KINDS:
         raise UsageError(f"unknown --policy {args.policy!r}; choose mixture or mlp")
     if args.steps <= 0:
@@ -101,7 +104,7 @@ def resolve(args: argparse.Namespace) -> "RunPlan":
         raise UsageError("--subpolicy applies to --policy mixture only")
     if args.policy != MIXTURE and args.partition != partitions.DEFAULT:
         raise UsageError("--partition applies to --policy mixture only")
-    cfg = make_config(args, k_max)
+    cfg = make_config(args, k_max, task)
     iterations = math.ceil(args.steps / cfg.batch_size)
     chunk = args.chunk if args.chunk is not None else max(1, min(10, iterations // 20))
     if chunk < 1:
@@ -119,7 +122,7 @@ def resolve(args: argparse.Namespace) -> "RunPlan":
         raise UsageError(f"--eval-seed must be >= 0, got {args.eval_seed}")
     if args.stop_after is not None and args.stop_after < 1:
         raise UsageError(f"--stop-after must be >= 1, got {args.stop_after}")
-    return RunPlan(cfg, hp, iterations, chunk, eval_every, args.eval_seed, args.seed)
+    return RunPlan(cfg, hp, iterations, chunk, eval_every, args.eval_seed, args.seed, task)
 
 
 def saved_options(saved: dict) -> dict:
@@ -190,10 +193,10 @@ def prepare_out(out: str, resume: bool) -> None:
         raise UsageError(f"--out {out!r} already holds a run; pass --resume to continue it or choose another --out")
 
 
-def note_physics(cfg: Config) -> None:
+def note_physics(cfg: Config, task: TaskRecord) -> None:
     """One line on stderr where MJX (the default backend, what accelerators run) is to train on a CPU a task that
     MuJoCo C steps too: --physics c is the CPU's speed path (the backend stays as given, and recorded)."""
-    if cfg.physics.backend != "mjx" or not cfg.task.has_c:
+    if cfg.physics.backend != "mjx" or not task.has_c:
         return
     import jax
 
@@ -211,7 +214,6 @@ def train(argv: list | None) -> int:
     try:
         if args.resume:
             args = resume_args(parser, argv, args.out)
-        envs.check_task(args.env)
         check_policy_options(args, argv)
         plan = resolve(args)
     except ValueError as e:
@@ -219,7 +221,7 @@ def train(argv: list | None) -> int:
     out = args.out or default_out(plan.cfg, plan.hp, plan.seed)
     prepare_out(out, args.resume)
     if not (args.quiet or args.resume or typed(argv, "--physics")):
-        note_physics(plan.cfg)
+        note_physics(plan.cfg, plan.task)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     warn = lambda msg: print(f"gsa train: warning: {msg}", file=sys.stderr)  # noqa: E731
     from gsa_jax.running import xla_cache

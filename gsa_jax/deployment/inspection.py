@@ -17,12 +17,13 @@ from gsa_jax.algorithm.episodes import step_episodes
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.algorithm.normalize import normalize
 from gsa_jax.algorithm.policies import draw_noise
-from gsa_jax.algorithm.ppo import make_env, make_train, schedule
+from gsa_jax.algorithm.ppo import make_env, schedule
 from gsa_jax.deployment.cells import cell_inequalities, cells_text, plot_cells
 from gsa_jax.deployment.exporting import controller_arrays, known_task, load_arrays, task_layout
 from gsa_jax.deployment.numpy_policy import Controller, task_name
 from gsa_jax.errors import UserError
 from gsa_jax.running.formats import FormatError
+from gsa_jax.running.tasks import task_of, trainer_for
 from gsa_jax.running.trained import RunNotFound, read_run
 
 
@@ -42,7 +43,7 @@ def load_run(address: str, require_mixture: bool = True) -> tuple:
         raise InspectError(f"{address!r} is a {meta['config']['policy']!r} run; inspect reads mixture-of-linear runs")
     c = config_record(meta["config"])
     c["hidden"] = tuple(c["hidden"])
-    trainer = make_train(Config(**c))
+    trainer = trainer_for(Config(**c))
     hp = make_hparams(**meta["hparams"])
     like = jax.eval_shape(trainer.init, jax.random.PRNGKey(0), hp)
     loaded = unflatten_like({"params": like.params, "obs_stats": like.obs_stats}, run.params, address)
@@ -71,7 +72,7 @@ def rollout_program(trainer: Any, episodes: int) -> Callable:
     once: f(params, obs_stats, sched, key, deterministic: bool array []) -> dict of arrays [T, episodes, ...] and the
     alive mask (both the mean action and a sampled one are computed per step; `deterministic` picks one)."""
     cfg, pol = trainer.cfg, trainer.policy
-    env = make_env(cfg, auto_reset=False)
+    env = make_env(cfg, task_of(cfg), auto_reset=False)
 
     def episodes_of(params, obs_stats, sched, key, deterministic):
         def step(carry, noise):

@@ -21,7 +21,7 @@ from jax.sharding import PartitionSpec as P
 from envs import host_call
 from gsa_jax.algorithm import ppo
 from gsa_jax.algorithm.config import Config, Hparams, make_hparams
-from gsa_jax.algorithm.ppo import make_train
+from gsa_jax.running.tasks import trainer_for
 from gsa_jax.running import xla_cache
 from gsa_jax.running.driver import Program
 from gsa_jax.running.spec import RUN_BATCH
@@ -56,7 +56,7 @@ def make_group_program(cfg: Config, chunk: int, devices: list, run_batch: int = 
     all at once (0 or None) -- the same per-run computation; MJX's batched solver loops then stop at each sub-batch's
     slowest env instead of the whole device's."""
 
-    trainer = make_train(cfg)
+    trainer = trainer_for(cfg)
     init = jax.vmap(trainer.init)
     once = xla_cache.once_options(devices[0].platform)
     run = sub_batched(jax.vmap(lambda s, h: trainer.run_chunk(s, h, chunk)), run_batch)
@@ -78,7 +78,7 @@ def make_group_evaluate(cfg: Config, run_batch: int = RUN_BATCH, platform: "str 
     episodes), vmapped over runs in
     sequential sub-batches of run_batch (each sub-batch's episodes stop at its own slowest one); compiled for
     `platform` (default JAX's default backend) as programs run now and then are (xla_cache.once_options)."""
-    trainer = make_train(cfg)
+    trainer = trainer_for(cfg)
     once = xla_cache.once_options(platform)
     return jax.jit(sub_batched(jax.vmap(trainer.evaluate), run_batch), compiler_options=once)
 
@@ -183,15 +183,16 @@ class RunEvaluation(NamedTuple):
         return self.rest(params, obs_stats, hp, self.reset(self.keys_of(key)))
 
 
-def compile_single(cfg: Config, chunk: int, evaluate: bool = True) -> tuple:
-    """(trainer, init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not
-    vmapped: train.py's program), compiled once per process for these shapes; evaluate is compiled with them
+def compile_single(cfg: Config, chunk: int, evaluate: bool = True, task: Any = None) -> tuple:
+    """(trainer, init, compiled run_chunk of `chunk` iterations, evaluate) of one run of a Config (not vmapped:
+    train.py's program) on `task` (its record, as the command resolved it; default: cfg.env's), compiled once per
+    process for these shapes; evaluate is compiled with them
     (so a run's compile time includes it) unless `evaluate` is False (a run without evaluations: jitted only).
     Where the training env auto-resets the evaluation env itself (ppo.resets_shared), init and the evaluation
     reset their envs with one compiled program (single_run_parts)."""
 
     def build():
-        trainer = make_train(cfg)
+        trainer = trainer_for(cfg, task)
         once = xla_cache.once_options()  # init and the evaluation run once or now and then
         init, evaluation, ahead = single_run_parts(trainer.parts, once)
         hp = make_hparams(**{"K": 1})  # shapes only: every hyperparameter is a scalar
@@ -241,12 +242,13 @@ def first_run(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[0], tree)
 
 
-def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: int = 0, evaluate: bool = True) -> tuple:
+def single_program(cfg: Config, chunk: int, seed: int, hp_py: dict, eval_seed: int = 0, evaluate: bool = True,
+                   task: Any = None) -> tuple:
     """(Program of one run, its trainer). The run is a group of one: its state and metrics carry a leading run
     axis of 1 (what the group store saves), around the un-vmapped compiled run_chunk. The deterministic
     evaluation after iteration `it` starts its episodes from fold_in(PRNGKey(eval_seed), it): the same starts
     for every seed; it is compiled with the run unless `evaluate` is False (compile_single)."""
-    trainer, init, run_chunk, evaluate = compile_single(cfg, chunk, evaluate)
+    trainer, init, run_chunk, evaluate = compile_single(cfg, chunk, evaluate, task)
     hp = make_hparams(**hp_py)
     eval_key = jax.random.PRNGKey(eval_seed)
 

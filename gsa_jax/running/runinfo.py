@@ -14,6 +14,7 @@ from envs.physics import record
 from gsa_jax.errors import UserError
 
 if TYPE_CHECKING:  # annotations only: this module loads without JAX
+    from envs.families.record import TaskRecord
     from gsa_jax.algorithm.config import Config
 
 
@@ -39,10 +40,10 @@ def git_commit() -> "str | None":
         return None
 
 
-def physics_record(cfg: "Config") -> dict:
-    """Every physics option in force for a Config's task (envs.physics.record of cfg.task's model; no MJX env is
-    built)."""
-    return record(cfg.physics, cfg.task.model())
+def physics_record(cfg: "Config", task: "TaskRecord") -> dict:
+    """Every physics option in force for a Config's task (envs.physics.record of the model of `task`, cfg's task
+    record; no MJX env is built)."""
+    return record(cfg.physics, task.model())
 
 
 def run_metadata() -> dict:

@@ -16,6 +16,7 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from envs import solver_settings
+from envs.families.record import TaskRecord
 from envs.physics import C, resolve_threads
 from gsa_jax.algorithm.config import Config, config_record
 from gsa_jax.algorithm.kinds import MIXTURE
@@ -35,7 +36,8 @@ from gsa_jax.running.formats import check_run_directory, read_json, stamped
 class RunPlan(NamedTuple):
     """What a single run computes: its Config, hyperparameters (python numbers, K and total_iterations
     included), iterations, PPO iterations per compiled chunk, iterations between deterministic evaluations
-    (0: none), the evaluation's start-state seed and the training seed."""
+    (0: none), the evaluation's start-state seed, the training seed and the task's record (resolved once, by the
+    command that read the task's name)."""
 
     cfg: Config
     hp: dict
@@ -44,6 +46,7 @@ class RunPlan(NamedTuple):
     eval_every: int
     eval_seed: int
     seed: int
+    task: TaskRecord
 
 
 class RunOptions(NamedTuple):
@@ -143,10 +146,10 @@ def run(plan: RunPlan, options: RunOptions, log: Callable, warn: Callable) -> Ru
         config_path = os.path.join(out, "config.json")
         if options.resume and os.path.exists(config_path):
             check_run_directory(out)
-            check_resume_config(read_json(config_path, "run"), config, options.force, cfg.task.source())
+            check_resume_config(read_json(config_path, "run"), config, options.force, plan.task.source())
             if os.path.exists(os.path.join(out, "DONE")):
                 return RunEnd(report_ended(out, log), config)
-        config.update(physics=physics_record(cfg), task=cfg.task.source(), **run_metadata())
+        config.update(physics=physics_record(cfg, plan.task), task=plan.task.source(), **run_metadata())
         write_runs_table(out, [run_row(plan)], RUN_ID_COLUMNS)  # first: it marks the directory's layout
         write_atomic(config_path, json.dumps(stamped(config), indent=2))
         return RunEnd(train_run(plan, options, config, (log, warn)), config)
@@ -181,7 +184,7 @@ def train_run(plan: RunPlan, options: RunOptions, config: dict, outputs: tuple) 
     Returns the driver's result."""
     (log, warn), cfg, out = outputs, plan.cfg, options.out
     t0 = time.perf_counter()
-    program, trainer = single_program(cfg, plan.chunk, plan.seed, plan.hp, plan.eval_seed, plan.eval_every > 0)
+    program, trainer = single_program(cfg, plan.chunk, plan.seed, plan.hp, plan.eval_seed, plan.eval_every > 0, plan.task)
     log_start(plan, trainer, out, log)
     if cfg.value_target == "retrace":
         config["retrace_buffer_bytes"] = buffer_bytes(program.state.buffer)

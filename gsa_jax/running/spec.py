@@ -18,7 +18,7 @@ from typing import Callable, NamedTuple, NoReturn
 import envs
 from envs.physics import FLAT_CONFIG_FIELDS, Physics, nest_physics
 from envs.randomization import parse as parse_randomize
-from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam
+from gsa_jax.algorithm.config import HPARAM_DEFAULTS, Config, check_hparam, for_task
 from gsa_jax.algorithm.kinds import MIXTURE, POLICY_KINDS, VALUE_TARGETS
 from gsa_jax.algorithm.partitions import PARTITIONS
 from gsa_jax.algorithm.subpolicies import SUBPOLICY_KINDS
@@ -243,7 +243,8 @@ def check_config_table(cfg: dict, env_names: list[str], bad: Callable[[str, str]
     try:
         cfg = nest_physics(cfg)
         for e in env_names:
-            Config(env=e, **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}).validate()
+            task = envs.resolve(e)
+            for_task(Config(env=e, **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}), task).validate(task)
     except (ValueError, TypeError) as e:
         bad("config", str(e))
     return cfg
@@ -373,7 +374,7 @@ def group_config(spec: SweepSpec, group: Group) -> Config:
     static = {k: tuple(v) if isinstance(v, list) else v for k, v in spec.config.items()}
     static.update({c: group.runs[0][c] for _, c, _, _ in GROUP_AXES if group.runs[0].get(c)})
     k_max = max([int(static.pop("k_max", 1))] + [r["K"] for r in group.runs])
-    return Config(env=group.env, policy=group.policy, k_max=k_max, **static)
+    return for_task(Config(env=group.env, policy=group.policy, k_max=k_max, **static), envs.resolve(group.env))
 
 
 def single_group(env: str, policy: str, K: int, seeds: list[int], backend: str,

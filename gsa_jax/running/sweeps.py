@@ -24,6 +24,7 @@ from gsa_jax.running.spec import (
     RUN_BATCH, Group, SpecError, SweepSpec, build_grid, check_spec, default_chunk, group_config, group_eval_at,
     group_eval_every, group_iterations, group_name,
 )
+from gsa_jax.running.tasks import task_of
 from gsa_jax.running.store import GroupStore, failed_runs, finished_group, write_runs_table
 from gsa_jax.running.trained import part_dir, run_label
 
@@ -146,7 +147,7 @@ def write_group_record(gdir: str, spec: SweepSpec, cfg: Config, runs: list[dict]
     evals = {"eval_every": eval_every, **({"eval_at_iterations": list(eval_at)} if eval_at else {})}
     record = {"config": dataclasses.asdict(cfg), "iterations": iterations, "chunk": chunk, **evals,
               "eval_seed": spec.eval_seed or 0, "env_steps": iterations * cfg.batch_size, "runs": per_run,
-              "physics": physics_record(cfg), "task": cfg.task.source(), **run_metadata()}
+              "physics": physics_record(cfg, task_of(cfg)), "task": task_of(cfg).source(), **run_metadata()}
     write_atomic(os.path.join(gdir, "config.json"), json.dumps(stamped(record), indent=1))
 
 
@@ -192,7 +193,7 @@ def check_resumable(root: str, spec: SweepSpec, tasks: dict, options: SweepOptio
 def spec_tasks(spec: SweepSpec, groups: list[Group]) -> tuple:
     """({group name: Config}, {env: its task's source record}) of a sweep's groups."""
     configs = {group_name(g): group_config(spec, g) for g in groups}
-    sources = {cfg.env: cfg.task.source() for cfg in configs.values()}
+    sources = {cfg.env: task_of(cfg).source() for cfg in configs.values()}
     return configs, {e: sources[e] for e in spec.envs if e in sources}
 
 
@@ -201,7 +202,7 @@ def write_sweep_meta(root: str, spec: SweepSpec, groups: list[Group], options: S
     the same: check_resumable)."""
     configs, tasks = spec_tasks(spec, groups)
     check_resumable(root, spec, tasks, options)
-    physics = {name: physics_record(cfg) for name, cfg in configs.items()}
+    physics = {name: physics_record(cfg, task_of(cfg)) for name, cfg in configs.items()}
     meta = {"spec": spec.to_json(), "runs": [r for g in groups for r in g.runs], "num_processes": options.num_processes,
             "run_batch": options.run_batch, "tensorboard": options.tensorboard, "runs_per_program": options.runs_per_program,
             "physics": physics, "tasks": tasks, **run_metadata()}
