@@ -173,12 +173,13 @@ def test_render_says_in_one_line_what_mujocos_renderer_refuses(monkeypatch, tmp_
 def test_train_on_a_cpu_names_the_faster_physics_where_the_task_has_it(capsys):
     """MJX stays the default backend; on a CPU, for a task MuJoCo C steps, gsa train says --physics c is the fast
     path (and nothing for a task MuJoCo C does not step, or for the C backend itself)."""
+    import envs
     from envs.physics import Physics
     from gsa_jax.algorithm.config import Config
     from gsa_jax.commands.train import note_physics
 
-    note_physics(Config(env="Hopper-v5"))
+    note_physics(Config(env="Hopper-v5"), envs.resolve("Hopper-v5"))
     assert "--physics c steps this task in MuJoCo C" in capsys.readouterr().err
     for cfg in (Config(env="inverted_double_pendulum"), Config(env="Hopper-v5", physics=Physics(backend="c"))):
-        note_physics(cfg)
+        note_physics(cfg, envs.resolve(cfg.env))
         assert capsys.readouterr().err == ""
