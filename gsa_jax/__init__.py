@@ -21,8 +21,9 @@ def _check_envs_package():
 _check_envs_package()
 
 # The public API (gsa_jax/api.py), loaded on first use so that `import gsa_jax` stays light (no JAX).
-API = ("answer_task", "export_controller", "load_controller", "options_argv", "read_csv", "read_record", "run_metadata",
-       "run_sweep", "score_controller", "train_run", "verify_controller", "write_csv")
+API = ("answer_task", "export_controller", "improvement_probability", "iqm", "iqm_ci", "load_controller", "load_sweep",
+       "options_argv", "read_csv", "read_record", "run_metadata", "run_sweep", "score_controller", "select_run",
+       "sweep_runs", "train_run", "verify_controller", "write_csv")
 __all__ = ["__version__", *API]
 
 

@@ -9,6 +9,9 @@
     doc = gsa_jax.verify_controller("runs/cp/controller.npz", "runs/cp/verify", quick=True)
     gsa_jax.export_controller("runs/cp", "runs/cp/controller.npz")       # gsa export
     state = gsa_jax.read_record("runs/answer/answer.json", "answer")    # any saved record, an older one's too
+    curves = gsa_jax.load_sweep("runs/hopper")           # {cell: {seed: {column: [T]}}}, as gsa plot reads them
+    run = gsa_jax.select_run("runs/hopper", "Hopper-v5", "mixture", 2, 0)   # one run's folder in a sweep
+    gsa_jax.iqm_ci({"mixture": x, "flat": y})            # rliable's IQM and 95% interval, as every table reports
 
 train_run, run_sweep, export_controller, answer_task and verify_controller run the command itself with the keyword options as its flags
 (options_argv: the same checks, files and resumption as on the command line); a bad input raises
@@ -21,8 +24,9 @@ from typing import Any
 
 from gsa_jax.errors import UserError
 
-__all__ = ["answer_task", "export_controller", "load_controller", "options_argv", "read_csv", "read_record",
-           "run_metadata", "run_sweep", "score_controller", "train_run", "verify_controller", "write_csv"]
+__all__ = ["answer_task", "export_controller", "improvement_probability", "iqm", "iqm_ci", "load_controller",
+           "load_sweep", "options_argv", "read_csv", "read_record", "run_metadata", "run_sweep", "score_controller",
+           "select_run", "sweep_runs", "train_run", "verify_controller", "write_csv"]
 
 
 def options_argv(options: dict) -> list:
@@ -140,3 +144,49 @@ def run_metadata() -> dict:
     from gsa_jax.running.runinfo import run_metadata as metadata
 
     return metadata()
+
+
+def load_sweep(sweep_dir: str, columns: "list | None" = None) -> dict:
+    """A sweep's learning curves, as gsa plot and the tables read them: {Cell: {seed: {column: [T]}}} (columns:
+    default env_steps, episode_return, episodes, eval_return, eval_failures; any tidy metric name)."""
+    from gsa_jax.analysis.sweeps.results import load_sweep as load
+
+    return load(sweep_dir) if columns is None else load(sweep_dir, columns)
+
+
+def sweep_runs(sweep_dir: str) -> list:
+    """[(run label, group folder, index in its group, runs.csv row)] of a sweep's finished runs."""
+    from gsa_jax.analysis.sweeps.extraction import sweep_runs as runs
+
+    return runs(sweep_dir)
+
+
+def select_run(sweep_dir: str, env: str, policy: str, clusters: int, seed: int) -> str:
+    """The folder of the one finished run of (env, policy, K = clusters, seed) in a sweep without swept
+    hyperparameters (gsa export and gsa deploy take it); UserError where there is not exactly one."""
+    from gsa_jax.analysis.sweeps.extraction import select
+
+    return select(sweep_dir, env, policy, clusters, seed)
+
+
+def iqm(scores: Any) -> float:
+    """The interquartile mean of scores [runs, tasks] or [runs] (rliable), the point every table reports."""
+    from gsa_jax.analysis.sweeps import stats
+
+    return stats.iqm(scores)
+
+
+def iqm_ci(scores: dict, seed: int = 0, reps: "int | None" = None) -> dict:
+    """{name: (IQM, low, high)} of score matrices {name: [runs, tasks]}: rliable's 95% stratified bootstrap
+    interval, with the tables' number of resamples unless reps is given."""
+    from gsa_jax.analysis.sweeps import stats
+
+    return stats.iqm_ci(scores, seed, stats.REPS if reps is None else reps)
+
+
+def improvement_probability(pairs: dict, seed: int = 0, reps: "int | None" = None) -> dict:
+    """{name: (P(X > Y), low, high)} for pairs {name: (X [runs, tasks], Y [runs, tasks])}: rliable's probability
+    of improvement (ties count half) with its 95% stratified bootstrap interval."""
+    from gsa_jax.analysis.sweeps import stats
+
+    return stats.improvement_probability(pairs, seed, stats.REPS if reps is None else reps)

@@ -94,3 +94,17 @@ def test_run_metadata_is_what_results_record():
 
     meta = gsa_jax.run_metadata()
     assert set(meta) == set(run_metadata()) and meta["versions"] == run_metadata()["versions"]
+
+
+def test_statistics_are_the_tables_rliable_numbers():
+    """gsa_jax.iqm, iqm_ci and improvement_probability are the tables' own (analysis.sweeps.stats, rliable): the
+    same numbers for the same seed, the tables' number of resamples by default."""
+    from gsa_jax.analysis.sweeps import stats
+
+    rng = np.random.default_rng(3)
+    x, y = rng.normal(1.0, 1.0, (12, 1)), rng.normal(0.0, 1.0, (12, 1))
+    assert gsa_jax.iqm(x) == stats.iqm(x)
+    assert gsa_jax.iqm_ci({"x": x}, seed=1, reps=200) == stats.iqm_ci({"x": x}, 1, 200)
+    assert gsa_jax.iqm_ci({"x": x}) == stats.iqm_ci({"x": x}, 0, stats.REPS)
+    p = gsa_jax.improvement_probability({"p": (x, y)}, reps=200)["p"]
+    assert p == stats.improvement_probability({"p": (x, y)}, 0, 200)["p"] and 0.5 < p[0] <= 1.0

@@ -735,3 +735,25 @@ def test_a_sweep_job_travels_to_its_workers_as_json_and_splits_over_the_local_pr
     assert [worker_dir(w) for w in workers] == [os.path.join(job.out, f"process-{i}") for i in range(3)]
     assert worker_jobs(job._replace(local=1)) == [job._replace(local=1, worker=True)]
     assert main(["{not json"]) == 2 and main([]) == 2
+
+
+def test_the_public_api_reads_a_sweep_as_the_tables_do(inprocess):
+    """gsa_jax.sweep_runs, select_run and load_sweep (the API the experiment scripts use) are the sweep's finished
+    runs, its one run of a cell and seed, and its curves, as extraction and the tables read them; a cell the sweep
+    does not hold is a UserError (one line)."""
+    import gsa_jax
+    from gsa_jax.analysis.sweeps.results import load_sweep
+    from gsa_jax.errors import UserError
+    from gsa_jax.running.trained import finished_runs
+
+    runs = gsa_jax.sweep_runs(str(inprocess))
+    assert runs == finished_runs(str(inprocess)) and len(runs) == 4
+    env = runs[0][3]["env"]
+    address = gsa_jax.select_run(str(inprocess), env, "mixture", 3, 1)
+    label = next(r[0] for r in runs if (r[3]["K"], r[3]["seed"]) == ("3", "1"))
+    assert address == os.path.join(str(inprocess), label)
+    with pytest.raises(UserError, match="0 finished runs"):
+        gsa_jax.select_run(str(inprocess), env, "mixture", 2, 0)
+    assert gsa_jax.load_sweep(str(inprocess)).keys() == load_sweep(str(inprocess)).keys()
+    curves = gsa_jax.load_sweep(str(inprocess), ["eval_return"])
+    assert all(set(seeds) == {0, 1} and list(next(iter(seeds.values()))) == ["eval_return"] for seeds in curves.values())

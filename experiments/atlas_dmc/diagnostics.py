@@ -14,7 +14,7 @@ import statistics
 
 import numpy as np
 
-from gsa_jax.analysis.sweeps.results import load_sweep, write_csv
+from gsa_jax import load_sweep, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")

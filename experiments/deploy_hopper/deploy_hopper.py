@@ -24,16 +24,15 @@ def main(argv=None):
     p.add_argument("--out", default="experiments/deploy_hopper/results")
     args = p.parse_args(argv)
 
-    from gsa_jax.analysis.sweeps.extraction import select, sweep_runs
     from gsa_jax.deployment.evaluation import load_controller, run_mjx, run_mujoco_c
-    from gsa_jax import export_controller, run_metadata
+    from gsa_jax import export_controller, run_metadata, select_run, sweep_runs
 
     os.makedirs(args.out, exist_ok=True)
     seeds = sorted({int(r["seed"]) for _, _, _, r in sweep_runs(args.sweep_dir) if r["env"] == args.env
                     and r["policy"] == "mixture" and int(r["K"]) == args.clusters})
     rows = []
     for seed in seeds:
-        address = select(args.sweep_dir, args.env, "mixture", args.clusters, seed)
+        address = select_run(args.sweep_dir, args.env, "mixture", args.clusters, seed)
         ctrl = os.path.join(args.out, "runs", f"{args.env}-K{args.clusters}-s{seed}", "controller.npz")
         os.makedirs(os.path.dirname(ctrl), exist_ok=True)
         export_controller(address, ctrl)

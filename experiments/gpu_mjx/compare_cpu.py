@@ -16,8 +16,7 @@ import subprocess
 
 import numpy as np
 
-from gsa_jax import read_csv, write_csv
-from gsa_jax.analysis.sweeps.stats import improvement_probability, iqm_ci
+from gsa_jax import improvement_probability, iqm_ci, read_csv, write_csv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))

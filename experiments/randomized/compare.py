@@ -24,8 +24,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", ".."))
-from gsa_jax import write_csv  # noqa: E402
-from gsa_jax.analysis.sweeps.stats import improvement_probability, iqm_ci  # noqa: E402
+from gsa_jax import improvement_probability, iqm_ci, write_csv  # noqa: E402
 
 TRAININGS = ("nominal", "randomized")
 

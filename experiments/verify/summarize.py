@@ -2,7 +2,7 @@
 
 results/per_controller.csv: one row per verified controller (its verify.json's numbers). results/summary.csv: per
 task, mixture K and metric, flat PPO's and the mixture's IQM with 95% stratified-bootstrap CIs and P(mixture > flat PPO)
-(rliable, gsa_jax.analysis.sweeps.stats). results/confound.csv: per task and K, the rank correlation of nominal return and ROA
+(rliable, gsa_jax.iqm_ci). results/confound.csv: per task and K, the rank correlation of nominal return and ROA
 volume over both classes' controllers, and P(mixture > flat PPO) on the ROA volume left after a linear fit on the
 nominal return (pooled over both classes): the comparison at equal nominal score. results/cost.csv: each part's
 mean seconds per controller (empty: the task has no such part). results/fixed_points.csv: per task and configuration,
@@ -19,8 +19,8 @@ import os
 import numpy as np
 import scipy.stats
 
-from gsa_jax.analysis.sweeps import stats
-from gsa_jax import write_csv
+from gsa_jax import improvement_probability, iqm_ci, write_csv
+from run import GROUPS  # this folder's run.py: the groups it verifies
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 METRICS = ("nominal_mean", "nominal_p05", "worst_start_law", "worst_twice_the_spread", "worst_with_pushes",
@@ -48,17 +48,19 @@ def row(group, doc):
 
 
 def load_rows(base):
+    """Every verify.json run.py wrote under base/<group>/ (run.GROUPS only: results/ holds other studies' folders)."""
     rows = []
-    for path in sorted(glob.glob(os.path.join(base, "*", "*", "verify.json"))):
-        with open(path) as f:
-            rows.append(row(os.path.basename(os.path.dirname(os.path.dirname(path))), json.load(f)))
+    for group in sorted(GROUPS):
+        for path in sorted(glob.glob(os.path.join(base, group, "*", "verify.json"))):
+            with open(path) as f:
+                rows.append(row(group, json.load(f)))
     return rows
 
 
 def compare(task, k, metric, flat, mix):
     x, y = np.asarray(mix, float)[:, None], np.asarray(flat, float)[:, None]
-    ci = stats.iqm_ci({"flat": y, "mixture": x})
-    p = stats.improvement_probability({"p": (x, y)})["p"]
+    ci = iqm_ci({"flat": y, "mixture": x})
+    p = improvement_probability({"p": (x, y)})["p"]
     return {"task": task, "K": k, "metric": metric, "flat_n": len(flat), "mixture_n": len(mix),
             "flat_iqm": ci["flat"][0], "flat_ci_low": ci["flat"][1], "flat_ci_high": ci["flat"][2],
             "mixture_iqm": ci["mixture"][0], "mixture_ci_low": ci["mixture"][1], "mixture_ci_high": ci["mixture"][2],
@@ -71,7 +73,7 @@ def confound(task, k, rows):
     mix = np.array([r["policy"] == "mixture" for r in rows])
     slope, intercept = np.polyfit(nominal, volume, 1)
     resid = volume - (slope * nominal + intercept)
-    p = stats.improvement_probability({"p": (resid[mix][:, None], resid[~mix][:, None])})["p"]
+    p = improvement_probability({"p": (resid[mix][:, None], resid[~mix][:, None])})["p"]
     rho = scipy.stats.spearmanr(nominal, volume)[0] if np.ptp(nominal) > 0 and np.ptp(volume) > 0 else float("nan")
     return {"task": task, "K": k, "controllers": len(rows), "spearman_nominal_vs_roa_volume": rho, "fit_slope": slope,
             "p_mixture_better_at_equal_nominal": p[0], "p_ci_low": p[1], "p_ci_high": p[2]}
