@@ -120,7 +120,7 @@ def noise_rows():
     import glob
     import json
 
-    from gsa_jax.analysis.sweeps.stats import iqm
+    from gsa_jax import iqm
 
     rows = []
     for d in [os.path.join(ROOT, "fig1_v5", "results", n) for n in sorted(os.listdir(os.path.join(ROOT, "fig1_v5", "results")))
