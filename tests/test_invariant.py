@@ -10,7 +10,7 @@ import pytest
 from envs.task import TaskC
 from gsa_jax.commands.verify import main as verify_main
 from gsa_jax.deployment import cells
-from gsa_jax.verify import analysis, certify, invariant, roa, simulate
+from gsa_jax.verify import analysis, certify, invariant, multistep, roa, simulate
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify.system import equilibrium_guess, load_system, state_scale
 from verify_tasks import biased_pair, export, lqr_gain
@@ -123,8 +123,57 @@ def test_a_strongly_biased_pair_says_why_nothing_is_certified(tmp_path):
     """Pushes of 0.5 put each piece's fixed point at the other piece's action clip: no quadratic invariant set lies
     inside the linearization's bounds, and the record says so (certified false, the LMI's reason)."""
     rec = certify_system(load_system(biased_pair(tmp_path / "c.npz", POINT_MASS, 0.5)))["hold_set"]
-    assert not rec["certified"] and rec["level"] == 0.0 and "P" not in rec
-    assert rec["reason"].startswith("the invariant-set LMI has no solution Clarabel finds at any rho_P of the grid")
+    assert not rec["certified"] and rec["level"] == 0.0
+    assert rec["one_step_refusal"].startswith("the invariant-set LMI has no solution Clarabel finds at any rho_P of")
+    # the k-step program fits the piecewise-affine model, whose clipped pieces the plant does not follow
+    assert rec["program"].startswith("k steps") and rec["k"] > 1 and rec["violations"][0] > 0
+    assert rec["reason"].startswith("plant falsified at level ") and "not above the inner level" in rec["reason"]
+
+
+PENDULUM = os.path.join(ROOT, "experiments/atlas_dmc/results/pendulum-swingup/mixture/controllers",
+                        "dmc.pendulum-swingup-mixture-K2-s0.npz")
+
+
+def test_the_model_steps_each_state_with_the_piece_whose_cell_holds_it():
+    """multistep.run_model against a loop over states: three 2-D pieces whose cells are the argmax of affine logits,
+    each state stepped k times by the piece whose logit is largest there."""
+    rng = np.random.default_rng(3)
+    W, c = rng.normal(size=(3, 2)), rng.normal(size=3)
+    rows = [np.array([np.append(W[i] - W[j], c[i] - c[j]) for j in range(3) if j != i]) for i in range(3)]
+    F = rng.normal(scale=0.5, size=(3, 2, 3))
+    d = rng.normal(size=(200, 2))
+    out = multistep.run_model(F, rows, d, 4)
+    for x, y in zip(d, out):
+        for _ in range(4):
+            i = int(np.argmax(W @ x + c))
+            x = F[i, :, :2] @ x + F[i, :, 2]
+        np.testing.assert_allclose(y, x, rtol=1e-12, atol=1e-12)
+
+
+def test_a_sliding_pendulum_hold_is_certified_over_k_steps_and_holds_on_a_recheck():
+    """dmc pendulum-swingup K = 2 seed 0 holds upright by sliding between two saturated pieces, each open-loop
+    unstable there (spectral radii about 1.088): no one-step quadratic V exists, the k-step program's set is
+    certified; starts drawn otherwise, run in plain MuJoCo C, keep V(x_k) <= rho^2 V(x_0) + gamma at each of three
+    k-step instants and never terminate."""
+    system = load_system(PENDULUM)
+    rec = certify_system(system)["hold_set"]
+    assert rec["program"].startswith("k steps") and rec["certified"] and rec["k"] > 1, rec.get("reason")
+    assert rec["one_step_refusal"].startswith("the invariant-set LMI has no solution")
+    assert min(rec["spectral_radii"]) > 1 and 0 < rec["inner_level"] < rec["level"]
+    P, level, rho, gamma, k = np.array(rec["P"]), rec["level"], rec["rho"], rec["gamma"], rec["k"]
+    q0, v0 = np.array(rec["qpos"]), np.array(rec["qvel"])
+    V = lambda tc: (lambda d: d @ P @ d)(np.concatenate([tc.data.qpos - q0, tc.data.qvel - v0]))
+    for d in inside(rec, 40, seed=2024):
+        tc = TaskC(system.task)
+        obs = tc.set_start(q0 + d[:1], v0 + d[1:])
+        before = V(tc)
+        for _ in range(3):
+            for _ in range(k):
+                obs, _, done = tc.step(system.ctrl.act(obs.astype(np.float32)))
+                assert not done
+            after = V(tc)
+            assert after <= rho ** 2 * before + gamma + certify.DECREASE_TOL * level
+            before = after
 
 
 def random_cells(tmp_path, rng):

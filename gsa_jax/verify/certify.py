@@ -28,7 +28,8 @@ units (rad, m, rad/s, m/s; gsa_jax.verify.system), the closed loop's Jacobian A 
   (gsa_jax.verify.boundary): V's peak between the k-step instants and the convergence time from E's boundary.
 """
 
-from typing import TYPE_CHECKING, Callable, NamedTuple
+import warnings
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import mujoco
 import numpy as np
@@ -103,6 +104,19 @@ def stable_fixed_point(local: dict) -> dict:
         raise VerifyError(f"nothing to certify: the closed loop's fixed point ({who}'s) is unstable, spectral radius "
                           f"{fp['spectral_radius']:.4f}")
     return fp
+
+
+def solved(cp: Any, objective: Any, cons: list) -> bool:
+    """Whether Clarabel solves the program to its tolerance (an inaccurate solution does not count; cvxpy's warning
+    about one is not shown)."""
+    problem = cp.Problem(objective, cons)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL)
+    except cp.error.SolverError:
+        return False
+    return problem.status == "optimal"
 
 
 def step_rule(rho_a: float) -> tuple:

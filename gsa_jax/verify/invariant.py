@@ -42,17 +42,16 @@ point): the state chatters across the partition's boundaries. States are verify'
   below.
 """
 
-import warnings
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from gsa_jax.algorithm.kinds import MIXTURE
 from gsa_jax.deployment import numpy_policy  # noqa: F401 - annotations
-from gsa_jax.verify import certify, margins, roa, switching
+from gsa_jax.verify import certify, margins, multistep, roa, switching
 from gsa_jax.verify import linearize as lin
 from gsa_jax.verify.simulate import controller_policy
-from gsa_jax.verify.system import System, VerifyError, to_qpos, wrap
+from gsa_jax.verify.system import System, VerifyError, state_scale, to_qpos, wrap
 
 INNER = 0.25  # the inner level's largest share of E's in the program
 RHO_GAPS = (0.5, 0.3, 0.2, 0.1, 0.05, 0.03, 0.02, 0.01, 5e-3, 3e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)  # 1 - rho_P
@@ -174,19 +173,6 @@ class Shape(NamedTuple):
     within: bool = False  # the decrease asked inside the validity bounds only (their slabs among the S-procedure's rows)
 
 
-def solved(cp: Any, objective: Any, cons: list) -> bool:
-    """Whether Clarabel solves the program to its tolerance (an inaccurate solution does not count; cvxpy's warning
-    about one is not shown)."""
-    problem = cp.Problem(objective, cons)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            problem.solve(solver=cp.CLARABEL)
-    except cp.error.SolverError:
-        return False
-    return problem.status == "optimal"
-
-
 def invariant_shape(F: np.ndarray, rows: list, H: np.ndarray, rho_p: float, within: bool = False) -> "Shape | None":
     """The program (module docstring) at one rho_P: F [p, n, n + 1], rows [p] of [m, n + 1], H [M, n] the
     bounds' rows g / margin; within: the decrease asked inside the bounds only; None where Clarabel finds no
@@ -199,7 +185,7 @@ def invariant_shape(F: np.ndarray, rows: list, H: np.ndarray, rho_p: float, with
     cons += [cp.bmat([[P, h[:, None]], [h[None, :], np.ones((1, 1))]]) >> 0 for h in H]
     for f, r in transitions(F, rows, H if within else None):
         cons += transition_constraint(cp, P, gamma, f, r, rho_p)
-    if not solved(cp, cp.Minimize(s), cons) or P.value is None:
+    if not certify.solved(cp, cp.Minimize(s), cons) or P.value is None:
         return None
     Pv = 0.5 * (P.value + P.value.T)
     return Shape(Pv, float(max(gamma.value, 0.0)), rho_p, float(1.0 / np.sqrt(np.linalg.eigvalsh(Pv)[-1])), within)
@@ -213,7 +199,7 @@ def least_gamma(F: np.ndarray, rows: list, shape: Shape, H: np.ndarray) -> Shape
     gamma = cp.Variable(nonneg=True)
     cons = [c for f, r in transitions(F, rows, H if shape.within else None)
             for c in transition_constraint(cp, shape.P, gamma, f, r, shape.rho_p)]
-    if not solved(cp, cp.Minimize(gamma), cons) or gamma.value is None or gamma.value >= shape.gamma:
+    if not certify.solved(cp, cp.Minimize(gamma), cons) or gamma.value is None or gamma.value >= shape.gamma:
         return shape
     return shape._replace(gamma=float(max(gamma.value, 0.0)))
 
@@ -278,16 +264,38 @@ def state_fields(task: Any, qref: np.ndarray, x: np.ndarray) -> dict:
     return {"qpos": to_qpos(task.model, qref, x[:nv])[0].tolist(), "qvel": x[nv:].tolist()}
 
 
-def tested_set(system: System, qref: np.ndarray, x_c: np.ndarray, p: Pieces, budget: certify.CertifyBudget) -> dict:
-    """The program's set at x_c for the active pieces p, tested on the plant: its record's fields; VerifyError (one
-    line) where the program has none."""
-    shape, H, names = design(p, cell_rows(system.ctrl, p), hold_bounds(system, qref, x_c, p))
+def one_or_more_steps(system: System, p: Pieces, bounds: certify.Bounds, excursion: np.ndarray, seed: int) -> tuple:
+    """(Shape, k, H, names, fields): the one-step program's set (k = 1), or where it has none the k-step sampled
+    one (gsa_jax.verify.multistep) from a box around the hold's excursion [n]; VerifyError (one line, both
+    refusals) where neither has one."""
+    rows = cell_rows(system.ctrl, p)
+    try:
+        shape, H, names = design(p, rows, bounds)
+        return shape, 1, H, names, {"program": "one step, the S-procedure on the cells"}
+    except VerifyError as e:
+        why = str(e)
+    H, names = certify.slab_rows(bounds, "the hold's centre")
+    F = np.concatenate([p.A, p.a[:, :, None]], axis=2)
+    half = multistep.half_width(excursion, state_scale(system.task))
+    (P, gamma, rho_p, radius), k, box, H, names = multistep.design(F, rows, H, names, half, seed, why)
+    shape = Shape(P, gamma, rho_p, radius, True)
+    return shape, k, H, names, {"program": "k steps, sampled on the piecewise-affine model", "claim": multistep.CLAIM,
+                                "one_step_refusal": why, "sampled_box": box.tolist(), "model_samples": multistep.SAMPLES}
+
+
+def tested_set(system: System, qref: np.ndarray, x_c: np.ndarray, p: Pieces, excursion: np.ndarray,
+               budget: certify.CertifyBudget) -> dict:
+    """The program's set at x_c for the active pieces p (one step, or k where one has none), tested on the plant
+    over its steps: its record's fields; VerifyError (one line) where no program has one."""
+    bounds = hold_bounds(system, qref, x_c, p)
+    shape, k, H, names, how = one_or_more_steps(system, p, bounds, excursion, budget.seed)
     level_lin, by = certify.largest_level(shape.P, H, names)
     rho = shape.rho_p + (1.0 - shape.rho_p) / 3.0
     inner = shape.gamma / (1.0 - rho ** 2)
-    test = certify.PlantTest(certify.Plant(system, qref, x_c), shape.P, 1, rho, shape.gamma)
+    test = certify.PlantTest(certify.Plant(system, qref, x_c), shape.P, k, rho, shape.gamma)
     level, certified, rounds = certify.check_on_plant(test, level_lin, budget, floor=inner)
-    return {"certified": certified, "reason": None if certified else falsified(rounds, inner), "P": shape.P.tolist(),
+    return {**how, "k": k, "k_seconds": k * float(system.task.dt),
+            "certified": certified, "reason": None if certified else falsified(rounds, inner), "P": shape.P.tolist(),
             "rho": rho, "rho_linearization": shape.rho_p, "gamma": shape.gamma, "within_bounds": shape.within, "inner_level": inner,
             "inner_extent": np.sqrt(inner * np.diag(np.linalg.inv(shape.P))).tolist(),
             "level_linearization": float(level_lin), "bounded_by": by, "level": float(level),
@@ -307,10 +315,11 @@ def falsified(rounds: list, inner: float) -> str:
     return f"plant falsified at every one of the {len(rounds)} levels tried, down to {last['level']:.4g}"
 
 
-def hold_set(system: System, qref: np.ndarray, x_c: np.ndarray, pieces: list, switches: float,
+def hold_set(system: System, qref: np.ndarray, hold: roa.Hold, pieces: list, switches: float,
              budget: certify.CertifyBudget) -> dict:
-    """The record (docs/verify.md) of the switching hold around x_c [2 nv] between pieces: the tested set, or
-    certified false with the reason where the program has none."""
+    """The record (docs/verify.md) of the switching hold (roa.find_hold's: its centre x_c [2 nv] and excursion)
+    between pieces: the tested set, or certified false with the reason where no program has one."""
+    x_c = hold.x
     task = system.task
     p = affine_pieces(system, qref, x_c, pieces)
     out = {"claim": certify.CLAIM, "rule": RULE, "pieces": pieces, "switches_per_second": switches,
@@ -318,7 +327,7 @@ def hold_set(system: System, qref: np.ndarray, x_c: np.ndarray, pieces: list, sw
            "k_seconds": float(task.dt), "cells": cells_kind(system.ctrl, p.obs), "spectral_radii": spectral_radii(p),
            "drift": p.a.tolist()}
     try:
-        return {**out, **tested_set(system, qref, x_c, p, budget)}
+        return {**out, **tested_set(system, qref, x_c, p, hold.excursion, budget)}
     except VerifyError as e:
         return {**out, "certified": False, "reason": str(e).removeprefix("nothing to certify: "), "level": 0.0}
 
@@ -348,7 +357,7 @@ def certify_hold(system: System, qref: np.ndarray, local: dict, hold: roa.Hold, 
         return out
     pieces, switches = hold_pieces(system, qref) if system.ctrl.kind == MIXTURE else ([0], 0.0)
     if len(pieces) > 1:
-        out["hold_set"] = {**hold_set(system, qref, hold.x, pieces, switches, budget), "fixed_point": fixed}
+        out["hold_set"] = {**hold_set(system, qref, hold, pieces, switches, budget), "fixed_point": fixed}
     elif fixed:
         raise VerifyError(fixed)
     return out

@@ -215,15 +215,22 @@ def hold_set_lines(rec: dict) -> list:
     extent = lambda key: ", ".join(f"{name} +-{e:.3g}" for name, e in zip(rec["coordinates"], rec[key]))
     verdict = ("certified: the confirmation round found no violation" if rec["certified"] else
                f"nothing certified: {rec['reason']}")
-    return lines + [
-        f"- V(x) = (x - x_c)' P (x - x_c): V(x_1) <= rho^2 V(x_0) + gamma over one control step ({rec['k_seconds']:.3g} "
-        f"s), rho = {rec['rho']:.4g}, gamma = {rec['gamma']:.4g}; on the linearization rho_P = "
-        f"{rec['rho_linearization']:.4g}",
+    k = rec.get("k", 1)
+    steps = "one control step" if k == 1 else f"{k} control steps"
+    program = [] if k == 1 else [
+        f"- no one-step V: {rec['one_step_refusal']}; the set below is the k-step program's, fitted on "
+        f"{rec['model_samples']} sampled runs of the piecewise-affine model from the box +-"
+        f"{np.round(rec['sampled_box'], 4).tolist()} around x_c"]
+    stays = "and stays" if k == 1 else f"at the {k}-step instants and stays there at those instants (between them V may rise)"
+    return lines + program + [
+        f"- V(x) = (x - x_c)' P (x - x_c): V(x_{k}) <= rho^2 V(x_0) + gamma over {steps} ({rec['k_seconds']:.3g} "
+        f"s), rho = {rec['rho']:.4g}, gamma = {rec['gamma']:.4g}; on the {'linearization' if k == 1 else 'model samples'} "
+        f"rho_P = {rec['rho_linearization']:.4g}",
         f"- level {rec['level']:.4g} ({verdict}); {rec['level_linearization']:.4g} on the linearization, bounded by "
-        f"{rec['bounded_by']}; every start in the set enters the inner set V <= {rec['inner_level']:.4g} and stays",
+        f"{rec['bounded_by']}; every start in the set enters the inner set V <= {rec['inner_level']:.4g} {stays}",
         f"- extent (each coordinate's largest excursion inside the set, in its units): {extent('extent')}; the inner "
         f"set's: {extent('inner_extent')}; the semi-axes and the inscribed radius, which mix units, are in verify.json",
-        f"- plant test ({rec['samples']} starts, each stepped one control step in MuJoCo C with the exported "
+        f"- plant test ({rec['samples']} starts, each stepped {steps} in MuJoCo C with the exported "
         f"controller): {rounds_text(rec['rounds'])}", *room_lines(rec)]
 
 
