@@ -264,42 +264,60 @@ def state_fields(task: Any, qref: np.ndarray, x: np.ndarray) -> dict:
     return {"qpos": to_qpos(task.model, qref, x[:nv])[0].tolist(), "qvel": x[nv:].tolist()}
 
 
-def one_or_more_steps(system: System, p: Pieces, bounds: certify.Bounds, excursion: np.ndarray, seed: int) -> tuple:
-    """(Shape, k, H, names, fields): the one-step program's set (k = 1), or where it has none the k-step sampled
-    one (gsa_jax.verify.multistep) from a box around the hold's excursion [n]; VerifyError (one line, both
-    refusals) where neither has one."""
-    rows = cell_rows(system.ctrl, p)
-    try:
-        shape, H, names = design(p, rows, bounds)
-        return shape, 1, H, names, {"program": "one step, the S-procedure on the cells"}
-    except VerifyError as e:
-        why = str(e)
+def k_step_shape(system: System, p: Pieces, rows: list, bounds: certify.Bounds, excursion: np.ndarray, seed: int,
+                 why: str) -> tuple:
+    """(Shape, k, H, names, fields) of the k-step sampled program (gsa_jax.verify.multistep) from a box around the
+    hold's excursion [n]; VerifyError (one line, with `why`: what the one-step program found) where it has none."""
     H, names = certify.slab_rows(bounds, "the hold's centre")
     F = np.concatenate([p.A, p.a[:, :, None]], axis=2)
     half = multistep.half_width(excursion, state_scale(system.task))
     (P, gamma, rho_p, radius), k, box, H, names = multistep.design(F, rows, H, names, half, seed, why)
-    shape = Shape(P, gamma, rho_p, radius, True)
-    return shape, k, H, names, {"program": "k steps, sampled on the piecewise-affine model", "claim": multistep.CLAIM,
-                                "one_step_refusal": why, "sampled_box": box.tolist(), "model_samples": multistep.SAMPLES}
+    return Shape(P, gamma, rho_p, radius, True), k, H, names, {
+        "program": "k steps, sampled on the piecewise-affine model", "claim": multistep.CLAIM,
+        "rule": f"{RULE}; {multistep.RULE}",
+        "one_step_refusal": why, "sampled_box": box.tolist(), "model_samples": multistep.SAMPLES}
 
 
-def tested_set(system: System, qref: np.ndarray, x_c: np.ndarray, p: Pieces, excursion: np.ndarray,
-               budget: certify.CertifyBudget) -> dict:
-    """The program's set at x_c for the active pieces p (one step, or k where one has none), tested on the plant
-    over its steps: its record's fields; VerifyError (one line) where no program has one."""
-    bounds = hold_bounds(system, qref, x_c, p)
-    shape, k, H, names, how = one_or_more_steps(system, p, bounds, excursion, budget.seed)
+def plant_tested(system: System, qref: np.ndarray, x_c: np.ndarray, shape: Shape, k: int, H: np.ndarray,
+                 names: list, budget: certify.CertifyBudget) -> dict:
+    """A program's set (shape, over k control steps, inside the rows H) tested on the plant: its record's fields."""
     level_lin, by = certify.largest_level(shape.P, H, names)
     rho = shape.rho_p + (1.0 - shape.rho_p) / 3.0
     inner = shape.gamma / (1.0 - rho ** 2)
     test = certify.PlantTest(certify.Plant(system, qref, x_c), shape.P, k, rho, shape.gamma)
     level, certified, rounds = certify.check_on_plant(test, level_lin, budget, floor=inner)
-    return {**how, "k": k, "k_seconds": k * float(system.task.dt),
+    return {"k": k, "k_seconds": k * float(system.task.dt),
             "certified": certified, "reason": None if certified else falsified(rounds, inner), "P": shape.P.tolist(),
-            "rho": rho, "rho_linearization": shape.rho_p, "gamma": shape.gamma, "within_bounds": shape.within, "inner_level": inner,
-            "inner_extent": np.sqrt(inner * np.diag(np.linalg.inv(shape.P))).tolist(),
+            "rho": rho, "rho_linearization": shape.rho_p, "gamma": shape.gamma, "within_bounds": shape.within,
+            "inner_level": inner, "inner_extent": np.sqrt(inner * np.diag(np.linalg.inv(shape.P))).tolist(),
             "level_linearization": float(level_lin), "bounded_by": by, "level": float(level),
             **certify.ellipsoid_fields(shape.P, level), **certify.plant_fields(rounds, budget, level)}
+
+
+def tested_set(system: System, qref: np.ndarray, x_c: np.ndarray, p: Pieces, excursion: np.ndarray,
+               budget: certify.CertifyBudget) -> dict:
+    """The hold's set at x_c for the active pieces p, tested on the plant: the one-step program's where the plant
+    certifies it, else the k-step sampled program's (the one-step one's record where that has none); VerifyError
+    (one line) where neither program has a set."""
+    bounds, rows = hold_bounds(system, qref, x_c, p), cell_rows(system.ctrl, p)
+    one = None
+    try:
+        shape, H, names = design(p, rows, bounds)
+    except VerifyError as e:
+        why = str(e)
+    else:
+        one = {"program": "one step, the S-procedure on the cells",
+               **plant_tested(system, qref, x_c, shape, 1, H, names, budget)}
+        if one["certified"]:
+            return one
+        why = f"the one-step set: {one['reason']}"
+    try:
+        shape, k, H, names, how = k_step_shape(system, p, rows, bounds, excursion, budget.seed, why)
+    except VerifyError:
+        if one is None:
+            raise
+        return one
+    return {**how, **plant_tested(system, qref, x_c, shape, k, H, names, budget)}
 
 
 def falsified(rounds: list, inner: float) -> str:

@@ -1,5 +1,6 @@
-"""A switching hold's invariant set over k control steps, where no one-step quadratic V exists (`gsa verify
---certify`): sampled on the piecewise-affine linearization, tested on the plant (proved on neither).
+"""A switching hold's invariant set over k control steps, where no one-step quadratic V exists or the plant
+falsifies its set (`gsa verify --certify`): sampled on the piecewise-affine linearization, tested on the plant
+(proved on neither).
 
 A hold kept by sliding across a partition boundary drifts along it at every step (each piece's drift a_i points
 out of its own cell, and a piece can be open-loop unstable along the boundary): V(d') <= rho^2 V(d) + gamma over one
@@ -34,7 +35,8 @@ RHO_GAPS = (0.5, 0.3, 0.2, 0.1)  # 1 - rho_P
 SAMPLES = 1000
 EXTENT_FLOOR = 0.02  # state-scale units: the least half-width of the sampled box per coordinate
 INNER = 0.25  # the inner level's largest share of E's, as invariant.INNER
-RULE = (f"where no one-step V exists: V(d_k) <= rho_P^2 V(d_0) + gamma on {SAMPLES} samples uniform in a box of "
+RULE = (f"where no one-step set exists or the plant falsifies it: V(d_k) <= rho_P^2 V(d_0) + gamma on {SAMPLES} "
+        "samples uniform in a box of "
         f"{list(BOX_SCALES)} x the hold's half-width (at least {EXTENT_FLOOR} state-scale units), each run k steps "
         f"of the piecewise-affine model, k in {list(K_STEPS)} (fewest first), 1 - rho_P in {list(RHO_GAPS)}, "
         f"gamma <= {INNER} (1 - rho_P^2), E inside the box and the validity bounds; then the plant test over k steps")
