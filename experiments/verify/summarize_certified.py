@@ -52,6 +52,8 @@ def certificate_part(doc: dict) -> dict:
             "hold_set_certified": bool(h.get("certified")),
             "hold_set_inscribed_radius_si": h.get("inscribed_radius", "") if h.get("certified") else "",
             "hold_set_reason": (h.get("reason") or "")[:160], "hold_set_within_bounds": h.get("within_bounds", ""),
+            "hold_set_k": h.get("k", "") if "P" in h else "", "hold_set_program": h.get("program", ""),
+            "hold_set_extent_si": " ".join(f"{x:.4g}" for x in h.get("extent", [])) if h.get("certified") else "",
             "refused": (doc.get("certify_refused") or "")[:160], **room_part(c if held.get("counted") else {})}
 
 
@@ -123,6 +125,8 @@ def summary(rows: list) -> list:
                     "cert_inscribed_radius_si_median": median([r["cert_inscribed_radius_si"] for r in rs]),
                     "hold_set_applies": sum(r["hold_set_applies"] for r in rs),
                     "hold_set_certified": sum(r["hold_set_certified"] for r in rs),
+                    "hold_set_certified_k_step": sum(r["hold_set_certified"] and r["hold_set_k"] not in ("", 1)
+                                                     for r in rs),
                     "invariant_between_instants": sum(r["between_invariant"] is True for r in rs),
                     "between_peak_linearization_median": median([r["between_peak_linearization"] for r in rs]),
                     "boundary_all_converged": sum(bool(r["boundary_converged"]) and r["boundary_converged"].split("/")[0]
